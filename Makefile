@@ -1,0 +1,44 @@
+# Set-up is part of every target: a fresh clone needs only `make demo` or `make test`.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-stamp
+PACKAGES := protocol firmware_py hil_emulator host bootloader tools
+
+.PHONY: all install test test-fast lint typecheck demo bench docs clean
+
+all: test
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check $(PACKAGES) tests benchmarks
+
+typecheck: $(STAMP)
+	$(VENV)/bin/mypy $(PACKAGES)
+
+## make test: lint, type check, then every test (slow ones included).
+test: lint typecheck
+	$(PY) -m pytest -q
+
+## make test-fast: skip the tests marked slow.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+demo: $(STAMP)
+	$(PY) -m tools.demo
+
+bench: $(STAMP)
+	$(PY) -m benchmarks
+
+docs: $(STAMP)
+	$(PY) -m protocol.docgen > docs/PROTOCOL.md
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,61 @@
+"""``python -m benchmarks`` (``make bench``): run every benchmark, print rates and ratios.
+
+Each ``bench_*`` module exposes ``run(quick) -> list[Result]``.  Ratios compare results of
+the same group measured in this same run, so they hold on any machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+import benchmarks
+from benchmarks.harness import Result
+
+
+def _fmt(rate: float) -> str:
+    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if rate >= scale:
+            return f"{rate / scale:8.2f}{suffix}"
+    return f"{rate:9.1f}"
+
+
+def report(results: list[Result]) -> list[str]:
+    """Table lines: group, name, rate, ratio to baseline, target met."""
+    by_key = {(r.group, r.name): r for r in results}
+    lines = [f"{'group':18s} {'name':34s} {'rate/s':>10s} {'unit':6s} {'vs baseline':>14s}  target"]
+    for r in results:
+        ratio = ""
+        if r.baseline and (r.group, r.baseline) in by_key:
+            base = by_key[(r.group, r.baseline)].rate
+            ratio = f"{r.rate / base:8.1f}× {r.baseline}" if base else ""
+        target = ""
+        if r.target is not None:
+            target = f"{'met' if r.rate >= r.target else 'MISSED'} (≥ {_fmt(r.target).strip()})"
+        lines.append(f"{r.group:18s} {r.name:34s} {_fmt(r.rate):>10s} {r.unit:6s} {ratio:>14s}  "
+                     f"{target}{('  ' + r.note) if r.note else ''}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks")
+    parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("only", nargs="*", help="module names (e.g. bench_framing)")
+    args = parser.parse_args(argv)
+    names = sorted(m.name for m in pkgutil.iter_modules(benchmarks.__path__)
+                   if m.name.startswith("bench_"))
+    if args.only:
+        names = [n for n in names if n in args.only or n.removeprefix("bench_") in args.only]
+    results: list[Result] = []
+    for name in names:
+        module = importlib.import_module(f"benchmarks.{name}")
+        print(f"running {name} …", file=sys.stderr, flush=True)
+        results.extend(module.run(quick=args.quick))
+    print("\n".join(report(results)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

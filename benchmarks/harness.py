@@ -1,0 +1,47 @@
+"""A tiny benchmark harness: rates measured in the same run, reported as ratios.
+
+Every benchmark module exposes ``run(quick: bool) -> list[Result]``; ``python -m benchmarks``
+runs them all and prints a table.  Speed is never asserted by a test: the ratios printed
+here are what a reviewer reads.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Result:
+    """One measured rate.
+
+    ``rate`` is in ``unit`` per second; ``baseline`` names another result of the same group
+    that this one is compared with; ``target`` is a goal in ``unit``/s (None if none).
+    """
+
+    group: str
+    name: str
+    rate: float
+    unit: str
+    baseline: str | None = None
+    target: float | None = None
+    note: str = ""
+
+
+def best_rate(func: Callable[[], int], repeat: int = 5, min_time: float = 0.2) -> float:
+    """Best-of-``repeat`` rate of ``func``, which does some work and returns how many units.
+
+    Each repeat calls ``func`` until at least ``min_time`` seconds (wall clock,
+    ``time.perf_counter``) have passed.  Returns units per second.
+    """
+    best = 0.0
+    for _ in range(repeat):
+        units = 0
+        start = time.perf_counter()
+        elapsed = 0.0
+        while elapsed < min_time:
+            units += func()
+            elapsed = time.perf_counter() - start
+        best = max(best, units / elapsed)
+    return best

@@ -1,0 +1,1 @@
+"""Host-side flashing: images, plans, per-node sessions, batch orchestration."""

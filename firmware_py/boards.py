@@ -1,0 +1,154 @@
+"""The boards of the hand and arm as virtual nodes: peripherals, identity, installed image.
+
+:func:`make_node` gives a powered-off :class:`~firmware_py.mcu.Mcu` on a
+:class:`~firmware_py.virtual_hal.VirtualHal` with the board's UARTs, power switches, motors
+and sensors, its identity programmed, and (optionally) an application image installed and
+activated as a factory would.  Tests use it directly; the emulator wires the same nodes to
+the plant and the buses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
+from firmware_py.hal import Hal
+from firmware_py.identity import IDENTITY_ADDRESS, Identity, default_identity
+from firmware_py.mcu import Mcu, Program, ProgramFactory
+from firmware_py.scheduler import Scheduler
+from firmware_py.virtual_hal import VirtualHal
+from protocol.image import BoardType, make_image, parse_image
+
+#: Application name (in the image header) → "module:Class" of its program.
+APP_PROGRAMS: dict[str, str] = {
+    "palm": "firmware_py.palm:PalmApp",
+    "fmcb": "firmware_py.fmcb:FmcbApp",
+    "f2": "firmware_py.phalange:F2App",
+    "f3": "firmware_py.phalange:F3App",
+}
+BOOTLOADER_PROGRAM = "firmware_py.bootloader:Bootloader"
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A board's peripherals: UART names with baud rates, power switches, motors, sensors."""
+
+    board: BoardType
+    app_name: str
+    uarts: Mapping[str, int]
+    power_switches: tuple[str, ...] = ()
+    motors: int = 0
+    can: bool = False
+    sensors: Mapping[str, int | tuple[int, ...]] = field(default_factory=dict)
+
+
+def _channels(prefix: str, n: int, value: int = 0) -> dict[str, int | tuple[int, ...]]:
+    return {f"{prefix}{i}": value for i in range(n)}
+
+
+_IMU: dict[str, int | tuple[int, ...]] = {"accel": (0, 0, 1000), "mag": (0, 0, 0)}
+
+BOARD_SPECS: dict[BoardType, BoardSpec] = {
+    BoardType.PALM: BoardSpec(
+        BoardType.PALM, "palm",
+        {"host": 2_000_000, "finger0": 2_000_000, "finger1": 2_000_000, "finger2": 2_000_000,
+         "finger3": 2_000_000},
+        power_switches=("finger0", "finger1", "finger2", "finger3"),
+        can=True,
+        sensors={**_IMU, "gyro": (0, 0, 0), **_channels("taxel", 32, 2000),
+                 **_channels("temperature", 7, 250), "supply_mv": 24000},
+    ),
+    BoardType.FMCB: BoardSpec(
+        BoardType.FMCB, "fmcb", {"pogo": 2_000_000, "tendon": 2_000_000},
+        power_switches=("phalange",), motors=3,
+        sensors={**_IMU, **_channels("temperature", 3, 250), "supply_mv": 24000},
+    ),
+    BoardType.F2: BoardSpec(
+        BoardType.F2, "f2", {"tendon": 2_000_000},
+        sensors={**_IMU, **_channels("taxel", 6, 2000), "strain": 0,
+                 **_channels("thermistor", 4, 0)},
+    ),
+    BoardType.F3: BoardSpec(
+        BoardType.F3, "f3", {"tendon": 2_000_000},
+        sensors={**_IMU, **_channels("taxel", 12, 2000), **_channels("thermistor", 4, 2048)},
+    ),
+}
+
+
+def load_program(path: str) -> ProgramFactory:
+    """Import ``"module:Class"`` and return it as a program factory."""
+    module, _, attr = path.partition(":")
+    cls = getattr(importlib.import_module(module), attr)
+    return _factory(cls)
+
+
+def _factory(cls: Callable[..., Program]) -> ProgramFactory:
+    def make(hal: Hal, mcu: Mcu) -> Program:
+        return cls(hal, mcu)
+
+    return make
+
+
+class _LazyApps(dict[str, ProgramFactory]):
+    """Application table that imports a program only when a node first boots it."""
+
+    def __init__(self, table: Mapping[str, str]) -> None:
+        super().__init__()
+        self._table = dict(table)
+
+    def get(self, key: str, default: ProgramFactory | None = None) -> ProgramFactory | None:  # type: ignore[override]
+        if key not in self and key in self._table:
+            self[key] = load_program(self._table[key])
+        return super().get(key, default)
+
+
+def make_hal(scheduler: Scheduler, board: BoardType, identity: Identity | None = None
+             ) -> VirtualHal:
+    """A virtual HAL with the board's peripherals, default sensor values and identity."""
+    spec = BOARD_SPECS[board]
+    hal = VirtualHal(scheduler, uarts=dict(spec.uarts), power_switches=spec.power_switches,
+                     motors=spec.motors, can=spec.can)
+    hal.sensors.values.update(spec.sensors)
+    ident = identity or default_identity(board)
+    hal.flash.load(IDENTITY_ADDRESS, ident.to_bytes())
+    return hal
+
+
+def default_image(board: BoardType, version: str = "1.0.0", timestamp: int = 0) -> bytes:
+    """A valid image for ``board``: its payload is a stand-in whose bytes name the program.
+
+    An emulated MCU runs the firmware_py program named in the header's app name; the
+    payload is what a real build would contain, here deterministic filler of a real size.
+    """
+    spec = BOARD_SPECS[board]
+    seed = f"{spec.app_name}-{version}".encode()
+    payload = b"".join(hashlib.sha256(seed + bytes([i])).digest() for i in range(64))  # 2 KiB
+    return make_image(payload, board, version, spec.app_name, timestamp)
+
+
+def install_image(hal: VirtualHal, image: bytes, activate: bool = True) -> None:
+    """Program an image into flash directly (JTAG) and, with ``activate``, make it bootable."""
+    parsed = parse_image(image)
+    hal.flash.load(page_address(HEADER_PAGE), image)
+    if activate:
+        record = ActivationRecord(parsed.header.sha256).to_page()
+        hal.flash.load(page_address(BOOT_CONTROL_PAGE), record)
+
+
+def make_node(scheduler: Scheduler, board: BoardType, *, image: bytes | None = None,
+              installed: bool = True, uid: int = 0,
+              apps: Mapping[str, ProgramFactory] | None = None,
+              bootloader: ProgramFactory | None = None) -> Mcu:
+    """A powered-off node of ``board`` type.
+
+    With ``installed`` (default) a valid, activated image is in flash (``image`` or
+    :func:`default_image`), so after power-on the bootloader's autoboot starts the app.
+    """
+    hal = make_hal(scheduler, board, default_identity(board, uid))
+    if installed:
+        install_image(hal, image if image is not None else default_image(board))
+    programs = apps if apps is not None else _LazyApps(APP_PROGRAMS)
+    return Mcu(hal, bootloader or load_program(BOOTLOADER_PROGRAM), programs)

@@ -1,0 +1,205 @@
+"""What every hand-protocol program shares: frame decoding, dispatch, replies.
+
+A :class:`HandNode` listens on one or more UARTs with the protocol's stream decoder (10 ms
+inter-frame gap, as the original f2/f3/palm parsers), accepts frames addressed to it or
+broadcast, checks the payload against the catalogue (a wrong length is dropped and counted,
+never acted on), and calls the handler registered for that message.  It answers the common
+messages (ping, reset, hardware version, identify, transaction envelope) itself.
+
+A handler gets a :class:`Request` and returns the reply fields (a dict), ``None`` when the
+message has no reply, or :data:`DEFERRED` when it will call :meth:`Request.respond` later
+(a tunnel or a routed frame waiting for a downstream reply).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from firmware_py.hal import Hal, Uart
+from firmware_py.identity import read_identity
+from protocol.catalogue import REQUEST, Message
+from protocol.errors import ProtocolError
+from protocol.framing import ADDR_BROADCAST, ADDR_HOST, Frame, encode_frame
+from protocol.messages import CATALOGUE, CATALOGUE_HASH
+from protocol.stream import StreamDecoder
+
+#: Returned by a handler that will answer later through :meth:`Request.respond`.
+DEFERRED: Final = object()
+#: Inter-frame gap after which a partial frame is dropped (µs).
+FRAME_GAP_US: Final = 10_000
+
+TXN_OK, TXN_UNKNOWN, TXN_BAD_PAYLOAD, TXN_BUSY, TXN_NO_REPLY, TXN_REFUSED = range(6)
+
+
+@dataclass
+class NodeCounters:
+    """Protocol statistics of a node (counts)."""
+
+    frames: int = 0
+    not_for_me: int = 0
+    unknown_type: int = 0
+    bad_payload: int = 0
+    replies: int = 0
+
+
+@dataclass
+class Request:
+    """A request being handled: its message, fields, frame and where to answer."""
+
+    message: Message
+    fields: dict[str, Any]
+    frame: Frame
+    uart: Uart
+    _send: Callable[[bytes | None, int], None] = field(repr=False)
+
+    def respond(self, reply: dict[str, Any] | bytes | None, status: int = TXN_OK) -> None:
+        """Send the reply now (fields, raw payload, or None for an error status)."""
+        if isinstance(reply, dict):
+            payload: bytes | None = self.message.build_reply(reply)
+        else:
+            payload = reply
+        self._send(payload, status)
+
+
+Handler = Callable[[Request], Any]
+
+
+class HandNode:
+    """Base of every hand-protocol program (applications and the bootloader).
+
+    ``node_kind`` chooses the catalogue section (``"fmcb"``, ``"bootloader"``, …);
+    ``fw_version`` is reported by identify.
+    """
+
+    node_kind: str = "common"
+    fw_version: tuple[int, int, int] = (0, 1, 0)
+    running_code: int = 1  # 1 application, 0 bootloader
+
+    def __init__(self, hal: Hal) -> None:
+        self.hal = hal
+        self.identity = read_identity(hal.flash)
+        self.address = self.identity.address
+        self.counters = NodeCounters()
+        self._handlers: dict[int, Handler] = {}
+        self._decoders: dict[int, StreamDecoder] = {}
+        self.handle("ping", lambda req: {})
+        self.handle("hw_version", lambda req: {"version": self.identity.hw_version})
+        self.handle("identify", self._identify)
+        self.handle("reset", self._reset)
+        self.handle("txn", self._txn)
+
+    # --- wiring ---------------------------------------------------------------------------
+    def listen(self, uart: Uart) -> None:
+        """Decode hand frames arriving on ``uart`` and dispatch them."""
+        decoder = StreamDecoder(gap_s=FRAME_GAP_US / 1e6)
+        self._decoders[id(uart)] = decoder
+
+        def on_bytes(data: bytes, t_us: int) -> None:
+            for frame in decoder.feed(data, t_us / 1e6):
+                self.on_frame(frame, uart)
+
+        uart.set_receiver(on_bytes)
+
+    def handle(self, name: str, handler: Handler) -> None:
+        """Register ``handler`` for the message called ``name``."""
+        msg = CATALOGUE.by_name(name)
+        self._handlers[msg.type_id] = handler
+
+    # --- dispatch -------------------------------------------------------------------------
+    def accepts(self, frame: Frame) -> bool:
+        """True if the frame is for this node (its address or broadcast)."""
+        return frame.address in (self.address, ADDR_BROADCAST)
+
+    def on_frame(self, frame: Frame, uart: Uart) -> None:
+        """A complete, CRC-valid frame arrived on ``uart``."""
+        if not self.accepts(frame):
+            self.counters.not_for_me += 1
+            return
+        self.counters.frames += 1
+        reply_to_broadcast = frame.address != ADDR_BROADCAST
+
+        def send(payload: bytes | None, status: int) -> None:
+            if payload is not None and reply_to_broadcast:
+                self.send_reply(uart, frame.type, payload)
+
+        self.dispatch(frame.type, frame.payload, frame, uart, send)
+
+    def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
+                 send: Callable[[bytes | None, int], None]) -> None:
+        """Decode ``payload`` as message ``msg_type`` and run its handler."""
+        msg = CATALOGUE.lookup(self.node_kind, msg_type)
+        handler = self._handlers.get(msg_type)
+        if msg is None or handler is None or msg.request is None:
+            self.counters.unknown_type += 1
+            send(None, TXN_UNKNOWN)
+            return
+        try:
+            fields = msg.parse(REQUEST, payload)
+        except ProtocolError:
+            self.counters.bad_payload += 1
+            send(None, TXN_BAD_PAYLOAD)
+            return
+        request = Request(msg, fields, frame, uart, send)
+        result = handler(request)
+        if result is DEFERRED:
+            return
+        if result is None or msg.reply is None:
+            return
+        request.respond(result)
+
+    def send_reply(self, uart: Uart, msg_type: int, payload: bytes) -> None:
+        """Send a reply frame to the host address with the request's type."""
+        self.counters.replies += 1
+        uart.send(encode_frame(ADDR_HOST, msg_type, payload))
+
+    # --- common messages ------------------------------------------------------------------
+    def _identify(self, req: Request) -> dict[str, Any]:
+        major, minor, patch = self.fw_version
+        return {
+            "board": self.identity.board,
+            "address": self.address,
+            "running": self.running_code,
+            "hw_version": self.identity.hw_version,
+            "fw_version": {"major": major, "minor": minor, "patch": patch},
+            "catalogue": CATALOGUE_HASH,
+            "uid": self.identity.uid,
+            "uptime_us": self.hal.clock.now_us() & 0xFFFFFFFF,
+        }
+
+    def _reset(self, req: Request) -> None:
+        req.respond({})
+        # Reset after the acknowledgement has left the UART.
+        self.hal.clock.call_later(200, self.hal.reset)
+        return None
+
+    def _txn(self, req: Request) -> Any:
+        seq = req.fields["seq"]
+        inner_type = req.fields["inner_type"]
+        txn = CATALOGUE.by_name("txn")
+
+        answered: list[bool] = []
+
+        def send(payload: bytes | None, status: int) -> None:
+            answered.append(True)
+            req.respond(
+                txn.build_reply(
+                    seq=seq,
+                    board=self.identity.board,
+                    address=self.address,
+                    inner_type=inner_type,
+                    status=status,
+                    inner=payload or b"",
+                )
+            )
+
+        if inner_type == txn.type_id:
+            send(None, TXN_REFUSED)
+            return DEFERRED
+        inner_frame = Frame(req.frame.address, inner_type, req.fields["inner"], req.frame.offset)
+        msg = CATALOGUE.lookup(self.node_kind, inner_type)
+        self.dispatch(inner_type, req.fields["inner"], inner_frame, req.uart, send)
+        if not answered and msg is not None and msg.reply is None:
+            send(b"", TXN_OK)  # messages without replies are acknowledged by the envelope
+        return DEFERRED

@@ -1,0 +1,113 @@
+"""A deterministic discrete-event scheduler: the one simulation clock firmware runs on.
+
+Time is an integer number of microseconds.  Events at the same time run in the order they
+were scheduled, so a run is repeatable.  The emulator owns one scheduler for the whole
+robot; tests make one per firmware under test.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+Callback = Callable[[], None]
+
+
+@dataclass(order=True)
+class _Event:
+    t_us: int
+    seq: int
+    callback: Callback | None = field(compare=False)
+    period_us: int = field(default=0, compare=False)
+
+
+class TimerHandle:
+    """A scheduled callback; :meth:`cancel` stops it (idempotent)."""
+
+    __slots__ = ("_event",)
+
+    def __init__(self, event: _Event) -> None:
+        self._event = event
+
+    def cancel(self) -> None:
+        """Never call the callback again."""
+        self._event.callback = None
+
+    @property
+    def active(self) -> bool:
+        """True until cancelled (or, for a one-shot, until it has run)."""
+        return self._event.callback is not None
+
+    @property
+    def due_us(self) -> int:
+        """When it fires next (µs)."""
+        return self._event.t_us
+
+
+class Scheduler:
+    """Discrete-event scheduler with integer-microsecond time."""
+
+    def __init__(self, start_us: int = 0) -> None:
+        self._now = start_us
+        self._queue: list[_Event] = []
+        self._seq = itertools.count()
+
+    def now_us(self) -> int:
+        """Current simulation time (µs)."""
+        return self._now
+
+    def call_at(self, t_us: int, callback: Callback) -> TimerHandle:
+        """Run ``callback`` at time ``t_us`` (µs; not earlier than now)."""
+        ev = _Event(max(int(t_us), self._now), next(self._seq), callback)
+        heapq.heappush(self._queue, ev)
+        return TimerHandle(ev)
+
+    def call_later(self, delay_us: int, callback: Callback) -> TimerHandle:
+        """Run ``callback`` once, ``delay_us`` µs from now."""
+        return self.call_at(self._now + max(0, int(delay_us)), callback)
+
+    def call_every(self, period_us: int, callback: Callback, first_us: int | None = None
+                   ) -> TimerHandle:
+        """Run ``callback`` every ``period_us`` µs, first after ``first_us`` (default: one period)."""
+        if period_us <= 0:
+            raise ValueError("period must be positive")
+        delay = period_us if first_us is None else first_us
+        ev = _Event(self._now + max(0, int(delay)), next(self._seq), callback, int(period_us))
+        heapq.heappush(self._queue, ev)
+        return TimerHandle(ev)
+
+    def next_due_us(self) -> int | None:
+        """Time of the next pending event, or None."""
+        while self._queue and self._queue[0].callback is None:
+            heapq.heappop(self._queue)
+        return self._queue[0].t_us if self._queue else None
+
+    def run_until(self, t_us: int) -> int:
+        """Run every event due up to and including ``t_us``; then time is ``t_us``.
+
+        Returns the number of callbacks run.
+        """
+        ran = 0
+        queue = self._queue
+        while queue and queue[0].t_us <= t_us:
+            ev = heapq.heappop(queue)
+            cb = ev.callback
+            if cb is None:
+                continue
+            self._now = ev.t_us
+            if ev.period_us:
+                ev.t_us += ev.period_us
+                ev.seq = next(self._seq)
+                heapq.heappush(queue, ev)
+            else:
+                ev.callback = None
+            cb()
+            ran += 1
+        self._now = max(self._now, t_us)
+        return ran
+
+    def run_for(self, duration_us: int) -> int:
+        """Run for ``duration_us`` µs of simulation time."""
+        return self.run_until(self._now + int(duration_us))

@@ -1,0 +1,454 @@
+"""An in-memory HAL on a :class:`~firmware_py.scheduler.Scheduler`: firmware without physics.
+
+Tests drive firmware through it in microseconds; the emulator builds on the same parts and
+replaces the sensor values, motor loads and wires with the plant and the bus fabric.
+Everything a test sets is a plain attribute (``hal.sensors.values["accel"] = (0, 0, 1000)``);
+everything the firmware did is recorded (``uart.sent``, ``motor.duty``, ``flash.writes``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from firmware_py import hal
+from firmware_py.errors import FlashError, HalError
+from firmware_py.scheduler import Scheduler, TimerHandle
+
+#: Bits on the wire per UART character (start, 8 data, stop).
+BITS_PER_CHAR = 10
+#: Time to erase and program one flash page (µs); SAM3S datasheet order of magnitude.
+PAGE_WRITE_US = 2_000
+
+
+class VirtualClock(hal.Clock):
+    """Node-local time on a shared scheduler; ``cancel_all`` stops the node's timers."""
+
+    def __init__(self, scheduler: Scheduler) -> None:
+        self.scheduler = scheduler
+        self.epoch_us = scheduler.now_us()
+        self._timers: list[TimerHandle] = []
+
+    def now_us(self) -> int:
+        return self.scheduler.now_us() - self.epoch_us
+
+    def _track(self, handle: TimerHandle) -> TimerHandle:
+        self._timers = [t for t in self._timers if t.active]
+        self._timers.append(handle)
+        return handle
+
+    def call_later(self, delay_us: int, callback: Callable[[], None]) -> TimerHandle:
+        return self._track(self.scheduler.call_later(delay_us, callback))
+
+    def call_every(self, period_us: int, callback: Callable[[], None]) -> TimerHandle:
+        return self._track(self.scheduler.call_every(period_us, callback))
+
+    def cancel_all(self) -> None:
+        """Cancel every timer the firmware started (reset, power loss)."""
+        for t in self._timers:
+            t.cancel()
+        self._timers.clear()
+
+    def restart(self) -> None:
+        """Power-up: time starts again from zero."""
+        self.cancel_all()
+        self.epoch_us = self.scheduler.now_us()
+
+
+@dataclass
+class SentChunk:
+    """Bytes a UART transmitted: when the first bit left and when the last arrived (µs)."""
+
+    data: bytes
+    start_us: int
+    end_us: int
+
+
+class VirtualUart(hal.Uart):
+    """A UART whose output reaches ``peer`` after the wire time; ``sent`` records it all."""
+
+    def __init__(self, scheduler: Scheduler, baud: int = 2_000_000, name: str = "") -> None:
+        self.scheduler = scheduler
+        self.baud = baud
+        self.name = name
+        self.sent: list[SentChunk] = []
+        self.peer: VirtualUart | None = None
+        self.sink: Callable[[bytes, int], None] | None = None
+        self._receiver: hal.ReceiveCallback | None = None
+        self._line_free_us = 0
+        self.enabled = True
+
+    def wire_time_us(self, n_bytes: int) -> int:
+        """Time ``n_bytes`` occupy the line (µs, rounded up)."""
+        return -(-n_bytes * BITS_PER_CHAR * 1_000_000 // self.baud)
+
+    def send(self, data: bytes) -> None:
+        if not data or not self.enabled:
+            return
+        now = self.scheduler.now_us()
+        start = max(now, self._line_free_us)
+        end = start + self.wire_time_us(len(data))
+        self._line_free_us = end
+        chunk = bytes(data)
+        self.sent.append(SentChunk(chunk, start, end))
+        self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
+
+    def _arrive(self, data: bytes, t_us: int) -> None:
+        if self.sink is not None:
+            self.sink(data, t_us)
+        if self.peer is not None:
+            self.peer.deliver(data)
+
+    def deliver(self, data: bytes) -> None:
+        """Bytes arriving from the line now (what a peer or a test injects)."""
+        if self._receiver is not None and self.enabled:
+            self._receiver(bytes(data), self.scheduler.now_us())
+
+    def set_receiver(self, callback: hal.ReceiveCallback | None) -> None:
+        self._receiver = callback
+
+    @property
+    def tx_busy(self) -> bool:
+        return self.scheduler.now_us() < self._line_free_us
+
+    def take_sent(self) -> list[bytes]:
+        """The chunks sent so far (and forget them)."""
+        out = [c.data for c in self.sent]
+        self.sent.clear()
+        return out
+
+
+def connect(a: VirtualUart, b: VirtualUart) -> None:
+    """Wire two UARTs point to point (full duplex, no collisions)."""
+    a.peer, b.peer = b, a
+
+
+class VirtualCan(hal.CanController):
+    """A CAN controller: ``sent`` records (id, data, time µs); :meth:`deliver` injects."""
+
+    #: Time one 8-byte standard frame occupies a 1 Mbit/s bus, roughly (µs).
+    FRAME_US = 111
+
+    def __init__(self, scheduler: Scheduler) -> None:
+        self.scheduler = scheduler
+        self.sent: list[tuple[int, bytes, int]] = []
+        self.sink: Callable[[int, bytes, int], None] | None = None
+        self._receiver: hal.CanReceiveCallback | None = None
+        self._free_us = 0
+
+    def send(self, arbitration_id: int, data: bytes) -> None:
+        if len(data) > 8:
+            raise HalError(f"a CAN frame carries at most 8 bytes, got {len(data)}")
+        start = max(self.scheduler.now_us(), self._free_us)
+        end = start + self.FRAME_US
+        self._free_us = end
+        frame = (arbitration_id, bytes(data), end)
+        self.sent.append(frame)
+        if self.sink is not None:
+            sink = self.sink
+            self.scheduler.call_at(end, lambda: sink(frame[0], frame[1], end))
+
+    def set_receiver(self, callback: hal.CanReceiveCallback | None) -> None:
+        self._receiver = callback
+
+    def deliver(self, arbitration_id: int, data: bytes) -> None:
+        """A CAN frame arriving now."""
+        if self._receiver is not None:
+            self._receiver(arbitration_id, bytes(data), self.scheduler.now_us())
+
+
+class VirtualPowerSwitch(hal.PowerSwitch):
+    """A power switch; ``on_change`` callbacks power the downstream boards."""
+
+    def __init__(self, load_ma: int = 0) -> None:
+        self._state = 0
+        self.load_ma = load_ma
+        self.on_change: list[Callable[[int], None]] = []
+        self.history: list[int] = []
+
+    def set(self, state: int) -> None:
+        if state not in (0, 1, 2):
+            raise HalError(f"power state {state} is not 0, 1 or 2")
+        if state != self._state:
+            self._state = state
+            self.history.append(state)
+            for cb in list(self.on_change):
+                cb(state)
+
+    @property
+    def state(self) -> int:
+        return self._state
+
+    def current_ma(self) -> int:
+        return self.load_ma if self._state else 0
+
+
+class VirtualFlash(hal.Flash):
+    """Flash memory as a bytearray, erased to 0xFF, with timed page writes and lock bits."""
+
+    def __init__(self, scheduler: Scheduler, page_size: int = 256, page_count: int = 1024,
+                 base_address: int = 0x400000, page_write_us: int = PAGE_WRITE_US) -> None:
+        self.scheduler = scheduler
+        self.page_size = page_size
+        self.page_count = page_count
+        self.base_address = base_address
+        self.page_write_us = page_write_us
+        self.memory = bytearray(b"\xff" * (page_size * page_count))
+        self.locked: set[int] = set()
+        self.writes: list[int] = []
+        self._pending: tuple[int, bytes, TimerHandle] | None = None
+
+    def _offset(self, address: int, length: int) -> int:
+        off = address - self.base_address
+        if off < 0 or length < 0 or off + length > len(self.memory):
+            raise FlashError(f"address 0x{address:x}+{length} is outside flash")
+        return off
+
+    def read(self, address: int, length: int) -> bytes:
+        off = self._offset(address, length)
+        return bytes(self.memory[off : off + length])
+
+    def write_page(self, page: int, data: bytes, done: Callable[[bool], None]) -> None:
+        if not 0 <= page < self.page_count:
+            raise FlashError(f"page {page} is outside 0..{self.page_count - 1}")
+        if len(data) != self.page_size:
+            raise FlashError(f"a page is {self.page_size} bytes, got {len(data)}")
+        if self._pending is not None:
+            raise FlashError("flash is busy")
+        if page in self.locked:
+            self.scheduler.call_later(1, lambda: done(False))
+            return
+        off = page * self.page_size
+        self.memory[off : off + self.page_size] = b"\xff" * self.page_size  # erase
+        payload = bytes(data)
+
+        def finish() -> None:
+            self.memory[off : off + self.page_size] = payload
+            self._pending = None
+            self.writes.append(page)
+            done(True)
+
+        self._pending = (page, payload, self.scheduler.call_later(self.page_write_us, finish))
+
+    @property
+    def busy(self) -> bool:
+        return self._pending is not None
+
+    def lock(self, first_page: int, count: int) -> None:
+        self.locked.update(range(first_page, first_page + count))
+
+    def power_loss(self) -> None:
+        """Power removed: an unfinished write leaves its page half programmed; locks clear."""
+        if self._pending is not None:
+            page, payload, handle = self._pending
+            handle.cancel()
+            off = page * self.page_size
+            half = self.page_size // 2
+            self.memory[off : off + half] = payload[:half]
+            self._pending = None
+        self.locked.clear()
+
+    def load(self, address: int, data: bytes) -> None:
+        """Put bytes into flash directly (factory programming over JTAG)."""
+        off = self._offset(address, len(data))
+        self.memory[off : off + len(data)] = data
+
+
+class VirtualMotor(hal.MotorDriver):
+    """Records the commands; hall state and current are set by the test or the plant."""
+
+    def __init__(self) -> None:
+        self.duty = 0.0
+        self.enabled = False
+        self.brake = False
+        self.hall = 0
+        self.current = 0
+
+    def set_duty(self, duty: float) -> None:
+        self.duty = max(-1.0, min(1.0, float(duty)))
+
+    def set_enabled(self, enabled: bool) -> None:
+        self.enabled = bool(enabled)
+
+    def set_brake(self, brake: bool) -> None:
+        self.brake = bool(brake)
+
+    def hall_state(self) -> int:
+        return self.hall
+
+    def current_ma(self) -> int:
+        return self.current
+
+
+class VirtualStepper(hal.Stepper):
+    """A pulse generator whose counter integrates the commanded rate exactly over time."""
+
+    def __init__(self, scheduler: Scheduler) -> None:
+        self.scheduler = scheduler
+        self.rate = 0.0
+        self.current = 0
+        self._count0 = 0.0
+        self._t0 = scheduler.now_us()
+
+    def _exact(self) -> float:
+        return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
+
+    def set_step_rate(self, steps_per_s: float) -> None:
+        self._count0 = self._exact()
+        self._t0 = self.scheduler.now_us()
+        self.rate = float(steps_per_s)
+
+    def step_count(self) -> int:
+        return int(self._exact())
+
+    def set_current(self, milliamps: int) -> None:
+        self.current = int(milliamps)
+
+
+class VirtualEncoder(hal.Encoder):
+    """An encoder whose count the test (or plant) sets; :meth:`pulse_index` fires the index."""
+
+    def __init__(self) -> None:
+        self.value = 0
+        self._callback: Callable[[int], None] | None = None
+
+    def count(self) -> int:
+        return self.value
+
+    def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
+        self._callback = callback
+
+    def pulse_index(self) -> None:
+        """The index mark passes the reader now."""
+        if self._callback is not None:
+            self._callback(self.value)
+
+
+@dataclass
+class VirtualSensors(hal.Sensors):
+    """Sensor values by channel name, set by the test or the plant."""
+
+    values: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
+
+    def read(self, channel: str) -> int | tuple[int, ...]:
+        try:
+            return self.values[channel]
+        except KeyError:
+            raise HalError(f"this board has no sensor channel {channel!r}") from None
+
+
+class VirtualWatchdog(hal.Watchdog):
+    """Calls ``on_expire`` when not kicked within the timeout."""
+
+    def __init__(self, clock: VirtualClock, on_expire: Callable[[], None]) -> None:
+        self.clock = clock
+        self.on_expire = on_expire
+        self.timeout_us = 0
+        self._timer: TimerHandle | None = None
+        self.expired = 0
+
+    def start(self, timeout_us: int) -> None:
+        self.timeout_us = int(timeout_us)
+        self.kick()
+
+    def kick(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        if self.timeout_us:
+            self._timer = self.clock.call_later(self.timeout_us, self._expire)
+
+    def _expire(self) -> None:
+        self.expired += 1
+        self.on_expire()
+
+
+class VirtualHal(hal.Hal):
+    """A whole board's HAL in memory.
+
+    ``uarts`` and ``power_switches`` name the board's peripherals; ``motors`` and the
+    stepper/encoder are present when asked for.  ``on_reset`` is set by the
+    :class:`~firmware_py.mcu.Mcu` that runs on this HAL.
+    """
+
+    def __init__(
+        self,
+        scheduler: Scheduler,
+        uarts: dict[str, int] | None = None,
+        power_switches: tuple[str, ...] = (),
+        motors: int = 0,
+        stepper: bool = False,
+        encoder: bool = False,
+        can: bool = False,
+    ) -> None:
+        self.scheduler = scheduler
+        self.clock = VirtualClock(scheduler)
+        self.flash = VirtualFlash(scheduler)
+        self.sensors = VirtualSensors()
+        self.uarts = {n: VirtualUart(scheduler, b, n) for n, b in (uarts or {}).items()}
+        self.power_switches = {n: VirtualPowerSwitch() for n in power_switches}
+        self.motors = [VirtualMotor() for _ in range(motors)]
+        self._stepper = VirtualStepper(scheduler) if stepper else None
+        self._encoder = VirtualEncoder() if encoder else None
+        self._can = VirtualCan(scheduler) if can else None
+        self.on_reset: Callable[[], None] | None = None
+        self.watchdog = VirtualWatchdog(self.clock, self.reset)
+        self.resets = 0
+
+    def uart(self, name: str) -> VirtualUart:
+        try:
+            return self.uarts[name]
+        except KeyError:
+            raise HalError(f"this board has no UART {name!r}") from None
+
+    def power(self, name: str) -> VirtualPowerSwitch:
+        try:
+            return self.power_switches[name]
+        except KeyError:
+            raise HalError(f"this board has no power switch {name!r}") from None
+
+    def motor(self, index: int) -> VirtualMotor:
+        if not 0 <= index < len(self.motors):
+            raise HalError(f"this board has no motor {index}")
+        return self.motors[index]
+
+    def can(self) -> VirtualCan:
+        if self._can is None:
+            raise HalError("this board has no CAN controller")
+        return self._can
+
+    def stepper(self) -> VirtualStepper:
+        if self._stepper is None:
+            raise HalError("this board has no stepper")
+        return self._stepper
+
+    def encoder(self) -> VirtualEncoder:
+        if self._encoder is None:
+            raise HalError("this board has no encoder")
+        return self._encoder
+
+    def halt(self, restart_clock: bool) -> None:
+        self.clock.cancel_all()
+        if restart_clock:
+            self.clock.restart()
+        for uart in self.uarts.values():
+            uart.set_receiver(None)
+        for motor in self.motors:
+            motor.set_duty(0.0)
+            motor.set_enabled(False)
+            motor.set_brake(False)
+        if self._stepper is not None:
+            self._stepper.set_step_rate(0.0)
+            self._stepper.set_current(0)
+        if self._encoder is not None:
+            self._encoder.set_index_callback(None)
+        if self._can is not None:
+            self._can.set_receiver(None)
+        self.watchdog.timeout_us = 0
+        if restart_clock:
+            for switch in self.power_switches.values():
+                switch.set(0)
+
+    def reset(self) -> None:
+        self.resets += 1
+        if self.on_reset is not None:
+            self.on_reset()

@@ -1,0 +1,1 @@
+"""Hardware-in-the-loop emulator: MuJoCo plant, bus fabric, virtual serial ports."""

@@ -1,0 +1,1 @@
+"""Host driver library: transports, hand and arm clients."""

@@ -1,0 +1,14 @@
+"""Wire formats of the hand and arm, and nothing else: no I/O.
+
+- :mod:`protocol.framing`, :mod:`protocol.stream`: hand frames and their stream decoder
+- :mod:`protocol.manchester`: the tendon bus line code
+- :mod:`protocol.messages`: the message catalogue (:data:`protocol.messages.CATALOGUE`)
+- :mod:`protocol.canlink`: hand frames on CAN
+- :mod:`protocol.dynamixel`, :mod:`protocol.control_tables`: the arm bus
+- :mod:`protocol.image`: firmware images
+- :mod:`protocol.errors`: the one exception tree (:class:`ProtocolError`)
+"""
+
+from protocol.errors import ProtocolError
+
+__all__ = ["ProtocolError"]

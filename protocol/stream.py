@@ -1,0 +1,172 @@
+"""The hand-frame stream decoder: bytes in (with arrival times), frames out, never a crash.
+
+Built on :func:`protocol.framing.check_frame`.  It survives anything a bus can produce:
+
+- a payload length above ``max_payload`` drops the sync byte and rescans;
+- a CRC failure rescans from the byte after the failed sync byte, so a good frame hidden
+  behind a corrupted one is still found (optionally the rejected candidate is reported);
+- an inter-frame gap longer than ``gap_s`` discards a partial frame (the dissertation's
+  "slightly spaced in time" re-synchronisation);
+- :meth:`StreamDecoder.flush` at the end of a capture rescans what is left, so frames behind
+  a false sync byte that promised more bytes are recovered too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from protocol.framing import (
+    BAD_CRC,
+    BAD_LENGTH,
+    DEFAULT_MAX_PAYLOAD,
+    FRAME,
+    HEADER_SIZE,
+    NEED_MORE,
+    OVERHEAD,
+    SKIP,
+    Frame,
+    check_frame,
+)
+
+
+@dataclass
+class DecoderCounters:
+    """What a decoder has seen since it was made (all counts, bytes in bytes)."""
+
+    frames: int = 0
+    crc_failures: int = 0
+    length_errors: int = 0
+    resyncs: int = 0
+    bytes_in: int = 0
+    bytes_discarded: int = 0
+    gap_discards: int = 0
+    truncated: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters as a plain dict (JSON-ready)."""
+        return asdict(self)
+
+
+class StreamDecoder:
+    """Incremental hand-frame decoder.
+
+    ``max_payload`` bounds the length field (bytes); ``gap_s`` is the inter-frame gap
+    (seconds, in the clock of the ``t`` passed to :meth:`feed`) after which a partial frame
+    is dropped, or None for no gap rule; with ``report_rejected`` the decoder also returns
+    CRC-failed candidates as frames with ``crc_ok=False`` (for capture tools), still
+    rescanning from the byte after their sync.
+    """
+
+    __slots__ = ("_buf", "_base", "_last_t", "counters", "max_payload", "gap_s", "report_rejected")
+
+    def __init__(
+        self,
+        max_payload: int = DEFAULT_MAX_PAYLOAD,
+        gap_s: float | None = 0.010,
+        report_rejected: bool = False,
+    ) -> None:
+        self._buf = bytearray()
+        self._base = 0  # stream offset of _buf[0]
+        self._last_t: float | None = None
+        self.counters = DecoderCounters()
+        self.max_payload = max_payload
+        self.gap_s = gap_s
+        self.report_rejected = report_rejected
+
+    @property
+    def pending(self) -> int:
+        """Bytes held, waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def reset(self) -> None:
+        """Drop any partial frame (counted as discarded bytes)."""
+        self.counters.bytes_discarded += len(self._buf)
+        self._base += len(self._buf)
+        self._buf.clear()
+
+    def feed(self, data: bytes | bytearray, t: float | None = None) -> list[Frame]:
+        """Add ``data`` that arrived at time ``t`` (seconds) and return the frames completed.
+
+        If ``t`` is later than the previous arrival by more than ``gap_s`` while a partial
+        frame is held, that partial frame is discarded first.
+        """
+        if t is not None:
+            if (
+                self.gap_s is not None
+                and self._buf
+                and self._last_t is not None
+                and t - self._last_t > self.gap_s
+            ):
+                self.counters.gap_discards += 1
+                self.reset()
+            self._last_t = t
+        self.counters.bytes_in += len(data)
+        self._buf += data
+        return self._scan(t, final=False)
+
+    def flush(self, t: float | None = None) -> list[Frame]:
+        """End of stream: recover frames behind false syncs and drop the rest."""
+        frames = self._scan(t, final=True)
+        if self._buf:
+            self.counters.truncated += 1
+            self.reset()
+        return frames
+
+    def _scan(self, t: float | None, final: bool) -> list[Frame]:
+        buf = self._buf
+        maxp = self.max_payload
+        counters = self.counters
+        out: list[Frame] = []
+        pos = 0
+        end = len(buf)
+        while pos < end:
+            outcome, n = check_frame(buf, pos, maxp)
+            if outcome == FRAME:
+                ln = n - OVERHEAD
+                out.append(
+                    Frame(buf[pos + 1], buf[pos + 4], bytes(buf[pos + 5 : pos + 5 + ln]),
+                          self._base + pos, True, t)
+                )
+                counters.frames += 1
+                pos += n
+            elif outcome == NEED_MORE:
+                if not final:
+                    break
+                # At end of stream a frame that needs more bytes never completes: treat its
+                # sync byte as false and keep scanning behind it.
+                counters.truncated += 1
+                counters.resyncs += 1
+                counters.bytes_discarded += 1
+                pos += 1
+            elif outcome == SKIP:
+                counters.bytes_discarded += n
+                pos += n
+            else:
+                if outcome == BAD_CRC:
+                    counters.crc_failures += 1
+                    if self.report_rejected:
+                        out.append(self._rejected(pos, t))
+                elif outcome == BAD_LENGTH:
+                    counters.length_errors += 1
+                counters.resyncs += 1
+                counters.bytes_discarded += 1
+                pos += 1
+        if pos:
+            del buf[:pos]
+            self._base += pos
+        return out
+
+    def _rejected(self, pos: int, t: float | None) -> Frame:
+        buf = self._buf
+        ln = buf[pos + 2] | (buf[pos + 3] << 8)
+        payload = bytes(buf[pos + HEADER_SIZE : pos + HEADER_SIZE + ln])
+        return Frame(buf[pos + 1], buf[pos + 4], payload, self._base + pos, False, t)
+
+
+def decode_all(data: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> list[Frame]:
+    """Decode a whole capture at once (feed + flush); convenience for tools and tests."""
+    dec = StreamDecoder(max_payload=max_payload, gap_s=None)
+    return dec.feed(data) + dec.flush()
+
+
+__all__ = ["DecoderCounters", "StreamDecoder", "decode_all", "SKIP", "BAD_LENGTH"]

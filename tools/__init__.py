@@ -1,0 +1,1 @@
+"""Command-line tools: handbus, and the others as they land."""
