@@ -43,6 +43,8 @@ class BoardSpec:
     motors: int = 0
     can: bool = False
     sensors: Mapping[str, int | tuple[int, ...]] = field(default_factory=dict)
+    stepper: bool = False
+    encoder: bool = False
 
 
 def _channels(prefix: str, n: int, value: int = 0) -> dict[str, int | tuple[int, ...]]:
@@ -74,6 +76,18 @@ BOARD_SPECS: dict[BoardType, BoardSpec] = {
     BoardType.F3: BoardSpec(
         BoardType.F3, "f3", {"tendon": 2_000_000},
         sensors={**_IMU, **_channels("taxel", 12, 2000), **_channels("thermistor", 4, 2048)},
+    ),
+    # Arm nodes: Dynamixel protocol 1.0 slaves on one RS-485 bus; they run their application
+    # directly (firmware_py.dynamixel_slave.make_arm_node), with no hand bootloader.
+    # "temperature" is in 0.1 degC, "supply_mv" in mV, "pot" 0..1023 over 300 deg, "load" in
+    # 1/1023 of maximum torque (signed, + = CCW).
+    BoardType.ARM_STEPPER: BoardSpec(
+        BoardType.ARM_STEPPER, "arm_stepper", {"bus": 1_000_000},
+        sensors={"temperature": 250, "supply_mv": 24000}, stepper=True, encoder=True,
+    ),
+    BoardType.RX64: BoardSpec(
+        BoardType.RX64, "rx64", {"bus": 1_000_000}, motors=1,
+        sensors={"pot": 512, "temperature": 250, "supply_mv": 18000, "load": 0},
     ),
 }
 
@@ -110,7 +124,8 @@ def make_hal(scheduler: Scheduler, board: BoardType, identity: Identity | None =
     """A virtual HAL with the board's peripherals, default sensor values and identity."""
     spec = BOARD_SPECS[board]
     hal = VirtualHal(scheduler, uarts=dict(spec.uarts), power_switches=spec.power_switches,
-                     motors=spec.motors, can=spec.can)
+                     motors=spec.motors, can=spec.can, stepper=spec.stepper,
+                     encoder=spec.encoder)
     hal.sensors.values.update(spec.sensors)
     ident = identity or default_identity(board)
     hal.flash.load(IDENTITY_ADDRESS, ident.to_bytes())

@@ -36,7 +36,8 @@ class Mcu:
                  apps: Mapping[str, ProgramFactory]) -> None:
         self.hal = hal
         self._bootloader_factory = bootloader
-        self.apps = dict(apps)
+        # Kept as given (not copied): boards.make_node passes a table that imports lazily.
+        self.apps: Mapping[str, ProgramFactory] = apps
         self.program: Program | None = None
         self.program_name: str | None = None
         self.powered = False

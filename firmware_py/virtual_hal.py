@@ -370,6 +370,11 @@ class VirtualHal(hal.Hal):
     :class:`~firmware_py.mcu.Mcu` that runs on this HAL.
     """
 
+    clock: VirtualClock
+    flash: VirtualFlash
+    sensors: VirtualSensors
+    watchdog: VirtualWatchdog
+
     def __init__(
         self,
         scheduler: Scheduler,

@@ -191,24 +191,64 @@ class Catalogue:
 
 
 def describe_layout(con: c.Construct | None) -> str:
-    """A canonical one-line description of a declaration's fields and sizes."""
+    """A canonical one-line description of a declaration's fields, types and sizes.
+
+    Nested structs, arrays, switch arms and length expressions are described recursively,
+    so any change of a wire format (not only of a top-level size) changes the text.
+    """
     if con is None:
         return "-"
     parts = []
     for name, sub, _docs in iter_fields(con):
-        parts.append(f"{name}:{type(sub).__name__}:{static_size(sub)}")
+        parts.append(f"{name}:{_shape(sub)}:{static_size(sub)}")
     return ",".join(parts)
 
 
+def _unrename(con: c.Construct) -> c.Construct:
+    """Strip the Renamed layers that ``"name" / con * "docs"`` wraps around a construct."""
+    while isinstance(con, c.Renamed):
+        con = con.subcon
+    return con
+
+
+def _expr(value: object) -> str:
+    text = repr(value)
+    return "<callable>" if " at 0x" in text else text
+
+
+def _shape(con: c.Construct) -> str:
+    """Canonical, process-independent description of one construct and what it contains."""
+    con = _unrename(con)
+    kind = type(con).__name__
+    if isinstance(con, c.FormatField):
+        return con.fmtstr
+    if isinstance(con, c.Struct):
+        return kind + "{" + ",".join(f"{n}:{_shape(s)}" for n, s, _ in iter_fields(con)) + "}"
+    if isinstance(con, c.Switch):
+        cases = ",".join(f"{k!r}={_shape(v)}" for k, v in sorted(con.cases.items(), key=repr))
+        return f"{kind}({_expr(con.keyfunc)};{cases};default={_shape(con.default)})"
+    parts = [f"{attr}={_expr(getattr(con, attr))}"
+             for attr in ("count", "length", "encoding", "func", "pattern") if hasattr(con, attr)]
+    for attr in ("lengthfield", "subcon"):
+        sub = getattr(con, attr, None)
+        if isinstance(sub, c.Construct):
+            parts.append(_shape(sub))
+    return f"{kind}({';'.join(parts)})"
+
+
 def iter_fields(con: c.Construct) -> Iterator[tuple[str, c.Construct, str]]:
-    """(name, construct, docs) for each top-level field of a Struct (padding as ``<pad>``)."""
+    """(name, construct, docs) for each top-level field of a Struct (padding as ``<pad>``).
+
+    The construct is the field's own declaration, without the Renamed layers that carry
+    its name and docs.
+    """
     subcons = getattr(con, "subcons", None)
     if subcons is None:
         yield ("<value>", con, getattr(con, "docs", "") or "")
         return
     for sub in subcons:
         name = getattr(sub, "name", None) or "<pad>"
-        yield (name, getattr(sub, "subcon", sub), getattr(sub, "docs", "") or "")
+        yield (name, _unrename(sub), getattr(sub, "docs", "") or "")
 
 
 def static_size(con: c.Construct) -> int | None:

@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import crcmod.predefined
 
-_crc16_xmodem: Callable[[bytes], int] = crcmod.predefined.mkCrcFun("xmodem")
+_crc16_xmodem: Callable[[bytes | bytearray], int] = crcmod.predefined.mkCrcFun("xmodem")
 
 
 def crc16_xmodem(data: bytes | bytearray | memoryview) -> int:
@@ -19,4 +19,4 @@ def crc16_xmodem(data: bytes | bytearray | memoryview) -> int:
 
 
 #: The raw crcmod function (accepts bytes and bytearray), for hot loops.
-crc16_xmodem_fast: Callable[[bytes], int] = _crc16_xmodem
+crc16_xmodem_fast: Callable[[bytes | bytearray], int] = _crc16_xmodem

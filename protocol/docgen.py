@@ -40,9 +40,9 @@ def _type_name(con: c.Construct) -> str:
         return "bytes" + (f"[{con.length}]" if isinstance(con.length, int) else "[length]")
     if con is c.GreedyBytes:
         return "bytes…"
-    if isinstance(con, c.Padding):
+    if isinstance(con, c.Padded):
         return "pad"
-    if isinstance(con, c.StringEncoded) or "PascalString" in repr(con):
+    if isinstance(con, c.StringEncoded):
         return "u8 len + ascii"
     if isinstance(con, c.Switch):
         return "by mode"
@@ -102,7 +102,7 @@ def _control_table_section(table: control_tables.ControlTable) -> list[str]:
     for reg in table.registers:
         out.append(
             f"| {reg.address} | {reg.size} | {reg.access} | {reg.area} | {reg.name} "
-            f"| {reg.default} | {reg.description} |"
+            f"| {reg.default} | {reg.unit} |"
         )
     return out + [""]
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 import construct as c
 
@@ -133,6 +133,26 @@ class Frame:
     crc_ok: bool = True
     t: float | None = None
 
+    def __init__(
+        self,
+        address: int,
+        type: int,  # noqa: A002 - the field's name
+        payload: bytes,
+        offset: int = 0,
+        crc_ok: bool = True,
+        t: float | None = None,
+    ) -> None:
+        # The __init__ a frozen dataclass generates sets each field through
+        # object.__setattr__, which costs more than the rest of decoding a small frame; the
+        # slots' own descriptors store the same values (still frozen afterwards) in a
+        # third of the time.
+        _set_address(self, address)
+        _set_type(self, type)
+        _set_payload(self, payload)
+        _set_offset(self, offset)
+        _set_crc_ok(self, crc_ok)
+        _set_t(self, t)
+
     @property
     def size(self) -> int:
         """Length of the whole frame on the wire, in bytes."""
@@ -141,6 +161,15 @@ class Frame:
     def to_bytes(self) -> bytes:
         """The frame as it goes on the wire (with a freshly computed, correct CRC)."""
         return encode_frame(self.address, self.type, self.payload)
+
+
+_FRAME_SLOTS: Any = Frame
+_set_address = _FRAME_SLOTS.address.__set__
+_set_type = _FRAME_SLOTS.type.__set__
+_set_payload = _FRAME_SLOTS.payload.__set__
+_set_offset = _FRAME_SLOTS.offset.__set__
+_set_crc_ok = _FRAME_SLOTS.crc_ok.__set__
+_set_t = _FRAME_SLOTS.t.__set__
 
 
 def encode_frame(address: int, msg_type: int, payload: bytes = b"") -> bytes:

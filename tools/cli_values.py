@@ -53,6 +53,8 @@ def _is_bytes(con: c.Construct | None) -> bool:
 
 
 def _coerce(con: c.Construct | None, text: str, name: str) -> Any:
+    if isinstance(con, c.StringEncoded):
+        return text  # text fields keep digits as text ("name=123")
     if _is_bytes(con):
         try:
             return bytes.fromhex(text.removeprefix("0x").replace(":", ""))

@@ -200,7 +200,14 @@ def make_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``handbus`` console script."""
     parser = make_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        # argparse stops collecting the positional field=value words at the first option
+        # (``encode NAME --addr 10 mode=2``): take the rest of them too.
+        if args.command == "encode" and all("=" in w and not w.startswith("-") for w in extra):
+            args.fields = [*args.fields, *extra]
+        else:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return int(args.func(args, sys.stdout))
     except (UsageError, FieldValueError) as exc:

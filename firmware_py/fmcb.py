@@ -1,0 +1,537 @@
+"""The finger motor control board (fmcb) application.
+
+Listens for hand frames on the ``pogo`` UART (palm or loose-finger link) at its identity's
+address (10) and runs, all on ``hal.clock`` timers:
+
+- a 1 kHz control tick: hall counting and velocities of the three motors, the phalange-bus
+  breaker check, and the PD law of the current control mode (:mod:`firmware_py.fmcb_control`);
+- the 148-byte status snapshot, refreshed every 5 ms; the motor-module IMU sampled every
+  40 ms; temperatures every 250 ms;
+- the tendon-bus master: with autopoll on, every 10 ms it asks f2 (address 1) then f3
+  (address 2) for their tactile sample, **both in sequence within the 10 ms cycle** (100 Hz
+  each), each with a reply timeout (parameter ``tendon_timeout_us``, 2 ms); once a second
+  the cycle also asks f2 for its strain gauge and f3 for its temperatures.  The bus is
+  half-duplex: a request is only sent when no reply is awaited.  Replies (frames to
+  address 0) are decoded with the tendon bus's own stream decoder and land in the status.
+- the tunnel (0x1f): raw bytes out on the tendon bus, every byte heard during the
+  request's wire time plus ``max_ms`` back to the host; autopoll pauses meanwhile.
+
+Parameters live in flash page 1020 (:mod:`firmware_py.fmcb_params`).  Hall positions are
+reported and controlled relative to the homing offsets (``fmcb.set_home``); ``hall_counts``
+with ``raw=1`` gives the raw counts.  Efforts are clamped by the smallest of: the
+``max_effort`` parameter, the hand-wide cap from the palm (``fmcb.effort_cap``), and in
+modes 4/5 the per-joint cap of joint i applied to motor i.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Final
+
+from firmware_py.flash_layout import PARAM_PAGE
+from firmware_py.fmcb_control import (
+    EFFORT_FULL,
+    HallCounter,
+    clamp_effort,
+    clamp_joints,
+    joint_to_motor,
+    min_cap,
+    motor_to_joint,
+    pd_effort,
+)
+from firmware_py.fmcb_params import ParamTable
+from firmware_py.hal import Hal, Timer
+from firmware_py.hand_node import (
+    DEFERRED,
+    FRAME_GAP_US,
+    TXN_BUSY,
+    TXN_REFUSED,
+    HandNode,
+    Request,
+)
+from protocol.catalogue import Message
+from protocol.errors import ProtocolError
+from protocol.framing import ADDR_F2, ADDR_F3, ADDR_HOST, Frame, encode_frame
+from protocol.messages import CATALOGUE
+from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.stream import StreamDecoder
+
+CONTROL_PERIOD_US: Final = 1_000
+STATUS_PERIOD_US: Final = 5_000
+IMU_PERIOD_US: Final = 40_000
+TEMPERATURE_PERIOD_US: Final = 250_000
+AUTOPOLL_PERIOD_US: Final = 10_000
+#: Autopoll cycles between two slow polls (f2 strain, f3 temperatures): once a second.
+SLOW_POLL_CYCLES: Final = 100
+#: Control ticks over which velocities are measured (10 ms).
+VELOCITY_WINDOW: Final = 10
+#: pb_current while the breaker is tripped.
+PB_TRIPPED: Final = 0xFFFF
+
+MODE_IDLE, MODE_MOTOR, MODE_JOINT, MODE_JOINT_FIXED, MODE_JOINT_EFFORT, MODE_RELATIVE = range(6)
+#: Internal mode after the legacy open-loop command (0x13): the control law stays out.
+MODE_OPEN_LOOP: Final = -1
+
+_FAST_POLLS: Final = ("f2.tactile", "f3.tactile")
+_SLOW_POLLS: Final = ("f2.strain", "f3.temperatures")
+
+
+def _u16(v: int) -> int:
+    return max(0, min(0xFFFF, int(v)))
+
+
+def _i16(v: int) -> int:
+    return max(-0x8000, min(0x7FFF, int(v)))
+
+
+def _i32(v: int) -> int:
+    return max(-0x80000000, min(0x7FFFFFFF, int(v)))
+
+
+@dataclass
+class TendonCounters:
+    """Tendon-bus master statistics (counts)."""
+
+    requests: int = 0
+    replies: int = 0
+    timeouts: int = 0
+    bad_replies: int = 0
+    stray_frames: int = 0
+    overruns: int = 0
+    tunnels: int = 0
+
+
+@dataclass
+class _Pending:
+    """A phalange request on the tendon bus awaiting its reply."""
+
+    message: Message
+    timer: Timer
+
+
+class FmcbApp(HandNode):
+    """The fmcb application on ``hal``; ``mcu`` is the node running it (may be None)."""
+
+    node_kind = "fmcb"
+    fw_version = (1, 0, 0)
+
+    def __init__(self, hal: Hal, mcu: Any = None) -> None:
+        super().__init__(hal)
+        self.mcu = mcu
+        self.params = ParamTable()
+        self.params_valid = self.params.load_page(hal.flash.read_page(PARAM_PAGE))
+        self.pogo = hal.uart("pogo")
+        self.tendon = hal.uart("tendon")
+        self.phalange = hal.power("phalange")
+        self.motors = [hal.motor(i) for i in range(3)]
+        # Motion state.
+        self.hall = [HallCounter() for _ in range(3)]
+        self.offsets = [0, 0, 0]
+        self.velocity = [0.0, 0.0, 0.0]
+        self._history: deque[tuple[int, int, int]] = deque(maxlen=VELOCITY_WINDOW + 1)
+        self.mode = MODE_IDLE
+        self.hall_target = [0, 0, 0]
+        self.joint_caps = [EFFORT_FULL] * 3
+        self.effort_cap = EFFORT_FULL
+        self.effort = [0, 0, 0]
+        # Sensors.
+        self.imu = [0] * 6
+        self.temperatures = [0, 0, 0]
+        self.voltage = 0
+        # Phalange bus.
+        self.breaker_tripped = False
+        self._over_since: int | None = None
+        self._pb_current = 0
+        self.autopoll = False
+        self.tendon_counters = TendonCounters()
+        self._tendon_decoder = StreamDecoder(gap_s=FRAME_GAP_US / 1e6)
+        self._pending: _Pending | None = None
+        self._queue: list[str] = []
+        self._cycles = 0
+        self._tunnel_req: tuple[Request, bytes, int] | None = None
+        self._tunnel_heard: bytearray | None = None
+        self.phalanges: dict[str, Any] = {
+            "pp_time": 0, "dp_time": 0, "pp_tactile": [0] * 6, "dp_tactile": [0] * 12,
+            "pp_imu": [0] * 6, "dp_imu": [0] * 6, "pp_temp": [0] * 4, "dp_temp": [0] * 4,
+            "pp_strain": 0,
+        }
+        self.snapshot: dict[str, Any] = {}
+        self._timers: list[Timer] = []
+        self._register()
+
+    # --- lifecycle ------------------------------------------------------------------------
+    def _register(self) -> None:
+        for name, handler in (
+            ("fmcb.imu", lambda r: {"accel": self.imu[:3], "mag": self.imu[3:]}),
+            ("fmcb.halls", lambda r: {"bits": [m.hall_state() & 7 for m in self.motors]}),
+            ("fmcb.motor_raw", self._on_motor_raw),
+            ("fmcb.hall_counts", self._on_hall_counts),
+            ("fmcb.param_count", lambda r: {"count": len(self.params)}),
+            ("fmcb.param_name", lambda r: {"name": self.params.name(r.fields["index"])}),
+            ("fmcb.param_get", lambda r: {"value": self.params.get_bits(r.fields["index"])}),
+            ("fmcb.param_set", self._on_param_set),
+            ("fmcb.param_commit", self._on_param_commit),
+            ("fmcb.param_reload", self._on_param_reload),
+            ("fmcb.param_defaults", self._on_param_defaults),
+            ("fmcb.control", self._on_control),
+            ("fmcb.phalange_power", self._on_phalange_power),
+            ("fmcb.tunnel", self._on_tunnel),
+            ("fmcb.autopoll", self._on_autopoll),
+            ("fmcb.status", lambda r: self.snapshot),
+            ("fmcb.temperatures", lambda r: {"temp": list(self.temperatures)}),
+            ("fmcb.effort_cap", self._on_effort_cap),
+            ("fmcb.set_home", self._on_set_home),
+        ):
+            self.handle(name, handler)
+
+    def start(self) -> None:
+        """Begin: listen on pogo, master the tendon bus, start the timers."""
+        self.listen(self.pogo)
+        self.tendon.set_receiver(self._on_tendon_bytes)
+        for m in self.motors:
+            m.set_duty(0.0)
+            m.set_enabled(False)
+            m.set_brake(False)
+        self._control_tick()
+        self._sample_imu()
+        self._sample_temperatures()
+        self._refresh_status()
+        clock = self.hal.clock
+        self._timers = [
+            clock.call_every(CONTROL_PERIOD_US, self._control_tick),
+            clock.call_every(STATUS_PERIOD_US, self._refresh_status),
+            clock.call_every(IMU_PERIOD_US, self._sample_imu),
+            clock.call_every(TEMPERATURE_PERIOD_US, self._sample_temperatures),
+            clock.call_every(AUTOPOLL_PERIOD_US, self._autopoll_cycle),
+        ]
+
+    # --- sensors and status ---------------------------------------------------------------
+    def _read(self, channel: str, default: int | tuple[int, ...]) -> int | tuple[int, ...]:
+        try:
+            return self.hal.sensors.read(channel)
+        except LookupError:
+            return default
+
+    def _sample_imu(self) -> None:
+        accel = self._read("accel", (0, 0, 0))
+        mag = self._read("mag", (0, 0, 0))
+        if isinstance(accel, tuple) and isinstance(mag, tuple):
+            self.imu = [_i16(v) for v in (*accel[:3], *mag[:3])]
+
+    def _sample_temperatures(self) -> None:
+        temps = []
+        for i in range(3):
+            v = self._read(f"temperature{i}", 0)
+            temps.append(_u16(v) if isinstance(v, int) else 0)
+        self.temperatures = temps
+
+    @property
+    def hall_pos(self) -> list[int]:
+        """Motor positions relative to the homing offsets (hall counts)."""
+        return [h.count - o for h, o in zip(self.hall, self.offsets, strict=True)]
+
+    @property
+    def pb_current(self) -> int:
+        """Phalange-bus current as reported (mA); 0xFFFF while the breaker is tripped."""
+        return PB_TRIPPED if self.breaker_tripped else _u16(min(self._pb_current, 0xFFFE))
+
+    def _refresh_status(self) -> None:
+        supply = self._read("supply_mv", 0)
+        self.voltage = _u16(supply) if isinstance(supply, int) else 0
+        ph = self.phalanges
+        self.snapshot = {
+            "pp_time": ph["pp_time"], "dp_time": ph["dp_time"],
+            "fmcb_time": self.hal.clock.now_us() & 0xFFFFFFFF,
+            "pp_tactile": list(ph["pp_tactile"]), "dp_tactile": list(ph["dp_tactile"]),
+            "pp_imu": list(ph["pp_imu"]), "dp_imu": list(ph["dp_imu"]),
+            "fmcb_imu": list(self.imu),
+            "pp_temp": list(ph["pp_temp"]), "dp_temp": list(ph["dp_temp"]),
+            "fmcb_temp": list(self.temperatures),
+            "voltage": self.voltage, "pb_current": self.pb_current,
+            "pp_strain": ph["pp_strain"],
+            "hall_tgt": [_i32(v) for v in self.hall_target],
+            "hall_pos": [_i32(v) for v in self.hall_pos],
+            "effort": [_i16(v) for v in self.effort],
+        }
+
+    # --- control --------------------------------------------------------------------------
+    def _control_tick(self) -> None:
+        """The 1 kHz tick: halls, velocities, breaker, control law."""
+        h, m = self.hall, self.motors
+        counts = (h[0].update(m[0].hall_state()), h[1].update(m[1].hall_state()),
+                  h[2].update(m[2].hall_state()))
+        hist = self._history
+        hist.append(counts)
+        if len(hist) > 1:
+            span_s = (len(hist) - 1) * CONTROL_PERIOD_US / 1e6
+            self.velocity = [(counts[i] - hist[0][i]) / span_s for i in range(3)]
+        self._check_breaker()
+        if self.mode == MODE_IDLE:
+            self.hall_target = self.hall_pos  # targets follow the pose: no jump on resume
+            return
+        if self.mode == MODE_OPEN_LOOP:
+            return
+        p = self.params
+        kp, kd, deadband = float(p["kp"]), float(p["kd"]), float(p["deadband"])
+        pos = self.hall_pos
+        for i, motor in enumerate(self.motors):
+            cap = min_cap(int(p["max_effort"]), self.effort_cap, self.joint_caps[i])
+            e = pd_effort(self.hall_target[i] - pos[i], self.velocity[i], kp, kd, deadband, cap)
+            self.effort[i] = e
+            motor.set_enabled(True)
+            motor.set_duty(e / EFFORT_FULL)
+
+    def _set_idle(self) -> None:
+        self.mode = MODE_IDLE
+        self.effort = [0, 0, 0]
+        for m in self.motors:
+            m.set_duty(0.0)
+            m.set_enabled(False)
+        self.hall_target = self.hall_pos
+
+    def _joint_limits(self) -> tuple[list[float], list[float]]:
+        p = self.params
+        lower = [float(p[f"joint_lower_{j}"]) for j in range(3)]
+        upper = [float(p[f"joint_upper_{j}"]) for j in range(3)]
+        return lower, upper
+
+    def _set_joint_target(self, q: list[float]) -> bool:
+        if not all(math.isfinite(v) for v in q):
+            return False
+        lower, upper = self._joint_limits()
+        m = joint_to_motor(clamp_joints(q, lower, upper))
+        self.hall_target = [_i32(round(v)) for v in m]
+        return True
+
+    def _on_control(self, req: Request) -> None:
+        mode = req.fields["mode"]
+        args = req.fields["args"]
+        if mode == MODE_IDLE:
+            self._set_idle()
+            self.joint_caps = [EFFORT_FULL] * 3
+            return None
+        caps = [EFFORT_FULL] * 3
+        if mode == MODE_MOTOR:
+            self.hall_target = [int(v) for v in args["hall_target"]]
+        elif mode in (MODE_JOINT, MODE_JOINT_FIXED, MODE_JOINT_EFFORT, MODE_RELATIVE):
+            scale = 1e-4 if mode == MODE_JOINT_FIXED else 1.0
+            q = [float(v) * scale for v in args["target"]]
+            if mode == MODE_RELATIVE:
+                base = motor_to_joint(self.hall_target)
+                q = [b + d for b, d in zip(base, q, strict=True)]
+            if not self._set_joint_target(q):
+                return None  # non-finite target: ignored, no motor change
+            if mode in (MODE_JOINT_EFFORT, MODE_RELATIVE):
+                caps = [int(v) for v in args["max_effort"]]
+        else:  # pragma: no cover - the catalogue rejects other modes
+            return None
+        self.joint_caps = caps
+        self.mode = mode
+        return None
+
+    def _on_effort_cap(self, req: Request) -> None:
+        self.effort_cap = int(req.fields["cap"])
+        return None
+
+    def _on_motor_raw(self, req: Request) -> dict[str, Any]:
+        f = req.fields
+        self.mode = MODE_OPEN_LOOP
+        cap = min_cap(int(self.params["max_effort"]), self.effort_cap)
+        for i, motor in enumerate(self.motors):
+            enabled = bool(f["enable"] >> i & 1)
+            sign = -1 if f["direction"] >> i & 1 else 1
+            e = clamp_effort(sign * f["duty"][i], cap) if enabled else 0
+            self.effort[i] = e
+            motor.set_enabled(enabled)
+            motor.set_brake(bool(f["brake"] >> i & 1))
+            motor.set_duty(e / EFFORT_FULL)
+        return {"counts": [_i32(h.count) for h in self.hall]}
+
+    def _on_hall_counts(self, req: Request) -> dict[str, Any]:
+        counts = [h.count for h in self.hall] if req.fields["raw"] else self.hall_pos
+        return {"counts": [_i32(v) for v in counts],
+                "velocity": [_i32(round(v)) for v in self.velocity]}
+
+    def _on_set_home(self, req: Request) -> dict[str, Any]:
+        self.offsets = [int(v) for v in req.fields["offset"]]
+        self.hall_target = self.hall_pos  # hold the pose under the new zero
+        return {}
+
+    # --- parameters -----------------------------------------------------------------------
+    def _on_param_set(self, req: Request) -> dict[str, Any]:
+        self.params.set_bits(req.fields["index"], req.fields["value"])
+        return {}
+
+    def _on_param_commit(self, req: Request) -> Any:
+        flash = self.hal.flash
+        if flash.busy:
+            req.respond(None, TXN_BUSY)
+            return DEFERRED
+
+        def done(ok: bool) -> None:
+            if ok:
+                req.respond({})
+            else:
+                req.respond(None, TXN_REFUSED)
+
+        flash.write_page(PARAM_PAGE, self.params.to_page(), done)
+        return DEFERRED
+
+    def _on_param_reload(self, req: Request) -> dict[str, Any]:
+        self.params_valid = self.params.load_page(self.hal.flash.read_page(PARAM_PAGE))
+        return {}
+
+    def _on_param_defaults(self, req: Request) -> dict[str, Any]:
+        self.params.restore_defaults()
+        return {}
+
+    # --- phalange power and breaker -------------------------------------------------------
+    def _on_phalange_power(self, req: Request) -> dict[str, Any]:
+        if req.fields["on"] & 1:
+            self.breaker_tripped = False
+            self._over_since = None
+            self.phalange.set(2)
+        else:
+            self.phalange.set(0)
+            self._abort_polls()
+        return {}
+
+    def _check_breaker(self) -> None:
+        if not self.phalange.state:
+            self._pb_current = 0
+            self._over_since = None
+            return
+        ma = self.phalange.current_ma()
+        self._pb_current = ma
+        if ma <= int(self.params["breaker_ma"]):
+            self._over_since = None
+            return
+        now = self.hal.clock.now_us()
+        if self._over_since is None:
+            self._over_since = now
+        elif now - self._over_since > int(self.params["breaker_ms"]) * 1000:
+            self.breaker_tripped = True
+            self._over_since = None
+            self.phalange.set(0)
+            self._abort_polls()
+
+    # --- tendon bus master ----------------------------------------------------------------
+    def _on_autopoll(self, req: Request) -> dict[str, Any]:
+        self.autopoll = bool(req.fields["on"] & 1)
+        if not self.autopoll:
+            self._queue.clear()
+        return {}
+
+    def _autopoll_cycle(self) -> None:
+        """Every 10 ms: queue this cycle's phalange requests and start the first."""
+        self._cycles += 1
+        if not self.autopoll or not self.phalange.state or self._tunnel_req is not None:
+            return
+        if self._pending is not None or self._queue:
+            self.tendon_counters.overruns += 1
+            return
+        self._queue = list(_FAST_POLLS)
+        if self._cycles % SLOW_POLL_CYCLES == 0:
+            self._queue += _SLOW_POLLS
+        self._next_on_bus()
+
+    def _abort_polls(self) -> None:
+        self._queue.clear()
+        if self._pending is not None:
+            self._pending.timer.cancel()
+            self._pending = None
+            self._next_on_bus()
+
+    def _next_on_bus(self) -> None:
+        """The bus is free: start the waiting tunnel, else the next queued request."""
+        if self._pending is not None or self._tunnel_heard is not None:
+            return
+        if self._tunnel_req is not None:
+            self._start_tunnel()
+            return
+        if self._queue:
+            self._send_request(CATALOGUE[self._queue.pop(0)])
+
+    def _send_request(self, msg: Message) -> None:
+        address = ADDR_F2 if msg.node == "f2" else ADDR_F3
+        data = encode_frame(address, msg.type_id, msg.build_request({}))
+        timeout = self._wire_us(len(data)) + int(self.params["tendon_timeout_us"])
+        self._pending = _Pending(msg, self.hal.clock.call_later(timeout, self._on_timeout))
+        self.tendon_counters.requests += 1
+        self.tendon.send(data)
+
+    def _wire_us(self, n_bytes: int) -> int:
+        return -(-n_bytes * 10 * 1_000_000 // int(self.tendon.baud))
+
+    def _on_timeout(self) -> None:
+        self.tendon_counters.timeouts += 1
+        self._pending = None
+        self._next_on_bus()
+
+    def _on_tendon_bytes(self, data: bytes, t_us: int) -> None:
+        if self._tunnel_heard is not None:
+            room = TUNNEL_MAX - len(self._tunnel_heard)
+            self._tunnel_heard += data[:max(0, room)]
+            return
+        for frame in self._tendon_decoder.feed(data, t_us / 1e6):
+            self._on_tendon_frame(frame)
+
+    def _on_tendon_frame(self, frame: Frame) -> None:
+        pending = self._pending
+        if frame.address != ADDR_HOST or pending is None or frame.type != pending.message.type_id:
+            self.tendon_counters.stray_frames += 1
+            return
+        pending.timer.cancel()
+        self._pending = None
+        try:
+            fields = pending.message.parse_reply(frame.payload)
+        except ProtocolError:
+            self.tendon_counters.bad_replies += 1
+        else:
+            self.tendon_counters.replies += 1
+            self._store_reply(pending.message.name, fields)
+        self._next_on_bus()
+
+    def _store_reply(self, name: str, fields: dict[str, Any]) -> None:
+        ph = self.phalanges
+        now = self.hal.clock.now_us() & 0xFFFFFFFF
+        prefix = "pp" if name.startswith("f2.") else "dp"
+        if name.endswith(".tactile"):
+            ph[f"{prefix}_tactile"] = [_u16(v) for v in fields["taxels"]]
+            ph[f"{prefix}_imu"] = [_i16(v) for v in (*fields["imu"]["accel"],
+                                                     *fields["imu"]["mag"])]
+            ph[f"{prefix}_time"] = now
+        elif name.endswith(".temperatures"):
+            ph[f"{prefix}_temp"] = [_u16(v) for v in fields["temp"]]
+        elif name == "f2.strain":
+            ph["pp_strain"] = int(fields["strain"])
+
+    # --- tunnel ---------------------------------------------------------------------------
+    def _on_tunnel(self, req: Request) -> Any:
+        if self._tunnel_req is not None:
+            req.respond(None, TXN_BUSY)
+            return DEFERRED
+        self._tunnel_req = (req, bytes(req.fields["data"]), int(req.fields["max_ms"]))
+        self._queue.clear()  # autopoll pauses; a request in flight finishes first
+        self._next_on_bus()
+        return DEFERRED
+
+    def _start_tunnel(self) -> None:
+        assert self._tunnel_req is not None
+        _req, data, max_ms = self._tunnel_req
+        self.tendon_counters.tunnels += 1
+        self._tunnel_heard = bytearray()
+        self.tendon.send(data)
+        self.hal.clock.call_later(self._wire_us(len(data)) + max_ms * 1000, self._finish_tunnel)
+
+    def _finish_tunnel(self) -> None:
+        assert self._tunnel_req is not None and self._tunnel_heard is not None
+        req = self._tunnel_req[0]
+        heard = bytes(self._tunnel_heard)
+        self._tunnel_req = None
+        self._tunnel_heard = None
+        self._tendon_decoder.reset()
+        req.respond({"data": heard})
+        self._next_on_bus()

@@ -1,0 +1,367 @@
+"""Control tables as data: the RX-64's and this project's arm stepper node's.
+
+A control table is the byte image a Dynamixel-style node exposes to READ and WRITE: EEPROM
+registers (kept across power cycles) from address 0, RAM registers from 24.  Multi-byte
+registers are little-endian.  :class:`ControlTable` checks and applies host reads and writes
+against an image (a ``bytearray`` the firmware model owns); a rejected write raises
+:class:`RegisterRangeError` or :class:`RegisterAccessError` and leaves the image untouched,
+and the firmware turns :attr:`~RegisterError.error_bit` into the status packet's error byte.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from enum import IntFlag
+from typing import Literal
+
+from protocol.dynamixel import ErrorBit
+from protocol.errors import DynamixelError
+
+Access = Literal["R", "RW"]
+Area = Literal["EEPROM", "RAM"]
+
+#: First RAM address in every table here (as on every protocol 1.0 Dynamixel).
+RAM_START = 24
+
+
+class RegisterError(DynamixelError):
+    """A control-table read or write is not allowed; ``error_bit`` is the status error bit a
+    servo reports for it."""
+
+    error_bit: ErrorBit = ErrorBit.RANGE
+
+
+class RegisterRangeError(RegisterError):
+    """Address range outside the table, a write into a gap, or a value outside its register's
+    limits (status error bit RANGE)."""
+
+    error_bit = ErrorBit.RANGE
+
+
+class RegisterAccessError(RegisterError):
+    """A write touches a read-only register (status error bit INSTRUCTION)."""
+
+    error_bit = ErrorBit.INSTRUCTION
+
+
+@dataclass(frozen=True)
+class Register:
+    """One register: ``size`` bytes (1, 2 or 4, little-endian) at ``address``.
+
+    ``unit`` describes the value and its unit; ``minimum``/``maximum`` (inclusive) bound what a
+    host may write (None: anything the encoding holds).  ``signed`` registers are two's
+    complement.
+    """
+
+    address: int
+    size: int
+    access: Access
+    default: int
+    name: str
+    area: Area
+    unit: str
+    signed: bool = False
+    minimum: int | None = None
+    maximum: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.size not in (1, 2, 4):
+            raise DynamixelError(f"register {self.name}: size {self.size} is not 1, 2 or 4")
+        if not 0 <= self.address <= 0xFF - self.size + 1:
+            raise DynamixelError(f"register {self.name}: address {self.address} out of 0..255")
+        if self.access not in ("R", "RW") or self.area not in ("EEPROM", "RAM"):
+            raise DynamixelError(f"register {self.name}: bad access {self.access!r}/{self.area!r}")
+        self.check(self.default)
+
+    @property
+    def end(self) -> int:
+        """One past the register's last address."""
+        return self.address + self.size
+
+    @property
+    def writable(self) -> bool:
+        return self.access == "RW"
+
+    @property
+    def encodable(self) -> tuple[int, int]:
+        """Smallest and largest value the register's bytes can hold."""
+        bits = 8 * self.size
+        return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if self.signed else (0, (1 << bits) - 1)
+
+    def check(self, value: int, limits: bool = True) -> None:
+        """Raise :class:`RegisterRangeError` unless ``value`` fits (and, with ``limits``, is
+        within ``minimum``..``maximum``)."""
+        low, high = self.encodable
+        if limits:
+            low = low if self.minimum is None else max(low, self.minimum)
+            high = high if self.maximum is None else min(high, self.maximum)
+        if not low <= value <= high:
+            raise RegisterRangeError(f"{self.name} = {value} is outside {low}..{high}")
+
+    def encode(self, value: int) -> bytes:
+        """The register's little-endian bytes for ``value`` (encoding range checked only)."""
+        self.check(value, limits=False)
+        return int(value).to_bytes(self.size, "little", signed=self.signed)
+
+    def decode(self, data: bytes | bytearray) -> int:
+        """The value of the register's ``size`` little-endian bytes."""
+        return int.from_bytes(data, "little", signed=self.signed)
+
+
+class ControlTable:
+    """A model's registers, with lookups and checked access to an image of the table.
+
+    Registers may leave gaps (reserved addresses: read as 0, not writable) but never overlap.
+    """
+
+    def __init__(self, name: str, model_number: int, registers: Iterable[Register]) -> None:
+        self.name = name
+        self.model_number = model_number
+        self.registers: tuple[Register, ...] = tuple(sorted(registers, key=lambda r: r.address))
+        if not self.registers:
+            raise DynamixelError(f"control table {name}: no registers")
+        #: Table size in bytes (one past the last register).
+        self.size: int = max(r.end for r in self.registers)
+        self._by_name: dict[str, Register] = {}
+        self._owner: list[Register | None] = [None] * self.size
+        for reg in self.registers:
+            if reg.name in self._by_name:
+                raise DynamixelError(f"control table {name}: register name {reg.name} twice")
+            self._by_name[reg.name] = reg
+            for address in range(reg.address, reg.end):
+                other = self._owner[address]
+                if other is not None:
+                    raise DynamixelError(
+                        f"control table {name}: {reg.name} overlaps {other.name} at {address}"
+                    )
+                self._owner[address] = reg
+        model = self._by_name.get("model_number")
+        if model is None or model.address != 0 or model.default != model_number:
+            raise DynamixelError(f"control table {name}: needs model_number {model_number} at 0")
+
+    def __repr__(self) -> str:
+        return f"ControlTable({self.name!r}, model {self.model_number}, {self.size} bytes)"
+
+    def __iter__(self) -> Iterator[Register]:
+        return iter(self.registers)
+
+    def __len__(self) -> int:
+        return len(self.registers)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._by_name
+
+    def __getitem__(self, name: str) -> Register:
+        """The register called ``name`` (KeyError if none)."""
+        return self._by_name[name]
+
+    def at(self, address: int) -> Register | None:
+        """The register starting at ``address``, or None."""
+        reg = self.covering(address)
+        return reg if reg is not None and reg.address == address else None
+
+    def covering(self, address: int) -> Register | None:
+        """The register holding the byte at ``address``, or None (gap or outside the table)."""
+        return self._owner[address] if 0 <= address < self.size else None
+
+    def defaults(self) -> bytearray:
+        """A fresh image of the whole table holding every register's default (gaps are 0)."""
+        image = bytearray(self.size)
+        for reg in self.registers:
+            image[reg.address : reg.end] = reg.encode(reg.default)
+        return image
+
+    def _check_span(self, image: bytearray | bytes, address: int, length: int) -> None:
+        if len(image) != self.size:
+            raise DynamixelError(f"{self.name}: image is {len(image)} bytes, table {self.size}")
+        if length < 1 or address < 0 or address + length > self.size:
+            raise RegisterRangeError(
+                f"{self.name}: {length} bytes at {address} outside the table (0..{self.size - 1})"
+            )
+
+    def read(self, image: bytearray | bytes, address: int, length: int) -> bytes:
+        """``length`` bytes of ``image`` from ``address`` (gaps included); a range not inside
+        the table raises :class:`RegisterRangeError`."""
+        self._check_span(image, address, length)
+        return bytes(image[address : address + length])
+
+    def write(self, image: bytearray, address: int, data: bytes) -> list[Register]:
+        """Write ``data`` at ``address`` as a host WRITE would; return the registers touched.
+
+        All or nothing: raises :class:`RegisterRangeError` (range outside the table, a byte in a
+        gap, or a resulting register value outside its limits) or
+        :class:`RegisterAccessError` (a read-only register touched) before changing ``image``.
+        Writing part of a multi-byte register is allowed; its resulting value is checked.
+        """
+        self._check_span(image, address, len(data))
+        touched: list[Register] = []
+        for offset in range(address, address + len(data)):
+            reg = self._owner[offset]
+            if reg is None:
+                raise RegisterRangeError(f"{self.name}: address {offset} is not a register")
+            if not touched or touched[-1] is not reg:
+                touched.append(reg)
+        for reg in touched:
+            if not reg.writable:
+                raise RegisterAccessError(f"{self.name}: {reg.name} ({reg.address}) is read-only")
+        after = bytearray(image)
+        after[address : address + len(data)] = data
+        for reg in touched:
+            reg.check(reg.decode(after[reg.address : reg.end]))
+        image[address : address + len(data)] = data
+        return touched
+
+    def value(self, image: bytearray | bytes, name: str) -> int:
+        """The value of register ``name`` in ``image``."""
+        reg = self._by_name[name]
+        return reg.decode(image[reg.address : reg.end])
+
+    def set_value(self, image: bytearray, name: str, value: int) -> None:
+        """Store ``value`` in register ``name`` of ``image`` - the node's own access: read-only
+        registers and limits are not enforced, only that the value fits the register."""
+        reg = self._by_name[name]
+        image[reg.address : reg.end] = reg.encode(value)
+
+    def values(self, image: bytearray | bytes) -> dict[str, int]:
+        """Every register's value, by name (for logs and tests)."""
+        return {reg.name: reg.decode(image[reg.address : reg.end]) for reg in self.registers}
+
+
+def _eeprom(address: int, size: int, access: Access, default: int, name: str, unit: str,
+            minimum: int | None = None, maximum: int | None = None,
+            signed: bool = False) -> Register:
+    return Register(address, size, access, default, name, "EEPROM", unit, signed, minimum, maximum)
+
+
+def _ram(address: int, size: int, access: Access, default: int, name: str, unit: str,
+         minimum: int | None = None, maximum: int | None = None, signed: bool = False) -> Register:
+    return Register(address, size, access, default, name, "RAM", unit, signed, minimum, maximum)
+
+
+_ALARM = "error bits (ErrorBit: 0x01 voltage .. 0x40 instruction)"
+
+#: ROBOTIS RX-64 (model 64), protocol 1.0, from the e-Manual.  Limits are given only where
+#: the reference states them (IDs, baud, flags, 10-bit values).  ``goal_position`` and
+#: ``torque_limit`` defaults are placeholders: a real servo copies present position and max
+#: torque into them at power-up.  The firmware version is not documented; 0 here.
+RX64_TABLE = ControlTable("RX-64", 64, [
+    _eeprom(0, 2, "R", 64, "model_number", "model number"),
+    _eeprom(2, 1, "R", 0, "firmware_version", "firmware version"),
+    _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
+    _eeprom(4, 1, "RW", 34, "baud_rate", "bps = 2 000 000 / (value + 1)", 0, 254),
+    _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
+    _eeprom(6, 2, "RW", 0, "cw_angle_limit", "position units (0.29 deg)", 0, 1023),
+    _eeprom(8, 2, "RW", 1023, "ccw_angle_limit", "position units (0.29 deg)", 0, 1023),
+    _eeprom(11, 1, "RW", 80, "temperature_limit", "deg C"),
+    _eeprom(12, 1, "RW", 60, "min_voltage_limit", "0.1 V"),
+    _eeprom(13, 1, "RW", 190, "max_voltage_limit", "0.1 V"),
+    _eeprom(14, 2, "RW", 1023, "max_torque", "1/1023 of maximum torque", 0, 1023),
+    _eeprom(16, 1, "RW", 2, "status_return_level", "0 ping only, 1 reads, 2 all", 0, 2),
+    _eeprom(17, 1, "RW", 36, "alarm_led", _ALARM, 0, 127),
+    _eeprom(18, 1, "RW", 36, "alarm_shutdown", _ALARM + "; torque off on these", 0, 127),
+    _ram(24, 1, "RW", 0, "torque_enable", "0 off, 1 on", 0, 1),
+    _ram(25, 1, "RW", 0, "led", "0 off, 1 on", 0, 1),
+    _ram(26, 1, "RW", 1, "cw_compliance_margin", "position units"),
+    _ram(27, 1, "RW", 1, "ccw_compliance_margin", "position units"),
+    _ram(28, 1, "RW", 32, "cw_compliance_slope", "position units"),
+    _ram(29, 1, "RW", 32, "ccw_compliance_slope", "position units"),
+    _ram(30, 2, "RW", 0, "goal_position", "0..1023 over 300 deg (0.29 deg/unit)", 0, 1023),
+    _ram(32, 2, "RW", 0, "moving_speed", "0.111 rpm/unit, 0 = maximum", 0, 1023),
+    _ram(34, 2, "RW", 1023, "torque_limit", "1/1023 of maximum torque", 0, 1023),
+    _ram(36, 2, "R", 0, "present_position", "0..1023 over 300 deg"),
+    _ram(38, 2, "R", 0, "present_speed", "0.111 rpm/unit, bit 10 = CW"),
+    _ram(40, 2, "R", 0, "present_load", "1/1023 of max torque, bit 10 = CW"),
+    _ram(42, 1, "R", 0, "present_voltage", "0.1 V"),
+    _ram(43, 1, "R", 0, "present_temperature", "deg C"),
+    _ram(44, 1, "R", 0, "registered", "1 = a REG_WRITE awaits ACTION"),
+    _ram(46, 1, "R", 0, "moving", "1 = moving"),
+    _ram(47, 1, "RW", 0, "lock", "1 = EEPROM locked until power cycle", 0, 1),
+    _ram(48, 2, "RW", 32, "punch", "minimum current, 1/1023 of maximum", 0, 1023),
+])
+
+
+class StepperFlag(IntFlag):
+    """Bits of the stepper node's ``status_flags`` register (address 26)."""
+
+    MOVING = 0x01  # a move towards goal_position is in progress
+    SLIP = 0x02  # |deflection| exceeded slip_threshold: steps were lost (latched)
+    INDEX_SEEN = 0x04  # the joint encoder's index pulse has been latched
+    STALLED = 0x08  # |deflection| exceeded deflection_limit: over-deflection/stall (latched)
+    HARDWARE_ERROR = 0x10  # hardware_error_status is not 0
+
+
+class StepperClear(IntFlag):
+    """Command bits for the stepper node's ``clear_flags`` register (address 27); the node acts
+    on a write and the register reads back 0."""
+
+    SLIP = 0x01  # clear StepperFlag.SLIP
+    STALL = 0x02  # clear StepperFlag.STALLED
+    ZERO_STEP_COUNT = 0x04  # set step_count to 0
+    REARM_INDEX = 0x08  # forget the index latch: index_seen, index_* registers to 0
+
+
+#: Model number of the arm stepper node: 0x5E50, "SE" (series-elastic) + 0x50 - chosen to
+#: stay clear of ROBOTIS model numbers (12, 18, 24, 28, 29, 64, 310, 320, 1020, ...).
+STEPPER_MODEL_NUMBER = 0x5E50
+#: Joint encoder counts per joint revolution (0.036 deg per count).
+STEPPER_ENCODER_COUNTS_PER_REV = 10_000
+
+_COUNTS = "joint encoder counts (0.036 deg)"
+
+#: The arm stepper node: a series-elastic joint driven by a stepper motor through a
+#: reduction, with an absolute-after-index joint encoder.  Addresses 0..18 mean what they
+#: mean on a Dynamixel where a stepper has the same notion (model, ID, baud, return delay,
+#: limits, status return level, alarms), so dynamixel-sdk's ping (a READ of 2 bytes at 0) and
+#: bus scans work unchanged; RAM starts at 24; 4-byte registers are 4-aligned.
+#: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
+#: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
+#: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
+#: joint encoder counts (joint side) so they do not change with microstepping or gearing.
+STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
+    _eeprom(0, 2, "R", STEPPER_MODEL_NUMBER, "model_number", "model number (0x5E50)"),
+    _eeprom(2, 1, "R", 1, "firmware_version", "firmware version"),
+    _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
+    _eeprom(4, 1, "RW", 1, "baud_rate", "bps = 2 000 000 / (value + 1); 1 = 1 Mbps", 0, 254),
+    _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
+    _eeprom(6, 2, "RW", 600, "gear_reduction_x100", "motor revs per joint rev x 100", 100),
+    _eeprom(8, 2, "RW", 200, "steps_per_rev", "full steps per motor rev (200 = 1.8 deg)", 1),
+    _eeprom(10, 1, "RW", 16, "microstepping", "microsteps per full step (power of 2)", 1, 128),
+    _eeprom(11, 1, "RW", 80, "temperature_limit", "deg C (driver)", 0, 150),
+    _eeprom(12, 1, "RW", 100, "min_voltage_limit", "0.1 V", 50, 250),
+    _eeprom(13, 1, "RW", 250, "max_voltage_limit", "0.1 V", 50, 250),
+    _eeprom(14, 2, "RW", 2000, "max_current", "mA, cap on run/holding current", 0, 3000),
+    _eeprom(16, 1, "RW", 2, "status_return_level", "0 ping only, 1 reads, 2 all", 0, 2),
+    _eeprom(17, 1, "RW", 36, "alarm_led", _ALARM, 0, 127),
+    _eeprom(18, 1, "RW", 36, "alarm_shutdown", _ALARM + "; torque off on these", 0, 127),
+    _eeprom(20, 2, "R", STEPPER_ENCODER_COUNTS_PER_REV, "encoder_resolution",
+            "joint encoder counts per joint rev"),
+    _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
+    _ram(25, 1, "RW", 0, "led", "0 off, 1 on", 0, 1),
+    _ram(26, 1, "R", 0, "status_flags", "StepperFlag bits"),
+    _ram(27, 1, "RW", 0, "clear_flags", "StepperClear command bits, reads 0", 0, 0x0F),
+    _ram(28, 4, "RW", 0, "goal_position", _COUNTS, signed=True),
+    _ram(32, 4, "R", 0, "present_position", _COUNTS, signed=True),
+    _ram(36, 4, "R", 0, "present_velocity", "joint encoder counts/s", signed=True),
+    _ram(40, 4, "R", 0, "step_count", "microsteps integrated since power-up", signed=True),
+    _ram(44, 4, "R", 0, "index_step_count", "step_count latched at the index pulse",
+         signed=True),
+    _ram(48, 4, "R", 0, "index_encoder_count", "encoder count latched at the index pulse",
+         signed=True),
+    _ram(52, 4, "RW", 5000, "velocity_limit", "joint encoder counts/s", 1, 1_000_000),
+    _ram(56, 4, "RW", 20000, "acceleration_limit", "joint encoder counts/s^2", 1, 10_000_000),
+    _ram(60, 2, "R", 0, "deflection", "motor angle after reduction - joint angle, counts",
+         signed=True),
+    _ram(62, 2, "RW", 300, "slip_threshold", "counts of |deflection| flagging SLIP", 1),
+    _ram(64, 2, "RW", 100, "deflection_limit", "counts of |deflection| flagging STALLED", 1),
+    _ram(66, 2, "RW", 800, "run_current", "mA while moving", 0, 3000),
+    _ram(68, 2, "RW", 300, "holding_current", "mA at standstill", 0, 3000),
+    _ram(70, 1, "R", 0, "index_seen", "1 = index pulse latched"),
+    _ram(71, 1, "R", 0, "hardware_error_status", "ErrorBit bits of the active faults"),
+    _ram(72, 1, "R", 0, "present_voltage", "0.1 V"),
+    _ram(73, 1, "R", 0, "present_temperature", "deg C (driver)"),
+    _ram(74, 1, "R", 0, "registered", "1 = a REG_WRITE awaits ACTION"),
+])
+
+#: Tables by model number (what a PING + READ(0, 2) reports).
+TABLES_BY_MODEL: dict[int, ControlTable] = {t.model_number: t for t in (RX64_TABLE, STEPPER_TABLE)}

@@ -1,0 +1,99 @@
+"""Describe a Dynamixel 1.0 capture of the arm bus in plain dicts (for ``handbus``).
+
+Register names come from this arm's control tables: ids 1–4 are stepper nodes
+(:data:`~protocol.control_tables.STEPPER_TABLE`), ids 5–7 RX-64 servos.  Status packets
+(replies) are named by the instruction they most likely answer: the last instruction seen
+for that id.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, ControlTable
+from protocol.dynamixel import (
+    BROADCAST_ID,
+    DynamixelStreamDecoder,
+    ErrorBit,
+    Instruction,
+    InstructionPacket,
+    StatusPacket,
+    parse_read,
+    parse_sync_write,
+    parse_write,
+)
+from protocol.errors import DynamixelError
+
+STEPPER_IDS = range(1, 5)
+SERVO_IDS = range(5, 8)
+
+
+def table_for_id(dxl_id: int) -> ControlTable | None:
+    """The control table of an arm bus id (None for ids this arm does not use)."""
+    if dxl_id in STEPPER_IDS:
+        return STEPPER_TABLE
+    if dxl_id in SERVO_IDS:
+        return RX64_TABLE
+    return None
+
+
+def _register_name(dxl_id: int, address: int) -> str | None:
+    table = table_for_id(dxl_id)
+    if table is None:
+        return None
+    reg = table.covering(address)
+    return reg.name if reg is not None else None
+
+
+def _instruction_fields(pkt: InstructionPacket) -> dict[str, Any]:
+    params = bytes(pkt.params)
+    try:
+        if pkt.instruction == Instruction.READ:
+            address, length = parse_read(params)
+            return {"address": address, "register": _register_name(pkt.id, address),
+                    "length": length}
+        if pkt.instruction in (Instruction.WRITE, Instruction.REG_WRITE):
+            address, data = parse_write(params)
+            return {"address": address, "register": _register_name(pkt.id, address),
+                    "data": data}
+        if pkt.instruction == Instruction.SYNC_WRITE:
+            address, length, per_id = parse_sync_write(params)
+            return {"address": address, "length": length,
+                    "data": {str(k): v for k, v in per_id.items()}}
+    except DynamixelError as exc:
+        return {"error": str(exc), "params": params}
+    return {"params": params} if params else {}
+
+
+def decode_dynamixel_capture(data: bytes, direction: str = "auto"
+                             ) -> tuple[list[dict[str, Any]], dict[str, int]]:
+    """One record per packet found in ``data``, and the decoder's counters."""
+    decoder = DynamixelStreamDecoder(direction=direction)  # type: ignore[arg-type]
+    records: list[dict[str, Any]] = []
+    last_instruction: dict[int, str] = {}
+    for found in decoder.feed(data):
+        pkt = found.packet
+        record: dict[str, Any] = {"offset": found.offset, "id": pkt.id, "length": len(found.raw),
+                                  "checksum_ok": True}
+        if isinstance(pkt, InstructionPacket):
+            try:
+                name = Instruction(pkt.instruction).name
+            except ValueError:
+                name = None
+            record.update(kind="instruction", name=name, fields=_instruction_fields(pkt))
+            if name and pkt.id != BROADCAST_ID:
+                last_instruction[pkt.id] = name
+        elif isinstance(pkt, StatusPacket):
+            errors = [bit.name for bit in ErrorBit if pkt.error & bit]
+            record.update(kind="status", name=last_instruction.get(pkt.id),
+                          fields={"error": pkt.error, "errors": errors, "params": pkt.params})
+        records.append(record)
+    counters = {
+        "packets": decoder.packets,
+        "checksum_failures": decoder.checksum_failures,
+        "resyncs": decoder.resyncs,
+        "bytes_discarded": decoder.bytes_discarded,
+        "rejected": decoder.rejected,
+        "pending": decoder.pending,
+    }
+    return records, counters
