@@ -180,6 +180,17 @@ def test_a_frame_for_another_node_does_not_halt_autoboot() -> None:
     assert replies(mcu, "bl.halt") == []
 
 
+def test_application_traffic_does_not_halt_autoboot() -> None:
+    """A palm polling fmcb.status while a re-attached finger boots must not strand it."""
+    mcu = new_node()
+    mcu.power_on()
+    for _ in range(5):
+        send(mcu, "fmcb.status")
+        run(mcu, 200_000)
+    run(mcu, WINDOW)
+    assert mcu.program_name == "fmcb"
+
+
 def test_original_sequence_reset_halt_ping_read_boot() -> None:
     image = default_image(BoardType.FMCB)
     mcu = new_node()

@@ -1,0 +1,200 @@
+"""The arm stepper joint node on a VirtualHal: steps, index latch, deflection, slip."""
+
+from __future__ import annotations
+
+import pytest
+
+from firmware_py.arm_stepper import StepperNodeApp
+from firmware_py.dynamixel_slave import make_arm_node
+from firmware_py.scheduler import Scheduler
+from firmware_py.virtual_hal import VirtualHal
+from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
+from protocol.dynamixel import DynamixelStreamDecoder, ErrorBit, StatusPacket, make_read, make_write
+from protocol.image import BoardType
+
+#: Microsteps per joint count with the defaults: 6.00 x 200 x 16 / 10 000.
+K = 600 * 200 * 16 / 1_000_000
+
+
+def transact(sched: Scheduler, hal: VirtualHal, raw: bytes) -> list[StatusPacket]:
+    bus = hal.uart("bus")
+    bus.take_sent()
+    bus.deliver(raw)
+    sched.run_for(600)
+    decoded = DynamixelStreamDecoder("status").feed(b"".join(bus.take_sent()))
+    return [d.packet for d in decoded if isinstance(d.packet, StatusPacket)]
+
+
+def read(sched: Scheduler, hal: VirtualHal, name: str) -> int:
+    reg = STEPPER_TABLE[name]
+    (reply,) = transact(sched, hal, make_read(2, reg.address, reg.size).encode())
+    return reg.decode(reply.params)
+
+
+def status_error(sched: Scheduler, hal: VirtualHal) -> int:
+    (reply,) = transact(sched, hal, make_read(2, 26, 1).encode())
+    return reply.error
+
+
+def write(sched: Scheduler, hal: VirtualHal, name: str, value: int) -> int:
+    reg = STEPPER_TABLE[name]
+    (ack,) = transact(sched, hal, make_write(2, reg.address, reg.encode(value)).encode())
+    return ack.error
+
+
+@pytest.fixture
+def node() -> tuple[Scheduler, VirtualHal, StepperNodeApp]:
+    sched = Scheduler()
+    hal, app = make_arm_node(sched, BoardType.ARM_STEPPER, 2)
+    assert isinstance(app, StepperNodeApp)
+    write(sched, hal, "return_delay_time", 0)
+    return sched, hal, app
+
+
+def free_running(sched: Scheduler, hal: VirtualHal) -> None:
+    """Thresholds out of reach: the encoder does not follow in these tests."""
+    write(sched, hal, "slip_threshold", 65535)
+    write(sched, hal, "deflection_limit", 65535)
+
+
+def test_microsteps_per_count(node):
+    _, _, app = node
+    assert app.microsteps_per_count == pytest.approx(K)
+
+
+def test_moves_to_goal_within_velocity_and_acceleration_limits(node):
+    sched, hal, app = node
+    free_running(sched, hal)
+    write(sched, hal, "velocity_limit", 2000)
+    write(sched, hal, "acceleration_limit", 20000)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 1000)
+    stepper = hal.stepper()
+    first = stepper.rate
+    rates, moving_seen = [], False
+    for _ in range(1000):
+        sched.run_for(1_000)
+        rates.append(stepper.rate)
+        moving_seen |= bool(app.get("status_flags") & StepperFlag.MOVING)
+    assert max(abs(r) for r in rates) <= 2000 * K + 1e-6
+    assert max(rates) == pytest.approx(2000 * K)  # the limit was reached, not exceeded
+    steps = [abs(b - a) for a, b in zip([first, *rates], rates, strict=False)]
+    assert max(steps) <= 20000 * K / 1000 + 1e-6
+    assert moving_seen
+    assert abs(read(sched, hal, "step_count") - 1000 * K) <= 2
+    assert stepper.rate == 0.0
+    assert not read(sched, hal, "status_flags") & StepperFlag.MOVING
+    assert stepper.current == 300  # holding current at standstill
+
+
+def test_torque_off_means_no_current_and_no_steps(node):
+    sched, hal, _ = node
+    free_running(sched, hal)
+    write(sched, hal, "goal_position", 500)
+    sched.run_for(50_000)
+    assert hal.stepper().current == 0 and hal.stepper().rate == 0.0
+    write(sched, hal, "torque_enable", 1)
+    sched.run_for(20_000)
+    assert hal.stepper().current == 800  # run current while moving
+    assert hal.stepper().rate > 0
+    write(sched, hal, "torque_enable", 0)
+    sched.run_for(2_000)
+    assert hal.stepper().current == 0 and hal.stepper().rate == 0.0
+
+
+def test_step_count_is_since_power_up_and_can_be_zeroed(node):
+    sched, hal, _ = node
+    free_running(sched, hal)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 100)
+    sched.run_for(300_000)  # the hardware counter runs before the reset
+    hw = hal.stepper().step_count()
+    assert hw == round(100 * K)
+    hal.reset()
+    write(sched, hal, "return_delay_time", 0)
+    assert read(sched, hal, "step_count") == 0
+    free_running(sched, hal)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 100)
+    sched.run_for(300_000)
+    assert read(sched, hal, "step_count") == hal.stepper().step_count() - hw
+    write(sched, hal, "clear_flags", StepperClear.ZERO_STEP_COUNT)
+    assert read(sched, hal, "step_count") == 0
+    assert read(sched, hal, "clear_flags") == 0
+
+
+def test_index_latch(node):
+    sched, hal, _ = node
+    free_running(sched, hal)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 200)
+    sched.run_for(100_000)
+    hal.encoder().value = 1234
+    hal.encoder().pulse_index()
+    steps_at_index = hal.stepper().step_count()
+    assert read(sched, hal, "index_seen") == 1
+    assert read(sched, hal, "index_encoder_count") == 1234
+    assert read(sched, hal, "index_step_count") == steps_at_index
+    assert read(sched, hal, "status_flags") & StepperFlag.INDEX_SEEN
+    hal.encoder().value = 5000
+    hal.encoder().pulse_index()  # latched: a later pulse changes nothing
+    assert read(sched, hal, "index_encoder_count") == 1234
+    write(sched, hal, "clear_flags", StepperClear.REARM_INDEX)
+    assert read(sched, hal, "index_seen") == 0
+    assert not read(sched, hal, "status_flags") & StepperFlag.INDEX_SEEN
+    hal.encoder().pulse_index()
+    assert read(sched, hal, "index_encoder_count") == 5000
+
+
+def test_deflection_sign(node):
+    sched, hal, _ = node
+    free_running(sched, hal)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 100)
+    sched.run_for(500_000)
+    steps = read(sched, hal, "step_count")
+    assert steps > 0
+    # the motor went forward, the joint (encoder) did not: motor ahead -> positive
+    assert read(sched, hal, "deflection") == round(steps / K)
+    hal.encoder().value = 150  # joint ahead of the motor -> negative
+    assert read(sched, hal, "deflection") == round(steps / K) - 150 < 0
+    assert read(sched, hal, "present_position") == 150
+
+
+def test_slip_and_stall_latch_until_cleared(node):
+    sched, hal, _ = node
+    write(sched, hal, "torque_enable", 1)
+    hal.encoder().value = -400  # the joint moved, the motor did not: |deflection| 400 > 300
+    sched.run_for(2_000)
+    flags = read(sched, hal, "status_flags")
+    assert flags & StepperFlag.SLIP and flags & StepperFlag.STALLED
+    assert status_error(sched, hal) & ErrorBit.OVERLOAD
+    assert read(sched, hal, "torque_enable") == 0  # overload is in alarm_shutdown (36)
+    hal.encoder().value = 0
+    sched.run_for(5_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.SLIP  # latched
+    write(sched, hal, "clear_flags", StepperClear.SLIP | StepperClear.STALL)
+    flags = read(sched, hal, "status_flags")
+    assert not flags & (StepperFlag.SLIP | StepperFlag.STALLED)
+    assert status_error(sched, hal) == 0
+
+
+def test_small_deflection_only_stalls(node):
+    sched, hal, _ = node
+    hal.encoder().value = 150  # 100 < 150 <= 300
+    sched.run_for(2_000)
+    flags = read(sched, hal, "status_flags")
+    assert flags & StepperFlag.STALLED and not flags & StepperFlag.SLIP
+
+
+def test_voltage_and_temperature_from_sensors(node):
+    sched, hal, _ = node
+    hal.sensors.values["supply_mv"] = 23700
+    hal.sensors.values["temperature"] = 415
+    assert read(sched, hal, "present_voltage") == 237
+    assert read(sched, hal, "present_temperature") == 41
+    hal.sensors.values["temperature"] = 900
+    sched.run_for(2_000)
+    assert status_error(sched, hal) & ErrorBit.OVERHEATING
+    assert read(sched, hal, "hardware_error_status") == ErrorBit.OVERHEATING
+    assert read(sched, hal, "status_flags") & StepperFlag.HARDWARE_ERROR
