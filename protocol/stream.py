@@ -15,17 +15,15 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from protocol.crc import crc16_xmodem_fast
 from protocol.framing import (
-    BAD_CRC,
     BAD_LENGTH,
+    CRC_SIZE,
     DEFAULT_MAX_PAYLOAD,
-    FRAME,
     HEADER_SIZE,
-    NEED_MORE,
-    OVERHEAD,
     SKIP,
+    SYNC,
     Frame,
-    check_frame,
 )
 
 
@@ -101,66 +99,91 @@ class StreamDecoder:
                 self.reset()
             self._last_t = t
         self.counters.bytes_in += len(data)
-        self._buf += data
-        return self._scan(t, final=False)
+        if self._buf:
+            self._buf += data
+            return self._scan(self._buf, t, final=False)
+        # Nothing held: scan the caller's bytes in place (no copy into the buffer; payloads
+        # are sliced straight out of them) and keep only an unfinished tail.
+        return self._scan(data if type(data) is bytes else bytes(data), t, final=False)
 
     def flush(self, t: float | None = None) -> list[Frame]:
         """End of stream: recover frames behind false syncs and drop the rest."""
-        frames = self._scan(t, final=True)
+        frames = self._scan(self._buf, t, final=True)
         if self._buf:
             self.counters.truncated += 1
             self.reset()
         return frames
 
-    def _scan(self, t: float | None, final: bool) -> list[Frame]:
-        buf = self._buf
+    def _scan(self, buf: bytes | bytearray, t: float | None, final: bool) -> list[Frame]:
+        """Decode ``buf`` (``self._buf`` itself, or new bytes when nothing was held).
+
+        This is :func:`~protocol.framing.check_frame` inlined, outcome by outcome, so the
+        common case (a good frame at the scan position) costs no function call besides the
+        CRC; the tests check that both agree on every input.
+        """
         maxp = self.max_payload
         counters = self.counters
+        crc = crc16_xmodem_fast
+        base = self._base
+        copy = type(buf) is not bytes  # a bytearray's slices must become bytes
         out: list[Frame] = []
+        append = out.append
+        frames = 0
         pos = 0
         end = len(buf)
         while pos < end:
-            outcome, n = check_frame(buf, pos, maxp)
-            if outcome == FRAME:
-                ln = n - OVERHEAD
-                out.append(
-                    Frame(buf[pos + 1], buf[pos + 4], bytes(buf[pos + 5 : pos + 5 + ln]),
-                          self._base + pos, True, t)
-                )
-                counters.frames += 1
-                pos += n
-            elif outcome == NEED_MORE:
-                if not final:
-                    break
-                # At end of stream a frame that needs more bytes never completes: treat its
-                # sync byte as false and keep scanning behind it.
-                counters.truncated += 1
-                counters.resyncs += 1
-                counters.bytes_discarded += 1
-                pos += 1
-            elif outcome == SKIP:
+            if buf[pos] != SYNC:  # SKIP up to the next sync candidate
+                nxt = buf.find(b"\x42", pos + 1)
+                n = (end if nxt < 0 else nxt) - pos
                 counters.bytes_discarded += n
                 pos += n
-            else:
-                if outcome == BAD_CRC:
+                continue
+            if end - pos >= HEADER_SIZE:
+                length = buf[pos + 2] | (buf[pos + 3] << 8)
+                if length > maxp:  # BAD_LENGTH
+                    counters.length_errors += 1
+                    counters.resyncs += 1
+                    counters.bytes_discarded += 1
+                    pos += 1
+                    continue
+                body_end = pos + HEADER_SIZE + length
+                if body_end + CRC_SIZE <= end:
+                    if crc(buf[pos:body_end]) == buf[body_end] | (buf[body_end + 1] << 8):
+                        payload = buf[pos + HEADER_SIZE : body_end]
+                        if copy:
+                            payload = bytes(payload)
+                        append(Frame(buf[pos + 1], buf[pos + 4], payload,  # type: ignore[arg-type]
+                                     base + pos, True, t))
+                        frames += 1
+                        pos = body_end + CRC_SIZE
+                        continue
+                    # BAD_CRC: rescan from the byte after the sync byte
                     counters.crc_failures += 1
                     if self.report_rejected:
-                        out.append(self._rejected(pos, t))
-                elif outcome == BAD_LENGTH:
-                    counters.length_errors += 1
-                counters.resyncs += 1
-                counters.bytes_discarded += 1
-                pos += 1
-        if pos:
-            del buf[:pos]
-            self._base += pos
+                        append(Frame(buf[pos + 1], buf[pos + 4],
+                                     bytes(buf[pos + HEADER_SIZE : body_end]), base + pos,
+                                     False, t))
+                    counters.resyncs += 1
+                    counters.bytes_discarded += 1
+                    pos += 1
+                    continue
+            # NEED_MORE
+            if not final:
+                break
+            # At end of stream a frame that needs more bytes never completes: treat its
+            # sync byte as false and keep scanning behind it.
+            counters.truncated += 1
+            counters.resyncs += 1
+            counters.bytes_discarded += 1
+            pos += 1
+        counters.frames += frames
+        if buf is self._buf:
+            if pos:
+                del self._buf[:pos]
+        else:
+            self._buf[:] = buf[pos:]
+        self._base += pos
         return out
-
-    def _rejected(self, pos: int, t: float | None) -> Frame:
-        buf = self._buf
-        ln = buf[pos + 2] | (buf[pos + 3] << 8)
-        payload = bytes(buf[pos + HEADER_SIZE : pos + HEADER_SIZE + ln])
-        return Frame(buf[pos + 1], buf[pos + 4], payload, self._base + pos, False, t)
 
 
 def decode_all(data: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> list[Frame]:

@@ -1,0 +1,371 @@
+"""Tests of the ``handbus`` capture decoder/encoder, in-process and as a console script."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocol.framing import encode_frame
+from tools import handbus
+from tools.cli_values import FieldValueError, build_fields, parse_value
+
+# Golden frames written by hand (CRCs from the bitwise reference in test_framing.py).
+PING_HEX = "420a000001612d"
+PING = bytes.fromhex(PING_HEX)
+HW_REPLY = bytes.fromhex("420004" "00fa4100efbe" "317f")
+POWER_ON = bytes.fromhex("420a01001e01" "17e1")
+POWER_ON_BAD_CRC = POWER_ON[:-1] + bytes([POWER_ON[-1] ^ 0x01])
+STATUS_REPLY = encode_frame(0, 0x21, bytes(range(148)))
+GARBAGE = b"\x00\xff\x13\x37"
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = handbus.main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def json_lines(text: str) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def capture() -> bytes:
+    return GARBAGE + PING + HW_REPLY + POWER_ON_BAD_CRC + GARBAGE + STATUS_REPLY + POWER_ON
+
+
+def check_capture_output(out: str) -> None:
+    records = json_lines(out)
+    *frames, summary = records
+    assert [(r["name"], r["crc_ok"]) for r in frames] == [
+        ("ping", True),
+        ("hw_version", True),
+        (None, False),
+        ("fmcb.status", True),
+        ("fmcb.phalange_power", True),
+    ]
+    ping, hw, bad, status, power = frames
+    assert (ping["offset"], ping["addr"], ping["type"], ping["direction"]) == (4, 10, 1, "request")
+    assert ping["fields"] == {}
+    assert hw["fields"] == {"version": 0xBEEF0041}
+    assert hw["direction"] == "reply"
+    assert (bad["offset"], bad["addr"], bad["type"], bad["payload"]) == (22, 10, 0x1E, "01")
+    assert bad["fields"] is None
+    assert status["length"] == 148
+    assert status["fields"]["pp_time"] == int.from_bytes(bytes([0, 1, 2, 3]), "little")
+    assert status["fields"]["hall_pos"][0] == int.from_bytes(bytes(range(128, 132)), "little", signed=True)
+    assert power["fields"] == {"on": 1}
+    counters = summary["summary"]
+    assert counters["frames"] == 4
+    assert counters["crc_failures"] == 1
+    assert counters["bytes_in"] == len(capture())
+    assert counters["bytes_discarded"] == 2 * len(GARBAGE) + len(POWER_ON_BAD_CRC)
+    assert set(counters) >= {"frames", "crc_failures", "length_errors", "resyncs",
+                             "bytes_discarded", "gap_discards", "truncated"}
+
+
+def test_decode_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "capture.bin"
+    path.write_bytes(capture())
+    code, out, err = run_main(["decode", str(path)], capsys)
+    assert code == 0
+    assert err == ""
+    check_capture_output(out)
+
+
+def test_decode_capture_as_a_console_script(tmp_path: Path) -> None:
+    path = tmp_path / "capture.bin"
+    path.write_bytes(capture())
+    script = Path(sys.executable).with_name("handbus")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "tools.handbus"]
+    proc = subprocess.run(
+        [*cmd, "decode", str(path)], capture_output=True, text=True, cwd=REPO, timeout=60,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert proc.returncode == 0, proc.stderr
+    check_capture_output(proc.stdout)
+    # standard input works too, via python -m
+    piped = subprocess.run(
+        [sys.executable, "-m", "tools.handbus", "decode", "-"], input=capture(),
+        capture_output=True, cwd=REPO, timeout=60,
+    )
+    assert piped.returncode == 0
+    check_capture_output(piped.stdout.decode())
+
+
+def test_decode_with_node_hint(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(10, 0x21, b""))
+    _, out, _ = run_main(["decode", str(path)], capsys)
+    assert json_lines(out)[0]["name"] == "fmcb.status"
+    _, out, _ = run_main(["decode", "--node", "palm", str(path)], capsys)
+    assert json_lines(out)[0]["name"] == "palm.state"
+
+
+def test_reply_named_after_its_request(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # 12 bytes to the host, type 0x10: fmcb.imu or f2/f3 IMU-like; the request names it.
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(10, 0x10, b"") + encode_frame(0, 0x10, bytes(64)))
+    _, out, _ = run_main(["decode", str(path)], capsys)
+    names = [r.get("name") for r in json_lines(out)[:-1]]
+    assert names == ["fmcb.imu", "palm.tactile"]
+
+
+def test_unknown_type_prints_payload(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(10, 0xEE, b"\xab"))
+    _, out, _ = run_main(["decode", str(path)], capsys)
+    record = json_lines(out)[0]
+    assert record["name"] is None and record["crc_ok"] is True and record["payload"] == "ab"
+
+
+def test_undecodable_payload_reports_the_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(0, 0x21, bytes(99)))
+    code, out, _ = run_main(["decode", str(path)], capsys)
+    assert code == 0
+    record = json_lines(out)[0]
+    assert record["fields"] is None
+    assert record["error"]
+
+
+def test_hex_input_with_comments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "capture.txt"
+    path.write_text(
+        "# a capture from the bench\n"
+        "42 0a 00 00 01 61 2d   # ping to the fmcb\n"
+        "\n"
+        "0x42,0x00:04 00 fa  41 00 ef be 31 7f\n"
+        "ff ff  # garbage\n"
+        "420a01001e0117e1\n"
+    )
+    code, out, _ = run_main(["decode", "--hex", str(path)], capsys)
+    assert code == 0
+    records = json_lines(out)
+    assert [r.get("name") for r in records[:-1]] == ["ping", "hw_version", "fmcb.phalange_power"]
+    assert [r["offset"] for r in records[:-1]] == [0, 7, 20]
+    assert records[-1]["summary"]["bytes_discarded"] == 2
+
+
+@pytest.mark.parametrize("text", ["42 0a 0", "42 zz", "0x4"])
+def test_bad_hex_input(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str) -> None:
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+    code, out, err = run_main(["decode", "--hex", str(path)], capsys)
+    assert code == 2
+    assert "line 1" in err and "not hex" in err
+    assert out == ""
+
+
+def test_non_ascii_hex_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "bad.txt"
+    path.write_bytes(b"42 \xff")
+    code, _, err = run_main(["decode", "--hex", str(path)], capsys)
+    assert code == 2
+    assert "not hex text" in err
+
+
+def test_missing_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nope.bin"
+    code, out, err = run_main(["decode", str(missing)], capsys)
+    assert code == 2
+    assert out == ""
+    assert err.startswith("handbus: error: cannot read")
+    assert str(missing) in err
+    assert "No such file" in err
+    assert "Traceback" not in err
+
+
+def test_empty_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "empty.bin"
+    path.write_bytes(b"")
+    code, out, _ = run_main(["decode", str(path)], capsys)
+    assert code == 0
+    assert json_lines(out) == [{"summary": json_lines(out)[0]["summary"]}]
+    assert all(v == 0 for v in json_lines(out)[0]["summary"].values())
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(max_size=400), st.booleans())
+def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
+    if sprinkle_frames:
+        data = data[: len(data) // 2] + PING + data[len(data) // 2 :]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "garbage.bin"
+        path.write_bytes(data)
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = handbus.main(["decode", str(path)])
+    assert code == 0
+    assert err.getvalue() == ""
+    *records, summary = json_lines(out.getvalue())
+    counters = summary["summary"]
+    assert counters["bytes_in"] == len(data)
+    assert counters["frames"] == sum(1 for r in records if r["crc_ok"])
+    if sprinkle_frames:
+        assert counters["frames"] >= 1
+
+
+# --- encode -------------------------------------------------------------------------------------
+
+
+def test_encode_ping_golden(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(["encode", "ping", "--addr", "10"], capsys)
+    assert (code, out, err) == (0, PING_HEX + "\n", "")
+    code, out, _ = run_main(["encode", "ping", "--addr", "0x0a", "--spaced"], capsys)
+    assert out == "42 0a 00 00 01 61 2d\n"
+
+
+def test_encode_field_and_reply(capsys: pytest.CaptureFixture[str]) -> None:
+    _, out, _ = run_main(["encode", "fmcb.phalange_power", "on=1", "--addr", "10"], capsys)
+    assert out.strip() == POWER_ON.hex()
+    _, out, _ = run_main(["encode", "hw_version", "--reply", "version=0xBEEF0041"], capsys)
+    assert out.strip() == HW_REPLY.hex()
+
+
+def test_encode_fields_after_options(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(["encode", "fmcb.phalange_power", "--addr", "10", "on=1"], capsys)
+    assert (code, out.strip(), err) == (0, POWER_ON.hex(), "")
+
+
+def test_encode_control_with_nested_args(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(
+        ["encode", "fmcb.control", "mode=2", "args.target=0.5,-1,2", "--addr", "10"], capsys
+    )
+    assert code == 0, err
+    # payload: mode 2, then 0.5, -1.0, 2.0 as float32 LE (0x3F000000, 0xBF800000, 0x40000000)
+    wire = bytes.fromhex(out.strip())
+    assert wire[:5] == bytes.fromhex("420a0d001d")
+    assert wire[5:-2] == bytes.fromhex("02" "0000003f" "000080bf" "00000040")
+    assert wire == encode_frame(10, 0x1D, wire[5:-2])
+    code, out, _ = run_main(
+        ["encode", "fmcb.control", "mode=4", "args.target=0.1,0.2,0.3",
+         "args.max_effort=10,20,30", "--addr", "10"], capsys,
+    )
+    assert code == 0
+    assert bytes.fromhex(out.strip())[-5:-2] == bytes([10, 20, 30])
+    code, out, _ = run_main(["encode", "fmcb.control", "mode=0", "--addr", "10"], capsys)
+    assert bytes.fromhex(out.strip())[2:6] == bytes.fromhex("01001d00")
+
+
+def test_encode_bytes_and_text_fields(capsys: pytest.CaptureFixture[str]) -> None:
+    _, out, _ = run_main(
+        ["encode", "fmcb.tunnel", "max_ms=5", "data=420a", "--addr", "10"], capsys
+    )
+    assert bytes.fromhex(out.strip())[5:-2] == bytes.fromhex("0200" "0500" "420a")
+    _, out, _ = run_main(["encode", "fmcb.param_name", "--reply", "name=123"], capsys)
+    assert bytes.fromhex(out.strip())[5:-2] == b"\x03123"
+
+
+def test_encode_unknown_name_suggests(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(["encode", "fmcb.stats", "--addr", "10"], capsys)
+    assert code == 2
+    assert out == ""
+    assert "no message called 'fmcb.stats'" in err
+    assert "did you mean" in err and "fmcb.status" in err
+    code, _, err = run_main(["encode", "zzzzzzzz", "--addr", "10"], capsys)
+    assert code == 2
+    assert "handbus list" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        (["encode", "ping"], "--addr is required"),
+        (["encode", "fmcb.control", "mode=9", "--addr", "10"], "fmcb.control request"),
+        (["encode", "fmcb.phalange_power", "--addr", "10"], "fmcb.phalange_power request"),
+        (["encode", "fmcb.phalange_power", "on", "--addr", "10"], "not field=value"),
+        (["encode", "fmcb.tunnel", "data=xyz", "max_ms=1", "--addr", "10"], "not hex bytes"),
+        (["encode", "palm.finger_event", "--addr", "10"], "has no request"),
+        (["encode", "fmcb.control", "--reply"], "has no reply"),
+        (["encode", "ping", "--addr", "300"], "address 300"),
+    ],
+)
+def test_encode_errors(argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(argv, capsys)
+    assert code == 2
+    assert out == ""
+    assert err.startswith("handbus: error:")
+    assert fragment in err
+
+
+def test_unrecognised_arguments_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        handbus.main(["encode", "ping", "--addr", "10", "--bogus"])
+    assert info.value.code == 2
+    with pytest.raises(SystemExit) as info:
+        handbus.main(["decode", "a", "b"])
+    assert info.value.code == 2
+    capsys.readouterr()
+
+
+def test_encode_round_trips_through_decode(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, out, _ = run_main(["encode", "fmcb.set_home", "offset=1,-2,3", "--addr", "10"], capsys)
+    path = tmp_path / "x.txt"
+    path.write_text(out)
+    _, out, _ = run_main(["decode", "--hex", str(path)], capsys)
+    record = json_lines(out)[0]
+    assert (record["name"], record["fields"]) == ("fmcb.set_home", {"offset": [1, -2, 3]})
+
+
+# --- list ---------------------------------------------------------------------------------------
+
+
+def test_list(capsys: pytest.CaptureFixture[str]) -> None:
+    from protocol.messages import CATALOGUE
+
+    code, out, _ = run_main(["list"], capsys)
+    assert code == 0
+    lines = out.splitlines()
+    assert len(lines) == len(CATALOGUE)
+    first = lines[0].split()
+    assert first[:3] == ["ping", "common", "0x01"]
+    status = next(line for line in lines if line.startswith("fmcb.status "))
+    assert "0x21" in status and "fmcb" in status
+    identify = next(line for line in lines if line.startswith("identify "))
+    assert "0x60" in identify and identify.endswith("(new)")
+
+
+# --- helpers ------------------------------------------------------------------------------------
+
+
+def test_jsonable() -> None:
+    assert handbus.jsonable({"a": b"\x01\xff", "b": [bytearray(b"\x02"), (1, 2)]}) == {
+        "a": "01ff", "b": ["02", [1, 2]],
+    }
+
+
+def test_cli_values() -> None:
+    from protocol.messages import CATALOGUE
+
+    assert parse_value("0x2a") == 42
+    assert parse_value("1,2,3") == [1, 2, 3]
+    assert parse_value("1.5") == 1.5
+    assert parse_value("abc") == "abc"
+    con = CATALOGUE["fmcb.control"].request
+    assert build_fields(con, ["mode=0"]) == {"mode": 0, "args": {}}
+    assert build_fields(con, ["mode=2", "args.target=1,2,3"]) == {
+        "mode": 2, "args": {"target": [1, 2, 3]},
+    }
+    assert build_fields(CATALOGUE["fmcb.set_home"].request, ["offset=7"]) == {"offset": [7]}
+    assert build_fields(CATALOGUE["fmcb.param_set"].request, ["value=0x0000803f"]) == {
+        "value": bytes.fromhex("0000803f"),
+    }
+    with pytest.raises(FieldValueError):
+        build_fields(con, ["mode"])
