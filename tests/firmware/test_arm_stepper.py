@@ -9,20 +9,16 @@ from firmware_py.dynamixel_slave import make_arm_node
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
 from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
-from protocol.dynamixel import DynamixelStreamDecoder, ErrorBit, StatusPacket, make_read, make_write
+from protocol.dynamixel import ErrorBit, StatusPacket, make_read, make_write
 from protocol.image import BoardType
+from tests.firmware.dxl_bench import transact as dxl_transact
 
 #: Microsteps per joint count with the defaults: 6.00 x 200 x 16 / 10 000.
 K = 600 * 200 * 16 / 1_000_000
 
 
 def transact(sched: Scheduler, hal: VirtualHal, raw: bytes) -> list[StatusPacket]:
-    bus = hal.uart("bus")
-    bus.take_sent()
-    bus.deliver(raw)
-    sched.run_for(600)
-    decoded = DynamixelStreamDecoder("status").feed(b"".join(bus.take_sent()))
-    return [d.packet for d in decoded if isinstance(d.packet, StatusPacket)]
+    return dxl_transact(sched, hal, raw, run_us=600)
 
 
 def read(sched: Scheduler, hal: VirtualHal, name: str) -> int:

@@ -9,7 +9,6 @@ from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.dynamixel import (
-    DynamixelStreamDecoder,
     ErrorBit,
     StatusPacket,
     make_action,
@@ -22,21 +21,7 @@ from protocol.dynamixel import (
     make_write,
 )
 from protocol.image import BoardType
-
-
-def transact(sched: Scheduler, hal: VirtualHal, raw: bytes, run_us: int = 3_000
-             ) -> list[StatusPacket]:
-    """Deliver ``raw`` on the node's bus, run, and decode the status packets it sent."""
-    bus = hal.uart("bus")
-    bus.take_sent()
-    bus.deliver(raw)
-    sched.run_for(run_us)
-    decoder = DynamixelStreamDecoder("status")
-    out = []
-    for d in decoder.feed(b"".join(bus.take_sent())):
-        assert isinstance(d.packet, StatusPacket)
-        out.append(d.packet)
-    return out
+from tests.firmware.dxl_bench import transact
 
 
 def read_value(sched: Scheduler, hal: VirtualHal, dxl_id: int, name: str, table=STEPPER_TABLE

@@ -10,7 +10,6 @@ from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
 from protocol.control_tables import RX64_TABLE
 from protocol.dynamixel import (
-    DynamixelStreamDecoder,
     ErrorBit,
     StatusPacket,
     make_read,
@@ -18,17 +17,13 @@ from protocol.dynamixel import (
     make_write,
 )
 from protocol.image import BoardType
+from tests.firmware.dxl_bench import transact as dxl_transact
 
 ID = 6
 
 
 def transact(sched: Scheduler, hal: VirtualHal, raw: bytes) -> list[StatusPacket]:
-    bus = hal.uart("bus")
-    bus.take_sent()
-    bus.deliver(raw)
-    sched.run_for(600)
-    decoded = DynamixelStreamDecoder("status").feed(b"".join(bus.take_sent()))
-    return [d.packet for d in decoded if isinstance(d.packet, StatusPacket)]
+    return dxl_transact(sched, hal, raw, run_us=600)
 
 
 def read(sched: Scheduler, hal: VirtualHal, name: str) -> int:
