@@ -1,0 +1,237 @@
+"""The emulator's end of a virtual serial port (a Linux pty).
+
+A client (pyserial, dynamixel-sdk, python-can's ``slcan``) opens :attr:`PtyPort.path`, the
+slave device; the emulator reads and writes the master end.  Notes (see
+``/work/shared/reference/anchors.md``):
+
+* both ends are put in raw mode right after creation;
+* the emulator keeps its own slave fd open, so reading the master never raises ``EIO`` when a
+  client closes the port (dynamixel-sdk reopens it on every baud change);
+* a pty does not enforce a baud rate, so pacing is done here: :meth:`PtyPort.write_paced`
+  computes when the bytes would have finished on a real line and :class:`PacedWriter` holds
+  bytes back and releases them as (injected) time passes.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import tty
+from collections import deque
+from pathlib import Path
+from types import TracebackType
+
+BITS_PER_BYTE = 10  # start + 8 data + stop
+
+
+def byte_time_s(baud: int) -> float:
+    """Seconds one byte occupies on a line at ``baud`` (10 bits per byte)."""
+    if baud <= 0:
+        raise ValueError(f"baud must be positive, got {baud}")
+    return BITS_PER_BYTE / baud
+
+
+class PtyPort:
+    """A pty whose slave path clients open as a serial port."""
+
+    def __init__(self, baud: int = 1_000_000) -> None:
+        self._master: int | None = None
+        self._slave: int | None = None
+        byte_time_s(baud)  # validate
+        self.baud = baud
+        self._path: str | None = None
+        self._line_free_at = 0.0
+        self.dropped = 0  # bytes discarded because the pty buffer was full
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def open(self) -> PtyPort:
+        if self._master is not None:
+            return self
+        master, slave = os.openpty()
+        try:
+            tty.setraw(master)
+            tty.setraw(slave)
+            os.set_blocking(master, False)
+            path = os.ttyname(slave)
+        except BaseException:
+            os.close(master)
+            os.close(slave)
+            raise
+        self._master, self._slave, self._path = master, slave, path
+        return self
+
+    def close(self) -> None:
+        master, slave = self._master, self._slave
+        self._master = self._slave = None
+        for fd in (master, slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
+    @property
+    def is_open(self) -> bool:
+        return self._master is not None
+
+    def __enter__(self) -> PtyPort:
+        return self.open()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        self.close()
+
+    # -- accessors -------------------------------------------------------------------------
+    @property
+    def path(self) -> str:
+        """Slave device name (e.g. ``/dev/pts/7``); kept after :meth:`close`."""
+        if self._path is None:
+            raise RuntimeError("PtyPort is not open")
+        return self._path
+
+    def fileno(self) -> int:
+        """Master fd, for ``select``/``selectors``."""
+        return self._require_master()
+
+    def _require_master(self) -> int:
+        if self._master is None:
+            raise RuntimeError("PtyPort is not open")
+        return self._master
+
+    # -- I/O ---------------------------------------------------------------------------------
+    def read_available(self) -> bytes:
+        """Everything the client has written so far; ``b""`` when nothing (never blocks)."""
+        fd = self._require_master()
+        chunks: list[bytes] = []
+        while True:
+            try:
+                chunk = os.read(fd, 4096)
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                if exc.errno == errno.EIO:  # no slave open at all; cannot happen while we hold one
+                    break
+                raise
+            if not chunk:
+                break
+            chunks.append(chunk)
+        return b"".join(chunks)
+
+    def write(self, data: bytes) -> int:
+        """Write immediately.  Returns bytes written; bytes that do not fit in the pty buffer
+        (nobody reading) are dropped and counted in :attr:`dropped`, as on a real line."""
+        fd = self._require_master()
+        view = memoryview(bytes(data))
+        written = 0
+        while written < len(view):
+            try:
+                n = os.write(fd, view[written:])
+            except BlockingIOError:
+                break
+            if n <= 0:
+                break
+            written += n
+        self.dropped += len(view) - written
+        return written
+
+    def transmit_end_s(self, nbytes: int, now_s: float) -> float:
+        """When ``nbytes`` queued at ``now_s`` would finish on the line (updates line state)."""
+        start = max(now_s, self._line_free_at)
+        end = start + nbytes * byte_time_s(self.baud)
+        self._line_free_at = end
+        return end
+
+    def write_paced(self, data: bytes, now_s: float) -> float:
+        """Write ``data`` now and return the time its last byte would have finished on a real
+        line at :attr:`baud` (after anything still "on the line" from earlier calls).  The
+        caller's real-time loop should not send anything that depends on it before then."""
+        self.write(data)
+        return self.transmit_end_s(len(data), now_s)
+
+
+class PacedWriter:
+    """Holds bytes and releases them to a :class:`PtyPort` no faster than its baud rate.
+
+    Byte ``i`` of a burst queued when the line is free at ``t0`` is released at
+    ``t0 + (i + 1) * 10 / baud``, i.e. only once it would have been fully transmitted.
+    """
+
+    def __init__(self, port: PtyPort) -> None:
+        self.port = port
+        self._pending: deque[int] = deque()
+        self._line_time = 0.0  # when the last released byte finished on the line
+        self.released = 0
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def queue(self, data: bytes, now_s: float) -> None:
+        if not self._pending:
+            self._line_time = max(self._line_time, now_s)
+        self._pending.extend(data)
+
+    def releasable(self, now_s: float) -> int:
+        """How many pending bytes have finished transmission by ``now_s``."""
+        if not self._pending:
+            return 0
+        n = int((now_s - self._line_time) / byte_time_s(self.port.baud) + 1e-9)
+        return max(0, min(n, len(self._pending)))
+
+    def pump(self, now_s: float) -> bytes:
+        """Release the bytes due by ``now_s``; returns what was written."""
+        n = self.releasable(now_s)
+        if n == 0:
+            return b""
+        out = bytes(self._pending.popleft() for _ in range(n))
+        self._line_time += n * byte_time_s(self.port.baud)
+        self.port.write(out)
+        self.released += n
+        return out
+
+    def next_release_s(self) -> float | None:
+        """When the next pending byte becomes due, or None when nothing is pending."""
+        if not self._pending:
+            return None
+        return self._line_time + byte_time_s(self.port.baud)
+
+
+def make_link(link_dir: str | os.PathLike[str], name: str, port: PtyPort) -> Path:
+    """Create (or replace a stale) symlink ``link_dir/name`` -> ``port.path``."""
+    directory = Path(link_dir)
+    directory.mkdir(parents=True, exist_ok=True)
+    link = directory / name
+    if link.exists() and not link.is_symlink():
+        raise FileExistsError(f"{link} exists and is not a symlink")
+    tmp = directory / f".{name}.tmp{os.getpid()}"
+    if tmp.is_symlink():
+        tmp.unlink()
+    tmp.symlink_to(port.path)
+    os.replace(tmp, link)  # atomic replacement of any stale link
+    return link
+
+
+def remove_links(link_dir: str | os.PathLike[str], port: PtyPort) -> list[Path]:
+    """Remove the symlinks in ``link_dir`` that still point to ``port``'s pty.
+
+    Links re-pointed elsewhere (e.g. by another emulator instance) are left alone."""
+    directory = Path(link_dir)
+    removed: list[Path] = []
+    if not directory.is_dir():
+        return removed
+    target = port.path
+    for entry in directory.iterdir():
+        if entry.is_symlink() and os.readlink(entry) == target:
+            try:
+                entry.unlink()
+            except FileNotFoundError:
+                continue
+            removed.append(entry)
+    return removed

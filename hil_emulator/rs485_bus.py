@@ -1,0 +1,219 @@
+"""A multidrop half-duplex RS-485 line on the simulation :class:`~firmware_py.scheduler.Scheduler`.
+
+Every node is a :class:`~firmware_py.virtual_hal.VirtualUart` handed to :meth:`Rs485Bus.attach`.
+A frame a node sends occupies the line for its wire time (``bits_per_char`` x bytes / ``baud``;
+twice that with the Manchester line code) and reaches every *other* node, in one
+:meth:`~firmware_py.virtual_hal.VirtualUart.deliver` call per frame, ``turnaround_us`` after
+its last bit.  Frames that overlap in time collide: every receiver gets garbage for both.
+
+Faults (all drawn from one seeded :class:`numpy.random.Generator`, so a run is repeatable):
+
+* ``bit_error_rate``: each data bit of a frame flips with this probability;
+* :meth:`Rs485Bus.drop`: each frame is lost with this probability;
+* :meth:`Rs485Bus.set_line_cut`: nothing is delivered while the line is cut;
+* ``line_code="manchester"``: the frame is sent as Manchester chips
+  (:func:`protocol.manchester.encode_packed`), each chip flips with ``chip_error_rate``, and
+  the receivers get what :func:`protocol.manchester.decode_report_packed` recovers: characters
+  with an invalid chip pair or a framing error are left out (a real USART flags them) and
+  counted in ``manchester_bad_characters``.
+
+The line is one wire, so a frame's corruption is drawn once and every receiver sees the same
+bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip rate is twice it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from firmware_py.scheduler import Scheduler
+from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualUart
+from protocol import manchester
+
+__all__ = ["LineCode", "Rs485Bus", "Transmission"]
+
+LineCode = Literal["nrz", "manchester"]
+
+#: Default time from a frame's last bit to the receivers having it (µs).
+DEFAULT_TURNAROUND_US: Final = 2
+
+
+@dataclass
+class Transmission:
+    """One frame on the line: who sent it, when it occupied the line (µs), and its fate.
+
+    ``collided`` is set when another frame overlaps it (possibly after it was logged).
+    ``received`` is what the receivers got: ``None`` until delivery time, and ``b""`` when
+    nothing arrived (line cut, dropped, or every Manchester character bad).
+    """
+
+    name: str
+    start_us: int
+    end_us: int
+    data: bytes
+    collided: bool = False
+    received: bytes | None = None
+
+
+class _Node:
+    __slots__ = ("free_us", "name", "uart")
+
+    def __init__(self, uart: VirtualUart, name: str) -> None:
+        self.uart = uart
+        self.name = name
+        self.free_us = 0  # when this node's transmitter is done with the line
+
+
+class Rs485Bus:
+    """A shared half-duplex line: frames from one node reach all the others.
+
+    ``baud`` is the data bit rate (bit/s) that sets the wire time; ``bits_per_char`` the bits
+    per UART character (start + 8 data + stop).  ``collisions`` counts frames that started
+    while another was on the line (two overlapping frames count 1); ``log`` lists every
+    :class:`Transmission`.
+    """
+
+    def __init__(
+        self,
+        scheduler: Scheduler,
+        baud: int = 2_000_000,
+        turnaround_us: int = DEFAULT_TURNAROUND_US,
+        seed: int = 0,
+        bits_per_char: int = BITS_PER_CHAR,
+        line_code: LineCode = "nrz",
+        bit_error_rate: float = 0.0,
+        chip_error_rate: float = 0.0,
+    ) -> None:
+        if baud <= 0:
+            raise ValueError("baud must be positive")
+        if line_code not in ("nrz", "manchester"):
+            raise ValueError(f"unknown line code {line_code!r}")
+        self.scheduler = scheduler
+        self.baud = int(baud)
+        self.turnaround_us = int(turnaround_us)
+        self.bits_per_char = int(bits_per_char)
+        self.line_code: LineCode = line_code
+        self.bit_error_rate = float(bit_error_rate)
+        self.chip_error_rate = float(chip_error_rate)
+        self.drop_probability = 0.0
+        self.line_cut = False
+        self.collisions = 0
+        self.manchester_bad_characters = 0
+        self.log: list[Transmission] = []
+        self._rng = np.random.default_rng(seed)
+        self._nodes: list[_Node] = []
+        self._on_air: list[Transmission] = []  # frames not yet past their end time
+
+    # ---------------------------------------------------------------------------- set-up
+
+    def attach(self, uart: VirtualUart, name: str) -> None:
+        """Put ``uart`` on the line: its output goes to the bus, and it hears the others."""
+        if any(n.uart is uart for n in self._nodes):
+            raise ValueError(f"UART {name!r} is already on this bus")
+        node = _Node(uart, name)
+        self._nodes.append(node)
+        uart.peer = None
+        uart.sink = self._frame_left_uart
+        original_send = uart.send
+
+        def send(data: bytes) -> None:
+            before = len(uart.sent)
+            original_send(data)
+            if len(uart.sent) > before:  # the UART really transmitted (non-empty, enabled)
+                chunk = uart.sent[-1]
+                self._transmit(node, chunk.data, chunk.start_us)
+
+        # The bus must know a frame from its first bit to find collisions, so it hooks send.
+        setattr(uart, "send", send)  # noqa: B010 - assigning a method is what is meant
+
+    @property
+    def names(self) -> list[str]:
+        """The attached nodes' names, in attach order."""
+        return [n.name for n in self._nodes]
+
+    # ------------------------------------------------------------------------------ faults
+
+    def drop(self, probability: float) -> None:
+        """Lose each frame (for all receivers) with ``probability`` from now on."""
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError("probability must be in [0, 1]")
+        self.drop_probability = float(probability)
+
+    def set_line_cut(self, cut: bool) -> None:
+        """Cut (True) or repair (False) the line; a cut line delivers nothing."""
+        self.line_cut = bool(cut)
+
+    # ------------------------------------------------------------------------------ timing
+
+    def wire_time_us(self, n_bytes: int) -> int:
+        """Time ``n_bytes`` occupy the line (µs, rounded up); doubled on a Manchester line."""
+        bits = n_bytes * self.bits_per_char * (2 if self.line_code == "manchester" else 1)
+        return -(-bits * 1_000_000 // self.baud)
+
+    @property
+    def busy(self) -> bool:
+        """True while some frame is on the line."""
+        now = self.scheduler.now_us()
+        return any(t.start_us <= now < t.end_us for t in self._on_air)
+
+    # ----------------------------------------------------------------------------- internals
+
+    def _frame_left_uart(self, data: bytes, t_us: int) -> None:
+        """The UART's own end-of-frame callback: the bus already has the frame from send."""
+
+    def _transmit(self, node: _Node, data: bytes, start_us: int) -> None:
+        start = max(start_us, node.free_us)
+        end = start + self.wire_time_us(len(data))
+        node.free_us = end
+        tx = Transmission(node.name, start, end, bytes(data))
+        now = self.scheduler.now_us()
+        self._on_air = [t for t in self._on_air if t.end_us > now]
+        overlapping = [t for t in self._on_air if t.start_us < end and start < t.end_us]
+        if overlapping:
+            self.collisions += 1
+            tx.collided = True
+            for t in overlapping:
+                t.collided = True
+        self._on_air.append(tx)
+        self.log.append(tx)
+        self.scheduler.call_at(end + self.turnaround_us, lambda: self._deliver(node, tx))
+
+    def _deliver(self, sender: _Node, tx: Transmission) -> None:
+        if self.line_cut or (
+            self.drop_probability > 0.0 and self._rng.random() < self.drop_probability
+        ):
+            tx.received = b""
+            return
+        data = np.frombuffer(tx.data, dtype=np.uint8)
+        if tx.collided:
+            # Two drivers fighting: every character is garbage (never equal to what was sent).
+            data = data ^ self._rng.integers(1, 256, size=data.size, dtype=np.uint8)
+        if self.bit_error_rate > 0.0:
+            data = data ^ self._error_mask(data.size * 8, self.bit_error_rate)
+        if self.line_code == "manchester":
+            received = self._through_manchester(data)
+        else:
+            received = data.tobytes()
+        tx.received = received
+        if not received:
+            return
+        for node in self._nodes:
+            if node is not sender:
+                node.uart.deliver(received)
+
+    def _error_mask(self, n_bits: int, rate: float) -> npt.NDArray[np.uint8]:
+        """Packed (little bit order) mask with each of ``n_bits`` set with ``rate``."""
+        flips = self._rng.random(n_bits) < rate
+        return np.packbits(flips, bitorder="little")
+
+    def _through_manchester(self, data: npt.NDArray[np.uint8]) -> bytes:
+        packed = np.frombuffer(manchester.encode_packed(data), dtype=np.uint8)
+        n_chips = data.size * manchester.chips_per_character()
+        if self.chip_error_rate > 0.0:
+            packed = packed ^ self._error_mask(n_chips, self.chip_error_rate)
+        report = manchester.decode_report_packed(packed, n_chips=n_chips)
+        self.manchester_bad_characters += len(report.bad_characters)
+        return report.data
