@@ -4,8 +4,10 @@ One program, configured by the board type in the node's identity page: it listen
 board's upstream UART (``pogo`` on an fmcb, ``tendon`` on f2/f3, ``host`` on the palm),
 locks its own pages 0–31 (bootloader and identity), holds the phalange bus unpowered on an
 fmcb, and opens an autoboot window of :attr:`Bootloader.autoboot_us` µs on the node clock.
-Any frame addressed to the node (its address or broadcast, ping included) closes the window
-for good, as read, write and halt did on the original hand.
+Any bootloader command addressed to the node (its address or broadcast) closes the window
+for good, as read, write and halt did on the original hand.  The common messages (ping,
+identify, hw_version) are answered without closing it: a host that polls ``identify`` to
+learn when a node has booted must not be what keeps it in its bootloader.
 
 When the window ends the application starts only if the installed image verifies
 (:func:`inspect_image`): the header on page 32 parses and names this board and load
@@ -240,14 +242,17 @@ class Bootloader(HandNode):
             self.state = STATE_HALTED
 
     def on_frame(self, frame: Frame, uart: Uart) -> None:
-        """Any bootloader command for this node (ping included) halts the autoboot countdown.
+        """A bootloader command (``bl.*``) for this node halts the autoboot countdown.
 
-        Application traffic that a bootloader does not understand (the palm polling
-        ``fmcb.status`` while a finger boots, say) does not: otherwise a polled finger
-        would never leave its bootloader after a power cycle.
+        The common messages (ping, identify) and application traffic that a bootloader does
+        not understand (the palm polling ``fmcb.status`` while a finger boots, say) do not:
+        otherwise a polled or pinged finger would never leave its bootloader after a power
+        cycle.
         """
-        if self.accepts(frame) and CATALOGUE.lookup(self.node_kind, frame.type) is not None:
-            self.halt_autoboot()
+        if self.accepts(frame):
+            message = CATALOGUE.lookup(self.node_kind, frame.type)
+            if message is not None and message.node == "bootloader":
+                self.halt_autoboot()
         super().on_frame(frame, uart)
 
     def _autoboot(self) -> None:

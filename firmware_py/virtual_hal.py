@@ -77,6 +77,10 @@ class VirtualUart(hal.Uart):
         self._receiver: hal.ReceiveCallback | None = None
         self._line_free_us = 0
         self.enabled = True
+        #: Record every transmission in :attr:`sent` (tests); the emulator turns it off.
+        self.keep_sent = True
+        #: Called with each chunk when its first bit leaves (a bus model sees frames start).
+        self.on_transmit: Callable[[SentChunk], None] | None = None
 
     def wire_time_us(self, n_bytes: int) -> int:
         """Time ``n_bytes`` occupy the line (µs, rounded up)."""
@@ -90,7 +94,11 @@ class VirtualUart(hal.Uart):
         end = start + self.wire_time_us(len(data))
         self._line_free_us = end
         chunk = bytes(data)
-        self.sent.append(SentChunk(chunk, start, end))
+        record = SentChunk(chunk, start, end)
+        if self.keep_sent:
+            self.sent.append(record)
+        if self.on_transmit is not None:
+            self.on_transmit(record)
         self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
 
     def _arrive(self, data: bytes, t_us: int) -> None:
@@ -132,6 +140,8 @@ class VirtualCan(hal.CanController):
     def __init__(self, scheduler: Scheduler) -> None:
         self.scheduler = scheduler
         self.sent: list[tuple[int, bytes, int]] = []
+        #: Record every frame in :attr:`sent` (tests); the emulator turns it off.
+        self.keep_sent = True
         self.sink: Callable[[int, bytes, int], None] | None = None
         self._receiver: hal.CanReceiveCallback | None = None
         self._free_us = 0
@@ -143,7 +153,8 @@ class VirtualCan(hal.CanController):
         end = start + self.FRAME_US
         self._free_us = end
         frame = (arbitration_id, bytes(data), end)
-        self.sent.append(frame)
+        if self.keep_sent:
+            self.sent.append(frame)
         if self.sink is not None:
             sink = self.sink
             self.scheduler.call_at(end, lambda: sink(frame[0], frame[1], end))

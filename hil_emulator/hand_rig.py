@@ -10,16 +10,26 @@ top of this topology; tests use it as it is to run real firmware end to end.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 from firmware_py.boards import make_node
 from firmware_py.mcu import Mcu
+from firmware_py.phalange import HOLD_UP_US
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal, VirtualUart
+from firmware_py.virtual_hal import VirtualCan, VirtualHal, VirtualUart
+from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
 
 FINGERS = 4
+#: The tendon bus's data bit rate (bit/s); Manchester doubles the chip rate on the wire.
+TENDON_BAUD = 2_000_000
+#: Contact bounces when a finger is pushed back onto its pogo pins, and their length (µs).
+POGO_BOUNCES = 3
+POGO_BOUNCE_US = (200, 1_500)
 
 
 def _hal(mcu: Mcu) -> VirtualHal:
@@ -37,17 +47,25 @@ class Finger:
     f2: Mcu
     f3: Mcu
     attached: bool = True
+    #: The tendon line (with the emulator's line model), or None when wired ideally.
+    tendon_bus: Rs485Bus | None = None
 
 
 class HandRig:
     """Palm + four fingers on one scheduler, wired as on the real hand.
 
     ``uid_base`` numbers the nodes' unique ids; ``on_host_bytes`` (if given) receives what
-    the palm sends on its host UART, with the arrival time (µs).
+    the palm sends on its host UART, with the arrival time (µs); without it the bytes
+    collect in ``host_received``.  With ``line_model`` each finger's tendon bus is an
+    :class:`~hil_emulator.rs485_bus.Rs485Bus` carrying Manchester chips (seeded from
+    ``seed``), and ``record=False`` stops the UARTs from keeping what they sent (long runs).
     """
 
-    def __init__(self, scheduler: Scheduler | None = None, uid_base: int = 0x1000) -> None:
+    def __init__(self, scheduler: Scheduler | None = None, uid_base: int = 0x1000, *,
+                 line_model: bool = False, seed: int = 0, record: bool = True) -> None:
         self.scheduler = scheduler or Scheduler()
+        self.line_model = line_model
+        self._rng = np.random.default_rng(seed)
         self.palm = make_node(self.scheduler, BoardType.PALM, uid=uid_base)
         self.fingers: list[Finger] = []
         for k in range(FINGERS):
@@ -60,6 +78,12 @@ class HandRig:
             )
             self.fingers.append(finger)
             self._wire_finger(finger)
+        if not record:
+            for mcu in self.mcus:
+                hal = _hal(mcu)
+                for uart in hal.uarts.values():
+                    uart.keep_sent = False
+            _hal(self.palm).can().keep_sent = False
         self.host_received: list[tuple[bytes, int]] = []
         self.host_uart.sink = self._host_sink
         self.on_host_bytes: Callable[[bytes, int], None] | None = None
@@ -72,15 +96,11 @@ class HandRig:
         pogo = fmcb_hal.uart("pogo")
         palm_side.sink = lambda data, t: self._pogo_down(finger, data)
         pogo.sink = lambda data, t: self._pogo_up(finger, data)
-        tendon = fmcb_hal.uart("tendon")
-        phalanges = [_hal(finger.f2).uart("tendon"), _hal(finger.f3).uart("tendon")]
-        tendon.sink = lambda data, t: self._tendon_down(phalanges, data)
-        for p in phalanges:
-            p.sink = lambda data, t, p=p: self._tendon_up(tendon, phalanges, p, data)
+        wire_tendon_bus(finger, self.line_model,
+                        int(self._rng.integers(2**31)) if self.line_model else 0)
         palm_hal.power(f"finger{finger.index}").on_change.append(
             lambda state: self._finger_power(finger, state))
-        fmcb_hal.power("phalange").on_change.append(
-            lambda state: self._phalange_power(finger, state))
+        wire_phalange_power(finger)
 
     def _pogo_down(self, finger: Finger, data: bytes) -> None:
         if finger.attached and finger.fmcb.powered:
@@ -90,42 +110,33 @@ class HandRig:
         if finger.attached:
             _hal(self.palm).uart(f"finger{finger.index}").deliver(data)
 
-    @staticmethod
-    def _tendon_down(phalanges: list[VirtualUart], data: bytes) -> None:
-        for p in phalanges:
-            p.deliver(data)
-
-    @staticmethod
-    def _tendon_up(master: VirtualUart, phalanges: list[VirtualUart], sender: VirtualUart,
-                   data: bytes) -> None:
-        master.deliver(data)
-        for p in phalanges:  # half duplex: the other slave hears it too
-            if p is not sender:
-                p.deliver(data)
-
     def _finger_power(self, finger: Finger, state: int) -> None:
         if state and finger.attached:
             finger.fmcb.power_on()
         elif not state:
             finger.fmcb.power_off()
 
-    def _phalange_power(self, finger: Finger, state: int) -> None:
-        for node in (finger.f2, finger.f3):
-            if state and finger.fmcb.powered:
-                node.power_on()
-            else:
-                node.power_off()
-
     def _host_sink(self, data: bytes, t_us: int) -> None:
-        self.host_received.append((data, t_us))
         if self.on_host_bytes is not None:
             self.on_host_bytes(data, t_us)
+        else:
+            self.host_received.append((data, t_us))
 
     # --- what a bench does --------------------------------------------------------------
+    @property
+    def mcus(self) -> list[Mcu]:
+        """All thirteen microcontrollers: palm, then each finger's fmcb, f2, f3."""
+        return [self.palm] + [m for f in self.fingers for m in (f.fmcb, f.f2, f.f3)]
+
     @property
     def host_uart(self) -> VirtualUart:
         """The palm's USB serial UART."""
         return _hal(self.palm).uart("host")
+
+    @property
+    def palm_can(self) -> VirtualCan:
+        """The palm's CAN controller (the hand's second host link)."""
+        return _hal(self.palm).can()
 
     def power_on(self) -> None:
         """Hand supply on: the palm boots (its fingers stay off until commanded)."""
@@ -148,13 +159,167 @@ class HandRig:
         for node in (finger.f2, finger.f3, finger.fmcb):
             node.power_off()
 
-    def reattach(self, index: int) -> None:
-        """Finger ``index`` is pushed back on: it gets the palm's power state again."""
+    def reattach(self, index: int, bounce: bool = False) -> None:
+        """Finger ``index`` is pushed back on: it gets the palm's power state again.
+
+        With ``bounce`` the pogo contacts chatter first (:data:`POGO_BOUNCES` short
+        contacts of random length in :data:`POGO_BOUNCE_US`, each carrying a burst of line
+        noise to the palm's UART) and settle only after them."""
         finger = self.fingers[index]
+        if not bounce:
+            self._make_contact(finger)
+            return
+        t = 0
+        for _ in range(POGO_BOUNCES):
+            length = int(self._rng.integers(*POGO_BOUNCE_US))
+            noise = self._rng.integers(0, 256, size=int(self._rng.integers(1, 8)),
+                                       dtype=np.uint8).tobytes()
+            self.scheduler.call_later(t, functools.partial(self._bounce_contact, finger, noise))
+            self.scheduler.call_later(t + length, lambda: self._lose_contact(finger))
+            t += 2 * length
+        self.scheduler.call_later(t, lambda: self._make_contact(finger))
+
+    def _make_contact(self, finger: Finger) -> None:
         finger.attached = True
-        if _hal(self.palm).power(f"finger{index}").state:
+        if _hal(self.palm).power(f"finger{finger.index}").state:
             finger.fmcb.power_on()
+
+    def _bounce_contact(self, finger: Finger, noise: bytes) -> None:
+        self._make_contact(finger)
+        _hal(self.palm).uart(f"finger{finger.index}").deliver(noise)
+
+    def _lose_contact(self, finger: Finger) -> None:
+        finger.attached = False
+        for node in (finger.f2, finger.f3, finger.fmcb):
+            node.power_off()
+
+    def tendon_glitch(self, index: int, duration_us: int) -> None:
+        """Finger ``index``'s tendon contact opens for ``duration_us``: the bus carries
+        nothing meanwhile and the phalanges ride through on their hold-up or brown out."""
+        tendon_glitch(self.fingers[index], self.scheduler, duration_us)
 
     def run_for(self, duration_us: int) -> None:
         """Advance simulation time."""
+        self.scheduler.run_for(duration_us)
+
+
+def wire_tendon_bus(finger: Finger, line_model: bool, seed: int = 0) -> None:
+    """Wire ``finger``'s fmcb ``tendon`` UART and its phalanges' as one half-duplex bus.
+
+    With ``line_model`` the bus is an :class:`Rs485Bus` carrying Manchester chips (wire time,
+    collisions, chip errors); without it, frames go straight to the other nodes."""
+    master = _hal(finger.fmcb).uart("tendon")
+    phalanges = [_hal(finger.f2).uart("tendon"), _hal(finger.f3).uart("tendon")]
+    if line_model:
+        bus = Rs485Bus(master.scheduler, baud=TENDON_BAUD, seed=seed, line_code="manchester")
+        bus.attach(master, "fmcb")
+        bus.attach(phalanges[0], "f2")
+        bus.attach(phalanges[1], "f3")
+        finger.tendon_bus = bus
+        return
+
+    def down(data: bytes, t_us: int) -> None:
+        for p in phalanges:
+            p.deliver(data)
+
+    def up(sender: VirtualUart, data: bytes) -> None:
+        master.deliver(data)
+        for p in phalanges:  # half duplex: the other slave hears it too
+            if p is not sender:
+                p.deliver(data)
+
+    master.sink = down
+    for p in phalanges:
+        p.sink = lambda data, t, p=p: up(p, data)
+
+
+def tendon_glitch(finger: Finger, scheduler: Scheduler, duration_us: int) -> None:
+    """The tendon contact of ``finger`` opens for ``duration_us`` µs starting now."""
+    if duration_us <= 0:
+        raise ValueError("a glitch lasts a positive time")
+    bus = finger.tendon_bus
+    if bus is not None:
+        bus.set_line_cut(True)
+        scheduler.call_later(duration_us, lambda: bus.set_line_cut(False))
+
+    if duration_us <= HOLD_UP_US:
+        return  # the phalanges ride through on their bulk capacitance
+
+    def brown_out() -> None:
+        for node in (finger.f2, finger.f3):
+            node.power_off()
+
+    def restored() -> None:
+        if finger.fmcb.powered and _hal(finger.fmcb).power("phalange").state:
+            for node in (finger.f2, finger.f3):
+                node.power_on()
+
+    scheduler.call_later(HOLD_UP_US, brown_out)
+    scheduler.call_later(duration_us, restored)
+
+
+def wire_phalange_power(finger: Finger) -> None:
+    """The fmcb's ``phalange`` switch powers f2 and f3 (through the tendons)."""
+
+    def switched(state: int) -> None:
+        for node in (finger.f2, finger.f3):
+            if state and finger.fmcb.powered:
+                node.power_on()
+            else:
+                node.power_off()
+
+    _hal(finger.fmcb).power("phalange").on_change.append(switched)
+
+
+class LooseFinger:
+    """One finger module on a bench, on the original's 'loose finger' cable.
+
+    The cable carries the fmcb's pogo bus (2 Mbaud) to the host and its supply; the tendon
+    bus to f2/f3 is wired as on the hand (:func:`wire_tendon_bus`).  What the fmcb sends on
+    its pogo UART reaches ``on_host_bytes`` (or collects in ``host_received``).
+    """
+
+    def __init__(self, scheduler: Scheduler | None = None, uid: int = 0x2010, *,
+                 line_model: bool = False, seed: int = 0, record: bool = True) -> None:
+        self.scheduler = scheduler or Scheduler()
+        self.finger = Finger(0, make_node(self.scheduler, BoardType.FMCB, uid=uid),
+                             make_node(self.scheduler, BoardType.F2, uid=uid + 1),
+                             make_node(self.scheduler, BoardType.F3, uid=uid + 2))
+        wire_tendon_bus(self.finger, line_model, seed)
+        wire_phalange_power(self.finger)
+        if not record:
+            for mcu in (self.finger.fmcb, self.finger.f2, self.finger.f3):
+                for uart in _hal(mcu).uarts.values():
+                    uart.keep_sent = False
+        self.host_received: list[tuple[bytes, int]] = []
+        self.on_host_bytes: Callable[[bytes, int], None] | None = None
+        self.host_uart.sink = self._host_sink
+
+    @property
+    def host_uart(self) -> VirtualUart:
+        """The fmcb's pogo UART, which the cable brings to the host."""
+        return _hal(self.finger.fmcb).uart("pogo")
+
+    def _host_sink(self, data: bytes, t_us: int) -> None:
+        if self.on_host_bytes is not None:
+            self.on_host_bytes(data, t_us)
+        else:
+            self.host_received.append((data, t_us))
+
+    def power_on(self) -> None:
+        """Cable supply on: the fmcb's bootloader starts its autoboot window."""
+        self.finger.fmcb.power_on()
+
+    def send_from_host(self, data: bytes) -> None:
+        """Bytes from the host arrive at the fmcb now."""
+        self.host_uart.deliver(data)
+
+    def take_host_bytes(self) -> bytes:
+        """Everything the fmcb sent to the host since the last call."""
+        out = b"".join(d for d, _ in self.host_received)
+        self.host_received.clear()
+        return out
+
+    def run_for(self, duration_us: int) -> None:
+        """Advance simulation time (µs)."""
         self.scheduler.run_for(duration_us)

@@ -23,6 +23,7 @@ bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip ra
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Final, Literal
 
@@ -37,6 +38,8 @@ __all__ = ["LineCode", "Rs485Bus", "Transmission"]
 
 LineCode = Literal["nrz", "manchester"]
 
+#: Transmissions kept in :attr:`Rs485Bus.log`.
+LOG_LENGTH: Final = 4096
 #: Default time from a frame's last bit to the receivers having it (µs).
 DEFAULT_TURNAROUND_US: Final = 2
 
@@ -102,7 +105,8 @@ class Rs485Bus:
         self.line_cut = False
         self.collisions = 0
         self.manchester_bad_characters = 0
-        self.log: list[Transmission] = []
+        #: The most recent transmissions (at most :data:`LOG_LENGTH`).
+        self.log: deque[Transmission] = deque(maxlen=LOG_LENGTH)
         self._rng = np.random.default_rng(seed)
         self._nodes: list[_Node] = []
         self._on_air: list[Transmission] = []  # frames not yet past their end time
@@ -117,17 +121,8 @@ class Rs485Bus:
         self._nodes.append(node)
         uart.peer = None
         uart.sink = self._frame_left_uart
-        original_send = uart.send
-
-        def send(data: bytes) -> None:
-            before = len(uart.sent)
-            original_send(data)
-            if len(uart.sent) > before:  # the UART really transmitted (non-empty, enabled)
-                chunk = uart.sent[-1]
-                self._transmit(node, chunk.data, chunk.start_us)
-
-        # The bus must know a frame from its first bit to find collisions, so it hooks send.
-        setattr(uart, "send", send)  # noqa: B010 - assigning a method is what is meant
+        # The bus must know a frame from its first bit to find collisions.
+        uart.on_transmit = lambda chunk: self._transmit(node, chunk.data, chunk.start_us)
 
     @property
     def names(self) -> list[str]:

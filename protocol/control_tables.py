@@ -353,7 +353,7 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _ram(60, 2, "R", 0, "deflection", "motor angle after reduction - joint angle, counts",
          signed=True),
     _ram(62, 2, "RW", 300, "slip_threshold", "counts of |deflection| flagging SLIP", 1),
-    _ram(64, 2, "RW", 100, "deflection_limit", "counts of |deflection| flagging STALLED", 1),
+    _ram(64, 2, "RW", 150, "deflection_limit", "counts of |deflection| flagging STALLED", 1),
     _ram(66, 2, "RW", 800, "run_current", "mA while moving", 0, 3000),
     _ram(68, 2, "RW", 300, "holding_current", "mA at standstill", 0, 3000),
     _ram(70, 1, "R", 0, "index_seen", "1 = index pulse latched"),

@@ -177,7 +177,7 @@ def test_slip_and_stall_latch_until_cleared(node):
 
 def test_small_deflection_only_stalls(node):
     sched, hal, _ = node
-    hal.encoder().value = 150  # 100 < 150 <= 300
+    hal.encoder().value = 200  # deflection_limit 150 < 200 <= slip_threshold 300
     sched.run_for(2_000)
     flags = read(sched, hal, "status_flags")
     assert flags & StepperFlag.STALLED and not flags & StepperFlag.SLIP

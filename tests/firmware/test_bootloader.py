@@ -147,8 +147,8 @@ def test_bootloader_listens_on_the_upstream_uart_and_identifies(board: BoardType
     assert reply["address"] == ADDRESS[board]
 
 
-@pytest.mark.parametrize("name", ["ping", "bl.halt", "bl.read_page", "hw_version"])
-def test_any_command_inside_the_window_halts_autoboot(name: str) -> None:
+@pytest.mark.parametrize("name", ["bl.halt", "bl.read_page", "bl.info", "bl.status"])
+def test_a_bootloader_command_inside_the_window_halts_autoboot(name: str) -> None:
     mcu = new_node()
     mcu.power_on()
     run(mcu, 2_000_000)
@@ -162,13 +162,25 @@ def test_any_command_inside_the_window_halts_autoboot(name: str) -> None:
     assert info["image_status"] == 0
 
 
+@pytest.mark.parametrize("name", ["ping", "identify", "hw_version"])
+def test_common_messages_are_answered_without_halting_autoboot(name: str) -> None:
+    """A host polling identify to learn when a node has booted must not strand it."""
+    mcu = new_node()
+    mcu.power_on()
+    for _ in range(5):
+        assert ask(mcu, name) is not None
+        run(mcu, 200_000)
+    run(mcu, WINDOW)
+    assert mcu.program_name == "fmcb"
+
+
 def test_a_broadcast_halts_autoboot_without_a_reply() -> None:
     mcu = new_node()
     mcu.power_on()
-    send(mcu, "ping", address=ADDR_BROADCAST)
+    send(mcu, "bl.halt", address=ADDR_BROADCAST)
     run(mcu, WINDOW * 2)
     assert mcu.in_bootloader
-    assert replies(mcu, "ping") == []
+    assert replies(mcu, "bl.halt") == []
 
 
 def test_a_frame_for_another_node_does_not_halt_autoboot() -> None:

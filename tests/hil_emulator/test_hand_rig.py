@@ -47,7 +47,7 @@ def route(rig: HandRig, finger: int, hop: int, name: str, timeout_ms: int = 20,
 @pytest.fixture(scope="module")
 def booted_hand() -> HandRig:
     """A hand with the palm booted, all fingers at full power and phalanges powered."""
-    rig = HandRig()
+    rig = HandRig(line_model=True, seed=3)
     rig.power_on()
     rig.run_for(4 * S)  # palm bootloader window, then the palm application
     assert rig.palm.program_name == "palm"

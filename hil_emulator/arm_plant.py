@@ -1,0 +1,495 @@
+"""The arm as a plant part: four series-elastic stepper joints and three RX-64 servos.
+
+:class:`ArmPlant` connects the model of :func:`hil_emulator.arm_model.add_arm` to the arm's
+seven nodes' HALs (bus IDs 1–4: :class:`~firmware_py.arm_stepper.StepperNodeApp`, IDs 5–7:
+:class:`~firmware_py.rx64.Rx64ServoApp`).  The physics of the actuators is described in
+:mod:`hil_emulator.arm_actuators`; here is how it meets the firmware.
+
+Stepper joints J1–J4, every 1 ms tick (:meth:`ArmPlant.before_step`):
+
+* rotor angle at the joint = ``stepper._exact()`` microsteps × ``2π / (200·16·G)`` plus the
+  whole electrical periods it has slipped (``G`` = :attr:`ArmParams.reductions`, which must
+  equal the node's ``gear_reduction_x100 / 100``); positive steps turn the joint positive;
+* capstan angle ``φ`` adds the belt/cable coupling ``C·(q − q_start)``; the linear spring is
+  MuJoCo joint stiffness about ``qpos_spring = φ`` (re-set every tick to its mid-tick value,
+  evaluated every 0.5 ms), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
+  applied; hysteresis, solid-tube and ``−Cᵀτ`` terms are applied forces;
+* the stepper's capacity follows its commanded current (``stepper.current``, mA): holding
+  torque at standstill, holding / 1.6 while stepping, the detent torque at 0 mA.  Beyond it
+  the rotor slips by whole electrical periods (plus a random 0–2 more) until the torque is
+  within capacity; :meth:`ArmPlant.slips` counts slip events of an energised motor (slips
+  less than :attr:`ArmParams.slip_event_gap_s` apart are one event).  An unpowered rotor
+  simply follows the spring (detent torque only); that is not counted.
+
+After the physics (:meth:`ArmPlant.after_step`) each joint encoder's ``value`` is the joint
+angle since power-up in counts (10 000 per rev, count 0 at the start pose) and
+``pulse_index()`` fires when the joint crosses its index angle (:attr:`ArmParams.index_angles`,
+either direction), with ``value`` at that moment the count of the index angle itself.
+
+RX-64 joints J5–J7: with ``motor.enabled``, torque ``stall·clip(duty − ω/ω₀, ±1)`` (duty from
+the firmware, + = counter-clockwise = positive joint angle); sensors ``pot`` (0..1023 over
+300°, 512 at joint angle 0, Gaussian noise :attr:`ArmParams.pot_noise_units`), ``load``
+(applied torque in 1/1023 of stall, signed), ``temperature`` (0.1 °C, I²R model),
+``supply_mv``; ``motor.current`` (mA).
+
+Temperatures (stepper drivers and RX-64s) are refreshed every
+:attr:`ArmParams.thermal_every_ticks` ticks (10 ms by default); everything else every tick.
+Random draws (pot noise, drawn in blocks of 1000 ticks, and slip overshoot) come from the
+generator given.
+
+Performance: the per-tick work runs on Python floats joint by joint, not numpy: with 4 + 3
+joints numpy's per-call overhead made it several times slower (≈ 220 µs per tick against
+≈ 25 µs for both hooks measured alone, ≈ 50 µs interleaved with the seven nodes' firmware).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Final
+
+import mujoco
+import numpy as np
+
+from firmware_py.virtual_hal import VirtualHal
+from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
+from hil_emulator.arm_model import ARM_JOINTS, RX64_RANGE_RAD
+from hil_emulator.errors import EmulatorConfigError, PlantError
+from hil_emulator.plant import TICK_US
+
+__all__ = ["ArmParams", "ArmPlant", "POT_CENTRE", "POT_UNITS_PER_RAD"]
+
+#: RX-64 potentiometer: counts at joint angle 0, and counts per rad (1024 over 300°).
+POT_CENTRE: Final = 512
+POT_UNITS_PER_RAD: Final = 1024 / RX64_RANGE_RAD
+#: Ticks of potentiometer noise drawn at once.
+NOISE_BLOCK_TICKS: Final = 1000
+_N_STEPPERS: Final = 4
+_N_SERVOS: Final = 3
+_STEPPERS: Final = range(_N_STEPPERS)
+_SERVOS: Final = range(_N_SERVOS)
+
+
+def _floats(values: np.ndarray) -> list[float]:
+    return [float(v) for v in values]
+
+
+class ArmPlant:
+    """The arm's joints wired to the HALs of its nodes (a :class:`~hil_emulator.plant.PlantPart`).
+
+    ``stepper_hals``: the HALs of the stepper nodes of J1..J4 (bus IDs 1–4);
+    ``servo_hals``: the HALs of the RX-64s of J5..J7 (IDs 5–7); ``prefix`` the one given to
+    :func:`~hil_emulator.arm_model.add_arm`.  Joint indices 0..6 mean J1..J7.
+    """
+
+    def __init__(self, prefix: str, stepper_hals: Sequence[VirtualHal],
+                 servo_hals: Sequence[VirtualHal], rng: np.random.Generator,
+                 params: ArmParams | None = None) -> None:
+        if len(stepper_hals) != _N_STEPPERS or len(servo_hals) != _N_SERVOS:
+            raise EmulatorConfigError(f"the arm needs {_N_STEPPERS} stepper and {_N_SERVOS} "
+                                      f"servo HALs, got {len(stepper_hals)} and "
+                                      f"{len(servo_hals)}")
+        self.prefix = prefix
+        self.params = p = params or ArmParams()
+        self.rng = rng
+        self._steppers = [h.stepper() for h in stepper_hals]
+        self._encoders = [h.encoder() for h in stepper_hals]
+        self._stepper_sensors = [h.sensors.values for h in stepper_hals]
+        self._motors = [h.motor(0) for h in servo_hals]
+        self._servo_sensors = [h.sensors.values for h in servo_hals]
+        # Per-stepper constants (J1..J4) as Python floats for the tick.
+        self._k = _floats(p.stiffness)
+        self._c = _floats(p.damping)
+        self._h = _floats(p.hysteresis)
+        self._travel = _floats(p.travel_rad)
+        self._k_solid = _floats(p.stiffness * (p.stop_stiffness_factor - 1.0))
+        self._microstep = _floats(p.microstep_rad)
+        self._period = _floats(p.period_rad)
+        self._hold_per_ma = _floats(p.holding_torque_nm(1.0))
+        self._detent = _floats(p.detent_torque_at_joint)
+        self._index = _floats(p.index_angles)
+        self._margin = float(p.holding_margin)
+        self._width = float(p.hysteresis_width_rad)
+        c = p.coupling
+        self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
+        self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
+        self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
+        self._pot_per_rad = float(POT_UNITS_PER_RAD)
+        self._stall = p.rx64_stall_at_supply
+        self._emf = p.rx64_emf_damping
+        self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
+        self._amps_per_nm = p.rx64_stall_current_a / self._stall
+        # Physical state (set in bind).
+        self._q_start = [0.0] * 7
+        self._phi_offset = [0.0] * _N_STEPPERS
+        self._slip_rad = [0.0] * _N_STEPPERS  # rotor offset from the step count (rad, joint)
+        self._slip_dir = [0.0] * _N_STEPPERS  # sign of the last slip
+        self._slipping = [False] * _N_STEPPERS  # slid and not yet re-locked
+        self._slip_events = [0] * _N_STEPPERS
+        self._last_slip_tick = [-(10 ** 9)] * _N_STEPPERS
+        self._event_gap_ticks = round(p.slip_event_gap_s * 1e6 / TICK_US)
+        self._z = [0.0] * _N_STEPPERS
+        self._deflection = [0.0] * _N_STEPPERS
+        self._coupling_torque = [0.0] * _N_STEPPERS
+        self._above_index = [False] * _N_STEPPERS
+        self._push = [0.0] * len(ARM_JOINTS)
+        self._servo_torque = [0.0] * _N_SERVOS
+        self._servo_enabled = [False] * _N_SERVOS
+        self._phase_ohm = _floats(p.phase_resistance_ohm)
+        self._stepper_rth = _floats(p.stepper_thermal_resistance)
+        self._stepper_cap = _floats(p.stepper_thermal_capacity)
+        self._stepper_temp = [p.ambient_c] * _N_STEPPERS  # °C
+        self._servo_temp = [p.ambient_c] * _N_SERVOS
+        self._heat_stepper = [0.0] * _N_STEPPERS  # Σ I² (A²) since the last thermal update
+        self._heat_servo = [0.0] * _N_SERVOS
+        self._noise: list[float] = []
+        self._noise_at = 0
+        self._ticks = 0
+        self._bound = False
+
+    # ------------------------------------------------------------------ binding
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Find the arm's joints; set the couplings' stiffness/damping in ``model``; take the
+        present pose as power-up (encoders 0) with every capstan where its spring balances
+        gravity (``data.qfrc_bias``: ``data`` must be after ``mj_forward``, as
+        :class:`~hil_emulator.plant.Plant` leaves it); write the initial sensor values."""
+        p = self.params
+        jids = []
+        for name in ARM_JOINTS:
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.prefix + name)
+            if jid < 0:
+                raise PlantError(f"the model has no joint {self.prefix + name!r}; build it "
+                                 f"with arm_model.add_arm(prefix={self.prefix!r})")
+            if model.jnt_type[jid] != mujoco.mjtJoint.mjJNT_HINGE:
+                raise PlantError(f"joint {self.prefix + name!r} is not a hinge")
+            jids.append(jid)
+        qadr = model.jnt_qposadr[jids]
+        dadr = model.jnt_dofadr[jids]
+        if not (np.all(np.diff(qadr) == 1) and np.all(np.diff(dadr) == 1)):
+            raise PlantError("the arm's joints are not one contiguous chain in the model")
+        self.model, self.data = model, data
+        q0, d0 = int(qadr[0]), int(dadr[0])
+        self._qpos = data.qpos[q0 : q0 + 7]
+        self._qvel = data.qvel[d0 : d0 + 7]
+        self._force = data.qfrc_applied[d0 : d0 + 7]
+        self._spring_ref = model.qpos_spring[q0 : q0 + _N_STEPPERS]
+        self._damping = model.dof_damping[d0 : d0 + 7]
+        model.jnt_stiffness[jids[:4]] = p.stiffness
+        model.jnt_stiffness[jids[4:]] = 0.0
+        self._damping[:4] = p.damping
+        if not self._bound:  # the model's own RX-64 gear damping, before any back-EMF
+            self._gear_damping = _floats(self._damping[4:])
+        self._damping[4:] = self._gear_damping
+        self._servo_enabled = [False] * _N_SERVOS
+
+        q_start = self._qpos.copy()
+        self._q_start = _floats(q_start)
+        # Capstans where the springs balance gravity (and whatever else presses) at rest:
+        # generalised spring forces (I − Cᵀ)·τ = bias.
+        bias = data.qfrc_bias[d0 : d0 + _N_STEPPERS]
+        torque0 = np.linalg.solve(np.eye(4) - p.coupling.T, bias)
+        deflection0 = np.array([deflection_at_torque(p, i, float(torque0[i]), 0.0)
+                                for i in _STEPPERS])
+        phi0 = q_start[:4] + deflection0
+        self._phi_offset = _floats(phi0 - self._rotor_command())
+        self._deflection = _floats(deflection0)
+        self._coupling_torque = _floats(torque0)
+        self._spring_ref[:] = phi0
+        self._z = [0.0] * _N_STEPPERS
+        self._slip_rad = [0.0] * _N_STEPPERS
+        self._slipping = [False] * _N_STEPPERS
+        self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
+        for sensors in self._stepper_sensors:
+            sensors["supply_mv"] = p.stepper_supply_mv
+        for sensors in self._servo_sensors:
+            sensors["supply_mv"] = p.rx64_supply_mv
+        self._bound = True
+        self._write_encoders(self._q_start, index=False)
+        self._write_servo_sensors(self._q_start)
+        self._write_temperatures()
+
+    # ------------------------------------------------------------------ public queries
+
+    def joint_angles(self) -> np.ndarray:
+        """Joint angles J1..J7 (rad, model coordinates)."""
+        self._check_bound()
+        return self._qpos.copy()
+
+    def capstan_angles(self) -> np.ndarray:
+        """Capstan angles φ of J1..J4 now (rad, joint coordinates)."""
+        self._check_bound()
+        q = self._qpos.tolist()
+        return np.array([self._capstan(i, q) for i in _STEPPERS])
+
+    def deflections(self) -> np.ndarray:
+        """Coupling deflections φ − q of J1..J4 now (rad; + = capstan ahead of the joint)."""
+        return self.capstan_angles() - self._qpos[:4]
+
+    def coupling_torques(self) -> np.ndarray:
+        """Torques the couplings of J1..J4 applied over the last tick (N·m on the joint)."""
+        return np.array(self._coupling_torque)
+
+    def holding_torques(self) -> np.ndarray:
+        """What each stepper resists now before slipping (N·m at the joint)."""
+        return np.array([self._capacity(i, float(s.current), s.rate != 0.0)
+                         for i, s in enumerate(self._steppers)])
+
+    def slips(self) -> np.ndarray:
+        """Slip events of each energised stepper J1..J4 since binding."""
+        return np.array(self._slip_events, dtype=np.int64)
+
+    def slipped_periods(self) -> np.ndarray:
+        """Net electrical periods (4 full steps) each rotor has slipped, powered or not
+        (whole numbers once re-locked)."""
+        return np.array(self._slip_rad) / np.array(self._period)
+
+    def servo_torques(self) -> np.ndarray:
+        """Torques the RX-64s of J5..J7 applied over the last tick (N·m)."""
+        return np.array(self._servo_torque)
+
+    def push(self, joint: int, torque_nm: float) -> None:
+        """Fault injection: an external torque (N·m, + = positive joint direction) on joint
+        ``joint`` (0..6 = J1..J7) from now until set back to 0."""
+        if not 0 <= joint < len(ARM_JOINTS):
+            raise EmulatorConfigError(f"joint index {joint} is not 0..{len(ARM_JOINTS) - 1}")
+        self._push[joint] = float(torque_nm)
+
+    # ------------------------------------------------------------------ the tick
+
+    def before_step(self, dt_s: float) -> None:
+        """Firmware commands → capstan references, coupling and servo forces for ``dt_s``."""
+        self._check_bound()
+        q = self._qpos.tolist()
+        qd = self._qvel.tolist()
+        dq = [q[j] - self._q_start[j] for j in _STEPPERS]
+        k, c, h, travel, k_solid = self._k, self._c, self._h, self._travel, self._k_solid
+        z_all, push = self._z, self._push
+        hold_per_ma, detent, margin = self._hold_per_ma, self._detent, self._margin
+        inv_width, exp = 1.0 / self._width, math.exp
+        half_dt = 0.5 * dt_s
+        torques = self._coupling_torque
+        refs = [0.0] * _N_STEPPERS
+        forces = [0.0] * 7
+        for i, stepper in enumerate(self._steppers):
+            rate = stepper.rate
+            current = float(stepper.current)
+            phi = (self._phi_offset[i] + stepper._exact() * self._microstep[i]
+                   + self._slip_rad[i])
+            phi_rate = rate * self._microstep[i]
+            for j, cij in self._c_rows[i]:
+                phi += cij * dq[j]
+                phi_rate += cij * qd[j]
+            deflection = phi - q[i]
+            z = z_all[i]
+            change = deflection - self._deflection[i]
+            if change:  # Dahl hysteresis, exact for a monotone change
+                sign = 1.0 if change > 0 else -1.0
+                z = sign - (sign - z) * exp(-abs(change) * inv_width)
+            viscous = c[i] * (phi_rate - qd[i])
+            solid = 0.0
+            if deflection > travel[i]:
+                solid = k_solid[i] * (deflection - travel[i])
+            elif deflection < -travel[i]:
+                solid = k_solid[i] * (deflection + travel[i])
+            extra = h[i] * z + solid
+            torque = k[i] * deflection + extra + viscous
+            capacity = hold_per_ma[i] * current
+            if rate:
+                capacity /= margin  # pull-out torque while stepping
+            if capacity < detent[i]:
+                capacity = detent[i]
+            over = torque > capacity or torque < -capacity
+            if over or (self._slipping[i] and current > 0.0):
+                if over:
+                    deflection, z = self._slip(i, deflection, torque, capacity, z, viscous,
+                                               current)
+                else:
+                    deflection, z = self._relock(i, deflection, capacity, z, viscous)
+                extra = h[i] * z + k_solid[i] * _beyond(deflection, travel[i])
+                torque = k[i] * deflection + extra + viscous
+                phi = deflection + q[i]
+            z_all[i] = z
+            self._deflection[i] = deflection
+            torques[i] = torque
+            self._heat_stepper[i] += current * current * 1e-6
+            # MuJoCo: k·(φ_mid − q) − c·q̇; here the rest (c·φ̇, hysteresis, solid tubes).
+            refs[i] = phi + phi_rate * half_dt
+            forces[i] = c[i] * phi_rate + extra + push[i]
+        for j, column in enumerate(self._c_cols):
+            for i, cij in column:
+                forces[j] -= cij * torques[i]
+        self._spring_ref[:] = refs
+
+        # RX-64s: stall·clip(duty − ω/ω₀); the back-EMF part −(stall/ω₀)·ω is MuJoCo damping.
+        stall, emf, enabled_now = self._stall, self._emf, self._servo_enabled
+        for s, motor in enumerate(self._motors):
+            enabled = motor.enabled
+            omega = qd[4 + s]
+            if enabled:
+                drive = motor.duty - omega * self._inv_noload
+                drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
+                forces[4 + s] = drive + emf * omega + push[4 + s]
+            else:
+                drive = 0.0
+                forces[4 + s] = push[4 + s]
+            if enabled != enabled_now[s]:
+                enabled_now[s] = enabled
+                self._damping[4 + s] = self._gear_damping[s] + (emf if enabled else 0.0)
+            self._servo_torque[s] = drive
+            amps = drive * self._amps_per_nm
+            self._heat_servo[s] += amps * amps
+        self._force[:] = forces
+
+    def after_step(self, dt_s: float) -> None:
+        """Physics → encoder counts and index pulses, servo sensors, temperatures."""
+        self._check_bound()
+        self._ticks += 1
+        q = self._qpos.tolist()
+        self._write_encoders(q, index=True)
+        self._write_servo_sensors(q)
+        every = self.params.thermal_every_ticks
+        if self._ticks % every == 0:
+            self._update_temperatures(every * dt_s)
+            self._write_temperatures()
+
+    # ------------------------------------------------------------------ internals
+
+    def _check_bound(self) -> None:
+        if not self._bound:
+            raise PlantError("ArmPlant used before bind(model, data)")
+
+    def _rotor_command(self) -> np.ndarray:
+        """Commanded rotor angles at the joints (rad) from the step generators."""
+        return np.array([s._exact() * m for s, m in zip(self._steppers, self._microstep,
+                                                         strict=True)])
+
+    def _capstan(self, i: int, q: list[float]) -> float:
+        phi = (self._phi_offset[i] + self._steppers[i]._exact() * self._microstep[i]
+               + self._slip_rad[i])
+        for j, cij in self._c_rows[i]:
+            phi += cij * (q[j] - self._q_start[j])
+        return phi
+
+    def _capacity(self, i: int, current_ma: float, stepping: bool) -> float:
+        """Torque stepper ``i`` holds before slipping (N·m at the joint)."""
+        holding = self._hold_per_ma[i] * current_ma
+        if stepping:
+            holding /= self._margin
+        return max(holding, self._detent[i])
+
+    def _slip(self, i: int, deflection: float, torque: float, capacity: float, z: float,
+              viscous: float, current: float) -> tuple[float, float]:
+        """The rotor of stepper ``i`` slides until the coupling transmits just ``capacity``;
+        returns the new deflection and hysteresis state."""
+        offset = self._h[i] * z + viscous
+        wanted = deflection_at_torque(self.params, i, capacity if torque > 0 else -capacity,
+                                      offset)
+        change = wanted - deflection
+        self._slip_rad[i] += change
+        self._slip_dir[i] = 1.0 if change > 0 else -1.0
+        self._slipping[i] = True
+        if current > 0.0:
+            if self._ticks - self._last_slip_tick[i] > self._event_gap_ticks:
+                self._slip_events[i] += 1
+            self._last_slip_tick[i] = self._ticks
+        return wanted, self._hysteresis(z, change)
+
+    def _relock(self, i: int, deflection: float, capacity: float, z: float, viscous: float
+                ) -> tuple[float, float]:
+        """An energised rotor that has slid settles on an electrical equilibrium (a whole
+        number of periods from the step count) within ``capacity``, if there is one: the
+        nearest, perhaps a random few periods further in the slip's direction."""
+        p = self.params
+        period = self._period[i]
+        offset = self._h[i] * z + viscous
+        slid = self._slip_rad[i]
+        periods = slid / period
+        nearest = round(periods)
+        other = nearest + (1 if periods > nearest else -1)
+        for n in (nearest, other):
+            if abs(spring_torque(p, i, deflection + n * period - slid) + offset) <= capacity:
+                break
+        else:
+            return deflection, z  # no equilibrium holds yet: keeps sliding
+        step = 1 if self._slip_dir[i] > 0 else -1
+        for _ in range(int(self.rng.integers(0, p.slip_overshoot_periods + 1))):
+            trial = deflection + (n + step) * period - slid
+            if abs(spring_torque(p, i, trial) + offset) > capacity:
+                break
+            n += step
+        change = n * period - slid
+        self._slip_rad[i] = n * period
+        self._slipping[i] = False
+        return deflection + change, self._hysteresis(z, change)
+
+    def _hysteresis(self, z: float, change: float) -> float:
+        """Dahl state after the deflection changed by ``change`` (rad)."""
+        if not change:
+            return z
+        sign = 1.0 if change > 0 else -1.0
+        return sign - (sign - z) * math.exp(-abs(change) / self._width)
+
+    def _write_encoders(self, q: list[float], index: bool) -> None:
+        """Counts since power-up; a crossed index mark pulses with the count of the mark
+        itself (as the encoder latches it), then the count moves on to the joint's."""
+        cpr, q_start = self._counts_per_rad, self._q_start
+        for i, encoder in enumerate(self._encoders):
+            count = math.floor((q[i] - q_start[i]) * cpr + 0.5)
+            above = q[i] >= self._index[i]
+            if above != self._above_index[i]:
+                self._above_index[i] = above
+                if index:
+                    encoder.value = math.floor((self._index[i] - q_start[i]) * cpr + 0.5)
+                    encoder.pulse_index()
+            encoder.value = count
+
+    def _write_servo_sensors(self, q: list[float]) -> None:
+        if self._noise_at >= len(self._noise):
+            sigma = self.params.pot_noise_units
+            self._noise = (self.rng.standard_normal(_N_SERVOS * NOISE_BLOCK_TICKS)
+                           * sigma).tolist()
+            self._noise_at = 0
+        noise = self._noise
+        at = self._noise_at
+        self._noise_at = at + _N_SERVOS
+        scale = 1023.0 / self._stall
+        for s, sensors in enumerate(self._servo_sensors):
+            pot = round(POT_CENTRE + q[4 + s] * self._pot_per_rad + noise[at + s])
+            sensors["pot"] = 0 if pot < 0 else 1023 if pot > 1023 else pot
+            torque = self._servo_torque[s]
+            sensors["load"] = max(-1023, min(1023, round(torque * scale)))
+            self._motors[s].current = round(abs(torque) * self._amps_per_nm * 1000.0)
+
+    def _update_temperatures(self, span_s: float) -> None:
+        """First-order I²R thermal models over ``span_s`` seconds (mean I² of the span)."""
+        p = self.params
+        ambient = p.ambient_c
+        per_tick = 1.0 / p.thermal_every_ticks
+        temps = self._stepper_temp
+        for i in _STEPPERS:  # two phases at the set current
+            power = 2.0 * self._phase_ohm[i] * self._heat_stepper[i] * per_tick
+            temps[i] += span_s / self._stepper_cap[i] * (
+                power - (temps[i] - ambient) / self._stepper_rth[i])
+        temps = self._servo_temp
+        for s in _SERVOS:
+            power = p.rx64_winding_ohm * self._heat_servo[s] * per_tick
+            temps[s] += span_s / p.rx64_thermal_capacity * (
+                power - (temps[s] - ambient) / p.rx64_thermal_resistance)
+        self._heat_stepper = [0.0] * _N_STEPPERS
+        self._heat_servo = [0.0] * _N_SERVOS
+
+    def _write_temperatures(self) -> None:
+        for sensors, t in zip(self._stepper_sensors, self._stepper_temp, strict=True):
+            sensors["temperature"] = round(t * 10)
+        for sensors, t in zip(self._servo_sensors, self._servo_temp, strict=True):
+            sensors["temperature"] = round(t * 10)
+
+
+def _beyond(deflection: float, travel: float) -> float:
+    """How far ``deflection`` is past the soft travel ``±travel`` (rad; 0 within it)."""
+    if deflection > travel:
+        return deflection - travel
+    if deflection < -travel:
+        return deflection + travel
+    return 0.0

@@ -1,0 +1,100 @@
+"""The arm's seven bus nodes on one half-duplex RS-485 line, and the host's adapter on it.
+
+IDs 1–4 are the series-elastic stepper joints (:class:`~firmware_py.arm_stepper.StepperNodeApp`,
+each programmed at the factory with its joint's reduction: 6, 10, 13, 13), IDs 5–7 the RX-64
+servos (:class:`~firmware_py.rx64.Rx64ServoApp`).  All share one
+:class:`~hil_emulator.rs485_bus.Rs485Bus` at 1 Mbaud with the host's USB–RS-485 adapter, so
+a host frame and a node's reply occupy the same line, take its wire time, and collide when
+they overlap, as on the arm (dissertation §5.5: one bus and one protocol for all joints).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Final
+
+from firmware_py.dynamixel_slave import DynamixelSlave, make_arm_node
+from firmware_py.scheduler import Scheduler
+from firmware_py.virtual_hal import VirtualHal, VirtualUart
+from hil_emulator.rs485_bus import Rs485Bus
+from protocol.image import BoardType
+
+#: Bus IDs of the stepper joints (J1–J4) and of the RX-64 servos (J5–J7).
+STEPPER_IDS: Final = (1, 2, 3, 4)
+SERVO_IDS: Final = (5, 6, 7)
+#: Effective reductions of the stepper joints (motor revs per joint rev), as on the arm.
+STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
+#: The arm bus's bit rate (bit/s).
+ARM_BAUD: Final = 1_000_000
+#: Time from the last bit of a frame to the receivers having it (µs): transceiver delay.
+ARM_TURNAROUND_US: Final = 2
+
+
+class ArmRig:
+    """The arm's nodes and the host adapter on one :class:`Rs485Bus`.
+
+    ``host_uart`` is the host adapter's UART on the line: what the host writes goes out with
+    :meth:`send_from_host`; what the nodes answer reaches ``on_host_bytes`` (bytes, arrival µs).
+    """
+
+    def __init__(self, scheduler: Scheduler | None = None, seed: int = 0,
+                 baud: int = ARM_BAUD) -> None:
+        self.scheduler = scheduler or Scheduler()
+        self.bus = Rs485Bus(self.scheduler, baud=baud, turnaround_us=ARM_TURNAROUND_US,
+                            seed=seed)
+        self.nodes: dict[int, tuple[VirtualHal, DynamixelSlave]] = {}
+        for dxl_id, reduction in zip(STEPPER_IDS, STEPPER_REDUCTIONS, strict=True):
+            hal, app = make_arm_node(self.scheduler, BoardType.ARM_STEPPER, dxl_id)
+            value = round(reduction * 100)
+            app.factory["gear_reduction_x100"] = value  # what the factory programmed
+            app.set("gear_reduction_x100", value)
+            self._attach(dxl_id, hal, app)
+        for dxl_id in SERVO_IDS:
+            hal, app = make_arm_node(self.scheduler, BoardType.RX64, dxl_id)
+            self._attach(dxl_id, hal, app)
+        self.host_uart = VirtualUart(self.scheduler, baud, name="host")
+        self.host_uart.keep_sent = False
+        self.bus.attach(self.host_uart, "host")
+        self.host_uart.set_receiver(self._host_receive)
+        self.on_host_bytes: Callable[[bytes, int], None] | None = None
+        self.host_received: list[tuple[bytes, int]] = []
+
+    def _attach(self, dxl_id: int, hal: VirtualHal, app: DynamixelSlave) -> None:
+        uart = hal.uart("bus")
+        uart.keep_sent = False
+        self.bus.attach(uart, f"id{dxl_id}")
+        self.nodes[dxl_id] = (hal, app)
+
+    def _host_receive(self, data: bytes, t_us: int) -> None:
+        if self.on_host_bytes is not None:
+            self.on_host_bytes(data, t_us)
+        else:
+            self.host_received.append((data, t_us))
+
+    @property
+    def stepper_hals(self) -> list[VirtualHal]:
+        """HALs of the stepper joints J1–J4, in joint order."""
+        return [self.nodes[i][0] for i in STEPPER_IDS]
+
+    @property
+    def servo_hals(self) -> list[VirtualHal]:
+        """HALs of the RX-64 servos J5–J7, in joint order."""
+        return [self.nodes[i][0] for i in SERVO_IDS]
+
+    def app(self, dxl_id: int) -> DynamixelSlave:
+        """The application of node ``dxl_id``."""
+        return self.nodes[dxl_id][1]
+
+    def send_from_host(self, data: bytes) -> None:
+        """The host adapter drives ``data`` onto the line now."""
+        self.host_uart.send(data)
+
+    def take_host_bytes(self) -> bytes:
+        """What reached the host since the last call (only without ``on_host_bytes``)."""
+        out = b"".join(d for d, _ in self.host_received)
+        self.host_received.clear()
+        return out
+
+    def run_for(self, duration_us: int) -> None:
+        """Advance simulation time (µs)."""
+        self.scheduler.run_for(duration_us)

@@ -1,0 +1,540 @@
+"""Plant parts of the hand: one :class:`FingerPlant` per finger module and the :class:`PalmPlant`.
+
+A :class:`FingerPlant` connects a finger module of :mod:`hil_emulator.hand_model` to its
+three boards (fmcb, f2, f3):
+
+- **Motors** (every tick).  ``before_step`` reads each fmcb motor's ``duty``, ``enabled``
+  and ``brake`` and sets the motor actuator's ``data.ctrl`` (the duty, −1..1): *drive*
+  (enabled) applies duty·V; *brake* shorts the winding (duty 0, back-EMF damping only);
+  *coast* (not enabled, board unpowered, or finger detached) opens the bridge — no current,
+  the actuator's back-EMF bias is switched off in ``model.actuator_biasprm``.  The motor
+  torque ``k_t·i``, ``i = (duty·V − k_e·ω)/R`` limited to ``I_max`` on the side the bridge
+  drives (the sign of the duty; braking current is limited by R alone), is produced by
+  MuJoCo's actuator on the motor tendon (see :mod:`hil_emulator.hand_model`), i.e.
+  ``τ_joint = M_radᵀ τ_motor``; the limit is the actuator's force range, set per duty sign.
+- **Halls and currents** (every tick).  ``after_step`` computes each motor shaft angle
+  ``θ_m = M_rad·q`` (rad) and writes ``motor.hall = HALL_SEQUENCE[⌊θ_m·K + φ⌋ mod 6]``
+  (φ a seeded random rotor phase at power-up, in hall states), so positive duty → hall
+  count rising, exactly :mod:`firmware_py.fmcb_control`'s convention; ``motor.current`` is
+  the *signed* winding current in mA (the fmcb never reads it; the palm's supply model can
+  sum magnitudes via :meth:`FingerPlant.motor_currents_a`).
+- **IMUs, tactile, strain** (every ``sensor_period_ticks`` ticks, default 10 ms, staggered
+  per finger by a hash of the prefix): accelerometer + magnetometer of fmcb/f2/f3, taxels
+  of f2 (6) and f3 (12), f2's strain gauge.  The firmware samples the phalange IMUs at
+  100 Hz and the fmcb's at 25 Hz, autopolls the taxels at 100 Hz and the strain at 1 Hz,
+  so a 100 Hz refresh hides nothing the host can observe but sub-10 ms taxel timing.
+- **Temperatures** (every ``thermal_period_ticks``, default 50 ms): winding temperatures
+  ``temperature0..2`` of the fmcb (0.1 °C) and the f3 thermistors (a slow fingertip
+  temperature following ambient + ``tip_coupling`` × the mean winding rise).  f2's
+  thermistor channels keep their defaults.
+
+Units and conversions are in :mod:`hil_emulator.hand_sensors`.  Every random draw comes from
+the generator passed in, in a fixed order, so equal seeds and commands give equal sensors.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+from typing import Final
+
+import mujoco
+import numpy as np
+
+from firmware_py.fmcb_control import HALL_SEQUENCE, HALL_STATES_PER_RAD
+from firmware_py.mcu import Mcu
+from firmware_py.virtual_hal import VirtualHal, VirtualMotor
+from hil_emulator.errors import EmulatorConfigError, PlantError
+from hil_emulator.hand_model import (
+    DEFAULT_MOTOR,
+    F2_LENGTH,
+    F2_PAD_Z,
+    F2_TAXELS,
+    F3_LENGTH,
+    F3_PAD_Z,
+    F3_TAXELS,
+    GAUGE_POS,
+    PALM_TAXELS,
+    FingerNames,
+    MotorConstants,
+    PalmNames,
+    motor_coupling_rad,
+)
+from hil_emulator.hand_sensors import (
+    DEFAULT_TACTILE,
+    LinearCounts,
+    PadContacts,
+    TactileModel,
+    WindingThermal,
+    strain_counts,
+    taxel_forces,
+    thermistor_counts,
+)
+
+_DRIVE, _BRAKE, _COAST = 0, 1, 2
+#: Where :meth:`FingerPlant.press` pushes: the pad centre (m, body frame) of each segment.
+PRESS_POINTS: Final = {"F2": (F2_LENGTH / 2, 0.0, F2_PAD_Z), "F3": (F3_LENGTH / 2, 0.0, F3_PAD_Z)}
+
+
+@dataclass(frozen=True)
+class FingerParams:
+    """Motor constants, sensor rates and noise, thermal model of one finger module.
+
+    Periods in plant ticks (1 ms); noise as standard deviations in counts; thermal
+    resistance winding→ambient in K/W, time constants in s.
+    """
+
+    motor: MotorConstants = DEFAULT_MOTOR
+    tactile: TactileModel = field(default_factory=lambda: DEFAULT_TACTILE)
+    sensor_period_ticks: int = 10
+    thermal_period_ticks: int = 50
+    accel_noise_counts: float = 2.0
+    mag_noise_counts: float = 2.0
+    strain_noise_counts: float = 30.0
+    thermistor_noise_counts: float = 1.0
+    ambient_c: float = 25.0
+    thermal_resistance_k_per_w: float = 40.0
+    thermal_time_constant_s: float = 20.0
+    tip_coupling: float = 0.1
+    tip_time_constant_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.sensor_period_ticks < 1 or self.thermal_period_ticks < 1:
+            raise EmulatorConfigError("sensor periods must be at least one tick")
+
+
+def _virtual_hal(mcu: Mcu, what: str) -> VirtualHal:
+    hal = mcu.hal
+    if not isinstance(hal, VirtualHal):
+        raise PlantError(f"the {what} board is not on a VirtualHal; the plant cannot drive it")
+    return hal
+
+
+def _stagger(prefix: str, period: int) -> int:
+    """A deterministic phase (ticks) spreading the parts' slow updates over the period."""
+    return zlib.crc32(prefix.encode()) % period
+
+
+class FingerPlant:
+    """One finger module's physics ↔ its fmcb, f2 and f3 (a :class:`~hil_emulator.plant.PlantPart`).
+
+    ``prefix`` is the module's name prefix in the model (``"hand/finger0/"``). ``attached``
+    False (set by the emulator on a break-away) leaves the motors coasting whatever the
+    fmcb commands; the module stays where it is on the palm in the model.
+    """
+
+    def __init__(self, prefix: str, fmcb: Mcu, f2: Mcu, f3: Mcu, rng: np.random.Generator,
+                 params: FingerParams | None = None) -> None:
+        self.prefix = prefix
+        self.names = FingerNames(prefix)
+        self.params = params or FingerParams()
+        self.fmcb, self.f2, self.f3 = fmcb, f2, f3
+        self.rng = rng
+        self.attached = True
+        self._motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
+        if len(self._motors) != 3:
+            raise PlantError("an fmcb drives three motors")
+        self._fmcb_values = _virtual_hal(fmcb, "fmcb").sensors.values
+        self._f2_values = _virtual_hal(f2, "f2").sensors.values
+        self._f3_values = _virtual_hal(f3, "f3").sensors.values
+        #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
+        self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
+        self._m_rad = motor_coupling_rad()
+        #: Per motor: its VirtualMotor, its row of M_rad, its hall phase.
+        self._hall_rows = [(m, float(row[0]), float(row[1]), float(row[2]), phase)
+                           for m, row, phase in zip(self._motors, self._m_rad, self.hall_phase,
+                                                    strict=True)]
+        self._mode = [_COAST, _COAST, _COAST]
+        self._duty = [0.0, 0.0, 0.0]
+        self._current_a = [0.0, 0.0, 0.0]
+        self._i2_sum = [0.0, 0.0, 0.0]
+        self._i2_ticks = 0
+        self._presses: dict[str, float] = {}
+        self._press_dirty = False
+        p = self.params
+        # Countdowns (ticks) to the next slow updates, staggered per finger.
+        self._sensor_countdown = 1 + _stagger(prefix, p.sensor_period_ticks)
+        self._thermal_countdown = 1 + _stagger(prefix, p.thermal_period_ticks)
+        motor = p.motor
+        self._electrical = (motor.supply_v, motor.ke_v_s_per_rad, motor.resistance_ohm,
+                            motor.current_limit_a)
+        self._torque_limit = motor.torque_limit_nm
+        #: A force bound never reached (4 × the unlimited stall torque): "no limit".
+        self._torque_open = 4.0 * motor.gain_nm_per_duty
+        self._drive_sign = [0, 0, 0]
+        self.thermal = WindingThermal(3, p.ambient_c, p.thermal_resistance_k_per_w,
+                                      p.thermal_time_constant_s)
+        self.tip_temperature_c = p.ambient_c
+        self._temperature_keys = [f"temperature{i}" for i in range(3)]
+        self._thermistor_keys = [f"thermistor{k}" for k in range(4)]
+        self._f2_taxel_keys = [f"taxel{k}" for k in range(len(F2_TAXELS))]
+        self._f3_taxel_keys = [f"taxel{k}" for k in range(len(F3_TAXELS))]
+        self._f2_taxels_xy = np.array(F2_TAXELS)
+        self._f3_taxels_xy = np.array(F3_TAXELS)
+        n2, n3 = len(F2_TAXELS), len(F3_TAXELS)
+        #: One conversion for all slow channels: fmcb accel, mag, f2 accel, mag, f3 accel,
+        #: mag (the order of the IMU sensors in bind), then f2 and f3 taxels.
+        self._counts = LinearCounts.imu(
+            [("accel", p.accel_noise_counts), ("mag", p.mag_noise_counts)] * 3
+        ).join(LinearCounts.taxels(p.tactile, n2 + n3))
+        self._imu_keys = [(values, kind) for values in
+                          (self._fmcb_values, self._f2_values, self._f3_values)
+                          for kind in ("accel", "mag")]
+        self._n_f2 = n2
+        self._raw = np.zeros(self._counts.size)  # IMU readings (SI), taxel compression
+        self._zeros_f2, self._zeros_f3 = np.zeros(n2), np.zeros(n3)
+
+    # --- binding ----------------------------------------------------------------------------
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Resolve the module's names; write :attr:`params`' motor constants into ``model``.
+
+        Raises :class:`PlantError` if the model integrates with explicit Euler or RK4: the
+        motors' back-EMF damping (time constant ≈ 0.16 ms) diverges there at 0.5 ms steps.
+        """
+        if model.opt.integrator not in (mujoco.mjtIntegrator.mjINT_IMPLICIT,
+                                        mujoco.mjtIntegrator.mjINT_IMPLICITFAST):
+            raise PlantError("the finger motors need the implicit or implicitfast integrator "
+                             "(hand_model.add_hand sets implicitfast)")
+        self.model, self.data = model, data
+        names = self.names
+        try:
+            joints = [model.joint(names.joint(j)).id for j in range(3)]
+            self._act = [model.actuator(names.motor(i)).id for i in range(3)]
+            tendons = [model.tendon(names.motor(i)).id for i in range(3)]
+            self._body = {s: model.body(names.body(s)).id for s in ("F0", "F1", "F2", "F3")}
+            self._gauge_site = model.site(names.gauge_site).id
+            pads = [model.geom(names.pad(s)).id for s in ("F2", "F3")]
+            imu_sensors = [model.sensor(name).id for b in ("fmcb", "f2", "f3")
+                           for name in (names.accel_sensor(b), names.mag_sensor(b))]
+        except KeyError as exc:
+            raise PlantError(f"finger {self.prefix!r} is not in the model: {exc}") from exc
+        qadr = [int(model.jnt_qposadr[j]) for j in joints]
+        dadr = [int(model.jnt_dofadr[j]) for j in joints]
+        if qadr != list(range(qadr[0], qadr[0] + 3)) or dadr != list(range(dadr[0], dadr[0] + 3)):
+            raise PlantError(f"finger {self.prefix!r}: joints J1..J3 are not consecutive")
+        self._qadr, self._dadr = qadr[0], dadr[0]
+        # Views into the MjData buffers (fixed for the data's lifetime): no slicing per tick.
+        self._qpos = data.qpos[qadr[0]:qadr[0] + 3]
+        self._qvel = data.qvel[dadr[0]:dadr[0] + 3]
+        self._ctrl = data.ctrl
+        self._imu_idx = np.concatenate(
+            [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
+        motor = self.params.motor
+        for a, t in zip(self._act, tendons, strict=True):
+            model.actuator_gainprm[a, 0] = motor.gain_nm_per_duty
+            model.actuator_biasprm[a, :3] = (0.0, 0.0, 0.0)
+            model.tendon_armature[t] = motor.rotor_inertia_kg_m2
+            model.tendon_frictionloss[t] = motor.friction_nm
+        self._mode = [_COAST, _COAST, _COAST]
+        for i in range(3):
+            self._set_drive_sign(i, 0)
+        self._pads = PadContacts(model, data, pads)
+        self._f3_root = int(model.body_rootid[self._body["F3"]])
+        self._write_temperatures()
+        self._update_sensors()
+
+    # --- per tick ---------------------------------------------------------------------------
+    def before_step(self, dt_s: float) -> None:
+        """Motor commands → actuator controls (duty) and bridge state; press forces."""
+        powered = self.attached and self.fmcb.powered
+        ctrl, act = self._ctrl, self._act
+        for i, motor in enumerate(self._motors):
+            if not powered:
+                mode = _COAST
+            elif motor.brake:
+                mode = _BRAKE
+            elif motor.enabled:
+                mode = _DRIVE
+            else:
+                mode = _COAST
+            if mode != self._mode[i]:
+                self._set_mode(i, mode)
+            duty = motor.duty if mode == _DRIVE else 0.0
+            sign = (duty > 0.0) - (duty < 0.0)
+            if sign != self._drive_sign[i]:
+                self._set_drive_sign(i, sign)
+            self._duty[i] = duty
+            ctrl[act[i]] = duty
+        if self._press_dirty or self._presses:
+            self._apply_presses()
+
+    def _set_drive_sign(self, i: int, sign: int) -> None:
+        """Current limit on the side the bridge drives (``sign`` of the duty) only.
+
+        The L6229's chopper limits the current it *sources*; braking (regenerative or
+        shorted-winding) current through the low-side switches is bounded by R alone.
+        """
+        lim, open_ = self._torque_limit, self._torque_open
+        self.model.actuator_forcerange[self._act[i]] = (-lim if sign < 0 else -open_,
+                                                        lim if sign > 0 else open_)
+        self._drive_sign[i] = sign
+
+    def _set_mode(self, i: int, mode: int) -> None:
+        damping = 0.0 if mode == _COAST else self.params.motor.emf_damping_nm_s
+        self.model.actuator_biasprm[self._act[i], 2] = -damping
+        self._mode[i] = mode
+
+    def after_step(self, dt_s: float) -> None:
+        """Halls and currents every tick; IMUs, taxels, strain and temperatures when due."""
+        q0, q1, q2 = self._qpos.tolist()
+        w0, w1, w2 = self._qvel.tolist()
+        v, ke, r, lim = self._electrical
+        currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
+        floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
+        for i, (m, a0, a1, a2, phase) in enumerate(self._hall_rows):
+            m.hall = sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
+            if modes[i] == _COAST:
+                current = 0.0
+            else:
+                duty = duties[i]
+                current = (duty * v - ke * (a0 * w0 + a1 * w1 + a2 * w2)) / r
+                if duty > 0.0 and current > lim:
+                    current = lim
+                elif duty < 0.0 and current < -lim:
+                    current = -lim
+            currents[i] = current
+            i2[i] += current * current
+            m.current = round(current * 1000.0)
+        self._i2_ticks += 1
+        self._sensor_countdown -= 1
+        if self._sensor_countdown <= 0:
+            self._sensor_countdown = self.params.sensor_period_ticks
+            self._update_sensors()
+        self._thermal_countdown -= 1
+        if self._thermal_countdown <= 0:
+            self._thermal_countdown = self.params.thermal_period_ticks
+            self._update_thermal(self._i2_ticks * dt_s)
+
+    # --- fault / test injection -------------------------------------------------------------
+    def press(self, segment: str, force_n: float) -> None:
+        """Push the pad of ``"F2"`` or ``"F3"`` with ``force_n`` newtons until changed (0 = release).
+
+        The force acts at the pad centre along the pad's inward normal (−z of the segment),
+        through ``data.xfrc_applied`` of that body (rewritten every tick, as the body moves),
+        and the tactile model and strain gauge see it as a contact load at the pad centre.
+        """
+        if segment not in PRESS_POINTS:
+            raise EmulatorConfigError(f"press: segment {segment!r} is not 'F2' or 'F3'")
+        force = float(force_n)
+        if not math.isfinite(force) or force < 0.0:
+            raise EmulatorConfigError(f"press: force {force_n!r} N is not finite and ≥ 0")
+        if force == 0.0:
+            self._presses.pop(segment, None)
+        else:
+            self._presses[segment] = force
+        self._press_dirty = True
+
+    def _apply_presses(self) -> None:
+        """Rewrite ``xfrc_applied`` of F2/F3: the press force and its moment about the CoM."""
+        data = self.data
+        for segment in ("F2", "F3"):
+            body = self._body[segment]
+            force = self._presses.get(segment, 0.0)
+            if force == 0.0:
+                data.xfrc_applied[body] = 0.0
+                continue
+            r = data.xmat[body].tolist()
+            px, py, pz = PRESS_POINTS[segment]
+            bx, by, bz = data.xpos[body].tolist()
+            cx, cy, cz = data.xipos[body].tolist()
+            # Lever from the CoM to the pad centre (world), force along the body's −z.
+            lx = bx + r[0] * px + r[1] * py + r[2] * pz - cx
+            ly = by + r[3] * px + r[4] * py + r[5] * pz - cy
+            lz = bz + r[6] * px + r[7] * py + r[8] * pz - cz
+            fx, fy, fz = -force * r[2], -force * r[5], -force * r[8]
+            data.xfrc_applied[body] = (fx, fy, fz, ly * fz - lz * fy, lz * fx - lx * fz,
+                                       lx * fy - ly * fx)
+        self._press_dirty = False
+
+    # --- state for tests and the emulator ----------------------------------------------------
+    def joint_angles(self) -> np.ndarray:
+        """Joint angles J1, J2, J3 (rad), a copy."""
+        return np.array(self._qpos)
+
+    def joint_velocities(self) -> np.ndarray:
+        """Joint velocities J1, J2, J3 (rad/s), a copy."""
+        return np.array(self._qvel)
+
+    def motor_angles(self) -> np.ndarray:
+        """Motor shaft angles (rad) from the model's zero pose: ``M_rad·q``."""
+        return np.asarray(self._m_rad @ self.joint_angles())
+
+    def motor_currents_a(self) -> np.ndarray:
+        """Signed winding currents of the last tick (A); 0 while coasting."""
+        return np.array(self._current_a)
+
+    def winding_temperatures_c(self) -> np.ndarray:
+        """Winding temperatures (°C) of motors 0..2."""
+        return np.array(self.thermal.temperature_c)
+
+    # --- slow sensors -----------------------------------------------------------------------
+    def _update_sensors(self) -> None:
+        """IMUs (accel, mag) of the three boards, f2/f3 taxels, f2 strain."""
+        data, p = self.data, self.params
+        raw = self._raw
+        raw[:18] = data.sensordata[self._imu_idx]
+        loads = self._pads.collect()
+        if self._presses:
+            for k, segment in enumerate(("F2", "F3")):
+                force = self._presses.get(segment)
+                if force is not None:
+                    x, y, _ = PRESS_POINTS[segment]
+                    extra = np.array([[x, y, force]])
+                    old = loads[k]
+                    loads[k] = extra if old is None else np.vstack((old, extra))
+        if loads[0] is None and loads[1] is None:
+            raw[18:] = 0.0
+        else:
+            tactile = p.tactile
+            f2 = taxel_forces(loads[0], self._f2_taxels_xy, tactile.spread_m)
+            f3 = taxel_forces(loads[1], self._f3_taxels_xy, tactile.spread_m)
+            raw[18:] = tactile.compression(np.concatenate(
+                (self._zeros_f2 if f2 is None else f2, self._zeros_f3 if f3 is None else f3)))
+        noise = self.rng.standard_normal(self._counts.size + 1)
+        counts = self._counts.counts(raw, noise[:-1])
+        for k, (values, kind) in enumerate(self._imu_keys):
+            values[kind] = (counts[3 * k], counts[3 * k + 1], counts[3 * k + 2])
+        values = self._f2_values
+        for key, count in zip(self._f2_taxel_keys, counts[18:18 + self._n_f2], strict=True):
+            values[key] = count
+        values = self._f3_values
+        for key, count in zip(self._f3_taxel_keys, counts[18 + self._n_f2:], strict=True):
+            values[key] = count
+        moment = self.gauge_moment_nm(loads[0])
+        values = self._f2_values
+        values["strain"] = strain_counts(moment, p.strain_noise_counts * float(noise[-1]))
+
+    def gauge_moment_nm(self, f2_loads: np.ndarray | None = None) -> float:
+        """Bending moment at the F2 gauge about F2's flexion axis (N·m), + for palmar loads.
+
+        From the wrench F2 transmits to the F3 subtree (``data.cfrc_int``, valid after a step
+        because the accelerometers make MuJoCo run ``mj_rnePostConstraint``) taken about the
+        gauge, plus the normal loads on F2's pad beyond the gauge (``f2_loads`` rows x, y, N).
+        Small-vector arithmetic is plain Python: numpy's per-call cost dominates at n = 3.
+        """
+        data = self.data
+        tx, ty, tz, fx, fy, fz = data.cfrc_int[self._body["F3"]].tolist()
+        cx, cy, cz = data.subtree_com[self._f3_root].tolist()
+        gx, gy, gz = data.site_xpos[self._gauge_site].tolist()
+        rot = data.site_xmat[self._gauge_site].tolist()
+        rx, ry, rz = cx - gx, cy - gy, cz - gz
+        # torque about the gauge = τ_c + (c − g) × f; its component along F2's y axis.
+        mx = tx + ry * fz - rz * fy
+        my = ty + rz * fx - rx * fz
+        mz = tz + rx * fy - ry * fx
+        moment = -(mx * rot[1] + my * rot[4] + mz * rot[7])
+        if f2_loads is not None:
+            lever = np.maximum(f2_loads[:, 0] - GAUGE_POS[0], 0.0)
+            moment += float(f2_loads[:, 2] @ lever)
+        return moment
+
+    def _update_thermal(self, interval_s: float) -> None:
+        p = self.params
+        scale = p.motor.resistance_ohm / max(1, self._i2_ticks)
+        temps = self.thermal.update([i2 * scale for i2 in self._i2_sum], interval_s)
+        self._i2_sum = [0.0, 0.0, 0.0]
+        self._i2_ticks = 0
+        rise = sum(temps) / len(temps) - p.ambient_c
+        target = p.ambient_c + p.tip_coupling * rise
+        decay = math.exp(-interval_s / p.tip_time_constant_s)
+        self.tip_temperature_c = target + (self.tip_temperature_c - target) * decay
+        self._write_temperatures()
+
+    def _write_temperatures(self) -> None:
+        values = self._fmcb_values
+        for key, t in zip(self._temperature_keys, self.thermal.temperature_c, strict=True):
+            values[key] = round(t * 10.0)
+        noise = self.rng.standard_normal(4).tolist()
+        sigma = self.params.thermistor_noise_counts
+        ideal = thermistor_counts(self.tip_temperature_c)
+        values = self._f3_values
+        for key, n in zip(self._thermistor_keys, noise, strict=True):
+            values[key] = max(0, min(0xFFFF, round(ideal + sigma * n)))
+
+
+#: The palm's taxels are further apart (11 × 20 mm) than the fingers' (≈ 9 mm): a wider
+#: spread of each load so a contact between taxels still registers.
+PALM_TACTILE: Final = TactileModel(spread_m=0.007)
+
+
+@dataclass(frozen=True)
+class PalmParams:
+    """Palm sensor rates (ticks), noise (counts), and fixed readings."""
+
+    tactile: TactileModel = field(default_factory=lambda: PALM_TACTILE)
+    sensor_period_ticks: int = 10
+    accel_noise_counts: float = 2.0
+    gyro_noise_counts: float = 5.0
+    mag_noise_counts: float = 2.0
+    temperature_decic: int = 250
+    supply_mv: int = 24000
+
+
+class PalmPlant:
+    """The palm board's sensors (a :class:`~hil_emulator.plant.PlantPart` with no dofs).
+
+    Every ``sensor_period_ticks`` (default 10 ms, staggered): ``accel`` (1 mg/count),
+    ``gyro`` (0.01 °/s per count, board = palm frame), ``mag`` and ``taxel0..31`` from the
+    palm pad's contacts (:data:`~hil_emulator.hand_model.PALM_TAXELS` order).  ``bind``
+    writes ``temperature0..6`` (ambient, 0.1 °C) and ``supply_mv`` once.
+    """
+
+    def __init__(self, prefix: str, palm: Mcu, rng: np.random.Generator,
+                 params: PalmParams | None = None) -> None:
+        self.prefix = prefix
+        self.names = PalmNames(prefix)
+        self.params = params or PalmParams()
+        self.palm = palm
+        self.rng = rng
+        self._values = _virtual_hal(palm, "palm").sensors.values
+        self._taxel_keys = [f"taxel{k}" for k in range(len(PALM_TAXELS))]
+        self._taxels_xy = np.array(PALM_TAXELS)
+        self._sensor_countdown = 1 + _stagger(prefix + "palm", self.params.sensor_period_ticks)
+        p = self.params
+        self._counts = LinearCounts.imu(
+            [("accel", p.accel_noise_counts), ("gyro", p.gyro_noise_counts),
+             ("mag", p.mag_noise_counts)]).join(LinearCounts.taxels(p.tactile, len(PALM_TAXELS)))
+        self._raw = np.zeros(self._counts.size)
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Resolve the palm's names; write the constant channels; take a first sample."""
+        self.model, self.data = model, data
+        names = self.names
+        try:
+            imu_sensors = [model.sensor(name).id for name in
+                           (names.accel_sensor, names.gyro_sensor, names.mag_sensor)]
+            pad = model.geom(names.pad).id
+        except KeyError as exc:
+            raise PlantError(f"palm {self.prefix!r} is not in the model: {exc}") from exc
+        self._imu_idx = np.concatenate(
+            [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
+        self._pads = PadContacts(model, data, [pad])
+        for k in range(7):
+            self._values[f"temperature{k}"] = self.params.temperature_decic
+        self._values["supply_mv"] = self.params.supply_mv
+        self._update_sensors()
+
+    def before_step(self, dt_s: float) -> None:
+        """Nothing to command: the palm has no actuators."""
+
+    def after_step(self, dt_s: float) -> None:
+        """IMU and taxels when due."""
+        self._sensor_countdown -= 1
+        if self._sensor_countdown <= 0:
+            self._sensor_countdown = self.params.sensor_period_ticks
+            self._update_sensors()
+
+    def _update_sensors(self) -> None:
+        data, p = self.data, self.params
+        raw = self._raw
+        raw[:9] = data.sensordata[self._imu_idx]
+        forces = taxel_forces(self._pads.collect()[0], self._taxels_xy, p.tactile.spread_m)
+        raw[9:] = 0.0 if forces is None else p.tactile.compression(forces)
+        counts = self._counts.counts(raw, self.rng.standard_normal(self._counts.size))
+        values = self._values
+        values["accel"] = (counts[0], counts[1], counts[2])
+        values["gyro"] = (counts[3], counts[4], counts[5])
+        values["mag"] = (counts[6], counts[7], counts[8])
+        for key, count in zip(self._taxel_keys, counts[9:], strict=True):
+            values[key] = count

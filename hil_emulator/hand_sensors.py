@@ -1,0 +1,257 @@
+"""Sensor models of the hand's boards: IMUs, tactile pads, strain gauge, temperatures.
+
+Everything here turns physical quantities from the MuJoCo state into the integer counts the
+firmware reads from ``hal.sensors.values``; noise comes in as arrays of standard normal
+draws from the caller's seeded generator, so a run is repeatable.
+
+Conversions (chosen to match the real chips' orders of magnitude; documented, not measured):
+
+- **Accelerometer** (LSM303-like, ±2 g): 1000 counts per g (1 mg/count) of *proper*
+  acceleration in the board frame (a board at rest reads +1000 on its upward axis),
+  clamped to ±2000.
+- **Magnetometer**: MuJoCo's magnetometer sensor, i.e. the model's constant field
+  ``option.magnetic`` (default (0, −0.5, 0), taken as gauss: an earth-like field) rotated
+  into the board frame, 1100 counts per gauss.
+- **Gyro** (palm): 0.01 °/s per count (:data:`GYRO_COUNTS_PER_RAD_S`), clamped to int16.
+- **Taxels** (:class:`TactileModel`): each taxel sees the normal forces on its pad weighted
+  by a Gaussian of the distance from the taxel centre (σ = 4 mm); the soft layer compresses
+  as ``δ = δ_max·f/(f + f_half)`` (δ_max = 1.25 mm, f_half = 1.5 N: 1.5 mm thick unloaded,
+  0.25 mm at saturation; the palm uses σ = 7 mm, its taxels being further apart), and the
+  photosensor reading *rises* linearly with compression (the white layer comes closer),
+  from 2000 counts unloaded to 42000 at 0.25 mm (16-bit ADC, clamped 0..65535).
+- **Strain** (f2): :data:`STRAIN_COUNTS_PER_NM` = 2·10⁶ counts per N·m of bending moment
+  about F2's flexion axis at the gauge, positive when a palmar load bends the finger
+  backwards (a grasp), clamped to the 24-bit signed range.
+- **Temperatures**: windings in 0.1 °C (ambient 25 °C = 250); f3 thermistors as a 12-bit
+  divider of a 10 kΩ NTC (B = 3950 K) under a 10 kΩ pull-up: 2048 counts at 25 °C, falling
+  as the temperature rises.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+import mujoco
+import numpy as np
+
+#: Standard gravity (m/s²) for the accelerometer scale.
+STANDARD_GRAVITY: Final = 9.80665
+ACCEL_COUNTS_PER_G: Final = 1000.0
+ACCEL_CLAMP: Final = 2000
+#: Magnetometer scale (counts/gauss; the field is the model's ``option.magnetic``).
+MAG_COUNTS_PER_GAUSS: Final = 1100.0
+#: Gyro counts per rad/s (0.01 °/s per count).
+GYRO_COUNTS_PER_RAD_S: Final = 100.0 * 180.0 / math.pi
+INT16_MAX: Final = 0x7FFF
+#: Strain gauge gain (counts per N·m) and range of its 24-bit signed ADC.
+STRAIN_COUNTS_PER_NM: Final = 2.0e6
+STRAIN_MAX: Final = (1 << 23) - 1
+#: Thermistors: NTC at 25 °C (Ω), its B constant (K), the pull-up (Ω), ADC full scale.
+NTC_R25_OHM: Final = 10_000.0
+NTC_B_K: Final = 3950.0
+NTC_PULLUP_OHM: Final = 10_000.0
+THERMISTOR_FULL_SCALE: Final = 4096
+KELVIN: Final = 273.15
+
+
+#: Per IMU channel kind: counts per SI unit (m/s², gauss, rad/s) and the clamp (±counts).
+IMU_SCALES: Final = {
+    "accel": (ACCEL_COUNTS_PER_G / STANDARD_GRAVITY, ACCEL_CLAMP),
+    "mag": (MAG_COUNTS_PER_GAUSS, INT16_MAX),
+    "gyro": (GYRO_COUNTS_PER_RAD_S, INT16_MAX),
+}
+
+
+class LinearCounts:
+    """Vectorised ``counts = clamp(rint(raw·scale + offset + σ·noise), lo, hi)`` per element.
+
+    One instance converts every slowly refreshed channel of a part in a single numpy pass
+    (numpy's per-call overhead, not the arithmetic, is the cost at these sizes).  Build it
+    with :meth:`imu` and :meth:`taxels` and join with :meth:`join`.
+    """
+
+    def __init__(self, scale: np.ndarray, offset: np.ndarray, sigma: np.ndarray,
+                 lo: np.ndarray, hi: np.ndarray) -> None:
+        self.scale, self.offset, self.sigma, self.lo, self.hi = scale, offset, sigma, lo, hi
+        self.size = int(scale.size)
+
+    @classmethod
+    def imu(cls, channels: list[tuple[str, float]]) -> LinearCounts:
+        """Consecutive 3-vectors of ``(kind, noise σ counts)``, kind ``"accel"`` (raw in
+        m/s², proper acceleration), ``"mag"`` (gauss) or ``"gyro"`` (rad/s)."""
+        scale = np.repeat([IMU_SCALES[kind][0] for kind, _ in channels], 3)
+        hi = np.repeat([float(IMU_SCALES[kind][1]) for kind, _ in channels], 3)
+        sigma = np.repeat([float(sigma) for _, sigma in channels], 3)
+        return cls(scale, np.zeros_like(scale), sigma, -hi, hi)
+
+    @classmethod
+    def taxels(cls, model: TactileModel, n: int) -> LinearCounts:
+        """``n`` taxels whose raw value is the layer's relative compression δ/δ_max (0..1)."""
+        def full(v: float) -> np.ndarray:
+            return np.full(n, float(v))
+        return cls(full(model.full_counts - model.unloaded_counts), full(model.unloaded_counts),
+                   full(model.noise_counts), full(0.0), full(0xFFFF))
+
+    def join(self, other: LinearCounts) -> LinearCounts:
+        """This conversion followed by ``other`` (concatenated elements)."""
+        def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            return np.concatenate((a, b))
+        return LinearCounts(cat(self.scale, other.scale), cat(self.offset, other.offset),
+                            cat(self.sigma, other.sigma), cat(self.lo, other.lo),
+                            cat(self.hi, other.hi))
+
+    def counts(self, raw: np.ndarray, noise: np.ndarray) -> list[int]:
+        """Counts (Python ints) for ``raw`` values and standard normal ``noise``."""
+        value = np.rint(raw * self.scale + self.offset + noise * self.sigma)
+        value = np.minimum(np.maximum(value, self.lo), self.hi)
+        out: list[int] = value.astype(np.int64).tolist()
+        return out
+
+
+def strain_counts(moment_nm: float, noise: float) -> int:
+    """Strain ADC counts for a bending moment (N·m), clamped to the 24-bit signed range."""
+    counts = round(moment_nm * STRAIN_COUNTS_PER_NM + noise)
+    return max(-STRAIN_MAX - 1, min(STRAIN_MAX, counts))
+
+
+def thermistor_counts(temperature_c: float) -> float:
+    """Ideal ADC reading (counts, not rounded) of the f3 NTC divider at ``temperature_c``."""
+    t_k = temperature_c + KELVIN
+    r_ntc = NTC_R25_OHM * math.exp(NTC_B_K * (1.0 / t_k - 1.0 / (25.0 + KELVIN)))
+    return THERMISTOR_FULL_SCALE * r_ntc / (r_ntc + NTC_PULLUP_OHM)
+
+
+@dataclass(frozen=True)
+class TactileModel:
+    """Force → soft-layer thickness → ADC counts for one kind of taxel (see module doc)."""
+
+    unloaded_thickness_mm: float = 1.5
+    loaded_thickness_mm: float = 0.25
+    half_force_n: float = 1.5
+    spread_m: float = 0.004
+    unloaded_counts: int = 2000
+    full_counts: int = 42000
+    noise_counts: float = 3.0
+
+    @property
+    def max_deflection_mm(self) -> float:
+        return self.unloaded_thickness_mm - self.loaded_thickness_mm
+
+    def thickness_mm(self, force_n: np.ndarray) -> np.ndarray:
+        """Soft-layer thickness (mm) over each taxel under its share of normal force (N)."""
+        out: np.ndarray = (self.unloaded_thickness_mm
+                           - self.max_deflection_mm * self.compression(force_n))
+        return out
+
+    def compression(self, force_n: np.ndarray) -> np.ndarray:
+        """Relative compression δ/δ_max (0..1) of the layer over taxels loaded with ``force_n``."""
+        f = np.maximum(force_n, 0.0)
+        out: np.ndarray = f / (f + self.half_force_n)
+        return out
+
+    def ideal_counts(self, force_n: np.ndarray) -> np.ndarray:
+        """Noise-free ADC counts (float) for per-taxel forces (N)."""
+        span = self.full_counts - self.unloaded_counts
+        out: np.ndarray = self.unloaded_counts + span * self.compression(force_n)
+        return out
+
+
+DEFAULT_TACTILE: Final = TactileModel()
+
+
+class PadContacts:
+    """Normal contact forces on a set of pad geoms, located in each pad body's frame.
+
+    ``pad_geoms[k]`` is the geom id of pad ``k``; :meth:`collect` scans ``data.contact`` for
+    contacts that involve a pad and calls :func:`mujoco.mj_contactForce` for those only.
+    Plain Python over the contact list: a hand has tens of contacts at most, where numpy's
+    per-call overhead would cost more than the loop.
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData,
+                 pad_geoms: list[int]) -> None:
+        self.model = model
+        self.data = data
+        self.pad_of_geom = {int(g): k for k, g in enumerate(pad_geoms)}
+        self.pad_bodies = [int(model.geom_bodyid[g]) for g in pad_geoms]
+        self._wrench = np.zeros(6)
+
+    def collect(self) -> list[np.ndarray | None]:
+        """Per pad: an (n, 3) array of x, y (m, pad body frame) and normal force (N) of its
+        contacts, or None when nothing touches it."""
+        data = self.data
+        found: list[np.ndarray | None] = [None] * len(self.pad_bodies)
+        if data.ncon == 0:
+            return found
+        contacts = data.contact
+        pad_of = self.pad_of_geom
+        per_pad: dict[int, list[tuple[float, float, float]]] = {}
+        positions: list[list[float]] | None = None
+        for i, (g1, g2) in enumerate(contacts.geom.tolist()):
+            pad = pad_of.get(g1)
+            if pad is None:
+                pad = pad_of.get(g2)
+                if pad is None:
+                    continue
+            mujoco.mj_contactForce(self.model, data, i, self._wrench)
+            force = float(self._wrench[0])
+            if force <= 0.0:
+                continue
+            body = self.pad_bodies[pad]
+            if positions is None:
+                positions = contacts.pos.tolist()
+            px, py, pz = positions[i]
+            bx, by, bz = data.xpos[body].tolist()
+            r = data.xmat[body].tolist()
+            dx, dy, dz = px - bx, py - by, pz - bz
+            # Rᵀ·d: the contact point in the body frame (x, y only).
+            local_x = r[0] * dx + r[3] * dy + r[6] * dz
+            local_y = r[1] * dx + r[4] * dy + r[7] * dz
+            per_pad.setdefault(pad, []).append((local_x, local_y, force))
+        for pad, rows in per_pad.items():
+            found[pad] = np.array(rows)
+        return found
+
+
+def taxel_forces(loads: np.ndarray | None, taxels_xy: np.ndarray,
+                 spread_m: float) -> np.ndarray | None:
+    """Force (N) each taxel sees: Σ loads' normal forces × Gaussian(distance, ``spread_m``).
+
+    ``loads`` is (n, 3): x, y (m, pad body frame), normal force (N), or None (no load:
+    returns None); ``taxels_xy`` is (k, 2).
+    """
+    if loads is None or loads.shape[0] == 0:
+        return None
+    dx = np.subtract.outer(loads[:, 0], taxels_xy[:, 0])
+    dy = np.subtract.outer(loads[:, 1], taxels_xy[:, 1])
+    weights = np.exp((dx * dx + dy * dy) * (-0.5 / spread_m ** 2))
+    out: np.ndarray = loads[:, 2] @ weights
+    return out
+
+
+class WindingThermal:
+    """First-order winding temperatures (°C) of ``n`` motors heated by I²R.
+
+    ``dT/dt = (T_ambient + R_th·P − T) / τ``, integrated exactly over each update with the
+    mean power of the interval.  Plain Python lists: n is 3 and numpy's call overhead
+    would dominate.
+    """
+
+    def __init__(self, n: int, ambient_c: float, thermal_resistance_k_per_w: float,
+                 time_constant_s: float) -> None:
+        self.ambient_c = ambient_c
+        self.r_th = thermal_resistance_k_per_w
+        self.tau_s = time_constant_s
+        self.temperature_c = [float(ambient_c)] * n
+
+    def update(self, mean_power_w: list[float], dt_s: float) -> list[float]:
+        """Advance ``dt_s`` seconds at ``mean_power_w`` (W per motor); returns the temps (°C)."""
+        decay = math.exp(-dt_s / self.tau_s)
+        temps = []
+        for t, power in zip(self.temperature_c, mean_power_w, strict=True):
+            target = self.ambient_c + self.r_th * power
+            temps.append(target + (t - target) * decay)
+        self.temperature_c = temps
+        return temps

@@ -1,0 +1,193 @@
+"""Host-facing links: what a program on this machine opens to reach the emulated robot.
+
+* :class:`SerialLink` — a :class:`~hil_emulator.pty_port.PtyPort` bridged to a device-side
+  UART.  Bytes the host writes enter the simulation when the emulator polls, through a
+  sending function that models their own wire time (a UART of the host adapter, or the
+  arm's RS-485 line); bytes a device sends are written to the pty when the simulation
+  reaches the time their last bit arrives (frames are delivered whole, at their end).
+* :class:`SlcanLink` — the palm's CAN controller behind an emulated SLCAN USB-CAN adapter
+  on a pty (python-can's ``slcan`` interface opens it unmodified).
+* :class:`VirtualCanLink` — the same CAN controller on a python-can ``virtual`` channel, for
+  host code in the same process.
+
+Each link reports, through ``on_emit``, the simulation time (µs) of every chunk it writes,
+so the real-time runner can measure how late delivery was.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from firmware_py.virtual_hal import VirtualCan, VirtualUart
+from hil_emulator.errors import PortError
+from hil_emulator.pty_port import PtyPort, make_link, remove_links
+from hil_emulator.slcan_adapter import SlcanAdapter
+
+EmitObserver = Callable[[int], None]
+#: How a link hands host input to the simulation: called with a thunk that applies it.  The
+#: real-time runner schedules the thunk at the simulation time matching the wall clock when
+#: the input was read; by default it is applied at once.
+InputScheduler = Callable[[Callable[[], None]], None]
+
+
+def _apply_now(apply: Callable[[], None]) -> None:
+    apply()
+
+
+class _PtyBacked:
+    """Common life cycle of a link that owns a pty: open, symlink, close."""
+
+    def __init__(self, name: str, baud: int) -> None:
+        self.name = name
+        self.port = PtyPort(baud)
+        try:
+            self.port.open()
+        except OSError as exc:
+            raise PortError(f"cannot create a pty for {name}: {exc}") from exc
+        self.on_emit: EmitObserver | None = None
+        self.schedule_input: InputScheduler = _apply_now
+        self._link_dir: str | None = None
+
+    @property
+    def path(self) -> str:
+        """The pty a host program opens."""
+        return self.port.path
+
+    def fileno(self) -> int:
+        """The master descriptor, for ``select``."""
+        return self.port.fileno()
+
+    def link(self, link_dir: str, name: str | None = None) -> str:
+        """Make ``link_dir/name`` (default: the link's name) point at the pty."""
+        try:
+            made = make_link(link_dir, name or self.name, self.port)
+        except OSError as exc:
+            raise PortError(f"cannot make the link {link_dir}/{name or self.name}: {exc}"
+                            ) from exc
+        self._link_dir = link_dir
+        return str(made)
+
+    def close(self) -> None:
+        """Remove the symlinks this link made and close the pty (idempotent)."""
+        if self._link_dir is not None and self.port.is_open:
+            remove_links(self._link_dir, self.port)
+            self._link_dir = None
+        self.port.close()
+
+
+class SerialLink(_PtyBacked):
+    """A pty bridged to a device UART.
+
+    ``to_device`` puts host bytes into the simulation (called at the simulation's current
+    time); :meth:`emit` is the device side's sink (bytes, arrival time in µs).
+    """
+
+    def __init__(self, name: str, baud: int, to_device: Callable[[bytes], None]) -> None:
+        super().__init__(name, baud)
+        self._to_device = to_device
+        self.bytes_in = 0
+        self.bytes_out = 0
+
+    def poll(self) -> int:
+        """Move what the host wrote into the simulation; returns the byte count."""
+        data = self.port.read_available()
+        if data:
+            self.bytes_in += len(data)
+            self.schedule_input(lambda: self._to_device(data))
+        return len(data)
+
+    def emit(self, data: bytes, t_us: int) -> None:
+        """A device's bytes, complete at simulation time ``t_us``, go to the host."""
+        self.bytes_out += len(data)
+        self.port.write(data)
+        if self.on_emit is not None:
+            self.on_emit(t_us)
+
+    @classmethod
+    def to_uart(cls, name: str, device_uart: VirtualUart) -> SerialLink:
+        """A point-to-point link: a host-adapter UART at the device's baud rate wired to
+        ``device_uart`` (host bytes take their wire time to arrive; the device's
+        transmissions are emitted at their end)."""
+        adapter = VirtualUart(device_uart.scheduler, device_uart.baud, name=f"{name}-host")
+        adapter.keep_sent = False
+        adapter.peer = device_uart
+        link = cls(name, device_uart.baud, adapter.send)
+        device_uart.sink = link.emit
+        return link
+
+
+class SlcanLink(_PtyBacked):
+    """The palm's CAN controller behind an emulated SLCAN adapter on a pty."""
+
+    def __init__(self, name: str, can: VirtualCan) -> None:
+        super().__init__(name, 115_200)
+        self.adapter = SlcanAdapter(self.port)
+        self._can = can
+        can.sink = self._from_bus
+
+    def _from_bus(self, arbitration_id: int, data: bytes, t_us: int) -> None:
+        self.adapter.send_frame(arbitration_id, data)
+        if self.on_emit is not None:
+            self.on_emit(t_us)
+
+    def poll(self) -> int:
+        """Handle the host's SLCAN commands; frames it transmits reach the bus now."""
+        frames = self.adapter.poll()
+        if frames:
+            self.schedule_input(lambda: self._deliver(frames))
+        return len(frames)
+
+    def _deliver(self, frames: list[tuple[int, bytes]]) -> None:
+        for arbitration_id, data in frames:
+            self._can.deliver(arbitration_id, data)
+
+
+class VirtualCanLink:
+    """The palm's CAN controller on a python-can ``virtual`` channel (same process only)."""
+
+    def __init__(self, name: str, can: VirtualCan, channel: str) -> None:
+        import can as python_can  # imported here: only this link needs python-can
+
+        self.name = name
+        self.channel = channel
+        self._python_can: Any = python_can
+        self.bus = python_can.Bus(interface="virtual", channel=channel,
+                                  receive_own_messages=False)
+        self._can = can
+        self.on_emit: EmitObserver | None = None
+        self.schedule_input: InputScheduler = _apply_now
+        can.sink = self._from_bus
+
+    @property
+    def path(self) -> str:
+        """How a host names it: ``virtual:<channel>``."""
+        return f"virtual:{self.channel}"
+
+    def _from_bus(self, arbitration_id: int, data: bytes, t_us: int) -> None:
+        message = self._python_can.Message(arbitration_id=arbitration_id, data=data,
+                                           is_extended_id=False)
+        self.bus.send(message)
+        if self.on_emit is not None:
+            self.on_emit(t_us)
+
+    def poll(self) -> int:
+        """Frames host code sent on the channel reach the bus now."""
+        frames: list[tuple[int, bytes]] = []
+        while (message := self.bus.recv(0.0)) is not None:
+            frames.append((message.arbitration_id, bytes(message.data)))
+        if frames:
+            self.schedule_input(lambda: self._deliver(frames))
+        return len(frames)
+
+    def _deliver(self, frames: list[tuple[int, bytes]]) -> None:
+        for arbitration_id, data in frames:
+            self._can.deliver(arbitration_id, data)
+
+    def fileno(self) -> int:
+        """No descriptor to wait on (the runner polls it every loop)."""
+        return -1
+
+    def close(self) -> None:
+        """Shut the python-can bus down (idempotent)."""
+        self.bus.shutdown()

@@ -1,0 +1,210 @@
+"""Unmodified host software against the emulator's ports: dynamixel-sdk on the arm port,
+the hand protocol on the palm and loose-finger ports, python-can's slcan on the CAN port."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
+from protocol.framing import encode_frame
+from protocol.messages import CATALOGUE
+from tests.hil_emulator.emulator_process import running_emulator
+from tools.hand_port import HandPort, ReplyTimeout
+
+
+def _until(what: Callable[[], Any], timeout_s: float, every_s: float = 0.1) -> Any:
+    """Call ``what`` until it returns something truthy (ReplyTimeout counts as no)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            value = what()
+        except ReplyTimeout:
+            value = None
+        if value:
+            return value
+        time.sleep(every_s)
+    raise AssertionError(f"not within {timeout_s} s")
+
+
+def _running(reply: dict[str, Any]) -> dict[str, Any] | None:
+    return reply if reply["running"] == 1 else None
+
+
+@pytest.mark.slow
+def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics() -> None:
+    from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
+
+    with running_emulator("--config", "arm", "--seed", "7") as info:
+        port = PortHandler(info["arm"])
+        assert port.openPort()
+        assert port.setBaudRate(1_000_000)  # dynamixel-sdk closes and reopens the port here
+        sdk = PacketHandler(1.0)
+        try:
+            for dxl_id in range(1, 8):
+                model, result, error = sdk.ping(port, dxl_id)
+                assert result == COMM_SUCCESS and error == 0, (dxl_id, result, error)
+                expected = STEPPER_MODEL_NUMBER if dxl_id <= 4 else RX64_TABLE.model_number
+                assert model == expected
+                value, result, _ = sdk.read2ByteTxRx(port, dxl_id, 0)
+                assert result == COMM_SUCCESS and value == expected
+            _, result, _ = sdk.ping(port, 9)
+            assert result != COMM_SUCCESS  # nobody at 9: a timeout, as on the real bus
+
+            stepper_goal = STEPPER_TABLE["goal_position"]
+            servo_goal = RX64_TABLE["goal_position"]
+            start: dict[int, int] = {}
+            for dxl_id in range(1, 8):
+                if dxl_id <= 4:
+                    start[dxl_id], res, _ = sdk.read4ByteTxRx(
+                        port, dxl_id, STEPPER_TABLE["present_position"].address)
+                    start[dxl_id] = _signed32(start[dxl_id])
+                else:
+                    start[dxl_id], res, _ = sdk.read2ByteTxRx(
+                        port, dxl_id, RX64_TABLE["present_position"].address)
+                assert res == COMM_SUCCESS
+                torque = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
+                res, err = sdk.write1ByteTxRx(port, dxl_id,
+                                                 torque["torque_enable"].address, 1)
+                assert res == COMM_SUCCESS and err == 0, (dxl_id, res, err)
+
+            # Joint 1 (no coupling into it) and the wrist servos; joints 2-4 hold.
+            moves = {1: 500, 5: 60, 6: -60, 7: 80}  # counts (0.036 deg) / units (0.29 deg)
+            goals = {i: start[i] + moves.get(i, 0) for i in range(1, 8)}
+            steppers = GroupSyncWrite(port, sdk, stepper_goal.address, 4)
+            for i in range(1, 5):
+                assert steppers.addParam(i, list(goals[i].to_bytes(4, "little", signed=True)))
+            assert steppers.txPacket() == COMM_SUCCESS
+            servos = GroupSyncWrite(port, sdk, servo_goal.address, 2)
+            for i in range(5, 8):
+                assert servos.addParam(i, list(goals[i].to_bytes(2, "little")))
+            assert servos.txPacket() == COMM_SUCCESS
+
+            time.sleep(2.5)
+            present: dict[int, int] = {}
+            for dxl_id in range(1, 8):
+                if dxl_id <= 4:
+                    value, res, _ = sdk.read4ByteTxRx(
+                        port, dxl_id, STEPPER_TABLE["present_position"].address)
+                    present[dxl_id] = _signed32(value)
+                else:
+                    present[dxl_id], res, _ = sdk.read2ByteTxRx(
+                        port, dxl_id, RX64_TABLE["present_position"].address)
+                assert res == COMM_SUCCESS
+            for dxl_id, delta in moves.items():
+                moved = present[dxl_id] - start[dxl_id]
+                # The physics moved the joint most of the way toward its goal (elastic
+                # deflection and compliance margins leave a little).
+                assert abs(moved - delta) <= 0.25 * abs(delta), (dxl_id, start, present)
+            for dxl_id in (2, 3, 4):
+                assert abs(present[dxl_id] - start[dxl_id]) < 112  # held within ±4 deg
+        finally:
+            port.closePort()
+
+
+def _signed32(value: int) -> int:
+    return value - (1 << 32) if value & 0x8000_0000 else value
+
+
+@pytest.mark.slow
+def test_every_hand_node_answers_over_the_palm_port() -> None:
+    with running_emulator("--config", "full") as info, HandPort(info["palm"]) as hand:
+        palm = _until(lambda: _running(hand.request("identify", timeout_s=0.2)), 10)
+        assert palm["board"] == 1
+        uids = {palm["uid"]}
+        hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
+        for k in range(4):
+            fmcb = _until(lambda k=k: _running(hand.route(k, 0, "identify")), 10)
+            assert fmcb["board"] == 2
+            uids.add(fmcb["uid"])
+            hand.route(k, 0, "fmcb.phalange_power", on=1)
+        for k in range(4):
+            for hop, board in ((1, 3), (2, 4)):
+                node = _until(lambda k=k, hop=hop: _running(hand.route(k, hop, "identify")), 10)
+                assert node["board"] == board
+                uids.add(node["uid"])
+        assert len(uids) == 13  # palm, four fmcbs, eight phalanges
+
+
+@pytest.mark.slow
+def test_original_bootloader_sequence_over_a_loose_finger_port() -> None:
+    with running_emulator("--config", "loose-finger") as info, \
+            HandPort(info["fingers"][0]) as finger:
+        finger.request("reset")  # acknowledged, then the fmcb restarts into its bootloader
+        time.sleep(0.05)
+        assert finger.request("bl.halt") == {}  # inside the 3 s window
+        assert finger.request("ping") == {}
+        ident = finger.request("identify")
+        assert ident["board"] == 2 and ident["running"] == 0
+        page = finger.request("bl.read_page", page=32)
+        assert len(page["data"]) == 256 and page["data"][:4] == b"HAND"  # the image header
+        time.sleep(3.5)  # the halted bootloader does not boot by itself
+        assert finger.request("identify")["running"] == 0
+        finger.request("bl.boot")
+        ident = _until(lambda: _running(finger.request("identify", timeout_s=0.2)), 2)
+        assert ident["board"] == 2
+        assert finger.request("ping") == {}  # the application answers ping too
+
+
+@pytest.mark.slow
+def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
+    """fmcb.status: a 148-byte payload, 155 bytes framed, 775 µs at 2 Mbaud (10 bits/byte)."""
+    import serial
+
+    status = CATALOGUE["fmcb.status"]
+    request = encode_frame(10, status.type_id, status.build_request({}))
+    wire_s = (len(request) + 148 + 7) * 10 / 2_000_000
+    with running_emulator("--config", "loose-finger") as info:
+        with HandPort(info["fingers"][0]) as finger:
+            _until(lambda: _running(finger.request("identify", timeout_s=0.2)), 6)
+        with serial.Serial(info["fingers"][0], 2_000_000, timeout=0) as port:
+            times = []
+            for _ in range(20):
+                port.reset_input_buffer()
+                got = b""
+                t0 = time.perf_counter()
+                port.write(request)
+                while len(got) < 155 and time.perf_counter() - t0 < 0.1:
+                    got += port.read(4096)
+                times.append(time.perf_counter() - t0)
+                assert len(got) == 155
+                time.sleep(0.01)
+    times.sort()
+    assert times[0] >= wire_s  # never faster than the wire
+    assert times[len(times) // 2] <= wire_s + 0.003  # and typically within 3 ms of it
+
+
+@pytest.mark.slow
+def test_python_can_slcan_reaches_the_palm() -> None:
+    import can
+
+    from protocol.canlink import CanReassembler, can_id, segment
+
+    with running_emulator("--config", "hand") as info:
+        bus = can.Bus(interface="slcan", channel=info["can"], bitrate=1_000_000,
+                      sleep_after_open=0)
+        try:
+            ident = CATALOGUE["identify"]
+            frame = encode_frame(10, ident.type_id, ident.build_request({}))
+            rx = CanReassembler()
+            deadline = time.monotonic() + 10
+            reply = None
+            while reply is None and time.monotonic() < deadline:
+                for chunk in segment(frame):
+                    bus.send(can.Message(arbitration_id=can_id(10, to_host=False), data=chunk,
+                                         is_extended_id=False))
+                end = time.monotonic() + 0.2
+                while reply is None and time.monotonic() < end:
+                    msg = bus.recv(0.05)
+                    if msg is None or msg.arbitration_id != can_id(10, to_host=True):
+                        continue
+                    for f in rx.feed(msg.arbitration_id, bytes(msg.data)):
+                        if f.type == ident.type_id:
+                            parsed = ident.parse_reply(f.payload)
+                            reply = parsed if parsed["running"] else None
+            assert reply is not None and reply["board"] == 1
+        finally:
+            bus.shutdown()

@@ -1,0 +1,99 @@
+"""The ``hil-emulator`` command as a user runs it: a process, ptys, links, signals."""
+
+from __future__ import annotations
+
+import os
+import signal
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.hil_emulator.emulator_process import ROOT, running_emulator
+
+EXPECTED = {
+    "full": {"palm", "arm", "can"},
+    "hand": {"palm", "can"},
+    "arm": {"arm"},
+    "loose-finger": {"fingers"},
+}
+
+
+def _is_tty(path: str) -> bool:
+    return stat.S_ISCHR(os.stat(path).st_mode)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", sorted(EXPECTED))
+def test_every_configuration_starts_names_its_ports_and_cleans_up(config: str,
+                                                                  tmp_path: Path) -> None:
+    links = tmp_path / "robot"
+    with running_emulator("--config", config, "--link-dir", str(links)) as info:
+        assert info["config"] == config
+        assert isinstance(info["fingers"], list)
+        for key in ("palm", "arm"):
+            assert key in info  # always present; null when the configuration has none
+            assert (info[key] is not None) == (key in EXPECTED[config])
+        assert ("can" in info) == ("can" in EXPECTED[config])
+        if config == "loose-finger":
+            assert len(info["fingers"]) == 1
+        else:
+            assert info["fingers"] == []
+        ports = [info[k] for k in ("palm", "arm", "can") if info.get(k)] + info["fingers"]
+        assert ports and all(_is_tty(p) for p in ports)
+        made = sorted(p.name for p in links.iterdir())
+        expected_links = sorted({"loose-finger": ["finger0"]}.get(
+            config, [k for k in ("palm", "arm", "can") if k in EXPECTED[config]]))
+        assert made == expected_links
+        for name in made:
+            assert os.path.realpath(links / name) in ports
+    assert list(links.iterdir()) == []  # links removed on exit
+
+
+@pytest.mark.slow
+def test_sigterm_also_stops_it_cleanly(tmp_path: Path) -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                             "--no-physics", "--link-dir", str(tmp_path)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().startswith("{")
+        assert (tmp_path / "arm").is_symlink()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=20)
+        assert proc.returncode == 0
+        assert not (tmp_path / "arm").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_an_unknown_configuration_is_refused_with_the_choices() -> None:
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "octopus"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stdout == ""
+    assert "full" in result.stderr and "loose-finger" in result.stderr
+
+
+def test_an_unknown_hand_layout_is_refused_with_the_choices() -> None:
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "hand",
+                             "--layout", "octopus"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stdout == ""
+    assert "layout" in result.stderr and "four-finger-thumb" in result.stderr
+
+
+@pytest.mark.slow
+def test_viewer_without_a_display_says_so_and_runs_on() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                             "--viewer", "--duration", "1"], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0
+    assert '"viewer": false' in out
+    assert "no display" in err

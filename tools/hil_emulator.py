@@ -1,0 +1,118 @@
+"""``hil-emulator``: the emulated hand and arm behind virtual serial ports.
+
+    hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
+                 [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
+                 [--can slcan|none] [--no-physics] [--duration S]
+
+Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
+``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
+``seed``, ``links``), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
+time) and exits 0, removing its links.  Diagnostics go to standard error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+from types import FrameType
+from typing import Any
+
+from hil_emulator.emulator import CONFIGS, Emulator, has_display
+from hil_emulator.errors import EmulatorError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hil-emulator",
+        description="Emulate the hand and the arm (firmware, buses, MuJoCo physics) behind "
+                    "virtual serial ports.")
+    parser.add_argument("--config", choices=CONFIGS, default="full",
+                        help="what is on the bench (default: full = hand on the arm)")
+    parser.add_argument("--link-dir", metavar="DIR",
+                        help="make stable symlinks DIR/palm, DIR/arm, DIR/can, DIR/finger0")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--realtime", dest="realtime", action="store_true", default=True,
+                      help="pace the simulation to the wall clock (default)")
+    pace.add_argument("--fast", dest="realtime", action="store_false",
+                      help="run the simulation as fast as the CPU allows")
+    parser.add_argument("--seed", type=int, default=0, metavar="N",
+                        help="seed of every random draw (noise, faults): same seed, same run")
+    parser.add_argument("--viewer", action="store_true",
+                        help="open MuJoCo's viewer (needs a display)")
+    parser.add_argument("--layout", default=None, metavar="NAME",
+                        help="hand layout (default: four-finger-thumb)")
+    parser.add_argument("--can", choices=("slcan", "none"), default="slcan",
+                        help="the palm's CAN link: an SLCAN adapter on a pty (default) or none")
+    parser.add_argument("--no-physics", dest="physics", action="store_false",
+                        help="firmware and buses only, no MuJoCo plant")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="stop by itself after S seconds of wall time")
+    parser.add_argument("--stats", action="store_true",
+                        help="on exit, print delivery lateness and simulated time to stderr")
+    return parser
+
+
+def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:
+    """Open a passive viewer; returns (sync callback, handle) or (None, None)."""
+    if emulator.plant is None:
+        return None, None
+    import mujoco.viewer
+
+    handle = mujoco.viewer.launch_passive(emulator.plant.model, emulator.plant.data)
+    return handle.sync, handle
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
+                            physics=args.physics, can=args.can)
+    except EmulatorError as exc:
+        print(f"hil-emulator: {exc}", file=sys.stderr)
+        return 2
+    with emulator:
+        try:
+            ports = emulator.open_ports(args.link_dir)
+        except EmulatorError as exc:
+            print(f"hil-emulator: {exc}", file=sys.stderr)
+            return 1
+        on_idle: Callable[[], None] | None = None
+        handle: Any = None
+        if args.viewer:
+            if has_display():
+                on_idle, handle = _viewer(emulator)
+                ports["viewer"] = handle is not None
+            else:
+                ports["viewer"] = False
+                print("hil-emulator: --viewer: no display here (DISPLAY is not set); "
+                      "running without the viewer", file=sys.stderr)
+        print(json.dumps(ports), flush=True)
+        if args.duration is not None:
+            timer = threading.Timer(args.duration, stop.set)
+            timer.daemon = True
+            timer.start()
+        try:
+            emulator.run(stop, realtime=args.realtime, on_idle=on_idle)
+        finally:
+            if handle is not None:
+                handle.close()
+            if args.stats:
+                stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
+                         **emulator.lateness_stats()}
+                print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
