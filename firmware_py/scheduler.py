@@ -10,17 +10,21 @@ from __future__ import annotations
 import heapq
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 Callback = Callable[[], None]
 
 
-@dataclass(order=True)
 class _Event:
-    t_us: int
-    seq: int
-    callback: Callback | None = field(compare=False)
-    period_us: int = field(default=0, compare=False)
+    """A scheduled callback.  The heap holds ``(t_us, seq, event)`` tuples, compared in C."""
+
+    __slots__ = ("callback", "period_us", "seq", "t_us")
+
+    def __init__(self, t_us: int, seq: int, callback: Callback | None, period_us: int = 0
+                 ) -> None:
+        self.t_us = t_us
+        self.seq = seq
+        self.callback = callback
+        self.period_us = period_us
 
 
 class TimerHandle:
@@ -51,7 +55,7 @@ class Scheduler:
 
     def __init__(self, start_us: int = 0) -> None:
         self._now = start_us
-        self._queue: list[_Event] = []
+        self._queue: list[tuple[int, int, _Event]] = []
         self._seq = itertools.count()
 
     def now_us(self) -> int:
@@ -61,7 +65,7 @@ class Scheduler:
     def call_at(self, t_us: int, callback: Callback) -> TimerHandle:
         """Run ``callback`` at time ``t_us`` (µs; not earlier than now)."""
         ev = _Event(max(int(t_us), self._now), next(self._seq), callback)
-        heapq.heappush(self._queue, ev)
+        heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
         return TimerHandle(ev)
 
     def call_later(self, delay_us: int, callback: Callback) -> TimerHandle:
@@ -75,14 +79,14 @@ class Scheduler:
             raise ValueError("period must be positive")
         delay = period_us if first_us is None else first_us
         ev = _Event(self._now + max(0, int(delay)), next(self._seq), callback, int(period_us))
-        heapq.heappush(self._queue, ev)
+        heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
         return TimerHandle(ev)
 
     def next_due_us(self) -> int | None:
         """Time of the next pending event, or None."""
-        while self._queue and self._queue[0].callback is None:
+        while self._queue and self._queue[0][2].callback is None:
             heapq.heappop(self._queue)
-        return self._queue[0].t_us if self._queue else None
+        return self._queue[0][0] if self._queue else None
 
     def run_until(self, t_us: int) -> int:
         """Run every event due up to and including ``t_us``; then time is ``t_us``.
@@ -91,16 +95,17 @@ class Scheduler:
         """
         ran = 0
         queue = self._queue
-        while queue and queue[0].t_us <= t_us:
-            ev = heapq.heappop(queue)
+        pop, push, seq = heapq.heappop, heapq.heappush, self._seq
+        while queue and queue[0][0] <= t_us:
+            when, _, ev = pop(queue)
             cb = ev.callback
             if cb is None:
                 continue
-            self._now = ev.t_us
+            self._now = when
             if ev.period_us:
-                ev.t_us += ev.period_us
-                ev.seq = next(self._seq)
-                heapq.heappush(queue, ev)
+                ev.t_us = when + ev.period_us
+                ev.seq = next(seq)
+                push(queue, (ev.t_us, ev.seq, ev))
             else:
                 ev.callback = None
             cb()

@@ -10,6 +10,7 @@ and the firmware turns :attr:`~RegisterError.error_bit` into the status packet's
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntFlag
@@ -124,11 +125,16 @@ class ControlTable:
         #: Table size in bytes (one past the last register).
         self.size: int = max(r.end for r in self.registers)
         self._by_name: dict[str, Register] = {}
+        #: name -> (struct codec, address): the firmware's hot path reads registers by name.
+        self._codec: dict[str, tuple[struct.Struct, int]] = {}
         self._owner: list[Register | None] = [None] * self.size
         for reg in self.registers:
             if reg.name in self._by_name:
                 raise DynamixelError(f"control table {name}: register name {reg.name} twice")
             self._by_name[reg.name] = reg
+            code = {1: "b", 2: "h", 4: "i"}[reg.size]
+            self._codec[reg.name] = (struct.Struct("<" + (code if reg.signed else code.upper())),
+                                     reg.address)
             for address in range(reg.address, reg.end):
                 other = self._owner[address]
                 if other is not None:
@@ -214,14 +220,18 @@ class ControlTable:
 
     def value(self, image: bytearray | bytes, name: str) -> int:
         """The value of register ``name`` in ``image``."""
-        reg = self._by_name[name]
-        return reg.decode(image[reg.address : reg.end])
+        codec, address = self._codec[name]
+        return int(codec.unpack_from(image, address)[0])
 
     def set_value(self, image: bytearray, name: str, value: int) -> None:
         """Store ``value`` in register ``name`` of ``image`` - the node's own access: read-only
         registers and limits are not enforced, only that the value fits the register."""
-        reg = self._by_name[name]
-        image[reg.address : reg.end] = reg.encode(value)
+        codec, address = self._codec[name]
+        try:
+            codec.pack_into(image, address, value)
+        except struct.error:
+            self._by_name[name].check(value, limits=False)  # raises RegisterRangeError
+            raise
 
     def values(self, image: bytearray | bytes) -> dict[str, int]:
         """Every register's value, by name (for logs and tests)."""

@@ -100,8 +100,11 @@ def encode_packet(id: int, code: int, params: bytes = b"") -> bytes:
     if not 0 <= id < 0xFF:
         raise DynamixelError(f"packet id {id} outside 0..254 (0xFF would read as a header)")
     params = _params(params)
-    body = {"value": {"id": id, "code": code, "params": bytes(params)}}
-    return wrap_construct(lambda: PACKET.build({"body": body}), "dynamixel packet", DynamixelError)
+    if not 0 <= code <= 0xFF:
+        raise DynamixelError(f"packet code {code} outside 0..255")
+    # Hand-written (every node answers every poll); tests check it against PACKET.build.
+    body = bytes((id, len(params) + 2, code)) + params
+    return HEADER + body + bytes((~sum(body) & 0xFF,))
 
 
 def decode_packet(data: BytesLike) -> tuple[int, int, bytes]:
@@ -302,19 +305,29 @@ def parse_sync_write(params: bytes) -> tuple[int, int, dict[int, bytes]]:
     """SYNC_WRITE parameters -> ``(address, length, {id: data})`` (duplicate ids rejected)."""
     if len(params) < 2 or params[1] == 0:
         raise DynamixelError("sync write: missing address/length or length 0")
-    parsed = wrap_construct(lambda: _SYNC_WRITE.parse(params), "sync write", DynamixelError)
+    address, length = params[0], params[1]
+    step = length + 1
     result: dict[int, bytes] = {}
-    for entry in parsed.entries:
-        if entry.id in result:
-            raise DynamixelError(f"sync write: id {entry.id} appears twice")
-        result[int(entry.id)] = bytes(entry.data)
-    return int(parsed.address), int(parsed.length), result
+    if (len(params) - 2) % step:
+        # Not whole entries: let the declaration say what is wrong.
+        wrap_construct(lambda: _SYNC_WRITE.parse(params), "sync write", DynamixelError)
+        raise DynamixelError(f"sync write: {len(params) - 2} bytes of entries of {step}")
+    # Fast path (every node parses every SYNC_WRITE on the bus), checked against _SYNC_WRITE.
+    for at in range(2, len(params), step):
+        id_ = params[at]
+        if id_ in result:
+            raise DynamixelError(f"sync write: id {id_} appears twice")
+        result[id_] = bytes(params[at + 1 : at + step])
+    return address, length, result
 
 
 def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
     """BULK_READ parameters -> ``[(length, id, address), ...]``."""
-    parsed = wrap_construct(lambda: _BULK_READ.parse(params), "bulk read", DynamixelError)
-    return [(int(e.length), int(e.id), int(e.address)) for e in parsed.entries]
+    if not params or params[0] != 0 or (len(params) - 1) % 3:
+        parsed = wrap_construct(lambda: _BULK_READ.parse(params), "bulk read", DynamixelError)
+        return [(int(e.length), int(e.id), int(e.address)) for e in parsed.entries]
+    # Fast path (every node parses every BULK_READ on the bus), checked against _BULK_READ.
+    return [(params[i], params[i + 1], params[i + 2]) for i in range(1, len(params), 3)]
 
 
 class FrameKind(Enum):

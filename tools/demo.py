@@ -1,24 +1,178 @@
-"""``make demo``: the project's main job on the built-in material when no hardware is given.
+"""``make demo``: the robot brought up over the wire, on the built-in emulator.
 
-Until the emulator lands this decodes the built-in sample capture of a palm USB session
-(``tools/samples/hand_session.hex``) with ``handbus`` and prints the frames it recovers.
+Starts ``hil-emulator --config full`` (the hand on the arm's wrist) in its own process and,
+as a host would over its serial ports:
+
+1. waits for the palm's application and identifies it;
+2. powers the four fingers, identifies each fmcb, powers their phalanges, identifies each
+   f2 and f3 through the palm (thirteen hand microcontrollers in all);
+3. moves finger 1 (joint targets through ``fmcb.control``) and reads its hall counts back
+   as joint angles;
+4. on the arm port, with the stock dynamixel-sdk: pings IDs 1–7, enables torque, moves the
+   shoulder pan and the wrist, and reads the present positions back through the physics.
+
+Every reply is printed as it comes back.  Exit status 0 only if every node answered and the
+joints moved.
 """
 
 from __future__ import annotations
 
+import functools
+import json
+import signal
+import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from tools import handbus
+from firmware_py.fmcb_control import motor_to_joint
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.image import BoardType
+from tools.hand_port import HandPort, ReplyTimeout
 
-SAMPLE = Path(__file__).parent / "samples" / "hand_session.hex"
+ROOT = Path(__file__).resolve().parents[1]
+FINGER_TARGET = (0.0, 0.4, 0.3)  # rad, J1 J2 J3 of finger 1
+ARM_MOVES = {1: 278, 6: -50}  # joint 1: +10 deg in 0.036 deg counts; servo 6: -50 units
+
+
+def say(text: str) -> None:
+    print(text, flush=True)
+
+
+def until(what: Callable[[], dict[str, Any]], timeout_s: float) -> dict[str, Any]:
+    """Ask until the node's application (not its bootloader) answers."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            reply = what()
+            if reply.get("running", 1):
+                return reply
+        except ReplyTimeout:
+            if time.monotonic() > deadline:
+                raise
+        if time.monotonic() > deadline:
+            raise ReplyTimeout("the application did not start")
+        time.sleep(0.1)
+
+
+def describe(reply: dict[str, Any]) -> str:
+    version = reply["fw_version"]
+    return (f"{BoardType(reply['board']).name.lower():5s} uid {reply['uid']:#06x}  "
+            f"firmware {version['major']}.{version['minor']}.{version['patch']}  "
+            f"up {reply['uptime_us'] / 1e6:.2f} s")
+
+
+def hand_session(palm_path: str) -> int:
+    answered = 0
+    with HandPort(palm_path) as hand:
+        say(f"palm         {describe(until(lambda: hand.request('identify', timeout_s=0.2), 10))}")
+        answered += 1
+        states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
+        say(f"finger power on: {states}")
+        for k in range(4):
+            reply = until(functools.partial(hand.route, k, 0, "identify"), 10)
+            say(f"finger {k} fmcb {describe(reply)}")
+            answered += 1
+            hand.route(k, 0, "fmcb.phalange_power", on=1)
+        for k in range(4):
+            for hop, name in ((1, "f2"), (2, "f3")):
+                reply = until(functools.partial(hand.route, k, hop, "identify"), 10)
+                say(f"finger {k} {name}   {describe(reply)}")
+                answered += 1
+        _move_finger(hand)
+        counts = hand.route(1, 0, "fmcb.hall_counts", raw=0)
+        joints = motor_to_joint(counts["counts"])
+        say(f"finger 1 joints after the move: {[round(q, 3) for q in joints]} rad "
+            f"(target {list(FINGER_TARGET)})")
+        moved = abs(joints[1] - FINGER_TARGET[1]) < 0.15
+    say(f"hand: {answered} of 13 microcontrollers answered; finger moved: {moved}")
+    return 0 if answered == 13 and moved else 1
+
+
+def _move_finger(hand: HandPort) -> None:
+    """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
+    from protocol.framing import encode_frame
+    from protocol.messages import CATALOGUE
+
+    control = CATALOGUE["fmcb.control"]
+    inner = encode_frame(10, control.type_id,
+                         control.build_request({"mode": 2, "args": {"target": FINGER_TARGET}}))
+    reply = hand.request("palm.route", finger=1, hop=0, timeout_ms=0, frame=inner)
+    say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
+        f"{reply['status']}")
+    time.sleep(2.0)
+
+
+def arm_session(arm_path: str) -> int:
+    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    port = PortHandler(arm_path)
+    if not (port.openPort() and port.setBaudRate(1_000_000)):
+        say(f"cannot open the arm port {arm_path}")
+        return 1
+    sdk = PacketHandler(1.0)
+    ok = 0
+    try:
+        start: dict[int, int] = {}
+        for dxl_id in range(1, 8):
+            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
+            model, result, error = sdk.ping(port, dxl_id)
+            if result != COMM_SUCCESS:
+                say(f"arm id {dxl_id}: no answer ({sdk.getTxRxResult(result)})")
+                continue
+            start[dxl_id] = _position(sdk, port, dxl_id)
+            sdk.write1ByteTxRx(port, dxl_id, table["torque_enable"].address, 1)
+            kind = "stepper joint" if dxl_id <= 4 else "RX-64 servo"
+            say(f"arm id {dxl_id}: model {model:#06x} ({kind}), position {start[dxl_id]}, "
+                f"error byte {error}")
+            ok += 1
+        for dxl_id, delta in ARM_MOVES.items():
+            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
+            size = 4 if dxl_id <= 4 else 2
+            goal = start[dxl_id] + delta
+            write = sdk.write4ByteTxRx if size == 4 else sdk.write2ByteTxRx
+            write(port, dxl_id, table["goal_position"].address, goal & (2 ** (8 * size) - 1))
+            say(f"arm id {dxl_id}: goal {goal}")
+        time.sleep(2.0)
+        moved = 0
+        for dxl_id, delta in ARM_MOVES.items():
+            now = _position(sdk, port, dxl_id)
+            say(f"arm id {dxl_id}: present position {now} (moved {now - start[dxl_id]} "
+                f"of {delta})")
+            moved += abs(now - start[dxl_id] - delta) <= 0.25 * abs(delta)
+    finally:
+        port.closePort()
+    say(f"arm: {ok} of 7 nodes answered; {moved} of {len(ARM_MOVES)} joints reached their goal")
+    return 0 if ok == 7 and moved == len(ARM_MOVES) else 1
+
+
+def _position(sdk: Any, port: Any, dxl_id: int) -> int:
+    if dxl_id <= 4:
+        value, _, _ = sdk.read4ByteTxRx(port, dxl_id, STEPPER_TABLE["present_position"].address)
+        return int(value) - (1 << 32) if value & 0x8000_0000 else int(value)
+    value, _, _ = sdk.read2ByteTxRx(port, dxl_id, RX64_TABLE["present_position"].address)
+    return int(value)
 
 
 def main() -> int:
-    """Decode the sample capture and print one JSON line per frame, then the counters."""
-    print(f"# handbus decode --hex {SAMPLE.relative_to(Path.cwd()) if SAMPLE.is_relative_to(Path.cwd()) else SAMPLE}",
-          flush=True)
-    return handbus.main(["decode", "--hex", str(SAMPLE)])
+    say("# hil-emulator --config full  (the hand on the arm's wrist)")
+    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "full"],
+                            cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        ports = json.loads(proc.stdout.readline())
+        say(f"ports: {json.dumps(ports)}")
+        status = hand_session(ports["palm"]) | arm_session(ports["arm"])
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    say("demo: " + ("every node answered and the joints moved" if status == 0 else "FAILED"))
+    return status
 
 
 if __name__ == "__main__":

@@ -558,3 +558,48 @@ def test_dynamixel_sdk_accepts_our_status_packets() -> None:
     cap = _CapturePort(StatusPacket(7, ErrorBit.RANGE | ErrorBit.OVERLOAD).encode())
     assert handler.write2ByteTxRx(cap, 7, 30, 512) == (sdk.COMM_SUCCESS, 0x28)
     assert bytes(cap.written) == make_write(7, 30, (512).to_bytes(2, "little")).encode()
+
+
+@given(st.binary(max_size=40))
+def test_sync_write_fast_parse_agrees_with_the_declaration(params: bytes) -> None:
+    """The hand-written SYNC_WRITE parser accepts exactly what the construct declaration
+    accepts (and gives the same entries), or raises DynamixelError."""
+    from protocol.dynamixel import _SYNC_WRITE
+
+    try:
+        parsed = _SYNC_WRITE.parse(params)
+        ids = [int(e.id) for e in parsed.entries]
+        reference = None if len(params) < 2 or params[1] == 0 or len(set(ids)) != len(ids) \
+            else (int(parsed.address), int(parsed.length),
+                  {int(e.id): bytes(e.data) for e in parsed.entries})
+    except Exception:  # noqa: BLE001 - any construct error means "rejected"
+        reference = None
+    if reference is None:
+        with pytest.raises(DynamixelError):
+            parse_sync_write(params)
+    else:
+        assert parse_sync_write(params) == reference
+
+
+@given(st.binary(max_size=40))
+def test_bulk_read_fast_parse_agrees_with_the_declaration(params: bytes) -> None:
+    from protocol.dynamixel import _BULK_READ
+
+    try:
+        parsed = _BULK_READ.parse(params)
+        reference = [(int(e.length), int(e.id), int(e.address)) for e in parsed.entries]
+    except Exception:  # noqa: BLE001 - any construct error means "rejected"
+        reference = None
+    if reference is None:
+        with pytest.raises(DynamixelError):
+            parse_bulk_read(params)
+    else:
+        assert parse_bulk_read(params) == reference
+
+
+@given(st.integers(0, 0xFE), st.integers(0, 0xFF), st.binary(max_size=MAX_PARAMS))
+def test_hand_written_encoder_matches_the_declaration(id_: int, code: int, params: bytes) -> None:
+    from protocol.dynamixel import PACKET, encode_packet
+
+    body = {"value": {"id": id_, "code": code, "params": params}}
+    assert encode_packet(id_, code, params) == PACKET.build({"body": body})

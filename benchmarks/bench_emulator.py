@@ -1,0 +1,151 @@
+"""The emulator under nominal traffic: real-time factor (fast mode) and lateness (real time).
+
+Nominal traffic, as the issue defines it: the four fmcbs run their 1 kHz control loops and
+their 100 Hz autopoll of both phalanges (fingers and phalanges powered and booted), the palm
+polls the fingers, and the host reads the arm at 100 Hz (a BULK_READ of the seven present
+positions plus a SYNC_WRITE of the four stepper goals every 10 ms).
+
+* Fast mode, in process: simulated seconds per wall second for the full configuration
+  (target ≥ 3), against the same configuration without the MuJoCo plant (firmware and buses
+  only) measured in the same run.
+* Real time, as users run it: ``hil-emulator --config full --stats`` in its own process, this
+  process driving the same traffic over its ptys; p99 of how late the emulator delivered
+  frames to the host relative to their simulated arrival time (target ≤ 1 ms).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.harness import Result
+from hil_emulator.emulator import Emulator
+from protocol import dynamixel as dxl
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.framing import encode_frame
+from protocol.messages import CATALOGUE
+
+S = 1_000_000
+ROOT = Path(__file__).resolve().parents[1]
+TORQUE_ON = [dxl.make_write(i, (STEPPER_TABLE if i <= 4 else RX64_TABLE)["torque_enable"].address,
+                            b"\x01").encode() for i in range(1, 8)]
+ARM_READ = dxl.make_bulk_read(
+    [(4, i, STEPPER_TABLE["present_position"].address) for i in range(1, 5)]
+    + [(2, i, RX64_TABLE["present_position"].address) for i in range(5, 8)]).encode()
+
+
+def _hand_frame(name: str, **fields: object) -> bytes:
+    msg = CATALOGUE[name]
+    return encode_frame(10, msg.type_id, msg.build_request(fields))
+
+
+def _route(finger: int, name: str, **fields: object) -> bytes:
+    msg = CATALOGUE[name]
+    inner = encode_frame(10, msg.type_id, msg.build_request(fields))
+    return _hand_frame("palm.route", finger=finger, hop=0, timeout_ms=20, frame=inner)
+
+
+def _arm_write(goal_counts: int) -> bytes:
+    goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in range(1, 5)}
+    return dxl.make_sync_write(STEPPER_TABLE["goal_position"].address, 4, goals).encode()
+
+
+def boot_full(emulator: Emulator) -> None:
+    """Bring the full configuration up as a host would: palm, fingers, phalanges, arm."""
+    hand, arm = emulator.hand, emulator.arm
+    assert hand is not None and arm is not None
+    emulator.step(3_300_000)
+    hand.send_from_host(_hand_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
+    emulator.step(3_400_000)
+    for k in range(4):
+        hand.send_from_host(_route(k, "fmcb.phalange_power", on=1))
+        emulator.step(30_000)
+    emulator.step(3_300_000)
+    for packet in TORQUE_ON:
+        arm.send_from_host(packet)
+        emulator.step(2_000)
+
+
+def fast_rtf(physics: bool, sim_s: float) -> float:
+    """Simulated seconds per wall second of the booted full configuration under traffic."""
+    emulator = Emulator("full", seed=1, physics=physics, can="none")
+    boot_full(emulator)
+    arm = emulator.arm
+    assert arm is not None
+    hand_bytes: list[int] = []
+    emulator.hand.on_host_bytes = lambda data, t: hand_bytes.append(len(data))  # type: ignore[union-attr]
+    arm.on_host_bytes = lambda data, t: None
+    periods = int(sim_s * 100)
+    start = time.perf_counter()
+    for k in range(periods):
+        arm.send_from_host(ARM_READ)
+        arm.send_from_host(_arm_write(50 * (k % 20)))
+        emulator.step(10_000)
+    return periods / 100 / (time.perf_counter() - start)
+
+
+def realtime_lateness(wall_s: float) -> dict[str, float]:
+    """Run ``hil-emulator --config full --stats`` and drive nominal traffic over its ports."""
+    import serial
+
+    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "full",
+                             "--can", "none", "--stats"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        info = json.loads(proc.stdout.readline())
+        palm = serial.Serial(info["palm"], 2_000_000, timeout=0)
+        arm = serial.Serial(info["arm"], 1_000_000, timeout=0)
+        time.sleep(3.3)
+        palm.write(_hand_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
+        time.sleep(3.4)
+        for k in range(4):
+            palm.write(_route(k, "fmcb.phalange_power", on=1))
+            time.sleep(0.03)
+        time.sleep(3.3)
+        for packet in TORQUE_ON:
+            arm.write(packet)
+            time.sleep(0.002)
+        next_t = time.monotonic()
+        end = next_t + wall_s
+        k = 0
+        while next_t < end:
+            arm.write(ARM_READ)
+            arm.write(_arm_write(50 * (k % 20)))
+            palm.read(65536)
+            arm.read(65536)
+            k += 1
+            next_t += 0.010
+            time.sleep(max(0.0, next_t - time.monotonic()))
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    line = next(x for x in err.splitlines() if x.startswith("hil-emulator stats:"))
+    return dict(json.loads(line.partition(":")[2]))
+
+
+def run(quick: bool) -> list[Result]:
+    sim_s = 2.0 if quick else 5.0
+    firmware_only = fast_rtf(physics=False, sim_s=sim_s)
+    full = fast_rtf(physics=True, sim_s=sim_s)
+    results = [
+        Result("emulator fast", "full, firmware + buses only", firmware_only, "sim-s",
+               note="booted, nominal traffic, no plant"),
+        Result("emulator fast", "full, with MuJoCo plant", full, "sim-s",
+               baseline="full, firmware + buses only", target=3.0,
+               note="real-time factor: simulated s per wall s"),
+    ]
+    stats = realtime_lateness(3.0 if quick else 8.0)
+    p99_ms = stats["p99_ms"]
+    results.append(Result(
+        "emulator realtime", "delivery lateness p99 (1/ms)", 1.0 / max(p99_ms, 1e-6), "1/ms",
+        target=1.0,
+        note=f"p99 {p99_ms:.3f} ms, p50 {stats['p50_ms']:.3f} ms, max {stats['max_ms']:.2f} ms "
+             f"over {int(stats['count'])} deliveries in {stats['sim_s']:.1f} s"))
+    return results
