@@ -2,7 +2,7 @@
 
 Nominal traffic, as the issue defines it: the four fmcbs run their 1 kHz control loops and
 their 100 Hz autopoll of both phalanges (fingers and phalanges powered and booted), the palm
-polls the fingers, and the host reads the arm at 100 Hz (a BULK_READ of the seven present
+polls every finger's status at 100 Hz, and the host reads the arm at 100 Hz (a BULK_READ of the seven present
 positions plus a SYNC_WRITE of the four stepper goals every 10 ms).
 
 * Fast mode, in process: simulated seconds per wall second for the full configuration
@@ -64,6 +64,7 @@ def boot_full(emulator: Emulator) -> None:
     for k in range(4):
         hand.send_from_host(_route(k, "fmcb.phalange_power", on=1))
         emulator.step(30_000)
+    hand.send_from_host(_hand_frame("palm.poll", rate_hz=100))
     emulator.step(3_300_000)
     for packet in TORQUE_ON:
         arm.send_from_host(packet)
@@ -106,6 +107,7 @@ def realtime_lateness(wall_s: float) -> dict[str, float]:
         for k in range(4):
             palm.write(_route(k, "fmcb.phalange_power", on=1))
             time.sleep(0.03)
+        palm.write(_hand_frame("palm.poll", rate_hz=100))
         time.sleep(3.3)
         for packet in TORQUE_ON:
             arm.write(packet)

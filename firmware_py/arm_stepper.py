@@ -25,11 +25,21 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   calibrate the encoder offset; later pulses leave the latch alone.
 * Torque off: current 0 and no steps; on: ``run_current`` while moving, ``holding_current``
   at standstill, both capped by ``max_current``.
+
+Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
+the step counter and the sensors once and derives everything from those readings; the
+registers it needs are kept in attributes (:meth:`reload_registers`, with the microsteps per
+count derived from the EEPROM) and the read-only registers are packed into the image with
+precompiled structs at the same moments as before (every tick, before every READ/BULK_READ,
+after a host write, at the index pulse), so the image - and :meth:`get` - are what they
+always were.  Flags are plain ints inside.
 """
 
 from __future__ import annotations
 
 import math
+import struct
+from collections import deque
 
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
@@ -41,10 +51,52 @@ TICK_US = 1_000
 #: Window over which present_velocity is measured (ticks).
 VELOCITY_WINDOW = 10
 _INT16 = 32767
+_INT16_MIN = -32768
+_DT = TICK_US / 1e6  # tick period (s)
+
+# Plain-int bits for the hot path (IntFlag arithmetic is slow).
+_MOVING = int(StepperFlag.MOVING)
+_SLIP = int(StepperFlag.SLIP)
+_INDEX_SEEN = int(StepperFlag.INDEX_SEEN)
+_STALLED = int(StepperFlag.STALLED)
+_HARDWARE_ERROR = int(StepperFlag.HARDWARE_ERROR)
+_OVERHEATING = int(ErrorBit.OVERHEATING)
+_INPUT_VOLTAGE = int(ErrorBit.INPUT_VOLTAGE)
+_OVERLOAD = int(ErrorBit.OVERLOAD)
+_CLEAR_SLIP = int(StepperClear.SLIP)
+_CLEAR_STALL = int(StepperClear.STALL)
+_CLEAR_ZERO = int(StepperClear.ZERO_STEP_COUNT)
+_CLEAR_REARM = int(StepperClear.REARM_INDEX)
+
+
+def _packer(*names: str) -> tuple[struct.Struct, int]:
+    """A struct packing the adjacent registers ``names`` in one go, and their address."""
+    regs = [STEPPER_TABLE[n] for n in names]
+    for a, b in zip(regs, regs[1:], strict=False):
+        assert a.end == b.address, f"{a.name} and {b.name} are not adjacent"
+    codes = "".join({1: "b", 2: "h", 4: "i"}[r.size] if r.signed
+                    else {1: "B", 2: "H", 4: "I"}[r.size] for r in regs)
+    return struct.Struct("<" + codes), regs[0].address
+
+
+# The read-only registers, in the order the node has always written them.
+_POS_VEL_STEPS, _POS_VEL_STEPS_AT = _packer("present_position", "present_velocity", "step_count")
+_POS_VEL_STEPS_END = _POS_VEL_STEPS_AT + _POS_VEL_STEPS.size
+_DEFLECTION, _DEFLECTION_AT = _packer("deflection")
+_FLAGS, _FLAGS_AT = _packer("status_flags")
+_HW_VOLT_TEMP, _HW_VOLT_TEMP_AT = _packer("hardware_error_status", "present_voltage",
+                                          "present_temperature")
 
 
 class StepperNodeApp(DynamixelSlave):
     """The stepper joint node's application on ``hal`` (factory bus ID ``dxl_id``)."""
+
+    CACHED_REGISTERS = frozenset({
+        "gear_reduction_x100", "steps_per_rev", "microstepping", "temperature_limit",
+        "min_voltage_limit", "max_voltage_limit", "max_current", "alarm_shutdown",
+        "torque_enable", "goal_position", "velocity_limit", "acceleration_limit",
+        "slip_threshold", "deflection_limit", "run_current", "holding_current",
+    })
 
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
         super().__init__(hal, STEPPER_TABLE, {"id": dxl_id, "baud_rate": 1})
@@ -54,17 +106,42 @@ class StepperNodeApp(DynamixelSlave):
         self._step_offset = 0  # hardware counter at the last ZERO_STEP_COUNT
         self._enc0 = 0  # encoder at power-up
         self._velocity = 0.0  # commanded joint velocity (counts/s)
-        self._flags = 0  # latched StepperFlag bits (SLIP, STALLED, INDEX_SEEN)
-        self._enc_history: list[int] = []
+        self._flags = 0  # latched StepperFlag bits (SLIP, STALLED, INDEX_SEEN), plain int
+        self._enc_history: deque[int] = deque(maxlen=VELOCITY_WINDOW + 1)
+        # Registers kept in attributes (reload_registers: from the image at every boot).
+        self._mpc = 0.0
+        self._temperature_limit = self._min_voltage = self._max_voltage = 0
+        self._max_current = self._alarm_shutdown = self._torque_enable = 0
+        self._goal = self._velocity_limit = self._acceleration_limit = 0
+        self._slip_threshold = self._deflection_limit = 0
+        self._run_current = self._holding_current = 0
 
     # ------------------------------------------------------------------ hooks
+
+    def reload_registers(self) -> None:
+        get = self.get
+        self._mpc = (get("gear_reduction_x100") * get("steps_per_rev")
+                     * get("microstepping") / 1_000_000)
+        self._temperature_limit = get("temperature_limit")
+        self._min_voltage = get("min_voltage_limit")
+        self._max_voltage = get("max_voltage_limit")
+        self._max_current = get("max_current")
+        self._alarm_shutdown = get("alarm_shutdown")
+        self._torque_enable = get("torque_enable")
+        self._goal = get("goal_position")
+        self._velocity_limit = get("velocity_limit")
+        self._acceleration_limit = get("acceleration_limit")
+        self._slip_threshold = get("slip_threshold")
+        self._deflection_limit = get("deflection_limit")
+        self._run_current = get("run_current")
+        self._holding_current = get("holding_current")
 
     def power_up(self) -> None:
         self._hw_steps0 = self._step_offset = self.stepper.step_count()
         self._enc0 = self.encoder.count()
         self._velocity = 0.0
         self._flags = 0
-        self._enc_history = [self._enc0]
+        self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
         self.set("goal_position", self._enc0)
         self.stepper.set_step_rate(0.0)
         self.stepper.set_current(0)
@@ -80,7 +157,7 @@ class StepperNodeApp(DynamixelSlave):
         if "clear_flags" in names:
             self._clear(self.get("clear_flags"))
             self.set("clear_flags", 0)
-        if "torque_enable" in names and not self.get("torque_enable"):
+        if "torque_enable" in names and not self._torque_enable:
             self._velocity = 0.0
             self.stepper.set_step_rate(0.0)
         self._refresh()
@@ -93,115 +170,158 @@ class StepperNodeApp(DynamixelSlave):
     @property
     def microsteps_per_count(self) -> float:
         """Motor microsteps per joint encoder count."""
-        return (self.get("gear_reduction_x100") * self.get("steps_per_rev")
-                * self.get("microstepping") / 1_000_000)
+        return self._mpc
 
     def motor_position(self) -> float:
         """Commanded motor angle after the reduction, in joint counts, in the encoder's frame
         (equal to the encoder count when the elastic element is relaxed)."""
         steps = self.stepper.step_count() - self._hw_steps0
-        return self._enc0 + steps / self.microsteps_per_count
+        return self._enc0 + steps / self._mpc
 
     def deflection(self) -> int:
         """Motor angle after the reduction minus joint angle since power-up (counts, int16)."""
-        steps = self.stepper.step_count() - self._hw_steps0
-        value = round(steps / self.microsteps_per_count) - (self.encoder.count() - self._enc0)
-        return max(-_INT16 - 1, min(_INT16, value))
+        return self._deflection(self.stepper.step_count(), self.encoder.count())
+
+    def _deflection(self, hw_steps: int, enc: int) -> int:
+        value = round((hw_steps - self._hw_steps0) / self._mpc) - (enc - self._enc0)
+        return _INT16_MIN if value < _INT16_MIN else _INT16 if value > _INT16 else value
 
     def _hardware_errors(self) -> int:
+        return self._errors(self.sensor("temperature"), self.sensor("supply_mv"))
+
+    def _errors(self, temperature: int, supply_mv: int) -> int:
+        """The live ErrorBit alarms for these sensor readings and the latched flags."""
         bits = 0
-        if self.sensor("temperature") // 10 > self.get("temperature_limit"):
-            bits |= ErrorBit.OVERHEATING
-        decivolts = self.sensor("supply_mv") // 100
-        if not self.get("min_voltage_limit") <= decivolts <= self.get("max_voltage_limit"):
-            bits |= ErrorBit.INPUT_VOLTAGE
-        if self._flags & StepperFlag.STALLED:
-            bits |= ErrorBit.OVERLOAD
-        return int(bits)
+        if temperature // 10 > self._temperature_limit:
+            bits |= _OVERHEATING
+        decivolts = supply_mv // 100
+        if not self._min_voltage <= decivolts <= self._max_voltage:
+            bits |= _INPUT_VOLTAGE
+        if self._flags & _STALLED:
+            bits |= _OVERLOAD
+        return bits
 
     # ------------------------------------------------------------------ events
 
     def _on_index(self, encoder_count: int) -> None:
-        if self._flags & StepperFlag.INDEX_SEEN:
+        if self._flags & _INDEX_SEEN:
             return
-        self._flags |= StepperFlag.INDEX_SEEN
+        self._flags |= _INDEX_SEEN
         self.set("index_step_count", self.stepper.step_count() - self._step_offset)
         self.set("index_encoder_count", encoder_count)
         self.set("index_seen", 1)
         self._refresh()
 
     def _clear(self, bits: int) -> None:
-        if bits & StepperClear.SLIP:
-            self._flags &= ~StepperFlag.SLIP
-        if bits & StepperClear.STALL:
-            self._flags &= ~StepperFlag.STALLED
-        if bits & StepperClear.ZERO_STEP_COUNT:
+        if bits & _CLEAR_SLIP:
+            self._flags &= ~_SLIP
+        if bits & _CLEAR_STALL:
+            self._flags &= ~_STALLED
+        if bits & _CLEAR_ZERO:
             self._step_offset = self.stepper.step_count()
-        if bits & StepperClear.REARM_INDEX:
-            self._flags &= ~StepperFlag.INDEX_SEEN
+        if bits & _CLEAR_REARM:
+            self._flags &= ~_INDEX_SEEN
             for name in ("index_step_count", "index_encoder_count", "index_seen"):
                 self.set(name, 0)
 
     def _tick(self) -> None:
-        """The 1 kHz control tick: alarms, trajectory, step rate, current, registers."""
-        self._enc_history.append(self.encoder.count())
-        del self._enc_history[: -VELOCITY_WINDOW - 1]
-        self._check_deflection()
-        errors = self._hardware_errors()
-        if errors & self.get("alarm_shutdown") and self.get("torque_enable"):
+        """The 1 kHz control tick: alarms, trajectory, step rate, current, registers.
+
+        One reading of the encoder, the step counter and the sensors serves the whole tick
+        (nothing else runs within it, and setting the step rate leaves the count as it is)."""
+        stepper = self.stepper
+        enc = self.encoder.count()
+        self._enc_history.append(enc)
+        hw_steps = stepper.step_count()
+        mpc = self._mpc
+        # deflection: SLIP and STALLED latch
+        value = round((hw_steps - self._hw_steps0) / mpc) - (enc - self._enc0)
+        deflection = _INT16_MIN if value < _INT16_MIN else _INT16 if value > _INT16 else value
+        size = -deflection if deflection < 0 else deflection
+        if size > self._slip_threshold:
+            self._flags |= _SLIP
+        if size > self._deflection_limit:
+            self._flags |= _STALLED
+        # live alarms; a shutdown one turns the torque off
+        read = self.hal.sensors.read
+        temperature = read("temperature")
+        if type(temperature) is not int:
+            temperature = self.sensor("temperature")
+        supply_mv = read("supply_mv")
+        if type(supply_mv) is not int:
+            supply_mv = self.sensor("supply_mv")
+        errors = self._errors(temperature, supply_mv)
+        if errors & self._alarm_shutdown and self._torque_enable:
             self.set("torque_enable", 0)
-        if self.get("torque_enable"):
-            self._velocity = self._next_velocity(TICK_US / 1e6)
-            self.stepper.set_step_rate(self._velocity * self.microsteps_per_count)
-            moving = self._velocity != 0.0
-            current = self.get("run_current") if moving else self.get("holding_current")
-            self.stepper.set_current(min(current, self.get("max_current")))
+        if self._torque_enable:
+            velocity = self._velocity = self._next_velocity_at(hw_steps, mpc)
+            stepper.set_step_rate(velocity * mpc)
+            current = self._run_current if velocity != 0.0 else self._holding_current
+            cap = self._max_current
+            stepper.set_current(cap if cap < current else current)
         else:
-            self._velocity = 0.0
-            self.stepper.set_step_rate(0.0)
-            self.stepper.set_current(0)
-        self._refresh()
+            velocity = self._velocity = 0.0
+            stepper.set_step_rate(0.0)
+            stepper.set_current(0)
+        self._publish(enc, hw_steps, deflection, errors, velocity, temperature, supply_mv)
 
-    def _check_deflection(self) -> None:
-        size = abs(self.deflection())
-        if size > self.get("slip_threshold"):
-            self._flags |= StepperFlag.SLIP
-        if size > self.get("deflection_limit"):
-            self._flags |= StepperFlag.STALLED
-
-    def _next_velocity(self, dt: float) -> float:
-        """The commanded joint velocity (counts/s) for the next tick of ``dt`` seconds."""
-        v_max = float(self.get("velocity_limit"))
-        accel = float(self.get("acceleration_limit"))
-        error = self.get("goal_position") - self.motor_position()
-        resolution = 1.0 / self.microsteps_per_count  # one microstep, in counts
-        if abs(error) < resolution and abs(self._velocity) <= accel * dt:
+    def _next_velocity_at(self, hw_steps: int, mpc: float) -> float:
+        """The commanded joint velocity (counts/s) for the next tick, with the step counter
+        at ``hw_steps`` and ``mpc`` microsteps per count."""
+        error = self._goal - (self._enc0 + (hw_steps - self._hw_steps0) / mpc)
+        resolution = 1.0 / mpc  # one microstep, in counts
+        dt = _DT
+        v_max = float(self._velocity_limit)
+        accel = float(self._acceleration_limit)
+        velocity = self._velocity
+        size = abs(error)
+        if size < resolution and abs(velocity) <= accel * dt:
             return 0.0
         # Fastest speed from which the goal can still be reached braking at ``accel``, and
         # no faster than covering the remaining error within this tick.
-        reachable = math.sqrt(2.0 * accel * abs(error))
-        desired = math.copysign(min(v_max, reachable, abs(error) / dt), error)
+        reachable = math.sqrt(2.0 * accel * size)
+        desired = math.copysign(min(v_max, reachable, size / dt), error)
         step = accel * dt
-        v = self._velocity + max(-step, min(step, desired - self._velocity))
+        change = desired - velocity
+        v = velocity + max(-step, min(step, change))
         return max(-v_max, min(v_max, v))
 
     def _refresh(self) -> None:
-        """Bring the read-only registers up to date."""
+        """Bring the read-only registers up to date (fresh readings)."""
         enc = self.encoder.count()
-        self.set("present_position", enc)
+        hw_steps = self.stepper.step_count()
+        temperature = self.sensor("temperature")
+        supply_mv = self.sensor("supply_mv")
+        self._publish(enc, hw_steps, self._deflection(hw_steps, enc),
+                      self._errors(temperature, supply_mv), self._velocity, temperature,
+                      supply_mv)
+
+    def _publish(self, enc: int, hw_steps: int, deflection: int, errors: int, velocity: float,
+                 temperature: int, supply_mv: int) -> None:
+        """Write the read-only registers from these readings."""
         history = self._enc_history
         span = len(history) - 1
-        velocity = (history[-1] - history[0]) * 1_000_000 // (span * TICK_US) if span else 0
-        self.set("present_velocity", velocity)
-        self.set("step_count", self.stepper.step_count() - self._step_offset)
-        self.set("deflection", self.deflection())
-        errors = self._hardware_errors()
-        self.set("hardware_error_status", errors)
+        speed = (history[-1] - history[0]) * 1_000_000 // (span * TICK_US) if span else 0
+        steps = hw_steps - self._step_offset
+        image = self.image
+        before = image[_POS_VEL_STEPS_AT:_POS_VEL_STEPS_END]
+        try:
+            _POS_VEL_STEPS.pack_into(image, _POS_VEL_STEPS_AT, enc, speed, steps)
+        except struct.error:  # a value does not fit: fail exactly as register by register
+            image[_POS_VEL_STEPS_AT:_POS_VEL_STEPS_END] = before  # (pack_into zero-fills)
+            self.set("present_position", enc)
+            self.set("present_velocity", speed)
+            self.set("step_count", steps)
+            raise
+        _DEFLECTION.pack_into(image, _DEFLECTION_AT, deflection)
         flags = self._flags
-        if self._velocity != 0.0:
-            flags |= StepperFlag.MOVING
+        if velocity != 0.0:
+            flags |= _MOVING
         if errors:
-            flags |= StepperFlag.HARDWARE_ERROR
-        self.set("status_flags", int(flags))
-        self.set("present_voltage", max(0, min(255, self.sensor("supply_mv") // 100)))
-        self.set("present_temperature", max(0, min(255, self.sensor("temperature") // 10)))
+            flags |= _HARDWARE_ERROR
+        volts = supply_mv // 100
+        degrees = temperature // 10
+        _FLAGS.pack_into(image, _FLAGS_AT, flags)
+        _HW_VOLT_TEMP.pack_into(image, _HW_VOLT_TEMP_AT, errors,
+                                0 if volts < 0 else 255 if volts > 255 else volts,
+                                0 if degrees < 0 else 255 if degrees > 255 else degrees)

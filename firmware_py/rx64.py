@@ -23,9 +23,19 @@ The servo exposes the full :data:`RX64_TABLE`.  A 1 kHz tick runs its position l
   ``alarm_led`` blinks the ``led`` register at 2 Hz.
 * A goal outside [``cw_angle_limit``, ``ccw_angle_limit``] is refused with ANGLE_LIMIT
   (wheel mode, both limits 0, is not modelled: every goal is then accepted).
+
+Implementation notes (the emulator runs three of these at 1 kHz): the tick reads each sensor
+once; the registers it needs are kept in attributes (:meth:`reload_registers`); the
+read-only registers are packed into the image with precompiled structs at the same moments
+as before (every tick and before every READ/BULK_READ), so the image - and :meth:`get` -
+are what they always were; alarms are plain ints inside (:attr:`alarms` still reads as an
+:class:`~protocol.dynamixel.ErrorBit`).
 """
 
 from __future__ import annotations
+
+import struct
+from collections import deque
 
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
@@ -44,33 +54,79 @@ UNITS_PER_S_PER_SPEED = RX64_RPM_PER_UNIT * 6.0 * 1024 / 300
 SPEED_WINDOW = 10
 _CW_BIT = 0x400
 
+# Plain-int alarm bits for the hot path (IntFlag arithmetic is slow).
+_OVERHEATING = int(ErrorBit.OVERHEATING)
+_INPUT_VOLTAGE = int(ErrorBit.INPUT_VOLTAGE)
+_OVERLOAD = int(ErrorBit.OVERLOAD)
 
-def _with_direction(magnitude: int, clockwise: bool) -> int:
-    return min(magnitude, 0x3FF) | (_CW_BIT if clockwise and magnitude else 0)
+#: present_position, present_speed, present_load, present_voltage, present_temperature.
+_PRESENT = struct.Struct("<HHHBB")
+_PRESENT_AT = RX64_TABLE["present_position"].address
+_MOVING = struct.Struct("<B")
+_MOVING_AT = RX64_TABLE["moving"].address
+assert RX64_TABLE["present_temperature"].end == _PRESENT_AT + _PRESENT.size
 
 
 class Rx64ServoApp(DynamixelSlave):
     """The RX-64's firmware on ``hal`` (factory bus ID ``dxl_id``, 1 Mbaud)."""
 
+    CACHED_REGISTERS = frozenset({
+        "temperature_limit", "min_voltage_limit", "max_voltage_limit", "alarm_led",
+        "alarm_shutdown", "torque_enable", "cw_compliance_margin", "ccw_compliance_margin",
+        "cw_compliance_slope", "ccw_compliance_slope", "goal_position", "moving_speed",
+        "torque_limit", "punch",
+    })
+
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
         super().__init__(hal, RX64_TABLE, {"id": dxl_id, "baud_rate": 1})
         self.motor = hal.motor(0)
         self.setpoint = 0.0  #: position the loop drives toward (units)
-        self.alarms = 0  #: latched ErrorBit alarms
+        self._alarms = 0  # latched ErrorBit alarms, plain int
         self.shutdown = False  #: an alarm in alarm_shutdown turned the output off
         self._overload_ms = 0
         self._ticks = 0
-        self._pots: list[int] = []
+        self._pots: deque[int] = deque(maxlen=SPEED_WINDOW + 1)
         self._duty = 0.0
+        # Registers kept in attributes (reload_registers: from the image at every boot).
+        self._temperature_limit = self._min_voltage = self._max_voltage = 0
+        self._alarm_led = self._alarm_shutdown = self._torque_enable = 0
+        self._cw_margin = self._ccw_margin = self._cw_slope = self._ccw_slope = 0
+        self._goal = self._moving_speed = self._torque_limit = self._punch = 0
+
+    @property
+    def alarms(self) -> int:
+        """Latched ErrorBit alarms (0 when none)."""
+        return ErrorBit(self._alarms) if self._alarms else 0
+
+    @alarms.setter
+    def alarms(self, value: int) -> None:
+        self._alarms = int(value)
 
     # ------------------------------------------------------------------ hooks
 
+    def reload_registers(self) -> None:
+        get = self.get
+        self._temperature_limit = get("temperature_limit")
+        self._min_voltage = get("min_voltage_limit")
+        self._max_voltage = get("max_voltage_limit")
+        self._alarm_led = get("alarm_led")
+        self._alarm_shutdown = get("alarm_shutdown")
+        self._torque_enable = get("torque_enable")
+        self._cw_margin = get("cw_compliance_margin")
+        self._ccw_margin = get("ccw_compliance_margin")
+        self._cw_slope = get("cw_compliance_slope")
+        self._ccw_slope = get("ccw_compliance_slope")
+        self._goal = get("goal_position")
+        self._moving_speed = get("moving_speed")
+        self._torque_limit = get("torque_limit")
+        self._punch = get("punch")
+
     def power_up(self) -> None:
         present = self._pot()
-        self.alarms = 0
+        self._alarms = 0
         self.shutdown = False
         self._overload_ms = self._ticks = 0
-        self._pots = [present]
+        self._pots = deque([present], maxlen=SPEED_WINDOW + 1)
         self.setpoint = float(present)
         self.set("goal_position", present)
         self.set("torque_limit", self.get("max_torque"))
@@ -81,7 +137,7 @@ class Rx64ServoApp(DynamixelSlave):
         self.hal.clock.call_every(TICK_US, self._tick)
 
     def before_read(self) -> None:
-        self._refresh(self.motor_duty)
+        self._refresh(self._duty)
 
     def validate_write(self, after: bytearray, touched: list[Register]) -> int:
         if not any(r.name == "goal_position" for r in touched):
@@ -95,13 +151,13 @@ class Rx64ServoApp(DynamixelSlave):
 
     def after_write(self, touched: list[Register]) -> None:
         names = {r.name for r in touched}
-        if "torque_enable" in names and self.get("torque_enable"):
+        if "torque_enable" in names and self._torque_enable:
             self.setpoint = float(self._pot())
         if "torque_limit" in names and self.shutdown:
             self.set("torque_limit", 0)
 
     def alarm_bits(self) -> int:
-        return self.alarms
+        return self._alarms
 
     # ------------------------------------------------------------------ loop
 
@@ -111,82 +167,122 @@ class Rx64ServoApp(DynamixelSlave):
         return self._duty
 
     def _pot(self) -> int:
-        return max(0, min(1023, self.sensor("pot")))
+        pot = self.sensor("pot")
+        return 0 if pot < 0 else 1023 if pot > 1023 else pot
 
     def compliance_torque(self, error: float) -> int:
         """Torque magnitude (1/1023 of maximum) for a position error of ``error`` units
         (setpoint − present), from the compliance margin, slope, punch and torque limit."""
-        side = "cw" if error > 0 else "ccw"
-        beyond = abs(error) - self.get(f"{side}_compliance_margin")
-        limit = 0 if self.shutdown else self.get("torque_limit")
+        return self._compliance(error, 0 if self.shutdown else self._torque_limit)
+
+    def _compliance(self, error: float, limit: int) -> int:
+        if error > 0:
+            beyond = error - self._cw_margin
+            slope = self._cw_slope
+        else:
+            beyond = -error - self._ccw_margin
+            slope = self._ccw_slope
         if beyond <= 0 or limit == 0:
             return 0
-        punch = min(self.get("punch"), limit)
-        slope = self.get(f"{side}_compliance_slope")
+        punch = self._punch
+        if limit < punch:
+            punch = limit
         if slope == 0:
             return limit
-        torque = punch + (limit - punch) * beyond / slope
-        return int(min(limit, max(punch, round(torque))))
+        torque = round(punch + (limit - punch) * beyond / slope)
+        return int(limit if limit < torque else punch if torque < punch else torque)
 
     def _tick(self) -> None:
         """The 1 kHz tick: alarms, setpoint, compliance, duty, registers."""
         self._ticks += 1
-        present = self._pot()
+        read = self.hal.sensors.read
+        present = read("pot")
+        if type(present) is not int:
+            present = self.sensor("pot")
+        present = 0 if present < 0 else 1023 if present > 1023 else present
         self._pots.append(present)
-        del self._pots[: -SPEED_WINDOW - 1]
-        self._check_alarms()
-        goal = float(self.get("goal_position"))
-        speed = self.get("moving_speed")
+        # alarms (latched)
+        temperature = read("temperature")
+        if type(temperature) is not int:
+            temperature = self.sensor("temperature")
+        alarms = self._alarms
+        if temperature // 10 > self._temperature_limit:
+            alarms |= _OVERHEATING
+        supply_mv = read("supply_mv")
+        if type(supply_mv) is not int:
+            supply_mv = self.sensor("supply_mv")
+        decivolts = supply_mv // 100
+        if not self._min_voltage <= decivolts <= self._max_voltage:
+            alarms |= _INPUT_VOLTAGE
+        limit = self._torque_limit
+        if self._torque_enable and not self.shutdown and limit:
+            load = read("load")
+            if type(load) is not int:
+                load = self.sensor("load")
+            if (-load if load < 0 else load) >= limit:
+                self._overload_ms += 1
+                if self._overload_ms > OVERLOAD_MS:
+                    alarms |= _OVERLOAD
+            else:
+                self._overload_ms = 0
+        self._alarms = alarms
+        if alarms & self._alarm_shutdown and not self.shutdown:
+            self.shutdown = True
+            self.set("torque_limit", 0)
+        # setpoint
+        goal = float(self._goal)
+        speed = self._moving_speed
         if speed == 0:
             self.setpoint = goal
         else:
             step = speed * UNITS_PER_S_PER_SPEED * TICK_US / 1e6
             self.setpoint += max(-step, min(step, goal - self.setpoint))
-        if self.get("torque_enable") and not self.shutdown:
+        # output
+        motor = self.motor
+        if self._torque_enable and not self.shutdown:
             error = self.setpoint - present
-            torque = self.compliance_torque(error)
+            torque = self._compliance(error, self._torque_limit)
             duty = torque / 1023 if error > 0 else -torque / 1023
-            self.motor.set_enabled(True)
+            motor.set_enabled(True)
         else:
             duty = 0.0
-            self.motor.set_enabled(False)
-        self.motor.set_duty(duty)
+            motor.set_enabled(False)
+        motor.set_duty(duty)
         self._duty = duty
-        if self.alarms & self.get("alarm_led"):
+        if alarms & self._alarm_led:
             if self._ticks % LED_BLINK_TICKS == 0:
                 self.set("led", 1 - self.get("led"))
-        self._refresh(duty)
-
-    def _check_alarms(self) -> None:
-        if self.sensor("temperature") // 10 > self.get("temperature_limit"):
-            self.alarms |= ErrorBit.OVERHEATING
-        decivolts = self.sensor("supply_mv") // 100
-        if not self.get("min_voltage_limit") <= decivolts <= self.get("max_voltage_limit"):
-            self.alarms |= ErrorBit.INPUT_VOLTAGE
-        limit = self.get("torque_limit")
-        if self.get("torque_enable") and not self.shutdown and limit:
-            over = abs(self.sensor("load")) >= limit
-            self._overload_ms = self._overload_ms + 1 if over else 0
-            if self._overload_ms > OVERLOAD_MS:
-                self.alarms |= ErrorBit.OVERLOAD
-        if self.alarms & self.get("alarm_shutdown") and not self.shutdown:
-            self.shutdown = True
-            self.set("torque_limit", 0)
+        self._publish(present, duty, temperature, supply_mv, self._pots)
 
     def _refresh(self, duty: float) -> None:
         """Bring the read-only registers up to date (``duty`` is the applied duty)."""
-        pots = self._pots or [self._pot()]
         present = self._pot()
-        self.set("present_position", present)
+        self._publish(present, duty, self.sensor("temperature"), self.sensor("supply_mv"),
+                      self._pots or (present,))
+
+    def _publish(self, present: int, duty: float, temperature: int, supply_mv: int,
+                 pots: deque[int] | tuple[int]) -> None:
+        """Write the read-only registers from these readings (``pots``: the pot's recent
+        readings, oldest first)."""
         span = len(pots) - 1
         rate = (pots[-1] - pots[0]) * 1_000_000 / (span * TICK_US) if span else 0.0
-        self.set("present_speed",
-                 _with_direction(round(abs(rate) / UNITS_PER_S_PER_SPEED), rate < 0))
-        self.set("present_load", _with_direction(round(abs(duty) * 1023), duty < 0))
-        self.set("present_voltage", max(0, min(255, self.sensor("supply_mv") // 100)))
-        self.set("present_temperature", max(0, min(255, self.sensor("temperature") // 10)))
-        error = abs(self.get("goal_position") - present)
-        margin = max(self.get("cw_compliance_margin"), self.get("ccw_compliance_margin"))
-        moving = self.setpoint != self.get("goal_position") or (
-            self.get("torque_enable") and error > margin)
-        self.set("moving", int(bool(moving)))
+        speed = round((-rate if rate < 0 else rate) / UNITS_PER_S_PER_SPEED)
+        if speed > 0x3FF:
+            speed = 0x3FF
+        if rate < 0 and speed:
+            speed |= _CW_BIT
+        load = round((-duty if duty < 0 else duty) * 1023)
+        if load > 0x3FF:
+            load = 0x3FF
+        if duty < 0 and load:
+            load |= _CW_BIT
+        volts = supply_mv // 100
+        degrees = temperature // 10
+        _PRESENT.pack_into(self.image, _PRESENT_AT, present, speed, load,
+                           0 if volts < 0 else 255 if volts > 255 else volts,
+                           0 if degrees < 0 else 255 if degrees > 255 else degrees)
+        goal = self._goal
+        cw, ccw = self._cw_margin, self._ccw_margin
+        moving = self.setpoint != goal or (
+            self._torque_enable and abs(goal - present) > (ccw if ccw > cw else cw))
+        _MOVING.pack_into(self.image, _MOVING_AT, 1 if moving else 0)

@@ -200,6 +200,32 @@ class Emulator:
             out["links"] = dict(self.link_paths)
         return out
 
+    # ------------------------------------------------------------------ faults
+    def break_away(self, finger: int) -> None:
+        """Finger ``finger`` leaves its pogo pins (overload): no link, no power, motors
+        coast in the plant."""
+        hand = self._require_hand()
+        hand.break_away(finger)
+        if self.finger_plants:
+            self.finger_plants[finger].attached = False
+
+    def reattach(self, finger: int, bounce: bool = True) -> None:
+        """Finger ``finger`` is pushed back on, with contact bounce unless ``bounce`` is
+        False; it gets the palm's power state once the contacts settle."""
+        hand = self._require_hand()
+        hand.reattach(finger, bounce=bounce)
+        if self.finger_plants:
+            self.finger_plants[finger].attached = True
+
+    def tendon_glitch(self, finger: int, duration_us: int) -> None:
+        """Finger ``finger``'s tendon contact opens for ``duration_us`` µs."""
+        self._require_hand().tendon_glitch(finger, duration_us)
+
+    def _require_hand(self) -> HandRig:
+        if self.hand is None:
+            raise EmulatorConfigError(f"the {self.config!r} configuration has no hand")
+        return self.hand
+
     # ------------------------------------------------------------------ running
     def step(self, duration_us: int) -> None:
         """Advance simulation time by ``duration_us`` µs, serving the ports at its start."""

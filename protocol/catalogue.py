@@ -20,6 +20,7 @@ from typing import Any, Final
 import construct as c
 
 from protocol.errors import PayloadError, UnknownMessageError, wrap_construct
+from protocol.flat_codec import FlatCodec, flat_codec
 
 #: Node kinds that speak hand frames.  "common" messages are understood by all of them.
 NODES: Final = ("common", "palm", "fmcb", "f2", "f3", "bootloader")
@@ -52,6 +53,8 @@ class Message:
     original: bool = True
     _strict_request: c.Construct | None = field(default=None, repr=False, compare=False)
     _strict_reply: c.Construct | None = field(default=None, repr=False, compare=False)
+    _flat_request: FlatCodec | None = field(default=None, repr=False, compare=False)
+    _flat_reply: FlatCodec | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.node not in NODES:
@@ -60,6 +63,8 @@ class Message:
             raise ValueError(f"{self.name}: type id {self.type_id} outside 0..255")
         object.__setattr__(self, "_strict_request", _strict(self.request) if self.request else None)
         object.__setattr__(self, "_strict_reply", _strict(self.reply) if self.reply else None)
+        object.__setattr__(self, "_flat_request", flat_codec(self.request) if self.request else None)
+        object.__setattr__(self, "_flat_reply", flat_codec(self.reply) if self.reply else None)
 
     @property
     def replies(self) -> bool:
@@ -79,6 +84,9 @@ class Message:
         if con is None:
             raise PayloadError(f"{self.name} has no {direction}")
         values = dict(fields or {}, **kw)
+        flat = self._flat_request if direction == REQUEST else self._flat_reply
+        if flat is not None and (built := flat.build(values)) is not None:
+            return built  # the struct fast path; construct below explains any failure
         return wrap_construct(lambda: con.build(values), f"{self.name} {direction}")
 
     def parse(self, direction: str, payload: bytes) -> dict[str, Any]:
@@ -86,6 +94,9 @@ class Message:
         con = self._strict_request if direction == REQUEST else self._strict_reply
         if con is None:
             raise PayloadError(f"{self.name} has no {direction}")
+        flat = self._flat_request if direction == REQUEST else self._flat_reply
+        if flat is not None and (parsed := flat.parse(payload)) is not None:
+            return parsed  # the struct fast path; construct below explains any failure
         return to_plain(wrap_construct(lambda: con.parse(payload), f"{self.name} {direction}"))
 
     def build_request(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:

@@ -1,0 +1,152 @@
+"""The emulator in process: one clock, repeatable runs, wire timing, faults."""
+
+from __future__ import annotations
+
+import os
+import tty
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hil_emulator.emulator import Emulator
+from hil_emulator.errors import EmulatorConfigError
+from protocol.framing import encode_frame, parse_frame
+from protocol.messages import CATALOGUE
+from protocol.stream import decode_all
+
+S = 1_000_000
+
+
+def _frame(name: str, address: int = 10, **fields: Any) -> bytes:
+    msg = CATALOGUE[name]
+    return encode_frame(address, msg.type_id, msg.build_request(fields))
+
+
+def _route(finger: int, hop: int, name: str, **fields: Any) -> bytes:
+    inner = _frame(name, {0: 10, 1: 1, 2: 2}[hop], **fields)
+    return _frame("palm.route", finger=finger, hop=hop, timeout_ms=20, frame=inner)
+
+
+def _replies(data: bytes, name: str) -> list[dict[str, Any]]:
+    msg = CATALOGUE[name]
+    return [msg.parse_reply(f.payload) for f in decode_all(data) if f.type == msg.type_id]
+
+
+def _boot_hand(emu: Emulator) -> bytearray:
+    """Palm, fingers and phalanges booted; returns the buffer collecting host bytes."""
+    hand = emu.hand
+    assert hand is not None
+    out = bytearray()
+    hand.on_host_bytes = lambda data, t: out.extend(data)
+    emu.step(3_300_000)
+    hand.send_from_host(_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
+    emu.step(3_400_000)
+    for k in range(4):
+        hand.send_from_host(_route(k, 0, "fmcb.phalange_power", on=1))
+        emu.step(30_000)
+    emu.step(3_300_000)
+    return out
+
+
+def _routed(emu: Emulator, out: bytearray, finger: int, hop: int, name: str,
+            **fields: Any) -> dict[str, Any] | None:
+    assert emu.hand is not None
+    out.clear()
+    emu.hand.send_from_host(_route(finger, hop, name, **fields))
+    emu.step(40_000)
+    replies = _replies(bytes(out), "palm.route")
+    if not replies or replies[-1]["status"] != 0:
+        return None
+    return CATALOGUE[name].parse_reply(parse_frame(replies[-1]["frame"]).payload)
+
+
+def test_unknown_configuration_seed_and_layout_are_refused() -> None:
+    with pytest.raises(EmulatorConfigError, match="loose-finger"):
+        Emulator("octopus")
+    with pytest.raises(EmulatorConfigError, match="seed"):
+        Emulator("arm", seed=-1, physics=False)
+    with pytest.raises(EmulatorConfigError, match="four-finger-thumb"):
+        Emulator("hand", layout="octopus")
+
+
+@pytest.mark.slow
+def test_same_seed_same_frames_and_physics_other_seed_other_noise() -> None:
+    def run(seed: int) -> tuple[bytes, np.ndarray, tuple[int, ...]]:
+        emu = Emulator("hand", seed=seed, can="none")
+        out = _boot_hand(emu)
+        for k in range(4):
+            _routed(emu, out, k, 0, "fmcb.imu")
+        out.clear()
+        emu.hand.send_from_host(_route(2, 0, "fmcb.imu"))  # type: ignore[union-attr]
+        emu.step(40_000)
+        assert emu.plant is not None
+        accel = emu.hand.fingers[0].f3.hal.sensors.values["accel"]  # type: ignore[union-attr,attr-defined]
+        return bytes(out), emu.plant.data.qpos.copy(), tuple(accel)
+
+    a, b, c = run(5), run(5), run(6)
+    assert a[0] == b[0] and np.array_equal(a[1], b[1]) and a[2] == b[2]
+    assert a[0]  # the reply did come back
+    assert a[2] != c[2]  # sensor noise follows the seed
+
+
+def test_a_148_byte_status_takes_its_wire_time_on_the_simulation_clock() -> None:
+    """Host adapter → fmcb pogo UART → host at 2 Mbaud, 10 bits a byte: a 7-byte request
+    arrives after 35 µs, the 155-byte framed status (148-byte payload) after 775 µs more."""
+    emu = Emulator("loose-finger", physics=False)
+    ports = emu.open_ports()
+    fd = os.open(ports["fingers"][0], os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd)
+        emu.step(3_300_000)  # bootloader window, then the fmcb application
+        emitted: list[int] = []
+        emu.links["finger0"].on_emit = emitted.append
+        request = _frame("fmcb.status")
+        os.write(fd, request)
+        t0 = emu.scheduler.now_us()
+        for _ in range(20):
+            emu.step(100)
+        reply = os.read(fd, 4096)
+        assert len(reply) == 155 and len(parse_frame(reply).payload) == 148
+        assert emitted == [t0 + len(request) * 5 + 155 * 5]  # 5 µs a byte at 2 Mbaud
+    finally:
+        os.close(fd)
+        emu.close()
+
+
+@pytest.mark.slow
+def test_breakaway_is_reported_and_a_bouncing_reattach_comes_back() -> None:
+    emu = Emulator("hand", seed=2, can="none")
+    out = _boot_hand(emu)
+    assert _routed(emu, out, 2, 0, "identify") is not None
+    emu.hand.send_from_host(_frame("palm.poll", rate_hz=100))  # type: ignore[union-attr]
+    emu.step(100_000)
+    out.clear()
+    emu.break_away(2)
+    emu.step(200_000)
+    events = _replies(bytes(out), "palm.finger_event")
+    assert {"finger": 2, "event": 0} in [{k: e[k] for k in ("finger", "event")} for e in events]
+    assert not emu.finger_plants[2].attached
+    assert _routed(emu, out, 2, 0, "identify") is None
+    emu.reattach(2, bounce=True)
+    emu.step(3_600_000)  # contacts settle, the fmcb's bootloader window, its application
+    assert emu.finger_plants[2].attached
+    ident = _routed(emu, out, 2, 0, "identify")
+    assert ident is not None and ident["running"] == 1
+
+
+@pytest.mark.slow
+def test_tendon_glitches_shorter_than_hold_up_are_ridden_through() -> None:
+    emu = Emulator("hand", seed=3, can="none", physics=False)
+    out = _boot_hand(emu)
+    before = _routed(emu, out, 1, 2, "identify")
+    assert before is not None and before["running"] == 1
+    emu.tendon_glitch(1, 1_000)  # 1 ms: within the 2 ms hold-up
+    emu.step(5_000)
+    after = _routed(emu, out, 1, 2, "identify")
+    assert after is not None and after["uptime_us"] > before["uptime_us"]
+    emu.tendon_glitch(1, 10_000)  # 10 ms: the phalanges brown out and restart
+    emu.step(15_000)
+    rebooted = _routed(emu, out, 1, 2, "identify")
+    assert rebooted is not None and rebooted["running"] == 0  # back in its bootloader
+    assert rebooted["uptime_us"] < 100_000
