@@ -227,6 +227,15 @@ class DynamixelSlave:
     # ------------------------------------------------------------------ receiving
 
     def _on_bytes(self, data: bytes, t_us: int) -> None:
+        # One whole packet for another node and nothing half-received: like the real
+        # firmware, look at the ID byte and let the packet pass (a BULK_READ in progress
+        # only needs to know, from a packet with a good checksum, whose turn has passed).
+        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
+                and data[3] + 4 == len(data) and data[2] != self.bus_id
+                and data[2] != BROADCAST_ID and not self._decoder.pending):
+            if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
+                self._bulk_heard(data[2])
+            return
         for decoded in self._decoder.feed(data):
             packet = decoded.packet
             assert isinstance(packet, InstructionPacket)

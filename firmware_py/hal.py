@@ -209,6 +209,17 @@ class Sensors(ABC):
         Raises :class:`HalError` for a channel the board does not have.
         """
 
+    def read_burst(self, channel: str, count: int) -> int:
+        """The sum of ``count`` back-to-back conversions of scalar ``channel`` (an ADC
+        burst, for averaging).  Raises :class:`HalError` for a vector channel."""
+        total = 0
+        for _ in range(count):
+            value = self.read(channel)
+            if isinstance(value, tuple):
+                raise HalError(f"sensor {channel!r} is not a scalar")
+            total += value
+        return total
+
 
 class Watchdog(ABC):
     """Resets the node when not kicked in time."""

@@ -125,14 +125,7 @@ class _PhalangeApp(HandNode):
 
     def read_taxel(self, index: int) -> int:
         """Light taxel ``index`` and average :data:`ADC_SAMPLES` conversions (ADC counts)."""
-        channel = f"taxel{index}"
-        read = self.hal.sensors.read
-        total = 0
-        for _ in range(ADC_SAMPLES):  # a phalange's hot path: a plain loop
-            value = read(channel)
-            if isinstance(value, tuple):
-                raise HalError(f"sensor {channel!r} is not a scalar")
-            total += value
+        total = self.hal.sensors.read_burst(f"taxel{index}", ADC_SAMPLES)
         return _clamp((total + ADC_SAMPLES // 2) // ADC_SAMPLES, 0, _U16_MAX)
 
     def _scan_step(self) -> None:

@@ -347,6 +347,16 @@ class VirtualSensors(hal.Sensors):
         except KeyError:
             raise HalError(f"this board has no sensor channel {channel!r}") from None
 
+    def read_burst(self, channel: str, count: int) -> int:
+        """The plant holds one value per channel, so a burst is ``count`` times it (a
+        subclass that overrides :meth:`read` gets one :meth:`read` per conversion)."""
+        if type(self).read is not VirtualSensors.read:
+            return super().read_burst(channel, count)
+        value = self.read(channel)
+        if isinstance(value, tuple):
+            raise HalError(f"sensor {channel!r} is not a scalar")
+        return value * count
+
 
 class VirtualWatchdog(hal.Watchdog):
     """Calls ``on_expire`` when not kicked within the timeout."""

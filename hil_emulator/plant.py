@@ -32,8 +32,8 @@ from hil_emulator.errors import PlantError
 #: Physics tick period (µs): parts exchange commands and sensors with the firmware at 1 kHz.
 TICK_US: Final = 1_000
 #: Default integration step (s) and substeps per tick (2 × 0.5 ms = 1 ms).
-DEFAULT_TIMESTEP_S: Final = 0.0005
-DEFAULT_SUBSTEPS: Final = 2
+DEFAULT_TIMESTEP_S: Final = 0.001
+DEFAULT_SUBSTEPS: Final = 1
 
 
 class PlantPart(Protocol):

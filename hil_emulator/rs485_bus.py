@@ -188,7 +188,9 @@ class Rs485Bus:
             data = data ^ self._rng.integers(1, 256, size=data.size, dtype=np.uint8)
         if self.bit_error_rate > 0.0:
             data = data ^ self._error_mask(data.size * 8, self.bit_error_rate)
-        if self.line_code == "manchester":
+        if self.line_code == "manchester" and self.chip_error_rate > 0.0:
+            # Only chip errors can make the chips decode to anything but the bytes sent
+            # (a collision's garbage is still valid Manchester): run the chips only then.
             received = self._through_manchester(data)
         else:
             received = data.tobytes()

@@ -19,8 +19,8 @@ from typing import Any
 
 import construct as c
 
-#: Name (None for padding), struct code, element count (None for a scalar).
-Field = tuple[str | None, str, int | None]
+#: Path of names to the value (None for padding), struct code, element count (None: scalar).
+Field = tuple[tuple[str, ...] | None, str, int | None]
 
 
 @dataclass(frozen=True)
@@ -42,14 +42,17 @@ class FlatCodec:
         values = self.codec.unpack(payload)
         out: dict[str, Any] = {}
         i = 0
-        for name, _, count in self.fields:
-            if name is None:
+        for path, _, count in self.fields:
+            if path is None:
                 continue
+            target = out
+            for name in path[:-1]:
+                target = target.setdefault(name, {})
             if count is None:
-                out[name] = values[i]
+                target[path[-1]] = values[i]
                 i += 1
             else:
-                out[name] = list(values[i : i + count])
+                target[path[-1]] = list(values[i : i + count])
                 i += count
         return out
 
@@ -58,10 +61,12 @@ class FlatCodec:
         array length, out of range): the caller asks construct, which says why."""
         flat: list[Any] = []
         try:
-            for name, _, count in self.fields:
-                if name is None:
+            for path, _, count in self.fields:
+                if path is None:
                     continue
-                value = values[name]
+                value: Any = values
+                for name in path:
+                    value = value[name]
                 if count is None:
                     flat.append(value)
                 elif len(value) != count:
@@ -90,27 +95,38 @@ def _number(con: Any) -> str | None:
     return code
 
 
-def flat_codec(declaration: Any) -> FlatCodec | None:
-    """A :class:`FlatCodec` equivalent to ``declaration``, or None if it is not flat."""
-    struct_con = _unwrap(declaration)
-    if not isinstance(struct_con, c.Struct):
-        return None
+def _fields(struct_con: Any, prefix: tuple[str, ...]) -> list[Field] | None:
+    """The leaves of a flat Struct (nested flat Structs included), or None."""
     fields: list[Field] = []
     for sub in struct_con.subcons:
         name = sub.name
         inner = _unwrap(sub)
         code = _number(inner)
         if code is not None and name is not None:
-            fields.append((name, code, None))
+            fields.append(((*prefix, name), code, None))
         elif (isinstance(inner, c.Array) and isinstance(inner.count, int)
               and name is not None and (code := _number(inner.subcon)) is not None):
-            fields.append((name, code, inner.count))
+            fields.append(((*prefix, name), code, inner.count))
+        elif isinstance(inner, c.Struct) and name is not None:
+            nested = _fields(inner, (*prefix, name))
+            if nested is None or not nested:
+                return None
+            fields.extend(nested)
         elif (isinstance(inner, c.Padded) and isinstance(inner.length, int)
               and _unwrap(inner.subcon) is c.Pass and inner.pattern == b"\x00" and name is None):
             fields.append((None, "x", inner.length))
         else:
             return None
-    if not fields:
+    return fields
+
+
+def flat_codec(declaration: Any) -> FlatCodec | None:
+    """A :class:`FlatCodec` equivalent to ``declaration``, or None if it is not flat."""
+    struct_con = _unwrap(declaration)
+    if not isinstance(struct_con, c.Struct):
+        return None
+    fields = _fields(struct_con, ())
+    if fields is None:
         return None
     fmt = "<" + "".join(code if count is None else f"{count}{code}"
                         for _, code, count in fields)

@@ -2,7 +2,7 @@
 
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
-                 [--can slcan|none] [--no-physics] [--duration S]
+                 [--can slcan|none] [--no-physics] [--sleep] [--duration S] [--stats]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
@@ -39,6 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="pace the simulation to the wall clock (default)")
     pace.add_argument("--fast", dest="realtime", action="store_false",
                       help="run the simulation as fast as the CPU allows")
+    parser.add_argument("--sleep", action="store_true",
+                        help="real time: sleep between events instead of polling (frees a "
+                             "CPU core; deliveries may then be a few ms late)")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
                         help="seed of every random draw (noise, faults): same seed, same run")
     parser.add_argument("--viewer", action="store_true",
@@ -87,6 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except EmulatorError as exc:
             print(f"hil-emulator: {exc}", file=sys.stderr)
             return 1
+        emulator.spin = not args.sleep
         on_idle: Callable[[], None] | None = None
         handle: Any = None
         if args.viewer:
