@@ -181,6 +181,11 @@ class Emulator:
             for name, link in self.links.items():
                 if isinstance(link, SerialLink | SlcanLink):
                     self.link_paths[name] = link.link(link_dir)
+        # Everything built so far lives as long as the emulator: take it out of the cyclic
+        # collector's sight now, before anyone is told the ports are ready, so neither this
+        # pass nor later full passes stall a reply by tens of milliseconds.
+        gc.collect()
+        gc.freeze()
         return self.describe()
 
     def describe(self) -> dict[str, Any]:
@@ -263,10 +268,6 @@ class Emulator:
         as fast as it can, polling the ports between chunks.  ``on_idle`` is called about
         every 16 ms of wall time (the viewer's sync)."""
         self._realtime = realtime
-        # Everything built so far lives as long as the run: keep the cyclic collector off
-        # it, so its full passes do not stall the loop for tens of milliseconds.
-        gc.collect()
-        gc.freeze()
         self._wall0 = time.monotonic()
         self._sim0 = self.scheduler.now_us()
         fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]

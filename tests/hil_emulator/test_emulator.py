@@ -150,3 +150,31 @@ def test_tendon_glitches_shorter_than_hold_up_are_ridden_through() -> None:
     rebooted = _routed(emu, out, 1, 2, "identify")
     assert rebooted is not None and rebooted["running"] == 0  # back in its bootloader
     assert rebooted["uptime_us"] < 100_000
+
+
+def test_python_can_virtual_channel_reaches_the_palm_in_process() -> None:
+    import can
+
+    from protocol.canlink import CanReassembler, can_id, segment
+
+    emu = Emulator("hand", physics=False, can="virtual:hil-test-palm")
+    ports = emu.open_ports()
+    assert ports["can"] == "virtual:hil-test-palm" and ports["can_interface"] == "virtual"
+    host = can.Bus(interface="virtual", channel="hil-test-palm", receive_own_messages=False)
+    try:
+        emu.step(3_300_000)  # the palm's bootloader window, then its application
+        ident = CATALOGUE["identify"]
+        for chunk in segment(_frame("identify")):
+            host.send(can.Message(arbitration_id=can_id(10, to_host=False), data=chunk,
+                                  is_extended_id=False))
+        emu.step(5_000)
+        rx = CanReassembler()
+        frames = []
+        while (msg := host.recv(0.0)) is not None:
+            assert msg.arbitration_id == can_id(10, to_host=True)
+            frames += rx.feed(msg.arbitration_id, bytes(msg.data))
+        replies = [ident.parse_reply(f.payload) for f in frames if f.type == ident.type_id]
+        assert replies and replies[-1]["board"] == 1 and replies[-1]["running"] == 1
+    finally:
+        host.shutdown()
+        emu.close()

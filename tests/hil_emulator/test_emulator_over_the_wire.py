@@ -173,8 +173,10 @@ def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
                 assert len(got) == 155
                 time.sleep(0.01)
     times.sort()
-    assert times[0] >= wire_s  # never faster than the wire
-    assert times[len(times) // 2] <= wire_s + 0.003  # and typically within 3 ms of it
+    # Never faster than the wire; at best within 2 ms of it (the exact time is checked on
+    # the simulation clock in test_emulator.py; here a busy machine may add to the median).
+    assert wire_s <= times[0] <= wire_s + 0.002
+    assert times[len(times) // 2] <= wire_s + 0.010
 
 
 @pytest.mark.slow

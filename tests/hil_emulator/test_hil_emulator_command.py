@@ -97,3 +97,17 @@ def test_viewer_without_a_display_says_so_and_runs_on() -> None:
     assert proc.returncode == 0
     assert '"viewer": false' in out
     assert "no display" in err
+
+
+@pytest.mark.slow
+def test_fast_mode_serves_the_stock_sdk_too() -> None:
+    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    with running_emulator("--config", "arm", "--fast", "--no-physics") as info:
+        port = PortHandler(info["arm"])
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        try:
+            model, result, _ = PacketHandler(1.0).ping(port, 6)
+            assert result == COMM_SUCCESS and model == 64
+        finally:
+            port.closePort()
