@@ -27,6 +27,9 @@ from protocol.image import BoardType
 FINGERS = 4
 #: The tendon bus's data bit rate (bit/s); Manchester doubles the chip rate on the wire.
 TENDON_BAUD = 2_000_000
+#: Supply current of one running phalange board through the tendons (mA): MCU, IMU and
+#: taxel LEDs; the fmcb's phalange switch reports the sum (its breaker trips at 200 mA).
+PHALANGE_LOAD_MA = 35
 #: Contact bounces when a finger is pushed back onto its pogo pins, and their length (µs).
 POGO_BOUNCES = 3
 POGO_BOUNCE_US = (200, 1_500)
@@ -261,14 +264,17 @@ def tendon_glitch(finger: Finger, scheduler: Scheduler, duration_us: int) -> Non
 def wire_phalange_power(finger: Finger) -> None:
     """The fmcb's ``phalange`` switch powers f2 and f3 (through the tendons)."""
 
+    switch = _hal(finger.fmcb).power("phalange")
+
     def switched(state: int) -> None:
         for node in (finger.f2, finger.f3):
             if state and finger.fmcb.powered:
                 node.power_on()
             else:
                 node.power_off()
+        switch.load_ma = PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3))
 
-    _hal(finger.fmcb).power("phalange").on_change.append(switched)
+    switch.on_change.append(switched)
 
 
 class LooseFinger:

@@ -15,7 +15,9 @@ Faults (all drawn from one seeded :class:`numpy.random.Generator`, so a run is r
   (:func:`protocol.manchester.encode_packed`), each chip flips with ``chip_error_rate``, and
   the receivers get what :func:`protocol.manchester.decode_report_packed` recovers: characters
   with an invalid chip pair or a framing error are left out (a real USART flags them) and
-  counted in ``manchester_bad_characters``.
+  counted in ``manchester_bad_characters``.  With ``chip_error_rate`` 0 nothing can
+  corrupt a chip, the round trip is the identity (a property the protocol's tests check), and
+  the chips are not computed: the frame's wire time is still that of its chips.
 
 The line is one wire, so a frame's corruption is drawn once and every receiver sees the same
 bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip rate is twice it.

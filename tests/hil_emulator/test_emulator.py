@@ -178,3 +178,17 @@ def test_python_can_virtual_channel_reaches_the_palm_in_process() -> None:
     finally:
         host.shutdown()
         emu.close()
+
+
+@pytest.mark.slow
+def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
+    from hil_emulator.hand_rig import PHALANGE_LOAD_MA
+
+    emu = Emulator("hand", seed=4, can="none", physics=False)
+    out = _boot_hand(emu)
+    status = _routed(emu, out, 3, 0, "fmcb.status")
+    assert status is not None and status["pb_current"] == 2 * PHALANGE_LOAD_MA
+    assert _routed(emu, out, 3, 0, "fmcb.phalange_power", on=0) == {}
+    emu.step(5_000)
+    status = _routed(emu, out, 3, 0, "fmcb.status")
+    assert status is not None and status["pb_current"] == 0
