@@ -28,13 +28,17 @@ class VirtualClock(hal.Clock):
         self.scheduler = scheduler
         self.epoch_us = scheduler.now_us()
         self._timers: list[TimerHandle] = []
+        self._prune_at = 16
 
     def now_us(self) -> int:
         return self.scheduler.now_us() - self.epoch_us
 
     def _track(self, handle: TimerHandle) -> TimerHandle:
-        self._timers = [t for t in self._timers if t.active]
-        self._timers.append(handle)
+        timers = self._timers
+        timers.append(handle)
+        if len(timers) > self._prune_at:  # forget finished timers, amortised O(1)
+            self._timers = timers = [t for t in timers if t.active]
+            self._prune_at = max(16, 2 * len(timers))
         return handle
 
     def call_later(self, delay_us: int, callback: Callable[[], None]) -> TimerHandle:
