@@ -10,12 +10,12 @@ they overlap, as on the arm (dissertation §5.5: one bus and one protocol for al
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Final
 
 from firmware_py.dynamixel_slave import DynamixelSlave, make_arm_node
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal, VirtualUart
+from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
 
@@ -30,7 +30,7 @@ ARM_BAUD: Final = 1_000_000
 ARM_TURNAROUND_US: Final = 2
 
 
-class ArmRig:
+class ArmRig(HostSide):
     """The arm's nodes and the host adapter on one :class:`Rs485Bus`.
 
     ``host_uart`` is the host adapter's UART on the line: what the host writes goes out with
@@ -39,7 +39,7 @@ class ArmRig:
 
     def __init__(self, scheduler: Scheduler | None = None, seed: int = 0,
                  baud: int = ARM_BAUD) -> None:
-        self.scheduler = scheduler or Scheduler()
+        super().__init__(scheduler or Scheduler())
         self.bus = Rs485Bus(self.scheduler, baud=baud, turnaround_us=ARM_TURNAROUND_US,
                             seed=seed)
         self.nodes: dict[int, tuple[VirtualHal, DynamixelSlave]] = {}
@@ -55,21 +55,13 @@ class ArmRig:
         self.host_uart = VirtualUart(self.scheduler, baud, name="host")
         self.host_uart.keep_sent = False
         self.bus.attach(self.host_uart, "host")
-        self.host_uart.set_receiver(self._host_receive)
-        self.on_host_bytes: Callable[[bytes, int], None] | None = None
-        self.host_received: list[tuple[bytes, int]] = []
+        self.host_uart.set_receiver(self._to_host)
 
     def _attach(self, dxl_id: int, hal: VirtualHal, app: DynamixelSlave) -> None:
         uart = hal.uart("bus")
         uart.keep_sent = False
         self.bus.attach(uart, f"id{dxl_id}")
         self.nodes[dxl_id] = (hal, app)
-
-    def _host_receive(self, data: bytes, t_us: int) -> None:
-        if self.on_host_bytes is not None:
-            self.on_host_bytes(data, t_us)
-        else:
-            self.host_received.append((data, t_us))
 
     @property
     def stepper_hals(self) -> list[VirtualHal]:
@@ -88,13 +80,3 @@ class ArmRig:
     def send_from_host(self, data: bytes) -> None:
         """The host adapter drives ``data`` onto the line now."""
         self.host_uart.send(data)
-
-    def take_host_bytes(self) -> bytes:
-        """What reached the host since the last call (only without ``on_host_bytes``)."""
-        out = b"".join(d for d, _ in self.host_received)
-        self.host_received.clear()
-        return out
-
-    def run_for(self, duration_us: int) -> None:
-        """Advance simulation time (µs)."""
-        self.scheduler.run_for(duration_us)

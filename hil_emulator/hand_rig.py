@@ -11,7 +11,6 @@ top of this topology; tests use it as it is to run real firmware end to end.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,7 @@ from firmware_py.mcu import Mcu
 from firmware_py.phalange import HOLD_UP_US
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualCan, VirtualHal, VirtualUart
+from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
 
@@ -54,7 +54,7 @@ class Finger:
     tendon_bus: Rs485Bus | None = None
 
 
-class HandRig:
+class HandRig(HostSide):
     """Palm + four fingers on one scheduler, wired as on the real hand.
 
     ``uid_base`` numbers the nodes' unique ids; ``on_host_bytes`` (if given) receives what
@@ -66,7 +66,7 @@ class HandRig:
 
     def __init__(self, scheduler: Scheduler | None = None, uid_base: int = 0x1000, *,
                  line_model: bool = False, seed: int = 0, record: bool = True) -> None:
-        self.scheduler = scheduler or Scheduler()
+        super().__init__(scheduler or Scheduler())
         self.line_model = line_model
         self._rng = np.random.default_rng(seed)
         self.palm = make_node(self.scheduler, BoardType.PALM, uid=uid_base)
@@ -87,9 +87,7 @@ class HandRig:
                 for uart in hal.uarts.values():
                     uart.keep_sent = False
             _hal(self.palm).can().keep_sent = False
-        self.host_received: list[tuple[bytes, int]] = []
-        self.host_uart.sink = self._host_sink
-        self.on_host_bytes: Callable[[bytes, int], None] | None = None
+        self.host_uart.sink = self._to_host
 
     # --- wiring ---------------------------------------------------------------------------
     def _wire_finger(self, finger: Finger) -> None:
@@ -119,12 +117,6 @@ class HandRig:
         elif not state:
             finger.fmcb.power_off()
 
-    def _host_sink(self, data: bytes, t_us: int) -> None:
-        if self.on_host_bytes is not None:
-            self.on_host_bytes(data, t_us)
-        else:
-            self.host_received.append((data, t_us))
-
     # --- what a bench does --------------------------------------------------------------
     @property
     def mcus(self) -> list[Mcu]:
@@ -148,12 +140,6 @@ class HandRig:
     def send_from_host(self, frame: bytes) -> None:
         """Bytes from the host arrive at the palm now."""
         self.host_uart.deliver(frame)
-
-    def take_host_bytes(self) -> bytes:
-        """Everything the palm sent to the host since the last call."""
-        out = b"".join(d for d, _ in self.host_received)
-        self.host_received.clear()
-        return out
 
     def break_away(self, index: int) -> None:
         """Finger ``index`` leaves its pogo pins: link and power gone."""
@@ -201,9 +187,6 @@ class HandRig:
         nothing meanwhile and the phalanges ride through on their hold-up or brown out."""
         tendon_glitch(self.fingers[index], self.scheduler, duration_us)
 
-    def run_for(self, duration_us: int) -> None:
-        """Advance simulation time."""
-        self.scheduler.run_for(duration_us)
 
 
 def wire_tendon_bus(finger: Finger, line_model: bool, seed: int = 0) -> None:
@@ -277,7 +260,7 @@ def wire_phalange_power(finger: Finger) -> None:
     switch.on_change.append(switched)
 
 
-class LooseFinger:
+class LooseFinger(HostSide):
     """One finger module on a bench, on the original's 'loose finger' cable.
 
     The cable carries the fmcb's pogo bus (2 Mbaud) to the host and its supply; the tendon
@@ -287,7 +270,7 @@ class LooseFinger:
 
     def __init__(self, scheduler: Scheduler | None = None, uid: int = 0x2010, *,
                  line_model: bool = False, seed: int = 0, record: bool = True) -> None:
-        self.scheduler = scheduler or Scheduler()
+        super().__init__(scheduler or Scheduler())
         self.finger = Finger(0, make_node(self.scheduler, BoardType.FMCB, uid=uid),
                              make_node(self.scheduler, BoardType.F2, uid=uid + 1),
                              make_node(self.scheduler, BoardType.F3, uid=uid + 2))
@@ -297,20 +280,12 @@ class LooseFinger:
             for mcu in (self.finger.fmcb, self.finger.f2, self.finger.f3):
                 for uart in _hal(mcu).uarts.values():
                     uart.keep_sent = False
-        self.host_received: list[tuple[bytes, int]] = []
-        self.on_host_bytes: Callable[[bytes, int], None] | None = None
-        self.host_uart.sink = self._host_sink
+        self.host_uart.sink = self._to_host
 
     @property
     def host_uart(self) -> VirtualUart:
         """The fmcb's pogo UART, which the cable brings to the host."""
         return _hal(self.finger.fmcb).uart("pogo")
-
-    def _host_sink(self, data: bytes, t_us: int) -> None:
-        if self.on_host_bytes is not None:
-            self.on_host_bytes(data, t_us)
-        else:
-            self.host_received.append((data, t_us))
 
     def power_on(self) -> None:
         """Cable supply on: the fmcb's bootloader starts its autoboot window."""
@@ -320,12 +295,3 @@ class LooseFinger:
         """Bytes from the host arrive at the fmcb now."""
         self.host_uart.deliver(data)
 
-    def take_host_bytes(self) -> bytes:
-        """Everything the fmcb sent to the host since the last call."""
-        out = b"".join(d for d, _ in self.host_received)
-        self.host_received.clear()
-        return out
-
-    def run_for(self, duration_us: int) -> None:
-        """Advance simulation time (µs)."""
-        self.scheduler.run_for(duration_us)
