@@ -111,3 +111,14 @@ def test_fast_mode_serves_the_stock_sdk_too() -> None:
             assert result == COMM_SUCCESS and model == 64
         finally:
             port.closePort()
+
+
+def test_a_link_name_taken_by_a_file_is_a_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "arm").write_text("not a link")
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                             "--no-physics", "--link-dir", str(tmp_path)],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert result.stdout == ""
+    assert "arm" in result.stderr and "not a symlink" in result.stderr
+    assert (tmp_path / "arm").read_text() == "not a link"  # nothing of the user's is lost
