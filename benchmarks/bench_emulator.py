@@ -44,12 +44,6 @@ def _hand_frame(name: str, **fields: object) -> bytes:
     return encode_frame(10, msg.type_id, msg.build_request(fields))
 
 
-def _route(finger: int, name: str, **fields: object) -> bytes:
-    msg = CATALOGUE[name]
-    inner = encode_frame(10, msg.type_id, msg.build_request(fields))
-    return _hand_frame("palm.route", finger=finger, hop=0, timeout_ms=20, frame=inner)
-
-
 def _sync_write(goal_counts: int) -> bytes:
     goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in range(1, 5)}
     return dxl.make_sync_write(STEPPER_TABLE["goal_position"].address, 4, goals).encode()
@@ -75,22 +69,15 @@ HOLD_POSE = [_hold_pose(k) for k in range(4)]
 
 
 def boot_full(emulator: Emulator, heavy: bool = True) -> None:
-    """Bring the full configuration up as a host would: palm, fingers, phalanges, arm;
-    autopoll on, fingers holding their pose in joint mode (and, ``heavy``, palm polling)."""
+    """Bring the full configuration up as a host would (palm, fingers, phalanges, autopoll:
+    :meth:`Emulator.bring_up`), fingers holding their pose in joint mode, arm torque on
+    (and, ``heavy``, the palm polling every finger)."""
     hand, arm = emulator.hand, emulator.arm
     assert hand is not None and arm is not None
-    emulator.step(3_300_000)
-    hand.send_from_host(_hand_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
-    emulator.step(3_400_000)
-    for k in range(4):
-        hand.send_from_host(_route(k, "fmcb.phalange_power", on=1))
-        emulator.step(30_000)
+    emulator.bring_up()
     if heavy:
         hand.send_from_host(_hand_frame("palm.poll", rate_hz=100))
-    emulator.step(3_300_000)
-    for k in range(4):  # the phalanges are up: every fmcb polls them at 100 Hz
-        hand.send_from_host(_route(k, "fmcb.autopoll", on=1))
-        emulator.step(30_000)
+    for k in range(4):
         hand.send_from_host(HOLD_POSE[k])
         emulator.step(30_000)
     for packet in TORQUE_ON:
@@ -118,29 +105,20 @@ def fast_rtf(physics: bool, sim_s: float, heavy: bool = False) -> float:
 
 
 def realtime_lateness(wall_s: float, config: str = "full") -> dict[str, float]:
-    """Run ``hil-emulator --config CONFIG --stats`` and drive nominal traffic over its
-    ports for ``wall_s`` seconds after bringing the robot up; return its lateness stats."""
+    """Run ``hil-emulator --config CONFIG --stats --ready`` and drive nominal traffic over
+    its ports for ``wall_s`` seconds; return its lateness stats."""
     import serial
 
     proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", config,
-                             "--can", "none", "--stats"], cwd=ROOT, stdout=subprocess.PIPE,
+                             "--can", "none", "--stats", "--ready"], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         info = json.loads(proc.stdout.readline())
         palm = serial.Serial(info["palm"], 2_000_000, timeout=0) if info["palm"] else None
         arm = serial.Serial(info["arm"], 1_000_000, timeout=0) if info["arm"] else None
-        if palm is not None:
-            time.sleep(3.3)
-            palm.write(_hand_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
-            time.sleep(3.4)
+        if palm is not None:  # --ready: the hand is up; hold the fingers' pose
             for k in range(4):
-                palm.write(_route(k, "fmcb.phalange_power", on=1))
-                time.sleep(0.03)
-            time.sleep(3.3)
-            for k in range(4):
-                palm.write(_route(k, "fmcb.autopoll", on=1))
-                time.sleep(0.03)
                 palm.write(HOLD_POSE[k])
                 time.sleep(0.03)
         if arm is not None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.arm_rig import ArmRig
+from hil_emulator.bring_up import bring_up
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand_rig import HandRig, LooseFinger
 from hil_emulator.host_links import SerialLink, SlcanLink, VirtualCanLink
@@ -209,6 +210,12 @@ class Emulator:
         if getattr(self, "link_paths", None):
             out["links"] = dict(self.link_paths)
         return out
+
+    def bring_up(self, autopoll: bool = True) -> None:
+        """Power and boot every hand node as a host would (palm, fingers, phalanges; fmcb
+        autopoll on), on the simulation clock; call before :meth:`open_ports`.  The arm is
+        left as it powers up, torque off (see :mod:`hil_emulator.bring_up`)."""
+        bring_up(self.hand, self.loose, self.step, autopoll)
 
     # ------------------------------------------------------------------ faults
     def break_away(self, finger: int) -> None:

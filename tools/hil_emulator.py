@@ -2,7 +2,7 @@
 
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
-                 [--can slcan|none] [--no-physics] [--sleep] [--duration S] [--stats]
+                 [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
@@ -39,6 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="pace the simulation to the wall clock (default)")
     pace.add_argument("--fast", dest="realtime", action="store_false",
                       help="run the simulation as fast as the CPU allows")
+    parser.add_argument("--ready", action="store_true",
+                        help="before naming the ports, bring the hand up as a host would "
+                             "(fingers and phalanges powered and booted, autopoll on), in "
+                             "simulated time; the arm stays torque-off")
     parser.add_argument("--sleep", action="store_true",
                         help="real time: sleep between events instead of polling (frees a "
                              "CPU core; deliveries may then be a few ms late)")
@@ -86,7 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     with emulator:
         try:
+            if args.ready:
+                emulator.bring_up()
             ports = emulator.open_ports(args.link_dir)
+            ports["ready"] = bool(args.ready)
         except EmulatorError as exc:
             print(f"hil-emulator: {exc}", file=sys.stderr)
             return 1

@@ -192,3 +192,19 @@ def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
     emu.step(5_000)
     status = _routed(emu, out, 3, 0, "fmcb.status")
     assert status is not None and status["pb_current"] == 0
+
+
+def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() -> None:
+    from firmware_py.flash_layout import BOOT_CONTROL_PAGE, page_address
+    from hil_emulator.errors import EmulatorError
+
+    emu = Emulator("loose-finger", physics=False)
+    emu.bring_up()
+    finger = emu.loose.finger  # type: ignore[union-attr]
+    assert [m.program_name for m in (finger.fmcb, finger.f2, finger.f3)] == ["fmcb", "f2", "f3"]
+
+    broken = Emulator("loose-finger", physics=False)
+    f3 = broken.loose.finger.f3  # type: ignore[union-attr]
+    f3.hal.flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)  # type: ignore[attr-defined]
+    with pytest.raises(EmulatorError, match="uid"):
+        broken.bring_up()  # f3's image is not activated: it stays in its bootloader

@@ -210,3 +210,17 @@ def test_python_can_slcan_reaches_the_palm() -> None:
             assert reply is not None and reply["board"] == 1
         finally:
             bus.shutdown()
+
+
+@pytest.mark.slow
+def test_ready_names_the_ports_with_every_hand_node_running() -> None:
+    with running_emulator("--config", "hand", "--ready", "--can", "none") as info, \
+            HandPort(info["palm"]) as hand:
+        assert info["ready"] is True
+        assert hand.request("identify")["running"] == 1  # no waiting: it is up already
+        for k in range(4):
+            assert hand.route(k, 0, "identify")["running"] == 1
+            for hop in (1, 2):
+                assert hand.route(k, hop, "identify")["running"] == 1
+        status = hand.route(2, 0, "fmcb.status")
+        assert status["pp_time"] > 0 and status["dp_time"] > 0  # autopoll has run
