@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -35,11 +36,13 @@ def _running(reply: dict[str, Any]) -> dict[str, Any] | None:
 
 
 @pytest.mark.slow
-def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics() -> None:
+def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) -> None:
+    """What the issue's "done" says: run it with --link-dir and talk to DIR/arm."""
     from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
 
-    with running_emulator("--config", "arm", "--seed", "7") as info:
-        port = PortHandler(info["arm"])
+    robot = tmp_path / "robot"
+    with running_emulator("--config", "arm", "--seed", "7", "--link-dir", str(robot)):
+        port = PortHandler(str(robot / "arm"))
         assert port.openPort()
         assert port.setBaudRate(1_000_000)  # dynamixel-sdk closes and reopens the port here
         sdk = PacketHandler(1.0)
