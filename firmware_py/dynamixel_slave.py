@@ -59,6 +59,7 @@ from protocol.dynamixel import (
     ErrorBit,
     InstructionPacket,
     StatusPacket,
+    encode_packet,
     parse_bulk_read,
     parse_read,
     parse_sync_write,
@@ -352,10 +353,11 @@ class DynamixelSlave:
         self.hal.clock.call_later(delay_us, send)
 
     def _bulk_read(self, entries: list[tuple[int, int, int]]) -> None:
-        ids = [id_ for _, id_, _ in entries]
-        if self.bus_id not in ids:
+        bus_id = self.bus_id
+        # This node's (first) entry: the node answers k-th.
+        k = next((i for i, entry in enumerate(entries) if entry[1] == bus_id), -1)
+        if k < 0:
             return
-        k = ids.index(self.bus_id)
         length, _, address = entries[k]
         self.before_read()
         try:
@@ -363,9 +365,10 @@ class DynamixelSlave:
             error = 0
         except RegisterError as exc:
             data, error = b"", int(exc.error_bit)
-        if not 0 <= self.bus_id <= MAX_ID:
+        if not 0 <= bus_id <= MAX_ID:
             return
-        raw = StatusPacket(self.bus_id, (error | self.alarm_bits()) & 0x7F, data).encode()
+        # What StatusPacket(...).encode() gives (the ID is checked above, the error masked).
+        raw = encode_packet(bus_id, (error | self.alarm_bits()) & 0x7F, data)
         delay = 2 * self.get("return_delay_time")
         if k == 0:
             self._send_later(delay, raw, None)
@@ -375,10 +378,11 @@ class DynamixelSlave:
             self._bulk_wait = None
             self._send_later(delay, raw, None)
 
-        earlier = sum(n + 6 for n, _, _ in entries[:k])
+        # Bytes of the earlier replies: 6 per status packet plus its data.
+        earlier = sum(entry[0] for entry in entries[:k]) + 6 * k
         fallback = -(-earlier * BITS_PER_CHAR * 1_000_000 // self.uart.baud) + k * BULK_SLOT_US
         timer = self.hal.clock.call_later(fallback, go)
-        self._bulk_wait = (ids[k - 1], go, timer)
+        self._bulk_wait = (entries[k - 1][1], go, timer)
 
     def _bulk_heard(self, id_: int) -> None:
         """A packet from ``id_`` passed on the bus: the awaited one lets our reply go."""

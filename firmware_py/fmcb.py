@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -67,6 +68,9 @@ AUTOPOLL_PERIOD_US: Final = 10_000
 SLOW_POLL_CYCLES: Final = 100
 #: Control ticks over which velocities are measured (10 ms).
 VELOCITY_WINDOW: Final = 10
+#: Velocity span (s) over a history of n tick counts, by n (n - 1 control periods).
+_VELOCITY_SPAN_S: Final = tuple((n - 1) * CONTROL_PERIOD_US / 1e6
+                                for n in range(VELOCITY_WINDOW + 2))
 #: pb_current while the breaker is tripped.
 PB_TRIPPED: Final = 0xFFFF
 
@@ -76,18 +80,35 @@ MODE_OPEN_LOOP: Final = -1
 
 _FAST_POLLS: Final = ("f2.tactile", "f3.tactile")
 _SLOW_POLLS: Final = ("f2.strain", "f3.temperatures")
+#: The autopoll request frames (empty payloads), built once.
+_POLL_FRAMES: Final = {
+    name: encode_frame(ADDR_F2 if name.startswith("f2.") else ADDR_F3,
+                       CATALOGUE[name].type_id, CATALOGUE[name].build_request({}))
+    for name in (*_FAST_POLLS, *_SLOW_POLLS)
+}
+#: Status keys a tactile reply lands in, by phalange prefix: taxels, IMU, time.
+_TACTILE_KEYS: Final = {p: (f"{p}_tactile", f"{p}_imu", f"{p}_time") for p in ("pp", "dp")}
+
+
+def _clamp(v: int, lo: int, hi: int) -> int:
+    return lo if v < lo else hi if v > hi else v
 
 
 def _u16(v: int) -> int:
-    return max(0, min(0xFFFF, int(v)))
+    return _clamp(int(v), 0, 0xFFFF)
 
 
 def _i16(v: int) -> int:
-    return max(-0x8000, min(0x7FFF, int(v)))
+    return _clamp(int(v), -0x8000, 0x7FFF)
 
 
 def _i32(v: int) -> int:
-    return max(-0x80000000, min(0x7FFFFFFF, int(v)))
+    return _clamp(int(v), -0x80000000, 0x7FFFFFFF)
+
+
+def _clamped(values: Iterable[int], lo: int, hi: int) -> list[int]:
+    """``[_clamp(int(v), lo, hi) for v in values]`` without a call per value."""
+    return [lo if v < lo else hi if v > hi else v for v in map(int, values)]
 
 
 @dataclass
@@ -121,6 +142,11 @@ class FmcbApp(HandNode):
         super().__init__(hal)
         self.mcu = mcu
         self.params = ParamTable()
+        # Indices of the parameters the 1 kHz tick reads (the table's layout is fixed).
+        index = self.params.index
+        self._p_kp, self._p_kd, self._p_deadband = index("kp"), index("kd"), index("deadband")
+        self._p_max_effort = index("max_effort")
+        self._p_breaker_ma, self._p_breaker_ms = index("breaker_ma"), index("breaker_ms")
         self.params_valid = self.params.load_page(hal.flash.read_page(PARAM_PAGE))
         self.pogo = hal.uart("pogo")
         self.tendon = hal.uart("tendon")
@@ -251,35 +277,48 @@ class FmcbApp(HandNode):
             "fmcb_temp": list(self.temperatures),
             "voltage": self.voltage, "pb_current": self.pb_current,
             "pp_strain": ph["pp_strain"],
-            "hall_tgt": [_i32(v) for v in self.hall_target],
-            "hall_pos": [_i32(v) for v in self.hall_pos],
-            "effort": [_i16(v) for v in self.effort],
+            "hall_tgt": _clamped(self.hall_target, -0x80000000, 0x7FFFFFFF),
+            "hall_pos": _clamped(self.hall_pos, -0x80000000, 0x7FFFFFFF),
+            "effort": _clamped(self.effort, -0x8000, 0x7FFF),
         }
 
     # --- control --------------------------------------------------------------------------
     def _control_tick(self) -> None:
         """The 1 kHz tick: halls, velocities, breaker, control law."""
         h, m = self.hall, self.motors
-        counts = (h[0].update(m[0].hall_state()), h[1].update(m[1].hall_state()),
-                  h[2].update(m[2].hall_state()))
+        c0, c1, c2 = (h[0].update(m[0].hall_state()), h[1].update(m[1].hall_state()),
+                      h[2].update(m[2].hall_state()))
         hist = self._history
-        hist.append(counts)
-        if len(hist) > 1:
-            span_s = (len(hist) - 1) * CONTROL_PERIOD_US / 1e6
-            self.velocity = [(counts[i] - hist[0][i]) / span_s for i in range(3)]
+        hist.append((c0, c1, c2))
+        n = len(hist)
+        if n > 1:
+            span_s = _VELOCITY_SPAN_S[n]
+            f0, f1, f2 = hist[0]
+            self.velocity = [(c0 - f0) / span_s, (c1 - f1) / span_s, (c2 - f2) / span_s]
         self._check_breaker()
-        if self.mode == MODE_IDLE:
+        mode = self.mode
+        if mode == MODE_IDLE:
             self.hall_target = self.hall_pos  # targets follow the pose: no jump on resume
             return
-        if self.mode == MODE_OPEN_LOOP:
+        if mode == MODE_OPEN_LOOP:
             return
-        p = self.params
-        kp, kd, deadband = float(p["kp"]), float(p["kd"]), float(p["deadband"])
-        pos = self.hall_pos
-        for i, motor in enumerate(self.motors):
-            cap = min_cap(int(p["max_effort"]), self.effort_cap, self.joint_caps[i])
-            e = pd_effort(self.hall_target[i] - pos[i], self.velocity[i], kp, kd, deadband, cap)
-            self.effort[i] = e
+        values = self.params.values
+        kp, kd = float(values[self._p_kp]), float(values[self._p_kd])
+        deadband = float(values[self._p_deadband])
+        # min_cap(max_effort, effort_cap, joint cap): the joint-independent part once.
+        cap_all = min(EFFORT_FULL, int(values[self._p_max_effort]), self.effort_cap)
+        o = self.offsets
+        pos = (c0 - o[0], c1 - o[1], c2 - o[2])
+        target, velocity, joint_caps, effort = (self.hall_target, self.velocity,
+                                                self.joint_caps, self.effort)
+        for i, motor in enumerate(m):
+            cap = joint_caps[i]  # min_cap(...) = max(0, min(cap_all, joint cap))
+            if cap_all < cap:
+                cap = cap_all
+            if cap < 0:
+                cap = 0
+            e = pd_effort(target[i] - pos[i], velocity[i], kp, kd, deadband, cap)
+            effort[i] = e
             motor.set_enabled(True)
             motor.set_duty(e / EFFORT_FULL)
 
@@ -405,13 +444,14 @@ class FmcbApp(HandNode):
             return
         ma = self.phalange.current_ma()
         self._pb_current = ma
-        if ma <= int(self.params["breaker_ma"]):
+        values = self.params.values
+        if ma <= int(values[self._p_breaker_ma]):
             self._over_since = None
             return
         now = self.hal.clock.now_us()
         if self._over_since is None:
             self._over_since = now
-        elif now - self._over_since > int(self.params["breaker_ms"]) * 1000:
+        elif now - self._over_since > int(values[self._p_breaker_ms]) * 1000:
             self.breaker_tripped = True
             self._over_since = None
             self.phalange.set(0)
@@ -455,8 +495,10 @@ class FmcbApp(HandNode):
             self._send_request(CATALOGUE[self._queue.pop(0)])
 
     def _send_request(self, msg: Message) -> None:
-        address = ADDR_F2 if msg.node == "f2" else ADDR_F3
-        data = encode_frame(address, msg.type_id, msg.build_request({}))
+        data = _POLL_FRAMES.get(msg.name)
+        if data is None:
+            address = ADDR_F2 if msg.node == "f2" else ADDR_F3
+            data = encode_frame(address, msg.type_id, msg.build_request({}))
         timeout = self._wire_us(len(data)) + int(self.params["tendon_timeout_us"])
         self._pending = _Pending(msg, self.hal.clock.call_later(timeout, self._on_timeout))
         self.tendon_counters.requests += 1
@@ -499,10 +541,11 @@ class FmcbApp(HandNode):
         now = self.hal.clock.now_us() & 0xFFFFFFFF
         prefix = "pp" if name.startswith("f2.") else "dp"
         if name.endswith(".tactile"):
-            ph[f"{prefix}_tactile"] = [_u16(v) for v in fields["taxels"]]
-            ph[f"{prefix}_imu"] = [_i16(v) for v in (*fields["imu"]["accel"],
-                                                     *fields["imu"]["mag"])]
-            ph[f"{prefix}_time"] = now
+            tactile, imu_key, time_key = _TACTILE_KEYS[prefix]
+            imu = fields["imu"]
+            ph[tactile] = _clamped(fields["taxels"], 0, 0xFFFF)
+            ph[imu_key] = _clamped((*imu["accel"], *imu["mag"]), -0x8000, 0x7FFF)
+            ph[time_key] = now
         elif name.endswith(".temperatures"):
             ph[f"{prefix}_temp"] = [_u16(v) for v in fields["temp"]]
         elif name == "f2.strain":

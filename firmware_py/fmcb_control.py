@@ -119,7 +119,7 @@ def min_cap(*caps: int) -> int:
 def clamp_effort(effort: float, cap: int) -> int:
     """``effort`` rounded and clamped to ±``cap`` (1/255 PWM)."""
     e = int(round(effort))
-    return max(-cap, min(cap, e))
+    return cap if e > cap else -cap if e < -cap else e
 
 
 def pd_effort(error: float, velocity: float, kp: float, kd: float, deadband: float,

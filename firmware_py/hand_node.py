@@ -64,6 +64,8 @@ class Request:
 
 
 Handler = Callable[[Request], Any]
+#: What :meth:`HandNode.dispatch` finds for a type id without a handler.
+_NO_ROUTE: Final[tuple[Message | None, Handler | None]] = (None, None)
 
 
 class HandNode:
@@ -83,6 +85,8 @@ class HandNode:
         self.address = self.identity.address
         self.counters = NodeCounters()
         self._handlers: dict[int, Handler] = {}
+        #: By type id: the message it means on this node (catalogue lookup) and its handler.
+        self._routes: dict[int, tuple[Message | None, Handler]] = {}
         self._decoders: dict[int, StreamDecoder] = {}
         self.handle("ping", lambda req: {})
         self.handle("hw_version", lambda req: {"version": self.identity.hw_version})
@@ -106,6 +110,7 @@ class HandNode:
         """Register ``handler`` for the message called ``name``."""
         msg = CATALOGUE.by_name(name)
         self._handlers[msg.type_id] = handler
+        self._routes[msg.type_id] = (CATALOGUE.lookup(self.node_kind, msg.type_id), handler)
 
     # --- dispatch -------------------------------------------------------------------------
     def accepts(self, frame: Frame) -> bool:
@@ -129,8 +134,7 @@ class HandNode:
     def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
                  send: Callable[[bytes | None, int], None]) -> None:
         """Decode ``payload`` as message ``msg_type`` and run its handler."""
-        msg = CATALOGUE.lookup(self.node_kind, msg_type)
-        handler = self._handlers.get(msg_type)
+        msg, handler = self._routes.get(msg_type, _NO_ROUTE)
         if msg is None or handler is None or msg.request is None:
             self.counters.unknown_type += 1
             send(None, TXN_UNKNOWN)

@@ -80,6 +80,7 @@ class _PhalangeApp(HandNode):
         #: Completed scans since start.
         self.scans = 0
         self._scan_buffer = [0] * self.n_taxels
+        self._taxel_channels = tuple(f"taxel{i}" for i in range(self.n_taxels))
         self._next_taxel = 0
         #: IMU supply state (on at boot).
         self.imu_powered = True
@@ -120,13 +121,15 @@ class _PhalangeApp(HandNode):
         value = self.hal.sensors.read(channel)
         if not isinstance(value, tuple) or len(value) != 3:
             raise HalError(f"sensor {channel!r} is not a 3-vector")
-        x, y, z = (_clamp(int(v), _I16_MIN, _I16_MAX) for v in value)
-        return (x, y, z)
+        x, y, z = value
+        return (_clamp(int(x), _I16_MIN, _I16_MAX), _clamp(int(y), _I16_MIN, _I16_MAX),
+                _clamp(int(z), _I16_MIN, _I16_MAX))
 
     def read_taxel(self, index: int) -> int:
         """Light taxel ``index`` and average :data:`ADC_SAMPLES` conversions (ADC counts)."""
-        total = self.hal.sensors.read_burst(f"taxel{index}", ADC_SAMPLES)
-        return _clamp((total + ADC_SAMPLES // 2) // ADC_SAMPLES, 0, _U16_MAX)
+        total = self.hal.sensors.read_burst(self._taxel_channels[index], ADC_SAMPLES)
+        value = (total + ADC_SAMPLES // 2) // ADC_SAMPLES
+        return 0 if value < 0 else _U16_MAX if value > _U16_MAX else value
 
     def _scan_step(self) -> None:
         i = self._next_taxel

@@ -14,8 +14,12 @@ from collections.abc import Callable
 Callback = Callable[[], None]
 
 
-class _Event:
-    """A scheduled callback.  The heap holds ``(t_us, seq, event)`` tuples, compared in C."""
+class TimerHandle:
+    """A scheduled callback; :meth:`cancel` stops it (idempotent).
+
+    It is also the scheduler's event: the heap holds ``(t_us, seq, handle)`` tuples,
+    compared in C, so scheduling allocates one object besides the tuple.
+    """
 
     __slots__ = ("callback", "period_us", "seq", "t_us")
 
@@ -26,28 +30,19 @@ class _Event:
         self.callback = callback
         self.period_us = period_us
 
-
-class TimerHandle:
-    """A scheduled callback; :meth:`cancel` stops it (idempotent)."""
-
-    __slots__ = ("_event",)
-
-    def __init__(self, event: _Event) -> None:
-        self._event = event
-
     def cancel(self) -> None:
         """Never call the callback again."""
-        self._event.callback = None
+        self.callback = None
 
     @property
     def active(self) -> bool:
         """True until cancelled (or, for a one-shot, until it has run)."""
-        return self._event.callback is not None
+        return self.callback is not None
 
     @property
     def due_us(self) -> int:
         """When it fires next (µs)."""
-        return self._event.t_us
+        return self.t_us
 
 
 class Scheduler:
@@ -55,7 +50,7 @@ class Scheduler:
 
     def __init__(self, start_us: int = 0) -> None:
         self._now = start_us
-        self._queue: list[tuple[int, int, _Event]] = []
+        self._queue: list[tuple[int, int, TimerHandle]] = []
         self._seq = itertools.count()
 
     def now_us(self) -> int:
@@ -64,13 +59,18 @@ class Scheduler:
 
     def call_at(self, t_us: int, callback: Callback) -> TimerHandle:
         """Run ``callback`` at time ``t_us`` (µs; not earlier than now)."""
-        ev = _Event(max(int(t_us), self._now), next(self._seq), callback)
-        heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
-        return TimerHandle(ev)
+        t = int(t_us)
+        if t < self._now:
+            t = self._now
+        seq = next(self._seq)
+        ev = TimerHandle(t, seq, callback)
+        heapq.heappush(self._queue, (t, seq, ev))
+        return ev
 
     def call_later(self, delay_us: int, callback: Callback) -> TimerHandle:
         """Run ``callback`` once, ``delay_us`` µs from now."""
-        return self.call_at(self._now + max(0, int(delay_us)), callback)
+        delay = int(delay_us)
+        return self.call_at(self._now + delay if delay > 0 else self._now, callback)
 
     def call_every(self, period_us: int, callback: Callback, first_us: int | None = None
                    ) -> TimerHandle:
@@ -78,9 +78,10 @@ class Scheduler:
         if period_us <= 0:
             raise ValueError("period must be positive")
         delay = period_us if first_us is None else first_us
-        ev = _Event(self._now + max(0, int(delay)), next(self._seq), callback, int(period_us))
+        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback,
+                         int(period_us))
         heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
-        return TimerHandle(ev)
+        return ev
 
     def next_due_us(self) -> int | None:
         """Time of the next pending event, or None."""

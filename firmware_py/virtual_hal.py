@@ -59,13 +59,19 @@ class VirtualClock(hal.Clock):
         self.epoch_us = self.scheduler.now_us()
 
 
-@dataclass
+@dataclass(slots=True)
 class SentChunk:
     """Bytes a UART transmitted: when the first bit left and when the last arrived (µs)."""
 
     data: bytes
     start_us: int
     end_us: int
+
+
+def line_delivers(data: bytes, t_us: int) -> None:
+    """The ``sink`` of a UART on a line model that delivers its frames itself (a bus seeing
+    them through ``on_transmit``): nothing happens at the frame's end, so
+    :meth:`VirtualUart.send` schedules no arrival for it."""
 
 
 class VirtualUart(hal.Uart):
@@ -91,10 +97,13 @@ class VirtualUart(hal.Uart):
         return -(-n_bytes * BITS_PER_CHAR * 1_000_000 // self.baud)
 
     def send(self, data: bytes) -> None:
+        """Transmit ``data``; it arrives (``sink``, ``peer``) after its wire time.  A UART
+        with no peer whose sink is :func:`line_delivers` (or None) schedules no arrival."""
         if not data or not self.enabled:
             return
         now = self.scheduler.now_us()
-        start = max(now, self._line_free_us)
+        free = self._line_free_us
+        start = now if now > free else free
         end = start + self.wire_time_us(len(data))
         self._line_free_us = end
         chunk = bytes(data)
@@ -103,7 +112,9 @@ class VirtualUart(hal.Uart):
             self.sent.append(record)
         if self.on_transmit is not None:
             self.on_transmit(record)
-        self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
+        sink = self.sink
+        if self.peer is not None or (sink is not None and sink is not line_delivers):
+            self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
 
     def _arrive(self, data: bytes, t_us: int) -> None:
         if self.sink is not None:
@@ -280,7 +291,11 @@ class VirtualMotor(hal.MotorDriver):
         self.current = 0
 
     def set_duty(self, duty: float) -> None:
-        self.duty = max(-1.0, min(1.0, float(duty)))
+        # max(-1.0, min(1.0, duty)) written out (the fmcbs call it 12 000 times a second);
+        # NaN gives 1.0 as there.
+        d = float(duty)
+        d = d if d < 1.0 else 1.0
+        self.duty = d if d > -1.0 else -1.0
 
     def set_enabled(self, enabled: bool) -> None:
         self.enabled = bool(enabled)
@@ -308,13 +323,16 @@ class VirtualStepper(hal.Stepper):
     def _exact(self) -> float:
         return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
 
+    # set_step_rate and step_count run every tick of every stepper node: _exact() is
+    # written out in both.
     def set_step_rate(self, steps_per_s: float) -> None:
-        self._count0 = self._exact()
-        self._t0 = self.scheduler.now_us()
+        now = self.scheduler.now_us()
+        self._count0 = self._count0 + self.rate * (now - self._t0) / 1e6
+        self._t0 = now
         self.rate = float(steps_per_s)
 
     def step_count(self) -> int:
-        return int(self._exact())
+        return int(self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6)
 
     def set_current(self, milliamps: int) -> None:
         self.current = int(milliamps)
@@ -356,7 +374,10 @@ class VirtualSensors(hal.Sensors):
         subclass that overrides :meth:`read` gets one :meth:`read` per conversion)."""
         if type(self).read is not VirtualSensors.read:
             return super().read_burst(channel, count)
-        value = self.read(channel)
+        try:
+            value = self.values[channel]  # what read() does, without the call
+        except KeyError:
+            raise HalError(f"this board has no sensor channel {channel!r}") from None
         if isinstance(value, tuple):
             raise HalError(f"sensor {channel!r} is not a scalar")
         return value * count

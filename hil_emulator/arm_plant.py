@@ -40,6 +40,9 @@ generator given.
 Performance: the per-tick work runs on Python floats joint by joint, not numpy: with 4 + 3
 joints numpy's per-call overhead made it several times slower (≈ 220 µs per tick against
 ≈ 25 µs for both hooks measured alone, ≈ 50 µs interleaved with the seven nodes' firmware).
+Interleaved, every numpy call runs with cold caches (microseconds each), so the joints' state
+is read and the forces written through memoryviews of the MjData buffers (exact doubles), and
+each joint's constants come in one tuple.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.virtual_hal import VirtualEncoder, VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, RX64_RANGE_RAD
 from hil_emulator.errors import EmulatorConfigError, PlantError
@@ -72,6 +75,12 @@ _SERVOS: Final = range(_N_SERVOS)
 
 def _floats(values: np.ndarray) -> list[float]:
     return [float(v) for v in values]
+
+
+def _doubles(array: np.ndarray) -> memoryview[float]:
+    """A memoryview of a contiguous float64 view into the MjData/MjModel buffers: it reads
+    and writes Python floats exactly, without numpy's per-call cost (a tick's few values)."""
+    return array.data.cast("B").cast("d")
 
 
 class ArmPlant:
@@ -114,11 +123,23 @@ class ArmPlant:
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
         self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
+        #: Per stepper, the tick's constants in one tuple (one unpacking per joint per tick);
+        #: the coupling terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
+        self._stepper_rows = [
+            (i, self._steppers[i], self._microstep[i], self._c_rows[i], self._k[i], self._c[i],
+             self._h[i], self._travel[i], self._k_solid[i], self._hold_per_ma[i], self._detent[i])
+            for i in _STEPPERS]
+        self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
+                         for i, cij in column]
         self._pot_per_rad = float(POT_UNITS_PER_RAD)
         self._stall = p.rx64_stall_at_supply
         self._emf = p.rx64_emf_damping
         self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
         self._amps_per_nm = p.rx64_stall_current_a / self._stall
+        self._load_scale = 1023.0 / self._stall
+        self._servo_rows = [(s, self._servo_sensors[s], self._motors[s]) for s in _SERVOS]
+        #: Per encoder (set in bind): joint, encoder, start angle, index angle, index count.
+        self._encoder_rows: list[tuple[int, VirtualEncoder, float, float, int]] = []
         # Physical state (set in bind).
         self._q_start = [0.0] * 7
         self._phi_offset = [0.0] * _N_STEPPERS
@@ -174,6 +195,8 @@ class ArmPlant:
         self._qvel = data.qvel[d0 : d0 + 7]
         self._force = data.qfrc_applied[d0 : d0 + 7]
         self._spring_ref = model.qpos_spring[q0 : q0 + _N_STEPPERS]
+        self._q_mv, self._qd_mv = _doubles(self._qpos), _doubles(self._qvel)
+        self._force_mv, self._spring_mv = _doubles(self._force), _doubles(self._spring_ref)
         self._damping = model.dof_damping[d0 : d0 + 7]
         model.jnt_stiffness[jids[:4]] = p.stiffness
         model.jnt_stiffness[jids[4:]] = 0.0
@@ -200,6 +223,10 @@ class ArmPlant:
         self._slip_rad = [0.0] * _N_STEPPERS
         self._slipping = [False] * _N_STEPPERS
         self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
+        cpr = self._counts_per_rad
+        self._encoder_rows = [
+            (i, self._encoders[i], self._q_start[i], self._index[i],
+             math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5)) for i in _STEPPERS]
         for sensors in self._stepper_sensors:
             sensors["supply_mv"] = p.stepper_supply_mv
         for sensors in self._servo_sensors:
@@ -259,75 +286,80 @@ class ArmPlant:
 
     def before_step(self, dt_s: float) -> None:
         """Firmware commands → capstan references, coupling and servo forces for ``dt_s``."""
-        self._check_bound()
-        q = self._qpos.tolist()
-        qd = self._qvel.tolist()
-        dq = [q[j] - self._q_start[j] for j in _STEPPERS]
-        k, c, h, travel, k_solid = self._k, self._c, self._h, self._travel, self._k_solid
-        z_all, push = self._z, self._push
-        hold_per_ma, detent, margin = self._hold_per_ma, self._detent, self._margin
+        if not self._bound:
+            self._check_bound()
+        q = self._q_mv.tolist()
+        qd = self._qd_mv.tolist()
+        q_start = self._q_start
+        dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
+        z_all, push, deflections = self._z, self._push, self._deflection
+        phi_offset, slip_rad, slipping = self._phi_offset, self._slip_rad, self._slipping
+        heat, margin = self._heat_stepper, self._margin
         inv_width, exp = 1.0 / self._width, math.exp
         half_dt = 0.5 * dt_s
         torques = self._coupling_torque
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
-        for i, stepper in enumerate(self._steppers):
+        for i, stepper, micro, row, k, c, h, travel, k_solid, hold_per_ma, detent in (
+                self._stepper_rows):
             rate = stepper.rate
             current = float(stepper.current)
-            phi = (self._phi_offset[i] + stepper._exact() * self._microstep[i]
-                   + self._slip_rad[i])
-            phi_rate = rate * self._microstep[i]
-            for j, cij in self._c_rows[i]:
+            phi = phi_offset[i] + stepper._exact() * micro + slip_rad[i]
+            phi_rate = rate * micro
+            qi, qdi = q[i], qd[i]
+            for j, cij in row:
                 phi += cij * dq[j]
                 phi_rate += cij * qd[j]
-            deflection = phi - q[i]
+            deflection = phi - qi
             z = z_all[i]
-            change = deflection - self._deflection[i]
+            change = deflection - deflections[i]
             if change:  # Dahl hysteresis, exact for a monotone change
                 sign = 1.0 if change > 0 else -1.0
                 z = sign - (sign - z) * exp(-abs(change) * inv_width)
-            viscous = c[i] * (phi_rate - qd[i])
+            viscous = c * (phi_rate - qdi)
             solid = 0.0
-            if deflection > travel[i]:
-                solid = k_solid[i] * (deflection - travel[i])
-            elif deflection < -travel[i]:
-                solid = k_solid[i] * (deflection + travel[i])
-            extra = h[i] * z + solid
-            torque = k[i] * deflection + extra + viscous
-            capacity = hold_per_ma[i] * current
+            if deflection > travel:
+                solid = k_solid * (deflection - travel)
+            elif deflection < -travel:
+                solid = k_solid * (deflection + travel)
+            extra = h * z + solid
+            torque = k * deflection + extra + viscous
+            capacity = hold_per_ma * current
             if rate:
                 capacity /= margin  # pull-out torque while stepping
-            if capacity < detent[i]:
-                capacity = detent[i]
+            if capacity < detent:
+                capacity = detent
             over = torque > capacity or torque < -capacity
-            if over or (self._slipping[i] and current > 0.0):
+            if over or (slipping[i] and current > 0.0):
                 if over:
                     deflection, z = self._slip(i, deflection, torque, capacity, z, viscous,
                                                current)
                 else:
                     deflection, z = self._relock(i, deflection, capacity, z, viscous)
-                extra = h[i] * z + k_solid[i] * _beyond(deflection, travel[i])
-                torque = k[i] * deflection + extra + viscous
-                phi = deflection + q[i]
+                extra = h * z + k_solid * _beyond(deflection, travel)
+                torque = k * deflection + extra + viscous
+                phi = deflection + qi
             z_all[i] = z
-            self._deflection[i] = deflection
+            deflections[i] = deflection
             torques[i] = torque
-            self._heat_stepper[i] += current * current * 1e-6
+            heat[i] += current * current * 1e-6
             # MuJoCo: k·(φ_mid − q) − c·q̇; here the rest (c·φ̇, hysteresis, solid tubes).
             refs[i] = phi + phi_rate * half_dt
-            forces[i] = c[i] * phi_rate + extra + push[i]
-        for j, column in enumerate(self._c_cols):
-            for i, cij in column:
-                forces[j] -= cij * torques[i]
-        self._spring_ref[:] = refs
+            forces[i] = c * phi_rate + extra + push[i]
+        for j, i, cij in self._c_terms:
+            forces[j] -= cij * torques[i]
+        spring = self._spring_mv
+        spring[0], spring[1], spring[2], spring[3] = refs
 
         # RX-64s: stall·clip(duty − ω/ω₀); the back-EMF part −(stall/ω₀)·ω is MuJoCo damping.
         stall, emf, enabled_now = self._stall, self._emf, self._servo_enabled
+        inv_noload, amps_per_nm = self._inv_noload, self._amps_per_nm
+        servo_torque, heat = self._servo_torque, self._heat_servo
         for s, motor in enumerate(self._motors):
             enabled = motor.enabled
             omega = qd[4 + s]
             if enabled:
-                drive = motor.duty - omega * self._inv_noload
+                drive = motor.duty - omega * inv_noload
                 drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
                 forces[4 + s] = drive + emf * omega + push[4 + s]
             else:
@@ -336,18 +368,48 @@ class ArmPlant:
             if enabled != enabled_now[s]:
                 enabled_now[s] = enabled
                 self._damping[4 + s] = self._gear_damping[s] + (emf if enabled else 0.0)
-            self._servo_torque[s] = drive
-            amps = drive * self._amps_per_nm
-            self._heat_servo[s] += amps * amps
-        self._force[:] = forces
+            servo_torque[s] = drive
+            amps = drive * amps_per_nm
+            heat[s] += amps * amps
+        force = self._force_mv
+        force[0], force[1], force[2], force[3], force[4], force[5], force[6] = forces
 
     def after_step(self, dt_s: float) -> None:
         """Physics → encoder counts and index pulses, servo sensors, temperatures."""
-        self._check_bound()
+        if not self._bound:
+            self._check_bound()
         self._ticks += 1
-        q = self._qpos.tolist()
-        self._write_encoders(q, index=True)
-        self._write_servo_sensors(q)
+        q = self._q_mv.tolist()
+        # The encoders (as _write_encoders with index pulses), inlined for the tick.
+        cpr, floor, above_index = self._counts_per_rad, math.floor, self._above_index
+        for i, encoder, q0, index_q, index_count in self._encoder_rows:
+            qi = q[i]
+            count = floor((qi - q0) * cpr + 0.5)
+            above = qi >= index_q
+            if above != above_index[i]:
+                above_index[i] = above
+                encoder.value = index_count
+                encoder.pulse_index()
+            encoder.value = count
+        # The servos (as _write_servo_sensors).
+        if self._noise_at >= len(self._noise):
+            self._draw_pot_noise()
+        noise = self._noise
+        at = self._noise_at
+        self._noise_at = at + _N_SERVOS
+        pot_per_rad, scale, amps_per_nm = self._pot_per_rad, self._load_scale, self._amps_per_nm
+        servo_torque = self._servo_torque
+        for s, sensors, motor in self._servo_rows:
+            pot = round(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
+            sensors["pot"] = 0 if pot < 0 else 1023 if pot > 1023 else pot
+            torque = servo_torque[s]
+            if torque:
+                load = round(torque * scale)
+                sensors["load"] = -1023 if load < -1023 else 1023 if load > 1023 else load
+                motor.current = round(abs(torque) * amps_per_nm * 1000.0)
+            else:
+                sensors["load"] = 0
+                motor.current = 0
         every = self.params.thermal_every_ticks
         if self._ticks % every == 0:
             self._update_temperatures(every * dt_s)
@@ -444,16 +506,19 @@ class ArmPlant:
                     encoder.pulse_index()
             encoder.value = count
 
+    def _draw_pot_noise(self) -> None:
+        """The next :data:`NOISE_BLOCK_TICKS` ticks of potentiometer noise (units)."""
+        sigma = self.params.pot_noise_units
+        self._noise = (self.rng.standard_normal(_N_SERVOS * NOISE_BLOCK_TICKS) * sigma).tolist()
+        self._noise_at = 0
+
     def _write_servo_sensors(self, q: list[float]) -> None:
         if self._noise_at >= len(self._noise):
-            sigma = self.params.pot_noise_units
-            self._noise = (self.rng.standard_normal(_N_SERVOS * NOISE_BLOCK_TICKS)
-                           * sigma).tolist()
-            self._noise_at = 0
+            self._draw_pot_noise()
         noise = self._noise
         at = self._noise_at
         self._noise_at = at + _N_SERVOS
-        scale = 1023.0 / self._stall
+        scale = self._load_scale
         for s, sensors in enumerate(self._servo_sensors):
             pot = round(POT_CENTRE + q[4 + s] * self._pot_per_rad + noise[at + s])
             sensors["pot"] = 0 if pot < 0 else 1023 if pot > 1023 else pot

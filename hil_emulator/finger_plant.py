@@ -111,6 +111,20 @@ def _virtual_hal(mcu: Mcu, what: str) -> VirtualHal:
     return hal
 
 
+def _block_view(array: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
+    """``array[idx]`` as a view if ``idx`` is one consecutive run (else None: gather)."""
+    first = int(idx[0])
+    if np.array_equal(idx, np.arange(first, first + idx.size)):
+        return array[first:first + idx.size]
+    return None
+
+
+def _doubles(array: np.ndarray) -> memoryview[float]:
+    """A memoryview of a contiguous float64 view into the MjData/MjModel buffers: it reads
+    and writes Python floats exactly, without numpy's per-call cost (a tick's few values)."""
+    return array.data.cast("B").cast("d")
+
+
 def _stagger(prefix: str, period: int) -> int:
     """A deterministic phase (ticks) spreading the parts' slow updates over the period."""
     return zlib.crc32(prefix.encode()) % period
@@ -178,12 +192,14 @@ class FingerPlant:
         self._counts = LinearCounts.imu(
             [("accel", p.accel_noise_counts), ("mag", p.mag_noise_counts)] * 3
         ).join(LinearCounts.taxels(p.tactile, n2 + n3))
-        self._imu_keys = [(values, kind) for values in
-                          (self._fmcb_values, self._f2_values, self._f3_values)
-                          for kind in ("accel", "mag")]
         self._n_f2 = n2
-        self._raw = np.zeros(self._counts.size)  # IMU readings (SI), taxel compression
         self._zeros_f2, self._zeros_f3 = np.zeros(n2), np.zeros(n3)
+        # Buffers of the slow refresh: raw IMU readings (SI) then taxel compression; noise.
+        self._raw = np.zeros(self._counts.size)
+        self._raw_imu, self._raw_taxels = self._raw[:18], self._raw[18:]
+        self._taxels_loaded = False
+        self._noise = np.zeros(self._counts.size + 1)
+        self._noise_counts = self._noise[:-1]
 
     # --- binding ----------------------------------------------------------------------------
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -217,9 +233,12 @@ class FingerPlant:
         # Views into the MjData buffers (fixed for the data's lifetime): no slicing per tick.
         self._qpos = data.qpos[qadr[0]:qadr[0] + 3]
         self._qvel = data.qvel[dadr[0]:dadr[0] + 3]
-        self._ctrl = data.ctrl
+        self._ctrl = _doubles(data.ctrl)
+        self._q_mv, self._w_mv = _doubles(self._qpos), _doubles(self._qvel)
+        self._ctrl_written = [math.nan] * 3  # what data.ctrl holds (NaN: write it)
         self._imu_idx = np.concatenate(
             [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
+        self._imu_view = _block_view(data.sensordata, self._imu_idx)
         motor = self.params.motor
         for a, t in zip(self._act, tendons, strict=True):
             model.actuator_gainprm[a, 0] = motor.gain_nm_per_duty
@@ -231,6 +250,11 @@ class FingerPlant:
             self._set_drive_sign(i, 0)
         self._pads = PadContacts(model, data, pads)
         self._f3_root = int(model.body_rootid[self._body["F3"]])
+        # Row views of what the strain gauge reads (fixed buffers, as _qpos).
+        self._gauge_rows = (_doubles(data.cfrc_int[self._body["F3"]]),
+                            _doubles(data.subtree_com[self._f3_root]),
+                            _doubles(data.site_xpos[self._gauge_site]),
+                            _doubles(data.site_xmat[self._gauge_site]))
         self._write_temperatures()
         self._update_sensors()
 
@@ -238,7 +262,8 @@ class FingerPlant:
     def before_step(self, dt_s: float) -> None:
         """Motor commands → actuator controls (duty) and bridge state; press forces."""
         powered = self.attached and self.fmcb.powered
-        ctrl, act = self._ctrl, self._act
+        ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
+        duties, written, copysign = self._duty, self._ctrl_written, math.copysign
         for i, motor in enumerate(self._motors):
             if not powered:
                 mode = _COAST
@@ -248,14 +273,19 @@ class FingerPlant:
                 mode = _DRIVE
             else:
                 mode = _COAST
-            if mode != self._mode[i]:
+            if mode != modes[i]:
                 self._set_mode(i, mode)
             duty = motor.duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
-            if sign != self._drive_sign[i]:
+            if sign != signs[i]:
                 self._set_drive_sign(i, sign)
-            self._duty[i] = duty
-            ctrl[act[i]] = duty
+            duties[i] = duty
+            last = written[i]
+            # data.ctrl keeps what was written (no one else writes these entries): write only
+            # a changed duty, bit for bit (the same object, or equal with the same sign).
+            if duty is not last and (duty != last or copysign(1.0, duty) != copysign(1.0, last)):
+                ctrl[act[i]] = duty
+                written[i] = duty
         if self._press_dirty or self._presses:
             self._apply_presses()
 
@@ -277,8 +307,8 @@ class FingerPlant:
 
     def after_step(self, dt_s: float) -> None:
         """Halls and currents every tick; IMUs, taxels, strain and temperatures when due."""
-        q0, q1, q2 = self._qpos.tolist()
-        w0, w1, w2 = self._qvel.tolist()
+        q0, q1, q2 = self._q_mv.tolist()
+        w0, w1, w2 = self._w_mv.tolist()
         v, ke, r, lim = self._electrical
         currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
@@ -370,10 +400,14 @@ class FingerPlant:
 
     # --- slow sensors -----------------------------------------------------------------------
     def _update_sensors(self) -> None:
-        """IMUs (accel, mag) of the three boards, f2/f3 taxels, f2 strain."""
-        data, p = self.data, self.params
-        raw = self._raw
-        raw[:18] = data.sensordata[self._imu_idx]
+        """IMUs (accel, mag) of the three boards, f2/f3 taxels, f2 strain.
+
+        As few numpy calls as it takes (views and buffers made once): this runs every 10 ms,
+        with the caches cold from the firmware, where each call costs microseconds.
+        """
+        p = self.params
+        view = self._imu_view
+        self._raw_imu[:] = view if view is not None else self.data.sensordata[self._imu_idx]
         loads = self._pads.collect()
         if self._presses:
             for k, segment in enumerate(("F2", "F3")):
@@ -384,26 +418,30 @@ class FingerPlant:
                     old = loads[k]
                     loads[k] = extra if old is None else np.vstack((old, extra))
         if loads[0] is None and loads[1] is None:
-            raw[18:] = 0.0
+            if self._taxels_loaded:  # else they are still 0 from the last refresh
+                self._raw_taxels[:] = 0.0
+                self._taxels_loaded = False
         else:
             tactile = p.tactile
             f2 = taxel_forces(loads[0], self._f2_taxels_xy, tactile.spread_m)
             f3 = taxel_forces(loads[1], self._f3_taxels_xy, tactile.spread_m)
-            raw[18:] = tactile.compression(np.concatenate(
+            self._raw_taxels[:] = tactile.compression(np.concatenate(
                 (self._zeros_f2 if f2 is None else f2, self._zeros_f3 if f3 is None else f3)))
-        noise = self.rng.standard_normal(self._counts.size + 1)
-        counts = self._counts.counts(raw, noise[:-1])
-        for k, (values, kind) in enumerate(self._imu_keys):
-            values[kind] = (counts[3 * k], counts[3 * k + 1], counts[3 * k + 2])
-        values = self._f2_values
-        for key, count in zip(self._f2_taxel_keys, counts[18:18 + self._n_f2], strict=True):
-            values[key] = count
-        values = self._f3_values
-        for key, count in zip(self._f3_taxel_keys, counts[18 + self._n_f2:], strict=True):
-            values[key] = count
+            self._taxels_loaded = True
+        noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size + 1)
+        counts = self._counts.counts(self._raw, self._noise_counts)
+        fmcb, f2_values, f3_values = self._fmcb_values, self._f2_values, self._f3_values
+        fmcb["accel"] = (counts[0], counts[1], counts[2])
+        fmcb["mag"] = (counts[3], counts[4], counts[5])
+        f2_values["accel"] = (counts[6], counts[7], counts[8])
+        f2_values["mag"] = (counts[9], counts[10], counts[11])
+        f3_values["accel"] = (counts[12], counts[13], counts[14])
+        f3_values["mag"] = (counts[15], counts[16], counts[17])
+        n2 = self._n_f2
+        f2_values.update(zip(self._f2_taxel_keys, counts[18:18 + n2], strict=True))
+        f3_values.update(zip(self._f3_taxel_keys, counts[18 + n2:], strict=True))
         moment = self.gauge_moment_nm(loads[0])
-        values = self._f2_values
-        values["strain"] = strain_counts(moment, p.strain_noise_counts * float(noise[-1]))
+        f2_values["strain"] = strain_counts(moment, p.strain_noise_counts * noise.item(-1))
 
     def gauge_moment_nm(self, f2_loads: np.ndarray | None = None) -> float:
         """Bending moment at the F2 gauge about F2's flexion axis (N·m), + for palmar loads.
@@ -413,17 +451,17 @@ class FingerPlant:
         gauge, plus the normal loads on F2's pad beyond the gauge (``f2_loads`` rows x, y, N).
         Small-vector arithmetic is plain Python: numpy's per-call cost dominates at n = 3.
         """
-        data = self.data
-        tx, ty, tz, fx, fy, fz = data.cfrc_int[self._body["F3"]].tolist()
-        cx, cy, cz = data.subtree_com[self._f3_root].tolist()
-        gx, gy, gz = data.site_xpos[self._gauge_site].tolist()
-        rot = data.site_xmat[self._gauge_site].tolist()
+        cfrc, com, site_pos, site_mat = self._gauge_rows
+        tx, ty, tz, fx, fy, fz = cfrc.tolist()
+        cx, cy, cz = com.tolist()
+        gx, gy, gz = site_pos.tolist()
+        rot = site_mat.tolist()
         rx, ry, rz = cx - gx, cy - gy, cz - gz
         # torque about the gauge = τ_c + (c − g) × f; its component along F2's y axis.
         mx = tx + ry * fz - rz * fy
         my = ty + rz * fx - rx * fz
         mz = tz + rx * fy - ry * fx
-        moment = -(mx * rot[1] + my * rot[4] + mz * rot[7])
+        moment: float = -(mx * rot[1] + my * rot[4] + mz * rot[7])
         if f2_loads is not None:
             lever = np.maximum(f2_loads[:, 0] - GAUGE_POS[0], 0.0)
             moment += float(f2_loads[:, 2] @ lever)
@@ -495,7 +533,10 @@ class PalmPlant:
         self._counts = LinearCounts.imu(
             [("accel", p.accel_noise_counts), ("gyro", p.gyro_noise_counts),
              ("mag", p.mag_noise_counts)]).join(LinearCounts.taxels(p.tactile, len(PALM_TAXELS)))
-        self._raw = np.zeros(self._counts.size)
+        self._raw = np.zeros(self._counts.size)  # IMU readings (SI), taxel compression
+        self._raw_imu, self._raw_taxels = self._raw[:9], self._raw[9:]
+        self._taxels_loaded = False
+        self._noise = np.zeros(self._counts.size)
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Resolve the palm's names; write the constant channels; take a first sample."""
@@ -509,6 +550,7 @@ class PalmPlant:
             raise PlantError(f"palm {self.prefix!r} is not in the model: {exc}") from exc
         self._imu_idx = np.concatenate(
             [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
+        self._imu_view = _block_view(data.sensordata, self._imu_idx)
         self._pads = PadContacts(model, data, [pad])
         for k in range(7):
             self._values[f"temperature{k}"] = self.params.temperature_decic
@@ -526,15 +568,21 @@ class PalmPlant:
             self._update_sensors()
 
     def _update_sensors(self) -> None:
-        data, p = self.data, self.params
-        raw = self._raw
-        raw[:9] = data.sensordata[self._imu_idx]
+        """As the fingers': views and buffers made once, few numpy calls."""
+        p = self.params
+        view = self._imu_view
+        self._raw_imu[:] = view if view is not None else self.data.sensordata[self._imu_idx]
         forces = taxel_forces(self._pads.collect()[0], self._taxels_xy, p.tactile.spread_m)
-        raw[9:] = 0.0 if forces is None else p.tactile.compression(forces)
-        counts = self._counts.counts(raw, self.rng.standard_normal(self._counts.size))
+        if forces is not None:
+            self._raw_taxels[:] = p.tactile.compression(forces)
+            self._taxels_loaded = True
+        elif self._taxels_loaded:  # else they are still 0 from the last refresh
+            self._raw_taxels[:] = 0.0
+            self._taxels_loaded = False
+        noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size)
+        counts = self._counts.counts(self._raw, noise)
         values = self._values
         values["accel"] = (counts[0], counts[1], counts[2])
         values["gyro"] = (counts[3], counts[4], counts[5])
         values["mag"] = (counts[6], counts[7], counts[8])
-        for key, count in zip(self._taxel_keys, counts[9:], strict=True):
-            values[key] = count
+        values.update(zip(self._taxel_keys, counts[9:], strict=True))

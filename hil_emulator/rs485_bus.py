@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualUart
+from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualUart, line_delivers
 from protocol import manchester
 
 __all__ = ["LineCode", "Rs485Bus", "Transmission"]
@@ -46,7 +46,7 @@ LOG_LENGTH: Final = 4096
 DEFAULT_TURNAROUND_US: Final = 2
 
 
-@dataclass
+@dataclass(slots=True)
 class Transmission:
     """One frame on the line: who sent it, when it occupied the line (µs), and its fate.
 
@@ -122,7 +122,7 @@ class Rs485Bus:
         node = _Node(uart, name)
         self._nodes.append(node)
         uart.peer = None
-        uart.sink = self._frame_left_uart
+        uart.sink = line_delivers  # the bus delivers the frame, not the UART
         # The bus must know a frame from its first bit to find collisions.
         uart.on_transmit = lambda chunk: self._transmit(node, chunk.data, chunk.start_us)
 
@@ -158,23 +158,23 @@ class Rs485Bus:
 
     # ----------------------------------------------------------------------------- internals
 
-    def _frame_left_uart(self, data: bytes, t_us: int) -> None:
-        """The UART's own end-of-frame callback: the bus already has the frame from send."""
-
     def _transmit(self, node: _Node, data: bytes, start_us: int) -> None:
-        start = max(start_us, node.free_us)
+        free = node.free_us
+        start = start_us if start_us > free else free
         end = start + self.wire_time_us(len(data))
         node.free_us = end
         tx = Transmission(node.name, start, end, bytes(data))
-        now = self.scheduler.now_us()
-        self._on_air = [t for t in self._on_air if t.end_us > now]
-        overlapping = [t for t in self._on_air if t.start_us < end and start < t.end_us]
-        if overlapping:
-            self.collisions += 1
-            tx.collided = True
-            for t in overlapping:
-                t.collided = True
-        self._on_air.append(tx)
+        on_air = self._on_air
+        if on_air:
+            now = self.scheduler.now_us()
+            on_air = self._on_air = [t for t in on_air if t.end_us > now]
+            overlapping = [t for t in on_air if t.start_us < end and start < t.end_us]
+            if overlapping:
+                self.collisions += 1
+                tx.collided = True
+                for t in overlapping:
+                    t.collided = True
+        on_air.append(tx)
         self.log.append(tx)
         self.scheduler.call_at(end + self.turnaround_us, lambda: self._deliver(node, tx))
 
@@ -183,6 +183,12 @@ class Rs485Bus:
             self.drop_probability > 0.0 and self._rng.random() < self.drop_probability
         ):
             tx.received = b""
+            return
+        if not tx.collided and self.bit_error_rate <= 0.0 and not (
+            self.line_code == "manchester" and self.chip_error_rate > 0.0
+        ):
+            # Nothing can corrupt the frame: the receivers get the bytes sent.
+            self._hand_over(sender, tx, tx.data)
             return
         data = np.frombuffer(tx.data, dtype=np.uint8)
         if tx.collided:
@@ -196,6 +202,10 @@ class Rs485Bus:
             received = self._through_manchester(data)
         else:
             received = data.tobytes()
+        self._hand_over(sender, tx, received)
+
+    def _hand_over(self, sender: _Node, tx: Transmission, received: bytes) -> None:
+        """Record what arrived and give it to every node but the sender."""
         tx.received = received
         if not received:
             return
