@@ -65,6 +65,12 @@ class Emulator:
                 f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
         if seed < 0:
             raise EmulatorConfigError(f"the seed must be >= 0, got {seed}")
+        from hil_emulator import hand_model
+
+        layout = layout or hand_model.DEFAULT_LAYOUT
+        if layout not in hand_model.LAYOUTS:
+            raise EmulatorConfigError(f"unknown hand layout {layout!r}; choose one of "
+                                      f"{', '.join(hand_model.LAYOUTS)}")
         self.config = config
         self.seed = seed
         self.can_mode = can
@@ -81,7 +87,7 @@ class Emulator:
         if config == "loose-finger":
             self.loose = LooseFinger(self.scheduler, line_model=True, seed=int(next(seeds)),
                                      record=False)
-        self.layout = layout  #: the hand layout's name (resolved when the plant is built)
+        self.layout = layout  #: the hand layout's name
         self.plant: Plant | None = None
         self.finger_plants: list[Any] = []
         self.arm_plant: Any = None
@@ -105,16 +111,10 @@ class Emulator:
             self.loose.power_on()
 
     # ------------------------------------------------------------------ building
-    def _build_plant(self, layout: str | None, seeds: Any) -> Plant:
+    def _build_plant(self, layout: str, seeds: Any) -> Plant:
         from hil_emulator import arm_model, hand_model
         from hil_emulator.arm_plant import ArmPlant
         from hil_emulator.finger_plant import FingerPlant, PalmPlant
-
-        layout = layout or hand_model.DEFAULT_LAYOUT
-        self.layout = layout
-        if layout not in hand_model.LAYOUTS:
-            raise EmulatorConfigError(f"unknown hand layout {layout!r}; choose one of "
-                                      f"{', '.join(hand_model.LAYOUTS)}")
 
         def rng() -> np.random.Generator:
             return np.random.default_rng(int(next(seeds)))
