@@ -24,11 +24,10 @@ import time
 from pathlib import Path
 
 from benchmarks.harness import Result
+from hil_emulator.bring_up import request
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
-from protocol.framing import encode_frame
-from protocol.messages import CATALOGUE
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,11 +36,6 @@ TORQUE_ON = [dxl.make_write(i, (STEPPER_TABLE if i <= 4 else RX64_TABLE)["torque
 ARM_READ = dxl.make_bulk_read(
     [(4, i, STEPPER_TABLE["present_position"].address) for i in range(1, 5)]
     + [(2, i, RX64_TABLE["present_position"].address) for i in range(5, 8)]).encode()
-
-
-def _hand_frame(name: str, **fields: object) -> bytes:
-    msg = CATALOGUE[name]
-    return encode_frame(10, msg.type_id, msg.build_request(fields))
 
 
 def _sync_write(goal_counts: int) -> bytes:
@@ -59,10 +53,8 @@ def _arm_write(k: int) -> bytes:
 
 def _hold_pose(finger: int) -> bytes:
     """fmcb.control joint mode, targets 0 rad (the pose the fingers start in), routed."""
-    control = CATALOGUE["fmcb.control"]
-    inner = encode_frame(10, control.type_id,
-                         control.build_request({"mode": 2, "args": {"target": [0.0] * 3}}))
-    return _hand_frame("palm.route", finger=finger, hop=0, timeout_ms=0, frame=inner)
+    inner = request("fmcb.control", mode=2, args={"target": [0.0] * 3})
+    return request("palm.route", finger=finger, hop=0, timeout_ms=0, frame=inner)
 
 
 HOLD_POSE = [_hold_pose(k) for k in range(4)]
@@ -76,7 +68,7 @@ def boot_full(emulator: Emulator, heavy: bool = True) -> None:
     assert hand is not None and arm is not None
     emulator.bring_up()
     if heavy:
-        hand.send_from_host(_hand_frame("palm.poll", rate_hz=100))
+        hand.send_from_host(request("palm.poll", rate_hz=100))
     for k in range(4):
         hand.send_from_host(HOLD_POSE[k])
         emulator.step(30_000)
