@@ -217,6 +217,14 @@ class Emulator:
         left as it powers up, torque off (see :mod:`hil_emulator.bring_up`)."""
         bring_up(self.hand, self.loose, self.step, autopoll)
 
+    def transport(self, link: str) -> Any:
+        """A :class:`host.transport.Transport` for host code in this process on link
+        ``link`` (``palm``, ``arm``, ``finger0``), on the simulation clock (fast lockstep);
+        see :mod:`hil_emulator.inprocess`."""
+        from hil_emulator.inprocess import EmulatorTransport
+
+        return EmulatorTransport(self, link)
+
     # ------------------------------------------------------------------ faults
     def break_away(self, finger: int) -> None:
         """Finger ``finger`` leaves its pogo pins (overload): no link, no power, motors
