@@ -37,9 +37,7 @@ from firmware_py.fmcb_control import (
     HallCounter,
     clamp_effort,
     clamp_joints,
-    joint_to_motor,
     min_cap,
-    motor_to_joint,
     pd_effort,
 )
 from firmware_py.fmcb_params import ParamTable
@@ -57,6 +55,7 @@ from protocol.errors import ProtocolError
 from protocol.framing import ADDR_F2, ADDR_F3, ADDR_HOST, Frame, encode_frame
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.robot import joint_to_motor, motor_to_joint
 from protocol.stream import StreamDecoder
 
 CONTROL_PERIOD_US: Final = 1_000

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from firmware_py.errors import HalError
+from protocol.image import FLASH
 
 ReceiveCallback = Callable[[bytes, int], None]
 """Called with the bytes received and their arrival time (µs)."""
@@ -102,9 +103,9 @@ class Flash(ABC):
     A power cut during a write leaves that page erased or partly programmed.
     """
 
-    page_size: int = 256
-    page_count: int = 1024
-    base_address: int = 0x400000
+    page_size: int = FLASH.page_size
+    page_count: int = FLASH.page_count
+    base_address: int = FLASH.flash_base
 
     @abstractmethod
     def read(self, address: int, length: int) -> bytes:

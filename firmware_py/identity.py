@@ -15,9 +15,9 @@ import struct
 from dataclasses import dataclass
 
 from firmware_py.hal import Flash
-from protocol.image import BoardType
+from protocol.image import FLASH, BoardType
 
-IDENTITY_ADDRESS = 0x401FF0
+IDENTITY_ADDRESS = FLASH.identity_address
 HW_VERSION_FINGER = 0xBEEF0041
 HW_VERSION_PALM_LEFT = 0xBEEF4C41
 HW_VERSION_PALM_RIGHT = 0xBEEF5241

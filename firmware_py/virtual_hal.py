@@ -212,8 +212,10 @@ class VirtualPowerSwitch(hal.PowerSwitch):
 class VirtualFlash(hal.Flash):
     """Flash memory as a bytearray, erased to 0xFF, with timed page writes and lock bits."""
 
-    def __init__(self, scheduler: Scheduler, page_size: int = 256, page_count: int = 1024,
-                 base_address: int = 0x400000, page_write_us: int = PAGE_WRITE_US) -> None:
+    def __init__(self, scheduler: Scheduler, page_size: int = hal.Flash.page_size,
+                 page_count: int = hal.Flash.page_count,
+                 base_address: int = hal.Flash.base_address,
+                 page_write_us: int = PAGE_WRITE_US) -> None:
         self.scheduler = scheduler
         self.page_size = page_size
         self.page_count = page_count

@@ -45,8 +45,13 @@ from typing import Final
 
 import numpy as np
 
-from hil_emulator.arm_model import STEPPER_REDUCTIONS
 from hil_emulator.errors import EmulatorConfigError
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    STEPPER_FULL_STEPS_PER_REV,
+    STEPPER_MICROSTEPPING,
+    STEPPER_REDUCTIONS,
+)
 
 #: Electrical period of a two-phase hybrid stepper: 4 full steps.
 FULL_STEPS_PER_ELECTRICAL_PERIOD: Final = 4
@@ -105,8 +110,8 @@ class ArmParams:
     #: Holding torque over maximum moving (pull-out) torque at the same current.
     holding_margin: float = 1.6
     #: Motor full steps per rev and the drivers' microstepping (the nodes' EEPROM values).
-    full_steps_per_rev: int = 200
-    microstepping: int = 16
+    full_steps_per_rev: int = STEPPER_FULL_STEPS_PER_REV
+    microstepping: int = STEPPER_MICROSTEPPING
     #: On re-locking after a slip the rotor settles 0..this many electrical periods further on
     #: in the slip's direction (random, as long as the coupling stays within capacity).
     slip_overshoot_periods: int = 2
@@ -115,7 +120,7 @@ class ArmParams:
     #: Joint encoders: counts per joint revolution (0.036°), and the joint angle (rad, in the
     #: model's joint coordinates) of each index mark: a few degrees from the default start
     #: pose (0): +3.4°, +4.0°, −2.9°, +4.6°.
-    encoder_counts_per_rev: int = 10_000
+    encoder_counts_per_rev: int = ARM_ENCODER_COUNTS_PER_REV
     index_angles: np.ndarray = field(default_factory=lambda: _vec((0.06, 0.07, -0.05, 0.08)))
     #: Stepper windings: phase resistance (Ω); driver/winding thermal resistance (K/W) and
     #: capacity (J/K), for the ``temperature`` sensor (0.1 °C); supply (mV).

@@ -56,15 +56,16 @@ import numpy as np
 
 from firmware_py.virtual_hal import VirtualEncoder, VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
-from hil_emulator.arm_model import ARM_JOINTS, RX64_RANGE_RAD
+from hil_emulator.arm_model import ARM_JOINTS
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import TICK_US
+from protocol.robot import RX64_POSITION_CENTRE, RX64_UNITS_PER_RAD
 
 __all__ = ["ArmParams", "ArmPlant", "POT_CENTRE", "POT_UNITS_PER_RAD"]
 
 #: RX-64 potentiometer: counts at joint angle 0, and counts per rad (1024 over 300°).
-POT_CENTRE: Final = 512
-POT_UNITS_PER_RAD: Final = 1024 / RX64_RANGE_RAD
+POT_CENTRE: Final = RX64_POSITION_CENTRE
+POT_UNITS_PER_RAD: Final = RX64_UNITS_PER_RAD
 #: Ticks of potentiometer noise drawn at once.
 NOISE_BLOCK_TICKS: Final = 1000
 _N_STEPPERS: Final = 4

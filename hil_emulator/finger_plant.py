@@ -15,7 +15,7 @@ three boards (fmcb, f2, f3):
 - **Halls and currents** (every tick).  ``after_step`` computes each motor shaft angle
   ``θ_m = M_rad·q`` (rad) and writes ``motor.hall = HALL_SEQUENCE[⌊θ_m·K + φ⌋ mod 6]``
   (φ a seeded random rotor phase at power-up, in hall states), so positive duty → hall
-  count rising, exactly :mod:`firmware_py.fmcb_control`'s convention; ``motor.current`` is
+  count rising, exactly :mod:`protocol.robot`'s convention; ``motor.current`` is
   the *signed* winding current in mA (the fmcb never reads it; the palm's supply model can
   sum magnitudes via :meth:`FingerPlant.motor_currents_a`).
 - **IMUs, tactile, strain** (every ``sensor_period_ticks`` ticks, default 10 ms, staggered
@@ -42,7 +42,6 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.fmcb_control import HALL_SEQUENCE, HALL_STATES_PER_RAD
 from firmware_py.mcu import Mcu
 from firmware_py.virtual_hal import VirtualHal, VirtualMotor
 from hil_emulator.errors import EmulatorConfigError, PlantError
@@ -71,6 +70,7 @@ from hil_emulator.hand_sensors import (
     taxel_forces,
     thermistor_counts,
 )
+from protocol.robot import HALL_SEQUENCE, HALL_STATES_PER_RAD
 
 _DRIVE, _BRAKE, _COAST = 0, 1, 2
 #: Where :meth:`FingerPlant.press` pushes: the pad centre (m, body frame) of each segment.

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -27,14 +28,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from firmware_py.fmcb_control import motor_to_joint
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
+from protocol.robot import motor_to_joint, rad_to_encoder_counts
 from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER_TARGET = (0.0, 0.4, 0.3)  # rad, J1 J2 J3 of finger 1
-ARM_MOVES = {1: 278, 6: -50}  # joint 1: +10 deg in 0.036 deg counts; servo 6: -50 units
+#: Joint 1: +10° in joint encoder counts (278); servo 6: −50 position units.
+ARM_MOVES = {1: rad_to_encoder_counts(math.radians(10.0)), 6: -50}
 
 
 def say(text: str) -> None:

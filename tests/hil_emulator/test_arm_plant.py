@@ -24,8 +24,6 @@ from hil_emulator.arm_model import (
     ARM_JOINTS,
     JOINT_RANGES,
     MOUNT_HEIGHT_M,
-    RX64_RANGE_RAD,
-    STEPPER_REDUCTIONS,
     add_arm,
 )
 from hil_emulator.arm_plant import POT_CENTRE, ArmParams, ArmPlant
@@ -33,6 +31,7 @@ from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import Plant, new_spec
 from protocol.control_tables import StepperFlag
 from protocol.image import BoardType
+from protocol.robot import RX64_RANGE_RAD, STEPPER_REDUCTIONS
 
 MS = 1_000  # µs
 COUNTS_PER_RAD = 10_000 / (2 * np.pi)

@@ -16,7 +16,7 @@ import pytest
 
 from firmware_py.boards import make_node
 from firmware_py.fmcb import FmcbApp
-from firmware_py.fmcb_control import HallCounter, coupling_matrix, motor_to_joint
+from firmware_py.fmcb_control import HallCounter
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
@@ -36,6 +36,8 @@ from hil_emulator.plant import Plant, new_spec
 from protocol.framing import encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
+from protocol.robot import finger_coupling_matrix as coupling_matrix
+from protocol.robot import motor_to_joint
 from protocol.stream import decode_all
 
 S = 1_000_000  # µs
