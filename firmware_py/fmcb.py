@@ -76,6 +76,8 @@ PB_TRIPPED: Final = 0xFFFF
 #: Internal mode after the legacy open-loop command (0x13): the control law stays out
 #: (not a ControlMode: no control message selects it).
 MODE_OPEN_LOOP: Final = -1
+# The idle mode for the 1 kHz tick (an enum member read off its class costs ~0.4 µs).
+_IDLE: Final = ControlMode.IDLE
 
 _FAST_POLLS: Final = ("f2.tactile", "f3.tactile")
 _SLOW_POLLS: Final = ("f2.strain", "f3.temperatures")
@@ -296,7 +298,7 @@ class FmcbApp(HandNode):
             self.velocity = [(c0 - f0) / span_s, (c1 - f1) / span_s, (c2 - f2) / span_s]
         self._check_breaker()
         mode = self.mode
-        if mode == ControlMode.IDLE:
+        if mode == _IDLE:
             self.hall_target = self.hall_pos  # targets follow the pose: no jump on resume
             return
         if mode == MODE_OPEN_LOOP:
