@@ -57,6 +57,7 @@ from protocol.dynamixel import (
     MAX_ID,
     DynamixelStreamDecoder,
     ErrorBit,
+    Instruction,
     InstructionPacket,
     StatusPacket,
     encode_packet,
@@ -79,9 +80,12 @@ BULK_SLOT_US = 600
 #: Retry interval when the flash is busy with another write (µs).
 FLASH_RETRY_US = 500
 
-# Instruction codes (plain ints: InstructionPacket keeps unknown codes as int).
-_PING, _READ, _WRITE, _REG_WRITE, _ACTION, _RESET = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-_SYNC_WRITE, _BULK_READ = 0x83, 0x92
+# Instruction codes as plain ints for the dispatch (InstructionPacket keeps unknown codes
+# as int, and an enum member read off its class costs ~0.4 µs).
+_PING, _READ, _WRITE, _REG_WRITE, _ACTION, _RESET, _SYNC_WRITE, _BULK_READ = (
+    int(Instruction.PING), int(Instruction.READ), int(Instruction.WRITE),
+    int(Instruction.REG_WRITE), int(Instruction.ACTION), int(Instruction.RESET),
+    int(Instruction.SYNC_WRITE), int(Instruction.BULK_READ))
 
 
 def baud_from_register(value: int) -> int:

@@ -4,7 +4,7 @@ The original motherboard kept one transmit slot per finger and overwrote it when
 sent again before the finger had answered.  Here each finger's pogo UART is a
 :class:`FingerLink`: a :class:`Transaction` (a frame to write, the reply type it waits for,
 a timeout) is either in flight, waiting in a queue of at most :data:`QUEUE_DEPTH`, or
-refused (:data:`ROUTE_BUSY`).  Nothing already accepted is ever overwritten or reordered.
+refused (``RouteStatus.BUSY``).  Nothing already accepted is ever overwritten or reordered.
 
 Replies are matched as the fmcb sends them: a frame to the host address (0) whose type is
 the request's.  A late reply to a transaction that timed out, arriving while a new one of the
@@ -33,14 +33,8 @@ from protocol.errors import ProtocolError
 from protocol.framing import ADDR_BROADCAST, ADDR_FMCB, ADDR_HOST, OVERHEAD, Frame, encode_frame
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.messages.palm import FingerPower, RouteStatus
 from protocol.stream import StreamDecoder, decode_all
-
-ROUTE_OK: Final = 0
-ROUTE_NO_REPLY: Final = 1
-ROUTE_UNPOWERED: Final = 2
-ROUTE_BAD_DESTINATION: Final = 3
-ROUTE_LINK_DOWN: Final = 4
-ROUTE_BUSY: Final = 5
 
 #: Transactions that may wait behind the one in flight, per finger.
 QUEUE_DEPTH: Final = 4
@@ -95,7 +89,7 @@ class FingerLink:
         self._posted: dict[int, bytes] = {}
         self._decoder = StreamDecoder(gap_s=LINK_GAP_US / 1e6)
         # What the palm knows of the finger.
-        self.power = 0
+        self.power: int = FingerPower.OFF
         self.present = False
         self.ever_seen = False
         self.lost = False
@@ -158,15 +152,15 @@ class FingerLink:
             if not self.queue:
                 return
             txn = self.queue.popleft()
-            if self.power == 0:
-                txn.on_done(None, ROUTE_UNPOWERED)
+            if self.power == FingerPower.OFF:
+                txn.on_done(None, RouteStatus.UNPOWERED)
                 continue
             if self.lost and txn.kind == "route":
-                txn.on_done(None, ROUTE_LINK_DOWN)
+                txn.on_done(None, RouteStatus.LINK_DOWN)
                 continue
             self.uart.send(txn.frame)
             if txn.expect_type is None:
-                txn.on_done(None, ROUTE_OK)
+                txn.on_done(None, RouteStatus.OK)
                 continue
             self.in_flight = txn
             txn.timer = self.clock.call_later(txn.timeout_us, self._timeout_of(txn))
@@ -175,7 +169,7 @@ class FingerLink:
         def expire() -> None:
             if self.in_flight is txn:
                 self.timeouts += 1
-                self._finish(None, ROUTE_NO_REPLY)
+                self._finish(None, RouteStatus.NO_REPLY)
 
         return expire
 
@@ -193,7 +187,7 @@ class FingerLink:
         for frame in self._decoder.feed(data, t_us / 1e6):
             txn = self.in_flight
             if txn is not None and frame.address == ADDR_HOST and frame.type == txn.expect_type:
-                self._finish(frame, ROUTE_OK)
+                self._finish(frame, RouteStatus.OK)
             else:
                 self.stray_frames += 1
 
@@ -210,7 +204,7 @@ class FingerLink:
 
     def powered_down(self) -> None:
         """The finger was switched off: everything waiting for it ends as unpowered."""
-        self.abort_all(ROUTE_UNPOWERED)
+        self.abort_all(RouteStatus.UNPOWERED)
         self.powered_up()
 
     def answered(self) -> bool:
@@ -291,12 +285,12 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
         try:
             heard = _TUNNEL.parse_reply(reply.payload)["data"]
         except ProtocolError:
-            respond(ROUTE_NO_REPLY, b"")
+            respond(RouteStatus.NO_REPLY, b"")
             return
         answers = [f for f in decode_all(heard) if f.address == ADDR_HOST]
         if answers:
-            respond(ROUTE_OK, answers[0].to_bytes())
+            respond(RouteStatus.OK, answers[0].to_bytes())
         else:
-            respond(ROUTE_NO_REPLY if wants else ROUTE_OK, b"")
+            respond(RouteStatus.NO_REPLY if wants else RouteStatus.OK, b"")
 
     return Transaction(frame, _TUNNEL.type_id, wait_us, tunnel_done)

@@ -12,6 +12,7 @@ is generated from them by :mod:`protocol.docgen`.
 
 from __future__ import annotations
 
+import enum
 import hashlib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from typing import Any, Final
 
 import construct as c
 
+from protocol.enum_field import EnumField
 from protocol.errors import PayloadError, UnknownMessageError, wrap_construct
 from protocol.flat_codec import FlatCodec, flat_codec
 
@@ -227,16 +229,28 @@ def _expr(value: object) -> str:
     return "<callable>" if " at 0x" in text else text
 
 
+def _key(value: object) -> str:
+    """A Switch case key as text; an IntEnum member reads as its int (the wire value)."""
+    return repr(int(value)) if isinstance(value, enum.IntEnum) else repr(value)
+
+
 def _shape(con: c.Construct) -> str:
-    """Canonical, process-independent description of one construct and what it contains."""
+    """Canonical, process-independent description of one construct and what it contains.
+
+    An :class:`~protocol.enum_field.EnumField` is described as its integer: naming the codes
+    does not change the wire, so it does not change the fingerprint.
+    """
     con = _unrename(con)
+    while isinstance(con, EnumField):
+        con = _unrename(con.subcon)
     kind = type(con).__name__
     if isinstance(con, c.FormatField):
         return con.fmtstr
     if isinstance(con, c.Struct):
         return kind + "{" + ",".join(f"{n}:{_shape(s)}" for n, s, _ in iter_fields(con)) + "}"
     if isinstance(con, c.Switch):
-        cases = ",".join(f"{k!r}={_shape(v)}" for k, v in sorted(con.cases.items(), key=repr))
+        cases = ",".join(f"{_key(k)}={_shape(v)}"
+                         for k, v in sorted(con.cases.items(), key=lambda kv: _key(kv[0])))
         return f"{kind}({_expr(con.keyfunc)};{cases};default={_shape(con.default)})"
     parts = [f"{attr}={_expr(getattr(con, attr))}"
              for attr in ("count", "length", "encoding", "func", "pattern") if hasattr(con, attr)]

@@ -7,12 +7,17 @@
 
 Like a logic-analyser decoder: it never crashes on garbage; bad input files or bad
 arguments give a clear message on standard error and exit status 2.
+
+A coded field (an ``EnumField`` of the catalogue) decodes to its member's name, e.g.
+``"status": "NO_REPLY"``, and an unknown code to its number; ``encode`` accepts either
+(``mode=joint``, ``mode=2``).
 """
 
 from __future__ import annotations
 
 import argparse
 import difflib
+import enum
 import json
 import re
 import sys
@@ -33,9 +38,12 @@ class UsageError(Exception):
 
 
 def jsonable(value: Any) -> Any:
-    """Bytes → hex strings, recursively, so any decoded payload prints as JSON."""
+    """Bytes → hex strings and code members → their names, recursively, so any decoded
+    payload prints as JSON that ``encode`` takes back."""
     if isinstance(value, bytes | bytearray):
         return value.hex()
+    if isinstance(value, enum.IntEnum):
+        return value.name
     if isinstance(value, dict):
         return {k: jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from typing import Any
 
@@ -14,6 +15,8 @@ from protocol.catalogue import to_plain
 from protocol.errors import PayloadError
 from protocol.flat_codec import flat_codec
 from protocol.messages import CATALOGUE
+from protocol.messages.bootloader import BootResult, ImageStatus
+from protocol.messages.palm import FingerEvent, FingerPower
 
 FLAT = [(m, direction, decl) for m in CATALOGUE
         for direction, decl in (("request", m.request), ("reply", m.reply))
@@ -75,3 +78,43 @@ def test_fast_path_parses_and_builds_what_construct_does(msg: Any, direction: st
     # A wrong length is still construct's documented error.
     with pytest.raises(PayloadError):
         msg.parse(direction, payload + b"\x00")
+
+
+# --- coded (EnumField) fields -----------------------------------------------------------------
+
+def test_coded_messages_have_a_fast_path() -> None:
+    names = {(m.name, d) for m, d, _ in FLAT}
+    assert {("palm.finger_power", "reply"), ("palm.finger_event", "reply"),
+            ("bl.activate", "reply")} <= names
+
+
+@pytest.mark.parametrize(("name", "direction", "payload", "expected"), [
+    ("palm.finger_power", "reply", bytes([2, 0, 7, 255]),
+     {"states": [FingerPower.FULL, FingerPower.OFF, 7, 255]}),
+    ("palm.finger_power", "request", bytes([0xFF, 1, 10, 0]),
+     {"finger": 0xFF, "state": FingerPower.LOW, "stagger_ms": 10}),
+    ("palm.finger_power", "request", bytes([0, 3, 0, 0]),
+     {"finger": 0, "state": 3, "stagger_ms": 0}),
+    ("palm.finger_event", "reply", bytes([1, 4, 1, 0, 0, 0]),
+     {"finger": 1, "event": FingerEvent.UNPOWERED, "time": 1}),
+    ("palm.finger_event", "reply", bytes([1, 0x80, 1, 0, 0, 0]),
+     {"finger": 1, "event": 0x80, "time": 1}),
+    ("bl.activate", "reply", bytes([4, 3]),
+     {"status": BootResult.WRONG_BOARD, "image_status": ImageStatus.WRONG_BOARD}),
+    ("bl.activate", "reply", bytes([200, 7]), {"status": 200, "image_status": 7}),
+])
+def test_fast_path_names_known_codes_and_keeps_unknown_ones(
+        name: str, direction: str, payload: bytes, expected: dict[str, Any]) -> None:
+    msg = CATALOGUE[name]
+    decl = msg.declaration(direction)
+    codec = flat_codec(decl)
+    assert codec is not None
+    fast = codec.parse(payload)
+    assert fast is not None and _same(fast, expected)  # members, and plain ints otherwise
+    assert _same(fast, to_plain(decl.parse(payload)))
+    assert codec.build(fast) == payload
+    # A name is not a number: the fast path declines and construct translates it.
+    named = {k: (v.name.lower() if isinstance(v, enum.IntEnum) else v) for k, v in fast.items()}
+    if named != fast:
+        assert codec.build(named) is None
+        assert msg.build(direction, named) == payload

@@ -262,6 +262,34 @@ def test_encode_control_with_nested_args(capsys: pytest.CaptureFixture[str]) -> 
     assert bytes.fromhex(out.strip())[2:6] == bytes.fromhex("01001d00")
 
 
+def test_coded_fields_decode_to_names_that_encode_back(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # palm.route reply: finger 1, hop 2, status 1 (NO_REPLY); then status 0x99 (no name).
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(0, 0x62, bytes([1, 2, 1])) +
+                     encode_frame(0, 0x62, bytes([1, 2, 0x99])))
+    _, out, _ = run_main(["decode", "--node", "palm", str(path)], capsys)
+    known, unknown = json_lines(out)[:2]
+    assert known["fields"] == {"finger": 1, "hop": 2, "status": "NO_REPLY", "frame": ""}
+    assert unknown["fields"]["status"] == 0x99
+    code, out, err = run_main(["encode", "palm.route", "--reply", "finger=1", "hop=2",
+                               "status=NO_REPLY", "frame="], capsys)
+    assert (code, err) == (0, "")
+    assert bytes.fromhex(out.strip()) == encode_frame(0, 0x62, bytes([1, 2, 1]))
+
+
+def test_encode_a_code_by_name(capsys: pytest.CaptureFixture[str]) -> None:
+    by_number = run_main(["encode", "fmcb.control", "mode=3", "args.target=1000,-1,0",
+                          "--addr", "10"], capsys)
+    by_name = run_main(["encode", "fmcb.control", "mode=joint_fixed", "args.target=1000,-1,0",
+                        "--addr", "10"], capsys)
+    assert by_name == by_number
+    assert bytes.fromhex(by_name[1].strip())[5:-2] == bytes.fromhex("03" "e803" "ffff" "0000")
+    code, _, err = run_main(["encode", "fmcb.control", "mode=sideways", "--addr", "10"], capsys)
+    assert code == 2 and "ControlMode" in err
+
+
 def test_encode_bytes_and_text_fields(capsys: pytest.CaptureFixture[str]) -> None:
     _, out, _ = run_main(
         ["encode", "fmcb.tunnel", "max_ms=5", "data=420a", "--addr", "10"], capsys
