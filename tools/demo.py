@@ -30,6 +30,7 @@ from typing import Any
 from firmware_py.fmcb_control import motor_to_joint
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
+from protocol.topology import ARM_BUS_BAUD, FINGERS, HOP_ADDRESS, Hop
 from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,13 +72,13 @@ def hand_session(palm_path: str) -> int:
         answered += 1
         states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
         say(f"finger power on: {states}")
-        for k in range(4):
-            reply = until(functools.partial(hand.route, k, 0, "identify"), 10)
+        for k in range(FINGERS):
+            reply = until(functools.partial(hand.route, k, Hop.FMCB, "identify"), 10)
             say(f"finger {k} fmcb {describe(reply)}")
             answered += 1
-            hand.route(k, 0, "fmcb.phalange_power", on=1)
-        for k in range(4):
-            for hop, name in ((1, "f2"), (2, "f3")):
+            hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
+        for k in range(FINGERS):
+            for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
                 reply = until(functools.partial(hand.route, k, hop, "identify"), 10)
                 say(f"finger {k} {name}   {describe(reply)}")
                 answered += 1
@@ -93,13 +94,11 @@ def hand_session(palm_path: str) -> int:
 
 def _move_finger(hand: HandPort) -> None:
     """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
-    from protocol.framing import encode_frame
     from protocol.messages import CATALOGUE
 
-    control = CATALOGUE["fmcb.control"]
-    inner = encode_frame(10, control.type_id,
-                         control.build_request({"mode": 2, "args": {"target": FINGER_TARGET}}))
-    reply = hand.request("palm.route", finger=1, hop=0, timeout_ms=0, frame=inner)
+    inner = CATALOGUE["fmcb.control"].request_frame(
+        HOP_ADDRESS[Hop.FMCB], {"mode": 2, "args": {"target": FINGER_TARGET}})
+    reply = hand.request("palm.route", finger=1, hop=Hop.FMCB, timeout_ms=0, frame=inner)
     say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
         f"{reply['status']}")
     time.sleep(2.0)
@@ -109,7 +108,7 @@ def arm_session(arm_path: str) -> int:
     from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
     port = PortHandler(arm_path)
-    if not (port.openPort() and port.setBaudRate(1_000_000)):
+    if not (port.openPort() and port.setBaudRate(ARM_BUS_BAUD)):
         say(f"cannot open the arm port {arm_path}")
         return 1
     sdk = PacketHandler(1.0)

@@ -12,14 +12,12 @@ import construct as c
 
 from protocol.catalogue import Message
 from protocol.messages.fields import EMPTY
+from protocol.topology import FINGERS
 
-FINGERS = 4
 PALM_TAXELS = 32
 #: Largest routed frame (bytes): a tunnel request with 512 data bytes plus framing.
 ROUTE_MAX_FRAME = 540
 
-#: Hops behind a finger's pogo link.
-HOPS = {0: "fmcb", 1: "f2", 2: "f3"}
 #: Finger power states.
 FINGER_POWER = {0: "off", 1: "low", 2: "full"}
 #: Route reply status codes.
