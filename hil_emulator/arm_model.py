@@ -59,12 +59,13 @@ import mujoco
 import numpy as np
 
 from hil_emulator.errors import EmulatorConfigError
+from protocol import topology
 
 Vec3 = tuple[float, float, float]
 
 #: Joint names (without prefix), proximal first.  J1–J4 are stepper-driven series-elastic
 #: joints (bus IDs 1–4), J5–J7 RX-64 servos (bus IDs 5–7).
-ARM_JOINTS: Final = ("J1", "J2", "J3", "J4", "J5", "J6", "J7")
+ARM_JOINTS: Final = tuple(joint.name for joint in topology.ARM_JOINTS)
 #: Effective reductions (motor revs per joint rev) of J1–J4: timing belt × cable circuit.
 STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
 #: The RX-64's potentiometer range: 300° (rad), centred on joint angle 0.
