@@ -30,7 +30,7 @@ from typing import Any
 from firmware_py.fmcb_control import motor_to_joint
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
-from protocol.topology import ARM_BUS_BAUD, FINGERS, HOP_ADDRESS, Hop
+from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS, FINGERS, HOP_ADDRESS, STEPPER_IDS, Hop
 from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -115,21 +115,22 @@ def arm_session(arm_path: str) -> int:
     ok = 0
     try:
         start: dict[int, int] = {}
-        for dxl_id in range(1, 8):
-            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
+        for joint in ARM_JOINTS:
+            dxl_id = joint.dxl_id
+            table = STEPPER_TABLE if joint.is_stepper else RX64_TABLE
             model, result, error = sdk.ping(port, dxl_id)
             if result != COMM_SUCCESS:
                 say(f"arm id {dxl_id}: no answer ({sdk.getTxRxResult(result)})")
                 continue
             start[dxl_id] = _position(sdk, port, dxl_id)
             sdk.write1ByteTxRx(port, dxl_id, table["torque_enable"].address, 1)
-            kind = "stepper joint" if dxl_id <= 4 else "RX-64 servo"
+            kind = "stepper joint" if joint.is_stepper else "RX-64 servo"
             say(f"arm id {dxl_id}: model {model:#06x} ({kind}), position {start[dxl_id]}, "
                 f"error byte {error}")
             ok += 1
         for dxl_id, delta in ARM_MOVES.items():
-            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
-            size = 4 if dxl_id <= 4 else 2
+            table = STEPPER_TABLE if dxl_id in STEPPER_IDS else RX64_TABLE
+            size = 4 if dxl_id in STEPPER_IDS else 2
             goal = start[dxl_id] + delta
             write = sdk.write4ByteTxRx if size == 4 else sdk.write2ByteTxRx
             write(port, dxl_id, table["goal_position"].address, goal & (2 ** (8 * size) - 1))
@@ -144,11 +145,11 @@ def arm_session(arm_path: str) -> int:
     finally:
         port.closePort()
     say(f"arm: {ok} of 7 nodes answered; {moved} of {len(ARM_MOVES)} joints reached their goal")
-    return 0 if ok == 7 and moved == len(ARM_MOVES) else 1
+    return 0 if ok == len(ARM_JOINTS) and moved == len(ARM_MOVES) else 1
 
 
 def _position(sdk: Any, port: Any, dxl_id: int) -> int:
-    if dxl_id <= 4:
+    if dxl_id in STEPPER_IDS:
         value, _, _ = sdk.read4ByteTxRx(port, dxl_id, STEPPER_TABLE["present_position"].address)
         return int(value) - (1 << 32) if value & 0x8000_0000 else int(value)
     value, _, _ = sdk.read2ByteTxRx(port, dxl_id, RX64_TABLE["present_position"].address)
