@@ -27,7 +27,7 @@ from benchmarks.harness import Result
 from hil_emulator.bring_up import request
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL
 from protocol.messages import CATALOGUE
 from protocol.topology import (
     ARM_BUS_BAUD,
@@ -42,8 +42,7 @@ from protocol.topology import (
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
-TORQUE_ON = [dxl.make_write(j.dxl_id,
-                            (STEPPER_TABLE if j.is_stepper else RX64_TABLE)["torque_enable"].address,
+TORQUE_ON = [dxl.make_write(j.dxl_id, TABLES_BY_MODEL[j.model_number]["torque_enable"].address,
                             b"\x01").encode() for j in ARM_JOINTS]
 ARM_READ = dxl.make_bulk_read(
     [(4, i, STEPPER_TABLE["present_position"].address) for i in STEPPER_IDS]

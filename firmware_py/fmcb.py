@@ -498,7 +498,8 @@ class FmcbApp(HandNode):
         data = _POLL_FRAMES.get(msg.name)
         if data is None:
             data = msg.request_frame(NODE_ADDRESS[NodeKind(msg.node)])
-        timeout = wire_time_us(len(data), int(self.tendon.baud)) + int(self.params["tendon_timeout_us"])
+        timeout = (wire_time_us(len(data), int(self.tendon.baud))
+                   + int(self.params["tendon_timeout_us"]))
         self._pending = _Pending(msg, self.hal.clock.call_later(timeout, self._on_timeout))
         self.tendon_counters.requests += 1
         self.tendon.send(data)
