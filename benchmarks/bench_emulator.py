@@ -27,19 +27,30 @@ from benchmarks.harness import Result
 from hil_emulator.bring_up import request
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL
+from protocol.messages import CATALOGUE
+from protocol.topology import (
+    ARM_BUS_BAUD,
+    ARM_JOINTS,
+    FINGERS,
+    HOP_ADDRESS,
+    HOST_LINK_BAUD,
+    SERVO_IDS,
+    STEPPER_IDS,
+    Hop,
+)
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
-TORQUE_ON = [dxl.make_write(i, (STEPPER_TABLE if i <= 4 else RX64_TABLE)["torque_enable"].address,
-                            b"\x01").encode() for i in range(1, 8)]
+TORQUE_ON = [dxl.make_write(j.dxl_id, TABLES_BY_MODEL[j.model_number]["torque_enable"].address,
+                            b"\x01").encode() for j in ARM_JOINTS]
 ARM_READ = dxl.make_bulk_read(
-    [(4, i, STEPPER_TABLE["present_position"].address) for i in range(1, 5)]
-    + [(2, i, RX64_TABLE["present_position"].address) for i in range(5, 8)]).encode()
+    [(4, i, STEPPER_TABLE["present_position"].address) for i in STEPPER_IDS]
+    + [(2, i, RX64_TABLE["present_position"].address) for i in SERVO_IDS]).encode()
 
 
 def _sync_write(goal_counts: int) -> bytes:
-    goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in range(1, 5)}
+    goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in STEPPER_IDS}
     return dxl.make_sync_write(STEPPER_TABLE["goal_position"].address, 4, goals).encode()
 
 
@@ -53,11 +64,12 @@ def _arm_write(k: int) -> bytes:
 
 def _hold_pose(finger: int) -> bytes:
     """fmcb.control joint mode, targets 0 rad (the pose the fingers start in), routed."""
-    inner = request("fmcb.control", mode=2, args={"target": [0.0] * 3})
-    return request("palm.route", finger=finger, hop=0, timeout_ms=0, frame=inner)
+    inner = CATALOGUE["fmcb.control"].request_frame(HOP_ADDRESS[Hop.FMCB], mode=2,
+                                                    args={"target": [0.0] * 3})
+    return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=0, frame=inner)
 
 
-HOLD_POSE = [_hold_pose(k) for k in range(4)]
+HOLD_POSE = [_hold_pose(k) for k in range(FINGERS)]
 
 
 def boot_full(emulator: Emulator, heavy: bool = True) -> None:
@@ -69,7 +81,7 @@ def boot_full(emulator: Emulator, heavy: bool = True) -> None:
     emulator.bring_up()
     if heavy:
         hand.send_from_host(request("palm.poll", rate_hz=100))
-    for k in range(4):
+    for k in range(FINGERS):
         hand.send_from_host(HOLD_POSE[k])
         emulator.step(30_000)
     for packet in TORQUE_ON:
@@ -107,10 +119,10 @@ def realtime_lateness(wall_s: float, config: str = "full") -> dict[str, float]:
     try:
         assert proc.stdout is not None
         info = json.loads(proc.stdout.readline())
-        palm = serial.Serial(info["palm"], 2_000_000, timeout=0) if info["palm"] else None
-        arm = serial.Serial(info["arm"], 1_000_000, timeout=0) if info["arm"] else None
+        palm = serial.Serial(info["palm"], HOST_LINK_BAUD, timeout=0) if info["palm"] else None
+        arm = serial.Serial(info["arm"], ARM_BUS_BAUD, timeout=0) if info["arm"] else None
         if palm is not None:  # --ready: the hand is up; hold the fingers' pose
-            for k in range(4):
+            for k in range(FINGERS):
                 palm.write(HOLD_POSE[k])
                 time.sleep(0.03)
         if arm is not None:

@@ -21,6 +21,7 @@ from firmware_py.mcu import Mcu, Program, ProgramFactory
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
 from protocol.image import BoardType, make_image, parse_image
+from protocol.topology import ARM_BUS_BAUD, FINGERS, HOST_LINK_BAUD, POGO_BAUD, TENDON_BAUD
 
 #: Application name (in the image header) → "module:Class" of its program.
 APP_PROGRAMS: dict[str, str] = {
@@ -56,25 +57,24 @@ _IMU: dict[str, int | tuple[int, ...]] = {"accel": (0, 0, 1000), "mag": (0, 0, 0
 BOARD_SPECS: dict[BoardType, BoardSpec] = {
     BoardType.PALM: BoardSpec(
         BoardType.PALM, "palm",
-        {"host": 2_000_000, "finger0": 2_000_000, "finger1": 2_000_000, "finger2": 2_000_000,
-         "finger3": 2_000_000},
+        {"host": HOST_LINK_BAUD, **{f"finger{k}": POGO_BAUD for k in range(FINGERS)}},
         power_switches=("finger0", "finger1", "finger2", "finger3"),
         can=True,
         sensors={**_IMU, "gyro": (0, 0, 0), **_channels("taxel", 32, 2000),
                  **_channels("temperature", 7, 250), "supply_mv": 24000},
     ),
     BoardType.FMCB: BoardSpec(
-        BoardType.FMCB, "fmcb", {"pogo": 2_000_000, "tendon": 2_000_000},
+        BoardType.FMCB, "fmcb", {"pogo": POGO_BAUD, "tendon": TENDON_BAUD},
         power_switches=("phalange",), motors=3,
         sensors={**_IMU, **_channels("temperature", 3, 250), "supply_mv": 24000},
     ),
     BoardType.F2: BoardSpec(
-        BoardType.F2, "f2", {"tendon": 2_000_000},
+        BoardType.F2, "f2", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 6, 2000), "strain": 0,
                  **_channels("thermistor", 4, 0)},
     ),
     BoardType.F3: BoardSpec(
-        BoardType.F3, "f3", {"tendon": 2_000_000},
+        BoardType.F3, "f3", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 12, 2000), **_channels("thermistor", 4, 2048)},
     ),
     # Arm nodes: Dynamixel protocol 1.0 slaves on one RS-485 bus; they run their application
@@ -82,11 +82,11 @@ BOARD_SPECS: dict[BoardType, BoardSpec] = {
     # "temperature" is in 0.1 degC, "supply_mv" in mV, "pot" 0..1023 over 300 deg, "load" in
     # 1/1023 of maximum torque (signed, + = CCW).
     BoardType.ARM_STEPPER: BoardSpec(
-        BoardType.ARM_STEPPER, "arm_stepper", {"bus": 1_000_000},
+        BoardType.ARM_STEPPER, "arm_stepper", {"bus": ARM_BUS_BAUD},
         sensors={"temperature": 250, "supply_mv": 24000}, stepper=True, encoder=True,
     ),
     BoardType.RX64: BoardSpec(
-        BoardType.RX64, "rx64", {"bus": 1_000_000}, motors=1,
+        BoardType.RX64, "rx64", {"bus": ARM_BUS_BAUD}, motors=1,
         sensors={"pot": 512, "temperature": 250, "supply_mv": 18000, "load": 0},
     ),
 }

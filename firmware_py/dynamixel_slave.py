@@ -50,7 +50,7 @@ from collections.abc import Callable, Mapping
 from firmware_py.flash_layout import PARAM_PAGE
 from firmware_py.hal import Hal, Timer
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualHal
+from firmware_py.virtual_hal import VirtualHal
 from protocol.control_tables import RAM_START, ControlTable, Register, RegisterError
 from protocol.dynamixel import (
     BROADCAST_ID,
@@ -68,6 +68,7 @@ from protocol.dynamixel import (
 )
 from protocol.errors import DynamixelError
 from protocol.image import BoardType
+from protocol.topology import wire_time_us
 
 #: Flash page holding the EEPROM area of the control table (the hand's parameter page).
 EEPROM_PAGE = PARAM_PAGE
@@ -384,7 +385,7 @@ class DynamixelSlave:
 
         # Bytes of the earlier replies: 6 per status packet plus its data.
         earlier = sum(entry[0] for entry in entries[:k]) + 6 * k
-        fallback = -(-earlier * BITS_PER_CHAR * 1_000_000 // self.uart.baud) + k * BULK_SLOT_US
+        fallback = wire_time_us(earlier, self.uart.baud) + k * BULK_SLOT_US
         timer = self.hal.clock.call_later(fallback, go)
         self._bulk_wait = (entries[k - 1][1], go, timer)
 

@@ -50,12 +50,13 @@ from firmware_py.hand_node import (
 )
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_F2, ADDR_F3, ADDR_HOST, Frame, encode_frame
+from protocol.framing import Frame
 from protocol.messages import CATALOGUE
 from protocol.messages.common import TxnStatus
 from protocol.messages.fmcb import TUNNEL_MAX, ControlMode
 from protocol.robot import joint_to_motor, motor_to_joint
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_HOST, NODE_ADDRESS, NodeKind, wire_time_us
 
 CONTROL_PERIOD_US: Final = 1_000
 STATUS_PERIOD_US: Final = 5_000
@@ -82,8 +83,7 @@ _FAST_POLLS: Final = ("f2.tactile", "f3.tactile")
 _SLOW_POLLS: Final = ("f2.strain", "f3.temperatures")
 #: The autopoll request frames (empty payloads), built once.
 _POLL_FRAMES: Final = {
-    name: encode_frame(ADDR_F2 if name.startswith("f2.") else ADDR_F3,
-                       CATALOGUE[name].type_id, CATALOGUE[name].build_request({}))
+    name: CATALOGUE[name].request_frame(NODE_ADDRESS[NodeKind(CATALOGUE[name].node)])
     for name in (*_FAST_POLLS, *_SLOW_POLLS)
 }
 #: Status keys a tactile reply lands in, by phalange prefix: taxels, IMU, time.
@@ -498,15 +498,12 @@ class FmcbApp(HandNode):
     def _send_request(self, msg: Message) -> None:
         data = _POLL_FRAMES.get(msg.name)
         if data is None:
-            address = ADDR_F2 if msg.node == "f2" else ADDR_F3
-            data = encode_frame(address, msg.type_id, msg.build_request({}))
-        timeout = self._wire_us(len(data)) + int(self.params["tendon_timeout_us"])
+            data = msg.request_frame(NODE_ADDRESS[NodeKind(msg.node)])
+        timeout = (wire_time_us(len(data), int(self.tendon.baud))
+                   + int(self.params["tendon_timeout_us"]))
         self._pending = _Pending(msg, self.hal.clock.call_later(timeout, self._on_timeout))
         self.tendon_counters.requests += 1
         self.tendon.send(data)
-
-    def _wire_us(self, n_bytes: int) -> int:
-        return -(-n_bytes * 10 * 1_000_000 // int(self.tendon.baud))
 
     def _on_timeout(self) -> None:
         self.tendon_counters.timeouts += 1
@@ -568,7 +565,8 @@ class FmcbApp(HandNode):
         self.tendon_counters.tunnels += 1
         self._tunnel_heard = bytearray()
         self.tendon.send(data)
-        self.hal.clock.call_later(self._wire_us(len(data)) + max_ms * 1000, self._finish_tunnel)
+        self.hal.clock.call_later(wire_time_us(len(data), int(self.tendon.baud)) + max_ms * 1000,
+                                 self._finish_tunnel)
 
     def _finish_tunnel(self) -> None:
         assert self._tunnel_req is not None and self._tunnel_heard is not None

@@ -21,10 +21,11 @@ from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
 from protocol.catalogue import REQUEST, Message
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_BROADCAST, ADDR_HOST, Frame, encode_frame
+from protocol.framing import Frame, encode_frame
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 from protocol.messages.common import Running, TxnStatus
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_BROADCAST, ADDR_HOST
 
 #: Returned by a handler that will answer later through :meth:`Request.respond`.
 DEFERRED: Final = object()

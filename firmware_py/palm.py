@@ -40,16 +40,16 @@ from firmware_py.mcu import Mcu
 from firmware_py.palm_router import FingerLink, Transaction, route_transaction
 from protocol.canlink import DEFAULT_PALM_NODE, CanReassembler, can_id, segment
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_FMCB, Frame, encode_frame, parse_frame
+from protocol.framing import Frame, parse_frame
 from protocol.messages import CATALOGUE
 from protocol.messages.palm import (
-    FINGERS,
     PALM_TAXELS,
     ROUTE_MAX_FRAME,
     FingerEvent,
     FingerPower,
     RouteStatus,
 )
+from protocol.topology import ADDR_FMCB, FINGERS, HOP_NODE
 
 #: Taxel scan period (µs): one taxel per millisecond.
 TAXEL_PERIOD_US: Final = 1_000
@@ -205,7 +205,7 @@ class PalmApp(HandNode):
             req.respond({"finger": finger, "hop": hop, "status": status, "frame": frame})
 
         inner = self._valid_frame(raw)
-        if finger >= FINGERS or hop > 2 or inner is None:
+        if finger >= FINGERS or hop not in HOP_NODE or inner is None:
             return {"finger": finger, "hop": hop, "status": RouteStatus.BAD_DESTINATION, "frame": b""}
         link = self.links[finger]
         if link.power == FingerPower.OFF:
@@ -289,7 +289,7 @@ class PalmApp(HandNode):
     def _poll(self) -> None:
         period_us = 1_000_000 // max(1, self.poll_hz)
         timeout_us = min(POLL_TIMEOUT_US, period_us * 4 // 5)
-        request = encode_frame(ADDR_FMCB, _STATUS.type_id, _STATUS.build_request())
+        request = _STATUS.request_frame(ADDR_FMCB)
         for link in self.links:
             if link.power == FingerPower.OFF or not link.idle:
                 continue  # a routed transaction owns the link: skip, not a miss
@@ -366,7 +366,7 @@ class PalmApp(HandNode):
 
     def _send_cap(self, link: FingerLink) -> None:
         cap = self.governor.cap
-        frame = encode_frame(ADDR_FMCB, _EFFORT_CAP.type_id, _EFFORT_CAP.build_request(cap=cap))
+        frame = _EFFORT_CAP.request_frame(ADDR_FMCB, cap=cap)
         link.post(frame, key=_EFFORT_CAP.type_id)
         link.cap_sent = cap
 

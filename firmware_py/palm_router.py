@@ -30,11 +30,19 @@ from typing import Final
 
 from firmware_py.hal import Clock, Timer, Uart
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_BROADCAST, ADDR_FMCB, ADDR_HOST, OVERHEAD, Frame, encode_frame
+from protocol.framing import OVERHEAD, Frame
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import TUNNEL_MAX
 from protocol.messages.palm import FingerPower, RouteStatus
 from protocol.stream import StreamDecoder, decode_all
+from protocol.topology import (
+    ADDR_BROADCAST,
+    ADDR_FMCB,
+    ADDR_HOST,
+    HOP_NODE,
+    Hop,
+    wire_time_us,
+)
 
 #: Transactions that may wait behind the one in flight, per finger.
 QUEUE_DEPTH: Final = 4
@@ -46,15 +54,9 @@ FMCB_TURNAROUND_US: Final = 500
 LINK_GAP_US: Final = 10_000
 
 _TUNNEL = CATALOGUE.by_name("fmcb.tunnel")
-_HOP_NODE = {0: "fmcb", 1: "f2", 2: "f3"}
 
 DoneCallback = Callable[[Frame | None, int], None]
 """Called once per transaction with the reply frame (or None) and a route status code."""
-
-
-def wire_time_us(n_bytes: int, baud: int) -> int:
-    """Time ``n_bytes`` UART characters (10 bits each) take on the line (µs, rounded up)."""
-    return -(-n_bytes * 10 * 1_000_000 // baud)
 
 
 @dataclass
@@ -237,7 +239,7 @@ def _expects_reply(hop: int, inner: Frame) -> bool:
     """True if the node behind ``hop`` answers ``inner`` (per the catalogue)."""
     if inner.address == ADDR_BROADCAST:
         return False
-    msg = CATALOGUE.lookup(_HOP_NODE[hop], inner.type)
+    msg = CATALOGUE.lookup(HOP_NODE[Hop(hop)], inner.type)
     return msg is None or msg.reply is not None
 
 
@@ -262,7 +264,7 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
     carries at most :data:`TUNNEL_MAX` bytes).
     """
     wants = timeout_ms > 0 and _expects_reply(hop, inner)
-    if hop == 0:
+    if hop == Hop.FMCB:
         def hop0_done(frame: Frame | None, status: int) -> None:
             respond(status, frame.to_bytes() if frame is not None else b"")
 
@@ -271,8 +273,7 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
         return None
     request_bytes = OVERHEAD + 4 + len(raw)  # u16 length, u16 max_ms, data
     max_ms = tunnel_max_ms(timeout_ms, request_bytes, baud) if wants else 0
-    frame = encode_frame(ADDR_FMCB, _TUNNEL.type_id,
-                         _TUNNEL.build_request(data=raw, max_ms=max_ms))
+    frame = _TUNNEL.request_frame(ADDR_FMCB, data=raw, max_ms=max_ms)
     # With no reply wanted the palm still waits for the fmcb's (empty) tunnel answer, so that
     # answer cannot be mistaken for the next tunnel's.
     wait_us = timeout_ms * 1000 if wants else (

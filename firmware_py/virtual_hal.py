@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 from firmware_py import hal
 from firmware_py.errors import FlashError, HalError
 from firmware_py.scheduler import Scheduler, TimerHandle
+from protocol.topology import wire_time_us
 
-#: Bits on the wire per UART character (start, 8 data, stop).
-BITS_PER_CHAR = 10
 #: Time to erase and program one flash page (µs); SAM3S datasheet order of magnitude.
 PAGE_WRITE_US = 2_000
 
@@ -94,7 +93,7 @@ class VirtualUart(hal.Uart):
 
     def wire_time_us(self, n_bytes: int) -> int:
         """Time ``n_bytes`` occupy the line (µs, rounded up)."""
-        return -(-n_bytes * BITS_PER_CHAR * 1_000_000 // self.baud)
+        return wire_time_us(n_bytes, self.baud)
 
     def send(self, data: bytes) -> None:
         """Transmit ``data``; it arrives (``sink``, ``peer``) after its wire time.  A UART

@@ -20,12 +20,8 @@ from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
 from protocol.robot import STEPPER_REDUCTIONS, reduction_x100
+from protocol.topology import ARM_BUS_BAUD, SERVO_IDS, STEPPER_IDS
 
-#: Bus IDs of the stepper joints (J1–J4) and of the RX-64 servos (J5–J7).
-STEPPER_IDS: Final = (1, 2, 3, 4)
-SERVO_IDS: Final = (5, 6, 7)
-#: The arm bus's bit rate (bit/s).
-ARM_BAUD: Final = 1_000_000
 #: Time from the last bit of a frame to the receivers having it (µs): transceiver delay.
 ARM_TURNAROUND_US: Final = 2
 
@@ -38,7 +34,7 @@ class ArmRig(HostSide):
     """
 
     def __init__(self, scheduler: Scheduler | None = None, seed: int = 0,
-                 baud: int = ARM_BAUD) -> None:
+                 baud: int = ARM_BUS_BAUD) -> None:
         super().__init__(scheduler or Scheduler())
         self.bus = Rs485Bus(self.scheduler, baud=baud, turnaround_us=ARM_TURNAROUND_US,
                             seed=seed)

@@ -23,10 +23,8 @@ from firmware_py.virtual_hal import VirtualCan, VirtualHal, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
+from protocol.topology import FINGERS, TENDON_BAUD, TENDON_MANCHESTER
 
-FINGERS = 4
-#: The tendon bus's data bit rate (bit/s); Manchester doubles the chip rate on the wire.
-TENDON_BAUD = 2_000_000
 #: Supply current of one running phalange board through the tendons (mA): MCU, IMU and
 #: taxel LEDs; the fmcb's phalange switch reports the sum (its breaker trips at 200 mA).
 PHALANGE_LOAD_MA = 35
@@ -197,7 +195,8 @@ def wire_tendon_bus(finger: Finger, line_model: bool, seed: int = 0) -> None:
     master = _hal(finger.fmcb).uart("tendon")
     phalanges = [_hal(finger.f2).uart("tendon"), _hal(finger.f3).uart("tendon")]
     if line_model:
-        bus = Rs485Bus(master.scheduler, baud=TENDON_BAUD, seed=seed, line_code="manchester")
+        bus = Rs485Bus(master.scheduler, baud=TENDON_BAUD, seed=seed,
+                       line_code="manchester" if TENDON_MANCHESTER else "nrz")
         bus.attach(master, "fmcb")
         bus.attach(phalanges[0], "f2")
         bus.attach(phalanges[1], "f3")

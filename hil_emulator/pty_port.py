@@ -21,14 +21,14 @@ from collections import deque
 from pathlib import Path
 from types import TracebackType
 
-BITS_PER_BYTE = 10  # start + 8 data + stop
+from protocol.topology import BITS_PER_CHAR
 
 
 def byte_time_s(baud: int) -> float:
-    """Seconds one byte occupies on a line at ``baud`` (10 bits per byte)."""
+    """Seconds one byte occupies on a line at ``baud`` (8N1: :data:`BITS_PER_CHAR` bits)."""
     if baud <= 0:
         raise ValueError(f"baud must be positive, got {baud}")
-    return BITS_PER_BYTE / baud
+    return BITS_PER_CHAR / baud
 
 
 class PtyPort:

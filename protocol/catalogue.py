@@ -23,11 +23,14 @@ import construct as c
 from protocol.enum_field import EnumField
 from protocol.errors import PayloadError, UnknownMessageError, wrap_construct
 from protocol.flat_codec import FlatCodec, flat_codec
+from protocol.framing import encode_frame
+from protocol.topology import ADDR_HOST, NodeKind
 
-#: Node kinds that speak hand frames.  "common" messages are understood by all of them.
-NODES: Final = ("common", "palm", "fmcb", "f2", "f3", "bootloader")
+#: Message namespaces: every hand node kind (:class:`~protocol.topology.NodeKind`) and the
+#: bootloader they all run; "common" messages are understood by all of them.
+NODES: Final = ("common", *(kind.value for kind in NodeKind), "bootloader")
 #: Node kinds whose type ids fall back to the "common" ones.
-_FALLS_BACK_TO_COMMON: Final = frozenset({"palm", "fmcb", "f2", "f3", "bootloader"})
+_FALLS_BACK_TO_COMMON: Final = frozenset(NODES) - {"common"}
 
 REQUEST: Final = "request"
 REPLY: Final = "reply"
@@ -108,6 +111,16 @@ class Message:
     def build_reply(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
         """Reply payload bytes (node → host)."""
         return self.build(REPLY, fields, **kw)
+
+    def request_frame(self, address: int, fields: Mapping[str, Any] | None = None,
+                      **kw: Any) -> bytes:
+        """The whole hand frame carrying this request to ``address``: sync, address, length,
+        type, payload built from ``fields`` and/or keywords, CRC."""
+        return encode_frame(address, self.type_id, self.build(REQUEST, fields, **kw))
+
+    def reply_frame(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
+        """The whole hand frame carrying this reply to the host (address 0)."""
+        return encode_frame(ADDR_HOST, self.type_id, self.build(REPLY, fields, **kw))
 
     def parse_request(self, payload: bytes) -> dict[str, Any]:
         """Request payload → dict."""

@@ -31,6 +31,7 @@ from typing import Any
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
 from protocol.robot import motor_to_joint, rad_to_encoder_counts
+from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS, FINGERS, HOP_ADDRESS, STEPPER_IDS, Hop
 from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,13 +74,13 @@ def hand_session(palm_path: str) -> int:
         answered += 1
         states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
         say(f"finger power on: {states}")
-        for k in range(4):
-            reply = until(functools.partial(hand.route, k, 0, "identify"), 10)
+        for k in range(FINGERS):
+            reply = until(functools.partial(hand.route, k, Hop.FMCB, "identify"), 10)
             say(f"finger {k} fmcb {describe(reply)}")
             answered += 1
-            hand.route(k, 0, "fmcb.phalange_power", on=1)
-        for k in range(4):
-            for hop, name in ((1, "f2"), (2, "f3")):
+            hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
+        for k in range(FINGERS):
+            for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
                 reply = until(functools.partial(hand.route, k, hop, "identify"), 10)
                 say(f"finger {k} {name}   {describe(reply)}")
                 answered += 1
@@ -95,13 +96,11 @@ def hand_session(palm_path: str) -> int:
 
 def _move_finger(hand: HandPort) -> None:
     """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
-    from protocol.framing import encode_frame
     from protocol.messages import CATALOGUE
 
-    control = CATALOGUE["fmcb.control"]
-    inner = encode_frame(10, control.type_id,
-                         control.build_request({"mode": 2, "args": {"target": FINGER_TARGET}}))
-    reply = hand.request("palm.route", finger=1, hop=0, timeout_ms=0, frame=inner)
+    inner = CATALOGUE["fmcb.control"].request_frame(
+        HOP_ADDRESS[Hop.FMCB], {"mode": 2, "args": {"target": FINGER_TARGET}})
+    reply = hand.request("palm.route", finger=1, hop=Hop.FMCB, timeout_ms=0, frame=inner)
     say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
         f"{reply['status']}")
     time.sleep(2.0)
@@ -111,28 +110,29 @@ def arm_session(arm_path: str) -> int:
     from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
     port = PortHandler(arm_path)
-    if not (port.openPort() and port.setBaudRate(1_000_000)):
+    if not (port.openPort() and port.setBaudRate(ARM_BUS_BAUD)):
         say(f"cannot open the arm port {arm_path}")
         return 1
     sdk = PacketHandler(1.0)
     ok = 0
     try:
         start: dict[int, int] = {}
-        for dxl_id in range(1, 8):
-            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
+        for joint in ARM_JOINTS:
+            dxl_id = joint.dxl_id
+            table = STEPPER_TABLE if joint.is_stepper else RX64_TABLE
             model, result, error = sdk.ping(port, dxl_id)
             if result != COMM_SUCCESS:
                 say(f"arm id {dxl_id}: no answer ({sdk.getTxRxResult(result)})")
                 continue
             start[dxl_id] = _position(sdk, port, dxl_id)
             sdk.write1ByteTxRx(port, dxl_id, table["torque_enable"].address, 1)
-            kind = "stepper joint" if dxl_id <= 4 else "RX-64 servo"
+            kind = "stepper joint" if joint.is_stepper else "RX-64 servo"
             say(f"arm id {dxl_id}: model {model:#06x} ({kind}), position {start[dxl_id]}, "
                 f"error byte {error}")
             ok += 1
         for dxl_id, delta in ARM_MOVES.items():
-            table = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
-            size = 4 if dxl_id <= 4 else 2
+            table = STEPPER_TABLE if dxl_id in STEPPER_IDS else RX64_TABLE
+            size = 4 if dxl_id in STEPPER_IDS else 2
             goal = start[dxl_id] + delta
             write = sdk.write4ByteTxRx if size == 4 else sdk.write2ByteTxRx
             write(port, dxl_id, table["goal_position"].address, goal & (2 ** (8 * size) - 1))
@@ -147,11 +147,11 @@ def arm_session(arm_path: str) -> int:
     finally:
         port.closePort()
     say(f"arm: {ok} of 7 nodes answered; {moved} of {len(ARM_MOVES)} joints reached their goal")
-    return 0 if ok == 7 and moved == len(ARM_MOVES) else 1
+    return 0 if ok == len(ARM_JOINTS) and moved == len(ARM_MOVES) else 1
 
 
 def _position(sdk: Any, port: Any, dxl_id: int) -> int:
-    if dxl_id <= 4:
+    if dxl_id in STEPPER_IDS:
         value, _, _ = sdk.read4ByteTxRx(port, dxl_id, STEPPER_TABLE["present_position"].address)
         return int(value) - (1 << 32) if value & 0x8000_0000 else int(value)
     value, _, _ = sdk.read2ByteTxRx(port, dxl_id, RX64_TABLE["present_position"].address)

@@ -26,10 +26,11 @@ from typing import Any, BinaryIO
 
 from protocol.catalogue import REPLY, REQUEST
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, encode_frame
+from protocol.framing import DEFAULT_MAX_PAYLOAD
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
 from tools.cli_values import FieldValueError, build_fields
 
 
@@ -152,11 +153,13 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     if con is None:
         raise UsageError(f"{msg.name} has no {direction}")
     fields = build_fields(con, args.fields)
-    payload = msg.build(direction, fields)
-    address = ADDR_HOST if args.reply else args.addr
-    if address is None:
-        raise UsageError("--addr is required for a request (fmcb/palm 10, f2 1, f3 2)")
-    frame = encode_frame(address, msg.type_id, payload)
+    if args.reply:
+        frame = msg.reply_frame(fields)
+    elif args.addr is None:
+        raise UsageError(f"--addr is required for a request (fmcb/palm {ADDR_FMCB}, "
+                         f"f2 {ADDR_F2}, f3 {ADDR_F3})")
+    else:
+        frame = msg.request_frame(args.addr, fields)
     print(frame.hex(" ") if args.spaced else frame.hex(), file=out)
     return 0
 

@@ -15,15 +15,11 @@ import construct as c
 from protocol.catalogue import Message
 from protocol.enum_field import EnumField
 from protocol.messages.fields import EMPTY
+from protocol.topology import FINGERS, Hop
 
-FINGERS = 4
 PALM_TAXELS = 32
 #: Largest routed frame (bytes): a tunnel request with 512 data bytes plus framing.
 ROUTE_MAX_FRAME = 540
-
-#: Hops behind a finger's pogo link.
-HOPS = {0: "fmcb", 1: "f2", 2: "f3"}
-
 
 class FingerPower(IntEnum):
     """Power state of a finger's supply: off, low (9 V, current-limited) or full (24 V)."""
@@ -98,13 +94,13 @@ MESSAGES = [
         0x62,
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3",
-            "hop" / c.Int8ul * "[-] 0 fmcb, 1 f2, 2 f3",
+            "hop" / EnumField(c.Int8ul, Hop) * "[-] the node behind the finger's pogo link",
             "timeout_ms" / c.Int16ul * "[ms] how long to wait for the reply (0: no reply)",
             "frame" / c.GreedyBytes * "[-] a complete hand frame for that node",
         ),
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3",
-            "hop" / c.Int8ul * "[-] 0 fmcb, 1 f2, 2 f3",
+            "hop" / EnumField(c.Int8ul, Hop) * "[-] the node behind the finger's pogo link",
             "status" / EnumField(c.Int8ul, RouteStatus) * "[-] outcome of the route",
             "frame" / c.GreedyBytes * "[-] the complete reply frame heard (empty unless ok)",
         ),

@@ -22,11 +22,11 @@ from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
-from protocol.framing import ADDR_BROADCAST, encode_frame
 from protocol.image import MAX_PAYLOAD, BoardType, ImageHeader, Version, make_image, split_pages
 from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import BootState
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 UPSTREAM = {BoardType.FMCB: "pogo", BoardType.F2: "tendon", BoardType.F3: "tendon",
             BoardType.PALM: "host"}
@@ -82,7 +82,7 @@ def run(mcu: Mcu, us: int) -> None:
 def send(mcu: Mcu, name: str, address: int | None = None, **fields: Any) -> None:
     msg = CATALOGUE[name]
     addr = ADDRESS[BoardType(mcu.identity.board)] if address is None else address
-    upstream(mcu).deliver(encode_frame(addr, msg.type_id, msg.build_request(fields)))
+    upstream(mcu).deliver(msg.request_frame(addr, fields))
 
 
 def replies(mcu: Mcu, name: str) -> list[dict[str, Any]]:

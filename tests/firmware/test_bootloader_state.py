@@ -27,7 +27,6 @@ from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualFlash, VirtualHal
 from protocol.errors import ImageError
-from protocol.framing import encode_frame
 from protocol.image import BoardType, make_image, parse_header, split_pages
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
@@ -93,7 +92,7 @@ class BootloaderMachine(RuleBasedStateMachine):
         msg = CATALOGUE[name]
         uart = self.hal.uart("pogo")
         uart.take_sent()
-        uart.deliver(encode_frame(ADDRESS, msg.type_id, msg.build_request(fields)))
+        uart.deliver(msg.request_frame(ADDRESS, fields))
         self.hal.scheduler.run_for(run_us)
         frames = decode_all(b"".join(uart.take_sent()))
         return [msg.parse_reply(f.payload) for f in frames if f.type == msg.type_id]

@@ -380,12 +380,11 @@ def test_autopoll_slow_polls_fill_strain_and_temperatures(rig: Rig) -> None:
     rig.send("fmcb.phalange_power", {"on": 1})
     rig.send("fmcb.autopoll", {"on": 1})
     answers = {
-        (1, 0x10): encode_frame(0, 0x10, CATALOGUE["f2.tactile"].build_reply(
-            taxels=[1] * 6, imu={"accel": [0] * 3, "mag": [0] * 3})),
+        (1, 0x10): CATALOGUE["f2.tactile"].reply_frame(
+            taxels=[1] * 6, imu={"accel": [0] * 3, "mag": [0] * 3}),
         (2, 0x10): f3_reply([2] * 12),
-        (1, 0x13): encode_frame(0, 0x13, CATALOGUE["f2.strain"].build_reply(strain=-12345)),
-        (2, 0x22): encode_frame(0, 0x22, CATALOGUE["f3.temperatures"].build_reply(
-            temp=[2000, 2001, 2002, 2003])),
+        (1, 0x13): CATALOGUE["f2.strain"].reply_frame(strain=-12345),
+        (2, 0x22): CATALOGUE["f3.temperatures"].reply_frame(temp=[2000, 2001, 2002, 2003]),
     }
     for _ in range(1010):  # a phalange pair answering every request 100 µs later
         for f in rig.tendon_frames():

@@ -17,11 +17,12 @@ from firmware_py.hand_node import (
 from firmware_py.identity import default_identity
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal
-from protocol.framing import ADDR_BROADCAST, Frame, encode_frame
+from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 from protocol.messages.common import TxnStatus
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 ADDR = 10  # every fmcb
 UID = 0x12345678

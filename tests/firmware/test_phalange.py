@@ -20,10 +20,11 @@ from firmware_py.phalange import (
 )
 from firmware_py.scheduler import Scheduler
 from firmware_py.virtual_hal import VirtualHal, VirtualSensors
-from protocol.framing import ADDR_BROADCAST, Frame, encode_frame
+from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 F2_ADDR, F3_ADDR = 1, 2
 BOARDS: dict[str, tuple[BoardType, type[F2App | F3App], int, int]] = {"f2": (BoardType.F2, F2App, F2_ADDR, 6), "f3": (BoardType.F3, F3App, F3_ADDR, 12)}

@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
-from protocol.framing import encode_frame
 from protocol.messages import CATALOGUE
+from protocol.topology import ADDR_FMCB, ADDR_PALM
 from tests.hil_emulator.emulator_process import running_emulator
 from tools.hand_port import HandPort, ReplyTimeout
 
@@ -158,7 +158,7 @@ def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
     import serial
 
     status = CATALOGUE["fmcb.status"]
-    request = encode_frame(10, status.type_id, status.build_request({}))
+    request = status.request_frame(ADDR_FMCB)
     wire_s = (len(request) + 148 + 7) * 10 / 2_000_000
     with running_emulator("--config", "loose-finger") as info:
         with HandPort(info["fingers"][0]) as finger:
@@ -193,7 +193,7 @@ def test_python_can_slcan_reaches_the_palm() -> None:
                       sleep_after_open=0)
         try:
             ident = CATALOGUE["identify"]
-            frame = encode_frame(10, ident.type_id, ident.build_request({}))
+            frame = ident.request_frame(ADDR_PALM)
             rx = CanReassembler()
             deadline = time.monotonic() + 10
             reply = None

@@ -21,6 +21,7 @@ from protocol.messages.bootloader import BootResult, BootState, ImageStatus, Wri
 from protocol.messages.common import Running, TxnStatus
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import FingerEvent, FingerPower, RouteStatus
+from protocol.topology import Hop
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ CASES = [
     Case("palm.route", REPLY, "status", RouteStatus.NO_REPLY,
          lambda v: {"finger": 1, "hop": 2, "status": v, "frame": b""},
          bytes([0x01, 0x02, 0x01]), 2),
+    Case("palm.route", REQUEST, "hop", Hop.F3,
+         lambda v: {"finger": 2, "hop": v, "timeout_ms": 20, "frame": b""},
+         bytes([0x02, 0x02, 0x14, 0x00]), 1),
     Case("palm.finger_power", REQUEST, "state", FingerPower.FULL,
          lambda v: {"finger": 0xFF, "state": v, "stagger_ms": 100},
          bytes([0xFF, 0x02, 0x64, 0x00]), 1),
@@ -112,7 +116,7 @@ def test_every_enum_of_the_catalogue_has_a_case() -> None:
     in_catalogue = {e for msg in CATALOGUE for con in (msg.request, msg.reply)
                     for e in _enums_in(con)}
     assert in_catalogue == {RouteStatus, FingerPower, FingerEvent, ControlMode, TxnStatus,
-                            BoardType, Running, BootState, ImageStatus, BootResult, WriteStatus}
+                            BoardType, Running, BootState, ImageStatus, BootResult, WriteStatus, Hop}
     assert {type(case.code) for case in CASES} == in_catalogue
 
 

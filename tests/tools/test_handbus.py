@@ -271,7 +271,7 @@ def test_coded_fields_decode_to_names_that_encode_back(
                      encode_frame(0, 0x62, bytes([1, 2, 0x99])))
     _, out, _ = run_main(["decode", "--node", "palm", str(path)], capsys)
     known, unknown = json_lines(out)[:2]
-    assert known["fields"] == {"finger": 1, "hop": 2, "status": "NO_REPLY", "frame": ""}
+    assert known["fields"] == {"finger": 1, "hop": "F3", "status": "NO_REPLY", "frame": ""}
     assert unknown["fields"]["status"] == 0x99
     code, out, err = run_main(["encode", "palm.route", "--reply", "finger=1", "hop=2",
                                "status=NO_REPLY", "frame="], capsys)
