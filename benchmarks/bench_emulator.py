@@ -1,6 +1,6 @@
 """The emulator under nominal traffic: real-time factor (fast mode) and lateness (real time).
 
-Nominal traffic, as the issue defines it: the four fmcbs run their 1 kHz control loops in
+Nominal traffic (the load the speed targets are stated for): the four fmcbs run their 1 kHz control loops in
 joint mode (holding a pose) and their 100 Hz autopoll of both phalanges (fingers and
 phalanges powered and booted), and the host reads the arm at 100 Hz (one BULK_READ of the
 seven present positions every 10 ms).  *Heavy* traffic adds the palm polling every
