@@ -23,7 +23,9 @@ Errors (all in :mod:`host.errors`' tree):
   *alarms*: the node reports them in every status packet until the cause is cleared, so
   they are returned in the :class:`~protocol.dynamixel.StatusPacket` (``errors``), never
   raised - a host must be able to read an overheating servo;
-* :class:`~host.errors.NodeError` - a reply that does not fit the request (wrong length).
+* :class:`~host.errors.NodeError` - a reply that does not fit the request (wrong data
+  length) and no fitting one by the deadline.  A misfit is first taken for a late reply to
+  an earlier request and skipped.
 """
 
 from __future__ import annotations
@@ -190,9 +192,13 @@ class DynamixelBus:
         deadline = start + self.wire_time(len(raw)) + self.reply_time(expected) + self.latency_s
         replies: list[StatusPacket] = []
         want = 0
+        misfit: StatusPacket | None = None
         while True:
             remaining = deadline - transport.now()
             if remaining <= 0:
+                if misfit is not None:
+                    raise NodeError(f"node {misfit.id} answered {len(misfit.params)} data "
+                                    f"bytes, {expected[want].length} expected")
                 return None
             data = transport.recv(remaining)
             if not data:
@@ -202,23 +208,25 @@ class DynamixelBus:
             for decoded in self._decoder.feed(data):
                 status = decoded.packet
                 assert isinstance(status, StatusPacket)
-                if status.id != expected[want].dxl_id:
+                expect = expected[want]
+                if status.id != expect.dxl_id:
                     continue  # not the node whose turn it is: noise or a late reply
-                self._check(status, expected[want])
+                if len(status.params) != expect.length:
+                    misfit = status  # a late reply to an earlier request, or a wrong node
+                    continue
+                self._check(status)
                 replies.append(status)
                 want += 1
+                misfit = None
                 if want == len(expected):
                     return replies
 
-    def _check(self, status: StatusPacket, expect: Expect) -> None:
+    def _check(self, status: StatusPacket) -> None:
         refused = status.error & REQUEST_ERRORS
         if refused:
             names = ", ".join(error_names(status.error))
             raise DynamixelNodeError(f"node {status.id} refused the request ({names})",
                                      dxl_id=status.id, error=status.error)
-        if len(status.params) != expect.length:
-            raise NodeError(f"node {status.id} answered {len(status.params)} data bytes, "
-                            f"{expect.length} expected")
 
     # ------------------------------------------------------------------ instructions
 
