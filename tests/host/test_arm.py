@@ -120,3 +120,22 @@ def test_armctl_says_what_to_do_when_the_port_is_missing(
     assert armctl.main(["--port", "/nonexistent/arm", "status"]) == armctl.EXIT_ROBOT
     err = capsys.readouterr().err
     assert err.startswith("armctl: ") and "check the path" in err and "Traceback" not in err
+
+
+def test_armctl_record_writes_raw_bytes_and_states(arm: Arm, tmp_path: object) -> None:
+    from pathlib import Path
+
+    from mcap.reader import make_reader
+
+    from protocol.dynamixel import DynamixelStreamDecoder
+
+    path = Path(str(tmp_path)) / "arm.mcap"
+    assert armctl.main(["--port", URL, "record", str(path), "--seconds", "0.1"],
+                       out=io.StringIO()) == 0
+    with path.open("rb") as stream:
+        messages = [(ch.topic, msg.data) for _, ch, msg in make_reader(stream).iter_messages()]
+    states = [json.loads(d) for t, d in messages if t == "/arm/state"]
+    assert len(states) == 10 and all(len(s["joints"]) == 7 for s in states)
+    decoder = DynamixelStreamDecoder("status")
+    replies = [p for t, d in messages if t == "/arm/bus/rx" for p in decoder.feed(d)]
+    assert len(replies) == 7 * 10
