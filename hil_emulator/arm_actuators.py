@@ -48,6 +48,7 @@ import numpy as np
 from hil_emulator.errors import EmulatorConfigError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
+    SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
     STEPPER_FULL_STEPS_PER_REV,
     STEPPER_MICROSTEPPING,
     STEPPER_REDUCTIONS,
@@ -85,9 +86,9 @@ class ArmParams:
     ``holding_current = run_current`` gives the dissertation's 1.6 margin at standstill.
     """
 
-    #: Coupling stiffness (N·m/rad): the elbow's is the dissertation's 86; the shoulder's
-    #: makes 15 g at the outstretched wrist move the J2 encoder by about a count.
-    stiffness: np.ndarray = field(default_factory=lambda: _vec((160.0, 200.0, 110.0, 86.0)))
+    #: Coupling stiffness (N·m/rad), :data:`protocol.robot.SERIES_ELASTIC_STIFFNESS_NM_PER_RAD`.
+    stiffness: np.ndarray = field(
+        default_factory=lambda: _vec(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD))
     #: Viscous damping of the polyurethane (N·m·s/rad): damping ratio ~0.04 for J2 and the
     #: elbow, more for the lighter J1/J3 loads.
     damping: np.ndarray = field(default_factory=lambda: _vec((0.8, 1.2, 0.25, 0.2)))

@@ -28,19 +28,20 @@ from typing import Final, Literal
 from host.dynamixel_bus import error_names
 from protocol.control_tables import StepperFlag
 from protocol.dynamixel import ErrorBit
+from protocol.robot import ARM_JOINT_NAMES, SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
+from protocol.topology import ARM_JOINTS
 
 #: Number of joints and how many of them are stepper joints (J1..J4).
 N_JOINTS: Final = 7
 N_STEPPERS: Final = 4
 #: Joint names, proximal first.
-JOINT_NAMES: Final = ("J1", "J2", "J3", "J4", "J5", "J6", "J7")
+JOINT_NAMES: Final = ARM_JOINT_NAMES
 #: Bus ID of each joint.
-JOINT_IDS: Final = (1, 2, 3, 4, 5, 6, 7)
+JOINT_IDS: Final = tuple(joint.dxl_id for joint in ARM_JOINTS)
 #: Coupling stiffness of the stepper joints J1..J4 (N·m/rad): the series-elastic element's
 #: torque per rad of deflection (the elbow's 86 N·m/rad as measured on the arm; the others
 #: as the emulator's plant models them).
-# TODO(merge): from protocol.robot
-DEFAULT_STIFFNESS_NM_PER_RAD: Final = (160.0, 200.0, 110.0, 86.0)
+DEFAULT_STIFFNESS_NM_PER_RAD: Final = SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
 
 Kind = Literal["stepper", "servo"]
 

@@ -222,6 +222,11 @@ ARM_JOINT_LIMITS: Final[tuple[Range, ...]] = (
     (-2.60, 2.60), (-2.60, 2.60), (-2.60, 2.60))
 #: Effective reductions of J1–J4 (motor revs per joint rev): timing belt × cable circuit.
 STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
+#: Stiffness of the series-elastic couplings of J1–J4 (N·m/rad): torque per rad of deflection
+#: between the motor side (steps ÷ reduction) and the joint encoder.  The elbow's (J4) 86 is
+#: the dissertation's; the shoulder's makes 15 g at the outstretched wrist move the J2
+#: encoder by about a count.
+SERIES_ELASTIC_STIFFNESS_NM_PER_RAD: Final = (160.0, 200.0, 110.0, 86.0)
 #: Stepper full steps per motor revolution (1.8° motors).
 STEPPER_FULL_STEPS_PER_REV: Final = 200
 #: Microsteps per full step of the stepper drivers.
