@@ -54,7 +54,7 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.virtual_hal import VirtualEncoder, VirtualHal
+from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, RX64_RANGE_RAD
 from hil_emulator.errors import EmulatorConfigError, PlantError

@@ -44,7 +44,7 @@ import numpy as np
 
 from firmware_py.fmcb_control import HALL_SEQUENCE, HALL_STATES_PER_RAD
 from firmware_py.mcu import Mcu
-from firmware_py.virtual_hal import VirtualHal, VirtualMotor
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualMotor
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.hand_model import (
     DEFAULT_MOTOR,
