@@ -255,7 +255,7 @@ def wire_phalange_power(finger: Finger) -> None:
                 node.power_on()
             else:
                 node.power_off()
-        switch.load_ma = PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3))
+        switch.set_load_ma(PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3)))
 
     switch.on_change.append(switched)
 
