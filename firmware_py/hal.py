@@ -3,7 +3,7 @@
 Firmware sees a :class:`Hal`: a clock with timers, UARTs with automatic transmit-enable,
 power switches, flash with the SAM3S's constraints, sensors, motor drivers, a stepper pulse
 generator with its counter, a quadrature encoder with index capture, a watchdog and reset.
-:mod:`firmware_py.virtual_hal` implements it in memory for tests; the emulator implements
+:mod:`firmware_py.sim.virtual_hal` implements it in memory for tests; the emulator implements
 it on the MuJoCo plant and the bus fabric.  Firmware never imports MuJoCo, pyserial or the
 emulator.
 
@@ -60,6 +60,11 @@ class Uart(ABC):
 
     #: Bits per second on the line.
     baud: int = 2_000_000
+
+    @abstractmethod
+    def wire_time_us(self, n_bytes: int) -> int:
+        """Time ``n_bytes`` occupy the line at this UART's baud and character framing (µs,
+        rounded up): the UART knows its own timing."""
 
     @abstractmethod
     def send(self, data: bytes) -> None:

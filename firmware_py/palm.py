@@ -82,6 +82,9 @@ class CanLink(Uart):
         self.node = node
         self.tx_id = can_id(node, to_host=True)
 
+    def wire_time_us(self, n_bytes: int) -> int:  # pragma: no cover - never used
+        raise HalError("the CAN link has no character timing; its controller paces frames")
+
     def send(self, data: bytes) -> None:
         for chunk in segment(data):
             self.can.send(self.tx_id, chunk)

@@ -13,9 +13,10 @@ from __future__ import annotations
 
 from typing import Final
 
-from firmware_py.dynamixel_slave import DynamixelSlave, make_arm_node
+from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal, VirtualUart
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType

@@ -8,7 +8,7 @@
 ``loose-finger``  one finger module on a bench, its pogo bus on a 2 Mbaud port (the
                   original's 'loose finger' cable): ``fingers[0]``.
 
-Every node runs its real ``firmware_py`` program on a :class:`~firmware_py.virtual_hal.VirtualHal`
+Every node runs its real ``firmware_py`` program on a :class:`~firmware_py.sim.virtual_hal.VirtualHal`
 driven by one :class:`~firmware_py.scheduler.Scheduler` (integer µs); the plant
 (:mod:`hil_emulator.plant`) ticks on the same clock.  :meth:`Emulator.run` serves the ports
 either paced to the wall clock (``realtime=True``: programs with wall-clock timeouts work) or

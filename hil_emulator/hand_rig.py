@@ -15,11 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_py.boards import make_node
 from firmware_py.mcu import Mcu
 from firmware_py.phalange import HOLD_UP_US
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualCan, VirtualHal, VirtualUart
+from firmware_py.sim.boards import make_node
+from firmware_py.sim.virtual_hal import VirtualCan, VirtualHal, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
@@ -254,7 +254,7 @@ def wire_phalange_power(finger: Finger) -> None:
                 node.power_on()
             else:
                 node.power_off()
-        switch.load_ma = PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3))
+        switch.set_load_ma(PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3)))
 
     switch.on_change.append(switched)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from firmware_py.virtual_hal import VirtualCan, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
 from hil_emulator.pty_port import PtyPort, make_link, remove_links
 from hil_emulator.slcan_adapter import SlcanAdapter

@@ -8,7 +8,6 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import default_image, install_image, make_node
 from firmware_py.bootloader import AUTOBOOT_US, Bootloader, inspect_image
 from firmware_py.flash_layout import (
     BOOT_CONTROL_PAGE,
@@ -21,7 +20,8 @@ from firmware_py.hal import Hal
 from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
+from firmware_py.sim.boards import default_image, install_image, make_node
+from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
 from protocol.image import MAX_PAYLOAD, BoardType, ImageHeader, Version, make_image, split_pages
 from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import BootState

@@ -12,14 +12,14 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import make_hal, make_node
 from firmware_py.flash_layout import PARAM_PAGE, page_address
 from firmware_py.fmcb import FmcbApp
 from firmware_py.fmcb_control import HallCounter, min_cap, pd_effort
 from firmware_py.fmcb_params import FMCB_PARAMS, PARAM_SENTINEL, ParamTable
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_hal, make_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE

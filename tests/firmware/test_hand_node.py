@@ -6,7 +6,6 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import make_hal
 from firmware_py.hal import Hal
 from firmware_py.hand_node import (
     DEFERRED,
@@ -16,7 +15,8 @@ from firmware_py.hand_node import (
 )
 from firmware_py.identity import default_identity
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_hal
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE, CATALOGUE_HASH

@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import APP_PROGRAMS, load_program, make_hal
 from firmware_py.current_governor import FULL_CAP, CurrentGovernor
 from firmware_py.palm import PalmApp
 from firmware_py.palm_router import LOST_AFTER_MISSES, QUEUE_DEPTH, tunnel_max_ms
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import APP_PROGRAMS, load_program, make_hal
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.canlink import DEFAULT_PALM_NODE, CanReassembler, can_id, segment
 from protocol.framing import Frame, encode_frame, parse_frame
 from protocol.image import BoardType
@@ -476,7 +476,7 @@ def test_route_inside_a_txn_envelope_is_answered_with_its_sequence(palm: Palm) -
 
 
 def test_palm_boots_from_its_bootloader_and_answers() -> None:
-    from firmware_py.boards import make_node
+    from firmware_py.sim.boards import make_node
 
     sched = Scheduler()
     node = make_node(sched, BoardType.PALM)

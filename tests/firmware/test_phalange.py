@@ -6,7 +6,6 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import APP_PROGRAMS, load_program, make_hal, make_node
 from firmware_py.hal import Hal
 from firmware_py.mcu import Mcu
 from firmware_py.phalange import (
@@ -19,7 +18,8 @@ from firmware_py.phalange import (
     supply_interrupted,
 )
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal, VirtualSensors
+from firmware_py.sim.boards import APP_PROGRAMS, load_program, make_hal, make_node
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualSensors
 from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE

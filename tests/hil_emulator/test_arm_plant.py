@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from firmware_py.arm_stepper import StepperNodeApp
-from firmware_py.dynamixel_slave import make_arm_node
 from firmware_py.rx64 import Rx64ServoApp
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_model import (
     ARM_JOINTS,
     JOINT_RANGES,

@@ -14,12 +14,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from firmware_py.boards import make_node
 from firmware_py.fmcb import FmcbApp
 from firmware_py.fmcb_control import HallCounter
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand_model import (
