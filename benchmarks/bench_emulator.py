@@ -29,6 +29,7 @@ from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL
 from protocol.messages import CATALOGUE
+from protocol.messages.fmcb import ControlMode
 from protocol.topology import (
     ARM_BUS_BAUD,
     ARM_JOINTS,
@@ -64,7 +65,7 @@ def _arm_write(k: int) -> bytes:
 
 def _hold_pose(finger: int) -> bytes:
     """fmcb.control joint mode, targets 0 rad (the pose the fingers start in), routed."""
-    inner = CATALOGUE["fmcb.control"].request_frame(HOP_ADDRESS[Hop.FMCB], mode=2,
+    inner = CATALOGUE["fmcb.control"].request_frame(HOP_ADDRESS[Hop.FMCB], mode=ControlMode.JOINT,
                                                     args={"target": [0.0] * 3})
     return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=0, frame=inner)
 

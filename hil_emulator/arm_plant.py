@@ -13,7 +13,7 @@ Stepper joints J1–J4, every 1 ms tick (:meth:`ArmPlant.before_step`):
   ``gear_reduction_x100 / 100``); positive steps turn the joint positive;
 * capstan angle ``φ`` adds the belt/cable coupling ``C·(q − q_start)``; the linear spring is
   MuJoCo joint stiffness about ``qpos_spring = φ`` (re-set every tick to its mid-tick value,
-  evaluated every 0.5 ms), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
+  evaluated once per 1 ms step), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
   applied; hysteresis, solid-tube and ``−Cᵀτ`` terms are applied forces;
 * the stepper's capacity follows its commanded current (``commanded_current_ma()``): holding
   torque at standstill, holding / 1.6 while stepping, the detent torque at 0 mA.  Beyond it

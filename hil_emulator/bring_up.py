@@ -17,6 +17,7 @@ from typing import Any, Final
 from firmware_py.mcu import Mcu
 from hil_emulator.errors import EmulatorError
 from protocol.messages import CATALOGUE
+from protocol.messages.palm import FingerPower
 from protocol.topology import ADDR_PALM, HOP_ADDRESS, Hop
 
 #: Time a hand node needs from power-up to its application (µs): the 3 s autoboot window.
@@ -44,7 +45,7 @@ def bring_up(hand: Any | None, loose: Any | None, step: Callable[[int], None],
     not running its application afterwards."""
     if hand is not None:
         step(BOOT_US)
-        hand.send_from_host(request("palm.finger_power", finger=0xFF, state=2,
+        hand.send_from_host(request("palm.finger_power", finger=0xFF, state=FingerPower.FULL,
                                     stagger_ms=STAGGER_MS))
         step(BOOT_US + 4 * STAGGER_MS * 1000)
         for finger in range(len(hand.fingers)):

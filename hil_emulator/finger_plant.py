@@ -206,7 +206,7 @@ class FingerPlant:
         """Resolve the module's names; write :attr:`params`' motor constants into ``model``.
 
         Raises :class:`PlantError` if the model integrates with explicit Euler or RK4: the
-        motors' back-EMF damping (time constant ≈ 0.16 ms) diverges there at 0.5 ms steps.
+        motors' back-EMF damping (time constant ≈ 0.16 ms) diverges there even at 0.5 ms steps.
         """
         if model.opt.integrator not in (mujoco.mjtIntegrator.mjINT_IMPLICIT,
                                         mujoco.mjtIntegrator.mjINT_IMPLICITFAST):

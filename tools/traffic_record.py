@@ -30,6 +30,7 @@ from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.messages import CATALOGUE
+from protocol.messages.fmcb import ControlMode
 from protocol.topology import ADDR_F2, ARM_JOINTS, FINGERS, HOP_ADDRESS, SERVO_IDS, STEPPER_IDS, Hop
 
 Record = dict[str, Any]
@@ -61,7 +62,7 @@ def _full_run(seed: int, out: list[Record]) -> None:
         for hop in (Hop.F2, Hop.F3):
             hand_send(request("palm.route", finger=finger, hop=hop, timeout_ms=20,
                               frame=CATALOGUE["identify"].request_frame(HOP_ADDRESS[hop])))
-    hand_send(routed(1, "fmcb.control", mode=2, args={"target": [0.3, 0.6, 0.4]}))
+    hand_send(routed(1, "fmcb.control", mode=ControlMode.JOINT, args={"target": [0.3, 0.6, 0.4]}))
     hand_send(request("palm.poll", rate_hz=50))
     emu.step(800_000)
     hand_send(routed(1, "fmcb.status"))
@@ -106,7 +107,7 @@ def _loose_run(seed: int, out: list[Record]) -> None:
     emu.bring_up()
     loose = emu.loose
     for frame in (request("identify"),
-                  request("fmcb.control", mode=2, args={"target": [0.2, 0.4, 0.2]})):
+                  request("fmcb.control", mode=ControlMode.JOINT, args={"target": [0.2, 0.4, 0.2]})):
         loose.send_from_host(frame)
         emu.step(20_000)
     emu.step(500_000)
