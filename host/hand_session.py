@@ -61,6 +61,8 @@ _EVENT: Final = CATALOGUE.by_name("palm.finger_event")
 
 #: Requests never repeated automatically: repeating them changes the outcome.
 NOT_IDEMPOTENT: Final = frozenset({"reset", "txn", "fmcb.tunnel", "fmcb.param_commit"})
+#: Waits shorter than this (s) count as over: clocks tick in µs at best.
+_EPSILON_S: Final = 1e-6
 #: Finger events kept in :attr:`HandSession.events` (oldest dropped first).
 EVENT_QUEUE: Final = 256
 
@@ -239,7 +241,7 @@ class HandSession:
         while True:
             while not pending.done:
                 remaining = pending.deadline - self.transport.now()
-                if remaining <= 0:
+                if remaining <= _EPSILON_S:
                     self._expire(pending)
                     break
                 self._read(remaining)
@@ -261,7 +263,7 @@ class HandSession:
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` pass on the link's clock while taking in replies and events."""
         end = self.transport.now() + seconds
-        while (left := end - self.transport.now()) > 0:
+        while (left := end - self.transport.now()) > _EPSILON_S:
             self._read(left)
 
     # --- events ----------------------------------------------------------------------------
@@ -280,7 +282,7 @@ class HandSession:
         end = self.transport.now() + timeout
         while not self.events:
             left = end - self.transport.now()
-            if left <= 0:
+            if left <= _EPSILON_S:
                 return None
             self._read(left)
         return self.events.popleft()
