@@ -16,6 +16,7 @@ program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import Any, Final
 
@@ -93,7 +94,10 @@ class EmulatorTransport(Transport):
     def _recv(self, timeout: float | None) -> bytes:
         scheduler = self.emulator.scheduler
         if not self._inbox and timeout != 0.0:
-            deadline = None if timeout is None else scheduler.now_us() + int(timeout * 1e6)
+            # At least 1 µs: a positive timeout must advance the clock, or a caller waiting
+            # for a deadline a fraction of a µs away would spin for ever.
+            deadline = None if timeout is None else scheduler.now_us() + max(
+                1, math.ceil(timeout * 1e6))
             while not self._inbox:
                 due = scheduler.next_due_us()
                 if due is None:

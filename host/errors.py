@@ -43,7 +43,14 @@ class RouteError(HostError):
 
 
 class NodeError(HostError):
-    """A node answered but refused the request or sent a reply that does not parse."""
+    """A node answered but refused the request or sent a reply that does not parse.
+
+    ``status`` is the ``txn`` status code of a refusal (None for an unparsable reply).
+    """
+
+    def __init__(self, message: str, *, status: Any = None) -> None:
+        super().__init__(message)
+        self.status = status
 
 
 class UsageError(HostError, ValueError):
