@@ -55,7 +55,7 @@ LATE_WARN_MS: Final = 5.0
 LATE_EPISODE_END_S: Final = 1.0
 #: Further behind than this (s), the simulation clock slips instead of replaying the lost
 #: wall time in a burst: the simulation runs slower than the wall clock, replies stay prompt.
-MAX_BEHIND_S: Final = 0.05
+MAX_BEHIND_S: Final = 0.02
 #: Height of the hand's stand in the ``hand`` configuration (m); the palm faces up.
 STAND_Z_M: Final = 0.4
 #: Lateness samples kept for :meth:`Emulator.lateness_stats`.
