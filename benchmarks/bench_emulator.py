@@ -17,6 +17,7 @@ finger's status at 100 Hz and a SYNC_WRITE of the four stepper goals every 10 ms
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -152,6 +153,8 @@ def realtime_lateness(wall_s: float, config: str = "full") -> dict[str, float]:
 
 
 def _lateness_result(config: str, stats: dict[str, float]) -> Result:
+    if stats["p99_ms"] is None:  # nothing was delivered
+        stats = {**stats, "p50_ms": math.nan, "p99_ms": math.nan, "max_ms": math.nan}
     p99_ms = stats["p99_ms"]
     return Result(
         "emulator realtime", f"{config}: lateness p99 (1/ms)", 1.0 / max(p99_ms, 1e-6), "1/ms",

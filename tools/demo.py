@@ -11,8 +11,9 @@ as a host would over its serial ports:
 4. on the arm port, with the stock dynamixel-sdk: pings IDs 1–7, enables torque, moves the
    shoulder pan and the wrist, and reads the present positions back through the physics.
 
-Every reply is printed as it comes back.  Exit status 0 only if every node answered and the
-joints moved.
+Every reply is printed as it comes back; a node that does not answer is reported and the
+demo goes on with the others.  Exit status 0 only if every node answered and the joints
+moved; otherwise the last line is ``demo: FAILED ...`` and the status 1 (never a traceback).
 """
 
 from __future__ import annotations
@@ -67,23 +68,36 @@ def describe(reply: dict[str, Any]) -> str:
             f"up {reply['uptime_us'] / 1e6:.2f} s")
 
 
+def ask(label: str, what: Callable[[], dict[str, Any]], timeout_s: float = 10
+        ) -> dict[str, Any] | None:
+    """:func:`until`, printing the reply, or that ``label`` did not answer (None)."""
+    try:
+        reply = until(what, timeout_s)
+    except ReplyTimeout:
+        say(f"{label} did not answer within {timeout_s:g} s")
+        return None
+    say(f"{label} {describe(reply)}")
+    return reply
+
+
 def hand_session(palm_path: str) -> int:
     answered = 0
     with HandPort(palm_path) as hand:
-        say(f"palm         {describe(until(lambda: hand.request('identify', timeout_s=0.2), 10))}")
+        if ask("palm        ", lambda: hand.request("identify", timeout_s=0.2)) is None:
+            say("hand: the palm did not answer; nothing else to ask")
+            return 1
         answered += 1
         states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
         say(f"finger power on: {states}")
         for k in range(FINGERS):
-            reply = until(functools.partial(hand.route, k, Hop.FMCB, "identify"), 10)
-            say(f"finger {k} fmcb {describe(reply)}")
-            answered += 1
-            hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
+            if ask(f"finger {k} fmcb", functools.partial(hand.route, k, 0, "identify")):
+                answered += 1
+                hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
         for k in range(FINGERS):
             for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
-                reply = until(functools.partial(hand.route, k, hop, "identify"), 10)
-                say(f"finger {k} {name}   {describe(reply)}")
-                answered += 1
+                if ask(f"finger {k} {name}  ",
+                       functools.partial(hand.route, k, hop, "identify")):
+                    answered += 1
         _move_finger(hand)
         counts = hand.route(1, 0, "fmcb.hall_counts", raw=0)
         joints = motor_to_joint(counts["counts"])
@@ -130,7 +144,10 @@ def arm_session(arm_path: str) -> int:
             say(f"arm id {dxl_id}: model {model:#06x} ({kind}), position {start[dxl_id]}, "
                 f"error byte {error}")
             ok += 1
-        for dxl_id, delta in ARM_MOVES.items():
+        moves = {i: delta for i, delta in ARM_MOVES.items() if i in start}
+        for dxl_id in ARM_MOVES.keys() - moves.keys():
+            say(f"arm id {dxl_id}: not moved (it did not answer)")
+        for dxl_id, delta in moves.items():
             table = STEPPER_TABLE if dxl_id in STEPPER_IDS else RX64_TABLE
             size = 4 if dxl_id in STEPPER_IDS else 2
             goal = start[dxl_id] + delta
@@ -139,7 +156,7 @@ def arm_session(arm_path: str) -> int:
             say(f"arm id {dxl_id}: goal {goal}")
         time.sleep(2.0)
         moved = 0
-        for dxl_id, delta in ARM_MOVES.items():
+        for dxl_id, delta in moves.items():
             now = _position(sdk, port, dxl_id)
             say(f"arm id {dxl_id}: present position {now} (moved {now - start[dxl_id]} "
                 f"of {delta})")
@@ -162,19 +179,38 @@ def main() -> int:
     say("# hil-emulator --config full  (the hand on the arm's wrist)")
     proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "full"],
                             cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    why = "a node did not answer or a joint did not move"
     try:
         assert proc.stdout is not None
-        ports = json.loads(proc.stdout.readline())
-        say(f"ports: {json.dumps(ports)}")
-        status = hand_session(ports["palm"]) | arm_session(ports["arm"])
+        line = proc.stdout.readline()
+        if not line:
+            why = "the emulator did not start (its error is above)"
+            status = 1
+        else:
+            ports = json.loads(line)
+            say(f"ports: {json.dumps(ports)}")
+            status = _session("hand", hand_session, ports["palm"])
+            status |= _session("arm", arm_session, ports["arm"])
+    except KeyboardInterrupt:
+        why, status = "interrupted", 1
     finally:
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             proc.kill()
-    say("demo: " + ("every node answered and the joints moved" if status == 0 else "FAILED"))
+    say("demo: " + ("every node answered and the joints moved" if status == 0
+                    else f"FAILED ({why})"))
     return status
+
+
+def _session(name: str, session: Callable[[str], int], path: str) -> int:
+    """Run one session; an error on the wire is reported as a failure, not a traceback."""
+    try:
+        return session(path)
+    except Exception as exc:  # noqa: BLE001 - a demo reports, it does not crash
+        say(f"{name}: stopped by {type(exc).__name__}: {exc}")
+        return 1
 
 
 if __name__ == "__main__":
