@@ -40,7 +40,7 @@ def _running(reply: dict[str, Any]) -> dict[str, Any] | None:
 
 @pytest.mark.slow
 def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) -> None:
-    """What the issue's "done" says: run it with --link-dir and talk to DIR/arm."""
+    """As a user runs it: with --link-dir, talking to DIR/arm."""
     from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
 
     robot = tmp_path / "robot"
