@@ -12,7 +12,7 @@ import pytest
 
 from host.errors import RouteError
 from host.hand import Hand
-from host.hand_codes import ROUTE_LINK_DOWN, ROUTE_UNPOWERED
+from protocol.messages.palm import RouteStatus
 
 URL = "emu://hand/palm?name=host-tests"
 
@@ -52,7 +52,7 @@ def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand)
     assert event is not None and (event.finger, event.event) == (2, "unpowered")
     with pytest.raises(RouteError) as caught:
         hand.fingers[2].command((0.1, 0.1, 0.1))
-    assert caught.value.status == ROUTE_UNPOWERED and caught.value.finger == 2
+    assert caught.value.status == RouteStatus.UNPOWERED and caught.value.finger == 2
     state = hand.status()
     assert state.fingers[2].power == "off" and not state.fingers[2].present
 
@@ -67,6 +67,6 @@ def test_a_finger_that_breaks_away_is_reported_lost_and_its_routes_fail(hand: Ha
     assert [(e.finger, e.event) for e in seen] == [(3, "lost")]
     with pytest.raises(RouteError) as caught:
         hand.fingers[3].motor.request("fmcb.status")
-    assert caught.value.status == ROUTE_LINK_DOWN
+    assert caught.value.status == RouteStatus.LINK_DOWN
     assert "broken away" in str(caught.value)
     assert hand.fingers[0].status().present  # the others carry on
