@@ -28,11 +28,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from host.errors import HostError, ReplyTimeout
+from host.hand_session import HandSession, Target, Timeouts
+from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
 from protocol.robot import motor_to_joint, rad_to_encoder_counts
 from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS, FINGERS, HOP_ADDRESS, STEPPER_IDS, Hop
-from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER_TARGET = (0.0, 0.4, 0.3)  # rad, J1 J2 J3 of finger 1
@@ -52,7 +54,7 @@ def until(what: Callable[[], dict[str, Any]], timeout_s: float) -> dict[str, Any
             reply = what()
             if reply.get("running", 1):
                 return reply
-        except ReplyTimeout:
+        except HostError:
             if time.monotonic() > deadline:
                 raise
         if time.monotonic() > deadline:
@@ -69,23 +71,23 @@ def describe(reply: dict[str, Any]) -> str:
 
 def hand_session(palm_path: str) -> int:
     answered = 0
-    with HandPort(palm_path) as hand:
-        say(f"palm         {describe(until(lambda: hand.request('identify', timeout_s=0.2), 10))}")
+    with HandSession(open_transport(palm_path), timeouts=Timeouts(link_s=0.5)) as hand:
+        say(f"palm         {describe(until(lambda: hand.request('identify'), 10))}")
         answered += 1
-        states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
+        states = hand.request("palm.finger_power", {"finger": 0xFF, "state": 2, "stagger_ms": 5})
         say(f"finger power on: {states}")
         for k in range(FINGERS):
-            reply = until(functools.partial(hand.route, k, Hop.FMCB, "identify"), 10)
+            reply = until(functools.partial(hand.request, "identify", to=Target(k, Hop.FMCB)), 10)
             say(f"finger {k} fmcb {describe(reply)}")
             answered += 1
-            hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
+            hand.request("fmcb.phalange_power", {"on": 1}, to=Target(k, Hop.FMCB))
         for k in range(FINGERS):
             for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
-                reply = until(functools.partial(hand.route, k, hop, "identify"), 10)
+                reply = until(functools.partial(hand.request, "identify", to=Target(k, hop)), 10)
                 say(f"finger {k} {name}   {describe(reply)}")
                 answered += 1
         _move_finger(hand)
-        counts = hand.route(1, 0, "fmcb.hall_counts", raw=0)
+        counts = hand.request("fmcb.hall_counts", {"raw": 0}, to=Target(1, Hop.FMCB))
         joints = motor_to_joint(counts["counts"])
         say(f"finger 1 joints after the move: {[round(q, 3) for q in joints]} rad "
             f"(target {list(FINGER_TARGET)})")
@@ -94,13 +96,14 @@ def hand_session(palm_path: str) -> int:
     return 0 if answered == 13 and moved else 1
 
 
-def _move_finger(hand: HandPort) -> None:
+def _move_finger(hand: HandSession) -> None:
     """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
     from protocol.messages import CATALOGUE
 
     inner = CATALOGUE["fmcb.control"].request_frame(
         HOP_ADDRESS[Hop.FMCB], {"mode": 2, "args": {"target": FINGER_TARGET}})
-    reply = hand.request("palm.route", finger=1, hop=Hop.FMCB, timeout_ms=0, frame=inner)
+    reply = hand.request("palm.route",
+                         {"finger": 1, "hop": Hop.FMCB, "timeout_ms": 0, "frame": inner})
     say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
         f"{reply['status']}")
     time.sleep(2.0)
