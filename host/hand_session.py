@@ -4,7 +4,9 @@ A :class:`HandSession` owns one :class:`~host.transport.Transport` to a hand lin
 palm's port (``link="palm"``), or a loose finger's cable (``link="finger"``, its fmcb on the
 other end).  Every request travels in the ``txn`` envelope with a sequence number, and the
 reply is matched by that number, never by type, so replies may arrive in any order and a
-late reply to a request that already timed out is recognised and dropped.
+late reply to a request that already timed out is recognised and dropped.  A request sent
+with ``txn=False`` goes as the original hand's host sent it, plain, and its reply is matched
+by type (:meth:`HandSession.start`).
 
 Where a request goes is a :class:`Target`: the link's own node, or a node behind it
 (``finger``, ``hop``: 0 fmcb, 1 f2, 2 f3).  Behind the palm the request is routed with
