@@ -25,13 +25,13 @@ import time
 from pathlib import Path
 
 from benchmarks.harness import Result
-from hil_emulator.bring_up import request
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import ControlMode
 from protocol.topology import (
+    ADDR_PALM,
     ARM_BUS_BAUD,
     ARM_JOINTS,
     FINGERS,
@@ -68,7 +68,8 @@ def _hold_pose(finger: int) -> bytes:
     """fmcb.control joint mode, targets 0 rad (the pose the fingers start in), routed."""
     inner = CATALOGUE["fmcb.control"].request_frame(HOP_ADDRESS[Hop.FMCB], mode=ControlMode.JOINT,
                                                     args={"target": [0.0] * 3})
-    return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=0, frame=inner)
+    return CATALOGUE["palm.route"].request_frame(ADDR_PALM, finger=finger, hop=Hop.FMCB,
+                                                 timeout_ms=0, frame=inner)
 
 
 HOLD_POSE = [_hold_pose(k) for k in range(FINGERS)]
@@ -82,7 +83,7 @@ def boot_full(emulator: Emulator, heavy: bool = True) -> None:
     assert hand is not None and arm is not None
     emulator.bring_up()
     if heavy:
-        hand.send_from_host(request("palm.poll", rate_hz=100))
+        hand.send_from_host(CATALOGUE["palm.poll"].request_frame(ADDR_PALM, rate_hz=100))
     for k in range(FINGERS):
         hand.send_from_host(HOLD_POSE[k])
         emulator.step(30_000)

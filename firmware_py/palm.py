@@ -43,6 +43,7 @@ from protocol.errors import ProtocolError
 from protocol.framing import Frame, parse_frame
 from protocol.messages import CATALOGUE
 from protocol.messages.palm import (
+    ALL_FINGERS,
     PALM_TAXELS,
     ROUTE_MAX_FRAME,
     FingerEvent,
@@ -59,8 +60,6 @@ STATE_PERIOD_US: Final = 10_000
 MAX_POLL_HZ: Final = 200
 #: Longest wait for a poll's fmcb.status reply (µs); never more than 80 % of the period.
 POLL_TIMEOUT_US: Final = 4_000
-#: Finger index meaning "every finger" in palm.finger_power.
-ALL_FINGERS: Final = 0xFF
 #: Temperature channels of the palm.
 PALM_TEMPERATURES: Final = 7
 

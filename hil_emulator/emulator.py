@@ -31,7 +31,6 @@ import numpy as np
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.arm_rig import ArmRig
-from hil_emulator.bring_up import bring_up
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand_rig import HandRig, LooseFinger
 from hil_emulator.host_links import SerialLink, SlcanLink, VirtualCanLink
@@ -238,8 +237,11 @@ class Emulator:
     def bring_up(self, autopoll: bool = True) -> None:
         """Power and boot every hand node as a host would (palm, fingers, phalanges; fmcb
         autopoll on), on the simulation clock; call before :meth:`open_ports`.  The arm is
-        left as it powers up, torque off (see :mod:`hil_emulator.bring_up`)."""
-        bring_up(self.hand, self.loose, self.step, autopoll)
+        left as it powers up, torque off.  The host library does it on the in-process
+        transport (see :mod:`hil_emulator.bring_up`)."""
+        from hil_emulator.bring_up import bring_up
+
+        bring_up(self, autopoll)
 
     def transport(self, link: str) -> Any:
         """A :class:`host.transport.Transport` for host code in this process on link

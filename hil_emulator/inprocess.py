@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any, Final
 
 from hil_emulator.emulator import Emulator
@@ -34,9 +35,14 @@ _shared: dict[tuple[str, ...], Emulator] = {}
 
 class EmulatorTransport(Transport):
     """One host link of an in-process emulator (``link``: ``palm``, ``arm`` or
-    ``finger0``), on the simulation clock."""
+    ``finger0``), on the simulation clock.
 
-    def __init__(self, emulator: Emulator, link: str, url: str | None = None) -> None:
+    The transport takes the link's bytes from whatever listened before (a port, a
+    recorder); ``tee`` keeps passing them to that listener too, and :meth:`close` gives
+    the link back to it."""
+
+    def __init__(self, emulator: Emulator, link: str, url: str | None = None, *,
+                 tee: bool = False) -> None:
         super().__init__(url or f"emu://{emulator.config}/{link}")
         rig = {"palm": emulator.hand, "arm": emulator.arm, "finger0": emulator.loose}.get(link)
         if rig is None:
@@ -46,6 +52,8 @@ class EmulatorTransport(Transport):
         self.link = link
         self._rig = rig
         self._inbox: deque[bytes] = deque()
+        self._displaced: Callable[[bytes, int], None] | None = rig.on_host_bytes
+        self._tee = tee
         rig.on_host_bytes = self._arrived
 
     @classmethod
@@ -78,6 +86,8 @@ class EmulatorTransport(Transport):
 
     def _arrived(self, data: bytes, t_us: int) -> None:
         self._inbox.append(data)
+        if self._tee and self._displaced is not None:
+            self._displaced(data, t_us)
 
     def now(self) -> float:
         """Simulation time (s)."""
@@ -114,7 +124,7 @@ class EmulatorTransport(Transport):
 
     def _close(self) -> None:
         if self._rig.on_host_bytes == self._arrived:
-            self._rig.on_host_bytes = None
+            self._rig.on_host_bytes = self._displaced
 
     def _reopen(self) -> None:
         self._rig.on_host_bytes = self._arrived

@@ -3,7 +3,9 @@
 The board numbers its parameters and names each (``fmcb.param_count``,
 ``fmcb.param_name``); values travel as 4 bytes, a little-endian f32 or u32 per parameter.
 The names are read once and cached; which are floats is known here (gains and joint limits),
-the others are unsigned integers.
+the others are unsigned integers.  :meth:`FingerParams.cached` keeps a value once read (the
+host's settle test reads the ``deadband`` once per finger); setting, reloading or restoring
+defaults through the same object keeps the kept values true.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ class FingerParams:
     def __init__(self, request: Request) -> None:
         self._request = request
         self._names: list[str] | None = None
+        self._values: dict[str, Value] = {}
 
     def names(self) -> list[str]:
         """Every parameter name in index order (read once from the board)."""
@@ -67,11 +70,22 @@ class FingerParams:
     def get(self, name: str) -> Value:
         """The value of parameter ``name`` (RAM copy)."""
         bits = self._request("fmcb.param_get", {"index": self.index(name)})["value"]
-        return unpack(name, bytes(bits))
+        value = unpack(name, bytes(bits))
+        self._values[name] = value
+        return value
+
+    def cached(self, name: str) -> Value:
+        """The value of parameter ``name``, read from the board the first time only."""
+        if name in self._values:
+            return self._values[name]
+        return self.get(name)
 
     def set(self, name: str, value: Value) -> None:
         """Set parameter ``name`` in RAM (:meth:`commit` keeps it over a reset)."""
-        self._request("fmcb.param_set", {"index": self.index(name), "value": pack(name, value)})
+        bits = pack(name, value)
+        self._values.pop(name, None)
+        self._request("fmcb.param_set", {"index": self.index(name), "value": bits})
+        self._values[name] = unpack(name, bits)
 
     def all(self) -> dict[str, Value]:
         """Every parameter and its value."""
@@ -83,8 +97,10 @@ class FingerParams:
 
     def reload(self) -> None:
         """Throw away RAM changes: reload the parameters from flash."""
+        self._values.clear()
         self._request("fmcb.param_reload", {})
 
     def restore_defaults(self) -> None:
         """Set every parameter to the firmware's default (in RAM)."""
+        self._values.clear()
         self._request("fmcb.param_defaults", {})

@@ -22,28 +22,18 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from host._finger_kinematics import DEFAULT_DEADBAND, JOINTS_PER_FINGER
+from host.code_names import code_name
 from host.errors import HostError, RouteError, UsageError
 from host.finger_params import FingerParams
-from host.hand_codes import (
-    ALL_FINGERS,
-    FINGERS,
-    HOP_NODE,
-    MODE_IDLE,
-    MODE_JOINT,
-    MODE_JOINT_EFFORT,
-    MODE_MOTOR,
-    MODE_RELATIVE,
-    power_code,
-    power_name,
-    route_status_name,
-    running_name,
-)
 from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
 from host.hand_state import FingerState, HandState, NodeInfo
-from host.joint_limits import JointLimits
+from host.joint_limits import JOINTS_PER_FINGER, JointLimits
 from host.transport import Transport, open_transport
 from protocol.messages import CATALOGUE_HASH
+from protocol.messages.common import Running
+from protocol.messages.fmcb import ControlMode
+from protocol.messages.palm import ALL_FINGERS, FingerPower, RouteStatus
+from protocol.topology import FINGERS, HOP_NODE, Hop
 
 #: Full effort (1/255 of full PWM).
 FULL_EFFORT: Final = 255
@@ -56,6 +46,11 @@ STALL_COUNTS: Final = 3
 STALL_S: Final = 0.2
 #: Highest rate the palm polls fingers at (Hz).
 MAX_POLL_HZ: Final = 200
+#: The fmcb's position deadband (hall counts) assumed when its ``deadband`` parameter cannot
+#: be read (a firmware without it): the firmware's default (``firmware_py.fmcb_params``).
+FALLBACK_DEADBAND_HALL: Final = 50
+#: A motor within its fmcb's deadband plus this many hall counts of its target has settled.
+SETTLE_MARGIN_HALL: Final = 15
 
 
 class Node:
@@ -89,7 +84,7 @@ class Node:
         return NodeInfo(
             where=self.where, finger=self.target.finger,
             hop=None if self.where == "palm" else self.target.hop, answered=True,
-            running=running_name(reply["running"]), board=reply["board"],
+            running=code_name(Running, reply["running"], "running"), board=reply["board"],
             address=reply["address"], fw_version=f"{v['major']}.{v['minor']}.{v['patch']}",
             hw_version=reply["hw_version"], uid=reply["uid"],
             catalogue_matches=bytes(reply["catalogue"]) == CATALOGUE_HASH)
@@ -133,9 +128,17 @@ class Finger:
         self.index = index
         session = hand.session
         nodes = [Node(session, Target(index, hop), f"finger {index} {HOP_NODE[hop]}")
-                 for hop in range(3)]
+                 for hop in Hop]
         self.motor, self.proximal, self.distal = nodes
         self.params = FingerParams(self.motor.request)
+
+    def deadband(self) -> int:
+        """The fmcb's position deadband (hall counts): its ``deadband`` parameter, read at
+        first use and kept; :data:`FALLBACK_DEADBAND_HALL` while the board cannot tell."""
+        try:
+            return int(self.params.cached("deadband"))
+        except HostError:
+            return FALLBACK_DEADBAND_HALL
 
     @property
     def nodes(self) -> list[Node]:
@@ -160,11 +163,12 @@ class Finger:
         optional per-joint effort cap (1/255 of full PWM), motor targets ``hall`` (hall
         counts), or ``idle`` (motors off).  Absolute targets pass the joint limits."""
         if idle:
-            return FingerCommand(self.index, MODE_IDLE, {})
+            return FingerCommand(self.index, ControlMode.IDLE, {})
         if hall is not None:
             if len(hall) != JOINTS_PER_FINGER:
                 raise UsageError(f"a finger takes {JOINTS_PER_FINGER} motor targets")
-            return FingerCommand(self.index, MODE_MOTOR, {"hall_target": [int(h) for h in hall]})
+            return FingerCommand(self.index, ControlMode.MOTOR,
+                                 {"hall_target": [int(h) for h in hall]})
         if joints is None:
             raise UsageError("give joint targets, motor targets or idle")
         if relative:
@@ -174,9 +178,9 @@ class Finger:
         else:
             target = list(self.hand.limits.apply(self.index, joints))
         if effort is None and not relative:
-            return FingerCommand(self.index, MODE_JOINT, {"target": target})
+            return FingerCommand(self.index, ControlMode.JOINT, {"target": target})
         caps = _efforts(FULL_EFFORT if effort is None else effort)
-        mode = MODE_RELATIVE if relative else MODE_JOINT_EFFORT
+        mode = ControlMode.RELATIVE if relative else ControlMode.JOINT_EFFORT
         return FingerCommand(self.index, mode, {"target": target, "max_effort": caps})
 
     def command(self, joints: Sequence[float] | None = None, **options: Any) -> None:
@@ -269,15 +273,15 @@ class Hand:
         (``"off"``, ``"low"``, ``"full"``); every finger's power state as the palm reports.
         Fingers switched on boot for about 3 s before their fmcb answers."""
         try:
-            code = power_code(state)
-        except KeyError as exc:
+            code = FingerPower[state.upper()] if isinstance(state, str) else FingerPower(state)
+        except (KeyError, ValueError) as exc:
             raise UsageError(f"power state {state!r}: choose off, low or full") from exc
         index = ALL_FINGERS if finger == "all" else int(finger)
         if index != ALL_FINGERS and not 0 <= index < FINGERS:
             raise UsageError(f"finger {finger}: the hand has fingers 0..{FINGERS - 1}")
         reply = self.palm.request("palm.finger_power",
                                   {"finger": index, "state": code, "stagger_ms": stagger_ms})
-        return [power_name(s) for s in reply["states"]]
+        return [code_name(FingerPower, s, "power") for s in reply["states"]]
 
     # --- state -------------------------------------------------------------------------------
     def status(self, fingers: bool = True) -> HandState:
@@ -382,9 +386,13 @@ class Hand:
         return self.wait_settled(list(targets), timeout)
 
     def wait_settled(self, fingers: Sequence[int], timeout: float = 3.0,
-                     tolerance_hall: int = DEFAULT_DEADBAND + 15) -> MoveResult:
+                     tolerance_hall: int | None = None) -> MoveResult:
         """Poll the fingers' status until every motor is within ``tolerance_hall`` counts
-        of its target (settled), or none moved for 0.2 s (stalled), or ``timeout`` s."""
+        of its target (settled), or none moved for 0.2 s (stalled), or ``timeout`` s.
+        ``tolerance_hall`` defaults to each finger's fmcb deadband (:meth:`Finger.deadband`)
+        plus :data:`SETTLE_MARGIN_HALL`."""
+        tolerance = {k: (self.fingers[k].deadband() + SETTLE_MARGIN_HALL
+                         if tolerance_hall is None else tolerance_hall) for k in fingers}
         start = self.session.now()
         last_move = {k: start for k in fingers}
         last_pos: dict[int, list[int]] = {}
@@ -403,7 +411,7 @@ class Hand:
             for k, s in states.items():
                 tgt = s.targets_hall or s.joints_hall
                 near.append(max(abs(a - b) for a, b in zip(s.joints_hall, tgt, strict=True))
-                            <= tolerance_hall)
+                            <= tolerance[k])
                 prev = last_pos.get(k)
                 if prev is None or max(abs(a - b) for a, b in zip(s.joints_hall, prev,
                                                                   strict=True)) > STALL_COUNTS:
@@ -426,5 +434,5 @@ def _joint_error(state: FingerState) -> tuple[float, float, float]:
 
 def _problem(exc: HostError) -> str:
     if isinstance(exc, RouteError):
-        return route_status_name(exc.status)
+        return code_name(RouteStatus, exc.status, "status")
     return type(exc).__name__ + ": " + str(exc)

@@ -4,7 +4,9 @@ A :class:`HandSession` owns one :class:`~host.transport.Transport` to a hand lin
 palm's port (``link="palm"``), or a loose finger's cable (``link="finger"``, its fmcb on the
 other end).  Every request travels in the ``txn`` envelope with a sequence number, and the
 reply is matched by that number, never by type, so replies may arrive in any order and a
-late reply to a request that already timed out is recognised and dropped.
+late reply to a request that already timed out is recognised and dropped.  A request sent
+with ``txn=False`` goes as the original hand's host sent it, plain, and its reply is matched
+by type (:meth:`HandSession.start`).
 
 Where a request goes is a :class:`Target`: the link's own node, or a node behind it
 (``finger``, ``hop``: 0 fmcb, 1 f2, 2 f3).  Behind the palm the request is routed with
@@ -29,28 +31,19 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
+from host.code_names import code_name
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
-from host.hand_codes import (
-    ADDR_HOST,
-    ADDR_PALM,
-    FINGERS,
-    HOP_ADDRESS,
-    HOP_NODE,
-    MODE_RELATIVE,
-    ROUTE_OK,
-    ROUTE_RETRYABLE,
-    TXN_BUSY,
-    TXN_OK,
-    event_name,
-    route_status_name,
-    txn_status_name,
-)
 from host.transport import Transport
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
 from protocol.framing import encode_frame, parse_frame
 from protocol.messages import CATALOGUE
+from protocol.messages.common import TxnStatus
+from protocol.messages.fmcb import ControlMode
+from protocol.messages.palm import FingerEvent as EventCode
+from protocol.messages.palm import RouteStatus
 from protocol.stream import StreamDecoder, decode_all
+from protocol.topology import ADDR_HOST, ADDR_PALM, FINGERS, HOP_ADDRESS, HOP_NODE, Hop
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +56,8 @@ _EVENT: Final = CATALOGUE.by_name("palm.finger_event")
 NOT_IDEMPOTENT: Final = frozenset({"reset", "txn", "fmcb.tunnel", "fmcb.param_commit"})
 #: Waits shorter than this (s) count as over: clocks tick in µs at best.
 _EPSILON_S: Final = 1e-6
+#: Route statuses worth trying again (the finger may answer next time).
+ROUTE_RETRYABLE: Final = frozenset({RouteStatus.NO_REPLY, RouteStatus.BUSY})
 #: Finger events kept in :attr:`HandSession.events` (oldest dropped first).
 EVENT_QUEUE: Final = 256
 
@@ -74,7 +69,10 @@ def is_idempotent(name: str, fields: Mapping[str, Any] | None = None) -> bool:
     """True if sending request ``name`` twice leaves the robot as sending it once."""
     if name in NOT_IDEMPOTENT or name.startswith("bl."):
         return False
-    return not (name == "fmcb.control" and (fields or {}).get("mode") == MODE_RELATIVE)
+    mode = (fields or {}).get("mode")
+    relative = mode == ControlMode.RELATIVE or (
+        isinstance(mode, str) and mode.lower() == ControlMode.RELATIVE.name.lower())
+    return not (name == "fmcb.control" and relative)
 
 
 @dataclass(frozen=True)
@@ -90,7 +88,8 @@ class Target:
         if self.finger is None and self.hop == 0:
             return "the link's node"
         where = "" if self.finger is None else f"finger {self.finger} "
-        return f"{where}{HOP_NODE.get(self.hop, f'hop {self.hop}')}"
+        node = HOP_NODE[Hop(self.hop)] if self.hop in HOP_NODE else f"hop {self.hop}"
+        return f"{where}{node}"
 
 
 #: The node at the other end of the link (the palm, or a loose finger's fmcb).
@@ -151,8 +150,11 @@ class PendingReply:
     payload: bytes
     route_ms: int
     retries_left: int
+    txn: bool = True
     seq: int = -1
     inner_seq: int | None = None
+    routed: bool = False
+    reply_type: int = -1
     deadline: float = 0.0
     budget_s: float = 0.0
     done: bool = False
@@ -182,6 +184,7 @@ class HandSession:
         self.taps: list[Tap] = []
         self._subscribers: list[Callable[[FingerEvent], None]] = []
         self._pending: dict[int, PendingReply] = {}
+        self._untagged: list[PendingReply] = []
         self._seq = 0
 
     # --- lifetime --------------------------------------------------------------------------
@@ -202,21 +205,32 @@ class HandSession:
     # --- requests --------------------------------------------------------------------------
     def request(self, name: str, fields: Mapping[str, Any] | None = None, *,
                 to: Target = LINK_NODE, retries: int | None = None,
-                extra_ms: int = 0) -> dict[str, Any]:
+                extra_ms: int = 0, txn: bool = True) -> dict[str, Any]:
         """Send request ``name`` with ``fields`` to ``to`` and return the reply's fields.
 
         ``retries`` (default: the session's, but 0 for requests that are not idempotent)
         repeats the request after a timeout, a busy node or a route that got no reply;
-        ``extra_ms`` lengthens the node's time to answer (a flash write).  Raises
+        ``extra_ms`` lengthens the node's time to answer (a flash write).  ``txn`` False
+        sends it without the ``txn`` envelope (see :meth:`start`).  Raises
         :class:`ReplyTimeout`, :class:`RouteError`, :class:`NodeError`.
         """
-        return self.wait(self.start(name, fields, to=to, retries=retries, extra_ms=extra_ms))
+        return self.wait(self.start(name, fields, to=to, retries=retries, extra_ms=extra_ms,
+                                    txn=txn))
 
     def start(self, name: str, fields: Mapping[str, Any] | None = None, *,
               to: Target = LINK_NODE, retries: int | None = None,
-              extra_ms: int = 0) -> PendingReply:
+              extra_ms: int = 0, txn: bool = True) -> PendingReply:
         """Send request ``name`` now and return it pending: several may be in flight, and
-        :meth:`wait` takes them in any order."""
+        :meth:`wait` takes them in any order.
+
+        ``txn`` False sends the request (and, when routed, the frame inside the route or
+        tunnel) without the ``txn`` envelope, as the original hand's host did: the bytes a
+        recorded session sent, or a node that does not know the envelope.  Its reply is
+        matched by type, oldest such request first, so a late reply may be taken for a
+        newer request's: keep one in flight at a time.  Un-enveloped, a request that has
+        no reply gets none (it ends in :class:`ReplyTimeout`; routed, in a ``no_reply``
+        :class:`RouteError`).
+        """
         try:
             message = CATALOGUE.by_name(name)
         except (KeyError, ProtocolError) as exc:
@@ -232,7 +246,7 @@ class HandSession:
         if retries is None:
             retries = self.retries if is_idempotent(name, plain) else 0
         pending = PendingReply(message, plain, to, payload,
-                               self.timeouts.route_ms(to.hop, extra_ms), retries)
+                               self.timeouts.route_ms(to.hop, extra_ms), retries, txn=txn)
         self._send(pending)
         return pending
 
@@ -315,16 +329,20 @@ class HandSession:
         msg, to = pending.message, pending.target
         body_type, body = msg.type_id, pending.payload
         pending.inner_seq = None
+        pending.routed = to.finger is not None or to.hop != 0
         wait_s = self.timeouts.link_s
-        if to.finger is not None or to.hop:
-            pending.inner_seq = self._next_seq()
-            inner = self._envelope(HOP_ADDRESS[to.hop], pending.inner_seq, msg.type_id,
-                                   pending.payload)
+        if pending.routed:
+            address = HOP_ADDRESS[Hop(to.hop)]
+            if pending.txn:
+                pending.inner_seq = self._next_seq()
+                inner = self._envelope(address, pending.inner_seq, msg.type_id, pending.payload)
+            else:
+                inner = encode_frame(address, msg.type_id, pending.payload)
             if self.link == "palm":
                 body_type, body = _ROUTE.type_id, _ROUTE.build_request(
                     finger=to.finger, hop=to.hop, timeout_ms=pending.route_ms, frame=inner)
                 # The palm serves one transaction per finger: ours queue behind each other.
-                ahead = sum(p.route_ms for p in self._pending.values()
+                ahead = sum(p.route_ms for p in (*self._pending.values(), *self._untagged)
                             if p.target.finger == to.finger)
                 wait_s += (pending.route_ms + ahead) / 1000
             else:
@@ -332,10 +350,15 @@ class HandSession:
                 body_type, body = _TUNNEL.type_id, _TUNNEL.build_request(
                     data=inner, max_ms=tendon_ms)
                 wait_s += tendon_ms / 1000
-        pending.seq = self._next_seq()
-        frame = self._envelope(ADDR_PALM, pending.seq, body_type, body)
         pending.done, pending.result, pending.error = False, None, None
-        self._pending[pending.seq] = pending
+        if pending.txn:
+            pending.seq = self._next_seq()
+            frame = self._envelope(ADDR_PALM, pending.seq, body_type, body)
+            self._pending[pending.seq] = pending
+        else:
+            pending.seq, pending.reply_type = -1, body_type
+            frame = encode_frame(ADDR_PALM, body_type, body)
+            self._untagged.append(pending)
         self.counters.requests += 1
         now = self.transport.now()
         pending.budget_s = wait_s
@@ -345,7 +368,10 @@ class HandSession:
         self.transport.send(frame)
 
     def _expire(self, pending: PendingReply) -> None:
-        self._pending.pop(pending.seq, None)
+        if pending.txn:
+            self._pending.pop(pending.seq, None)
+        elif pending in self._untagged:
+            self._untagged.remove(pending)
         self.counters.timeouts += 1
         pending.done = True
         pending.error = ReplyTimeout(
@@ -376,7 +402,7 @@ class HandSession:
             elif frame.type == _EVENT.type_id:
                 self._on_event(frame.payload, t)
             else:
-                self.counters.stray_frames += 1
+                self._on_untagged_reply(frame.type, frame.payload)
 
     def _on_event(self, payload: bytes, t: float) -> None:
         try:
@@ -384,7 +410,8 @@ class HandSession:
         except ProtocolError:
             self.counters.stray_frames += 1
             return
-        event = FingerEvent(f["finger"], event_name(f["event"]), f["event"], f["time"], t)
+        event = FingerEvent(f["finger"], code_name(EventCode, f["event"], "event"), f["event"],
+                            f["time"], t)
         self.counters.events += 1
         self.events.append(event)
         for callback in list(self._subscribers):
@@ -405,28 +432,47 @@ class HandSession:
             return
         pending.done = True
         try:
-            pending.result = self._unwrap(pending, reply)
+            first = "palm" if self.link == "palm" else "fmcb"
+            pending.result = self._unwrap(pending, self._txn_body(reply, pending, first))
         except (NodeError, RouteError, ReplyTimeout) as exc:
             pending.error = exc
 
-    def _unwrap(self, pending: PendingReply, reply: dict[str, Any]) -> dict[str, Any]:
-        """The request's reply fields from the outer ``txn`` reply, through route or tunnel."""
-        first = "palm" if self.link == "palm" else "fmcb"
-        body = self._txn_body(reply, pending, first)
+    def _on_untagged_reply(self, frame_type: int, payload: bytes) -> None:
+        """A reply without the envelope: the oldest un-enveloped request of its type."""
+        pending = next((p for p in self._untagged if p.reply_type == frame_type), None)
+        if pending is None:
+            self.counters.stray_frames += 1
+            return
+        self._untagged.remove(pending)
+        pending.done = True
+        try:
+            pending.result = self._unwrap(pending, payload)
+        except (NodeError, RouteError, ReplyTimeout) as exc:
+            pending.error = exc
+
+    def _unwrap(self, pending: PendingReply, body: bytes) -> dict[str, Any]:
+        """The request's reply fields from the outer reply's body, through route or
+        tunnel."""
         to = pending.target
-        if pending.inner_seq is None:
+        if not pending.routed:
             return self._parse(pending.message, body, to)
         if self.link == "palm":
             route = _ROUTE.parse_reply(body)
-            if route["status"] != ROUTE_OK:
-                name = route_status_name(route["status"])
+            if route["status"] != RouteStatus.OK:
+                name = code_name(RouteStatus, route["status"], "status")
                 raise RouteError(_route_advice(pending.name, to, name), status=route["status"],
                                  finger=route["finger"], hop=route["hop"])
             frames = [parse_frame(bytes(route["frame"]))]
         else:
             frames = decode_all(bytes(_TUNNEL.parse_reply(body)["data"]))
         for frame in frames:
-            if frame.address != ADDR_HOST or frame.type != _TXN.type_id:
+            if frame.address != ADDR_HOST:
+                continue
+            if not pending.txn:
+                if frame.type == pending.message.type_id:
+                    return self._parse(pending.message, frame.payload, to)
+                continue
+            if frame.type != _TXN.type_id:
                 continue
             inner = _TXN.parse_reply(frame.payload)
             if inner["seq"] != pending.inner_seq:
@@ -439,9 +485,10 @@ class HandSession:
 
     @staticmethod
     def _txn_body(reply: dict[str, Any], pending: PendingReply, who: str) -> bytes:
-        if reply["status"] != TXN_OK:
+        if reply["status"] != TxnStatus.OK:
             raise NodeError(f"{who} refused {pending.name}: "
-                            f"{txn_status_name(reply['status'])}", status=reply["status"])
+                            f"{code_name(TxnStatus, reply['status'], 'status')}",
+                            status=reply["status"])
         return bytes(reply["inner"])
 
     @staticmethod
@@ -460,7 +507,7 @@ def _retryable(error: Exception) -> bool:
         return True
     if isinstance(error, RouteError):
         return error.status in ROUTE_RETRYABLE
-    return isinstance(error, NodeError) and getattr(error, "status", None) == TXN_BUSY
+    return isinstance(error, NodeError) and getattr(error, "status", None) == TxnStatus.BUSY
 
 
 def _route_advice(name: str, to: Target, status: str) -> str:

@@ -3,7 +3,7 @@
 :class:`FingerState` and :class:`HandState` are built from the palm's ``palm.hand_status``
 summaries and, where a finger answered, its ``fmcb.status`` snapshot.  Joint angles (rad)
 come from the motor hall counts through the gear ratios and the tendon coupling
-(:mod:`host._finger_kinematics`); ``to_dict`` gives JSON-ready dicts (``handctl --json``).
+(:func:`protocol.robot.motor_to_joint`); ``to_dict`` gives JSON-ready dicts (``handctl --json``).
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from host._finger_kinematics import motor_to_joint
-from host.hand_codes import power_name
+from host.code_names import code_name
+from protocol.messages.palm import FingerPower
+from protocol.robot import motor_to_joint
 
 #: ``pb_current`` value meaning the phalange-bus breaker has tripped.
 BREAKER_TRIPPED: Final = 0xFFFF
@@ -58,7 +59,7 @@ class FingerState:
 
     def update_from_summary(self, summary: dict[str, Any]) -> None:
         """Take the palm's per-finger summary (``palm.hand_status``)."""
-        self.power = power_name(summary["power"])
+        self.power = code_name(FingerPower, summary["power"], "power")
         self.present = bool(summary["present"])
         self.currents["supply"] = int(summary["current"])
         self.joints_hall = [int(v) for v in summary["hall_pos"]]

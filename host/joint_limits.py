@@ -13,13 +13,21 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
-from host._finger_kinematics import DEFAULT_LOWER, DEFAULT_UPPER, JOINTS_PER_FINGER
 from host.errors import UsageError
-from host.hand_codes import FINGERS
+from protocol.robot import FINGER_JOINT_LIMITS, FINGER_JOINT_NAMES
+from protocol.topology import FINGERS
 
 ACTIONS: Final = ("clamp", "refuse")
+#: Joints (and motors) of a finger module.
+JOINTS_PER_FINGER: Final = len(FINGER_JOINT_NAMES)
 
 Limits3 = tuple[float, float, float]
+#: The robot's default joint limits (rad): the fmcb's ``joint_lower_*`` / ``joint_upper_*``
+#: parameter defaults.
+DEFAULT_LOWER: Final[Limits3] = (FINGER_JOINT_LIMITS[0][0], FINGER_JOINT_LIMITS[1][0],
+                                 FINGER_JOINT_LIMITS[2][0])
+DEFAULT_UPPER: Final[Limits3] = (FINGER_JOINT_LIMITS[0][1], FINGER_JOINT_LIMITS[1][1],
+                                 FINGER_JOINT_LIMITS[2][1])
 
 
 def _four(value: Limits3) -> tuple[Limits3, ...]:

@@ -29,11 +29,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from host.errors import HostError, ReplyTimeout
+from host.hand_session import HandSession, Target, Timeouts
+from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.image import BoardType
+from protocol.messages.palm import FingerPower
 from protocol.robot import motor_to_joint, rad_to_encoder_counts
 from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS, FINGERS, HOP_ADDRESS, STEPPER_IDS, Hop
-from tools.hand_port import HandPort, ReplyTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER_TARGET = (0.0, 0.4, 0.3)  # rad, J1 J2 J3 of finger 1
@@ -53,7 +56,7 @@ def until(what: Callable[[], dict[str, Any]], timeout_s: float) -> dict[str, Any
             reply = what()
             if reply.get("running", 1):
                 return reply
-        except ReplyTimeout:
+        except HostError:
             if time.monotonic() > deadline:
                 raise
         if time.monotonic() > deadline:
@@ -73,8 +76,8 @@ def ask(label: str, what: Callable[[], dict[str, Any]], timeout_s: float = 10
     """:func:`until`, printing the reply, or that ``label`` did not answer (None)."""
     try:
         reply = until(what, timeout_s)
-    except ReplyTimeout:
-        say(f"{label} did not answer within {timeout_s:g} s")
+    except HostError as exc:
+        say(f"{label} did not answer within {timeout_s:g} s ({exc})")
         return None
     say(f"{label} {describe(reply)}")
     return reply
@@ -82,24 +85,25 @@ def ask(label: str, what: Callable[[], dict[str, Any]], timeout_s: float = 10
 
 def hand_session(palm_path: str) -> int:
     answered = 0
-    with HandPort(palm_path) as hand:
-        if ask("palm        ", lambda: hand.request("identify", timeout_s=0.2)) is None:
+    with HandSession(open_transport(palm_path), timeouts=Timeouts(link_s=0.5)) as hand:
+        if ask("palm        ", lambda: hand.request("identify")) is None:
             say("hand: the palm did not answer; nothing else to ask")
             return 1
         answered += 1
-        states = hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
+        states = hand.request("palm.finger_power", {"finger": 0xFF, "state": FingerPower.FULL, "stagger_ms": 5})
         say(f"finger power on: {states}")
         for k in range(FINGERS):
-            if ask(f"finger {k} fmcb", functools.partial(hand.route, k, 0, "identify")):
+            if ask(f"finger {k} fmcb",
+                   functools.partial(hand.request, "identify", to=Target(k, Hop.FMCB))):
                 answered += 1
-                hand.route(k, Hop.FMCB, "fmcb.phalange_power", on=1)
+                hand.request("fmcb.phalange_power", {"on": 1}, to=Target(k, Hop.FMCB))
         for k in range(FINGERS):
             for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
                 if ask(f"finger {k} {name}  ",
-                       functools.partial(hand.route, k, hop, "identify")):
+                       functools.partial(hand.request, "identify", to=Target(k, hop))):
                     answered += 1
         _move_finger(hand)
-        counts = hand.route(1, 0, "fmcb.hall_counts", raw=0)
+        counts = hand.request("fmcb.hall_counts", {"raw": 0}, to=Target(1, Hop.FMCB))
         joints = motor_to_joint(counts["counts"])
         say(f"finger 1 joints after the move: {[round(q, 3) for q in joints]} rad "
             f"(target {list(FINGER_TARGET)})")
@@ -108,13 +112,14 @@ def hand_session(palm_path: str) -> int:
     return 0 if answered == 13 and moved else 1
 
 
-def _move_finger(hand: HandPort) -> None:
+def _move_finger(hand: HandSession) -> None:
     """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
     from protocol.messages import CATALOGUE
 
     inner = CATALOGUE["fmcb.control"].request_frame(
         HOP_ADDRESS[Hop.FMCB], {"mode": 2, "args": {"target": FINGER_TARGET}})
-    reply = hand.request("palm.route", finger=1, hop=Hop.FMCB, timeout_ms=0, frame=inner)
+    reply = hand.request("palm.route",
+                         {"finger": 1, "hop": Hop.FMCB, "timeout_ms": 0, "frame": inner})
     say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
         f"{reply['status']}")
     time.sleep(2.0)

@@ -25,15 +25,37 @@ from typing import Any
 
 import numpy as np
 
-from hil_emulator.bring_up import request, routed
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import ControlMode
-from protocol.topology import ADDR_F2, ARM_JOINTS, FINGERS, HOP_ADDRESS, SERVO_IDS, STEPPER_IDS, Hop
+from protocol.topology import (
+    ADDR_F2,
+    ADDR_PALM,
+    ARM_JOINTS,
+    FINGERS,
+    HOP_ADDRESS,
+    SERVO_IDS,
+    STEPPER_IDS,
+    Hop,
+)
 
 Record = dict[str, Any]
+#: The ``palm.route`` timeout of the script's routed requests (ms).
+ROUTE_MS = 20
+
+
+def request(name: str, **fields: Any) -> bytes:
+    """The frame carrying request ``name`` to the palm (or a loose finger's fmcb: the same
+    address), without the ``txn`` envelope: the script's bytes are fixed."""
+    return CATALOGUE[name].request_frame(ADDR_PALM, fields)
+
+
+def routed(finger: int, name: str, **fields: Any) -> bytes:
+    """``palm.route`` carrying request ``name`` to finger ``finger``'s fmcb."""
+    return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=ROUTE_MS,
+                   frame=CATALOGUE[name].request_frame(HOP_ADDRESS[Hop.FMCB], fields))
 
 
 def _recorder(port: str, out: list[Record]) -> Callable[[bytes, int], None]:
@@ -60,13 +82,13 @@ def _full_run(seed: int, out: list[Record]) -> None:
     for finger in range(FINGERS):
         hand_send(routed(finger, "identify"))
         for hop in (Hop.F2, Hop.F3):
-            hand_send(request("palm.route", finger=finger, hop=hop, timeout_ms=20,
+            hand_send(request("palm.route", finger=finger, hop=hop, timeout_ms=ROUTE_MS,
                               frame=CATALOGUE["identify"].request_frame(HOP_ADDRESS[hop])))
     hand_send(routed(1, "fmcb.control", mode=ControlMode.JOINT, args={"target": [0.3, 0.6, 0.4]}))
     hand_send(request("palm.poll", rate_hz=50))
     emu.step(800_000)
     hand_send(routed(1, "fmcb.status"))
-    hand_send(request("palm.route", finger=1, hop=Hop.F2, timeout_ms=20,
+    hand_send(request("palm.route", finger=1, hop=Hop.F2, timeout_ms=ROUTE_MS,
                       frame=CATALOGUE["f2.tactile"].request_frame(ADDR_F2)))
     hand_send(request("palm.hand_status"))
 

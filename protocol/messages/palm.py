@@ -9,6 +9,7 @@ hand status, finger polling, the current governor, and unsolicited finger events
 from __future__ import annotations
 
 from enum import IntEnum
+from typing import Final
 
 import construct as c
 
@@ -20,6 +21,8 @@ from protocol.topology import FINGERS, Hop
 PALM_TAXELS = 32
 #: Largest routed frame (bytes): a tunnel request with 512 data bytes plus framing.
 ROUTE_MAX_FRAME = 540
+#: ``palm.finger_power``'s finger index meaning every finger (switched ``stagger_ms`` apart).
+ALL_FINGERS: Final = 0xFF
 
 class FingerPower(IntEnum):
     """Power state of a finger's supply: off, low (9 V, current-limited) or full (24 V)."""

@@ -207,3 +207,34 @@ def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() 
     f3.hal.flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)  # type: ignore[attr-defined]
     with pytest.raises(EmulatorError, match="uid"):
         broken.bring_up()  # f3's image is not activated: it stays in its bootloader
+
+
+def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from host.hand import Hand
+    from host.hand_session import HandSession
+
+    sent: list[tuple[str, int | None, bool]] = []
+    start = HandSession.start
+
+    def spy(self: HandSession, name: str, *args: Any, **kw: Any) -> Any:
+        sent.append((name, kw["to"].finger, kw.get("txn", True)))
+        return start(self, name, *args, **kw)
+
+    monkeypatch.setattr(HandSession, "start", spy)
+    emu = Emulator("hand", seed=2, can="none", physics=False)
+    recorded: list[bytes] = []
+    emu.hand.on_host_bytes = lambda data, t_us: recorded.append(data)  # type: ignore[union-attr]
+    emu.bring_up()
+    assert sent == ([("palm.finger_power", None, False)]
+                    + [("fmcb.phalange_power", k, False) for k in range(4)]
+                    + [("fmcb.autopoll", k, False) for k in range(4)])
+    # The listener the link had kept every reply (tee), and has the link back.
+    replies = decode_all(b"".join(recorded))
+    assert sum(f.type == CATALOGUE["palm.route"].type_id for f in replies) == 8
+    monkeypatch.undo()
+    with Hand(HandSession(emu.transport("palm"))) as hand:
+        found = hand.discover()
+    assert len(found) == 13
+    assert all(n.answered and n.running == "application" for n in found), found
+    emu.hand.on_host_bytes = None  # type: ignore[union-attr]

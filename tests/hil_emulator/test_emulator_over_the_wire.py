@@ -10,23 +10,29 @@ from typing import Any
 
 import pytest
 
+from host.errors import HostError
+from host.hand_session import HandSession, Target, Timeouts
+from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
 from protocol.messages import CATALOGUE
-from protocol.topology import ADDR_FMCB, ADDR_PALM
+from protocol.messages.palm import FingerPower
+from protocol.topology import ADDR_FMCB, ADDR_PALM, Hop
 from tests.hil_emulator.emulator_process import late_s, running_emulator
-from tools.hand_port import HandPort, ReplyTimeout
+
+#: The host link's share of a reply's time over a pty (s): generous on a busy machine.
+PTY_LINK = Timeouts(link_s=0.5)
 
 #: How late this test process itself may be woken on a busy machine (s).
 CLIENT_SLACK_S = 0.05
 
 
 def _until(what: Callable[[], Any], timeout_s: float, every_s: float = 0.1) -> Any:
-    """Call ``what`` until it returns something truthy (ReplyTimeout counts as no)."""
+    """Call ``what`` until it returns something truthy (a host error counts as no)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
             value = what()
-        except ReplyTimeout:
+        except HostError:
             value = None
         if value:
             return value
@@ -129,19 +135,21 @@ def _signed32(value: int) -> int:
 
 @pytest.mark.slow
 def test_every_hand_node_answers_over_the_palm_port() -> None:
-    with running_emulator("--config", "full") as info, HandPort(info["palm"]) as hand:
-        palm = _until(lambda: _running(hand.request("identify", timeout_s=0.2)), 10)
+    with running_emulator("--config", "full") as info, \
+            HandSession(open_transport(info["palm"]), timeouts=PTY_LINK) as hand:
+        palm = _until(lambda: _running(hand.request("identify")), 10)
         assert palm["board"] == 1
         uids = {palm["uid"]}
-        hand.request("palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
+        hand.request("palm.finger_power", {"finger": 0xFF, "state": FingerPower.FULL, "stagger_ms": 5})
         for k in range(4):
-            fmcb = _until(lambda k=k: _running(hand.route(k, 0, "identify")), 10)
+            fmcb = _until(lambda k=k: _running(hand.request("identify", to=Target(k, Hop.FMCB))), 10)
             assert fmcb["board"] == 2
             uids.add(fmcb["uid"])
-            hand.route(k, 0, "fmcb.phalange_power", on=1)
+            hand.request("fmcb.phalange_power", {"on": 1}, to=Target(k, Hop.FMCB))
         for k in range(4):
             for hop, board in ((1, 3), (2, 4)):
-                node = _until(lambda k=k, hop=hop: _running(hand.route(k, hop, "identify")), 10)
+                node = _until(lambda k=k, hop=hop: _running(
+                    hand.request("identify", to=Target(k, hop))), 10)
                 assert node["board"] == board
                 uids.add(node["uid"])
         assert len(uids) == 13  # palm, four fmcbs, eight phalanges
@@ -150,21 +158,23 @@ def test_every_hand_node_answers_over_the_palm_port() -> None:
 @pytest.mark.slow
 def test_original_bootloader_sequence_over_a_loose_finger_port() -> None:
     with running_emulator("--config", "loose-finger") as info, \
-            HandPort(info["fingers"][0]) as finger:
-        finger.request("reset")  # acknowledged, then the fmcb restarts into its bootloader
+            HandSession(open_transport(info["fingers"][0]), link="finger",
+                        timeouts=PTY_LINK) as finger:
+        # The original host's frames: no txn envelope.
+        finger.request("reset", txn=False)  # acknowledged, then the fmcb restarts into its bootloader
         time.sleep(0.05)
-        assert finger.request("bl.halt") == {}  # inside the 3 s window
-        assert finger.request("ping") == {}
-        ident = finger.request("identify")
+        assert finger.request("bl.halt", txn=False) == {}  # inside the 3 s window
+        assert finger.request("ping", txn=False) == {}
+        ident = finger.request("identify", txn=False)
         assert ident["board"] == 2 and ident["running"] == 0
-        page = finger.request("bl.read_page", page=32)
+        page = finger.request("bl.read_page", {"page": 32}, txn=False)
         assert len(page["data"]) == 256 and page["data"][:4] == b"HAND"  # the image header
         time.sleep(3.5)  # the halted bootloader does not boot by itself
-        assert finger.request("identify")["running"] == 0
-        finger.request("bl.boot")
-        ident = _until(lambda: _running(finger.request("identify", timeout_s=0.2)), 2)
+        assert finger.request("identify", txn=False)["running"] == 0
+        finger.request("bl.boot", txn=False)
+        ident = _until(lambda: _running(finger.request("identify", txn=False)), 2)
         assert ident["board"] == 2
-        assert finger.request("ping") == {}  # the application answers ping too
+        assert finger.request("ping", txn=False) == {}  # the application answers ping too
 
 
 @pytest.mark.slow
@@ -176,8 +186,9 @@ def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
     request = status.request_frame(ADDR_FMCB)
     wire_s = (len(request) + 148 + 7) * 10 / 2_000_000
     with running_emulator("--config", "loose-finger") as info:
-        with HandPort(info["fingers"][0]) as finger:
-            _until(lambda: _running(finger.request("identify", timeout_s=0.2)), 6)
+        with HandSession(open_transport(info["fingers"][0]), link="finger",
+                         timeouts=PTY_LINK) as finger:
+            _until(lambda: _running(finger.request("identify")), 6)
         with serial.Serial(info["fingers"][0], 2_000_000, timeout=0) as port:
             times = []
             for _ in range(20):
@@ -235,14 +246,14 @@ def test_python_can_slcan_reaches_the_palm() -> None:
 @pytest.mark.slow
 def test_ready_names_the_ports_with_every_hand_node_running() -> None:
     with running_emulator("--config", "hand", "--ready", "--can", "none") as info, \
-            HandPort(info["palm"]) as hand:
+            HandSession(open_transport(info["palm"]), timeouts=PTY_LINK) as hand:
         assert info["ready"] is True
         assert hand.request("identify")["running"] == 1  # no waiting: it is up already
         for k in range(4):
-            assert hand.route(k, 0, "identify")["running"] == 1
+            assert hand.request("identify", to=Target(k, Hop.FMCB))["running"] == 1
             for hop in (1, 2):
-                assert hand.route(k, hop, "identify")["running"] == 1
-        status = hand.route(2, 0, "fmcb.status")
+                assert hand.request("identify", to=Target(k, hop))["running"] == 1
+        status = hand.request("fmcb.status", to=Target(2, Hop.FMCB))
         assert status["pp_time"] > 0 and status["dp_time"] > 0  # autopoll has run
 
 

@@ -11,8 +11,8 @@ from collections.abc import Iterator
 import pytest
 
 from host.errors import RouteError
-from host.hand import Hand
-from host.hand_codes import ROUTE_LINK_DOWN, ROUTE_UNPOWERED
+from host.hand import FALLBACK_DEADBAND_HALL, Hand
+from protocol.messages.palm import RouteStatus
 
 URL = "emu://hand/palm?name=host-tests"
 
@@ -46,13 +46,26 @@ def test_a_finger_moves_toward_its_joint_targets(hand: Hand) -> None:
     assert hand.status().fingers[1].joints == pytest.approx(after, abs=0.02)
 
 
+def test_the_settle_tolerance_is_the_fmcbs_deadband_read_once(hand: Hand) -> None:
+    finger = hand.fingers[1]  # moved above: its deadband was read then
+    before = hand.session.counters.requests
+    assert finger.deadband() == 50  # the firmware's default parameter
+    assert hand.session.counters.requests == before  # kept, not asked again
+    finger.params.set("deadband", 80)
+    assert finger.deadband() == 80
+    assert finger.params.get("deadband") == 80  # the board has it too
+    finger.params.restore_defaults()
+    assert finger.deadband() == 50
+
+
 def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand) -> None:
     assert hand.power(2, "off")[2] == "off"
     event = hand.next_event(timeout=0.1)
     assert event is not None and (event.finger, event.event) == (2, "unpowered")
     with pytest.raises(RouteError) as caught:
         hand.fingers[2].command((0.1, 0.1, 0.1))
-    assert caught.value.status == ROUTE_UNPOWERED and caught.value.finger == 2
+    assert caught.value.status == RouteStatus.UNPOWERED and caught.value.finger == 2
+    assert hand.fingers[2].deadband() == FALLBACK_DEADBAND_HALL  # it cannot be asked
     state = hand.status()
     assert state.fingers[2].power == "off" and not state.fingers[2].present
 
@@ -67,6 +80,6 @@ def test_a_finger_that_breaks_away_is_reported_lost_and_its_routes_fail(hand: Ha
     assert [(e.finger, e.event) for e in seen] == [(3, "lost")]
     with pytest.raises(RouteError) as caught:
         hand.fingers[3].motor.request("fmcb.status")
-    assert caught.value.status == ROUTE_LINK_DOWN
+    assert caught.value.status == RouteStatus.LINK_DOWN
     assert "broken away" in str(caught.value)
     assert hand.fingers[0].status().present  # the others carry on

@@ -217,3 +217,28 @@ def test_the_session_runs_over_a_pyserial_loop_url() -> None:
         with pytest.raises(ReplyTimeout, match="no reply to ping"):
             session.request("ping", retries=0)
         assert session.counters.stray_frames == 1
+
+
+def test_an_unenveloped_request_sends_the_plain_frames_and_matches_its_reply_by_type() -> None:
+    phalange = CATALOGUE["fmcb.phalange_power"]
+    link = ScriptedTransport()
+    session = HandSession(link, timeouts=Timeouts(fmcb_ms=20))
+    pending = session.start("fmcb.phalange_power", {"on": 1}, to=Target(2, 0), txn=False)
+    # Byte for byte what the original hand's host sent: palm.route around the bare request.
+    assert link.sent == [ROUTE.request_frame(10, finger=2, hop=0, timeout_ms=20,
+                                             frame=phalange.request_frame(10, on=1))]
+    link.deliver(event(0, 3) + encode_frame(0, ROUTE.type_id, ROUTE.build_reply(
+        finger=2, hop=0, status=0, frame=phalange.reply_frame())))
+    assert session.wait(pending) == {}
+    assert session.counters.stray_frames == 0 and session.next_event() is not None
+    # A bare request to the link's own node: its reply comes back bare, of its type.
+    pending = session.start("identify", txn=False)
+    assert link.sent[-1] == CATALOGUE["identify"].request_frame(10)
+    link.deliver(CATALOGUE["identify"].reply_frame(IDENTIFY))
+    assert session.wait(pending)["uid"] == 77
+    # A routed bare request whose palm reports no reply raises as an enveloped one does.
+    pending = session.start("fmcb.status", to=Target(1, 0), txn=False, retries=0)
+    link.deliver(encode_frame(0, ROUTE.type_id, ROUTE.build_reply(
+        finger=1, hop=0, status=1, frame=b"")))
+    with pytest.raises(RouteError, match="no_reply"):
+        session.wait(pending)
