@@ -55,6 +55,9 @@ from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
 from host.errors import UsageError
 from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
 
+#: Joint angles or a vector: a sequence of floats or a numpy array.
+Vector = Sequence[float] | np.ndarray
+
 if TYPE_CHECKING:
     from host.arm import Arm
 
@@ -103,8 +106,8 @@ class JointPid:
         """Forget the integral."""
         self.integral[:] = 0.0
 
-    def update(self, q_des: Sequence[float], q: Sequence[float], dt: float,
-               qd_des: Sequence[float] | None = None, qd: Sequence[float] | None = None
+    def update(self, q_des: Vector, q: Vector, dt: float,
+               qd_des: Vector | None = None, qd: Vector | None = None
                ) -> np.ndarray:
         """Correction (rad, 7) for desired ``q_des`` and measured ``q`` (rad), after ``dt``
         (s) since the last update; velocities (rad/s) for the derivative term."""
@@ -118,7 +121,7 @@ class JointPid:
         return out
 
 
-def coupling_feedforward(q_des: Sequence[float], q_ref: Sequence[float]) -> np.ndarray:
+def coupling_feedforward(q_des: Vector, q_ref: Vector) -> np.ndarray:
     """What to add to the stepper goals of J1..J4 (rad, 4) so the capstans end up where the
     goals say although the routes turn them by ``C·(q − q_ref)``: ``−C·(q_des − q_ref)``
     (``q_ref``: joint angles at the nodes' power-up, rad; only J1..J4 are used)."""
@@ -127,7 +130,7 @@ def coupling_feedforward(q_des: Sequence[float], q_ref: Sequence[float]) -> np.n
     return -(c @ dq)
 
 
-def elastic_deflections(state: ArmState, q_ref: Sequence[float]) -> np.ndarray:
+def elastic_deflections(state: ArmState, q_ref: Vector) -> np.ndarray:
     """The series-elastic elements' true deflections (rad, J1..J4): capstan − joint, with the
     capstan = motor angle + ``C·(q − q_ref)`` (the nodes' own deflection leaves out the
     routes' coupling)."""
@@ -182,7 +185,7 @@ class Trajectory:
         return points[k] + a * (points[k + 1] - points[k]), (points[k + 1] - points[k]) / span
 
 
-def timed_path(points: Sequence[Sequence[float]], max_speed: float, start_t: float = 0.0,
+def timed_path(points: Sequence[Vector], max_speed: float, start_t: float = 0.0,
                min_segment_s: float = 0.05) -> list[Waypoint]:
     """Waypoints through ``points`` (7 rad each), each segment timed so no joint is faster
     than ``max_speed`` (rad/s)."""
@@ -246,7 +249,7 @@ class JointController:
               ) -> np.ndarray:
         """The seven joint goals (rad) for the next cycle from the last ``state``."""
         q = np.array(state.joints)
-        qd = np.array([s.velocity for s in (*state.steppers, *state.servos)])
+        qd = np.array([s.velocity for s in state.steppers] + [s.velocity for s in state.servos])
         u = q_des + self.pid.update(q_des, q, dt, qd_des, qd)
         if self.feedforward:
             u[:N_STEPPERS] += coupling_feedforward(q_des, self.q_ref)
@@ -258,7 +261,7 @@ class JointController:
         self._last_t = self.state.t
         return self.state
 
-    def step(self, q_des: Sequence[float], qd_des: Sequence[float] | None = None,
+    def step(self, q_des: Vector, qd_des: Vector | None = None,
              log: TrackingLog | None = None) -> ArmState:
         """One cycle towards ``q_des`` (rad), ``qd_des`` (rad/s)."""
         state = self.state if self.state is not None else self.start()
@@ -320,7 +323,7 @@ class CartesianMove:
     reached: bool
 
 
-def moveto(arm: Arm, xyz: Sequence[float], rpy: Sequence[float] | None = None, *,
+def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
            speed: float = 0.4, tolerance_m: float = 0.002, settle_timeout: float = 8.0,
            controller: JointController | None = None, allow_unhomed: bool = False,
            log: TrackingLog | None = None) -> CartesianMove:

@@ -42,6 +42,9 @@ from protocol.robot import (
     ARM_JOINT_OFFSETS_M,
 )
 
+#: Joint angles or a vector: a sequence of floats or a numpy array.
+Vector = Sequence[float] | np.ndarray
+
 N_JOINTS: Final = len(ARM_JOINT_AXES)
 #: Joint limits (rad), lower and upper rows, J1..J7.
 LOWER: Final = np.array([lo for lo, _ in ARM_JOINT_LIMITS])
@@ -50,12 +53,12 @@ UPPER: Final = np.array([hi for _, hi in ARM_JOINT_LIMITS])
 LIMIT_MARGIN_RAD: Final = 0.02
 
 
-def axis_rotation(axis: Sequence[float] | np.ndarray, angle: float) -> np.ndarray:
+def axis_rotation(axis: Vector, angle: float) -> np.ndarray:
     """Rotation matrix (3×3) turning ``angle`` (rad) counter-clockwise about unit ``axis``."""
     return np.array(_axis_rotation_rows([float(v) for v in axis], float(angle)))
 
 
-def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
+def rpy_to_matrix(rpy: Vector) -> np.ndarray:
     """``Rz(yaw)·Ry(pitch)·Rx(roll)`` for ``rpy = (roll, pitch, yaw)`` (rad)."""
     r, p, y = (float(v) for v in rpy)
     return (axis_rotation((0, 0, 1), y) @ axis_rotation((0, 1, 0), p)
@@ -119,7 +122,7 @@ def _mat_mul(a: list[list[float]], b: list[list[float]]) -> list[list[float]]:
             for r in range(3)]
 
 
-def _mat_vec(a: list[list[float]], v: Sequence[float]) -> list[float]:
+def _mat_vec(a: list[list[float]], v: Vector) -> list[float]:
     return [a[r][0] * v[0] + a[r][1] * v[1] + a[r][2] * v[2] for r in range(3)]
 
 
@@ -128,7 +131,7 @@ _AXIS_ROWS: Final = [list(map(float, a)) for a in ARM_JOINT_AXES]
 _FLANGE_ROW: Final = list(map(float, ARM_FLANGE_OFFSET_M))
 
 
-def joint_frames(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def joint_frames(q: Vector) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For joint angles ``q`` (rad, 7): each joint's origin (7×3, m) and axis (7×3, unit) in
     the base frame, and the flange's position (3) and rotation (3×3).  (Plain floats inside:
     a 7-link chain is far cheaper so than as numpy calls, and IK calls it thousands of
@@ -151,7 +154,7 @@ def joint_frames(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return np.array(origins), np.array(axes), np.array(tip), np.array(rot)
 
 
-def _axis_rotation_rows(axis: Sequence[float], angle: float) -> list[list[float]]:
+def _axis_rotation_rows(axis: Vector, angle: float) -> list[list[float]]:
     x, y, z = axis
     c, s = math.cos(angle), math.sin(angle)
     t = 1.0 - c
@@ -160,13 +163,13 @@ def _axis_rotation_rows(axis: Sequence[float], angle: float) -> list[list[float]
             [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
 
 
-def forward(q: Sequence[float]) -> Pose:
+def forward(q: Vector) -> Pose:
     """The flange pose for joint angles ``q`` (rad, J1..J7)."""
     _, _, position, rotation = joint_frames(q)
     return Pose(position, rotation)
 
 
-def jacobian(q: Sequence[float]) -> np.ndarray:
+def jacobian(q: Vector) -> np.ndarray:
     """Geometric Jacobian (6×7) of the flange at ``q``: rows 0–2 linear velocity (m/s per
     rad/s), rows 3–5 angular velocity (rad/s per rad/s), both in the base frame."""
     origins, axes, tip, _ = joint_frames(q)
@@ -181,13 +184,13 @@ def manipulability(j: np.ndarray) -> float:
     return math.sqrt(max(float(np.linalg.det(j @ j.T)), 0.0))
 
 
-def within_limits(q: Sequence[float], margin: float = 0.0) -> bool:
+def within_limits(q: Vector, margin: float = 0.0) -> bool:
     """True if every joint angle (rad) is within its limits less ``margin``."""
     qa = np.asarray(q, dtype=float)
     return bool(np.all(qa >= LOWER + margin) and np.all(qa <= UPPER - margin))
 
 
-def clamp_to_limits(q: Sequence[float], margin: float = LIMIT_MARGIN_RAD) -> np.ndarray:
+def clamp_to_limits(q: Vector, margin: float = LIMIT_MARGIN_RAD) -> np.ndarray:
     """``q`` (rad) with every joint clamped into its limits less ``margin``."""
     return np.clip(np.asarray(q, dtype=float), LOWER + margin, UPPER - margin)
 
@@ -225,8 +228,8 @@ def _log_manipulability_gradient(q: np.ndarray, rows: slice, step: float = 1e-4
     return grad
 
 
-def solve_ik(xyz: Sequence[float], rpy: Sequence[float] | None = None, *,
-             q0: Sequence[float] | None = None, tolerance_m: float = 1e-4,
+def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
+             q0: Vector | None = None, tolerance_m: float = 1e-4,
              tolerance_rad: float = 1e-3, max_iterations: int = 300, damping: float = 0.05,
              singular_threshold: float = 0.05, max_step_rad: float = 0.2,
              k_limits: float = 0.2, k_singular: float = 0.02) -> IkResult:
