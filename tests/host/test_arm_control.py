@@ -156,6 +156,10 @@ def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     if not arm.homed:
         arm.home()
     plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    # record from the hanging pose: with torque off an arm held elsewhere falls, and its
+    # unpowered rotors turn with it, which the step counts cannot follow
+    arm.torque(True)
+    arm.move([0.0] * 7, timeout=5.0)
     start = arm.state().joints
 
     def hand(state: object) -> None:  # a hand turning the base and the wrist
