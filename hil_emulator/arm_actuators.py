@@ -48,6 +48,8 @@ import numpy as np
 from hil_emulator.errors import EmulatorConfigError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
+    ARM_INDEX_ANGLES,
+    ARM_ROUTE_COUPLING,
     SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
     STEPPER_FULL_STEPS_PER_REV,
     STEPPER_MICROSTEPPING,
@@ -63,13 +65,8 @@ def _vec(values: tuple[float, ...]) -> np.ndarray:
 
 
 #: Couplings of the belt/cable circuits (rows: capstan J1..J4; columns: joint J1..J4), rad of
-#: capstan per rad of joint: J2 shifts the J3 capstan by −0.12·Δq2 and the J4 capstan by
-#: +0.18·Δq2 (belts turning about the J2 axis); J3 shifts the J4 capstan by +0.08·Δq3 (elbow
-#: cables twisting in the roll shaft).  Representative values; the dissertation gives none.
-DEFAULT_COUPLING: Final = ((0.0, 0.0, 0.0, 0.0),
-                           (0.0, 0.0, 0.0, 0.0),
-                           (0.0, -0.12, 0.0, 0.0),
-                           (0.0, 0.18, 0.08, 0.0))
+#: capstan per rad of joint: :data:`protocol.robot.ARM_ROUTE_COUPLING`.
+DEFAULT_COUPLING: Final = ARM_ROUTE_COUPLING
 
 
 @dataclass
@@ -119,10 +116,10 @@ class ArmParams:
     #: Slips of one motor less than this apart (s) are one slip event.
     slip_event_gap_s: float = 0.2
     #: Joint encoders: counts per joint revolution (0.036°), and the joint angle (rad, in the
-    #: model's joint coordinates) of each index mark: a few degrees from the default start
-    #: pose (0): +3.4°, +4.0°, −2.9°, +4.6°.
+    #: model's joint coordinates) of each index mark (:data:`protocol.robot.ARM_INDEX_ANGLES`):
+    #: a few degrees from the default start pose (0): +3.4°, +4.0°, −2.9°, +4.6°.
     encoder_counts_per_rev: int = ARM_ENCODER_COUNTS_PER_REV
-    index_angles: np.ndarray = field(default_factory=lambda: _vec((0.06, 0.07, -0.05, 0.08)))
+    index_angles: np.ndarray = field(default_factory=lambda: _vec(ARM_INDEX_ANGLES))
     #: Stepper windings: phase resistance (Ω); driver/winding thermal resistance (K/W) and
     #: capacity (J/K), for the ``temperature`` sensor (0.1 °C); supply (mV).
     phase_resistance_ohm: np.ndarray = field(default_factory=lambda: _vec((1.4, 1.4, 1.8, 1.8)))

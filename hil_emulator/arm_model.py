@@ -60,9 +60,11 @@ import numpy as np
 
 from hil_emulator.errors import EmulatorConfigError
 from protocol.robot import (
+    ARM_FLANGE_OFFSET_M,
     ARM_JOINT_AXES,
     ARM_JOINT_LIMITS,
     ARM_JOINT_NAMES,
+    ARM_JOINT_OFFSETS_M,
 )
 
 Vec3 = tuple[float, float, float]
@@ -81,15 +83,9 @@ JOINT_AXES: Final = ARM_JOINT_AXES
 #: Joint ranges (rad): the mechanical stops (:data:`protocol.robot.ARM_JOINT_LIMITS`).
 JOINT_RANGES: Final = ARM_JOINT_LIMITS
 
-# --- geometry (m) ----------------------------------------------------------------------------
-BASE_TO_LINK1: Final = 0.16     # base plate → link 1 frame (on the J1 axis)
-LINK1_TO_J2: Final = 0.20       # link 1 frame → J2 axis
-J2_TO_J3: Final = 0.08          # shoulder bracket: J2 axis → upper-arm roll bearing
-J3_TO_ELBOW: Final = 0.47       # upper arm: roll bearing → elbow axis (J2 → elbow 0.55 m)
-ELBOW_TO_J5: Final = 0.08       # elbow → forearm roll bearing (the J5 servo sits here)
-J5_TO_WRIST: Final = 0.32       # forearm tube → wrist pitch axis (elbow → wrist 0.40 m)
-WRIST_TO_J7: Final = 0.05       # wrist pitch → wrist yaw axis
-J7_TO_FLANGE: Final = 0.04      # wrist yaw → flange face
+# --- geometry (m): protocol.robot.ARM_JOINT_OFFSETS_M; the two lengths the geoms need ------
+J3_TO_ELBOW: Final = -ARM_JOINT_OFFSETS_M[3][2]     # roll bearing → elbow axis
+J5_TO_WRIST: Final = -ARM_JOINT_OFFSETS_M[5][2]     # forearm tube → wrist pitch axis
 
 # --- masses (kg): 5.5 + 3.9 grounded/link 1, 2.0 flying below J2; 11.4 in all ---------------
 BASE_MASS: Final = 5.5          # plywood base + the two NEMA-34 steppers and their belts
@@ -228,9 +224,11 @@ def add_arm(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str = "arm/",
     joint_index = iter(range(len(ARM_JOINTS)))
     unit = math.degrees(1.0) if spec.compiler.degree else 1.0  # MjSpec defaults to degrees
 
-    def link(holder: mujoco.MjsBody, name: str, offset: Vec3) -> mujoco.MjsBody:
-        """A child body carrying the next joint, turned to its start angle."""
+    def link(holder: mujoco.MjsBody, name: str) -> mujoco.MjsBody:
+        """A child body carrying the next joint at its offset
+        (:data:`protocol.robot.ARM_JOINT_OFFSETS_M`), turned to its start angle."""
         i = next(joint_index)
+        offset = ARM_JOINT_OFFSETS_M[i]
         axis = JOINT_AXES[i]
         body = holder.add_body(name=f"{prefix}{name}", pos=list(offset),
                                quat=_rotate_quat((1.0, 0.0, 0.0, 0.0), axis, pose[i]))
@@ -249,7 +247,7 @@ def add_arm(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str = "arm/",
             joint.solimp_friction = list(FRICTION_SOLIMP)
         return body
 
-    link1 = link(base, "link1", (0.0, 0.0, BASE_TO_LINK1))
+    link1 = link(base, "link1")
     link1.mass = LINK1_MASS
     link1.ipos = [-0.06, 0.0, 0.09]
     link1.inertia = [0.019, 0.021, 0.024]
@@ -257,41 +255,41 @@ def add_arm(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str = "arm/",
     _geom(link1, f"{prefix}link1_box", mujoco.mjtGeom.mjGEOM_BOX, (0.10, 0.09, 0.08),
           _LINK_RGBA, pos=(-0.04, 0.0, 0.09))
 
-    shoulder = link(link1, "shoulder", (0.0, 0.0, LINK1_TO_J2))
+    shoulder = link(link1, "shoulder")
     _add_inertial(shoulder, LINK_PARTS["shoulder"])
     _geom(shoulder, f"{prefix}shoulder_capstan", mujoco.mjtGeom.mjGEOM_CYLINDER, (0.05, 0.05),
           _LINK_RGBA, quat=_Y_CYLINDER)
 
-    upper = link(shoulder, "upper_arm", (0.0, 0.0, -J2_TO_J3))
+    upper = link(shoulder, "upper_arm")
     _add_inertial(upper, LINK_PARTS["upper_arm"])
     _geom(upper, f"{prefix}upper_arm_tube", mujoco.mjtGeom.mjGEOM_CAPSULE, (0.03,),
           _LINK_RGBA, fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -J3_TO_ELBOW + 0.05))
     _geom(upper, f"{prefix}elbow_capstan", mujoco.mjtGeom.mjGEOM_CYLINDER, (0.05, 0.03),
           _LINK_RGBA, pos=(0.0, 0.0, -J3_TO_ELBOW), quat=_Y_CYLINDER)
 
-    forearm = link(upper, "forearm", (0.0, 0.0, -J3_TO_ELBOW))
+    forearm = link(upper, "forearm")
     _add_inertial(forearm, LINK_PARTS["forearm"])
     _geom(forearm, f"{prefix}J5_servo", mujoco.mjtGeom.mjGEOM_BOX, (0.02, 0.02, 0.035),
           _SERVO_RGBA, pos=(0.0, 0.0, -0.045))
 
-    roll = link(forearm, "forearm_roll", (0.0, 0.0, -ELBOW_TO_J5))
+    roll = link(forearm, "forearm_roll")
     _add_inertial(roll, LINK_PARTS["forearm_roll"])
     _geom(roll, f"{prefix}forearm_tube", mujoco.mjtGeom.mjGEOM_CAPSULE, (0.02,),
           _METAL_RGBA, fromto=(0.0, 0.0, 0.0, 0.0, 0.0, -J5_TO_WRIST + 0.06))
     _geom(roll, f"{prefix}J6_servo", mujoco.mjtGeom.mjGEOM_BOX, (0.02, 0.035, 0.025),
           _SERVO_RGBA, pos=(0.0, 0.0, -0.29))
 
-    wrist = link(roll, "wrist", (0.0, 0.0, -J5_TO_WRIST))
+    wrist = link(roll, "wrist")
     _add_inertial(wrist, LINK_PARTS["wrist"])
     _geom(wrist, f"{prefix}J7_servo", mujoco.mjtGeom.mjGEOM_BOX, (0.035, 0.02, 0.025),
           _SERVO_RGBA, pos=(0.0, 0.0, -0.03))
 
-    yaw = link(wrist, "wrist_yaw", (0.0, 0.0, -WRIST_TO_J7))
+    yaw = link(wrist, "wrist_yaw")
     _add_inertial(yaw, LINK_PARTS["wrist_yaw"])
     _geom(yaw, f"{prefix}flange_plate", mujoco.mjtGeom.mjGEOM_CYLINDER, (0.03, 0.015),
           _METAL_RGBA, pos=(0.0, 0.0, -0.02), quat=_X_CYLINDER)
 
-    flange = yaw.add_body(name=f"{prefix}flange", pos=[0.0, 0.0, -J7_TO_FLANGE])
+    flange = yaw.add_body(name=f"{prefix}flange", pos=list(ARM_FLANGE_OFFSET_M))
     _add_inertial(flange, LINK_PARTS["flange"])
     flange.add_site(name=f"{prefix}flange", pos=[0.0, 0.0, 0.0], size=[0.01, 0.0, 0.0])
     return flange

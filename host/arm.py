@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterable, Sequence
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
@@ -85,6 +85,10 @@ from protocol.dynamixel import (
     rx64_present_speed_to_rad_s,
 )
 
+if TYPE_CHECKING:
+    from host.arm_control import CartesianMove
+    from host.arm_homing import JointCalibration
+
 _S = STEPPER_TABLE
 _R = RX64_TABLE
 #: What a cycle reads from a stepper node: its cycle block (see the module docs).
@@ -113,6 +117,11 @@ class Arm:
         #: Each stepper node's goal (joint encoder counts): what this arm last sent, learnt
         #: from the nodes by :meth:`read_goals`.
         self.stepper_goals = [0] * N_STEPPERS
+        #: Absolute joint frames after homing (:mod:`host.arm_homing`); None: the nodes'
+        #: frames (angles from power-up), and :attr:`homed` is False.
+        self.calibration: JointCalibration | None = None
+        #: Encoder count at each stepper node's power-up (from each cycle's step count, encoder and deflection).
+        self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
@@ -271,13 +280,17 @@ class Arm:
     def cycle(self, commands: Iterable[Command] = ()) -> ArmState:
         """Send ``commands`` and read the state of all seven joints in one exchange."""
         commands = list(commands)
+        calibration = self.calibration
+        if calibration is not None:
+            commands = calibration.commands_to_node(commands)
         packets = [*self.packets_for(commands), self._bulk_read]
         replies = self.bus.exchange(packets, self._expected)
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
                 self.stepper_goals[c.joint] = self.joints[c.joint].rad_to_counts(c.angle)
-        return self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
-                                                            for s in replies})
+        state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
+                                                             for s in replies})
+        return state if calibration is None else calibration.state_from_node(state)
 
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
@@ -286,6 +299,10 @@ class Arm:
             error, data = replies[j.dxl_id]
             position, steps, velocity, deflection, flags = _STEPPER_FIELDS.unpack_from(data)
             deflection_rad = j.counts_to_rad(deflection)
+            # Where the encoder stood when the step count was 0 (the node's power-up):
+            # the motor side in encoder counts is that plus the steps' worth.
+            self.encoder_at_power_up[i] = (position + deflection
+                                           - round(steps / j.microsteps_per_count))
             steppers.append(StepperState(
                 joint=j.joint, angle=j.counts_to_rad(position),
                 velocity=j.counts_to_rad(velocity),
@@ -303,6 +320,29 @@ class Arm:
                 temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
         raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
         return ArmState(t, tuple(steppers), tuple(servos), raw)
+
+    # ------------------------------------------------------------------ homing, Cartesian
+
+    @property
+    def homed(self) -> bool:
+        """True once :meth:`home` (or :func:`host.arm_homing.restore`) fixed the joints'
+        absolute angles; until then angles are the nodes' (from power-up)."""
+        return self.calibration is not None
+
+    def home(self, **options: Any) -> JointCalibration:
+        """Find every stepper joint's index mark (:func:`host.arm_homing.home`)."""
+        from host.arm_homing import home
+
+        return home(self, **options)
+
+    def moveto(self, xyz: Sequence[float], rpy: Sequence[float] | None = None,
+               **options: Any) -> CartesianMove:
+        """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given:
+        IK, then an interpolated, feed-forward-compensated joint move
+        (:func:`host.arm_control.moveto`); the result carries the joint goals."""
+        from host.arm_control import moveto
+
+        return moveto(self, xyz, rpy, **options)
 
     # ------------------------------------------------------------------ conveniences
 

@@ -8,7 +8,8 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── ReplyTimeout(TimeoutError)        a request got no (matching) reply in time
     ├── RouteError                        the palm could not deliver to a finger node
     ├── NodeError                         a node answered, but with a refusal or a bad reply
-    └── UsageError(ValueError)            the caller asked for something impossible
+    ├── UsageError(ValueError)            the caller asked for something impossible
+    └── HomingError                       an arm joint's index mark was not found
 """
 
 from __future__ import annotations
@@ -55,3 +56,14 @@ class NodeError(HostError):
 
 class UsageError(HostError, ValueError):
     """A request the library refuses before sending anything (bad URL, joint limit …)."""
+
+
+class HomingError(HostError):
+    """A joint's index mark was not found (or the homing search could not run).
+
+    ``joint`` names the joint (``"J1"`` … ``"J4"``) when one is to blame, else None.
+    """
+
+    def __init__(self, message: str, *, joint: str | None = None) -> None:
+        super().__init__(message)
+        self.joint = joint

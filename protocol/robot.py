@@ -286,3 +286,38 @@ RX64_POSITION_MAX: Final = RX64_POSITION_UNITS - 1
 RX64_RAD_PER_UNIT: Final = RX64_RANGE_RAD / RX64_POSITION_UNITS
 #: RX-64 position units per radian.
 RX64_UNITS_PER_RAD: Final = RX64_POSITION_UNITS / RX64_RANGE_RAD
+
+# --- arm geometry and routing (the emulator's model and the host's kinematics share them) --
+
+#: Each arm joint's body origin in its parent body's frame at the kinematic zero (m), J1..J7:
+#: base plate → J1 (link 1 frame, on the J1 axis) 0.16; link 1 → J2 axis 0.20; J2 → upper-arm
+#: roll bearing 0.08; roll bearing → elbow axis 0.47 (J2 → elbow 0.55); elbow → forearm roll
+#: bearing 0.08; forearm → wrist pitch axis 0.32 (elbow → wrist 0.40); wrist pitch → wrist
+#: yaw 0.05.  At the kinematic zero every body frame is parallel to the base frame (``z`` up,
+#: ``x`` forward) and the links hang along ``−z``.
+ARM_JOINT_OFFSETS_M: Final[tuple[Vec3, ...]] = (
+    (0.0, 0.0, 0.16), (0.0, 0.0, 0.20), (0.0, 0.0, -0.08), (0.0, 0.0, -0.47),
+    (0.0, 0.0, -0.08), (0.0, 0.0, -0.32), (0.0, 0.0, -0.05))
+#: The wrist flange's origin in the J7 body's frame (m): the flange face, 0.04 m past the
+#: wrist yaw axis (the hand attaches there, its ``−z`` pointing away from the arm).
+ARM_FLANGE_OFFSET_M: Final[Vec3] = (0.0, 0.0, -0.04)
+#: Joint angle (rad) of each joint encoder's index mark, J1..J4, in the kinematic frame: the
+#: homing search latches the encoder count there, which fixes the joint's absolute angle.
+ARM_INDEX_ANGLES: Final[tuple[float, float, float, float]] = (0.06, 0.07, -0.05, 0.08)
+#: The belt and cable routes' linear coupling of J1..J4 (rows: capstan J1..J4; columns:
+#: joint J1..J4; rad of capstan per rad of joint, zero diagonal): the capstan of joint ``i``
+#: turns by ``Σ_j C[i][j]·Δq_j`` besides its motor.  J2 shifts the J3 capstan by −0.12·Δq2
+#: and the J4 capstan by +0.18·Δq2 (belts turning about the J2 axis); J3 shifts the J4
+#: capstan by +0.08·Δq3 (elbow cables twisting in the roll shaft).  Representative values
+#: (the dissertation calls the coupling purely linear and gives none); the host cancels it
+#: with a feed-forward on the motor goals.
+ARM_ROUTE_COUPLING: Final[tuple[tuple[float, float, float, float], ...]] = (
+    (0.0, 0.0, 0.0, 0.0),
+    (0.0, 0.0, 0.0, 0.0),
+    (0.0, -0.12, 0.0, 0.0),
+    (0.0, 0.18, 0.08, 0.0))
+
+
+def arm_route_coupling_matrix() -> np.ndarray:
+    """``C`` (4×4, :data:`ARM_ROUTE_COUPLING`): capstan angles of J1..J4 move by ``C·Δq``."""
+    return np.array(ARM_ROUTE_COUPLING, dtype=float)

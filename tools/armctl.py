@@ -7,6 +7,14 @@
     armctl --port emu://arm/arm torque on
     armctl --port P move --joints 0 0.3 0 0.2 0 0 0 --duration 2
     armctl --port P record arm.mcap --seconds 5     # raw bytes + decoded states (MCAP)
+    armctl --port P home                            # find every stepper joint's index mark
+    armctl --port P moveto 0.3 0.0 -0.5 [--rpy R P Y]   # flange to x y z (m, base frame)
+    armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
+    armctl --port P waypoints play path.jsonl
+
+``move`` and ``moveto`` need a homed arm (``armctl home``; the nodes keep the index latch until
+they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
+(angles from power-up) anyway.
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
 (``emu://arm/arm`` runs the emulator in this process).  Opening sets every node's return
@@ -24,8 +32,9 @@ from collections.abc import Sequence
 from typing import Any, TextIO
 
 from host.arm import Arm
+from host.arm_homing import restore
 from host.arm_state import JOINT_NAMES, N_JOINTS, ArmState
-from host.errors import HostError, ReplyTimeout, TransportError, UsageError
+from host.errors import HomingError, HostError, ReplyTimeout, TransportError, UsageError
 
 #: Exit statuses.
 EXIT_OK, EXIT_ROBOT, EXIT_USAGE, EXIT_NOT_SETTLED = 0, 1, 2, 3
@@ -56,6 +65,25 @@ def make_parser() -> argparse.ArgumentParser:
                       help="take this long (s): speeds set so every joint arrives together")
     move.add_argument("--timeout", type=float, default=10.0, metavar="S",
                       help="give up waiting after this long (s, default 10)")
+    move.add_argument("--unhomed", action="store_true",
+                      help="move although the arm is not homed (angles from power-up)")
+    sub.add_parser("home", help="find every stepper joint's encoder index (moves J1-J4 "
+                                "slowly a little)")
+    moveto = sub.add_parser("moveto", help="move the flange to X Y Z (m, base frame)")
+    moveto.add_argument("xyz", nargs=3, type=float, metavar=("X", "Y", "Z"))
+    moveto.add_argument("--rpy", nargs=3, type=float, default=None, metavar=("R", "P", "Y"),
+                        help="flange orientation: roll pitch yaw (rad, fixed base axes)")
+    moveto.add_argument("--unhomed", action="store_true",
+                        help="move although the arm is not homed")
+    moveto.add_argument("--timeout", type=float, default=8.0, metavar="S",
+                        help="settle time allowed after the path (s, default 8)")
+    waypoints = sub.add_parser("waypoints", help="record waypoints by hand, or play them")
+    waypoints.add_argument("action", choices=("record", "play"))
+    waypoints.add_argument("file", help="waypoint file (JSON lines)")
+    waypoints.add_argument("--seconds", type=float, default=10.0, metavar="S",
+                           help="how long to record (s, default 10)")
+    waypoints.add_argument("--unhomed", action="store_true",
+                           help="play although the arm is not homed")
     record = sub.add_parser("record", help="record raw bus bytes and decoded states (MCAP)")
     record.add_argument("file", help="output .mcap file")
     record.add_argument("--seconds", type=float, required=True, metavar="S")
@@ -96,8 +124,65 @@ def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    homed = restore(arm)
     state = arm.state()
-    _print(out, args.json, state.as_dict(), _state_text(state))
+    _print(out, args.json, {**state.as_dict(), "homed": homed},
+           _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}")
+    return EXIT_OK
+
+
+def _require_homed(arm: Arm, args: argparse.Namespace, what: str) -> None:
+    if not restore(arm) and not args.unhomed:
+        raise UsageError(f"the arm is not homed; home it first (armctl home) before {what}, "
+                         "or pass --unhomed to use angles from power-up")
+
+
+def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    calibration = arm.home()
+    data = {"homed": True, "offsets": list(calibration.offsets),
+            "index_encoder_counts": list(calibration.index_encoder_counts),
+            "index_step_counts": list(calibration.index_step_counts)}
+    text = "homed: " + ", ".join(f"{JOINT_NAMES[i]} {o:+.4f} rad"
+                                 for i, o in enumerate(calibration.offsets[:4]))
+    _print(out, args.json, data, text)
+    return EXIT_OK
+
+
+def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    _require_homed(arm, args, "moveto")
+    result = arm.moveto(args.xyz, args.rpy, allow_unhomed=args.unhomed,
+                        settle_timeout=args.timeout)
+    data = {"reached": result.reached, "goals": list(result.goals),
+            "position_error_m": result.position_error, **result.state.as_dict()}
+    _print(out, args.json, data, f"{'reached' if result.reached else 'not reached'}: "
+           f"{result.position_error * 1000:.1f} mm from the target\n"
+           + _state_text(result.state))
+    if not result.reached:
+        print(f"armctl: the flange is {result.position_error * 1000:.1f} mm from the target "
+              "after the timeout: is a joint blocked or slipping (armctl status)?",
+              file=sys.stderr)
+        return EXIT_NOT_SETTLED
+    return EXIT_OK
+
+
+def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    from host.arm_control import load_waypoints, play_waypoints, record_waypoints, save_waypoints
+
+    if args.action == "record":
+        if not args.seconds > 0:
+            raise UsageError("--seconds must be > 0")
+        restore(arm)
+        points = record_waypoints(arm, args.seconds)
+        save_waypoints(args.file, points)
+        _print(out, args.json, {"file": args.file, "waypoints": len(points),
+                                "homed": arm.homed},
+               f"{len(points)} waypoints recorded to {args.file} (torque is off)")
+        return EXIT_OK
+    points = load_waypoints(args.file)
+    _require_homed(arm, args, "playing waypoints")
+    state = play_waypoints(arm, points)
+    _print(out, args.json, {"file": args.file, "waypoints": len(points), **state.as_dict()},
+           f"played {len(points)} waypoints from {args.file}")
     return EXIT_OK
 
 
@@ -108,6 +193,7 @@ def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    _require_homed(arm, args, "move")
     state, ok = arm.move(args.joints, duration=args.duration, timeout=args.timeout)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
@@ -131,7 +217,8 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
-            "record": cmd_record}
+            "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
+            "waypoints": cmd_waypoints}
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
@@ -166,6 +253,9 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     except ReplyTimeout as exc:
         print(f"armctl: {exc}; the arm stopped answering: check power and the cable",
               file=sys.stderr)
+        return EXIT_ROBOT
+    except HomingError as exc:
+        print(f"armctl: homing failed: {exc}", file=sys.stderr)
         return EXIT_ROBOT
     except (HostError, OSError) as exc:
         print(f"armctl: {exc}", file=sys.stderr)

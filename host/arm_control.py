@@ -1,0 +1,458 @@
+"""Joint-space control of the arm on the link's clock: PID with the route-coupling
+feed-forward, linear interpolation of waypoints, Cartesian moves, waypoint record and play.
+
+**The loop.**  Every ``1/rate_hz`` seconds of the transport's clock (100 Hz by default, as on
+the original arm; ``rate_hz=None`` cycles back to back, as fast as the wire allows) one
+:meth:`~host.arm.Arm.cycle` sends the goals computed from the previous cycle's state and
+reads the new state.  Each joint's goal is
+
+    u = q_des + Kp·e + Ki·∫e dt + Kd·(q̇_des − q̇)          e = q_des − q   (rad)
+
+(the integral clamped to ±``integral_limit``).  The stepper nodes and the RX-64s are position
+servos themselves, so ``q_des`` is the feed-forward and the PID only removes what they
+cannot see: the series-elastic deflection under load (a stepper's motor reaches its goal;
+its joint sags by torque/stiffness) and the RX-64's compliance margin.  The gains are low on
+purpose: the elastic joints ring at a few hertz, lightly damped.
+
+**Coupling feed-forward** (the first four joints).  The belt and cable routes turn the
+capstans of J1..J4 by ``C·Δq`` (:data:`protocol.robot.ARM_ROUTE_COUPLING`, ``Δq`` the joint
+angles since the nodes' power-up, when motor and capstan were aligned), so a stepper goal
+``u`` puts the capstan at ``u + C·Δq``.  The controller sends the steppers
+
+    u_motor = u − C·(q_des − q_power_up)
+
+(:func:`coupling_feedforward`), which keeps each capstan where the PID wants it whatever the
+joints before it do.  The nodes know nothing of the coupling: their ``deflection`` register
+(motor after reduction − joint) then differs from the elastic element's true deflection by
+``−C·Δq``; :func:`elastic_deflections` gives the true one.
+
+**Waypoint files** are JSON lines (UTF-8, one JSON object per line)::
+
+    {"kind": "arm-waypoints", "version": 1, "joints": ["J1", …, "J7"], "units": "rad, s"}
+    {"t": 0.0, "joints": [0.0, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0]}
+    {"t": 1.25, "joints": [0.05, 0.15, 0.0, 0.3, 0.0, -0.1, 0.0]}
+
+The first line is the header (optional on reading; a line with ``"kind"`` is a header); every
+other line is one waypoint: ``t`` (s since the recording started, non-decreasing) and
+``joints`` (seven absolute joint angles, rad, J1..J7).  Playback interpolates linearly in
+joint space between waypoints at their times (reaching the first from wherever the arm is at
+a joint speed of ``approach_speed``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+
+from host import arm_kinematics
+from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
+from host.errors import UsageError
+from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
+
+#: Joint angles or a vector: a sequence of floats or a numpy array.
+Vector = Sequence[float] | np.ndarray
+
+if TYPE_CHECKING:
+    from host.arm import Arm
+
+#: The original arm's control rate (Hz).
+DEFAULT_RATE_HZ: Final = 100.0
+#: Waypoint file header.
+WAYPOINTS_KIND: Final = "arm-waypoints"
+WAYPOINTS_VERSION: Final = 1
+_LOWER = np.array([lo for lo, _ in ARM_JOINT_LIMITS])
+_UPPER = np.array([hi for _, hi in ARM_JOINT_LIMITS])
+
+
+# ----------------------------------------------------------------------------- the math
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """Per-joint gains (7 each, J1..J7): ``kp`` (rad/rad), ``ki`` (rad/(rad·s)), ``kd``
+    (rad/(rad/s)), and ``integral_limit`` (rad, the most the integral term adds)."""
+
+    kp: tuple[float, ...] = (0.05,) * 4 + (0.1,) * 3
+    ki: tuple[float, ...] = (1.5,) * 4 + (1.0,) * 3
+    kd: tuple[float, ...] = (0.0,) * 7
+    integral_limit: tuple[float, ...] = (0.15,) * 4 + (0.1,) * 3
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "ki", "kd", "integral_limit"):
+            if len(getattr(self, name)) != N_JOINTS:
+                raise UsageError(f"PID {name} needs {N_JOINTS} values, J1..J7")
+
+
+class JointPid:
+    """The PID of all seven joints (pure: no I/O).  :meth:`update` gives the correction
+    (rad) to add to the desired angles."""
+
+    def __init__(self, gains: PidGains | None = None) -> None:
+        self.gains = gains or PidGains()
+        self._kp = np.array(self.gains.kp)
+        self._ki = np.array(self.gains.ki)
+        self._kd = np.array(self.gains.kd)
+        self._limit = np.array(self.gains.integral_limit)
+        #: The integral term (rad), already multiplied by ``ki``.
+        self.integral = np.zeros(N_JOINTS)
+
+    def reset(self) -> None:
+        """Forget the integral."""
+        self.integral[:] = 0.0
+
+    def update(self, q_des: Vector, q: Vector, dt: float,
+               qd_des: Vector | None = None, qd: Vector | None = None
+               ) -> np.ndarray:
+        """Correction (rad, 7) for desired ``q_des`` and measured ``q`` (rad), after ``dt``
+        (s) since the last update; velocities (rad/s) for the derivative term."""
+        e = np.asarray(q_des, dtype=float) - np.asarray(q, dtype=float)
+        self.integral = np.clip(self.integral + self._ki * e * dt, -self._limit, self._limit)
+        out = self._kp * e + self.integral
+        if qd is not None:
+            ed = (np.zeros(N_JOINTS) if qd_des is None else np.asarray(qd_des, dtype=float)) \
+                - np.asarray(qd, dtype=float)
+            out = out + self._kd * ed
+        return out
+
+
+def coupling_feedforward(q_des: Vector, q_ref: Vector) -> np.ndarray:
+    """What to add to the stepper goals of J1..J4 (rad, 4) so the capstans end up where the
+    goals say although the routes turn them by ``C·(q − q_ref)``: ``−C·(q_des − q_ref)``
+    (``q_ref``: joint angles at the nodes' power-up, rad; only J1..J4 are used)."""
+    c = arm_route_coupling_matrix()
+    dq = np.asarray(q_des, dtype=float)[:N_STEPPERS] - np.asarray(q_ref, dtype=float)[:N_STEPPERS]
+    return -(c @ dq)
+
+
+def elastic_deflections(state: ArmState, q_ref: Vector) -> np.ndarray:
+    """The series-elastic elements' true deflections (rad, J1..J4): capstan − joint, with the
+    capstan = motor angle + ``C·(q − q_ref)`` (the nodes' own deflection leaves out the
+    routes' coupling)."""
+    c = arm_route_coupling_matrix()
+    q = np.array([s.angle for s in state.steppers])
+    motor = np.array(state.motor_joints)
+    return motor + c @ (q - np.asarray(q_ref, dtype=float)[:N_STEPPERS]) - q
+
+
+# ----------------------------------------------------------------------------- trajectories
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A joint-space waypoint: ``t`` (s) and ``joints`` (7 absolute angles, rad)."""
+
+    t: float
+    joints: tuple[float, ...]
+
+
+class Trajectory:
+    """Linear joint-space interpolation through waypoints (times strictly increasing after
+    the first; before the first the first holds, after the last the last)."""
+
+    def __init__(self, waypoints: Sequence[Waypoint]) -> None:
+        if not waypoints:
+            raise UsageError("a trajectory needs at least one waypoint")
+        self.times = np.array([w.t for w in waypoints], dtype=float)
+        self.points = np.array([w.joints for w in waypoints], dtype=float)
+        if self.points.shape[1] != N_JOINTS:
+            raise UsageError(f"waypoints need {N_JOINTS} joint angles")
+        if np.any(np.diff(self.times) < 0):
+            raise UsageError("waypoint times must not decrease")
+
+    @property
+    def duration(self) -> float:
+        """Time of the last waypoint (s)."""
+        return float(self.times[-1])
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Desired joint angles (rad) and velocities (rad/s) at ``t`` (s)."""
+        times, points = self.times, self.points
+        if t <= times[0]:
+            return points[0].copy(), np.zeros(N_JOINTS)
+        if t >= times[-1]:
+            return points[-1].copy(), np.zeros(N_JOINTS)
+        k = int(np.searchsorted(times, t, side="right")) - 1
+        span = times[k + 1] - times[k]
+        if span <= 0:
+            return points[k + 1].copy(), np.zeros(N_JOINTS)
+        a = (t - times[k]) / span
+        return points[k] + a * (points[k + 1] - points[k]), (points[k + 1] - points[k]) / span
+
+
+def timed_path(points: Sequence[Vector], max_speed: float, start_t: float = 0.0,
+               min_segment_s: float = 0.05) -> list[Waypoint]:
+    """Waypoints through ``points`` (7 rad each), each segment timed so no joint is faster
+    than ``max_speed`` (rad/s)."""
+    if not max_speed > 0:
+        raise UsageError(f"joint speed {max_speed} must be > 0 rad/s")
+    out = [Waypoint(start_t, tuple(float(v) for v in points[0]))]
+    t = start_t
+    for a, b in zip(points, points[1:], strict=False):
+        t += max(float(np.max(np.abs(np.subtract(b, a)))) / max_speed, min_segment_s)
+        out.append(Waypoint(t, tuple(float(v) for v in b)))
+    return out
+
+
+# ----------------------------------------------------------------------------- the loop
+
+
+@dataclass
+class TrackingLog:
+    """What a control run saw, one row per cycle: ``t`` (s, transport clock), ``desired``
+    and ``measured`` joint angles (rad, 7), and ``stall_events`` (stepper joint names whose
+    node latched STALLED, in order; each was cleared and its torque re-enabled)."""
+
+    t: list[float] = field(default_factory=list)
+    desired: list[np.ndarray] = field(default_factory=list)
+    measured: list[np.ndarray] = field(default_factory=list)
+    stall_events: list[str] = field(default_factory=list)
+
+    def errors(self) -> np.ndarray:
+        """Per cycle, desired − measured (rad, n×7)."""
+        return np.array(self.desired) - np.array(self.measured)
+
+
+class JointController:
+    """The joint-space PID loop of ``arm`` (see the module docs) at ``rate_hz`` (None: back
+    to back), with the coupling feed-forward unless ``feedforward=False``."""
+
+    def __init__(self, arm: Arm, gains: PidGains | None = None,
+                 rate_hz: float | None = DEFAULT_RATE_HZ, feedforward: bool = True) -> None:
+        if rate_hz is not None and not rate_hz > 0:
+            raise UsageError(f"control rate {rate_hz} must be > 0 Hz")
+        self.arm = arm
+        self.pid = JointPid(gains)
+        self.period = 0.0 if rate_hz is None else 1.0 / rate_hz
+        self.feedforward = feedforward
+        #: Joint angles (rad, absolute frame when homed) at the stepper nodes' power-up.
+        self.q_ref = self.power_up_angles()
+        self.state: ArmState | None = None
+        self._last_t: float | None = None
+
+    def power_up_angles(self) -> np.ndarray:
+        """Joint angles (rad) where the stepper nodes powered up (their encoder count then,
+        in this arm's frame), where each capstan was aligned with its motor."""
+        offsets = (self.arm.calibration.offsets if self.arm.calibration is not None
+                   else (0.0,) * N_JOINTS)
+        q = np.zeros(N_JOINTS)
+        for i, j in enumerate(self.arm.steppers):
+            q[i] = j.counts_to_rad(self.arm.encoder_at_power_up[i]) + offsets[i]
+        return q
+
+    def goals(self, q_des: np.ndarray, qd_des: np.ndarray, state: ArmState, dt: float
+              ) -> np.ndarray:
+        """The seven joint goals (rad) for the next cycle from the last ``state``."""
+        q = np.array(state.joints)
+        qd = np.array([s.velocity for s in state.steppers] + [s.velocity for s in state.servos])
+        u = q_des + self.pid.update(q_des, q, dt, qd_des, qd)
+        if self.feedforward:
+            u[:N_STEPPERS] += coupling_feedforward(q_des, self.q_ref)
+        return u
+
+    def start(self) -> ArmState:
+        """Enable every joint's torque and take the first state."""
+        self.state = self.arm.torque(True)
+        self._last_t = self.state.t
+        return self.state
+
+    def step(self, q_des: Vector, qd_des: Vector | None = None,
+             log: TrackingLog | None = None) -> ArmState:
+        """One cycle towards ``q_des`` (rad), ``qd_des`` (rad/s)."""
+        state = self.state if self.state is not None else self.start()
+        qa = np.asarray(q_des, dtype=float)
+        qda = np.zeros(N_JOINTS) if qd_des is None else np.asarray(qd_des, dtype=float)
+        dt = max(state.t - (self._last_t if self._last_t is not None else state.t), 0.0)
+        self._last_t = state.t
+        u = self.goals(qa, qda, state, dt if dt > 0 else self.period)
+        commands: list[Command] = [self.arm.make_position(i, float(u[i]))
+                                   for i in range(N_JOINTS)]
+        stalled = [s for s in state.steppers if s.stalled]
+        if stalled:  # the node turned its torque off: clear the latch, torque on again
+            self.arm.clear_errors()
+            if log is not None:
+                log.stall_events += [JOINT_NAMES[s.joint] for s in stalled]
+            commands += [self.arm.make_torque(s.joint, True) for s in stalled]
+        self.state = self.arm.cycle(commands)
+        if log is not None:
+            log.t.append(self.state.t)
+            log.desired.append(qa)
+            log.measured.append(np.array(self.state.joints))
+        return self.state
+
+    def run(self, trajectory: Trajectory | Callable[[float], tuple[np.ndarray, np.ndarray]],
+            duration: float, log: TrackingLog | None = None,
+            until: Callable[[ArmState], bool] | None = None) -> ArmState:
+        """Follow ``trajectory(t)`` (``t`` from 0 at the call) for ``duration`` seconds of
+        the transport's clock, one cycle per period, or until ``until(state)``."""
+        clock = self.arm.transport
+        state = self.state if self.state is not None else self.start()
+        t0 = clock.now()
+        tick = 0
+        while True:
+            now = clock.now()
+            if now - t0 >= duration or (until is not None and until(state)):
+                return state
+            q_des, qd_des = trajectory(now - t0)
+            state = self.step(q_des, qd_des, log)
+            tick += 1
+            if self.period:
+                wait = t0 + tick * self.period - clock.now()
+                if wait > 0:
+                    clock.sleep(wait)
+
+
+# ----------------------------------------------------------------------------- Cartesian
+
+
+@dataclass(frozen=True)
+class CartesianMove:
+    """A Cartesian move's outcome: ``goals`` (the IK's joint goals, rad, 7), ``ik``, the last
+    ``state``, the flange's ``position_error`` (m: FK of the measured joints vs the target)
+    and ``reached`` (within the tolerance asked)."""
+
+    goals: tuple[float, ...]
+    ik: arm_kinematics.IkResult
+    state: ArmState
+    position_error: float
+    reached: bool
+
+
+def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
+           speed: float = 0.4, tolerance_m: float = 0.002, settle_timeout: float = 8.0,
+           controller: JointController | None = None, allow_unhomed: bool = False,
+           log: TrackingLog | None = None) -> CartesianMove:
+    """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given: IK from
+    the present joints, a straight joint-space path at ``speed`` (rad/s, fastest joint), then
+    the PID holds the goals until the flange (by FK of the measured joints) is within
+    ``tolerance_m`` and the joints are still, or ``settle_timeout`` (s) passes.
+
+    Refuses (:class:`~host.errors.UsageError`) an arm that is not homed unless
+    ``allow_unhomed``, and a target the IK cannot reach within 1 mm."""
+    if not arm.homed and not allow_unhomed:
+        raise UsageError("the arm is not homed: its joint angles are relative to power-up; "
+                         "home it first (armctl home / Arm.home())")
+    control = controller or JointController(arm)
+    state = control.state or control.start()
+    q_now = np.array(state.joints)
+    ik = arm_kinematics.solve_ik(xyz, rpy, q0=q_now)
+    if not ik.converged:
+        retry = arm_kinematics.solve_ik(xyz, rpy)
+        ik = retry if retry.position_error < ik.position_error else ik
+    if ik.position_error > 1e-3 or (rpy is not None and ik.orientation_error > 0.01):
+        raise UsageError(f"{tuple(round(float(v), 3) for v in xyz)} m is out of reach "
+                         f"(IK misses it by {ik.position_error * 1000:.0f} mm); the flange "
+                         f"reaches about 1.04 m from the shoulder axis")
+    goals = ik.q
+    trajectory = Trajectory(timed_path([q_now, goals], speed))
+    state = control.run(trajectory, trajectory.duration, log)
+    target = np.asarray(xyz, dtype=float)
+
+    def settled(s: ArmState) -> bool:
+        err = float(np.linalg.norm(arm_kinematics.forward(s.joints).position - target))
+        still = all(abs(j.velocity) < 0.01 for j in s.steppers)
+        return err <= tolerance_m and still
+
+    state = control.run(lambda _t: (goals, np.zeros(N_JOINTS)), settle_timeout, log,
+                        until=settled)
+    error = float(np.linalg.norm(arm_kinematics.forward(state.joints).position - target))
+    return CartesianMove(tuple(float(v) for v in goals), ik, state, error,
+                         error <= tolerance_m)
+
+
+# ----------------------------------------------------------------------------- waypoints
+
+
+def record_waypoints(arm: Arm, seconds: float, *, rate_hz: float = 50.0,
+                     min_change: float = 0.01,
+                     on_sample: Callable[[ArmState], None] | None = None) -> list[Waypoint]:
+    """Turn every joint's torque off and sample the joints at ``rate_hz`` for ``seconds``
+    while someone moves the arm by hand; keep a waypoint whenever some joint moved more than
+    ``min_change`` (rad) since the last one kept, and the last sample.  ``on_sample`` sees
+    every state.  The torque stays off."""
+    if not seconds > 0 or not rate_hz > 0:
+        raise UsageError("record for > 0 s at > 0 Hz")
+    clock = arm.transport
+    state = arm.torque(False)
+    t0 = state.t
+    kept = [Waypoint(0.0, tuple(state.joints))]
+    last = state
+    period = 1.0 / rate_hz
+    tick = 0
+    while clock.now() - t0 < seconds:
+        tick += 1
+        wait = t0 + tick * period - clock.now()
+        if wait > 0:
+            clock.sleep(wait)
+        last = arm.cycle()
+        if on_sample is not None:
+            on_sample(last)
+        if max(abs(a - b) for a, b in zip(last.joints, kept[-1].joints, strict=True)) \
+                > min_change:
+            kept.append(Waypoint(last.t - t0, tuple(last.joints)))
+    if kept[-1].t != last.t - t0:
+        kept.append(Waypoint(last.t - t0, tuple(last.joints)))
+    return kept
+
+
+def play_waypoints(arm: Arm, waypoints: Sequence[Waypoint], *, approach_speed: float = 0.3,
+                   time_scale: float = 1.0, settle_s: float = 1.0,
+                   controller: JointController | None = None,
+                   log: TrackingLog | None = None) -> ArmState:
+    """Play recorded waypoints: from where the arm is to the first at ``approach_speed``
+    (rad/s), then through the rest at their recorded times (× ``time_scale``), clamped to the
+    joint limits, then hold the last for ``settle_s`` seconds."""
+    if not waypoints:
+        raise UsageError("no waypoints to play")
+    control = controller or JointController(arm)
+    state = control.state or control.start()
+    first = np.clip(waypoints[0].joints, _LOWER, _UPPER)
+    approach = timed_path([state.joints, first], approach_speed)
+    lead = approach[-1].t
+    t_first = waypoints[0].t
+    path = approach + [Waypoint(lead + (w.t - t_first) * time_scale,
+                                tuple(np.clip(w.joints, _LOWER, _UPPER)))
+                       for w in waypoints[1:]]
+    trajectory = Trajectory(path)
+    return control.run(trajectory, trajectory.duration + settle_s, log)
+
+
+def save_waypoints(path: str | Path, waypoints: Iterable[Waypoint]) -> None:
+    """Write a waypoint file (JSON lines, see the module docs)."""
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(json.dumps({"kind": WAYPOINTS_KIND, "version": WAYPOINTS_VERSION,
+                            "joints": list(JOINT_NAMES), "units": "rad, s"}) + "\n")
+        for w in waypoints:
+            f.write(json.dumps({"t": w.t, "joints": list(w.joints)}) + "\n")
+
+
+def load_waypoints(path: str | Path) -> list[Waypoint]:
+    """Read a waypoint file; :class:`~host.errors.UsageError` names the bad line."""
+    out: list[Waypoint] = []
+    with open(path, encoding="utf-8") as f:
+        for number, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                if "kind" in record:
+                    if record["kind"] != WAYPOINTS_KIND or record.get("version") != 1:
+                        raise ValueError(f"not an {WAYPOINTS_KIND} v1 header")
+                    continue
+                t = float(record["t"])
+                joints = tuple(float(v) for v in record["joints"])
+                if len(joints) != N_JOINTS or not all(map(math.isfinite, (t, *joints))):
+                    raise ValueError(f"needs t and {N_JOINTS} finite joint angles")
+                if out and t < out[-1].t:
+                    raise ValueError("time goes backwards")
+            except (ValueError, KeyError, TypeError) as exc:
+                raise UsageError(f"{path}:{number}: bad waypoint line: {exc}") from exc
+            out.append(Waypoint(t, joints))
+    if not out:
+        raise UsageError(f"{path}: no waypoints")
+    return out

@@ -1,0 +1,203 @@
+"""Arm homing: find each stepper joint's encoder index mark and fix its absolute angle.
+
+A stepper node counts its joint encoder from power-up (count 0 wherever the joint then is),
+and integrates its motor steps from power-up too, so both are relative.  Each joint encoder
+has an index mark at a known joint angle (:data:`protocol.robot.ARM_INDEX_ANGLES`); the node
+latches the encoder count *of the mark* and its step count at the first index pulse after
+power-up or after ``clear_flags`` REARM_INDEX (``index_seen``, ``index_encoder_count``,
+``index_step_count``, flag INDEX_SEEN).
+
+:func:`home` re-arms the latches, enables the steppers' torque and drives J1..J4 slowly
+together, each in a widening search about where it started (``+s, −s, +2s, −2s`` … until the
+search has covered the joint's whole range) until every joint has latched its index; then it
+reads the latches and drives the joints back where they started.  The joint's offset (rad,
+absolute angle = node angle + offset) is ``index angle − index_encoder_count`` in rad; the
+latched step count is the motor's position at the mark (``index_step_count``), recorded for
+force-sensing calibration.  The RX-64 servos measure absolute angles already: offset 0.
+
+:class:`JointCalibration` turns states and commands between the nodes' frame and the
+absolute (kinematic) frame; :class:`~host.arm.Arm` applies it in every cycle once homed.
+Because the latches live in the nodes, a new host process can pick a calibration up again
+without moving the arm (:func:`restore`), as long as the nodes have not been power-cycled or
+re-armed since.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
+
+from host.arm_state import (
+    JOINT_NAMES,
+    N_JOINTS,
+    N_STEPPERS,
+    ArmState,
+    Command,
+    PositionCommand,
+)
+from host.errors import HomingError, UsageError
+from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
+from protocol.robot import ARM_INDEX_ANGLES, ARM_JOINT_LIMITS
+
+if TYPE_CHECKING:
+    from host.arm import Arm
+
+_S = STEPPER_TABLE
+#: The index latch registers read after homing: index_step_count, index_encoder_count.
+_LATCH_AT: Final = _S["index_step_count"].address
+_LATCH = struct.Struct("<ii")
+assert _S["index_encoder_count"].address == _LATCH_AT + 4
+#: Default search speed (rad/s at the joint) and search step (rad).
+SEARCH_SPEED_RAD_S: Final = 0.15
+SEARCH_STEP_RAD: Final = 0.12
+#: The stepper node's default velocity limit (counts/s), restored after the search.
+DEFAULT_VELOCITY_COUNTS: Final = int(_S["velocity_limit"].default)
+
+
+@dataclass(frozen=True)
+class JointCalibration:
+    """The arm's joint frames after homing.
+
+    ``offsets`` (rad, 7): absolute joint angle = the node's angle + offset (0 for the
+    servos); ``index_encoder_counts`` and ``index_step_counts`` (4): the stepper nodes'
+    latches (joint encoder counts, microsteps)."""
+
+    offsets: tuple[float, ...]
+    index_encoder_counts: tuple[int, ...]
+    index_step_counts: tuple[int, ...]
+
+    def to_node(self, angles: Sequence[float]) -> list[float]:
+        """Absolute joint angles (rad, 7) → the nodes' frame."""
+        return [a - o for a, o in zip(angles, self.offsets, strict=True)]
+
+    def from_node(self, angles: Sequence[float]) -> list[float]:
+        """The nodes' joint angles (rad, 7) → absolute."""
+        return [a + o for a, o in zip(angles, self.offsets, strict=True)]
+
+    def commands_to_node(self, commands: Iterable[Command]) -> list[Command]:
+        """Position commands with absolute angles → the nodes' frame (others unchanged)."""
+        out: list[Command] = []
+        for c in commands:
+            if isinstance(c, PositionCommand) and self.offsets[c.joint]:
+                c = dataclasses.replace(c, angle=c.angle - self.offsets[c.joint])
+            out.append(c)
+        return out
+
+    def state_from_node(self, state: ArmState) -> ArmState:
+        """A state read in the nodes' frame, in absolute angles (joint, motor and goal angles
+        shifted alike, so deflections and torques are unchanged)."""
+        steppers = tuple(dataclasses.replace(
+            s, angle=s.angle + self.offsets[s.joint],
+            motor_angle=s.motor_angle + self.offsets[s.joint],
+            goal=s.goal + self.offsets[s.joint]) for s in state.steppers)
+        servos = tuple(dataclasses.replace(s, angle=s.angle + self.offsets[s.joint])
+                       if self.offsets[s.joint] else s for s in state.servos)
+        return dataclasses.replace(state, steppers=steppers, servos=servos)
+
+
+def calibration_from_latches(arm: Arm, encoder_counts: Sequence[int],
+                             step_counts: Sequence[int]) -> JointCalibration:
+    """The calibration for the stepper nodes' latched index counts."""
+    offsets = [ARM_INDEX_ANGLES[i] - j.counts_to_rad(encoder_counts[i])
+               for i, j in enumerate(arm.steppers)]
+    return JointCalibration(tuple(offsets) + (0.0,) * (N_JOINTS - N_STEPPERS),
+                            tuple(int(c) for c in encoder_counts),
+                            tuple(int(c) for c in step_counts))
+
+
+def read_latches(arm: Arm) -> tuple[list[bool], list[int], list[int]]:
+    """Each stepper node's index latch: seen, encoder count, step count."""
+    state = arm.cycle()
+    seen = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
+    encoder, steps = [], []
+    for j in arm.steppers:
+        step_count, encoder_count = _LATCH.unpack(arm.bus.read(j.dxl_id, _LATCH_AT, _LATCH.size))
+        encoder.append(encoder_count)
+        steps.append(step_count)
+    return seen, encoder, steps
+
+
+def restore(arm: Arm) -> bool:
+    """Take the calibration from the nodes' index latches if every stepper has one (a
+    previous :func:`home`, or the index crossed since power-up); True if the arm is homed."""
+    if arm.calibration is not None:
+        return True
+    seen, encoder, steps = read_latches(arm)
+    if all(seen):
+        arm.calibration = calibration_from_latches(arm, encoder, steps)
+    return arm.calibration is not None
+
+
+def search_targets(width: float, step: float) -> list[float]:
+    """Offsets (rad) from the start that the search visits in turn for a joint whose range
+    is ``width`` rad: ``+step, −step, +2·step, −2·step, …`` until the span searched
+    (``2·k·step``) covers ``width``."""
+    if not step > 0 or not width > 0:
+        raise UsageError("the search step and the joint range must be > 0 rad")
+    out: list[float] = []
+    k = 1
+    while True:
+        out += [k * step, -k * step]
+        if 2 * k * step >= width:
+            return out
+        k += 1
+
+
+def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
+         period: float = 0.01, tolerance: float = 0.01) -> JointCalibration:
+    """Home the arm (see the module docs); returns the calibration, also set on ``arm``.
+
+    ``speed`` (rad/s) and ``step`` (rad) shape the search; ``period`` (s) is the polling
+    cycle; a search target counts as reached when the node stopped with its motor within
+    ``tolerance`` (rad) of it.  Raises :class:`~host.errors.HomingError` naming the first
+    joint whose index was not found within its range."""
+    if not speed > 0:
+        raise UsageError(f"homing speed {speed} must be > 0 rad/s")
+    arm.calibration = None
+    clear = _S["clear_flags"].encode(int(StepperClear.REARM_INDEX))
+    arm.bus.sync_write(_S["clear_flags"].address, 1, {j.dxl_id: clear for j in arm.steppers})
+    state = arm.torque(True, range(N_STEPPERS))
+    start = [s.motor_angle for s in state.steppers]
+    plans = [search_targets(hi - lo, step) for lo, hi in ARM_JOINT_LIMITS[:N_STEPPERS]]
+    leg = [0] * N_STEPPERS
+    found = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
+    clock = arm.transport
+    commands: list[Command] = [arm.make_position(i, start[i] + plans[i][0], speed)
+                               for i in range(N_STEPPERS) if not found[i]]
+    while not all(found):
+        state = arm.cycle(commands)
+        commands = []
+        for i, s in enumerate(state.steppers):
+            if found[i]:
+                continue
+            if s.flags & StepperFlag.INDEX_SEEN:
+                found[i] = True
+                commands.append(arm.make_position(i, s.motor_angle))  # hold here
+                continue
+            target = start[i] + plans[i][leg[i]]
+            if not s.moving and abs(s.motor_angle - target) <= tolerance:
+                leg[i] += 1
+                if leg[i] == len(plans[i]):
+                    arm.cycle([arm.make_position(k, start[k], speed)
+                               for k in range(N_STEPPERS)])
+                    raise HomingError(
+                        f"{JOINT_NAMES[i]}: no index pulse within its range "
+                        f"({plans[i][-2]:+.2f} … {plans[i][-1]:+.2f} rad about where it "
+                        f"started); check the encoder's index channel and that the joint "
+                        f"moves freely", joint=JOINT_NAMES[i])
+                commands.append(arm.make_position(i, start[i] + plans[i][leg[i]], speed))
+        if not all(found):
+            clock.sleep(period)
+    seen, encoder, steps = read_latches(arm)
+    missing = [JOINT_NAMES[i] for i, ok in enumerate(seen) if not ok]
+    if missing:
+        raise HomingError(f"{', '.join(missing)}: the index latch was lost after the search "
+                          "(a node restarted?); home again", joint=missing[0])
+    back = arm.steppers[0].counts_to_rad(DEFAULT_VELOCITY_COUNTS)
+    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], timeout=10.0)
+    arm.cycle([arm.make_position(i, start[i], back) for i in range(N_STEPPERS)])
+    arm.calibration = calibration_from_latches(arm, encoder, steps)
+    return arm.calibration

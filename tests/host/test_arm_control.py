@@ -1,0 +1,183 @@
+"""Arm control math (PID, coupling feed-forward, interpolation, waypoint files) and the arm
+end to end on the in-process emulator: homing, Cartesian moves, waypoints, armctl."""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from hil_emulator.inprocess import forget_shared_emulators
+from host import arm_kinematics
+from host.arm import Arm
+from host.arm_control import (
+    JointPid,
+    PidGains,
+    Trajectory,
+    Waypoint,
+    coupling_feedforward,
+    load_waypoints,
+    play_waypoints,
+    record_waypoints,
+    save_waypoints,
+)
+from host.errors import UsageError
+from protocol.robot import ARM_INDEX_ANGLES
+from tools import armctl
+
+# ----------------------------------------------------------------------------- math
+
+
+def test_pid_proportional_integral_and_derivative_terms() -> None:
+    gains = PidGains(kp=(2.0,) * 7, ki=(10.0,) * 7, kd=(0.5,) * 7, integral_limit=(0.3,) * 7)
+    pid = JointPid(gains)
+    q_des = [0.1] * 7
+    out = pid.update(q_des, [0.0] * 7, 0.01, qd_des=[0.0] * 7, qd=[0.2] * 7)
+    # 2·0.1 + 10·0.1·0.01 + 0.5·(0 − 0.2) = 0.2 + 0.01 − 0.1
+    assert out == pytest.approx([0.11] * 7)
+    for _ in range(100):  # the integral saturates at its limit
+        out = pid.update(q_des, [0.0] * 7, 0.01)
+    assert out == pytest.approx([0.2 + 0.3] * 7)
+
+
+def test_coupling_feedforward_cancels_the_route_coupling() -> None:
+    q_ref = [0.0, 0.1, 0.2, 0.0, 0, 0, 0]
+    q_des = [0.5, 0.6, 0.7, 0.3, 0, 0, 0]   # Δq = 0.5 everywhere on J1..J3
+    ff = coupling_feedforward(q_des, q_ref)
+    # J3 capstan turns −0.12·Δq2 → add +0.06; J4 turns 0.18·Δq2 + 0.08·Δq3 → add −0.13
+    assert ff == pytest.approx([0.0, 0.0, 0.06, -0.13])
+    assert coupling_feedforward(q_ref, q_ref) == pytest.approx([0.0] * 4)
+
+
+def test_trajectory_interpolates_linearly_and_holds_the_ends() -> None:
+    traj = Trajectory([Waypoint(0.0, (0.0,) * 7), Waypoint(2.0, (1.0, -1.0, 0, 0, 0, 0, 0.5))])
+    q, qd = traj(0.5)
+    assert q == pytest.approx([0.25, -0.25, 0, 0, 0, 0, 0.125])
+    assert qd == pytest.approx([0.5, -0.5, 0, 0, 0, 0, 0.25])
+    assert traj(5.0)[0] == pytest.approx([1.0, -1.0, 0, 0, 0, 0, 0.5])
+    assert traj(-1.0)[1] == pytest.approx([0.0] * 7)
+
+
+def test_waypoint_file_round_trip_and_bad_lines(tmp_path: Path) -> None:
+    path = tmp_path / "w.jsonl"
+    points = [Waypoint(0.0, (0.0,) * 7), Waypoint(1.5, (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7))]
+    save_waypoints(path, points)
+    lines = path.read_text().splitlines()
+    assert json.loads(lines[0])["kind"] == "arm-waypoints"
+    assert json.loads(lines[2]) == {"t": 1.5, "joints": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]}
+    assert load_waypoints(path) == points
+    path.write_text('{"t": 0, "joints": [0, 0, 0]}\n')
+    with pytest.raises(UsageError, match=r"w.jsonl:1: bad waypoint line"):
+        load_waypoints(path)
+
+
+# ----------------------------------------------------------------------------- end to end
+
+URL = "emu://arm/arm?name=test_arm_control"
+#: armctl gets an emulator of its own: the in-process link delivers to the newest transport.
+CLI_URL = "emu://arm/arm?name=test_arm_control_cli"
+
+
+@pytest.fixture(scope="module")
+def arm() -> Iterator[Arm]:
+    with Arm.open(URL) as opened:
+        yield opened
+    forget_shared_emulators()
+
+
+def flange_truth(arm: Arm) -> np.ndarray:
+    """The MuJoCo flange body's position in the arm's base frame (m)."""
+    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    model, data = plant.model, plant.data
+    flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/flange")
+    base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/base")
+    return np.asarray(data.xmat[base].reshape(3, 3).T @ (data.xpos[flange] - data.xpos[base]))
+
+
+def run(*argv: str) -> tuple[int, str]:
+    out = io.StringIO()
+    return armctl.main(["--port", CLI_URL, "--json", *argv], out), out.getvalue()
+
+
+def test_armctl_refuses_moves_before_homing_and_remembers_homing(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    code, out = run("status")
+    assert code == 0 and json.loads(out)["homed"] is False
+    code, _ = run("moveto", "0.1", "0.0", "-0.6")
+    assert code == armctl.EXIT_USAGE
+    assert "home it first (armctl home)" in capsys.readouterr().err
+    code, _ = run("move", "--joints", *["0"] * 7)
+    assert code == armctl.EXIT_USAGE
+    code, out = run("home")
+    assert code == 0 and json.loads(out)["homed"] is True
+    # a later armctl picks the calibration up from the nodes' latches
+    code, out = run("status")
+    assert code == 0 and json.loads(out)["homed"] is True
+    code, out = run("moveto", "0.1", "0.0", "-0.6")
+    assert code == 0 and json.loads(out)["reached"] is True
+    forget_shared_emulators()
+
+
+def test_arm_moveto_is_refused_before_homing(arm: Arm) -> None:
+    assert not arm.homed
+    with pytest.raises(UsageError, match="home it first"):
+        arm.moveto((0.1, 0.0, -0.6))
+
+
+def test_home_finds_every_index_and_fixes_absolute_angles(arm: Arm) -> None:
+    calibration = arm.home()
+    assert arm.homed
+    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    counts_per_rad = 10_000 / (2 * np.pi)
+    # the plant's encoders count from the power-up pose (0 here): the index's count
+    assert calibration.index_encoder_counts == tuple(
+        int(np.floor(a * counts_per_rad + 0.5)) for a in ARM_INDEX_ANGLES)
+    state = arm.state()
+    assert state.joints[:4] == pytest.approx(plant.joint_angles()[:4], abs=2e-3)
+
+
+def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
+    if not arm.homed:
+        arm.home()
+    target = (0.25, -0.08, -0.52)
+    result = arm.moveto(target)
+    assert result.reached
+    assert np.linalg.norm(flange_truth(arm) - target) < 0.005
+    assert arm_kinematics.forward(result.goals).position == pytest.approx(target, abs=1e-3)
+    assert not any(s.stalled for s in result.state.steppers)
+
+
+def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
+    if not arm.homed:
+        arm.home()
+    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    # record from the hanging pose: with torque off an arm held elsewhere falls, and its
+    # unpowered rotors turn with it, which the step counts cannot follow
+    arm.torque(True)
+    arm.move([0.0] * 7, timeout=5.0)
+    start = arm.state().joints
+
+    def hand(state: object) -> None:  # a hand turning the base and the wrist
+        t = arm.transport.now() - t0
+        plant.push(0, 1.0 if t < 0.3 else -1.0 if t < 0.6 else 0.0)
+        plant.push(5, 0.4 if t < 0.2 else -0.4 if t < 0.4 else 0.0)
+
+    t0 = arm.transport.now()
+    points = record_waypoints(arm, 1.0, on_sample=hand)
+    plant.push(0, 0.0)
+    plant.push(5, 0.0)
+    assert len(points) >= 3
+    moved = np.abs(np.array([p.joints for p in points]) - start).max(axis=0)
+    assert moved[0] > 0.05 and moved[5] > 0.05
+    path = tmp_path / "hand.jsonl"
+    save_waypoints(path, points)
+    arm.torque(True)
+    arm.move(start, timeout=5.0)  # somewhere else first
+    play_waypoints(arm, load_waypoints(path))
+    final = np.array(arm.state().joints)
+    assert final == pytest.approx(points[-1].joints, abs=0.03)
