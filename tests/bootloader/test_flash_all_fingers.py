@@ -13,7 +13,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bootloader.batch import RunReport, run_plan
-from bootloader.errors import PlanError
 from bootloader.plan import FlashPlan, make_plan
 from firmware_py.bootloader import inspect_image
 from firmware_py.mcu import Mcu
@@ -216,7 +215,7 @@ KINDS = st.sampled_from(["host_killed", "power_lost", "phalange_power_lost", "li
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=list(HealthCheck))
-@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(20, 700))
+@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(5, 300))
 def test_interrupted_flashing_resumes_and_never_boots_an_unverified_image(
         kind: str, finger: int, after: int) -> None:
     interrupt_and_resume(kind, finger, after)
@@ -224,6 +223,6 @@ def test_interrupted_flashing_resumes_and_never_boots_an_unverified_image(
 
 @pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
-@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(5, 900))
+@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(1, 320))
 def test_interrupted_flashing_resumes_many_cases(kind: str, finger: int, after: int) -> None:
     interrupt_and_resume(kind, finger, after)
