@@ -8,9 +8,8 @@ catalogue's tables into IntEnums changes this module only.
 
 from __future__ import annotations
 
-from typing import Final
-
 from enum import IntEnum
+from typing import Final
 
 from protocol.messages.common import Running, TxnStatus
 from protocol.messages.fmcb import ControlMode
