@@ -43,16 +43,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from firmware_py import ed25519
 from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import (
     APP_PAGES,
     BOOT_CONTROL_PAGE,
     BOOTLOADER_PAGES,
     HEADER_PAGE,
+    KEY_PAGE,
     PAGE_SIZE,
     PARAM_PAGE,
     PAYLOAD_FIRST_PAGE,
     ActivationRecord,
+    KeyRecord,
     page_address,
 )
 from firmware_py.hal import Flash, Hal, Timer, Uart
@@ -60,7 +63,14 @@ from firmware_py.hand_node import DEFERRED, HandNode, Request
 from firmware_py.mcu import Mcu
 from protocol.errors import ImageError
 from protocol.framing import Frame
-from protocol.image import FLASH, MAX_PAYLOAD, BoardType, ImageHeader, parse_header
+from protocol.image import (
+    FLASH,
+    MAX_PAYLOAD,
+    BoardType,
+    ImageHeader,
+    parse_header,
+    signing_bytes,
+)
 from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import (
     WRITE_STATUS_WORD_FAILED,
@@ -94,6 +104,8 @@ _RESULT_OF_IMAGE_STATUS: Final = {
     ImageStatus.WRONG_BOARD: BootResult.WRONG_BOARD,
     ImageStatus.HASH_MISMATCH: BootResult.HASH_MISMATCH,
     ImageStatus.NOT_ACTIVATED: BootResult.NOT_ACTIVATED,
+    ImageStatus.BAD_SIGNATURE: BootResult.BAD_SIGNATURE,
+    ImageStatus.UNSIGNED: BootResult.BAD_SIGNATURE,
 }
 _ERASED_PAGE: Final = b"\xff" * PAGE_SIZE
 _NO_PAGE: Final = 0xFFFFFFFF
@@ -119,7 +131,9 @@ def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
     In order: header page erased → empty; header does not parse or names another load
     address → bad header; another board → wrong board; payload larger than the
     application area → too large; SHA-256 of the payload pages differs → hash mismatch
-    (a truncated image lands here); activation record missing or naming another hash →
+    (a truncated image lands here); the node is provisioned with a key (key page) and the
+    image is signed by another key → bad signature, or unsigned while the key record
+    requires a signature → unsigned; activation record missing or naming another hash →
     not activated; else valid.
     """
     raw = flash.read_page(HEADER_PAGE)
@@ -145,6 +159,15 @@ def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
         return ImageCheck(ImageStatus.HASH_MISMATCH, header,
                           f"hash mismatch: payload pages do not hash to "
                           f"{header.sha256.hex()[:16]}... (truncated or corrupt)")
+    key = KeyRecord.from_page(flash.read_page(KEY_PAGE))
+    if key is not None:
+        if not header.signed:
+            if key.required:
+                return ImageCheck(ImageStatus.UNSIGNED, header,
+                                  "unsigned: this node requires a signed image")
+        elif not ed25519.verify(key.public_key, header.signature, signing_bytes(header)):
+            return ImageCheck(ImageStatus.BAD_SIGNATURE, header,
+                              "bad signature: not signed by this node's key")
     record = ActivationRecord.from_page(flash.read_page(BOOT_CONTROL_PAGE))
     if record is None or record.sha256 != header.sha256:
         return ImageCheck(ImageStatus.NOT_ACTIVATED, header,
@@ -205,7 +228,7 @@ class Bootloader(HandNode):
     # --- program life -----------------------------------------------------------------------
     def start(self) -> None:
         """Lock the bootloader pages, cut phalange power, listen, open the autoboot window."""
-        self.hal.flash.lock(BOOTLOADER_PAGES.start, len(BOOTLOADER_PAGES))
+        self.hal.flash.lock(BOOTLOADER_PAGES.start, len(BOOTLOADER_PAGES))  # with the key page
         if self.board == BoardType.FMCB:
             self.hal.power("phalange").set(0)
         self.listen(self.upstream)
@@ -267,7 +290,7 @@ class Bootloader(HandNode):
         assert check.header is not None
         self.state = BootState.BOOTING
         try:
-            self.mcu.boot(check.header.app_name)
+            self.mcu.boot(check.header.app_name, check.header.version)
         except ConfigError as exc:
             self.state = BootState.NO_VALID_IMAGE
             self._fail(BootResult.BAD_IMAGE, f"boot failed: {exc}")

@@ -24,9 +24,14 @@ PAYLOAD_FIRST_PAGE: Final = FLASH.payload_first_page
 APP_PAGES: Final = FLASH.app_pages
 PARAM_PAGE: Final = FLASH.param_page
 BOOT_CONTROL_PAGE: Final = FLASH.boot_control_page
+KEY_PAGE: Final = FLASH.key_page
 
 ACTIVATION_MAGIC: Final = 0x56544341  # b"ACTV" little-endian
 _RECORD = struct.Struct("<I32sI")
+KEY_MAGIC: Final = 0x3159454B  # b"KEY1" little-endian
+#: Key record flag: unsigned images are refused.
+KEY_REQUIRED: Final = 1
+_KEY_RECORD = struct.Struct("<II32sI")
 
 
 @dataclass(frozen=True)
@@ -53,3 +58,29 @@ class ActivationRecord:
 def page_address(page: int) -> int:
     """Absolute address of a page."""
     return FLASH.flash_base + page * PAGE_SIZE
+
+
+@dataclass(frozen=True)
+class KeyRecord:
+    """The key page's content (written at provisioning, like the identity; the bootloader
+    locks it): the ED25519 public key images must be signed with, and whether an unsigned
+    image is refused (``required``).  Layout: magic u32, flags u32 (bit 0 required),
+    public key 32 B, CRC-32 of the 40 bytes before it; the rest of the page 0xFF."""
+
+    public_key: bytes
+    required: bool = True
+
+    def to_page(self) -> bytes:
+        """The record as a whole flash page."""
+        body = struct.pack("<II32s", KEY_MAGIC, KEY_REQUIRED if self.required else 0,
+                           self.public_key)
+        rec = body + struct.pack("<I", zlib.crc32(body))
+        return rec + b"\xff" * (PAGE_SIZE - len(rec))
+
+    @staticmethod
+    def from_page(page: bytes) -> KeyRecord | None:
+        """The record in ``page``, or None if the node is not provisioned (erased/corrupt)."""
+        magic, flags, key, crc = _KEY_RECORD.unpack_from(page)
+        if magic != KEY_MAGIC or zlib.crc32(page[: _KEY_RECORD.size - 4]) != crc:
+            return None
+        return KeyRecord(key, bool(flags & KEY_REQUIRED))

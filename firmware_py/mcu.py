@@ -14,6 +14,7 @@ from typing import Protocol
 from firmware_py.errors import ConfigError
 from firmware_py.hal import Hal
 from firmware_py.identity import Identity, read_identity
+from protocol.image import Version
 
 
 class Program(Protocol):
@@ -81,8 +82,12 @@ class Mcu:
         self.resets += 1
         self._start_bootloader()
 
-    def boot(self, app_name: str) -> None:
-        """Jump to the application ``app_name`` (called by the bootloader only)."""
+    def boot(self, app_name: str, version: Version | None = None) -> None:
+        """Jump to the application ``app_name`` (called by the bootloader only).
+
+        ``version`` is the booted image's: the program reports it (its ``fw_version``, what
+        ``identify`` answers), as a real build carries the version it was built as.
+        """
         factory = self.apps.get(app_name)
         if factory is None:
             raise ConfigError(f"no application called {app_name!r} on this board")
@@ -90,6 +95,9 @@ class Mcu:
         self.boots += 1
         self.program_name = app_name
         self.program = factory(self.hal, self)
+        if version is not None and hasattr(self.program, "fw_version"):
+            setattr(self.program, "fw_version",  # noqa: B010 (Program does not declare it)
+                    (version.major, version.minor, version.patch))
         self.program.start()
 
     def _start_bootloader(self) -> None:

@@ -43,8 +43,10 @@ Trailing bytes: data after ``header + payload_size`` is accepted only if every b
 (erased flash, or the fill of :func:`split_pages`), so an image read back page by page parses
 like the image that was written.  Anything else after the payload is rejected.
 
-Signing: ED25519 verification is left to a later issue.  The 64-byte slot and the SIGNED flag
-exist now; :func:`signing_bytes` defines the signed message.
+Signing: an ED25519 signature of :func:`signing_bytes` sits in the 64-byte slot with the SIGNED
+flag set.  A node provisioned with a public key (its key page, inside the locked bootloader
+region) refuses images signed with another key, and unsigned images when it requires a
+signature.
 """
 
 from __future__ import annotations
@@ -73,7 +75,8 @@ class FlashGeometry:
 
     On the SAM3S (1024 pages × 256 B from 0x400000)::
 
-        pages 0–31      bootloader; page 31 ends with the node identity (16 B at 0x401FF0)
+        pages 0–31      bootloader; page 30 the signing-key record (trust anchor), page 31
+                        ends with the node identity (16 B at 0x401FF0)
         page 32         image header (``app_start_page``; one page, :data:`HEADER_SIZE`)
         pages 33–1019   image payload
         page 1020       parameters (kept across updates)
@@ -87,6 +90,8 @@ class FlashGeometry:
     app_start_page: int = 32
     param_page: int = 1020
     boot_control_page: int = 1021
+    #: The trust anchor: which ED25519 public key images must be signed with (if any).
+    key_page: int = 30
     #: The node identity: board type, unique id, hardware version, bus address (u32 each).
     identity_address: int = 0x401FF0
 

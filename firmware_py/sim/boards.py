@@ -18,7 +18,14 @@ from dataclasses import dataclass, field
 from firmware_py.arm_stepper import StepperNodeApp
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.errors import ConfigError
-from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
+from firmware_py.flash_layout import (
+    BOOT_CONTROL_PAGE,
+    HEADER_PAGE,
+    KEY_PAGE,
+    ActivationRecord,
+    KeyRecord,
+    page_address,
+)
 from firmware_py.hal import Hal
 from firmware_py.identity import IDENTITY_ADDRESS, Identity, default_identity
 from firmware_py.mcu import Mcu, Program, ProgramFactory
@@ -137,13 +144,23 @@ def make_hal(scheduler: Scheduler, board: BoardType, identity: Identity | None =
     return hal
 
 
-def default_image(board: BoardType, version: str = "1.0.0", timestamp: int = 0) -> bytes:
+def app_version(app_name: str) -> str:
+    """The version an application program declares (its class ``fw_version``), "x.y.z"."""
+    module, _, attr = APP_PROGRAMS[app_name].partition(":")
+    version = getattr(importlib.import_module(module), attr).fw_version
+    return ".".join(str(part) for part in version)
+
+
+def default_image(board: BoardType, version: str | None = None, timestamp: int = 0) -> bytes:
     """A valid image for ``board``: its payload is a stand-in whose bytes name the program.
 
     An emulated MCU runs the firmware_py program named in the header's app name; the
     payload is what a real build would contain, here deterministic filler of a real size.
+    ``version`` defaults to the one the program declares (:func:`app_version`).
     """
     spec = BOARD_SPECS[board]
+    if version is None:
+        version = app_version(spec.app_name)
     seed = f"{spec.app_name}-{version}".encode()
     payload = b"".join(hashlib.sha256(seed + bytes([i])).digest() for i in range(64))  # 2 KiB
     return make_image(payload, board, version, spec.app_name, timestamp)
@@ -156,6 +173,12 @@ def install_image(hal: VirtualHal, image: bytes, activate: bool = True) -> None:
     if activate:
         record = ActivationRecord(parsed.header.sha256).to_page()
         hal.flash.load(page_address(BOOT_CONTROL_PAGE), record)
+
+
+def provision_key(hal: VirtualHal, public_key: bytes, required: bool = True) -> None:
+    """Factory provisioning (JTAG): the node accepts only images signed with ``public_key``
+    (32 bytes, ED25519) and, with ``required``, refuses unsigned ones."""
+    hal.flash.load(page_address(KEY_PAGE), KeyRecord(bytes(public_key), required).to_page())
 
 
 def make_node(scheduler: Scheduler, board: BoardType, *, image: bytes | None = None,

@@ -55,6 +55,8 @@ class ImageStatus(IntEnum):
     HASH_MISMATCH = 4
     NOT_ACTIVATED = 5
     TOO_LARGE = 6
+    BAD_SIGNATURE = 7
+    UNSIGNED = 8
 
 
 class BootResult(IntEnum):
@@ -67,6 +69,7 @@ class BootResult(IntEnum):
     WRONG_BOARD = 4
     NOT_ACTIVATED = 5
     PROTECTED = 6
+    BAD_SIGNATURE = 7
 
 
 STATE = EnumField(c.Int8ul, BootState)

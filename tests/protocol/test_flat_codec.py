@@ -101,7 +101,7 @@ def test_coded_messages_have_a_fast_path() -> None:
      {"finger": 1, "event": 0x80, "time": 1}),
     ("bl.activate", "reply", bytes([4, 3]),
      {"status": BootResult.WRONG_BOARD, "image_status": ImageStatus.WRONG_BOARD}),
-    ("bl.activate", "reply", bytes([200, 7]), {"status": 200, "image_status": 7}),
+    ("bl.activate", "reply", bytes([200, 77]), {"status": 200, "image_status": 77}),
 ])
 def test_fast_path_names_known_codes_and_keeps_unknown_ones(
         name: str, direction: str, payload: bytes, expected: dict[str, Any]) -> None:

@@ -1,0 +1,224 @@
+"""Run a :class:`~bootloader.plan.FlashPlan` on a hand: preflight, four fingers at once.
+
+:func:`run_plan` first checks, touching nothing, that the palm answers and that every finger
+of the plan answers (its fmcb, in its application or its bootloader); it reads the nodes'
+versions, stops the palm's finger polling for the run (a polled finger sitting in its
+bootloader would be declared lost) and restores it at the end.  Then one
+:class:`~bootloader.node_session.FingerChannel` per finger runs, all interleaved on the one
+:class:`~host.hand_session.HandSession` (each finger has one request in flight; the palm
+serves the fingers' links in parallel).  A finger whose flow fails is started again from
+its power cycle (:data:`FINGER_ATTEMPTS` in all); blocks already verified are not written
+again.  With ``all_or_nothing`` every finger is staged first and activated only if every
+node verified; otherwise nothing is activated and the nodes wait in their bootloaders.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from typing import Any, Final
+
+from bootloader.errors import PlanError
+from bootloader.node_session import (
+    FingerChannel,
+    NodeReport,
+    NodeState,
+    Op,
+    Outcome,
+    Send,
+    Sleep,
+    StepFailed,
+)
+from bootloader.plan import FlashPlan, NodeJob
+from host.errors import HostError
+from host.hand_session import LINK_NODE, HandSession, PendingReply, Target
+from protocol.messages.common import Running
+from protocol.messages.palm import FingerPower
+from protocol.topology import Hop
+
+#: Runs of one finger's flow in one run (the first, and restarts after a failure).
+FINGER_ATTEMPTS: Final = 2
+_EPSILON_S: Final = 1e-6
+
+
+@dataclass
+class RunReport:
+    """The outcome of a run: one report per node, the run's time (s, link clock)."""
+
+    nodes: list[NodeReport]
+    total_seconds: float
+
+    @property
+    def ok(self) -> bool:
+        """Every node ends verified and running the requested version."""
+        return all(r.result in ("flashed", "skipped") and r.state == NodeState.DONE
+                   and r.version == r.job.version for r in self.nodes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``--json`` object."""
+        return {"ok": self.ok, "nodes": [r.to_dict() for r in self.nodes],
+                "total_seconds": round(self.total_seconds, 3)}
+
+
+def _identify(session: HandSession, finger: int, hop: Hop) -> dict[str, Any]:
+    return session.request("identify", to=Target(finger, hop), retries=2)
+
+
+def preflight(session: HandSession, plan: FlashPlan,
+              reports: dict[NodeJob, NodeReport]) -> dict[str, Any]:
+    """Check, touching nothing, that the palm and every planned finger answer; read the
+    versions before.  Returns the hand status read.  Raises :class:`PlanError`."""
+    try:
+        status = session.request("palm.hand_status", retries=2)
+    except HostError as exc:
+        raise PlanError(f"the palm does not answer on {session.transport.url}: {exc}") from exc
+    for finger in plan.fingers:
+        if status["fingers"][finger]["power"] == FingerPower.OFF:
+            continue  # unpowered: the power cycle brings it up
+        try:
+            _identify(session, finger, Hop.FMCB)
+        except HostError as exc:
+            raise PlanError(f"finger {finger} is not answering (its fmcb got no identify "
+                            f"through the palm): {exc}; nothing was flashed") from exc
+    for job in plan.jobs:
+        try:
+            who = _identify(session, job.finger, job.hop)
+        except HostError:
+            continue  # a phalange behind an fmcb in its bootloader: read later by bl.info
+        if who["running"] == Running.APPLICATION:
+            v = who["fw_version"]
+            reports[job].version_before = f"{v['major']}.{v['minor']}.{v['patch']}"
+    return status
+
+
+class Driver:
+    """Interleaves channel flows on one session: each yields :class:`Send` / :class:`Sleep`
+    and is resumed with the :class:`Outcome`."""
+
+    def __init__(self, session: HandSession) -> None:
+        self.session = session
+
+    def run(self, flows: dict[int, Generator[Op, Outcome, Any]],
+            on_end: Callable[[int, BaseException | None], None]) -> None:
+        """Run ``flows`` (finger → flow) to their ends; ``on_end(finger, error)`` each."""
+        waiting: dict[int, PendingReply | float] = {}
+
+        def advance(finger: int, outcome: Outcome | None) -> None:
+            flow = flows[finger]
+            try:
+                op = next(flow) if outcome is None else flow.send(outcome)
+            except StopIteration:
+                waiting.pop(finger, None)
+                on_end(finger, None)
+                return
+            except (StepFailed, HostError) as exc:
+                waiting.pop(finger, None)
+                on_end(finger, exc)
+                return
+            if isinstance(op, Sleep):
+                waiting[finger] = self.session.now() + op.seconds
+            else:
+                waiting[finger] = self._start(finger, op)
+
+        for finger in list(flows):
+            advance(finger, None)
+        while waiting:
+            now = self.session.now()
+            wake = min(w if isinstance(w, float) else w.deadline for w in waiting.values())
+            if not any(isinstance(w, PendingReply) and w.done for w in waiting.values()):
+                self.session.pump(max(0.0, wake - now))
+            now = self.session.now()
+            for finger, w in list(waiting.items()):
+                if isinstance(w, float):
+                    if now >= w - _EPSILON_S:
+                        advance(finger, Outcome())
+                elif w.done or now >= w.deadline - _EPSILON_S:
+                    try:
+                        outcome = Outcome(self.session.wait(w))
+                    except HostError as exc:
+                        outcome = Outcome(error=exc)
+                    advance(finger, outcome)
+
+    def _start(self, finger: int, op: Send) -> PendingReply:
+        to = LINK_NODE if op.hop is None else Target(finger, op.hop)
+        return self.session.start(op.name, op.fields, to=to, retries=0, extra_ms=op.extra_ms)
+
+
+def run_plan(session: HandSession, plan: FlashPlan,
+             on_change: Callable[[NodeReport], None] | None = None) -> RunReport:
+    """Flash ``plan`` over ``session`` (see the module docs) and report every node."""
+    reports = {job: NodeReport(job) for job in plan.jobs}
+    started = session.now()
+    status = preflight(session, plan, reports)
+    poll_hz = int(status["poll_hz"])
+    if poll_hz:
+        session.request("palm.poll", {"rate_hz": 0}, retries=2)
+    try:
+        if plan.all_or_nothing:
+            _run_phase(session, plan, reports, status, "stage", on_change)
+            staged = all(r.state == NodeState.STAGED for r in reports.values())
+            if staged:
+                _run_phase(session, plan, reports, status, "activate", on_change)
+            else:
+                for r in reports.values():
+                    if r.state != NodeState.FAILED:
+                        r.result = "failed"
+                        r.error = "not activated: another node failed to stage (all-or-nothing)"
+        else:
+            _run_phase(session, plan, reports, status, "all", on_change)
+    finally:
+        if poll_hz:
+            try:
+                session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
+            except HostError:
+                pass
+    for r in reports.values():
+        if r.state != NodeState.DONE and r.result != "failed":
+            r.result = "failed"
+            r.error = r.error or f"stopped in state {r.state.value}"
+    return RunReport(list(reports.values()), session.now() - started)
+
+
+def _run_phase(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
+               status: dict[str, Any], phase: str,
+               on_change: Callable[[NodeReport], None] | None) -> None:
+    attempts = {f: 0 for f in plan.fingers}
+    flows: dict[int, Generator[Op, Outcome, Any]] = {}
+
+    def new_flow(finger: int) -> Generator[Op, Outcome, Any]:
+        attempts[finger] += 1
+        power = int(status["fingers"][finger]["power"])
+        channel = FingerChannel(finger, plan, reports, session.now, phase=phase,
+                                power_state=power, on_change=on_change)
+        return channel.run()
+
+    def on_end(finger: int, error: BaseException | None) -> None:
+        if error is None:
+            return
+        current = [r for j, r in reports.items() if j.finger == finger
+                   and r.state not in (NodeState.DONE, NodeState.STAGED, NodeState.PENDING)]
+        if attempts[finger] < FINGER_ATTEMPTS and phase != "activate":
+            for r in current:
+                r.error = f"retried after: {error}"
+            flows[finger] = new_flow(finger)
+            restart.append(finger)
+            return
+        for j, r in reports.items():
+            if j.finger == finger and r.state != NodeState.DONE:
+                r.result = "failed"
+                r.error = str(error)
+                r.state = NodeState.FAILED
+                r.finished = session.now()
+                if on_change is not None:
+                    on_change(r)
+
+    driver = Driver(session)
+    restart: list[int] = []
+    for finger in plan.fingers:
+        flows[finger] = new_flow(finger)
+    pending = dict(flows)
+    while pending:
+        restart.clear()
+        driver.run(pending, on_end)
+        pending = {f: flows[f] for f in restart}
+

@@ -1,0 +1,396 @@
+"""One finger's flashing, as a state machine per node driven by replies.
+
+A :class:`FingerChannel` flashes the nodes of one finger (fmcb, then f2 and f3, which are
+reached through the fmcb's running application).  It is written as a generator that yields
+the operations it needs — :class:`Send` a request, :class:`Sleep` — and is resumed with each
+:class:`Outcome`, so the :mod:`bootloader.batch` driver can run the four fingers at once over
+one :class:`~host.hand_session.HandSession` (one request in flight per finger).  Each node's
+:class:`NodeReport` carries its explicit :class:`NodeState`; every transition is reported.
+
+A node's path: FORCING (power off → on through the board upstream: the palm for an fmcb,
+the fmcb for the phalanges) → HALTING (``bl.halt`` repeated until it answers, within the
+autoboot window; a halted node stays in its bootloader for as long as the run needs it) →
+INFO (``bl.info``: board, installed header; a node already holding the image, valid and
+activated, is skipped unless forced) → WRITING (per block: ``bl.hash`` first — a block that
+already verifies is not written again, which is how an interrupted run resumes — then the
+pages, each write retried; then the block is hashed again) → VERIFYING (``bl.hash`` of the
+whole image) → STAGED → ACTIVATING (``bl.activate``: the node verifies once more) →
+BOOTING → CONFIRMING (``identify``: the application runs the requested version) → DONE.
+Any failure makes the node FAILED with the reason.  The bootloader itself never boots an
+image that does not verify and is not activated, whatever the host does.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Generator
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from bootloader.plan import Block, FlashPlan, NodeJob
+from protocol.errors import ImageError
+from protocol.image import FLASH, BoardType, parse_header
+from protocol.messages.bootloader import BootResult, ImageStatus, WriteStatus
+from protocol.messages.common import Running
+from protocol.messages.palm import FingerPower
+from protocol.topology import Hop
+
+#: Power off time when forcing a node into its bootloader (s).
+POWER_OFF_S: Final = 0.05
+#: How long after power-on the host keeps trying to halt autoboot (s); the window is 3 s.
+HALT_WITHIN_S: Final = 2.5
+#: Pause between halt attempts (s).
+HALT_RETRY_S: Final = 0.02
+#: Attempts of one page write; writes of one block before the block counts as failed.
+PAGE_TRIES: Final = 5
+BLOCK_TRIES: Final = 3
+#: Attempts of a read-only bootloader request (info, hash) and of power switching.
+QUERY_TRIES: Final = 3
+#: Extra time (ms) a node may take to answer a page write (erase + program + read-back,
+#: plus clearing the activation record first) and a hash of the whole image.
+WRITE_EXTRA_MS: Final = 12
+HASH_EXTRA_MS: Final = 20
+#: How long to wait for a booted application to answer identify (s).
+CONFIRM_WITHIN_S: Final = 1.0
+
+
+class NodeState(enum.Enum):
+    """Where a node is in its flashing."""
+
+    PENDING = "pending"
+    FORCING = "forcing"
+    HALTING = "halting"
+    INFO = "info"
+    WRITING = "writing"
+    VERIFYING = "verifying"
+    STAGED = "staged"
+    ACTIVATING = "activating"
+    BOOTING = "booting"
+    CONFIRMING = "confirming"
+    DONE = "done"
+    FAILED = "failed"
+
+
+@dataclass
+class NodeReport:
+    """What happened to one node: state, versions, bytes written (B), page/block retries,
+    time (s, link clock), result (``flashed``, ``skipped``, ``failed``), error."""
+
+    job: NodeJob
+    state: NodeState = NodeState.PENDING
+    result: str = "pending"
+    version_before: str | None = None
+    version: str | None = None
+    bytes_written: int = 0
+    retries: int = 0
+    started: float | None = None
+    finished: float | None = None
+    error: str | None = None
+    wrote: bool = False
+    blocks_done: int = 0
+    blocks_total: int = 0
+
+    @property
+    def seconds(self) -> float:
+        """Time spent on the node (s)."""
+        if self.started is None:
+            return 0.0
+        return (self.finished if self.finished is not None else self.started) - self.started
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as plain data (the ``--json`` node object)."""
+        return {"finger": self.job.finger, "board": self.job.board.name.lower(),
+                "result": self.result, "version_before": self.version_before,
+                "version": self.version, "requested": self.job.version,
+                "bytes_written": self.bytes_written, "retries": self.retries,
+                "seconds": round(self.seconds, 3), "error": self.error}
+
+
+@dataclass(frozen=True)
+class Send:
+    """Send request ``name`` to ``hop`` of the channel's finger (None: the palm)."""
+
+    name: str
+    fields: dict[str, Any] = field(default_factory=dict)
+    hop: Hop | None = None
+    extra_ms: int = 0
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """Let ``seconds`` pass on the link's clock."""
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A request's reply fields, or the error it ended with."""
+
+    fields: dict[str, Any] | None = None
+    error: Exception | None = None
+
+
+Op = Send | Sleep
+Flow = Generator[Op, Outcome, Any]
+
+
+class StepFailed(Exception):
+    """A step of a node's flashing failed for good (the message says which and why)."""
+
+
+class FingerChannel:
+    """Flashes the jobs of one finger (see the module docs).
+
+    ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
+    verify every node, leave them halted in their bootloaders, phalanges first), or
+    ``"activate"`` (activate, boot and confirm nodes staged by an earlier ``"stage"``).
+    ``power_state`` is the finger power to restore after a power cycle; ``clock`` the
+    link's clock (s); ``on_change`` is called with a report on every state change.
+    """
+
+    def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
+                 clock: Callable[[], float], *, phase: str = "all",
+                 power_state: int = FingerPower.FULL,
+                 on_change: Callable[[NodeReport], None] | None = None) -> None:
+        self.finger = finger
+        self.plan = plan
+        self.jobs = plan.jobs_of(finger)
+        self.reports = reports
+        self.clock = clock
+        self.phase = phase
+        self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
+        self.on_change = on_change
+        #: (node, block first page) written and verified in this run (force writes once).
+        self.written: set[tuple[BoardType, int]] = set()
+
+    # --- plumbing -----------------------------------------------------------------------
+    def _set(self, job: NodeJob, state: NodeState) -> None:
+        report = self.reports[job]
+        if report.started is None:
+            report.started = self.clock()
+        report.state = state
+        if state in (NodeState.DONE, NodeState.FAILED, NodeState.STAGED):
+            report.finished = self.clock()
+        if state == NodeState.DONE:
+            report.error = None
+        if self.on_change is not None:
+            self.on_change(report)
+
+    def call(self, name: str, fields: dict[str, Any] | None = None, hop: Hop | None = None,
+             *, tries: int = QUERY_TRIES, extra_ms: int = 0,
+             report: NodeReport | None = None) -> Flow:
+        """Send ``name`` up to ``tries`` times until it is answered; return its fields."""
+        out = Outcome()
+        for attempt in range(tries):
+            out = yield Send(name, dict(fields or {}), hop, extra_ms)
+            if out.error is None:
+                return out.fields
+            if report is not None and attempt + 1 < tries:
+                report.retries += 1
+        where = "the palm" if hop is None else f"finger {self.finger} {hop.name.lower()}"
+        raise StepFailed(f"{name} to {where} failed {tries} times: {out.error}")
+
+    # --- the channel ----------------------------------------------------------------------
+    def run(self) -> Flow:
+        """The whole channel: the phase's work on every job of the finger."""
+        fmcb = next((j for j in self.jobs if j.board == BoardType.FMCB), None)
+        phalanges = [j for j in self.jobs if j.board != BoardType.FMCB]
+        if self.phase == "all":
+            if fmcb is not None:
+                yield from self.force_fmcb(fmcb)
+                yield from self.stage(fmcb)
+                yield from self.activate(fmcb)
+            else:
+                yield from self.require_fmcb_application(phalanges)
+            if phalanges:
+                yield from self.force_phalanges(phalanges, cut=fmcb is None)
+                for job in phalanges:
+                    yield from self.stage(job)
+                    yield from self.activate(job)
+            else:
+                yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+            yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
+        elif self.phase == "stage":
+            if phalanges:
+                yield from self.require_fmcb_application(phalanges)
+                yield from self.force_phalanges(phalanges, cut=True)
+                for job in phalanges:
+                    yield from self.stage(job)
+            if fmcb is not None:
+                yield from self.force_fmcb(fmcb)
+                yield from self.stage(fmcb)
+        else:
+            if fmcb is not None:
+                yield from self.activate(fmcb)
+                if phalanges:
+                    yield from self.force_phalanges(phalanges, cut=False)
+            for job in phalanges:
+                yield from self.activate(job)
+            if fmcb is not None and not phalanges:
+                yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+            yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
+
+    # --- into the bootloader ------------------------------------------------------------
+    def force_fmcb(self, job: NodeJob) -> Flow:
+        """Power-cycle the finger through the palm and halt the fmcb's autoboot."""
+        self._set(job, NodeState.FORCING)
+        off = {"finger": self.finger, "state": FingerPower.OFF, "stagger_ms": 0}
+        yield from self.call("palm.finger_power", off)
+        yield Sleep(POWER_OFF_S)
+        on = {"finger": self.finger, "state": self.power_state, "stagger_ms": 0}
+        yield from self.call("palm.finger_power", on)
+        yield from self.halt([job])
+
+    def force_phalanges(self, jobs: list[NodeJob], *, cut: bool) -> Flow:
+        """Phalange power (off →) on through the fmcb, then halt every phalange of ``jobs``
+        (both are halted before either is flashed: no window expires meanwhile)."""
+        for job in jobs:
+            self._set(job, NodeState.FORCING)
+        if cut:
+            yield from self.call("fmcb.phalange_power", {"on": 0}, Hop.FMCB)
+            yield Sleep(POWER_OFF_S)
+        yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+        yield from self.halt(jobs)
+
+    def halt(self, jobs: list[NodeJob]) -> Flow:
+        """``bl.halt`` each node until it answers, at most :data:`HALT_WITHIN_S` after its
+        power came up."""
+        deadline = self.clock() + HALT_WITHIN_S
+        for job in jobs:
+            self._set(job, NodeState.HALTING)
+            while True:
+                out = yield Send("bl.halt", {}, job.hop)
+                if out.error is None:
+                    break
+                if self.clock() > deadline:
+                    raise StepFailed(f"{job.name} did not enter its bootloader within "
+                                     f"{HALT_WITHIN_S} s of power-up: {out.error}")
+                yield Sleep(HALT_RETRY_S)
+
+    def require_fmcb_application(self, jobs: list[NodeJob]) -> Flow:
+        """The phalanges are reached through the fmcb's application: it must be running."""
+        who = yield from self.call("identify", {}, Hop.FMCB)
+        if who["running"] != Running.APPLICATION:
+            names = ", ".join(j.name for j in jobs)
+            raise StepFailed(f"finger {self.finger} fmcb runs its bootloader, so {names} "
+                             "cannot be reached: flash the fmcb too (--fmcb)")
+
+    # --- the node's image ---------------------------------------------------------------
+    def stage(self, job: NodeJob) -> Flow:
+        """INFO, then (unless it already holds the image) WRITING and VERIFYING: the node
+        ends STAGED, halted in its bootloader with the image verified."""
+        report = self.reports[job]
+        self._set(job, NodeState.INFO)
+        info = yield from self.call("bl.info", {}, job.hop, report=report)
+        if info["board"] != job.board:
+            raise StepFailed(f"{job.name}: the node says it is a {BoardType(info['board']).name}")
+        try:
+            installed = parse_header(info["header"])
+            if report.version_before is None:
+                report.version_before = str(installed.version)
+        except ImageError:
+            installed = None
+        holds = installed is not None and info["header"] == job.image.header.to_bytes()
+        if holds and info["image_status"] == ImageStatus.VALID and not self.plan.force:
+            if not report.wrote:
+                report.result = "skipped"
+            self._set(job, NodeState.STAGED)
+            return
+        self._set(job, NodeState.WRITING)
+        blocks = job.blocks()
+        report.blocks_total, report.blocks_done = len(blocks), 0
+        for block in blocks:
+            yield from self.write_block(job, block)
+            report.blocks_done += 1
+        self._set(job, NodeState.VERIFYING)
+        pages = len(job.image.pages())
+        got = yield from self.call("bl.hash", {"start_page": FLASH.header_page, "pages": pages},
+                                   job.hop, extra_ms=HASH_EXTRA_MS, report=report)
+        if got["sha256"] != job.whole_hash():
+            raise StepFailed(f"{job.name}: the image does not verify after writing "
+                             f"(on-node SHA-256 {got['sha256'].hex()[:16]}…)")
+        report.wrote = True
+        report.result = "flashed"
+        self._set(job, NodeState.STAGED)
+
+    def block_ok(self, job: NodeJob, block: Block) -> Flow:
+        """True if the node's pages of ``block`` hash as they should."""
+        got = yield from self.call(
+            "bl.hash", {"start_page": block.first_page, "pages": len(block.pages)}, job.hop,
+            report=self.reports[job])
+        return got["status"] == BootResult.OK and got["sha256"] == block.sha256
+
+    def write_block(self, job: NodeJob, block: Block) -> Flow:
+        """Write ``block`` unless it already verifies (always once with force), then
+        verify it; rewrite up to :data:`BLOCK_TRIES` times."""
+        report = self.reports[job]
+        forced = self.plan.force and (job.board, block.first_page) not in self.written
+        for attempt in range(BLOCK_TRIES + 1):
+            if not forced or attempt:
+                if (yield from self.block_ok(job, block)):
+                    self.written.add((job.board, block.first_page))
+                    return
+                if attempt:
+                    report.retries += 1
+            if attempt == BLOCK_TRIES:
+                break
+            for i, data in enumerate(block.pages):
+                yield from self.write_page(job, block.first_page + i, data)
+        last = block.first_page + len(block.pages) - 1
+        raise StepFailed(f"{job.name}: pages {block.first_page}..{last} do not verify after "
+                         f"{BLOCK_TRIES} writes")
+
+    def write_page(self, job: NodeJob, page: int, data: bytes) -> Flow:
+        """One page, retried up to :data:`PAGE_TRIES` times (no reply, busy, bad word)."""
+        report = self.reports[job]
+        problem: object = None
+        for attempt in range(PAGE_TRIES):
+            if attempt:
+                report.retries += 1
+            out = yield Send("bl.write_page", {"page": page, "data": data}, job.hop,
+                             WRITE_EXTRA_MS)
+            if out.error is not None:
+                problem = out.error
+                continue
+            assert out.fields is not None
+            status = out.fields["status"]
+            report.bytes_written += len(data)
+            if status == WriteStatus.OK and out.fields["page"] == page:
+                return
+            problem = f"status {status!r}"
+            if status in (WriteStatus.PAGE_OUT_OF_RANGE, WriteStatus.PAGE_PROTECTED):
+                break
+        raise StepFailed(f"{job.name}: page {page} not written: {problem}")
+
+    def activate(self, job: NodeJob) -> Flow:
+        """ACTIVATING (the node verifies the staged image again), BOOTING, CONFIRMING."""
+        report = self.reports[job]
+        self._set(job, NodeState.ACTIVATING)
+        sha = job.image.header.sha256
+        got = yield from self.call("bl.activate", {"sha256": sha}, job.hop,
+                                   extra_ms=WRITE_EXTRA_MS, report=report)
+        if got["status"] != BootResult.OK:
+            raise StepFailed(f"{job.name}: activation refused: {got['status']!r} "
+                             f"(image {got['image_status']!r})")
+        self._set(job, NodeState.BOOTING)
+        yield from self.call("bl.boot", {}, job.hop, report=report)
+        self._set(job, NodeState.CONFIRMING)
+        deadline = self.clock() + CONFIRM_WITHIN_S
+        last: object = None
+        while self.clock() <= deadline:
+            yield Sleep(0.01)
+            out = yield Send("identify", {}, job.hop)
+            if out.error is not None or out.fields is None:
+                last = out.error
+                continue
+            v = out.fields["fw_version"]
+            version = f"{v['major']}.{v['minor']}.{v['patch']}"
+            if out.fields["running"] == Running.APPLICATION:
+                report.version = version
+                if version != job.version or out.fields["board"] != job.board:
+                    raise StepFailed(f"{job.name}: runs {version}, not {job.version}")
+                self._set(job, NodeState.DONE)
+                return
+            last = "still in its bootloader"
+        raise StepFailed(f"{job.name}: did not confirm its application: {last}")

@@ -1,0 +1,149 @@
+"""What a flashing run will do, decided and checked before anything is touched.
+
+A :class:`FlashPlan` is a list of :class:`NodeJob` (finger, board, image) and the run's
+options.  :func:`make_plan` reads and checks every image file first — it exists, parses
+(header CRC, size, SHA-256), is built for the board it is given for, and is signed with
+``public_key`` when one is given — so a bad file never leaves a node half-flashed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from bootloader.errors import FlashError, PlanError
+from bootloader.image_files import read_image
+from bootloader.signing import signature_ok
+from protocol.image import FLASH, BoardType, FirmwareImage
+from protocol.topology import FINGERS, Hop
+
+#: Boards of a finger module, in the order a finger is flashed: the fmcb first (the
+#: phalanges are reached through its running application), then f2 and f3.
+FINGER_BOARDS: Final = (BoardType.FMCB, BoardType.F2, BoardType.F3)
+HOP_OF_BOARD: Final = {BoardType.FMCB: Hop.FMCB, BoardType.F2: Hop.F2, BoardType.F3: Hop.F3}
+#: Pages hashed and verified together; a re-run skips every block that already verifies.
+BLOCK_PAGES: Final = 8
+
+
+@dataclass(frozen=True)
+class Block:
+    """A run of pages of an image: first flash page, the pages' bytes, their SHA-256."""
+
+    first_page: int
+    pages: tuple[bytes, ...]
+
+    @property
+    def sha256(self) -> bytes:
+        """What ``bl.hash`` of these pages must answer."""
+        return hashlib.sha256(b"".join(self.pages)).digest()
+
+
+@dataclass(frozen=True)
+class NodeJob:
+    """Flash ``image`` into the ``board`` of finger ``finger``."""
+
+    finger: int
+    board: BoardType
+    image: FirmwareImage
+
+    @property
+    def hop(self) -> Hop:
+        """Where the node sits behind the palm's finger link."""
+        return HOP_OF_BOARD[self.board]
+
+    @property
+    def name(self) -> str:
+        """``"finger 2 f3"``."""
+        return f"finger {self.finger} {self.board.name.lower()}"
+
+    @property
+    def version(self) -> str:
+        """The version the node must run afterwards."""
+        return str(self.image.header.version)
+
+    def blocks(self) -> list[Block]:
+        """The payload's blocks (from page 33 up), then the header page on its own: the
+        header is written last, so an interrupted run leaves no header naming a payload
+        that is not all there."""
+        pages = self.image.pages()
+        first = self.image.header.start_page(FLASH)
+        payload = [Block(first + 1 + i, tuple(pages[1 + i : 1 + i + BLOCK_PAGES]))
+                   for i in range(0, len(pages) - 1, BLOCK_PAGES)]
+        return [*payload, Block(first, (pages[0],))]
+
+    def whole_hash(self) -> bytes:
+        """What ``bl.hash`` over all the image's pages must answer."""
+        return hashlib.sha256(b"".join(self.image.pages())).digest()
+
+
+@dataclass(frozen=True)
+class FlashPlan:
+    """The jobs of one run and its options.
+
+    ``force`` rewrites every page even when the node already holds the image;
+    ``all_or_nothing`` stages and verifies every node first and activates only if all
+    verified.
+    """
+
+    jobs: tuple[NodeJob, ...]
+    force: bool = False
+    all_or_nothing: bool = False
+
+    @property
+    def fingers(self) -> list[int]:
+        """Fingers the plan touches, in order."""
+        return sorted({job.finger for job in self.jobs})
+
+    def jobs_of(self, finger: int) -> list[NodeJob]:
+        """The jobs of ``finger``, fmcb first."""
+        return sorted((j for j in self.jobs if j.finger == finger),
+                      key=lambda j: FINGER_BOARDS.index(j.board))
+
+    def describe(self) -> list[str]:
+        """One line per node: what will happen to it."""
+        mode = "rewrite all pages" if self.force else "skip if installed, else write what differs"
+        lines = [f"{job.name}: {job.image.header.app_name} {job.version} "
+                 f"({len(job.image.pages())} pages, {job.image.header.image_size} bytes; "
+                 f"{mode})" for job in self.jobs]
+        if self.all_or_nothing:
+            lines.append("all-or-nothing: stage and verify every node, activate only if all did")
+        return lines
+
+
+def make_plan(images: Mapping[BoardType, Path | FirmwareImage], fingers: Sequence[int] = (),
+              *, force: bool = False, all_or_nothing: bool = False,
+              public_key: bytes | None = None) -> FlashPlan:
+    """Check ``images`` (board → file or image) and make the plan for ``fingers`` (default:
+    all).  With ``public_key`` (32 bytes) every image must be signed with it.  Raises
+    :class:`PlanError` naming the file and what is wrong."""
+    fingers = list(fingers) or list(range(FINGERS))
+    bad = [f for f in fingers if not 0 <= f < FINGERS]
+    if bad or len(set(fingers)) != len(fingers):
+        raise PlanError(f"fingers {fingers}: each must appear once, in 0..{FINGERS - 1}")
+    if not images:
+        raise PlanError("no image given: pass at least one of --fmcb, --f2, --f3")
+    checked: dict[BoardType, FirmwareImage] = {}
+    for board, source in images.items():
+        if board not in FINGER_BOARDS:
+            raise PlanError(f"{board.name.lower()} is not a finger board (fmcb, f2, f3)")
+        what = source if isinstance(source, Path) else f"the {board.name.lower()} image"
+        try:
+            image = source if isinstance(source, FirmwareImage) else read_image(source)
+        except FlashError as exc:
+            raise PlanError(str(exc)) from exc
+        if image.header.board != board:
+            raise PlanError(f"{what}: wrong board: built for {image.header.board.name.lower()}, "
+                            f"given for {board.name.lower()}; nothing was flashed")
+        if public_key is not None:
+            if not image.header.signed:
+                raise PlanError(f"{what}: unsigned, but the nodes require images signed "
+                                f"with the given key; sign it (fwimage build --sign)")
+            if not signature_ok(image, public_key):
+                raise PlanError(f"{what}: signature does not verify with the given key")
+        checked[board] = image
+    jobs = tuple(NodeJob(f, board, checked[board]) for f in sorted(fingers)
+                 for board in FINGER_BOARDS if board in checked)
+    return FlashPlan(jobs, force=force, all_or_nothing=all_or_nothing)

@@ -1,0 +1,228 @@
+"""Flashing all twelve finger nodes on the in-process emulator: flash, skip, force, refuse,
+and interruptions (host killed, node power lost, finger link dropped) resumed by a re-run."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bootloader.batch import RunReport, run_plan
+from bootloader.plan import FlashPlan, make_plan
+from firmware_py.bootloader import inspect_image
+from firmware_py.mcu import Mcu
+from hil_emulator.emulator import Emulator
+from host.hand_session import HandSession
+from protocol.image import BoardType, FirmwareImage, ImageHeader
+from protocol.messages.bootloader import ImageStatus
+from tools import flash_all_fingers
+
+BOARDS = (BoardType.FMCB, BoardType.F2, BoardType.F3)
+
+
+def images(version: str) -> dict[BoardType, FirmwareImage]:
+    return {b: FirmwareImage.build(bytes(range(256)) * 9 + version.encode() + b.name.encode(),
+                                   b, version, b.name.lower()) for b in BOARDS}
+
+
+NEW = images("2.3.4")
+
+
+class Hand:
+    """An emulated hand brought up, with a record of every boot of a finger node."""
+
+    def __init__(self) -> None:
+        self.emu = Emulator("hand", physics=False, can="none")
+        self.emu.bring_up()
+        assert self.emu.hand is not None
+        self.rig = self.emu.hand
+        self.boots: list[tuple[str, ImageStatus, ImageHeader | None]] = []
+        for finger in self.rig.fingers:
+            for mcu in (finger.fmcb, finger.f2, finger.f3):
+                self._watch(f"finger {finger.index} {mcu.identity.board_type}", mcu)
+
+    def _watch(self, name: str, mcu: Mcu) -> None:
+        original = mcu.boot
+
+        def boot(app: str, version: Any = None) -> None:
+            check = inspect_image(mcu.hal.flash, mcu.identity.board_type)
+            self.boots.append((name, check.status, check.header))
+            original(app, version)
+
+        mcu.boot = boot  # type: ignore[method-assign]
+
+    def session(self) -> HandSession:
+        return HandSession(self.emu.transport("palm"))
+
+    def nodes(self) -> list[Mcu]:
+        return [m for f in self.rig.fingers for m in (f.fmcb, f.f2, f.f3)]
+
+    def assert_all_run(self, version: str) -> None:
+        for mcu in self.nodes():
+            assert mcu.program_name not in (None, "bootloader"), mcu.identity
+            assert getattr(mcu.program, "fw_version", None) == tuple(
+                int(p) for p in version.split("."))
+        # Never did a node boot an image that does not verify, nor a partial one.
+        allowed = {img.header for img in NEW.values()}
+        for name, status, header in self.boots:
+            assert status == ImageStatus.VALID, name
+            assert header is not None and (header in allowed or str(header.version) != "2.3.4")
+
+
+@pytest.fixture()
+def hand() -> Iterator[Hand]:
+    h = Hand()
+    yield h
+    h.emu.close()
+
+
+def run(hand: Hand, plan: FlashPlan) -> RunReport:
+    with hand.session() as session:
+        return run_plan(session, plan)
+
+
+def test_flash_all_twelve_then_skip_then_force(hand: Hand) -> None:
+    first = run(hand, make_plan(NEW))
+    assert first.ok and len(first.nodes) == 12
+    assert {r.result for r in first.nodes} == {"flashed"}
+    assert all(r.version == "2.3.4" and r.bytes_written > 0 for r in first.nodes)
+    hand.assert_all_run("2.3.4")
+
+    second = run(hand, make_plan(NEW))
+    assert second.ok and {r.result for r in second.nodes} == {"skipped"}
+    assert sum(r.bytes_written for r in second.nodes) == 0
+
+    forced = run(hand, make_plan(NEW, [1], force=True))
+    assert forced.ok and {r.result for r in forced.nodes} == {"flashed"}
+    assert all(r.bytes_written == len(NEW[r.job.board].pages()) * 256 for r in forced.nodes)
+    hand.assert_all_run("2.3.4")
+
+
+def test_all_or_nothing_stages_every_node_then_activates(hand: Hand) -> None:
+    report = run(hand, make_plan(NEW, [0, 2], all_or_nothing=True))
+    assert report.ok, [r.to_dict() for r in report.nodes]
+    assert all(r.result == "flashed" for r in report.nodes)
+
+
+def test_cli_json_and_refusals_before_touching_anything(
+        hand: Hand, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    paths = {}
+    for board, image in NEW.items():
+        paths[board] = tmp_path / f"{board.name.lower()}.img"
+        paths[board].write_bytes(image.to_bytes())
+    monkeypatch.setattr(flash_all_fingers, "open_transport",
+                        lambda url: hand.emu.transport("palm"))
+    args = ["--port", "emu://hand/palm", "--fmcb", str(paths[BoardType.FMCB]),
+            "--f2", str(paths[BoardType.F2]), "--f3", str(paths[BoardType.F3])]
+    boots = len(hand.boots)
+
+    # Wrong board, missing file, corrupted image, unsigned where required: exit 2, untouched.
+    wrong = ["--port", "x", "--fmcb", str(paths[BoardType.F2])]
+    assert flash_all_fingers.main(wrong) == 2
+    assert "wrong board" in capsys.readouterr().err
+    assert flash_all_fingers.main(["--port", "x", "--f2", str(tmp_path / "nope.img")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.img"
+    bad.write_bytes(paths[BoardType.F3].read_bytes()[:-5])
+    assert flash_all_fingers.main(["--port", "x", "--f3", str(bad)]) == 2
+    assert "truncated" in capsys.readouterr().err
+    key = tmp_path / "pub"
+    key.write_bytes(bytes(range(32)))
+    assert flash_all_fingers.main([*args, "--key", str(key)]) == 2
+    assert "unsigned" in capsys.readouterr().err
+    assert len(hand.boots) == boots
+
+    # Dry run touches nothing.
+    assert flash_all_fingers.main([*args, "--dry-run"]) == 0
+    assert len(capsys.readouterr().out.splitlines()) == 12 and len(hand.boots) == boots
+
+    # A finger that does not answer: refused before anything is touched.
+    hand.emu.break_away(3)
+    assert flash_all_fingers.main(args) == 2
+    assert "finger 3 is not answering" in capsys.readouterr().err
+    assert len(hand.boots) == boots
+
+    # The rest, with --json; versions read back by identify match.
+    assert flash_all_fingers.main([*args, "--fingers", "0,1,2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["nodes"]) == 9 and out["total_seconds"] > 0
+    assert {n["result"] for n in out["nodes"]} == {"flashed"}
+    assert {n["version"] for n in out["nodes"]} == {"2.3.4"}
+    assert {(n["finger"], n["board"]) for n in out["nodes"]} == {
+        (f, b) for f in range(3) for b in ("fmcb", "f2", "f3")}
+
+
+def test_a_nonexistent_port_is_a_clear_error(capsys: pytest.CaptureFixture[str],
+                                            tmp_path: Path) -> None:
+    img = tmp_path / "f2.img"
+    img.write_bytes(NEW[BoardType.F2].to_bytes())
+    assert flash_all_fingers.main(["--port", str(tmp_path / "ttyNONE"), "--f2", str(img)]) == 2
+    assert "cannot open" in capsys.readouterr().err
+
+
+class HostKilled(BaseException):
+    """The host process dies (nothing in the engine may catch it)."""
+
+
+def interrupt_and_resume(kind: str, finger: int, after_frames: int) -> None:
+    hand = Hand()
+    try:
+        emu, rig = hand.emu, hand.rig
+        session = hand.session()
+        sent = [0]
+
+        def fault(direction: str, t: float, frame: bytes) -> None:
+            if direction != "tx":
+                return
+            sent[0] += 1
+            if sent[0] != after_frames:
+                return
+            f = rig.fingers[finger]
+            if kind == "host_killed":
+                raise HostKilled()
+            if kind == "power_lost":
+                for node in (f.f2, f.f3, f.fmcb):
+                    node.power_off()
+                emu.scheduler.call_later(20_000, f.fmcb.power_on)
+            elif kind == "phalange_power_lost":
+                f.f2.power_off()
+                emu.scheduler.call_later(5_000, f.f2.power_on)
+            else:
+                emu.break_away(finger)
+                emu.scheduler.call_later(150_000, lambda: emu.reattach(finger))
+
+        session.taps.append(fault)
+        try:
+            run_plan(session, make_plan(NEW))
+        except HostKilled:
+            pass
+        session.close()
+        emu.step(200_000)
+        report = run(hand, make_plan(NEW))
+        assert report.ok, [r.to_dict() for r in report.nodes if r.result == "failed"]
+        hand.assert_all_run("2.3.4")
+    finally:
+        hand.emu.close()
+
+
+KINDS = st.sampled_from(["host_killed", "power_lost", "phalange_power_lost", "link_dropped"])
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=list(HealthCheck))
+@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(5, 300))
+def test_interrupted_flashing_resumes_and_never_boots_an_unverified_image(
+        kind: str, finger: int, after: int) -> None:
+    interrupt_and_resume(kind, finger, after)
+
+
+@pytest.mark.slow
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(1, 320))
+def test_interrupted_flashing_resumes_many_cases(kind: str, finger: int, after: int) -> None:
+    interrupt_and_resume(kind, finger, after)

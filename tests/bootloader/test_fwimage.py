@@ -1,0 +1,138 @@
+"""fwimage: images from raw, Intel HEX and ELF inputs; inspect; keys, signing, refusal."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import pytest
+from intelhex import IntelHex
+
+from bootloader.errors import ImageFileError, PlanError
+from bootloader.image_files import PAYLOAD_ADDRESS, read_image, read_payload
+from bootloader.plan import make_plan
+from bootloader.signing import load_public_key
+from firmware_py.bootloader import inspect_image
+from firmware_py.scheduler import Scheduler
+from firmware_py.sim.boards import install_image, make_hal, provision_key
+from protocol.image import BoardType
+from protocol.messages.bootloader import ImageStatus
+from tools import fwimage
+
+PAYLOAD = bytes((i * 7 + 3) & 0xFF for i in range(1000))
+
+
+def tiny_elf(segments: list[tuple[int, bytes]]) -> bytes:
+    """An ELF32 little-endian ARM executable with one PT_LOAD per segment, by hand."""
+    ehsize, phentsize = 52, 32
+    data_off = ehsize + phentsize * len(segments)
+    ident = b"\x7fELF" + bytes([1, 1, 1, 0]) + bytes(8)
+    header = ident + struct.pack("<HHIIIIIHHHHHH", 2, 40, 1, segments[0][0], ehsize, 0, 0,
+                                 ehsize, phentsize, len(segments), 40, 0, 0)
+    phdrs, blobs, off = b"", b"", data_off
+    for address, data in segments:
+        phdrs += struct.pack("<IIIIIIII", 1, off, address, address, len(data), len(data), 5, 4)
+        blobs += data
+        off += len(data)
+    return header + phdrs + blobs
+
+
+def build(tmp_path: Path, source: Path, *extra: str, board: str = "f2",
+          name: str | None = None) -> Path:
+    out = tmp_path / f"{name or source.stem}.img"
+    assert fwimage.main(["build", "--board", board, "--version", "1.2.3", "--input",
+                         str(source), "-o", str(out), "--timestamp", "0", *extra]) == 0
+    return out
+
+
+def test_build_from_a_raw_bin(tmp_path: Path) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    image = read_image(build(tmp_path, src), BoardType.F2)
+    assert image.payload == PAYLOAD
+    assert str(image.header.version) == "1.2.3" and image.header.app_name == "f2"
+
+
+def test_build_from_intel_hex_fills_gaps_with_erased_bytes(tmp_path: Path) -> None:
+    ih = IntelHex()
+    ih.puts(PAYLOAD_ADDRESS, PAYLOAD[:100])
+    ih.puts(PAYLOAD_ADDRESS + 200, PAYLOAD[200:300])
+    src = tmp_path / "fw.hex"
+    ih.write_hex_file(str(src))
+    image = read_image(build(tmp_path, src, "--app", "f3", board="f3"))
+    assert image.payload == PAYLOAD[:100] + b"\xff" * 100 + PAYLOAD[200:300]
+    assert image.header.app_name == "f3" and image.header.board == BoardType.F3
+
+
+def test_build_from_elf_uses_the_loadable_segments(tmp_path: Path) -> None:
+    src = tmp_path / "fw.elf"
+    src.write_bytes(tiny_elf([(PAYLOAD_ADDRESS, PAYLOAD[:64]), (PAYLOAD_ADDRESS + 80, b"\x01\x02")]))
+    image = read_image(build(tmp_path, src, board="fmcb"))
+    assert image.payload == PAYLOAD[:64] + b"\xff" * 16 + b"\x01\x02"
+
+
+def test_an_elf_linked_elsewhere_is_refused_with_the_address(tmp_path: Path) -> None:
+    src = tmp_path / "bad.elf"
+    src.write_bytes(tiny_elf([(0x402000, PAYLOAD[:64])]))
+    with pytest.raises(ImageFileError, match="linked at 0x402000.*0x402100"):
+        read_payload(src)
+
+
+def test_inspect_json_shows_the_header_and_checks(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    img = build(tmp_path, src)
+    capsys.readouterr()
+    assert fwimage.main(["inspect", str(img), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["board"] == "f2" and info["version"] == "1.2.3"
+    assert info["payload_bytes"] == len(PAYLOAD) and info["hash_ok"] and not info["signed"]
+
+
+def test_inspect_refuses_a_corrupted_or_truncated_image(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    img = build(tmp_path, src)
+    data = bytearray(img.read_bytes())
+    data[300] ^= 1
+    bad = tmp_path / "bad.img"
+    bad.write_bytes(bytes(data))
+    assert fwimage.main(["inspect", str(bad)]) == 1
+    assert "SHA-256 mismatch" in capsys.readouterr().err
+    bad.write_bytes(img.read_bytes()[:-10])
+    assert fwimage.main(["inspect", str(bad)]) == 1
+    assert "truncated" in capsys.readouterr().err
+
+
+def test_keygen_sign_verify_and_refuse(tmp_path: Path) -> None:
+    key, other = tmp_path / "k", tmp_path / "other"
+    assert fwimage.main(["keygen", "-o", str(key)]) == 0
+    assert fwimage.main(["keygen", "-o", str(other)]) == 0
+    assert fwimage.main(["keygen", "-o", str(key)]) == 1  # never overwrites silently
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    signed = read_image(build(tmp_path, src, "--sign", str(key)))
+    unsigned = read_image(build(tmp_path, src, name="u"))
+    pub, other_pub = (load_public_key(Path(str(p) + ".pub")) for p in (key, other))
+    assert fwimage.main(["inspect", str(tmp_path / "fw.img"), "--key", str(key) + ".pub"]) == 0
+    assert fwimage.main(["inspect", str(tmp_path / "fw.img"), "--key", str(other) + ".pub"]) == 1
+    make_plan({BoardType.F2: signed}, public_key=pub)
+    with pytest.raises(PlanError, match="unsigned"):
+        make_plan({BoardType.F2: unsigned}, public_key=pub)
+    with pytest.raises(PlanError, match="does not verify"):
+        make_plan({BoardType.F2: signed}, public_key=other_pub)
+
+    # A provisioned node: its bootloader refuses other keys and, when required, no key.
+    def status(image: bytes, key: bytes, required: bool) -> ImageStatus:
+        hal = make_hal(Scheduler(), BoardType.F2)
+        install_image(hal, image)
+        provision_key(hal, key, required)
+        return inspect_image(hal.flash, BoardType.F2).status
+
+    assert status(signed.to_bytes(), pub, True) == ImageStatus.VALID
+    assert status(signed.to_bytes(), other_pub, True) == ImageStatus.BAD_SIGNATURE
+    assert status(unsigned.to_bytes(), pub, True) == ImageStatus.UNSIGNED
+    assert status(unsigned.to_bytes(), pub, False) == ImageStatus.VALID
