@@ -169,3 +169,15 @@ class JointEkf:
         self.x = self.x + k @ innovation
         i_kh = np.eye(STATE_SIZE) - k @ h
         self.P = i_kh @ self.P @ i_kh.T + k @ r @ k.T  # Joseph form: stays symmetric PSD
+
+
+def fuse_snapshot(hall_pos: Sequence[float], accels: dict[str, Sequence[float]],
+                  params: EkfParams = DEFAULT_PARAMS) -> np.ndarray:
+    """Joint angles (rad) fusing one homed finger's hall counts (homing-relative) with one
+    reading of its accelerometers (counts): one hall update then one accelerometer update
+    of a fresh filter."""
+    ekf = JointEkf(params, q0=motor_to_joint(hall_pos), q0_sigma=0.2)
+    ekf.update_halls(hall_pos)
+    ekf.update_accels(accel_counts_to_g(accels["fmcb"]), accel_counts_to_g(accels["f2"]),
+                      accel_counts_to_g(accels["f3"]))
+    return ekf.q
