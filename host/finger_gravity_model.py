@@ -17,13 +17,15 @@ import numpy as np
 
 from protocol.robot import FINGER_JOINT_AXES, accel_mount_rotation
 
+#: A 3-vector (or a vector of joint angles) as a sequence or a numpy array.
+Vector = Sequence[float] | np.ndarray
 #: The accelerometer boards of a finger, base first.
 BOARDS: Final = ("fmcb", "f2", "f3")
 #: Joints between F0 and each board's segment (F0: none, F2: J0 J1, F3: J0 J1 J2).
 JOINTS_BEFORE: Final = {"fmcb": 0, "f2": 2, "f3": 3}
 
 
-def axis_rotation(axis: Sequence[float], angle: float) -> np.ndarray:
+def axis_rotation(axis: Vector, angle: float) -> np.ndarray:
     """Rotation matrix (3×3) turning by ``angle`` (rad) counter-clockwise about ``axis``."""
     u = np.asarray(axis, dtype=float)
     u = u / np.linalg.norm(u)
@@ -33,7 +35,7 @@ def axis_rotation(axis: Sequence[float], angle: float) -> np.ndarray:
     return out
 
 
-def segment_rotations(q: Sequence[float]) -> dict[str, np.ndarray]:
+def segment_rotations(q: Vector) -> dict[str, np.ndarray]:
     """Orientation (3×3, columns = the segment's axes in F0) of F0, F2 and F3 for ``q`` (rad)."""
     r1 = axis_rotation(FINGER_JOINT_AXES[0], float(q[0]))
     r2 = r1 @ axis_rotation(FINGER_JOINT_AXES[1], float(q[1]))
@@ -41,7 +43,7 @@ def segment_rotations(q: Sequence[float]) -> dict[str, np.ndarray]:
     return {"fmcb": np.eye(3), "f2": r2, "f3": r3}
 
 
-def predict_readings(q: Sequence[float], up_f0: Sequence[float]) -> dict[str, np.ndarray]:
+def predict_readings(q: Vector, up_f0: Vector) -> dict[str, np.ndarray]:
     """Each board's reading (g, its own axes) at rest for joint angles ``q`` (rad) when the
     upward direction in the F0 *segment* frame is ``up_f0`` (the unit vector, g)."""
     up = np.asarray(up_f0, dtype=float)
@@ -51,7 +53,7 @@ def predict_readings(q: Sequence[float], up_f0: Sequence[float]) -> dict[str, np
     return out
 
 
-def to_segment(board: str, reading: Sequence[float]) -> np.ndarray:
+def to_segment(board: str, reading: Vector) -> np.ndarray:
     """A board's reading expressed in its segment's frame (same unit)."""
     out: np.ndarray = accel_mount_rotation(board) @ np.asarray(reading, dtype=float)
     return out

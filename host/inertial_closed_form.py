@@ -34,7 +34,7 @@ from typing import Final
 import numpy as np
 
 from host.errors import UsageError
-from host.finger_gravity_model import to_segment
+from host.finger_gravity_model import Vector, to_segment
 from protocol.robot import FINGER_JOINT_AXES, FINGER_JOINT_NAMES, FINGER_JOINT_STOPS
 
 if tuple(map(tuple, FINGER_JOINT_AXES)) != ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (0.0, -1.0, 0.0)):
@@ -138,7 +138,7 @@ def solve_trig(a: float, b: float, c: float, slack: float = TANGENT_SLACK) -> li
     return [first, wrap(math.atan2(c, -root) - gamma)]
 
 
-def _unit(v: Sequence[float] | np.ndarray) -> np.ndarray:
+def _unit(v: Vector) -> np.ndarray:
     a = np.asarray(v, dtype=float)
     n = float(np.linalg.norm(a))
     if n == 0.0 or not math.isfinite(n):
@@ -146,13 +146,13 @@ def _unit(v: Sequence[float] | np.ndarray) -> np.ndarray:
     return a / n
 
 
-def axis_tilt(up: np.ndarray, axis: Sequence[float]) -> float:
+def axis_tilt(up: np.ndarray, axis: Vector) -> float:
     """Angle (rad, 0..π/2) between a joint axis and the vertical, both in one frame."""
     cos = abs(float(np.dot(up, _unit(axis))))
     return math.acos(min(1.0, cos))
 
 
-def distal_angle(a2: Sequence[float], a3: Sequence[float],
+def distal_angle(a2: Vector, a3: Vector,
                  min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> float | Unobservable:
     """J2 (rad) from the F2 and F3 readings (segment frames): the 1-DOF closed form.
 
@@ -167,14 +167,14 @@ def distal_angle(a2: Sequence[float], a3: Sequence[float],
     return wrap(math.atan2(u2[2], u2[0]) - math.atan2(u3[2], u3[0]))
 
 
-def eq_4_13_roots(a0: Sequence[float], a2: Sequence[float]) -> list[float]:
+def eq_4_13_roots(a0: Vector, a2: Vector) -> list[float]:
     """The up to two q0 (rad) of eq. 4.13: middle row of eq. 4.12, ``a = α0y``,
     ``b = −α0x``, ``c = α2y`` (unit readings, segment frames)."""
     u0, u2 = _unit(a0), _unit(a2)
     return solve_trig(float(u0[1]), float(-u0[0]), float(u2[1]))
 
 
-def eq_4_14_roots(a0: Sequence[float], a2: Sequence[float], q0: float) -> list[float]:
+def eq_4_14_roots(a0: Vector, a2: Vector, q0: float) -> list[float]:
     """The up to two q1 (rad) of eq. 4.14 for a given q0: top row of eq. 4.12,
     ``α2x = bx·cos q1 + bz·sin q1`` with ``b = Rz(−q0)·α0``."""
     u0, u2 = _unit(a0), _unit(a2)
@@ -189,7 +189,7 @@ def _proximal_q1(u0: np.ndarray, u2: np.ndarray, q0: float) -> float:
     return wrap(math.atan2(u0[2], bx) - math.atan2(u2[2], u2[0]))
 
 
-def eq_4_12_residual(a0: Sequence[float], a2: Sequence[float], q0: float, q1: float) -> float:
+def eq_4_12_residual(a0: Vector, a2: Vector, q0: float, q1: float) -> float:
     """``|α2 − Ry(q1)·Rz(−q0)·α0|`` for unit readings: 0 for an exact root of eq. 4.12."""
     u0, u2 = _unit(a0), _unit(a2)
     c0, s0, c1, s1 = math.cos(q0), math.sin(q0), math.cos(q1), math.sin(q1)
@@ -198,7 +198,7 @@ def eq_4_12_residual(a0: Sequence[float], a2: Sequence[float], q0: float, q1: fl
     return float(np.linalg.norm(u2 - pred))
 
 
-def proximal_candidates(a0: Sequence[float], a2: Sequence[float]
+def proximal_candidates(a0: Vector, a2: Vector
                         ) -> list[tuple[float, float, float]]:
     """Every root (q0, q1, residual of eq. 4.12) of eq. 4.13 × eq. 4.14: up to four, of
     which the exact solutions have a residual near zero."""
@@ -214,8 +214,8 @@ def _within(q: float, joint: int) -> bool:
     return lo - LIMIT_MARGIN_RAD <= q <= hi + LIMIT_MARGIN_RAD
 
 
-def estimate(readings: Mapping[str, Sequence[float]],
-             previous: Sequence[float | None] | None = None,
+def estimate(readings: Mapping[str, Vector],
+             previous: Sequence[float | None] | np.ndarray | None = None,
              min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> InertialEstimate:
     """Joint angles from the boards' readings at rest (``"fmcb"``, ``"f2"``, ``"f3"``: each
     board's own axes, any unit; the mounting of :func:`protocol.robot.accel_mount_rotation`

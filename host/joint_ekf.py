@@ -21,13 +21,13 @@ Measurements:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
 
-from host.finger_gravity_model import predict_readings, to_segment
+from host.finger_gravity_model import Vector, predict_readings, to_segment
 from protocol.robot import ACCEL_COUNTS_PER_G, motor_to_joint
 
 #: State size: three joints × (angle, velocity, acceleration).
@@ -75,7 +75,7 @@ def process_noise(dt: float, jerk_psd: float) -> np.ndarray:
     return np.kron(q1, np.eye(3))
 
 
-def accel_counts_to_g(counts: Sequence[float]) -> np.ndarray:
+def accel_counts_to_g(counts: Vector) -> np.ndarray:
     """An accelerometer reading in counts (mg) → g."""
     return np.asarray(counts, dtype=float) / ACCEL_COUNTS_PER_G
 
@@ -85,8 +85,8 @@ class JointEkf:
     (homed) :meth:`update_halls`; :attr:`q` the joint angles (rad)."""
 
     def __init__(self, params: EkfParams = DEFAULT_PARAMS,
-                 q0: Sequence[float] | None = None,
-                 q0_sigma: Sequence[float] | float | None = None) -> None:
+                 q0: Vector | None = None,
+                 q0_sigma: Vector | float | None = None) -> None:
         self.params = params
         self.x = np.zeros(STATE_SIZE)
         sig = np.repeat(np.asarray(params.initial_sigma, dtype=float), 3)
@@ -136,13 +136,13 @@ class JointEkf:
         self._base_t = t
         return self.up0
 
-    def predicted_accels(self, q: Sequence[float]) -> np.ndarray:
+    def predicted_accels(self, q: Vector) -> np.ndarray:
         """F2 and F3 readings (6, g) the model expects for ``q`` (rad) and the current base."""
         assert self.up0 is not None
         r = predict_readings(q, self.up0)
         return np.concatenate((r["f2"], r["f3"]))
 
-    def update_accels(self, fmcb: Sequence[float], f2: Sequence[float], f3: Sequence[float],
+    def update_accels(self, fmcb: Vector, f2: Vector, f3: Vector,
                       t: float | None = None) -> None:
         """Fuse one reading of each accelerometer (g, board axes) taken at ``t`` (s)."""
         self._base(np.asarray(fmcb, dtype=float), t)
@@ -156,9 +156,9 @@ class JointEkf:
             jac[:, j] = (self.predicted_accels(dq) - h0) / JACOBIAN_STEP_RAD
         self._correct(z - h0, jac, np.eye(6) * self.params.accel_sigma_g ** 2)
 
-    def update_halls(self, hall_pos: Sequence[float]) -> None:
+    def update_halls(self, hall_pos: Vector) -> None:
         """Fuse homing-relative motor positions (hall counts) as joint angles."""
-        z = np.asarray(motor_to_joint(hall_pos))
+        z = np.array(motor_to_joint([float(v) for v in hall_pos]), dtype=float)
         h = np.zeros((3, STATE_SIZE))
         h[:, :3] = np.eye(3)
         self._correct(z - self.x[:3], h, np.eye(3) * self.params.hall_sigma_rad ** 2)
@@ -171,12 +171,12 @@ class JointEkf:
         self.P = i_kh @ self.P @ i_kh.T + k @ r @ k.T  # Joseph form: stays symmetric PSD
 
 
-def fuse_snapshot(hall_pos: Sequence[float], accels: dict[str, Sequence[float]],
+def fuse_snapshot(hall_pos: Vector, accels: Mapping[str, Vector],
                   params: EkfParams = DEFAULT_PARAMS) -> np.ndarray:
     """Joint angles (rad) fusing one homed finger's hall counts (homing-relative) with one
     reading of its accelerometers (counts): one hall update then one accelerometer update
     of a fresh filter."""
-    ekf = JointEkf(params, q0=motor_to_joint(hall_pos), q0_sigma=0.2)
+    ekf = JointEkf(params, q0=motor_to_joint([float(v) for v in hall_pos]), q0_sigma=0.2)
     ekf.update_halls(hall_pos)
     ekf.update_accels(accel_counts_to_g(accels["fmcb"]), accel_counts_to_g(accels["f2"]),
                       accel_counts_to_g(accels["f3"]))
