@@ -9,7 +9,8 @@ Frames (all right-handed, SI units: m, kg, rad):
   along the extended finger (distal), ``z`` the palmar side of the phalanges (pads face
   ``+z``, flexion moves the tip towards ``+z``), ``y = z × x``.  The motor module box lies
   behind the origin (``x`` from −40 mm to 0).  F1, F2, F3 share that orientation at zero
-  joint angles; every board frame (fmcb on F0, f2 on F2, f3 on F3) is its body's frame.
+  joint angles; each board's accelerometer site (fmcb on F0, f2 on F2, f3 on F3) is turned
+  by :func:`protocol.robot.accel_mount_rotation` (nominally none: its body's frame).
 
 Kinematics of a module: J1 (F0–F1) about ``+z`` (abduction / base rotation), J2 (F1–F2,
 18 mm further) and J3 (F2–F3, at the end of the 45 mm F2) about ``−y``, so a positive angle
@@ -54,6 +55,7 @@ from protocol.robot import (
     FINGER_JOINT_STOPS,
     HAND_LAYOUTS,
     PALM_HALF_EXTENTS_M,
+    accel_mount_rotation,
     finger_coupling_matrix_rad,
 )
 
@@ -312,6 +314,14 @@ _PAD_RGBA = (0.05, 0.05, 0.05, 1.0)
 _MOTOR_RGBA = (0.7, 0.7, 0.72, 1.0)
 
 
+def _accel_quat(board: str) -> list[float]:
+    """Site quaternion (w, x, y, z) of ``board``'s accelerometer in its segment's frame
+    (:func:`protocol.robot.accel_mount_rotation`)."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, accel_mount_rotation(board).ravel())
+    return [float(v) for v in quat]
+
+
 def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
                pos: Vec3 = (0.0, 0.0, 0.0), quat: Quat = (1.0, 0.0, 0.0, 0.0),
                motor: MotorConstants = DEFAULT_MOTOR) -> mujoco.MjsBody:
@@ -326,7 +336,8 @@ def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
     f0 = parent.add_body(name=names.body("F0"), pos=list(pos), quat=list(quat))
     _hand_geom(f0, f"{prefix}F0_motors", (-F0_HALF[0], 0.0, 0.0), F0_HALF, F0_MASS_KG,
                _MOTOR_RGBA)
-    f0.add_site(name=names.imu_site("fmcb"), pos=[-F0_HALF[0], 0.0, 0.0])
+    f0.add_site(name=names.imu_site("fmcb"), pos=[-F0_HALF[0], 0.0, 0.0],
+                quat=_accel_quat("fmcb"))
 
     f1 = f0.add_body(name=names.body("F1"))
     f1.add_joint(name=names.joint(0), type=mujoco.mjtJoint.mjJNT_HINGE,
@@ -346,7 +357,8 @@ def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
     _hand_geom(f2, names.pad("F2"), (F2_LENGTH / 2, 0.0, F2_PAD_Z),
                (F2_LENGTH / 2 - 0.002, F2_HALF_WIDTH - 0.001, PAD_HALF_THICKNESS),
                PAD_MASS_KG, _PAD_RGBA)
-    f2.add_site(name=names.imu_site("f2"), pos=[0.6 * F2_LENGTH, 0.0, 0.0])
+    f2.add_site(name=names.imu_site("f2"), pos=[0.6 * F2_LENGTH, 0.0, 0.0],
+                quat=_accel_quat("f2"))
     f2.add_site(name=names.gauge_site, pos=list(GAUGE_POS))
 
     f3 = f2.add_body(name=names.body("F3"), pos=[F2_LENGTH, 0.0, 0.0])
@@ -358,7 +370,8 @@ def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
     _hand_geom(f3, names.pad("F3"), (F3_LENGTH / 2, 0.0, F3_PAD_Z),
                (F3_LENGTH / 2 - 0.002, F3_HALF_WIDTH - 0.0005, PAD_HALF_THICKNESS),
                PAD_MASS_KG, _PAD_RGBA)
-    f3.add_site(name=names.imu_site("f3"), pos=[0.4 * F3_LENGTH, 0.0, 0.0])
+    f3.add_site(name=names.imu_site("f3"), pos=[0.4 * F3_LENGTH, 0.0, 0.0],
+                quat=_accel_quat("f3"))
 
     for board in ("fmcb", "f2", "f3"):
         spec.add_sensor(name=names.accel_sensor(board),

@@ -36,9 +36,10 @@ from typing import Final
 import mujoco
 import numpy as np
 
+from protocol.robot import ACCEL_COUNTS_PER_G
+
 #: Standard gravity (m/s²) for the accelerometer scale.
 STANDARD_GRAVITY: Final = 9.80665
-ACCEL_COUNTS_PER_G: Final = 1000.0
 ACCEL_CLAMP: Final = 2000
 #: Magnetometer scale (counts/gauss; the field is the model's ``option.magnetic``).
 MAG_COUNTS_PER_GAUSS: Final = 1100.0

@@ -9,6 +9,7 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── RouteError                        the palm could not deliver to a finger node
     ├── NodeError                         a node answered, but with a refusal or a bad reply
     ├── UsageError(ValueError)            the caller asked for something impossible
+    │   └── NotHomedError                 a motion command for a finger not yet homed
     └── HomingError                       an arm joint's index mark was not found
 """
 
@@ -67,3 +68,12 @@ class HomingError(HostError):
     def __init__(self, message: str, *, joint: str | None = None) -> None:
         super().__init__(message)
         self.joint = joint
+
+
+class NotHomedError(UsageError):
+    """A motion command for a finger whose hall offsets were never set (``Hand.home``);
+    ``unhomed=True`` overrides.  ``fingers`` lists the fingers concerned."""
+
+    def __init__(self, message: str, *, fingers: list[int]) -> None:
+        super().__init__(message)
+        self.fingers = fingers

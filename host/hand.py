@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 from host.code_names import code_name
-from host.errors import HostError, RouteError, UsageError
+from host.errors import HostError, NotHomedError, RouteError, UsageError
 from host.finger_params import FingerParams
 from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
 from host.hand_state import FingerState, HandState, NodeInfo
@@ -131,6 +131,8 @@ class Finger:
                  for hop in Hop]
         self.motor, self.proximal, self.distal = nodes
         self.params = FingerParams(self.motor.request)
+        #: The fmcb holds homing offsets (set here, or found on it); moves need it.
+        self.homed = False
 
     def deadband(self) -> int:
         """The fmcb's position deadband (hall counts): its ``deadband`` parameter, read at
@@ -183,24 +185,27 @@ class Finger:
         mode = ControlMode.RELATIVE if relative else ControlMode.JOINT_EFFORT
         return FingerCommand(self.index, mode, {"target": target, "max_effort": caps})
 
-    def command(self, joints: Sequence[float] | None = None, **options: Any) -> None:
+    def command(self, joints: Sequence[float] | None = None, *, unhomed: bool = False,
+                **options: Any) -> None:
         """Send :meth:`make_command` (same arguments) now, without waiting to settle."""
-        self.hand.send([self.make_command(joints, **options)])
+        self.hand.send([self.make_command(joints, **options)], unhomed=unhomed)
 
     def idle(self) -> None:
         """Motors off (control mode idle)."""
         self.command(idle=True)
 
     def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
-             timeout: float = 3.0) -> MoveResult:
+             timeout: float = 3.0, unhomed: bool = False) -> MoveResult:
         """Command joint targets (rad) and wait until the finger settles or ``timeout`` s."""
-        return self.hand.move_fingers({self.index: joints}, effort=effort, timeout=timeout)
+        return self.hand.move_fingers({self.index: joints}, effort=effort, timeout=timeout,
+                                      unhomed=unhomed)
 
     def set_home(self, offsets: Sequence[int] | None = None) -> None:
         """Make the current pose (or motor ``offsets``, raw hall counts) the zero."""
         if offsets is None:
             offsets = self.motor.request("fmcb.hall_counts", {"raw": 1})["counts"]
         self.motor.request("fmcb.set_home", {"offset": [int(v) for v in offsets]})
+        self.homed = True
 
     def __repr__(self) -> str:
         return f"Finger({self.index})"
@@ -358,8 +363,12 @@ class Hand:
             out.append(f.make_command(q, effort=per_finger[k]))
         return out
 
-    def send(self, commands: Sequence[FingerCommand]) -> None:
-        """Send ``commands`` in one pipelined round (each finger has its own palm queue)."""
+    def send(self, commands: Sequence[FingerCommand], *, unhomed: bool = False) -> None:
+        """Send ``commands`` in one pipelined round (each finger has its own palm queue).
+        Motion for a finger not homed is refused (:class:`NotHomedError`) unless
+        ``unhomed``."""
+        if not unhomed:
+            self._require_homed([c.finger for c in commands if c.mode != ControlMode.IDLE])
         pending = [self.fingers[c.finger].motor.start("fmcb.control", c.fields)
                    for c in commands]
         errors = []
@@ -372,18 +381,41 @@ class Hand:
             raise errors[0]
 
     def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
-             timeout: float = 3.0) -> MoveResult:
+             timeout: float = 3.0, unhomed: bool = False) -> MoveResult:
         """All 12 joints (rad): command, then wait until every finger settles."""
         commands = self.make_commands(joints, effort=effort)
-        self.send(commands)
+        self.send(commands, unhomed=unhomed)
         return self.wait_settled([c.finger for c in commands], timeout)
 
     def move_fingers(self, targets: dict[int, Sequence[float]], *,
                      effort: Sequence[int] | int | None = None,
-                     timeout: float = 3.0) -> MoveResult:
+                     timeout: float = 3.0, unhomed: bool = False) -> MoveResult:
         """Joint targets (rad) for some fingers; command them, then wait until they settle."""
-        self.send([self.fingers[k].make_command(q, effort=effort) for k, q in targets.items()])
+        self.send([self.fingers[k].make_command(q, effort=effort) for k, q in targets.items()],
+                  unhomed=unhomed)
         return self.wait_settled(list(targets), timeout)
+
+    # --- homing (host.hand_homing) ---------------------------------------------------------
+    def home(self, finger: int | None = None, **options: Any) -> list[Any]:
+        """Home ``finger`` (or every finger) from its accelerometers: see
+        :func:`host.hand_homing.home`."""
+        from host.hand_homing import home
+
+        return home(self, finger, **options)
+
+    def _require_homed(self, fingers: Sequence[int]) -> None:
+        from host.hand_homing import homed_on_robot
+
+        for k in sorted(set(fingers)):
+            finger = self.fingers[k]
+            if not finger.homed:
+                finger.homed = homed_on_robot(finger)
+        missing = [k for k in sorted(set(fingers)) if not self.fingers[k].homed]
+        if missing:
+            raise NotHomedError(
+                f"finger(s) {missing} not homed: their joint angles are only hall counts "
+                f"since power-up. Home them (Hand.home, `handctl home`) or pass "
+                f"unhomed=True to move anyway", fingers=missing)
 
     def wait_settled(self, fingers: Sequence[int], timeout: float = 3.0,
                      tolerance_hall: int | None = None) -> MoveResult:

@@ -46,6 +46,8 @@ class FingerState:
         default_factory=lambda: {"supply": None, "phalange_bus": None})
     breaker_tripped: bool = False
     fmcb_time_us: int | None = None
+    #: Accelerometers (counts, mg; board axes) ``fmcb``, ``f2``, ``f3`` from the status.
+    accels: dict[str, list[int]] = field(default_factory=dict)
 
     @property
     def joints(self) -> Vec3:
@@ -77,6 +79,9 @@ class FingerState:
         self.breaker_tripped = pb == BREAKER_TRIPPED
         self.currents["phalange_bus"] = None if self.breaker_tripped else pb
         self.fmcb_time_us = int(status["fmcb_time"])
+        self.accels = {"fmcb": [int(v) for v in status["fmcb_imu"][:3]],
+                       "f2": [int(v) for v in status["pp_imu"][:3]],
+                       "f3": [int(v) for v in status["dp_imu"][:3]]}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: joints (rad), joints_hall, tactile, currents (mA), present, power …"""

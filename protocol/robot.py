@@ -66,6 +66,26 @@ FINGER_JOINT_LIMITS: Final[tuple[Range, Range, Range]] = (
 FINGER_JOINT_STOPS: Final[tuple[Range, Range, Range]] = ((-1.6, 1.6), (-1.6, 1.6), (-1.6, 1.8))
 
 
+#: The finger's accelerometers (LSM303 on each board): board → the segment (MuJoCo body)
+#: it rides on.  F0 carries the fmcb, F2 the proximal phalange board (f2), F3 the distal (f3).
+FINGER_ACCEL_SEGMENTS: Final = {"fmcb": "F0", "f2": "F2", "f3": "F3"}
+#: Each accelerometer's axes in its segment's frame (rows: the board's x, y, z axes): the
+#: nominal mounting, every board's axes along its segment's (x distal, z palmar).  A real
+#: board is off by a few degrees; :mod:`host.accel_calibration` measures that.
+FINGER_ACCEL_AXES: Final[dict[str, tuple[Vec3, Vec3, Vec3]]] = {
+    board: ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    for board in FINGER_ACCEL_SEGMENTS}
+#: Accelerometer scale (counts per g of proper acceleration; the wire's mg): a board at rest
+#: reads +1000 on its upward axis.
+ACCEL_COUNTS_PER_G: Final = 1000.0
+
+
+def accel_mount_rotation(board: str) -> np.ndarray:
+    """``R`` (3×3) with ``v_segment = R · v_board`` for accelerometer ``board`` (``"fmcb"``,
+    ``"f2"``, ``"f3"``): its axes as columns in its segment's frame."""
+    return np.asarray(FINGER_ACCEL_AXES[board], dtype=float).T
+
+
 def finger_coupling_matrix() -> np.ndarray:
     """``M`` (3×3) with ``m = M·q``: joint angles (rad) → motor positions (hall counts)."""
     g0, g1, g2 = FINGER_GEAR_RATIOS

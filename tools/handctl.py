@@ -8,6 +8,7 @@
     handctl --port P move --finger 1 --joints 0.2,0.5,0.3 [--effort 120] [--duration 3]
     handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
     handctl --port P record run.mcap --seconds 5 [--rate 50]
+    handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …).
 Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line).
@@ -23,7 +24,10 @@ from typing import Any
 
 from host.errors import HostError, ReplyTimeout, RouteError, TransportError, UsageError
 from host.hand import Hand, MoveResult
-from host.hand_state import HandState, NodeInfo
+from host.hand_homing import homed_on_robot
+from host.hand_state import FingerState, HandState, NodeInfo
+from host.inertial_closed_form import estimate
+from host.joint_ekf import fuse_snapshot
 
 EXIT_ROBOT = 1
 EXIT_USAGE = 2
@@ -58,6 +62,12 @@ def _parser() -> argparse.ArgumentParser:
                       help="seconds to wait for the move to settle (default 3)")
     move.add_argument("--clamp", action="store_true",
                       help="clamp targets beyond the joint limits instead of refusing")
+    move.add_argument("--unhomed", action="store_true",
+                      help="move fingers that were never homed (joint angles then mean "
+                           "nothing)")
+    home = sub.add_parser("home", help="set the hall offsets from the accelerometers "
+                                       "(no joint axis near vertical)")
+    home.add_argument("--finger", type=int, help="one finger (default: every finger)")
     record = sub.add_parser("record", help="record frames and states to an MCAP file")
     record.add_argument("file")
     record.add_argument("--seconds", type=float, required=True)
@@ -87,8 +97,42 @@ def _node_line(n: NodeInfo) -> str:
 
 def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
     state = hand.status()
-    _emit(args, state.to_dict(), _status_text(state))
+    data = state.to_dict()
+    for f, d in zip(state.fingers, data["fingers"], strict=True):
+        d.update(_inertial(hand, f))
+    _emit(args, data, _status_text(state))
     return 0
+
+
+def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
+    """``joints_accel`` (rad, None where unobservable), ``homed``, and once homed
+    ``joints`` fusing the hall counts with the accelerometers."""
+    if not f.present or not f.accels:
+        return {"joints_accel": None, "homed": False}
+    try:
+        homed = homed_on_robot(hand.fingers[f.index])
+    except HostError:
+        homed = False
+    found = estimate(f.accels)
+    out: dict[str, Any] = {
+        "joints_accel": [None if q is None else round(q, 6) for q in found.q],
+        "homed": homed}
+    if homed:
+        out["joints"] = [round(float(q), 6) for q in fuse_snapshot(f.joints_hall, f.accels)]
+    return out
+
+
+def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
+    results = hand.home(args.finger)
+    lines = []
+    for r in results:
+        if r.homed and r.joints is not None:
+            q = ", ".join(f"{v:+.3f}" for v in r.joints)
+            lines.append(f"finger {r.finger}: homed at [{q}] rad")
+        else:
+            lines.append(f"finger {r.finger}: not homed: {r.problem}")
+    _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
+    return 0 if all(r.homed for r in results) else EXIT_ROBOT
 
 
 def _status_text(state: HandState) -> str:
@@ -125,14 +169,15 @@ def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
     if args.clamp:
         hand.limits = hand.limits.with_action("clamp")
     if args.hand is not None:
-        result = hand.move(args.hand, effort=args.effort, timeout=args.duration)
+        result = hand.move(args.hand, effort=args.effort, timeout=args.duration,
+                           unhomed=args.unhomed)
     else:
         if args.finger is None:
             raise UsageError("--joints needs --finger N (0..3)")
         if not 0 <= args.finger < len(hand.fingers):
             raise UsageError(f"finger {args.finger}: the hand has fingers 0..3")
         result = hand.move_fingers({args.finger: args.joints}, effort=args.effort,
-                                   timeout=args.duration)
+                                   timeout=args.duration, unhomed=args.unhomed)
     _emit(args, _move_dict(result), _move_text(result))
     if result.settled:
         return 0
@@ -168,7 +213,7 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
-            "move": _cmd_move, "record": _cmd_record}
+            "move": _cmd_move, "record": _cmd_record, "home": _cmd_home}
 
 
 def _advice(exc: HostError, port: str) -> str:

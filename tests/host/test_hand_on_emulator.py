@@ -37,7 +37,7 @@ def test_a_finger_moves_toward_its_joint_targets(hand: Hand) -> None:
     finger = hand.fingers[1]
     target = (0.3, 0.6, 0.4)
     before = finger.status().joints
-    result = finger.move(target, effort=200, timeout=4.0)
+    result = finger.move(target, effort=200, timeout=4.0, unhomed=True)
     after = result.states[1].joints
     assert result.settled
     for q_before, q_after, goal in zip(before, after, target, strict=True):
@@ -63,7 +63,7 @@ def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand)
     event = hand.next_event(timeout=0.1)
     assert event is not None and (event.finger, event.event) == (2, "unpowered")
     with pytest.raises(RouteError) as caught:
-        hand.fingers[2].command((0.1, 0.1, 0.1))
+        hand.fingers[2].command((0.1, 0.1, 0.1), unhomed=True)
     assert caught.value.status == RouteStatus.UNPOWERED and caught.value.finger == 2
     assert hand.fingers[2].deadband() == FALLBACK_DEADBAND_HALL  # it cannot be asked
     state = hand.status()

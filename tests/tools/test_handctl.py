@@ -35,7 +35,7 @@ def test_json_status_gives_four_fingers_with_joints_taxels_and_currents(
 
 def test_move_waits_until_the_finger_settles(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--port", URL, "--json", "move", "--finger", "0", "--joints",
-                 "0.2,0.4,0.3", "--effort", "200"]) == 0
+                 "0.2,0.4,0.3", "--effort", "200", "--unhomed"]) == 0
     out = _json(capsys)
     assert out["settled"]
     assert out["fingers"]["0"]["joints"] == pytest.approx([0.2, 0.4, 0.3], abs=0.15)

@@ -1,0 +1,102 @@
+"""Inertial estimation and homing end to end on the emulated hand (simulation clock).
+
+The hand stands palm up, so fingers 0-2 have J0 vertical (never observable) and the thumb
+(finger 3, standing up from the palm) has every axis observable for |J0| < 70°.  Ground
+truth is the plant's MuJoCo joint angles.  One emulator for the module.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from hil_emulator.emulator import Emulator
+from host.errors import NotHomedError
+from host.hand import Hand
+from host.hand_homing import home_finger, inertial_estimate
+from host.inertial_closed_form import UnobservableJointError
+from tools.handctl import main
+
+URL = "emu://hand/palm?name=estimation-tests"
+THUMB = 3
+
+
+@pytest.fixture(scope="module")
+def hand() -> Iterator[Hand]:
+    with Hand.open(URL) as opened:
+        yield opened
+
+
+def _truth(hand: Hand, finger: int) -> np.ndarray:
+    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
+    return np.asarray(emulator.finger_plants[finger].joint_angles())
+
+
+def _random_pose(rng: np.random.Generator) -> tuple[float, float, float]:
+    return (float(rng.uniform(-0.8, 0.8)), float(rng.uniform(-0.2, 1.2)),
+            float(rng.uniform(-0.2, 1.2)))
+
+
+def test_moves_are_refused_until_the_finger_is_homed(hand: Hand) -> None:
+    with pytest.raises(NotHomedError, match=r"finger\(s\) \[1\] not homed") as caught:
+        hand.fingers[1].command((0.1, 0.2, 0.3))
+    assert caught.value.fingers == [1]
+    hand.fingers[1].idle()  # idling is always allowed
+
+
+def test_inertial_estimate_matches_the_plant_at_random_poses(hand: Hand) -> None:
+    rng = np.random.default_rng(11)
+    thumb = hand.fingers[THUMB]
+    for _ in range(2):
+        thumb.move(_random_pose(rng), effort=200, timeout=2.0, unhomed=True)
+        thumb.idle()
+        hand.session.sleep(0.2)
+        found = inertial_estimate(thumb)
+        truth = _truth(hand, THUMB)
+        assert found.observable
+        err = np.degrees(np.abs(np.asarray(found.q, dtype=float) - truth))
+        assert np.all(err < 1.0), (found.q, truth)
+
+
+def test_homing_a_finger_with_a_vertical_axis_is_refused_naming_the_joint(hand: Hand) -> None:
+    with pytest.raises(UnobservableJointError, match=r"finger 0: J0 \(abduction\) is "
+                                                     r"unobservable"):
+        hand.home(0)
+    assert not hand.fingers[0].homed
+
+
+def test_homing_from_a_random_pose_makes_the_joints_read_true(hand: Hand) -> None:
+    thumb = hand.fingers[THUMB]
+    thumb.move((0.45, 0.8, 0.35), effort=200, timeout=2.0, unhomed=True)
+    thumb.idle()
+    hand.session.sleep(0.2)
+    result = home_finger(thumb)
+    assert result.homed and thumb.homed
+    joints = np.asarray(thumb.status().joints)
+    err = np.degrees(np.abs(joints - _truth(hand, THUMB)))
+    assert np.all(err < 1.0), err
+    moved = thumb.move((0.1, 0.3, 0.2), effort=200, timeout=2.0)  # no override needed now
+    assert moved.settled
+
+
+def test_handctl_home_and_status_report_inertial_joints(
+        hand: Hand, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "--json", "home", "--finger", "0"]) == 2
+    assert "J0 (abduction)" in capsys.readouterr().err
+    assert main(["--port", URL, "--json", "home", "--finger", str(THUMB)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["fingers"][0]["homed"] and len(out["fingers"][0]["offsets"]) == 3
+    assert main(["--port", URL, "--json", "status"]) == 0
+    status = json.loads(capsys.readouterr().out)
+    thumb, first = status["fingers"][THUMB], status["fingers"][0]
+    assert thumb["homed"] and not first["homed"]
+    assert first["joints_accel"][0] is None and first["joints_accel"][1] is not None
+    truth = _truth(hand, THUMB)
+    for key in ("joints", "joints_accel"):
+        assert max(abs(math.degrees(a - b)) for a, b in zip(thumb[key], truth,
+                                                           strict=True)) < 1.0
+    assert {"joints_hall", "tactile", "currents"} <= set(thumb)
