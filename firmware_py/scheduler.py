@@ -96,18 +96,22 @@ class Scheduler:
         """
         ran = 0
         queue = self._queue
-        pop, push, seq = heapq.heappop, heapq.heappush, self._seq
+        pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
         while queue and queue[0][0] <= t_us:
-            when, _, ev = pop(queue)
+            when, _, ev = queue[0]
             cb = ev.callback
             if cb is None:
+                pop(queue)
                 continue
             self._now = when
-            if ev.period_us:
-                ev.t_us = when + ev.period_us
-                ev.seq = next(seq)
-                push(queue, (ev.t_us, ev.seq, ev))
+            period = ev.period_us
+            if period:
+                # Pop and re-push in one sift (the order popped is that of (t, seq) alone).
+                t = ev.t_us = when + period
+                s = ev.seq = next(seq)
+                replace(queue, (t, s, ev))
             else:
+                pop(queue)
                 ev.callback = None
             cb()
             ran += 1
@@ -124,18 +128,21 @@ class Scheduler:
         """
         ran = 0
         queue = self._queue
-        pop, push, seq = heapq.heappop, heapq.heappush, self._seq
+        pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
         while ran < max_events and queue and queue[0][0] <= t_us:
-            when, _, ev = pop(queue)
+            when, _, ev = queue[0]
             cb = ev.callback
             if cb is None:
+                pop(queue)
                 continue
             self._now = when
-            if ev.period_us:
-                ev.t_us = when + ev.period_us
-                ev.seq = next(seq)
-                push(queue, (ev.t_us, ev.seq, ev))
+            period = ev.period_us
+            if period:
+                t = ev.t_us = when + period
+                s = ev.seq = next(seq)
+                replace(queue, (t, s, ev))
             else:
+                pop(queue)
                 ev.callback = None
             cb()
             ran += 1

@@ -1,0 +1,162 @@
+"""Where the emulator's time goes under nominal traffic (fast mode, full configuration).
+
+``python -m benchmarks.profile_emulator [--sim-s 3] [--no-physics] [--cprofile]``
+
+Boots the full configuration as :mod:`benchmarks.bench_emulator` does (fingers holding
+their pose in joint mode with autopoll, arm torque on, the host reading the arm at 100 Hz),
+then runs ``--sim-s`` simulated seconds and prints
+
+* the real-time factor (simulated s per wall s, and per CPU s: the latter is steadier on a
+  shared machine),
+* wall time per simulated second spent in each kind of scheduler callback (a firmware
+  tick, a bus delivery, the plant tick …), with its rate and cost per call,
+* the plant tick split into ``mj_step`` and each part's ``before_step`` / ``after_step``,
+* with ``--cprofile``, the top of a cProfile run sorted by own time and by cumulative
+  time (the profiler inflates Python calls several-fold: use it for ranking only).
+
+It is not a ``bench_*`` module, so ``python -m benchmarks`` does not run it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import cProfile
+import heapq
+import io
+import pstats
+import time
+from collections.abc import Callable
+
+import mujoco
+
+from benchmarks.bench_emulator import ARM_READ, boot_full
+from firmware_py.scheduler import Scheduler
+from hil_emulator.emulator import Emulator
+
+
+def booted(physics: bool) -> Emulator:
+    """The full configuration, booted, nominal traffic set up, host output discarded."""
+    emulator = Emulator("full", seed=1, physics=physics, can="none")
+    boot_full(emulator, heavy=False)
+    assert emulator.hand is not None and emulator.arm is not None
+    emulator.hand.on_host_bytes = lambda data, t: None
+    emulator.arm.on_host_bytes = lambda data, t: None
+    return emulator
+
+
+def drive(emulator: Emulator, sim_s: float) -> tuple[float, float]:
+    """Nominal traffic for ``sim_s`` s; returns (wall s, CPU s)."""
+    arm = emulator.arm
+    assert arm is not None
+    wall, cpu = time.perf_counter(), time.process_time()
+    for _ in range(int(sim_s * 100)):
+        arm.send_from_host(ARM_READ)
+        emulator.step(10_000)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _timed_run_until(acc: collections.Counter[str], calls: collections.Counter[str]
+                     ) -> Callable[[Scheduler, int], int]:
+    """A :meth:`Scheduler.run_until` that times each callback (same event order)."""
+    clock = time.perf_counter
+
+    def run_until(self: Scheduler, t_us: int) -> int:
+        queue = self._queue
+        ran = 0
+        while queue and queue[0][0] <= t_us:
+            when, _, ev = heapq.heappop(queue)
+            cb = ev.callback
+            if cb is None:
+                continue
+            self._now = when
+            if ev.period_us:
+                ev.t_us = when + ev.period_us
+                ev.seq = next(self._seq)
+                heapq.heappush(queue, (ev.t_us, ev.seq, ev))
+            else:
+                ev.callback = None
+            start = clock()
+            cb()
+            key = getattr(cb, "__qualname__", type(cb).__name__)
+            acc[key] += clock() - start
+            calls[key] += 1
+            ran += 1
+        self._now = max(self._now, t_us)
+        return ran
+
+    return run_until
+
+
+def breakdown(physics: bool, sim_s: float) -> list[str]:
+    """Lines: real-time factor, callbacks by kind, the plant tick's split."""
+    emulator = booted(physics)
+    acc: collections.Counter[str] = collections.Counter()
+    calls: collections.Counter[str] = collections.Counter()
+    plant_acc: collections.Counter[str] = collections.Counter()
+    scheduler = emulator.scheduler
+    scheduler.run_until = _timed_run_until(acc, calls).__get__(scheduler)  # type: ignore[method-assign]
+    plant = emulator.plant
+    if plant is not None and plant._timer is not None:
+        clock = time.perf_counter
+
+        def tick() -> None:  # Plant.tick, each stage timed
+            model, data, dt = plant.model, plant.data, plant._dt_s
+            data.qfrc_applied[:] = 0.0
+            for part in plant.parts:
+                start = clock()
+                part.before_step(dt)
+                plant_acc[f"before_step {type(part).__name__}"] += clock() - start
+            start = clock()
+            for _ in range(plant.substeps):
+                mujoco.mj_step(model, data)
+            plant_acc["mj_step"] += clock() - start
+            for part in plant.parts:
+                start = clock()
+                part.after_step(dt)
+                plant_acc[f"after_step {type(part).__name__}"] += clock() - start
+            plant.ticks += 1
+
+        tick.__qualname__ = "Plant.tick"
+        plant._timer.callback = tick
+    wall, cpu = drive(emulator, sim_s)
+    lines = [f"{'with' if physics else 'without'} plant: {sim_s / wall:.2f} sim-s per wall s, "
+             f"{sim_s / cpu:.2f} per CPU s (timed: the timing itself costs some)",
+             f"{'ms/sim-s':>9s} {'calls/s':>8s} {'µs/call':>8s}  callback"]
+    for key, spent in acc.most_common(20):
+        lines.append(f"{spent / sim_s * 1e3:9.1f} {calls[key] / sim_s:8.0f} "
+                     f"{spent / calls[key] * 1e6:8.1f}  {key}")
+    for key, spent in plant_acc.most_common():
+        lines.append(f"{spent / sim_s * 1e3:9.1f} {'':8s} {'':8s}    plant: {key}")
+    return lines
+
+
+def profile(physics: bool, sim_s: float, top: int = 30) -> str:
+    """cProfile of the driven run: top entries by own time and by cumulative time."""
+    emulator = booted(physics)
+    profiler = cProfile.Profile()
+    profiler.enable()
+    drive(emulator, sim_s)
+    profiler.disable()
+    out = io.StringIO()
+    stats = pstats.Stats(profiler, stream=out)
+    stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumtime").print_stats(top)
+    return out.getvalue()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.profile_emulator")
+    parser.add_argument("--sim-s", type=float, default=3.0, help="simulated seconds")
+    parser.add_argument("--no-physics", action="store_true", help="firmware and buses only")
+    parser.add_argument("--cprofile", action="store_true", help="also a cProfile run")
+    args = parser.parse_args(argv)
+    physics = not args.no_physics
+    print("\n".join(breakdown(physics, args.sim_s)))
+    if args.cprofile:
+        print(profile(physics, args.sim_s))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
