@@ -60,8 +60,26 @@ class RunReport:
                 "total_seconds": round(self.total_seconds, 3)}
 
 
+#: How long preflight keeps asking a powered finger that does not answer (s, on the link's
+#: clock): a finger just pushed back on its pogo pins settles its contacts and sits in its
+#: bootloader for a few seconds; one that stays silent this long is reported.
+ANSWER_WAIT_S: Final = 6.0
+
+
 def _identify(session: HandSession, finger: int, hop: Hop) -> dict[str, Any]:
     return session.request("identify", to=Target(finger, hop), retries=2)
+
+
+def _identify_patiently(session: HandSession, finger: int, hop: Hop) -> dict[str, Any]:
+    """identify, asked again until :data:`ANSWER_WAIT_S` has passed on the link's clock."""
+    deadline = session.transport.now() + ANSWER_WAIT_S
+    while True:
+        try:
+            return _identify(session, finger, hop)
+        except HostError:
+            if session.transport.now() >= deadline:
+                raise
+            session.transport.sleep(0.1)
 
 
 def preflight(session: HandSession, plan: FlashPlan,
@@ -76,7 +94,7 @@ def preflight(session: HandSession, plan: FlashPlan,
         if status["fingers"][finger]["power"] == FingerPower.OFF:
             continue  # unpowered: the power cycle brings it up
         try:
-            _identify(session, finger, Hop.FMCB)
+            _identify_patiently(session, finger, Hop.FMCB)
         except HostError as exc:
             raise PlanError(f"finger {finger} is not answering (its fmcb got no identify "
                             f"through the palm): {exc}; nothing was flashed") from exc
