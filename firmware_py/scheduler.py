@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import sys
 from collections.abc import Callable
+from typing import Final
 
 Callback = Callable[[], None]
 
@@ -43,6 +45,10 @@ class TimerHandle:
     def due_us(self) -> int:
         """When it fires next (µs)."""
         return self.t_us
+
+
+#: "No bound" on the callbacks :meth:`Scheduler.run_some` may run.
+_UNBOUNDED: Final = sys.maxsize
 
 
 class Scheduler:
@@ -94,32 +100,10 @@ class Scheduler:
 
         Returns the number of callbacks run.
         """
-        ran = 0
-        queue = self._queue
-        pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
-        while queue and queue[0][0] <= t_us:
-            when, _, ev = queue[0]
-            cb = ev.callback
-            if cb is None:
-                pop(queue)
-                continue
-            self._now = when
-            period = ev.period_us
-            if period:
-                # Pop and re-push in one sift (the order popped is that of (t, seq) alone).
-                t = ev.t_us = when + period
-                s = ev.seq = next(seq)
-                replace(queue, (t, s, ev))
-            else:
-                pop(queue)
-                ev.callback = None
-            cb()
-            ran += 1
-        self._now = max(self._now, t_us)
-        return ran
+        return self.run_some(t_us, _UNBOUNDED)
 
     def run_some(self, t_us: int, max_events: int) -> int:
-        """Like :meth:`run_until`, but stop after ``max_events`` callbacks.
+        """Run events due up to and including ``t_us``, at most ``max_events`` callbacks.
 
         Time becomes ``t_us`` only when every event due by then has run; otherwise it stays
         at the last event run, and a later call carries on from there.  A real-time runner
@@ -138,6 +122,7 @@ class Scheduler:
             self._now = when
             period = ev.period_us
             if period:
+                # Pop and re-push in one sift (the order popped is that of (t, seq) alone).
                 t = ev.t_us = when + period
                 s = ev.seq = next(seq)
                 replace(queue, (t, s, ev))
