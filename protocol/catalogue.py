@@ -78,6 +78,10 @@ class Message:
             raise PayloadError(f"{self.name} has no {direction}")
         return con
 
+    def flat_codec(self, direction: str) -> FlatCodec | None:
+        """The struct fast path of one direction, or None when its payload is not flat."""
+        return self._flat_request if direction == REQUEST else self._flat_reply
+
     def build(self, direction: str, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
         """Build the payload of ``direction`` from ``fields`` (a dict) and/or keywords."""
         con = self._strict_request if direction == REQUEST else self._strict_reply

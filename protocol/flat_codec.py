@@ -4,7 +4,7 @@ Nodes build and parse some payloads hundreds of times a simulated second (the 14
 ``fmcb.status`` the palm polls, the phalanges' autopoll replies).  Interpreted construct
 costs ~200 µs for such a record; ``struct`` costs a few.  :func:`flat_codec` looks at a
 construct declaration and, when it is a ``Struct`` whose fields are only little-endian
-numbers, fixed-length arrays of numbers and zero padding, returns a :class:`FlatCodec`
+numbers, fixed-length arrays of numbers, fixed-length bytes and zero padding, returns a :class:`FlatCodec`
 that builds and parses the same bytes.  The declaration stays the reference: callers use
 the fast path only for the well-formed case and let construct produce every error, and a
 test checks both agree on every such message of the catalogue.
@@ -13,13 +13,14 @@ test checks both agree on every such message of the catalogue.
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import construct as c
 
 #: Path of names to the value (None for padding), struct code, element count (None: scalar).
+#: A fixed-length byte field is one scalar whose code is ``"<N>s"``.
 Field = tuple[tuple[str, ...] | None, str, int | None]
 
 
@@ -29,6 +30,11 @@ class FlatCodec:
 
     fields: tuple[Field, ...]
     codec: struct.Struct
+    _to_dict: Callable[[tuple[Any, ...]], dict[str, Any]] = field(
+        init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_to_dict", _dict_maker(self.fields))
 
     @property
     def size(self) -> int:
@@ -39,35 +45,24 @@ class FlatCodec:
         """The record as a plain dict, or None when ``payload`` is not exactly one record."""
         if len(payload) != self.codec.size:
             return None
-        values = self.codec.unpack(payload)
-        out: dict[str, Any] = {}
-        i = 0
-        for path, _, count in self.fields:
-            if path is None:
-                continue
-            target = out
-            for name in path[:-1]:
-                target = target.setdefault(name, {})
-            if count is None:
-                target[path[-1]] = values[i]
-                i += 1
-            else:
-                target[path[-1]] = list(values[i : i + count])
-                i += count
-        return out
+        return self._to_dict(self.codec.unpack(payload))
 
     def build(self, values: Mapping[str, Any]) -> bytes | None:
         """The record's bytes, or None when ``values`` does not fit (missing field, wrong
         array length, out of range): the caller asks construct, which says why."""
         flat: list[Any] = []
         try:
-            for path, _, count in self.fields:
+            for path, code, count in self.fields:
                 if path is None:
                     continue
                 value: Any = values
                 for name in path:
                     value = value[name]
-                if count is None:
+                if code[-1] == "s":  # struct would pad or cut; construct refuses
+                    if not isinstance(value, bytes | bytearray) or len(value) != int(code[:-1]):
+                        return None
+                    flat.append(value)
+                elif count is None:
                     flat.append(value)
                 elif len(value) != count:
                     return None
@@ -76,6 +71,39 @@ class FlatCodec:
             return self.codec.pack(*flat)
         except (KeyError, TypeError, OverflowError, struct.error):
             return None
+
+
+def _dict_maker(fields: tuple[Field, ...]) -> Callable[[tuple[Any, ...]], dict[str, Any]]:
+    """A function from the unpacked values to the record's (nested) dict.
+
+    It is one dict display compiled from the field list (``lambda v: {'a': v[0],
+    'b': [v[1], v[2]], 'c': {'d': v[3]}}``): a parse then costs the unpack and one
+    expression instead of a loop over the fields.  Names enter the source only as string
+    literals (``repr``), so no declaration can inject code.
+    """
+    tree: dict[str, Any] = {}
+    i = 0
+    for path, _, count in fields:
+        if path is None:
+            continue
+        node = tree
+        for name in path[:-1]:
+            node = node.setdefault(name, {})
+        if count is None:
+            node[path[-1]] = f"v[{i}]"
+            i += 1
+        else:
+            node[path[-1]] = "[" + ", ".join(f"v[{j}]" for j in range(i, i + count)) + "]"
+            i += count
+
+    def render(node: dict[str, Any]) -> str:
+        return "{" + ", ".join(
+            f"{name!r}: {render(sub) if isinstance(sub, dict) else sub}"
+            for name, sub in node.items()) + "}"
+
+    maker: Callable[[tuple[Any, ...]], dict[str, Any]] = eval(  # noqa: S307 - see above
+        f"lambda v: {render(tree)}", {"__builtins__": {}})
+    return maker
 
 
 def _unwrap(con: Any) -> Any:
@@ -107,6 +135,9 @@ def _fields(struct_con: Any, prefix: tuple[str, ...]) -> list[Field] | None:
         elif (isinstance(inner, c.Array) and isinstance(inner.count, int)
               and name is not None and (code := _number(inner.subcon)) is not None):
             fields.append(((*prefix, name), code, inner.count))
+        elif (isinstance(inner, c.Bytes) and isinstance(inner.length, int)
+              and name is not None):
+            fields.append(((*prefix, name), f"{inner.length}s", None))
         elif isinstance(inner, c.Struct) and name is not None:
             nested = _fields(inner, (*prefix, name))
             if nested is None or not nested:

@@ -16,12 +16,13 @@ import difflib
 import json
 import re
 import sys
+import time
 from collections.abc import Sequence
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TextIO
 
 from protocol.catalogue import REPLY, REQUEST
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, encode_frame
+from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, Frame, encode_frame
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
@@ -79,36 +80,148 @@ def read_input(path: str, as_hex: bool, stdin: BinaryIO) -> bytes:
         raise UsageError(f"{path} is not hex text (byte {exc.start} is not ASCII)") from exc
 
 
-def decode_hand(data: bytes, node: str | None, max_payload: int, out: Any) -> dict[str, int]:
-    """Print one JSON line per frame found in ``data`` (rejected ones with crc_ok false)."""
+#: Bytes fed to the stream decoder at a time (the progress bar moves once per chunk).
+CHUNK = 1 << 18
+#: Frames whose payload is at most this long have their whole JSON line kept by content.
+_LINE_CACHE_PAYLOAD = 16
+#: Bound on the lines kept (all are dropped when it is reached).
+_LINE_CACHE_LIMIT = 1 << 16
+
+
+def _hex_bytes(value: Any) -> str:
+    """The encoder's fallback: bytes print as hex (as :func:`jsonable` makes them)."""
+    if isinstance(value, bytes | bytearray):
+        return value.hex()
+    raise TypeError(f"Object of type {value.__class__.__name__} is not JSON serializable")
+
+
+#: ``json.dumps(jsonable(x), ensure_ascii=False)`` without the copy: one encoder, reused.
+_encode = json.JSONEncoder(ensure_ascii=False, default=_hex_bytes).encode
+
+
+class HandRecords:
+    """Turns decoded hand frames into the JSON lines ``handbus decode`` prints.
+
+    One line per frame: ``offset``, ``addr``, ``type``, ``name``, ``length``, ``crc_ok``,
+    ``fields``, then ``direction`` (and ``error`` when no declaration fits, ``payload`` hex
+    when the type is unknown) for a good frame, ``payload`` for a CRC-failed one.  A reply
+    is named with the node of the last request of its type when no ``node`` is given.
+    Lines of short payloads are kept by content, since the same polls recur all capture
+    long; everything else is encoded as it comes.
+    """
+
+    def __init__(self, node: str | None = None) -> None:
+        self.node = node
+        self._last_node_for_type: dict[int, str] = {}
+        self._lines: dict[tuple[int, int, bytes, str | None], tuple[str, str | None]] = {}
+
+    def lines(self, frames: list[Frame]) -> str:
+        """The lines of ``frames``, each ending in a newline."""
+        node = self.node
+        last_node = self._last_node_for_type
+        cache = self._lines
+        out: list[str] = []
+        append = out.append
+        for frame in frames:
+            if not frame.crc_ok:
+                append(self._rejected(frame))
+                continue
+            address = frame.address
+            msg_type = frame.type
+            payload = frame.payload
+            hint = node or (last_node.get(msg_type) if address == ADDR_HOST else None)
+            if len(payload) <= _LINE_CACHE_PAYLOAD:
+                key = (address, msg_type, payload, hint)
+                hit = cache.get(key)
+                if hit is None:
+                    if len(cache) >= _LINE_CACHE_LIMIT:
+                        cache.clear()
+                    hit = cache[key] = self._tail(frame, hint)
+            else:
+                hit = self._tail(frame, hint)
+            tail, request_node = hit
+            if request_node is not None:
+                last_node[msg_type] = request_node
+            append(f'{{"offset": {frame.offset}, {tail}')
+        return "".join(out)
+
+    @staticmethod
+    def _tail(frame: Frame, hint: str | None) -> tuple[str, str | None]:
+        """A good frame's line after its offset, and the node it names as requested."""
+        meaning = interpret(frame, hint)
+        msg = meaning.message
+        text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_encode(meaning.name)}, '
+                f'"length": {len(frame.payload)}, "crc_ok": true, '
+                f'"fields": {_encode(meaning.fields)}, "direction": {_encode(meaning.direction)}')
+        if meaning.error:
+            text += f', "error": {_encode(meaning.error)}'
+        if msg is None:
+            text += f', "payload": "{frame.payload.hex()}"'
+        request_node = msg.node if msg is not None and meaning.direction == REQUEST else None
+        return text + "}\n", request_node
+
+    @staticmethod
+    def _rejected(frame: Frame) -> str:
+        record = {"offset": frame.offset, "addr": frame.address, "type": frame.type,
+                  "name": None, "length": len(frame.payload), "crc_ok": False, "fields": None,
+                  "payload": frame.payload.hex()}
+        return _encode(record) + "\n"
+
+
+class Progress:
+    """A one-line progress bar on a terminal (``stream``), redrawn at most 10 times a second."""
+
+    def __init__(self, stream: TextIO, total: int, what: str = "decoding") -> None:
+        self.stream = stream
+        self.total = total
+        self.what = what
+        self._start = time.perf_counter()
+        self._drawn = 0.0
+
+    def update(self, done: int, force: bool = False) -> None:
+        """Show ``done`` of ``total`` bytes (throttled unless ``force``)."""
+        now = time.perf_counter()
+        if not force and now - self._drawn < 0.1:
+            return
+        self._drawn = now
+        fraction = done / self.total if self.total else 1.0
+        width = 30
+        filled = int(width * fraction)
+        rate = done / max(now - self._start, 1e-9) / 1e6
+        self.stream.write(f"\rhandbus: {self.what} [{'#' * filled}{'.' * (width - filled)}] "
+                          f"{fraction:4.0%} {done / 1e6:.1f}/{self.total / 1e6:.1f} MB "
+                          f"{rate:.1f} MB/s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Draw 100 % and end the line."""
+        self.update(self.total, force=True)
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def progress_for(stream: TextIO, total: int) -> Progress | None:
+    """A :class:`Progress` when ``stream`` is a terminal, else None (pipes stay clean)."""
+    try:
+        tty = stream.isatty()
+    except (AttributeError, ValueError):
+        tty = False
+    return Progress(stream, total) if tty else None
+
+
+def decode_hand(data: bytes, node: str | None, max_payload: int, out: Any,
+                progress: Progress | None = None) -> dict[str, int]:
+    """Write one JSON line per frame found in ``data`` (rejected ones with crc_ok false)."""
     decoder = StreamDecoder(max_payload=max_payload, gap_s=None, report_rejected=True)
-    last_node_for_type: dict[int, str] = {}
-    for frame in decoder.feed(data) + decoder.flush():
-        record: dict[str, Any] = {
-            "offset": frame.offset,
-            "addr": frame.address,
-            "type": frame.type,
-            "name": None,
-            "length": len(frame.payload),
-            "crc_ok": frame.crc_ok,
-            "fields": None,
-        }
-        if frame.crc_ok:
-            hint = node or (last_node_for_type.get(frame.type) if frame.address == ADDR_HOST
-                            else None)
-            meaning = interpret(frame, hint)
-            record["name"] = meaning.name
-            record["direction"] = meaning.direction
-            record["fields"] = jsonable(meaning.fields)
-            if meaning.error:
-                record["error"] = meaning.error
-            if meaning.message and meaning.direction == REQUEST:
-                last_node_for_type[frame.type] = meaning.message.node
-            if meaning.message is None:
-                record["payload"] = frame.payload.hex()
-        else:
-            record["payload"] = frame.payload.hex()
-        print(json.dumps(record, ensure_ascii=False), file=out)
+    records = HandRecords(node)
+    view = memoryview(data)
+    for start in range(0, len(data), CHUNK):
+        out.write(records.lines(decoder.feed(bytes(view[start : start + CHUNK]))))
+        if progress is not None:
+            progress.update(min(start + CHUNK, len(data)))
+    out.write(records.lines(decoder.flush()))
+    if progress is not None:
+        progress.close()
     return decoder.counters.as_dict()
 
 
@@ -127,7 +240,8 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     if args.dynamixel:
         counters = decode_dynamixel(data, args.direction, out)
     else:
-        counters = decode_hand(data, args.node, args.max_payload, out)
+        progress = progress_for(sys.stderr, len(data))
+        counters = decode_hand(data, args.node, args.max_payload, out, progress)
     print(json.dumps({"summary": counters}), file=out)
     return 0
 
