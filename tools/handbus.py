@@ -17,7 +17,7 @@ import json
 import re
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, BinaryIO, TextIO
 
 from protocol.catalogue import REPLY, REQUEST
@@ -26,7 +26,7 @@ from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, Frame, encode_frame
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
-from tools.cli_values import FieldValueError, build_fields
+from tools.cli_values import FieldValueError, build_fields, check_fields
 
 
 class UsageError(Exception):
@@ -95,8 +95,33 @@ def _hex_bytes(value: Any) -> str:
     raise TypeError(f"Object of type {value.__class__.__name__} is not JSON serializable")
 
 
-#: ``json.dumps(jsonable(x), ensure_ascii=False)`` without the copy: one encoder, reused.
-_encode = json.JSONEncoder(ensure_ascii=False, default=_hex_bytes).encode
+def _json_encoder() -> Callable[[Any], str]:
+    """``json.dumps(jsonable(x), ensure_ascii=False)`` without the copy, made once.
+
+    ``JSONEncoder.encode`` makes a new C encoder on every call; this keeps one (the same
+    C encoder with the same settings, so the same text), or falls back to ``encode`` where
+    the C accelerator is missing.
+    """
+    encoder = json.JSONEncoder(ensure_ascii=False, default=_hex_bytes)
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None:
+        return encoder.encode
+    c_encode = make(None, encoder.default, json.encoder.encode_basestring, encoder.indent,
+                    encoder.key_separator, encoder.item_separator, encoder.sort_keys,
+                    encoder.skipkeys, encoder.allow_nan)
+
+    def encode(value: Any) -> str:
+        return "".join(c_encode(value, 0))
+
+    return encode
+
+
+_encode = _json_encoder()
+
+
+#: JSON text of each message name and direction (and of no name).
+_names: dict[str | None, str] = {n: _encode(n) for n in (*CATALOGUE.names(), REQUEST, REPLY)}
+_names[None] = "null"
 
 
 class HandRecords:
@@ -150,9 +175,9 @@ class HandRecords:
         """A good frame's line after its offset, and the node it names as requested."""
         meaning = interpret(frame, hint)
         msg = meaning.message
-        text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_encode(meaning.name)}, '
+        text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_names[meaning.name]}, '
                 f'"length": {len(frame.payload)}, "crc_ok": true, '
-                f'"fields": {_encode(meaning.fields)}, "direction": {_encode(meaning.direction)}')
+                f'"fields": {_encode(meaning.fields)}, "direction": {_names[meaning.direction]}')
         if meaning.error:
             text += f', "error": {_encode(meaning.error)}'
         if msg is None:
@@ -257,11 +282,18 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     con = msg.request if direction == REQUEST else msg.reply
     if con is None:
         raise UsageError(f"{msg.name} has no {direction}")
-    fields = build_fields(con, args.fields)
-    payload = msg.build(direction, fields)
     address = ADDR_HOST if args.reply else args.addr
     if address is None:
         raise UsageError("--addr is required for a request (fmcb/palm 10, f2 1, f3 2)")
+    if not 0 <= address <= 0xFF:
+        raise UsageError(f"address {address} is outside 0..255 (fmcb/palm 10, f2 1, f3 2, "
+                         "broadcast 255)")
+    fields = build_fields(con, args.fields)
+    check_fields(con, fields, msg.name)
+    payload = msg.build(direction, fields)
+    if len(payload) > args.max_payload:
+        raise UsageError(f"the {msg.name} {direction} payload is {len(payload)} bytes; a decoder "
+                         f"reading at most {args.max_payload} bytes (--max-payload) drops it")
     frame = encode_frame(address, msg.type_id, payload)
     print(frame.hex(" ") if args.spaced else frame.hex(), file=out)
     return 0
@@ -304,6 +336,8 @@ def make_parser() -> argparse.ArgumentParser:
     enc.add_argument("--addr", type=_int, help="destination address")
     enc.add_argument("--reply", action="store_true", help="build the reply (to address 0)")
     enc.add_argument("--spaced", action="store_true", help="separate bytes by spaces")
+    enc.add_argument("--max-payload", type=_int, default=DEFAULT_MAX_PAYLOAD,
+                     help="refuse payloads longer than a decoder with this bound reads (bytes)")
     enc.set_defaults(func=cmd_encode)
 
     lst = sub.add_parser("list", help="list the message catalogue")
