@@ -25,7 +25,7 @@ from protocol.errors import ProtocolError
 from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, Frame, encode_frame
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
-from protocol.stream import StreamDecoder
+from protocol.stream import FrameTuple, StreamDecoder
 from tools.cli_values import FieldValueError, build_fields, check_fields
 
 
@@ -140,20 +140,18 @@ class HandRecords:
         self._last_node_for_type: dict[int, str] = {}
         self._lines: dict[tuple[int, int, bytes, str | None], tuple[str, str | None]] = {}
 
-    def lines(self, frames: list[Frame]) -> str:
-        """The lines of ``frames``, each ending in a newline."""
+    def lines(self, frames: list[FrameTuple]) -> str:
+        """The lines of ``frames`` (from :meth:`StreamDecoder.feed_tuples`), each ending in
+        a newline."""
         node = self.node
         last_node = self._last_node_for_type
         cache = self._lines
         out: list[str] = []
         append = out.append
-        for frame in frames:
-            if not frame.crc_ok:
-                append(self._rejected(frame))
+        for address, msg_type, payload, offset, crc_ok in frames:
+            if not crc_ok:
+                append(self._rejected(address, msg_type, payload, offset))
                 continue
-            address = frame.address
-            msg_type = frame.type
-            payload = frame.payload
             hint = node or (last_node.get(msg_type) if address == ADDR_HOST else None)
             if len(payload) <= _LINE_CACHE_PAYLOAD:
                 key = (address, msg_type, payload, hint)
@@ -161,13 +159,13 @@ class HandRecords:
                 if hit is None:
                     if len(cache) >= _LINE_CACHE_LIMIT:
                         cache.clear()
-                    hit = cache[key] = self._tail(frame, hint)
+                    hit = cache[key] = self._tail(Frame(address, msg_type, payload), hint)
             else:
-                hit = self._tail(frame, hint)
+                hit = self._tail(Frame(address, msg_type, payload), hint)
             tail, request_node = hit
             if request_node is not None:
                 last_node[msg_type] = request_node
-            append(f'{{"offset": {frame.offset}, {tail}')
+            append(f'{{"offset": {offset}, {tail}')
         return "".join(out)
 
     @staticmethod
@@ -186,10 +184,10 @@ class HandRecords:
         return text + "}\n", request_node
 
     @staticmethod
-    def _rejected(frame: Frame) -> str:
-        record = {"offset": frame.offset, "addr": frame.address, "type": frame.type,
-                  "name": None, "length": len(frame.payload), "crc_ok": False, "fields": None,
-                  "payload": frame.payload.hex()}
+    def _rejected(address: int, msg_type: int, payload: bytes, offset: int) -> str:
+        record = {"offset": offset, "addr": address, "type": msg_type, "name": None,
+                  "length": len(payload), "crc_ok": False, "fields": None,
+                  "payload": payload.hex()}
         return _encode(record) + "\n"
 
 
@@ -241,10 +239,10 @@ def decode_hand(data: bytes, node: str | None, max_payload: int, out: Any,
     records = HandRecords(node)
     view = memoryview(data)
     for start in range(0, len(data), CHUNK):
-        out.write(records.lines(decoder.feed(bytes(view[start : start + CHUNK]))))
+        out.write(records.lines(decoder.feed_tuples(view[start : start + CHUNK])))
         if progress is not None:
             progress.update(min(start + CHUNK, len(data)))
-    out.write(records.lines(decoder.flush()))
+    out.write(records.lines(decoder.flush_tuples()))
     if progress is not None:
         progress.close()
     return decoder.counters.as_dict()
