@@ -4,7 +4,8 @@ Nodes build and parse some payloads hundreds of times a simulated second (the 14
 ``fmcb.status`` the palm polls, the phalanges' autopoll replies).  Interpreted construct
 costs ~200 µs for such a record; ``struct`` costs a few.  :func:`flat_codec` looks at a
 construct declaration and, when it is a ``Struct`` whose fields are only little-endian
-numbers, fixed-length arrays of numbers, fixed-length bytes and zero padding, returns a :class:`FlatCodec`
+numbers, fixed-length arrays of numbers or of such Structs, fixed-length bytes and zero
+padding, returns a :class:`FlatCodec`
 that builds and parses the same bytes.  The declaration stays the reference: callers use
 the fast path only for the well-formed case and let construct produce every error, and a
 test checks both agree on every such message of the catalogue.
@@ -20,8 +21,9 @@ from typing import Any
 import construct as c
 
 #: Path of names to the value (None for padding), struct code, element count (None: scalar).
-#: A fixed-length byte field is one scalar whose code is ``"<N>s"``.
-Field = tuple[tuple[str, ...] | None, str, int | None]
+#: A fixed-length byte field is one scalar whose code is ``"<N>s"``; the elements of an array
+#: of flat Structs are reached by an int index in the path (``("fingers", 0, "power")``).
+Field = tuple[tuple[str | int, ...] | None, str, int | None]
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,13 @@ class FlatCodec:
         object.__setattr__(self, "_to_dict", _dict_maker(self.fields))
 
     @property
+    def buildable(self) -> bool:
+        """False when the record holds arrays of Structs: :meth:`build` leaves those to
+        construct (it would have to check each list's length), :meth:`parse` does them."""
+        return not any(path and any(isinstance(p, int) for p in path)
+                       for path, _, _ in self.fields)
+
+    @property
     def size(self) -> int:
         """Payload length in bytes."""
         return self.codec.size
@@ -50,6 +59,8 @@ class FlatCodec:
     def build(self, values: Mapping[str, Any]) -> bytes | None:
         """The record's bytes, or None when ``values`` does not fit (missing field, wrong
         array length, out of range): the caller asks construct, which says why."""
+        if not self.buildable:
+            return None
         flat: list[Any] = []
         try:
             for path, code, count in self.fields:
@@ -81,7 +92,7 @@ def _dict_maker(fields: tuple[Field, ...]) -> Callable[[tuple[Any, ...]], dict[s
     expression instead of a loop over the fields.  Names enter the source only as string
     literals (``repr``), so no declaration can inject code.
     """
-    tree: dict[str, Any] = {}
+    tree: dict[str | int, Any] = {}
     i = 0
     for path, _, count in fields:
         if path is None:
@@ -96,10 +107,13 @@ def _dict_maker(fields: tuple[Field, ...]) -> Callable[[tuple[Any, ...]], dict[s
             node[path[-1]] = "[" + ", ".join(f"v[{j}]" for j in range(i, i + count)) + "]"
             i += count
 
-    def render(node: dict[str, Any]) -> str:
-        return "{" + ", ".join(
-            f"{name!r}: {render(sub) if isinstance(sub, dict) else sub}"
-            for name, sub in node.items()) + "}"
+    def render(node: dict[str | int, Any]) -> str:
+        def value(sub: Any) -> str:
+            return render(sub) if isinstance(sub, dict) else str(sub)
+
+        if node and all(isinstance(name, int) for name in node):  # an array of Structs
+            return "[" + ", ".join(value(node[k]) for k in sorted(node)) + "]"  # type: ignore[type-var]
+        return "{" + ", ".join(f"{name!r}: {value(sub)}" for name, sub in node.items()) + "}"
 
     maker: Callable[[tuple[Any, ...]], dict[str, Any]] = eval(  # noqa: S307 - see above
         f"lambda v: {render(tree)}", {"__builtins__": {}})
@@ -123,7 +137,7 @@ def _number(con: Any) -> str | None:
     return code
 
 
-def _fields(struct_con: Any, prefix: tuple[str, ...]) -> list[Field] | None:
+def _fields(struct_con: Any, prefix: tuple[str | int, ...]) -> list[Field] | None:
     """The leaves of a flat Struct (nested flat Structs included), or None."""
     fields: list[Field] = []
     for sub in struct_con.subcons:
@@ -135,6 +149,13 @@ def _fields(struct_con: Any, prefix: tuple[str, ...]) -> list[Field] | None:
         elif (isinstance(inner, c.Array) and isinstance(inner.count, int)
               and name is not None and (code := _number(inner.subcon)) is not None):
             fields.append(((*prefix, name), code, inner.count))
+        elif (isinstance(inner, c.Array) and isinstance(inner.count, int) and name is not None
+              and isinstance(element := _unwrap(inner.subcon), c.Struct)):
+            for index in range(inner.count):
+                nested = _fields(element, (*prefix, name, index))
+                if not nested:
+                    return None
+                fields.extend(nested)
         elif (isinstance(inner, c.Bytes) and isinstance(inner.length, int)
               and name is not None):
             fields.append(((*prefix, name), f"{inner.length}s", None))

@@ -43,6 +43,25 @@ def test_declarations_with_checks_or_variable_parts_are_not_flat() -> None:
     assert flat_codec(c.Struct(c.Padding(2, pattern=b"\xff"))) is None
 
 
+def test_fixed_bytes_and_arrays_of_structs_are_flat() -> None:
+    names = {(m.name, d) for m, d, _ in FLAT}
+    assert {("bl.read_page", "reply"), ("fmcb.param_get", "reply"), ("bl.hash", "reply"),
+            ("palm.hand_status", "reply")} <= names
+    codec = flat_codec(CATALOGUE["fmcb.param_set"].request)
+    assert codec is not None and codec.size == 6
+    assert codec.parse(b"\x01\x00" + b"\x00\x00\x80\x3f") == {"index": 1, "value": b"\x00\x00\x80\x3f"}
+    assert codec.build({"index": 1, "value": b"\x01\x02\x03\x04"}) == b"\x01\x00\x01\x02\x03\x04"
+    # struct would pad a short value or cut a long one; the fast path declines instead
+    assert codec.build({"index": 1, "value": b"\x01\x02"}) is None
+    assert codec.build({"index": 1, "value": b"\x01\x02\x03\x04\x05"}) is None
+    assert codec.build({"index": 1, "value": 7}) is None
+    status = flat_codec(CATALOGUE["palm.hand_status"].reply)
+    assert status is not None and not status.buildable
+    parsed = status.parse(bytes(range(status.size)))
+    assert parsed is not None and len(parsed["fingers"]) == 4
+    assert parsed["fingers"][0]["present"] == 8 and parsed["fingers"][1]["present"] == 8 + 24
+
+
 def test_status_field_offsets_by_hand() -> None:
     """fmcb.status: pb_current at bytes 108-109, padding 110-111, pp_strain from 112."""
     codec = flat_codec(CATALOGUE["fmcb.status"].reply)
@@ -69,7 +88,11 @@ def test_fast_path_parses_and_builds_what_construct_does(msg: Any, direction: st
     fast = codec.parse(payload)
     reference = to_plain(decl.parse(payload))
     assert fast is not None and _same(fast, reference)
-    assert codec.build(fast) == decl.build(reference)
+    if codec.buildable:
+        assert codec.build(fast) == decl.build(reference)
+    else:  # arrays of Structs: construct builds them
+        assert codec.build(fast) is None
+        assert msg.build(direction, fast) == decl.build(reference)
     # The catalogue goes through the fast path and gives the same answer.
     assert _same(msg.parse(direction, payload), reference)
     # A wrong length is still construct's documented error.
