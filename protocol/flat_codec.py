@@ -183,3 +183,73 @@ def flat_codec(declaration: Any) -> FlatCodec | None:
     fmt = "<" + "".join(code if count is None else f"{count}{code}"
                         for _, code, count in fields)
     return FlatCodec(tuple(fields), struct.Struct(fmt))
+
+
+@dataclass(frozen=True)
+class TailCodec:
+    """Parse a flat head followed by one variable last field, without construct.
+
+    The last field is one of: ``GreedyBytes`` (the rest of the payload, as bytes), an
+    ASCII ``PascalString`` with a one-byte length (it must end the payload exactly), or a
+    ``Switch`` keyed on head fields whose cases are flat records (the case must end the
+    payload exactly; a key without a case is left to construct).  Parsing only: anything
+    that does not fit returns None and construct parses it (and explains any error).
+    """
+
+    head: FlatCodec
+    name: str
+    kind: str  # "greedy", "pascal" or "switch"
+    switch: Any = None  # the construct Switch, for its key function
+    cases: dict[Any, FlatCodec] = field(default_factory=dict)
+
+    def parse(self, payload: bytes) -> dict[str, Any] | None:
+        """The record as a plain dict, or None when ``payload`` is not one well-formed record."""
+        size = self.head.size
+        if len(payload) < size:
+            return None
+        out = self.head.parse(payload[:size])
+        if out is None:
+            return None
+        rest = payload[size:]
+        if self.kind == "greedy":
+            out[self.name] = rest
+        elif self.kind == "pascal":
+            if not rest or rest[0] != len(rest) - 1 or not rest[1:].isascii():
+                return None
+            out[self.name] = rest[1:].decode("ascii")
+        else:
+            try:
+                case = self.cases.get(self.switch.keyfunc(out))
+            except (KeyError, TypeError):
+                return None
+            parsed = case.parse(rest) if case is not None else None
+            if parsed is None:
+                return None
+            out[self.name] = parsed
+        return out
+
+
+def tail_codec(declaration: Any) -> TailCodec | None:
+    """A :class:`TailCodec` for ``declaration``, or None if it is not of that shape."""
+    struct_con = _unwrap(declaration)
+    if not isinstance(struct_con, c.Struct) or not struct_con.subcons:
+        return None
+    *head_subcons, last = struct_con.subcons
+    head = flat_codec(c.Struct(*head_subcons))
+    name = last.name
+    inner = _unwrap(last)
+    if head is None or name is None:
+        return None
+    if inner is c.GreedyBytes:
+        return TailCodec(head, name, "greedy")
+    if (isinstance(inner, c.StringEncoded) and inner.encoding == "ascii"
+            and isinstance(inner.subcon, c.Prefixed) and inner.subcon.subcon is c.GreedyBytes
+            and _unwrap(inner.subcon.lengthfield) is c.Int8ul):
+        return TailCodec(head, name, "pascal")
+    if isinstance(inner, c.Switch) and inner.default is c.Error:
+        cases = {key: flat_codec(case) for key, case in inner.cases.items()}
+        if any(codec is None for codec in cases.values()):
+            return None
+        return TailCodec(head, name, "switch", inner,
+                         {k: v for k, v in cases.items() if v is not None})
+    return None

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from protocol.catalogue import to_plain
 from protocol.errors import PayloadError
-from protocol.flat_codec import flat_codec
+from protocol.flat_codec import flat_codec, tail_codec
 from protocol.messages import CATALOGUE
 
 FLAT = [(m, direction, decl) for m in CATALOGUE
@@ -98,3 +98,60 @@ def test_fast_path_parses_and_builds_what_construct_does(msg: Any, direction: st
     # A wrong length is still construct's documented error.
     with pytest.raises(PayloadError):
         msg.parse(direction, payload + b"\x00")
+
+
+TAIL = [(m, direction, decl) for m in CATALOGUE
+        for direction, decl in (("request", m.request), ("reply", m.reply))
+        if decl is not None and flat_codec(decl) is None and tail_codec(decl) is not None]
+
+
+def test_variable_last_fields_have_a_parse_fast_path() -> None:
+    kinds = {(m.name, d): tail_codec(decl).kind for m, d, decl in TAIL}  # type: ignore[union-attr]
+    assert kinds[("txn", "request")] == "greedy"
+    assert kinds[("fmcb.param_name", "reply")] == "pascal"
+    assert kinds[("fmcb.control", "request")] == "switch"
+    assert ("fmcb.tunnel", "request") not in kinds  # Rebuild + Check: construct only
+    control = tail_codec(CATALOGUE["fmcb.control"].request)
+    assert control is not None
+    assert control.parse(bytes.fromhex("02" "0000003f" "000080bf" "00000040")) == {
+        "mode": 2, "args": {"target": [0.5, -1.0, 2.0]}}
+    assert control.parse(b"\x00") == {"mode": 0, "args": {}}
+    assert control.parse(b"\x09") is None  # no such mode: construct says why
+    assert control.parse(b"\x02\x00") is None  # short for its mode
+    name = tail_codec(CATALOGUE["fmcb.param_name"].reply)
+    assert name is not None
+    assert name.parse(b"\x03abc") == {"name": "abc"}
+    assert name.parse(b"\x03ab") is None and name.parse(b"\x01\xff") is None
+
+
+@pytest.mark.parametrize(("msg", "direction", "decl"), TAIL,
+                         ids=[f"{m.name}-{d}" for m, d, _ in TAIL])
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_tail_fast_path_parses_what_construct_does(msg: Any, direction: str, decl: Any,
+                                                   data: st.DataObject) -> None:
+    codec = tail_codec(decl)
+    assert codec is not None
+    head = codec.head.size
+    prefix = data.draw(st.binary(min_size=head, max_size=head))
+    if codec.kind == "switch":
+        key = data.draw(st.sampled_from(sorted(codec.cases)))
+        prefix = bytes([key]) + prefix[1:]
+        size = codec.cases[key].size
+        rest = data.draw(st.binary(min_size=max(size - 1, 0), max_size=size + 1))
+    elif codec.kind == "pascal":
+        text = data.draw(st.binary(max_size=40))
+        rest = bytes([data.draw(st.sampled_from([len(text), len(text) + 1, 255]))]) + text
+    else:
+        rest = data.draw(st.binary(max_size=40))
+    payload = data.draw(st.sampled_from([prefix + rest, prefix[: head // 2], prefix + rest[:1]]))
+    fast = codec.parse(payload)
+    try:  # the payload must be consumed exactly, as the catalogue asks
+        reference = to_plain(c.FocusedSeq("v", "v" / decl, c.Terminated).parse(payload))
+    except c.ConstructError:
+        reference = None
+    if fast is not None:
+        assert reference is not None and _same(fast, reference)
+        assert _same(msg.parse(direction, payload), reference)
+    elif reference is not None:  # declined: construct parses it (the catalogue still does)
+        assert _same(msg.parse(direction, payload), reference)
