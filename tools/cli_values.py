@@ -192,10 +192,11 @@ def check_fields(con: c.Construct, values: Mapping[str, Any], message: str,
                 case = None
             if case is not None:
                 _check_value(case, values[name], dotted, message)
-            elif sub.default is c.Error:
-                declared = ", ".join(str(k) for k in sorted(sub.cases, key=str))
+            elif sub.default is c.Error and isinstance(key := sub.keyfunc(values), int):
+                # (a key given by name is construct's to translate and check)
+                declared = ", ".join(str(int(k)) for k in sorted(sub.cases))
                 raise FieldValueError(f"{message}: {dotted} is declared only for "
-                                      f"{declared}, not for {sub.keyfunc(values)!r}")
+                                      f"{declared}, not for {key!r}")
             continue
         _check_value(sub, values[name], dotted, message)
     _check_checks(con, values, message, prefix)

@@ -20,7 +20,9 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, BinaryIO, TextIO
 
-from protocol.catalogue import REPLY, REQUEST
+import construct as c
+
+from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import ProtocolError
 from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, Frame, encode_frame
 from protocol.interpret import interpret
@@ -119,6 +121,38 @@ def _json_encoder() -> Callable[[Any], str]:
 _encode = _json_encoder()
 
 
+#: Construct classes whose parsed values are only ints, floats, text, bytes, lists and
+#: dicts: the encoder prints those exactly as ``jsonable`` + ``json.dumps`` would.
+_PLAIN_CONSTRUCTS = (c.FormatField, c.Struct, c.Array, c.Bytes, c.StringEncoded, c.Prefixed,
+                     c.Padded, c.Renamed, c.Switch, c.Rebuild, c.Check, c.Const, c.FocusedSeq,
+                     c.Terminated.__class__, c.GreedyBytes.__class__, c.Pass.__class__,
+                     c.Error.__class__)
+
+
+def _plain_declaration(con: Any) -> bool:
+    """True when every construct in ``con`` is one of :data:`_PLAIN_CONSTRUCTS`."""
+    if not isinstance(con, _PLAIN_CONSTRUCTS):
+        return False
+    subs = [*getattr(con, "subcons", ()),
+            *(getattr(con, attr) for attr in ("subcon", "lengthfield", "default")
+              if isinstance(getattr(con, attr, None), c.Construct)),
+            *getattr(con, "cases", {}).values()]
+    return all(_plain_declaration(sub) for sub in subs)
+
+
+_plain_cache: dict[tuple[str, str], bool] = {}
+
+
+def _plain(msg: Message, direction: str) -> bool:
+    """Whether ``msg``'s ``direction`` decodes to plain values (else ``jsonable`` maps them,
+    e.g. coded values of an adapter)."""
+    key = (msg.name, direction)
+    plain = _plain_cache.get(key)
+    if plain is None:
+        plain = _plain_cache[key] = _plain_declaration(msg.declaration(direction))
+    return plain
+
+
 #: JSON text of each message name and direction (and of no name).
 _names: dict[str | None, str] = {n: _encode(n) for n in (*CATALOGUE.names(), REQUEST, REPLY)}
 _names[None] = "null"
@@ -173,9 +207,12 @@ class HandRecords:
         """A good frame's line after its offset, and the node it names as requested."""
         meaning = interpret(frame, hint)
         msg = meaning.message
+        fields = meaning.fields
+        if msg is not None and fields is not None and not _plain(msg, meaning.direction):
+            fields = jsonable(fields)
         text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_names[meaning.name]}, '
                 f'"length": {len(frame.payload)}, "crc_ok": true, '
-                f'"fields": {_encode(meaning.fields)}, "direction": {_names[meaning.direction]}')
+                f'"fields": {_encode(fields)}, "direction": {_names[meaning.direction]}')
         if meaning.error:
             text += f', "error": {_encode(meaning.error)}'
         if msg is None:

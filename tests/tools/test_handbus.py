@@ -307,6 +307,26 @@ def test_fast_writer_matches_the_reference_on_any_frames(
     assert fast_lines(data, node) == reference_lines(data, node)
 
 
+def test_fields_of_adapted_declarations_go_through_jsonable(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import construct as c
+
+    assert handbus._plain_declaration(c.Struct("a" / c.Int8ul, "b" / c.GreedyBytes))
+    assert not handbus._plain_declaration(c.Struct("a" / c.Enum(c.Int8ul, on=1)))
+    assert not handbus._plain_declaration(c.Struct("s" / c.Switch(c.this.a, {1: c.Flag})))
+    seen: list[Any] = []
+
+    def spy(value: Any) -> Any:
+        seen.append(value)
+        return {"on": "ON"}
+
+    monkeypatch.setattr(handbus, "jsonable", spy)
+    monkeypatch.setitem(handbus._plain_cache, ("fmcb.phalange_power", "request"), False)
+    line = fast_lines(POWER_ON + encode_frame(10, 0x1E, b"\x02")).splitlines()[0]
+    assert seen == [{"on": 1}, {"on": 2}]
+    assert json.loads(line)["fields"] == {"on": "ON"}
+
+
 class _FakeTerminal(io.StringIO):
     def isatty(self) -> bool:
         return True
