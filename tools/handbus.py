@@ -237,13 +237,14 @@ class Progress:
         self.what = what
         self._start = time.perf_counter()
         self._drawn = 0.0
+        self._shown = -1  # bytes shown by the last redraw
 
     def update(self, done: int, force: bool = False) -> None:
         """Show ``done`` of ``total`` bytes (throttled unless ``force``)."""
         now = time.perf_counter()
-        if not force and now - self._drawn < 0.1:
+        if (not force and now - self._drawn < 0.1) or done == self._shown:
             return
-        self._drawn = now
+        self._drawn, self._shown = now, done
         fraction = done / self.total if self.total else 1.0
         width = 30
         filled = int(width * fraction)
