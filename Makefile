@@ -10,6 +10,8 @@ PACKAGES := protocol firmware_py hil_emulator host bootloader tools
 all: test
 
 $(STAMP): pyproject.toml
+	@echo "Setting up $(VENV) (a virtual environment with MuJoCo, numpy and the test tools);"
+	@echo "the first time this takes a few minutes."
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'

@@ -1,6 +1,6 @@
 """The emulator under nominal traffic: real-time factor (fast mode) and lateness (real time).
 
-Nominal traffic, as the issue defines it: the four fmcbs run their 1 kHz control loops in
+Nominal traffic (the load the speed targets are stated for): the four fmcbs run their 1 kHz control loops in
 joint mode (holding a pose) and their 100 Hz autopoll of both phalanges (fingers and
 phalanges powered and booted), and the host reads the arm at 100 Hz (one BULK_READ of the
 seven present positions every 10 ms).  *Heavy* traffic adds the palm polling every
@@ -17,6 +17,7 @@ finger's status at 100 Hz and a SYNC_WRITE of the four stepper goals every 10 ms
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -27,19 +28,31 @@ from benchmarks.harness import Result
 from hil_emulator.bring_up import request
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL
+from protocol.messages import CATALOGUE
+from protocol.messages.fmcb import ControlMode
+from protocol.topology import (
+    ARM_BUS_BAUD,
+    ARM_JOINTS,
+    FINGERS,
+    HOP_ADDRESS,
+    HOST_LINK_BAUD,
+    SERVO_IDS,
+    STEPPER_IDS,
+    Hop,
+)
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
-TORQUE_ON = [dxl.make_write(i, (STEPPER_TABLE if i <= 4 else RX64_TABLE)["torque_enable"].address,
-                            b"\x01").encode() for i in range(1, 8)]
+TORQUE_ON = [dxl.make_write(j.dxl_id, TABLES_BY_MODEL[j.model_number]["torque_enable"].address,
+                            b"\x01").encode() for j in ARM_JOINTS]
 ARM_READ = dxl.make_bulk_read(
-    [(4, i, STEPPER_TABLE["present_position"].address) for i in range(1, 5)]
-    + [(2, i, RX64_TABLE["present_position"].address) for i in range(5, 8)]).encode()
+    [(4, i, STEPPER_TABLE["present_position"].address) for i in STEPPER_IDS]
+    + [(2, i, RX64_TABLE["present_position"].address) for i in SERVO_IDS]).encode()
 
 
 def _sync_write(goal_counts: int) -> bytes:
-    goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in range(1, 5)}
+    goals = {i: goal_counts.to_bytes(4, "little", signed=True) for i in STEPPER_IDS}
     return dxl.make_sync_write(STEPPER_TABLE["goal_position"].address, 4, goals).encode()
 
 
@@ -53,11 +66,12 @@ def _arm_write(k: int) -> bytes:
 
 def _hold_pose(finger: int) -> bytes:
     """fmcb.control joint mode, targets 0 rad (the pose the fingers start in), routed."""
-    inner = request("fmcb.control", mode=2, args={"target": [0.0] * 3})
-    return request("palm.route", finger=finger, hop=0, timeout_ms=0, frame=inner)
+    inner = CATALOGUE["fmcb.control"].request_frame(HOP_ADDRESS[Hop.FMCB], mode=ControlMode.JOINT,
+                                                    args={"target": [0.0] * 3})
+    return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=0, frame=inner)
 
 
-HOLD_POSE = [_hold_pose(k) for k in range(4)]
+HOLD_POSE = [_hold_pose(k) for k in range(FINGERS)]
 
 
 def boot_full(emulator: Emulator, heavy: bool = True) -> None:
@@ -69,7 +83,7 @@ def boot_full(emulator: Emulator, heavy: bool = True) -> None:
     emulator.bring_up()
     if heavy:
         hand.send_from_host(request("palm.poll", rate_hz=100))
-    for k in range(4):
+    for k in range(FINGERS):
         hand.send_from_host(HOLD_POSE[k])
         emulator.step(30_000)
     for packet in TORQUE_ON:
@@ -107,10 +121,10 @@ def realtime_lateness(wall_s: float, config: str = "full") -> dict[str, float]:
     try:
         assert proc.stdout is not None
         info = json.loads(proc.stdout.readline())
-        palm = serial.Serial(info["palm"], 2_000_000, timeout=0) if info["palm"] else None
-        arm = serial.Serial(info["arm"], 1_000_000, timeout=0) if info["arm"] else None
+        palm = serial.Serial(info["palm"], HOST_LINK_BAUD, timeout=0) if info["palm"] else None
+        arm = serial.Serial(info["arm"], ARM_BUS_BAUD, timeout=0) if info["arm"] else None
         if palm is not None:  # --ready: the hand is up; hold the fingers' pose
-            for k in range(4):
+            for k in range(FINGERS):
                 palm.write(HOLD_POSE[k])
                 time.sleep(0.03)
         if arm is not None:
@@ -139,6 +153,8 @@ def realtime_lateness(wall_s: float, config: str = "full") -> dict[str, float]:
 
 
 def _lateness_result(config: str, stats: dict[str, float]) -> Result:
+    if stats["p99_ms"] is None:  # nothing was delivered
+        stats = {**stats, "p50_ms": math.nan, "p99_ms": math.nan, "max_ms": math.nan}
     p99_ms = stats["p99_ms"]
     return Result(
         "emulator realtime", f"{config}: lateness p99 (1/ms)", 1.0 / max(p99_ms, 1e-6), "1/ms",

@@ -24,9 +24,9 @@ import construct as c
 import crcmod.predefined
 
 from benchmarks.harness import Result, best_rate
-from protocol.framing import encode_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_FMCB
 
 _crc = crcmod.predefined.mkCrcFun("xmodem")
 
@@ -96,8 +96,8 @@ def _frames() -> dict[str, bytes]:
         "effort": [17] * 3,
     }
     return {
-        "framing-small": encode_frame(10, CATALOGUE["ping"].type_id),
-        "framing-large": encode_frame(0, status.type_id, status.build_reply(values)),
+        "framing-small": CATALOGUE["ping"].request_frame(ADDR_FMCB),
+        "framing-large": status.reply_frame(values),
     }
 
 

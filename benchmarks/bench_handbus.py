@@ -30,10 +30,11 @@ from benchmarks.capture import make_capture
 from benchmarks.harness import Result
 from protocol.catalogue import REQUEST
 from protocol.errors import PayloadError
-from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, encode_frame
+from protocol.framing import DEFAULT_MAX_PAYLOAD, encode_frame
 from protocol.interpret import Interpretation, candidate_nodes
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_HOST
 from tools.handbus import decode_hand, jsonable
 
 BASELINE = "per-frame-dumps"

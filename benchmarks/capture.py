@@ -18,14 +18,15 @@ from typing import Any
 
 import construct as c
 
-from protocol.catalogue import REPLY, REQUEST, Message
-from protocol.framing import ADDR_F2, ADDR_F3, ADDR_HOST, encode_frame
+from protocol.enum_field import EnumField
 from protocol.messages import CATALOGUE
+from protocol.topology import ADDR_FMCB, NODE_ADDRESS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "tools" / "samples" / "hand_session.hex"
 
-_ADDRESS = {"fmcb": 0x0A, "palm": 0x0A, "bootloader": 0x0A, "common": 0x0A,
-            "f2": ADDR_F2, "f3": ADDR_F3}
+#: Address of a request to each message namespace (bootloader and common ones go to fmcb's).
+_ADDRESS = {**{kind.value: address for kind, address in NODE_ADDRESS.items()},
+            "bootloader": ADDR_FMCB, "common": ADDR_FMCB}
 #: Largest variable byte field drawn (bytes): keeps frames capture-sized.
 _MAX_BYTES = 64
 
@@ -90,6 +91,8 @@ def _value(rng: random.Random, con: Any) -> Any:
             else:
                 out[sub.name] = _value(rng, inner)
         return out
+    if isinstance(con, EnumField):  # any code the field holds, named or not
+        return _value(rng, con.subcon)
     if isinstance(con, c.FormatField):
         return _number(rng, con.fmtstr)
     if isinstance(con, c.Array):
@@ -104,19 +107,15 @@ def _value(rng: random.Random, con: Any) -> Any:
     raise NotImplementedError(f"no value for {con!r}")
 
 
-def _payload(rng: random.Random, msg: Message, direction: str) -> bytes:
-    return msg.build(direction, _value(rng, msg.declaration(direction)))
-
-
 def _exchanges(rng: random.Random) -> Iterator[bytes]:
     """Request/reply frame pairs of random messages, forever."""
     messages = list(CATALOGUE)
     while True:
         msg = rng.choice(messages)
         if msg.request is not None:
-            yield encode_frame(_ADDRESS[msg.node], msg.type_id, _payload(rng, msg, REQUEST))
+            yield msg.request_frame(_ADDRESS[msg.node], _value(rng, msg.request))
         if msg.reply is not None:
-            yield encode_frame(ADDR_HOST, msg.type_id, _payload(rng, msg, REPLY))
+            yield msg.reply_frame(_value(rng, msg.reply))
 
 
 def sample_bytes() -> bytes:

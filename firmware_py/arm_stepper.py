@@ -45,6 +45,7 @@ from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
 from protocol.control_tables import STEPPER_TABLE, Register, StepperClear, StepperFlag
 from protocol.dynamixel import ErrorBit
+from protocol.robot import ARM_ENCODER_COUNTS_PER_REV
 
 #: Control tick period (µs): 1 kHz.
 TICK_US = 1_000
@@ -53,6 +54,8 @@ VELOCITY_WINDOW = 10
 _INT16 = 32767
 _INT16_MIN = -32768
 _DT = TICK_US / 1e6  # tick period (s)
+#: gear_reduction_x100 × steps × microsteps over this = microsteps per joint encoder count.
+_X100_COUNTS_PER_REV = 100 * ARM_ENCODER_COUNTS_PER_REV
 
 # Plain-int bits for the hot path (IntFlag arithmetic is slow).
 _MOVING = int(StepperFlag.MOVING)
@@ -121,7 +124,7 @@ class StepperNodeApp(DynamixelSlave):
     def reload_registers(self) -> None:
         get = self.get
         self._mpc = (get("gear_reduction_x100") * get("steps_per_rev")
-                     * get("microstepping") / 1_000_000)
+                     * get("microstepping") / _X100_COUNTS_PER_REV)
         self._temperature_limit = get("temperature_limit")
         self._min_voltage = get("min_voltage_limit")
         self._max_voltage = get("max_voltage_limit")

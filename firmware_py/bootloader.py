@@ -33,7 +33,7 @@ Choices beyond the original:
   3: a write is already in progress.
 * ``bl.activate`` and ``bl.boot`` arriving while a page write is in progress wait for it.
 * ``last_error`` in ``bl.status`` is the code of the last failed command: a write-page
-  status for ``bl.write_page``, a ``BL_RESULT`` code for the others.
+  status (``WriteStatus``) for ``bl.write_page``, a ``BootResult`` for the others.
 """
 
 from __future__ import annotations
@@ -62,7 +62,14 @@ from protocol.errors import ImageError
 from protocol.framing import Frame
 from protocol.image import FLASH, MAX_PAYLOAD, BoardType, ImageHeader, parse_header
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import WRITE_STATUS_WORD_FAILED
+from protocol.messages.bootloader import (
+    WRITE_STATUS_WORD_FAILED,
+    BootResult,
+    BootState,
+    ImageStatus,
+    WriteStatus,
+)
+from protocol.messages.common import Running
 
 #: Default autoboot window (µs).
 AUTOBOOT_US: Final = 3_000_000
@@ -79,25 +86,14 @@ UPSTREAM_UART: Final = {
     BoardType.F3: "tendon",
 }
 
-# States (protocol.messages.bootloader.BL_STATE).
-STATE_COUNTDOWN, STATE_HALTED, STATE_BOOTING, STATE_NO_VALID_IMAGE = range(4)
-# Image status (protocol.messages.bootloader.IMAGE_STATUS).
-(IMAGE_VALID, IMAGE_EMPTY, IMAGE_BAD_HEADER, IMAGE_WRONG_BOARD, IMAGE_HASH_MISMATCH,
- IMAGE_NOT_ACTIVATED, IMAGE_TOO_LARGE) = range(7)
-# Result codes (protocol.messages.bootloader.BL_RESULT).
-(RESULT_OK, RESULT_OUT_OF_RANGE, RESULT_BAD_IMAGE, RESULT_HASH_MISMATCH, RESULT_WRONG_BOARD,
- RESULT_NOT_ACTIVATED, RESULT_PROTECTED) = range(7)
-# Page-write status codes (protocol.messages.bootloader.WRITE_STATUS).
-WRITE_OK, WRITE_OUT_OF_RANGE, WRITE_PROTECTED, WRITE_BUSY = range(4)
-
 #: What a failed image check means as a command result.
 _RESULT_OF_IMAGE_STATUS: Final = {
-    IMAGE_EMPTY: RESULT_BAD_IMAGE,
-    IMAGE_BAD_HEADER: RESULT_BAD_IMAGE,
-    IMAGE_TOO_LARGE: RESULT_BAD_IMAGE,
-    IMAGE_WRONG_BOARD: RESULT_WRONG_BOARD,
-    IMAGE_HASH_MISMATCH: RESULT_HASH_MISMATCH,
-    IMAGE_NOT_ACTIVATED: RESULT_NOT_ACTIVATED,
+    ImageStatus.EMPTY: BootResult.BAD_IMAGE,
+    ImageStatus.BAD_HEADER: BootResult.BAD_IMAGE,
+    ImageStatus.TOO_LARGE: BootResult.BAD_IMAGE,
+    ImageStatus.WRONG_BOARD: BootResult.WRONG_BOARD,
+    ImageStatus.HASH_MISMATCH: BootResult.HASH_MISMATCH,
+    ImageStatus.NOT_ACTIVATED: BootResult.NOT_ACTIVATED,
 }
 _ERASED_PAGE: Final = b"\xff" * PAGE_SIZE
 _NO_PAGE: Final = 0xFFFFFFFF
@@ -105,16 +101,16 @@ _NO_PAGE: Final = 0xFFFFFFFF
 
 @dataclass(frozen=True)
 class ImageCheck:
-    """The verdict on the installed image: an IMAGE_STATUS code, the header, and why."""
+    """The verdict on the installed image: its status, the header, and why."""
 
-    status: int
+    status: ImageStatus
     header: ImageHeader | None
     reason: str
 
     @property
     def staged_ok(self) -> bool:
         """Header and payload verify (the image may still lack its activation)."""
-        return self.status in (IMAGE_VALID, IMAGE_NOT_ACTIVATED)
+        return self.status in (ImageStatus.VALID, ImageStatus.NOT_ACTIVATED)
 
 
 def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
@@ -128,33 +124,33 @@ def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
     """
     raw = flash.read_page(HEADER_PAGE)
     if raw == _ERASED_PAGE:
-        return ImageCheck(IMAGE_EMPTY, None, "no image: header page is erased")
+        return ImageCheck(ImageStatus.EMPTY, None, "no image: header page is erased")
     try:
         header = parse_header(raw, max_payload=0xFFFFFFFF)
     except ImageError as exc:
-        return ImageCheck(IMAGE_BAD_HEADER, None, f"bad header: {exc}")
+        return ImageCheck(ImageStatus.BAD_HEADER, None, f"bad header: {exc}")
     if header.load_address != page_address(HEADER_PAGE):
-        return ImageCheck(IMAGE_BAD_HEADER, header,
+        return ImageCheck(ImageStatus.BAD_HEADER, header,
                           f"bad header: load address 0x{header.load_address:x} is not "
                           f"0x{page_address(HEADER_PAGE):x}")
     if board is None or header.board != board:
         mine = board.name if board is not None else "unknown"
-        return ImageCheck(IMAGE_WRONG_BOARD, header,
+        return ImageCheck(ImageStatus.WRONG_BOARD, header,
                           f"wrong board: image is for {header.board.name}, this is {mine}")
     if header.payload_size > MAX_PAYLOAD:
-        return ImageCheck(IMAGE_TOO_LARGE, header,
+        return ImageCheck(ImageStatus.TOO_LARGE, header,
                           f"too large: payload {header.payload_size} B > {MAX_PAYLOAD} B")
     payload = flash.read(page_address(PAYLOAD_FIRST_PAGE), header.payload_size)
     if hashlib.sha256(payload).digest() != header.sha256:
-        return ImageCheck(IMAGE_HASH_MISMATCH, header,
+        return ImageCheck(ImageStatus.HASH_MISMATCH, header,
                           f"hash mismatch: payload pages do not hash to "
                           f"{header.sha256.hex()[:16]}... (truncated or corrupt)")
     record = ActivationRecord.from_page(flash.read_page(BOOT_CONTROL_PAGE))
     if record is None or record.sha256 != header.sha256:
-        return ImageCheck(IMAGE_NOT_ACTIVATED, header,
+        return ImageCheck(ImageStatus.NOT_ACTIVATED, header,
                           f"not activated: {header.app_name} {header.version} verifies but "
                           "has no activation record")
-    return ImageCheck(IMAGE_VALID, header,
+    return ImageCheck(ImageStatus.VALID, header,
                       f"valid: {header.app_name} {header.version} ({header.payload_size} B)")
 
 
@@ -173,7 +169,7 @@ class Bootloader(HandNode):
     """
 
     node_kind = "bootloader"
-    running_code = 0
+    running = Running.BOOTLOADER
     fw_version = (1, 0, 0)
     #: Autoboot window (µs) after power-up or reset.
     autoboot_us: int = AUTOBOOT_US
@@ -188,7 +184,7 @@ class Bootloader(HandNode):
             raise ConfigError(f"no hand bootloader for board type {self.identity.board}")
         self.board: BoardType = board
         self.upstream = hal.uart(UPSTREAM_UART[board])
-        self.state = STATE_COUNTDOWN
+        self.state = BootState.AUTOBOOT_COUNTDOWN
         self.last_error = 0
         self.last_page = _NO_PAGE
         self.note = ""
@@ -213,7 +209,7 @@ class Bootloader(HandNode):
         if self.board == BoardType.FMCB:
             self.hal.power("phalange").set(0)
         self.listen(self.upstream)
-        self.state = STATE_COUNTDOWN
+        self.state = BootState.AUTOBOOT_COUNTDOWN
         self._deadline_us = self.hal.clock.now_us() + self.autoboot_us
         self._timer = self.hal.clock.call_later(self.autoboot_us, self._autoboot)
 
@@ -228,7 +224,7 @@ class Bootloader(HandNode):
     @property
     def autoboot_ms_left(self) -> int:
         """Time left in the autoboot window (ms, rounded up; 0 once it is closed)."""
-        if self.state != STATE_COUNTDOWN:
+        if self.state != BootState.AUTOBOOT_COUNTDOWN:
             return 0
         left_us = max(0, self._deadline_us - self.hal.clock.now_us())
         return min(0xFFFF, -(-left_us // 1000))
@@ -238,8 +234,8 @@ class Bootloader(HandNode):
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if self.state == STATE_COUNTDOWN:
-            self.state = STATE_HALTED
+        if self.state == BootState.AUTOBOOT_COUNTDOWN:
+            self.state = BootState.HALTED
 
     def on_frame(self, frame: Frame, uart: Uart) -> None:
         """A bootloader command (``bl.*``) for this node halts the autoboot countdown.
@@ -257,24 +253,24 @@ class Bootloader(HandNode):
 
     def _autoboot(self) -> None:
         self._timer = None
-        if not self._running() or self.state != STATE_COUNTDOWN:
+        if not self._running() or self.state != BootState.AUTOBOOT_COUNTDOWN:
             return
         check = self.inspect()
-        if check.status == IMAGE_VALID:
+        if check.status == ImageStatus.VALID:
             self._jump(check)
         else:
-            self.state = STATE_NO_VALID_IMAGE
+            self.state = BootState.NO_VALID_IMAGE
             self.note = "autoboot: stayed in bootloader"
 
     def _jump(self, check: ImageCheck) -> None:
         """Start the application the verified header names."""
         assert check.header is not None
-        self.state = STATE_BOOTING
+        self.state = BootState.BOOTING
         try:
             self.mcu.boot(check.header.app_name)
         except ConfigError as exc:
-            self.state = STATE_NO_VALID_IMAGE
-            self._fail(RESULT_BAD_IMAGE, f"boot failed: {exc}")
+            self.state = BootState.NO_VALID_IMAGE
+            self._fail(BootResult.BAD_IMAGE, f"boot failed: {exc}")
 
     def _fail(self, code: int, note: str) -> None:
         self.last_error = code
@@ -297,7 +293,7 @@ class Bootloader(HandNode):
             status = WRITE_STATUS_WORD_FAILED
             if ok:
                 bad = _first_bad_word(data, self.hal.flash.read_page(page))
-                status = WRITE_OK if bad is None else WRITE_STATUS_WORD_FAILED + bad
+                status = WriteStatus.OK if bad is None else WRITE_STATUS_WORD_FAILED + bad
             then(status)
             self._run_waiting()
 
@@ -349,7 +345,7 @@ class Bootloader(HandNode):
         page = req.fields["page"]
         if not 0 <= page < FLASH.page_count:
             self.refused_reads += 1
-            self._fail(RESULT_OUT_OF_RANGE, f"read of page {page}: out of range")
+            self._fail(BootResult.OUT_OF_RANGE, f"read of page {page}: out of range")
             return None
         return {"data": self.hal.flash.read_page(page)}
 
@@ -358,20 +354,20 @@ class Bootloader(HandNode):
         self.last_page = page
 
         def reply(status: int) -> None:
-            if status != WRITE_OK:
+            if status != WriteStatus.OK:
                 self._fail(status, f"write of page {page}: status 0x{status:02x}")
             req.respond({"page": page, "status": status})
 
         if not FLASH.app_start_page <= page < FLASH.page_count:
-            reply(WRITE_OUT_OF_RANGE)
+            reply(WriteStatus.PAGE_OUT_OF_RANGE)
         elif page == BOOT_CONTROL_PAGE:
-            reply(WRITE_PROTECTED)
+            reply(WriteStatus.PAGE_PROTECTED)
         elif self.flash_busy:
-            reply(WRITE_BUSY)
+            reply(WriteStatus.FLASH_BUSY)
         elif page in APP_PAGES and self.hal.flash.read_page(BOOT_CONTROL_PAGE) != _ERASED_PAGE:
             # Staging begins: forget the activation before the image changes.
             def cleared(status: int) -> None:
-                if status == WRITE_OK:
+                if status == WriteStatus.OK:
                     self._program(page, data, reply)
                 else:
                     reply(status)
@@ -384,10 +380,10 @@ class Bootloader(HandNode):
     def _on_hash(self, req: Request) -> dict[str, Any]:
         start, count = req.fields["start_page"], req.fields["pages"]
         if start >= FLASH.page_count or count > FLASH.page_count - start:
-            self._fail(RESULT_OUT_OF_RANGE, f"hash of pages {start}+{count}: out of range")
-            return {"status": RESULT_OUT_OF_RANGE, "sha256": bytes(32)}
+            self._fail(BootResult.OUT_OF_RANGE, f"hash of pages {start}+{count}: out of range")
+            return {"status": BootResult.OUT_OF_RANGE, "sha256": bytes(32)}
         data = self.hal.flash.read(page_address(start), count * PAGE_SIZE)
-        return {"status": RESULT_OK, "sha256": hashlib.sha256(data).digest()}
+        return {"status": BootResult.OK, "sha256": hashlib.sha256(data).digest()}
 
     def _on_activate(self, req: Request) -> Any:
         wanted = req.fields["sha256"]
@@ -399,9 +395,9 @@ class Bootloader(HandNode):
                 self._fail(code, f"activate refused: {check.reason}")
                 req.respond({"status": code, "image_status": check.status})
             elif check.header is None or check.header.sha256 != wanted:
-                self._fail(RESULT_HASH_MISMATCH,
+                self._fail(BootResult.HASH_MISMATCH,
                            "activate refused: staged image has another SHA-256")
-                req.respond({"status": RESULT_HASH_MISMATCH, "image_status": check.status})
+                req.respond({"status": BootResult.HASH_MISMATCH, "image_status": check.status})
             else:
                 self._activate(check, lambda code, after: req.respond(
                     {"status": code, "image_status": after.status}))
@@ -412,17 +408,17 @@ class Bootloader(HandNode):
     def _activate(self, check: ImageCheck, then: Callable[[int, ImageCheck], None]) -> None:
         """Write the activation record for the verified ``check`` (no-op if present)."""
         assert check.header is not None
-        if check.status == IMAGE_VALID:
-            then(RESULT_OK, check)
+        if check.status == ImageStatus.VALID:
+            then(BootResult.OK, check)
             return
 
         def written(status: int) -> None:
             after = self.inspect()
-            if status != WRITE_OK or after.status != IMAGE_VALID:
-                self._fail(RESULT_PROTECTED, "activation record did not program")
-                then(RESULT_PROTECTED, after)
+            if status != WriteStatus.OK or after.status != ImageStatus.VALID:
+                self._fail(BootResult.PROTECTED, "activation record did not program")
+                then(BootResult.PROTECTED, after)
             else:
-                then(RESULT_OK, after)
+                then(BootResult.OK, after)
 
         self._program(BOOT_CONTROL_PAGE, ActivationRecord(check.header.sha256).to_page(), written)
 
@@ -434,15 +430,15 @@ class Bootloader(HandNode):
     def _boot_requested(self) -> None:
         check = self.inspect()
         if not check.staged_ok:
-            self.state = STATE_NO_VALID_IMAGE
+            self.state = BootState.NO_VALID_IMAGE
             self._fail(_RESULT_OF_IMAGE_STATUS[check.status], "boot refused")
             return
 
         def activated(code: int, after: ImageCheck) -> None:
-            if code == RESULT_OK:
+            if code == BootResult.OK:
                 self._jump(after)
             else:
-                self.state = STATE_NO_VALID_IMAGE
+                self.state = BootState.NO_VALID_IMAGE
 
         # An explicit boot is the host's consent to activate a verified image.
         self._activate(check, activated)

@@ -49,14 +49,13 @@ from collections.abc import Callable, Mapping
 
 from firmware_py.flash_layout import PARAM_PAGE
 from firmware_py.hal import Hal, Timer
-from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualHal
 from protocol.control_tables import RAM_START, ControlTable, Register, RegisterError
 from protocol.dynamixel import (
     BROADCAST_ID,
     MAX_ID,
     DynamixelStreamDecoder,
     ErrorBit,
+    Instruction,
     InstructionPacket,
     StatusPacket,
     encode_packet,
@@ -66,7 +65,6 @@ from protocol.dynamixel import (
     parse_write,
 )
 from protocol.errors import DynamixelError
-from protocol.image import BoardType
 
 #: Flash page holding the EEPROM area of the control table (the hand's parameter page).
 EEPROM_PAGE = PARAM_PAGE
@@ -79,9 +77,12 @@ BULK_SLOT_US = 600
 #: Retry interval when the flash is busy with another write (µs).
 FLASH_RETRY_US = 500
 
-# Instruction codes (plain ints: InstructionPacket keeps unknown codes as int).
-_PING, _READ, _WRITE, _REG_WRITE, _ACTION, _RESET = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-_SYNC_WRITE, _BULK_READ = 0x83, 0x92
+# Instruction codes as plain ints for the dispatch (InstructionPacket keeps unknown codes
+# as int, and an enum member read off its class costs ~0.4 µs).
+_PING, _READ, _WRITE, _REG_WRITE, _ACTION, _RESET, _SYNC_WRITE, _BULK_READ = (
+    int(Instruction.PING), int(Instruction.READ), int(Instruction.WRITE),
+    int(Instruction.REG_WRITE), int(Instruction.ACTION), int(Instruction.RESET),
+    int(Instruction.SYNC_WRITE), int(Instruction.BULK_READ))
 
 
 def baud_from_register(value: int) -> int:
@@ -380,7 +381,7 @@ class DynamixelSlave:
 
         # Bytes of the earlier replies: 6 per status packet plus its data.
         earlier = sum(entry[0] for entry in entries[:k]) + 6 * k
-        fallback = -(-earlier * BITS_PER_CHAR * 1_000_000 // self.uart.baud) + k * BULK_SLOT_US
+        fallback = self.uart.wire_time_us(earlier) + k * BULK_SLOT_US
         timer = self.hal.clock.call_later(fallback, go)
         self._bulk_wait = (entries[k - 1][1], go, timer)
 
@@ -398,27 +399,3 @@ class _Rejected(Exception):
     def __init__(self, bits: int) -> None:
         super().__init__(f"rejected: 0x{bits:02X}")
         self.bits = bits
-
-
-def make_arm_node(scheduler: Scheduler, board: BoardType, dxl_id: int
-                  ) -> tuple[VirtualHal, DynamixelSlave]:
-    """A powered arm node of ``board`` (ARM_STEPPER or RX64) with factory ID ``dxl_id`` at
-    1 Mbaud, its application started (arm nodes have no hand bootloader).  The HAL's reset
-    (watchdog, ``hal.reset()``) reboots the application."""
-    from firmware_py.boards import make_hal
-
-    hal = make_hal(scheduler, board)
-    app: DynamixelSlave
-    if board == BoardType.ARM_STEPPER:
-        from firmware_py.arm_stepper import StepperNodeApp
-
-        app = StepperNodeApp(hal, dxl_id)
-    elif board == BoardType.RX64:
-        from firmware_py.rx64 import Rx64ServoApp
-
-        app = Rx64ServoApp(hal, dxl_id)
-    else:
-        raise ValueError(f"{board!r} is not an arm node")
-    hal.on_reset = app.reboot
-    app.start()
-    return hal, app

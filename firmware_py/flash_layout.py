@@ -1,11 +1,7 @@
-"""Where things live in a hand microcontroller's flash (SAM3S: 1024 pages × 256 B).
+"""Where things live in a hand microcontroller's flash, as the firmware names it.
 
-    pages 0–31      bootloader (page 31 ends with the node identity); locked at boot
-    page 32         image header (protocol.image, 256 B)
-    pages 33–1019   image payload (application code)
-    page 1020       fmcb parameters (kept across updates)
-    page 1021       boot control: the activation record
-    pages 1022–1023 unused
+The geometry (bootloader pages 0–31, header page 32, payload from 33, parameters 1020,
+activation record 1021) is declared once, in :class:`protocol.image.FlashGeometry`.
 
 An image boots only if its header is valid for this board, its payload's SHA-256 matches,
 and the activation record names that same SHA-256.  Writing any page of the image area
@@ -19,15 +15,15 @@ import zlib
 from dataclasses import dataclass
 from typing import Final
 
-from protocol.image import FLASH, HEADER_SIZE
+from protocol.image import FLASH
 
 PAGE_SIZE: Final = FLASH.page_size
-BOOTLOADER_PAGES: Final = range(0, FLASH.app_start_page)
-HEADER_PAGE: Final = FLASH.app_start_page
-PAYLOAD_FIRST_PAGE: Final = HEADER_PAGE + HEADER_SIZE // PAGE_SIZE
+BOOTLOADER_PAGES: Final = FLASH.bootloader_pages
+HEADER_PAGE: Final = FLASH.header_page
+PAYLOAD_FIRST_PAGE: Final = FLASH.payload_first_page
 APP_PAGES: Final = FLASH.app_pages
 PARAM_PAGE: Final = FLASH.param_page
-BOOT_CONTROL_PAGE: Final = 1021
+BOOT_CONTROL_PAGE: Final = FLASH.boot_control_page
 
 ACTIVATION_MAGIC: Final = 0x56544341  # b"ACTV" little-endian
 _RECORD = struct.Struct("<I32sI")

@@ -1,77 +1,27 @@
-"""The finger module's conventions and control law, in one tested place.
+"""The finger module's control law, in one tested place.
 
-Joint order J0, J1, J2 (base abduction/flexion, proximal, distal); motor i is the motor
-whose tendon mainly drives joint i.  Joint angles in rad, motor positions in hall counts
-(transitions of the three hall sensors), efforts in 1/255 of full PWM (signed, the
-original's 8-bit PWM), velocities in hall counts/s.
+The robot's conventions (joint order, hall counts, the tendon coupling, joint limits) are
+:mod:`protocol.robot`'s.  Efforts in 1/255 of full PWM (signed, the original's 8-bit PWM),
+positions in hall counts, velocities in hall counts/s.
 
-Tendon coupling (original hand): with K = 36/(2π) hall states per rad of motor shaft,
-gear ratios g = (173.4, 196.7, 231) and coupling c = 0.89::
-
-    m2 = K·g2·q2
-    m1 = K·(g1·q1 − c·g2·q2)
-    m0 = K·(g0·q0 + g1·q1 + c·g2·q2)
-
-Hall sign convention: a transition forward along :data:`HALL_SEQUENCE` counts +1, and a
-positive duty drives the motor forward (the plant implements the same convention).
+Hall sign convention: a transition forward along :data:`~protocol.robot.HALL_SEQUENCE`
+counts +1, and a positive duty drives the motor forward (the plant implements the same
+convention).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Final
 
-import numpy as np
+from protocol.robot import HALL_SEQUENCE
 
-#: Hall states per radian of motor shaft.
-HALL_STATES_PER_RAD: Final = 36.0 / (2.0 * math.pi)
-#: Gear ratios of motors 0, 1, 2.
-GEAR_RATIOS: Final = (173.4, 196.7, 231.0)
-#: Tendon coupling of the distal joint into the proximal motors.
-TENDON_COUPLING: Final = 0.89
 #: Largest effort magnitude (full PWM).
 EFFORT_FULL: Final = 255
 
-#: The six valid hall states in forward order (120° sensors); 0 and 7 never occur.
-HALL_SEQUENCE: Final = (1, 3, 2, 6, 4, 5)
 _HALL_INDEX: Final = {state: i for i, state in enumerate(HALL_SEQUENCE)}
 
 Vec3 = tuple[float, float, float]
-
-
-def coupling_matrix() -> np.ndarray:
-    """M with m = M·q: joint angles (rad) → motor positions (hall counts)."""
-    g0, g1, g2 = GEAR_RATIOS
-    c = TENDON_COUPLING
-    return HALL_STATES_PER_RAD * np.array(
-        [[g0, g1, c * g2],
-         [0.0, g1, -c * g2],
-         [0.0, 0.0, g2]]
-    )
-
-
-def joint_to_motor(q: Sequence[float]) -> Vec3:
-    """Motor positions (hall counts) for joint angles ``q`` (rad)."""
-    g0, g1, g2 = GEAR_RATIOS
-    c = TENDON_COUPLING
-    k = HALL_STATES_PER_RAD
-    q0, q1, q2 = (float(v) for v in q)
-    return (k * (g0 * q0 + g1 * q1 + c * g2 * q2),
-            k * (g1 * q1 - c * g2 * q2),
-            k * g2 * q2)
-
-
-def motor_to_joint(m: Sequence[float]) -> Vec3:
-    """Joint angles (rad) for motor positions ``m`` (hall counts): the inverse coupling."""
-    g0, g1, g2 = GEAR_RATIOS
-    c = TENDON_COUPLING
-    k = HALL_STATES_PER_RAD
-    m0, m1, m2 = (float(v) / k for v in m)
-    q2 = m2 / g2
-    q1 = (m1 + c * g2 * q2) / g1
-    q0 = (m0 - g1 * q1 - c * g2 * q2) / g0
-    return (q0, q1, q2)
 
 
 class HallCounter:

@@ -29,6 +29,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
+from protocol.robot import FINGER_JOINT_LIMITS
+
 PARAM_SENTINEL: Final = 0xDEADBEEF
 PARAM_LAYOUT_VERSION: Final = 1
 _HEADER = struct.Struct("<IHHI")
@@ -67,9 +69,9 @@ class ParamSpec:
 
 def _joint_limits() -> list[ParamSpec]:
     specs = []
-    for j in range(3):
-        specs.append(ParamSpec(f"joint_lower_{j}", "f32", -1.57, f"[rad] lower limit of joint {j}"))
-        specs.append(ParamSpec(f"joint_upper_{j}", "f32", 1.57, f"[rad] upper limit of joint {j}"))
+    for j, (lower, upper) in enumerate(FINGER_JOINT_LIMITS):
+        specs.append(ParamSpec(f"joint_lower_{j}", "f32", lower, f"[rad] lower limit of joint {j}"))
+        specs.append(ParamSpec(f"joint_upper_{j}", "f32", upper, f"[rad] upper limit of joint {j}"))
     return specs
 
 

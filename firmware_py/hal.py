@@ -3,7 +3,7 @@
 Firmware sees a :class:`Hal`: a clock with timers, UARTs with automatic transmit-enable,
 power switches, flash with the SAM3S's constraints, sensors, motor drivers, a stepper pulse
 generator with its counter, a quadrature encoder with index capture, a watchdog and reset.
-:mod:`firmware_py.virtual_hal` implements it in memory for tests; the emulator implements
+:mod:`firmware_py.sim.virtual_hal` implements it in memory for tests; the emulator implements
 it on the MuJoCo plant and the bus fabric.  Firmware never imports MuJoCo, pyserial or the
 emulator.
 
@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from firmware_py.errors import HalError
+from protocol.image import FLASH
 
 ReceiveCallback = Callable[[bytes, int], None]
 """Called with the bytes received and their arrival time (µs)."""
@@ -61,6 +62,11 @@ class Uart(ABC):
     baud: int = 2_000_000
 
     @abstractmethod
+    def wire_time_us(self, n_bytes: int) -> int:
+        """Time ``n_bytes`` occupy the line at this UART's baud and character framing (µs,
+        rounded up): the UART knows its own timing."""
+
+    @abstractmethod
     def send(self, data: bytes) -> None:
         """Queue ``data`` for transmission (sent back to back after anything queued)."""
 
@@ -102,9 +108,9 @@ class Flash(ABC):
     A power cut during a write leaves that page erased or partly programmed.
     """
 
-    page_size: int = 256
-    page_count: int = 1024
-    base_address: int = 0x400000
+    page_size: int = FLASH.page_size
+    page_count: int = FLASH.page_count
+    base_address: int = FLASH.flash_base
 
     @abstractmethod
     def read(self, address: int, length: int) -> bytes:

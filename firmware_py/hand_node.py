@@ -21,16 +21,16 @@ from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
 from protocol.catalogue import REQUEST, Message
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_BROADCAST, ADDR_HOST, Frame, encode_frame
+from protocol.framing import Frame, encode_frame
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
+from protocol.messages.common import Running, TxnStatus
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_BROADCAST, ADDR_HOST
 
 #: Returned by a handler that will answer later through :meth:`Request.respond`.
 DEFERRED: Final = object()
 #: Inter-frame gap after which a partial frame is dropped (µs).
 FRAME_GAP_US: Final = 10_000
-
-TXN_OK, TXN_UNKNOWN, TXN_BAD_PAYLOAD, TXN_BUSY, TXN_NO_REPLY, TXN_REFUSED = range(6)
 
 
 @dataclass
@@ -54,7 +54,7 @@ class Request:
     uart: Uart
     _send: Callable[[bytes | None, int], None] = field(repr=False)
 
-    def respond(self, reply: dict[str, Any] | bytes | None, status: int = TXN_OK) -> None:
+    def respond(self, reply: dict[str, Any] | bytes | None, status: int = TxnStatus.OK) -> None:
         """Send the reply now (fields, raw payload, or None for an error status)."""
         if isinstance(reply, dict):
             payload: bytes | None = self.message.build_reply(reply)
@@ -77,7 +77,7 @@ class HandNode:
 
     node_kind: str = "common"
     fw_version: tuple[int, int, int] = (0, 1, 0)
-    running_code: int = 1  # 1 application, 0 bootloader
+    running: Running = Running.APPLICATION
 
     def __init__(self, hal: Hal) -> None:
         self.hal = hal
@@ -137,13 +137,13 @@ class HandNode:
         msg, handler = self._routes.get(msg_type, _NO_ROUTE)
         if msg is None or handler is None or msg.request is None:
             self.counters.unknown_type += 1
-            send(None, TXN_UNKNOWN)
+            send(None, TxnStatus.UNKNOWN_TYPE)
             return
         try:
             fields = msg.parse(REQUEST, payload)
         except ProtocolError:
             self.counters.bad_payload += 1
-            send(None, TXN_BAD_PAYLOAD)
+            send(None, TxnStatus.BAD_PAYLOAD)
             return
         request = Request(msg, fields, frame, uart, send)
         result = handler(request)
@@ -164,7 +164,7 @@ class HandNode:
         return {
             "board": self.identity.board,
             "address": self.address,
-            "running": self.running_code,
+            "running": self.running,
             "hw_version": self.identity.hw_version,
             "fw_version": {"major": major, "minor": minor, "patch": patch},
             "catalogue": CATALOGUE_HASH,
@@ -199,11 +199,11 @@ class HandNode:
             )
 
         if inner_type == txn.type_id:
-            send(None, TXN_REFUSED)
+            send(None, TxnStatus.REFUSED)
             return DEFERRED
         inner_frame = Frame(req.frame.address, inner_type, req.fields["inner"], req.frame.offset)
         msg = CATALOGUE.lookup(self.node_kind, inner_type)
         self.dispatch(inner_type, req.fields["inner"], inner_frame, req.uart, send)
         if not answered and msg is not None and msg.reply is None:
-            send(b"", TXN_OK)  # messages without replies are acknowledged by the envelope
+            send(b"", TxnStatus.OK)  # messages without replies are acknowledged by the envelope
         return DEFERRED

@@ -6,7 +6,7 @@ bootloader refuses pages 0–31 and locks them.  Words, little-endian::
     0x401FF0  board type (protocol.image.BoardType)
     0x401FF4  unique id
     0x401FF8  hardware version (0xBEEF0041 fingers, 0xBEEF4C41 / 0xBEEF5241 palms)
-    0x401FFC  bus address (fmcb and palm 10, f2 1, f3 2)
+    0x401FFC  bus address (:data:`protocol.topology.NODE_ADDRESS`)
 """
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ import struct
 from dataclasses import dataclass
 
 from firmware_py.hal import Flash
-from protocol.image import BoardType
+from protocol.image import FLASH, BoardType
+from protocol.topology import ADDR_F2, ADDR_F3, ADDR_FMCB
 
-IDENTITY_ADDRESS = 0x401FF0
+IDENTITY_ADDRESS = FLASH.identity_address
 HW_VERSION_FINGER = 0xBEEF0041
 HW_VERSION_PALM_LEFT = 0xBEEF4C41
 HW_VERSION_PALM_RIGHT = 0xBEEF5241
@@ -55,6 +56,6 @@ def read_identity(flash: Flash) -> Identity:
 
 def default_identity(board: BoardType, uid: int = 0) -> Identity:
     """The identity a factory gives a board of this type (address and hw version)."""
-    address = {BoardType.F2: 1, BoardType.F3: 2}.get(board, 10)
+    address = {BoardType.F2: ADDR_F2, BoardType.F3: ADDR_F3}.get(board, ADDR_FMCB)
     hw = HW_VERSION_PALM_RIGHT if board == BoardType.PALM else HW_VERSION_FINGER
     return Identity(int(board), uid, hw, address)

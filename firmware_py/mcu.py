@@ -36,7 +36,7 @@ class Mcu:
                  apps: Mapping[str, ProgramFactory]) -> None:
         self.hal = hal
         self._bootloader_factory = bootloader
-        # Kept as given (not copied): boards.make_node passes a table that imports lazily.
+        # Kept as given (not copied): sim.boards.make_node passes a table that imports lazily.
         self.apps: Mapping[str, ProgramFactory] = apps
         self.program: Program | None = None
         self.program_name: str | None = None

@@ -37,22 +37,19 @@ from firmware_py.errors import HalError
 from firmware_py.hal import CanController, Hal, Timer, Uart
 from firmware_py.hand_node import DEFERRED, HandNode, Request
 from firmware_py.mcu import Mcu
-from firmware_py.palm_router import (
-    ROUTE_BAD_DESTINATION,
-    ROUTE_BUSY,
-    ROUTE_LINK_DOWN,
-    ROUTE_NO_REPLY,
-    ROUTE_OK,
-    ROUTE_UNPOWERED,
-    FingerLink,
-    Transaction,
-    route_transaction,
-)
+from firmware_py.palm_router import FingerLink, Transaction, route_transaction
 from protocol.canlink import DEFAULT_PALM_NODE, CanReassembler, can_id, segment
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_FMCB, Frame, encode_frame, parse_frame
+from protocol.framing import Frame, parse_frame
 from protocol.messages import CATALOGUE
-from protocol.messages.palm import FINGERS, PALM_TAXELS, ROUTE_MAX_FRAME
+from protocol.messages.palm import (
+    PALM_TAXELS,
+    ROUTE_MAX_FRAME,
+    FingerEvent,
+    FingerPower,
+    RouteStatus,
+)
+from protocol.topology import ADDR_FMCB, FINGERS, HOP_NODE
 
 #: Taxel scan period (µs): one taxel per millisecond.
 TAXEL_PERIOD_US: Final = 1_000
@@ -66,8 +63,6 @@ POLL_TIMEOUT_US: Final = 4_000
 ALL_FINGERS: Final = 0xFF
 #: Temperature channels of the palm.
 PALM_TEMPERATURES: Final = 7
-
-EVENT_LOST, EVENT_RETURNED, EVENT_BREAKER_TRIP, EVENT_POWERED, EVENT_UNPOWERED = range(5)
 
 _STATUS = CATALOGUE.by_name("fmcb.status")
 _EFFORT_CAP = CATALOGUE.by_name("fmcb.effort_cap")
@@ -86,6 +81,9 @@ class CanLink(Uart):
         self.can = can
         self.node = node
         self.tx_id = can_id(node, to_host=True)
+
+    def wire_time_us(self, n_bytes: int) -> int:  # pragma: no cover - never used
+        raise HalError("the CAN link has no character timing; its controller paces frames")
 
     def send(self, data: bytes) -> None:
         for chunk in segment(data):
@@ -210,18 +208,18 @@ class PalmApp(HandNode):
             req.respond({"finger": finger, "hop": hop, "status": status, "frame": frame})
 
         inner = self._valid_frame(raw)
-        if finger >= FINGERS or hop > 2 or inner is None:
-            return {"finger": finger, "hop": hop, "status": ROUTE_BAD_DESTINATION, "frame": b""}
+        if finger >= FINGERS or hop not in HOP_NODE or inner is None:
+            return {"finger": finger, "hop": hop, "status": RouteStatus.BAD_DESTINATION, "frame": b""}
         link = self.links[finger]
-        if link.power == 0:
-            return {"finger": finger, "hop": hop, "status": ROUTE_UNPOWERED, "frame": b""}
+        if link.power == FingerPower.OFF:
+            return {"finger": finger, "hop": hop, "status": RouteStatus.UNPOWERED, "frame": b""}
         if link.lost:
-            return {"finger": finger, "hop": hop, "status": ROUTE_LINK_DOWN, "frame": b""}
+            return {"finger": finger, "hop": hop, "status": RouteStatus.LINK_DOWN, "frame": b""}
         txn = route_transaction(hop, inner, raw, timeout_ms, link.uart.baud, respond)
         if txn is None:
-            return {"finger": finger, "hop": hop, "status": ROUTE_BAD_DESTINATION, "frame": b""}
+            return {"finger": finger, "hop": hop, "status": RouteStatus.BAD_DESTINATION, "frame": b""}
         if not link.submit(txn):
-            return {"finger": finger, "hop": hop, "status": ROUTE_BUSY, "frame": b""}
+            return {"finger": finger, "hop": hop, "status": RouteStatus.BUSY, "frame": b""}
         return DEFERRED
 
     @staticmethod
@@ -238,7 +236,7 @@ class PalmApp(HandNode):
     def _finger_power(self, req: Request) -> dict[str, Any]:
         finger, state = req.fields["finger"], req.fields["state"]
         stagger_us = req.fields["stagger_ms"] * 1000
-        if state <= 2:
+        if state <= FingerPower.FULL:
             if finger == ALL_FINGERS:
                 for k in range(FINGERS):
                     self._schedule_power(k, state, k * stagger_us)
@@ -261,20 +259,20 @@ class PalmApp(HandNode):
         self._stagger[finger] = self.hal.clock.call_later(delay_us, fire)
 
     def set_finger_power(self, finger: int, state: int) -> None:
-        """Switch finger ``finger`` to ``state`` (0 off, 1 low, 2 full) now, with events."""
+        """Switch finger ``finger`` to ``state`` (a FingerPower code) now, with events."""
         link = self.links[finger]
         old = link.power
         self.hal.power(f"finger{finger}").set(state)
         link.power = state
-        if old == 0 and state != 0:
+        if old == FingerPower.OFF and state != FingerPower.OFF:
             link.powered_up()
-            self._event(finger, EVENT_POWERED)
-        elif old != 0 and state == 0:
+            self._event(finger, FingerEvent.POWERED)
+        elif old != FingerPower.OFF and state == FingerPower.OFF:
             link.powered_down()
-            self._event(finger, EVENT_UNPOWERED)
+            self._event(finger, FingerEvent.UNPOWERED)
 
     def power_states(self) -> list[int]:
-        """The power state of every finger (0 off, 1 low, 2 full)."""
+        """The power state (FingerPower code) of every finger."""
         return [link.power for link in self.links]
 
     # --- polling and breakaway -------------------------------------------------------------
@@ -294,9 +292,9 @@ class PalmApp(HandNode):
     def _poll(self) -> None:
         period_us = 1_000_000 // max(1, self.poll_hz)
         timeout_us = min(POLL_TIMEOUT_US, period_us * 4 // 5)
-        request = encode_frame(ADDR_FMCB, _STATUS.type_id, _STATUS.build_request())
+        request = _STATUS.request_frame(ADDR_FMCB)
         for link in self.links:
-            if link.power == 0 or not link.idle:
+            if link.power == FingerPower.OFF or not link.idle:
                 continue  # a routed transaction owns the link: skip, not a miss
 
             def done(frame: Frame | None, status: int, link: FingerLink = link) -> None:
@@ -306,8 +304,8 @@ class PalmApp(HandNode):
 
     def _poll_done(self, link: FingerLink, frame: Frame | None, status: int) -> None:
         if frame is None:
-            if status == ROUTE_NO_REPLY and link.missed():
-                self._event(link.index, EVENT_LOST)
+            if status == RouteStatus.NO_REPLY and link.missed():
+                self._event(link.index, FingerEvent.LOST)
             return
         try:
             fields = _STATUS.parse_reply(frame.payload)
@@ -317,7 +315,7 @@ class PalmApp(HandNode):
             pass  # it answered, so it is there; its status is not usable
         if link.answered():
             link.cap_sent = FULL_CAP  # a finger that broke away may have rebooted
-            self._event(link.index, EVENT_RETURNED)
+            self._event(link.index, FingerEvent.RETURNED)
         if link.cap_sent != self.governor.cap:
             self._send_cap(link)
 
@@ -371,18 +369,9 @@ class PalmApp(HandNode):
 
     def _send_cap(self, link: FingerLink) -> None:
         cap = self.governor.cap
-        frame = encode_frame(ADDR_FMCB, _EFFORT_CAP.type_id, _EFFORT_CAP.build_request(cap=cap))
+        frame = _EFFORT_CAP.request_frame(ADDR_FMCB, cap=cap)
         link.post(frame, key=_EFFORT_CAP.type_id)
         link.cap_sent = cap
 
 
-__all__ = [
-    "PalmApp",
-    "CanLink",
-    "ROUTE_OK",
-    "ROUTE_NO_REPLY",
-    "ROUTE_UNPOWERED",
-    "ROUTE_BAD_DESTINATION",
-    "ROUTE_LINK_DOWN",
-    "ROUTE_BUSY",
-]
+__all__ = ["PalmApp", "CanLink"]

@@ -4,7 +4,7 @@ The original motherboard kept one transmit slot per finger and overwrote it when
 sent again before the finger had answered.  Here each finger's pogo UART is a
 :class:`FingerLink`: a :class:`Transaction` (a frame to write, the reply type it waits for,
 a timeout) is either in flight, waiting in a queue of at most :data:`QUEUE_DEPTH`, or
-refused (:data:`ROUTE_BUSY`).  Nothing already accepted is ever overwritten or reordered.
+refused (``RouteStatus.BUSY``).  Nothing already accepted is ever overwritten or reordered.
 
 Replies are matched as the fmcb sends them: a frame to the host address (0) whose type is
 the request's.  A late reply to a transaction that timed out, arriving while a new one of the
@@ -30,17 +30,19 @@ from typing import Final
 
 from firmware_py.hal import Clock, Timer, Uart
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_BROADCAST, ADDR_FMCB, ADDR_HOST, OVERHEAD, Frame, encode_frame
+from protocol.framing import OVERHEAD, Frame
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.messages.palm import FingerPower, RouteStatus
 from protocol.stream import StreamDecoder, decode_all
-
-ROUTE_OK: Final = 0
-ROUTE_NO_REPLY: Final = 1
-ROUTE_UNPOWERED: Final = 2
-ROUTE_BAD_DESTINATION: Final = 3
-ROUTE_LINK_DOWN: Final = 4
-ROUTE_BUSY: Final = 5
+from protocol.topology import (
+    ADDR_BROADCAST,
+    ADDR_FMCB,
+    ADDR_HOST,
+    HOP_NODE,
+    Hop,
+    wire_time_us,
+)
 
 #: Transactions that may wait behind the one in flight, per finger.
 QUEUE_DEPTH: Final = 4
@@ -52,15 +54,9 @@ FMCB_TURNAROUND_US: Final = 500
 LINK_GAP_US: Final = 10_000
 
 _TUNNEL = CATALOGUE.by_name("fmcb.tunnel")
-_HOP_NODE = {0: "fmcb", 1: "f2", 2: "f3"}
 
 DoneCallback = Callable[[Frame | None, int], None]
 """Called once per transaction with the reply frame (or None) and a route status code."""
-
-
-def wire_time_us(n_bytes: int, baud: int) -> int:
-    """Time ``n_bytes`` UART characters (10 bits each) take on the line (µs, rounded up)."""
-    return -(-n_bytes * 10 * 1_000_000 // baud)
 
 
 @dataclass
@@ -95,7 +91,7 @@ class FingerLink:
         self._posted: dict[int, bytes] = {}
         self._decoder = StreamDecoder(gap_s=LINK_GAP_US / 1e6)
         # What the palm knows of the finger.
-        self.power = 0
+        self.power: int = FingerPower.OFF
         self.present = False
         self.ever_seen = False
         self.lost = False
@@ -158,15 +154,15 @@ class FingerLink:
             if not self.queue:
                 return
             txn = self.queue.popleft()
-            if self.power == 0:
-                txn.on_done(None, ROUTE_UNPOWERED)
+            if self.power == FingerPower.OFF:
+                txn.on_done(None, RouteStatus.UNPOWERED)
                 continue
             if self.lost and txn.kind == "route":
-                txn.on_done(None, ROUTE_LINK_DOWN)
+                txn.on_done(None, RouteStatus.LINK_DOWN)
                 continue
             self.uart.send(txn.frame)
             if txn.expect_type is None:
-                txn.on_done(None, ROUTE_OK)
+                txn.on_done(None, RouteStatus.OK)
                 continue
             self.in_flight = txn
             txn.timer = self.clock.call_later(txn.timeout_us, self._timeout_of(txn))
@@ -175,7 +171,7 @@ class FingerLink:
         def expire() -> None:
             if self.in_flight is txn:
                 self.timeouts += 1
-                self._finish(None, ROUTE_NO_REPLY)
+                self._finish(None, RouteStatus.NO_REPLY)
 
         return expire
 
@@ -193,7 +189,7 @@ class FingerLink:
         for frame in self._decoder.feed(data, t_us / 1e6):
             txn = self.in_flight
             if txn is not None and frame.address == ADDR_HOST and frame.type == txn.expect_type:
-                self._finish(frame, ROUTE_OK)
+                self._finish(frame, RouteStatus.OK)
             else:
                 self.stray_frames += 1
 
@@ -210,7 +206,7 @@ class FingerLink:
 
     def powered_down(self) -> None:
         """The finger was switched off: everything waiting for it ends as unpowered."""
-        self.abort_all(ROUTE_UNPOWERED)
+        self.abort_all(RouteStatus.UNPOWERED)
         self.powered_up()
 
     def answered(self) -> bool:
@@ -243,7 +239,7 @@ def _expects_reply(hop: int, inner: Frame) -> bool:
     """True if the node behind ``hop`` answers ``inner`` (per the catalogue)."""
     if inner.address == ADDR_BROADCAST:
         return False
-    msg = CATALOGUE.lookup(_HOP_NODE[hop], inner.type)
+    msg = CATALOGUE.lookup(HOP_NODE[Hop(hop)], inner.type)
     return msg is None or msg.reply is not None
 
 
@@ -268,7 +264,7 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
     carries at most :data:`TUNNEL_MAX` bytes).
     """
     wants = timeout_ms > 0 and _expects_reply(hop, inner)
-    if hop == 0:
+    if hop == Hop.FMCB:
         def hop0_done(frame: Frame | None, status: int) -> None:
             respond(status, frame.to_bytes() if frame is not None else b"")
 
@@ -277,8 +273,7 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
         return None
     request_bytes = OVERHEAD + 4 + len(raw)  # u16 length, u16 max_ms, data
     max_ms = tunnel_max_ms(timeout_ms, request_bytes, baud) if wants else 0
-    frame = encode_frame(ADDR_FMCB, _TUNNEL.type_id,
-                         _TUNNEL.build_request(data=raw, max_ms=max_ms))
+    frame = _TUNNEL.request_frame(ADDR_FMCB, data=raw, max_ms=max_ms)
     # With no reply wanted the palm still waits for the fmcb's (empty) tunnel answer, so that
     # answer cannot be mistaken for the next tunnel's.
     wait_us = timeout_ms * 1000 if wants else (
@@ -291,12 +286,12 @@ def route_transaction(hop: int, inner: Frame, raw: bytes, timeout_ms: int, baud:
         try:
             heard = _TUNNEL.parse_reply(reply.payload)["data"]
         except ProtocolError:
-            respond(ROUTE_NO_REPLY, b"")
+            respond(RouteStatus.NO_REPLY, b"")
             return
         answers = [f for f in decode_all(heard) if f.address == ADDR_HOST]
         if answers:
-            respond(ROUTE_OK, answers[0].to_bytes())
+            respond(RouteStatus.OK, answers[0].to_bytes())
         else:
-            respond(ROUTE_NO_REPLY if wants else ROUTE_OK, b"")
+            respond(RouteStatus.NO_REPLY if wants else RouteStatus.OK, b"")
 
     return Transaction(frame, _TUNNEL.type_id, wait_us, tunnel_done)

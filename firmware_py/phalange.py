@@ -35,8 +35,9 @@ from typing import Any, Final, Protocol
 from firmware_py.errors import HalError
 from firmware_py.hal import Hal, Timer, Uart
 from firmware_py.hand_node import HandNode, Request
-from protocol.framing import ADDR_HOST, encode_frame
+from protocol.framing import encode_frame
 from protocol.messages.phalange import F2_TAXELS, F3_TAXELS
+from protocol.topology import ADDR_HOST
 
 #: Delay between the end of a request and the start of the reply (µs): the master's
 #: RS-485 driver must be off the line before the slave's turns on.

@@ -41,6 +41,7 @@ from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
 from protocol.control_tables import RX64_TABLE, Register
 from protocol.dynamixel import RX64_RPM_PER_UNIT, ErrorBit
+from protocol.robot import RX64_POSITION_UNITS, RX64_RANGE_DEG
 
 #: Control tick period (µs): 1 kHz.
 TICK_US = 1_000
@@ -49,7 +50,7 @@ OVERLOAD_MS = 200
 #: Half period of the alarm LED blink (ticks).
 LED_BLINK_TICKS = 250
 #: Position units per second per moving-speed unit (0.111 rpm = 0.666 deg/s; 300/1024 deg).
-UNITS_PER_S_PER_SPEED = RX64_RPM_PER_UNIT * 6.0 * 1024 / 300
+UNITS_PER_S_PER_SPEED = RX64_RPM_PER_UNIT * 6.0 * RX64_POSITION_UNITS / RX64_RANGE_DEG
 #: Window over which present_speed is measured (ticks).
 SPEED_WINDOW = 10
 _CW_BIT = 0x400

@@ -114,6 +114,35 @@ class Scheduler:
         self._now = max(self._now, t_us)
         return ran
 
+    def run_some(self, t_us: int, max_events: int) -> int:
+        """Like :meth:`run_until`, but stop after ``max_events`` callbacks.
+
+        Time becomes ``t_us`` only when every event due by then has run; otherwise it stays
+        at the last event run, and a later call carries on from there.  A real-time runner
+        uses it to look at its ports and its stop flag during a long catch-up.  Returns the
+        number of callbacks run (``max_events`` means there may be more).
+        """
+        ran = 0
+        queue = self._queue
+        pop, push, seq = heapq.heappop, heapq.heappush, self._seq
+        while ran < max_events and queue and queue[0][0] <= t_us:
+            when, _, ev = pop(queue)
+            cb = ev.callback
+            if cb is None:
+                continue
+            self._now = when
+            if ev.period_us:
+                ev.t_us = when + ev.period_us
+                ev.seq = next(seq)
+                push(queue, (ev.t_us, ev.seq, ev))
+            else:
+                ev.callback = None
+            cb()
+            ran += 1
+        if ran < max_events:
+            self._now = max(self._now, t_us)
+        return ran
+
     def run_for(self, duration_us: int) -> int:
         """Run for ``duration_us`` µs of simulation time."""
         return self.run_until(self._now + int(duration_us))

@@ -45,8 +45,14 @@ from typing import Final
 
 import numpy as np
 
-from hil_emulator.arm_model import STEPPER_REDUCTIONS
 from hil_emulator.errors import EmulatorConfigError
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
+    STEPPER_FULL_STEPS_PER_REV,
+    STEPPER_MICROSTEPPING,
+    STEPPER_REDUCTIONS,
+)
 
 #: Electrical period of a two-phase hybrid stepper: 4 full steps.
 FULL_STEPS_PER_ELECTRICAL_PERIOD: Final = 4
@@ -80,9 +86,9 @@ class ArmParams:
     ``holding_current = run_current`` gives the dissertation's 1.6 margin at standstill.
     """
 
-    #: Coupling stiffness (N·m/rad): the elbow's is the dissertation's 86; the shoulder's
-    #: makes 15 g at the outstretched wrist move the J2 encoder by about a count.
-    stiffness: np.ndarray = field(default_factory=lambda: _vec((160.0, 200.0, 110.0, 86.0)))
+    #: Coupling stiffness (N·m/rad), :data:`protocol.robot.SERIES_ELASTIC_STIFFNESS_NM_PER_RAD`.
+    stiffness: np.ndarray = field(
+        default_factory=lambda: _vec(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD))
     #: Viscous damping of the polyurethane (N·m·s/rad): damping ratio ~0.04 for J2 and the
     #: elbow, more for the lighter J1/J3 loads.
     damping: np.ndarray = field(default_factory=lambda: _vec((0.8, 1.2, 0.25, 0.2)))
@@ -105,8 +111,8 @@ class ArmParams:
     #: Holding torque over maximum moving (pull-out) torque at the same current.
     holding_margin: float = 1.6
     #: Motor full steps per rev and the drivers' microstepping (the nodes' EEPROM values).
-    full_steps_per_rev: int = 200
-    microstepping: int = 16
+    full_steps_per_rev: int = STEPPER_FULL_STEPS_PER_REV
+    microstepping: int = STEPPER_MICROSTEPPING
     #: On re-locking after a slip the rotor settles 0..this many electrical periods further on
     #: in the slip's direction (random, as long as the coupling stays within capacity).
     slip_overshoot_periods: int = 2
@@ -115,7 +121,7 @@ class ArmParams:
     #: Joint encoders: counts per joint revolution (0.036°), and the joint angle (rad, in the
     #: model's joint coordinates) of each index mark: a few degrees from the default start
     #: pose (0): +3.4°, +4.0°, −2.9°, +4.6°.
-    encoder_counts_per_rev: int = 10_000
+    encoder_counts_per_rev: int = ARM_ENCODER_COUNTS_PER_REV
     index_angles: np.ndarray = field(default_factory=lambda: _vec((0.06, 0.07, -0.05, 0.08)))
     #: Stepper windings: phase resistance (Ω); driver/winding thermal resistance (K/W) and
     #: capacity (J/K), for the ``temperature`` sensor (0.1 °C); supply (mV).

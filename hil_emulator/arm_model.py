@@ -59,31 +59,27 @@ import mujoco
 import numpy as np
 
 from hil_emulator.errors import EmulatorConfigError
+from protocol.robot import (
+    ARM_JOINT_AXES,
+    ARM_JOINT_LIMITS,
+    ARM_JOINT_NAMES,
+)
 
 Vec3 = tuple[float, float, float]
 
-#: Joint names (without prefix), proximal first.  J1–J4 are stepper-driven series-elastic
-#: joints (bus IDs 1–4), J5–J7 RX-64 servos (bus IDs 5–7).
-ARM_JOINTS: Final = ("J1", "J2", "J3", "J4", "J5", "J6", "J7")
-#: Effective reductions (motor revs per joint rev) of J1–J4: timing belt × cable circuit.
-STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
-#: The RX-64's potentiometer range: 300° (rad), centred on joint angle 0.
-RX64_RANGE_RAD: Final = math.radians(300.0)
+#: Joint names (without prefix), proximal first (:data:`protocol.robot.ARM_JOINT_NAMES`).
+#: J1–J4 are stepper-driven series-elastic joints, J5–J7 RX-64 servos.
+ARM_JOINTS: Final = ARM_JOINT_NAMES
 #: The kinematic zero: hanging straight down (rad).
 DEFAULT_START_POSE: Final = (0.0,) * 7
 #: Height of the base plate above the floor (m) at which the hanging arm with a hand of
 #: ~0.2 m clears the floor by ~10 cm.
 MOUNT_HEIGHT_M: Final = 1.0
 
-#: Joint axes in each joint's body frame.
-JOINT_AXES: Final[tuple[Vec3, ...]] = (
-    (0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0),
-    (0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0))
-#: Joint ranges (rad): the mechanical stops.  J2 has about 180° of motion (hanging slightly
-#: backwards to nearly straight up); the RX-64 joints stop just inside the pot's ±150°.
-JOINT_RANGES: Final = (
-    (-2.97, 2.97), (-0.35, 2.80), (-2.62, 2.62), (-0.35, 2.60),
-    (-2.60, 2.60), (-2.60, 2.60), (-2.60, 2.60))
+#: Joint axes in each joint's body frame (:data:`protocol.robot.ARM_JOINT_AXES`).
+JOINT_AXES: Final = ARM_JOINT_AXES
+#: Joint ranges (rad): the mechanical stops (:data:`protocol.robot.ARM_JOINT_LIMITS`).
+JOINT_RANGES: Final = ARM_JOINT_LIMITS
 
 # --- geometry (m) ----------------------------------------------------------------------------
 BASE_TO_LINK1: Final = 0.16     # base plate → link 1 frame (on the J1 axis)

@@ -7,30 +7,34 @@ seven nodes' HALs (bus IDs 1–4: :class:`~firmware_py.arm_stepper.StepperNodeAp
 
 Stepper joints J1–J4, every 1 ms tick (:meth:`ArmPlant.before_step`):
 
-* rotor angle at the joint = ``stepper._exact()`` microsteps × ``2π / (200·16·G)`` plus the
-  whole electrical periods it has slipped (``G`` = :attr:`ArmParams.reductions`, which must
-  equal the node's ``gear_reduction_x100 / 100``); positive steps turn the joint positive;
+* rotor angle at the joint = the stepper's exact position (``position_steps()``, microsteps)
+  × ``2π / (200·16·G)`` plus the whole electrical periods it has slipped
+  (``G`` = :attr:`ArmParams.reductions`, which must equal the node's
+  ``gear_reduction_x100 / 100``); positive steps turn the joint positive;
 * capstan angle ``φ`` adds the belt/cable coupling ``C·(q − q_start)``; the linear spring is
   MuJoCo joint stiffness about ``qpos_spring = φ`` (re-set every tick to its mid-tick value,
-  evaluated every 0.5 ms), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
+  evaluated once per 1 ms step), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
   applied; hysteresis, solid-tube and ``−Cᵀτ`` terms are applied forces;
-* the stepper's capacity follows its commanded current (``stepper.current``, mA): holding
+* the stepper's capacity follows its commanded current (``commanded_current_ma()``): holding
   torque at standstill, holding / 1.6 while stepping, the detent torque at 0 mA.  Beyond it
   the rotor slips by whole electrical periods (plus a random 0–2 more) until the torque is
   within capacity; :meth:`ArmPlant.slips` counts slip events of an energised motor (slips
   less than :attr:`ArmParams.slip_event_gap_s` apart are one event).  An unpowered rotor
   simply follows the spring (detent torque only); that is not counted.
 
-After the physics (:meth:`ArmPlant.after_step`) each joint encoder's ``value`` is the joint
-angle since power-up in counts (10 000 per rev, count 0 at the start pose) and
-``pulse_index()`` fires when the joint crosses its index angle (:attr:`ArmParams.index_angles`,
-either direction), with ``value`` at that moment the count of the index angle itself.
+After the physics (:meth:`ArmPlant.after_step`) each joint encoder's count is the joint
+angle since power-up in counts (10 000 per rev, count 0 at the start pose) and the index
+pulse fires when the joint crosses its index angle (:attr:`ArmParams.index_angles`, either
+direction), at the count of the index angle itself.
 
-RX-64 joints J5–J7: with ``motor.enabled``, torque ``stall·clip(duty − ω/ω₀, ±1)`` (duty from
+The plant touches the nodes only through the HAL's plant side
+(:mod:`firmware_py.sim.virtual_hal`).
+
+RX-64 joints J5–J7: with the bridge enabled, torque ``stall·clip(duty − ω/ω₀, ±1)`` (duty from
 the firmware, + = counter-clockwise = positive joint angle); sensors ``pot`` (0..1023 over
 300°, 512 at joint angle 0, Gaussian noise :attr:`ArmParams.pot_noise_units`), ``load``
 (applied torque in 1/1023 of stall, signed), ``temperature`` (0.1 °C, I²R model),
-``supply_mv``; ``motor.current`` (mA).
+``supply_mv``; the motor current (mA).
 
 Temperatures (stepper drivers and RX-64s) are refreshed every
 :attr:`ArmParams.thermal_every_ticks` ticks (10 ms by default); everything else every tick.
@@ -48,23 +52,24 @@ each joint's constants come in one tuple.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Final
 
 import mujoco
 import numpy as np
 
-from firmware_py.virtual_hal import VirtualEncoder, VirtualHal
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
-from hil_emulator.arm_model import ARM_JOINTS, RX64_RANGE_RAD
+from hil_emulator.arm_model import ARM_JOINTS
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import TICK_US
+from protocol.robot import RX64_POSITION_CENTRE, RX64_UNITS_PER_RAD
 
 __all__ = ["ArmParams", "ArmPlant", "POT_CENTRE", "POT_UNITS_PER_RAD"]
 
 #: RX-64 potentiometer: counts at joint angle 0, and counts per rad (1024 over 300°).
-POT_CENTRE: Final = 512
-POT_UNITS_PER_RAD: Final = 1024 / RX64_RANGE_RAD
+POT_CENTRE: Final = RX64_POSITION_CENTRE
+POT_UNITS_PER_RAD: Final = RX64_UNITS_PER_RAD
 #: Ticks of potentiometer noise drawn at once.
 NOISE_BLOCK_TICKS: Final = 1000
 _N_STEPPERS: Final = 4
@@ -103,9 +108,9 @@ class ArmPlant:
         self.rng = rng
         self._steppers = [h.stepper() for h in stepper_hals]
         self._encoders = [h.encoder() for h in stepper_hals]
-        self._stepper_sensors = [h.sensors.values for h in stepper_hals]
+        self._stepper_sensors = [h.sensors for h in stepper_hals]
         self._motors = [h.motor(0) for h in servo_hals]
-        self._servo_sensors = [h.sensors.values for h in servo_hals]
+        self._servo_sensors = [h.sensors for h in servo_hals]
         # Per-stepper constants (J1..J4) as Python floats for the tick.
         self._k = _floats(p.stiffness)
         self._c = _floats(p.damping)
@@ -123,12 +128,14 @@ class ArmPlant:
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
         self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
-        #: Per stepper, the tick's constants in one tuple (one unpacking per joint per tick);
-        #: the coupling terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
+        #: Per stepper, the tick's constants and its plant side (exact position, commanded
+        #: rate and current) in one tuple (one unpacking per joint per tick); the coupling
+        #: terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
         self._stepper_rows = [
-            (i, self._steppers[i], self._microstep[i], self._c_rows[i], self._k[i], self._c[i],
-             self._h[i], self._travel[i], self._k_solid[i], self._hold_per_ma[i], self._detent[i])
-            for i in _STEPPERS]
+            (i, s.position_steps, s.commanded_rate, s.commanded_current_ma, self._microstep[i],
+             self._c_rows[i], self._k[i], self._c[i], self._h[i], self._travel[i],
+             self._k_solid[i], self._hold_per_ma[i], self._detent[i])
+            for i, s in enumerate(self._steppers)]
         self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
                          for i, cij in column]
         self._pot_per_rad = float(POT_UNITS_PER_RAD)
@@ -137,9 +144,15 @@ class ArmPlant:
         self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
         self._amps_per_nm = p.rx64_stall_current_a / self._stall
         self._load_scale = 1023.0 / self._stall
-        self._servo_rows = [(s, self._servo_sensors[s], self._motors[s]) for s in _SERVOS]
-        #: Per encoder (set in bind): joint, encoder, start angle, index angle, index count.
-        self._encoder_rows: list[tuple[int, VirtualEncoder, float, float, int]] = []
+        #: Per servo: its pot, load and current inputs.
+        self._servo_rows = [(s, self._servo_sensors[s].set_pot, self._servo_sensors[s].set_load,
+                             self._motors[s].set_current_ma) for s in _SERVOS]
+        #: Per servo: bridge enabled and commanded duty.
+        self._servo_commands = [(m.bridge_enabled, m.commanded_duty) for m in self._motors]
+        #: Per encoder (set in bind): joint, set_count, pulse_index, start angle, index angle,
+        #: index count.
+        self._encoder_rows: list[tuple[int, Callable[[int], None], Callable[[int], None],
+                                       float, float, int]] = []
         # Physical state (set in bind).
         self._q_start = [0.0] * 7
         self._phi_offset = [0.0] * _N_STEPPERS
@@ -225,12 +238,13 @@ class ArmPlant:
         self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
         cpr = self._counts_per_rad
         self._encoder_rows = [
-            (i, self._encoders[i], self._q_start[i], self._index[i],
-             math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5)) for i in _STEPPERS]
+            (i, self._encoders[i].set_count, self._encoders[i].pulse_index, self._q_start[i],
+             self._index[i], math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5))
+            for i in _STEPPERS]
         for sensors in self._stepper_sensors:
-            sensors["supply_mv"] = p.stepper_supply_mv
+            sensors.set_supply_mv(p.stepper_supply_mv)
         for sensors in self._servo_sensors:
-            sensors["supply_mv"] = p.rx64_supply_mv
+            sensors.set_supply_mv(p.rx64_supply_mv)
         self._bound = True
         self._write_encoders(self._q_start, index=False)
         self._write_servo_sensors(self._q_start)
@@ -259,7 +273,8 @@ class ArmPlant:
 
     def holding_torques(self) -> np.ndarray:
         """What each stepper resists now before slipping (N·m at the joint)."""
-        return np.array([self._capacity(i, float(s.current), s.rate != 0.0)
+        return np.array([self._capacity(i, float(s.commanded_current_ma()),
+                                        s.commanded_rate() != 0.0)
                          for i, s in enumerate(self._steppers)])
 
     def slips(self) -> np.ndarray:
@@ -300,11 +315,11 @@ class ArmPlant:
         torques = self._coupling_torque
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
-        for i, stepper, micro, row, k, c, h, travel, k_solid, hold_per_ma, detent in (
-                self._stepper_rows):
-            rate = stepper.rate
-            current = float(stepper.current)
-            phi = phi_offset[i] + stepper._exact() * micro + slip_rad[i]
+        for (i, position_steps, commanded_rate, commanded_current, micro, row, k, c, h, travel,
+             k_solid, hold_per_ma, detent) in self._stepper_rows:
+            rate = commanded_rate()
+            current = float(commanded_current())
+            phi = phi_offset[i] + position_steps() * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
             for j, cij in row:
@@ -355,11 +370,11 @@ class ArmPlant:
         stall, emf, enabled_now = self._stall, self._emf, self._servo_enabled
         inv_noload, amps_per_nm = self._inv_noload, self._amps_per_nm
         servo_torque, heat = self._servo_torque, self._heat_servo
-        for s, motor in enumerate(self._motors):
-            enabled = motor.enabled
+        for s, (bridge_enabled, commanded_duty) in enumerate(self._servo_commands):
+            enabled = bridge_enabled()
             omega = qd[4 + s]
             if enabled:
-                drive = motor.duty - omega * inv_noload
+                drive = commanded_duty() - omega * inv_noload
                 drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
                 forces[4 + s] = drive + emf * omega + push[4 + s]
             else:
@@ -382,15 +397,14 @@ class ArmPlant:
         q = self._q_mv.tolist()
         # The encoders (as _write_encoders with index pulses), inlined for the tick.
         cpr, floor, above_index = self._counts_per_rad, math.floor, self._above_index
-        for i, encoder, q0, index_q, index_count in self._encoder_rows:
+        for i, set_count, pulse_index, q0, index_q, index_count in self._encoder_rows:
             qi = q[i]
             count = floor((qi - q0) * cpr + 0.5)
             above = qi >= index_q
             if above != above_index[i]:
                 above_index[i] = above
-                encoder.value = index_count
-                encoder.pulse_index()
-            encoder.value = count
+                pulse_index(index_count)
+            set_count(count)
         # The servos (as _write_servo_sensors).
         if self._noise_at >= len(self._noise):
             self._draw_pot_noise()
@@ -399,17 +413,17 @@ class ArmPlant:
         self._noise_at = at + _N_SERVOS
         pot_per_rad, scale, amps_per_nm = self._pot_per_rad, self._load_scale, self._amps_per_nm
         servo_torque = self._servo_torque
-        for s, sensors, motor in self._servo_rows:
+        for s, set_pot, set_load, set_current in self._servo_rows:
             pot = round(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
-            sensors["pot"] = 0 if pot < 0 else 1023 if pot > 1023 else pot
+            set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
             torque = servo_torque[s]
             if torque:
                 load = round(torque * scale)
-                sensors["load"] = -1023 if load < -1023 else 1023 if load > 1023 else load
-                motor.current = round(abs(torque) * amps_per_nm * 1000.0)
+                set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
+                set_current(round(abs(torque) * amps_per_nm * 1000.0))
             else:
-                sensors["load"] = 0
-                motor.current = 0
+                set_load(0)
+                set_current(0)
         every = self.params.thermal_every_ticks
         if self._ticks % every == 0:
             self._update_temperatures(every * dt_s)
@@ -423,11 +437,11 @@ class ArmPlant:
 
     def _rotor_command(self) -> np.ndarray:
         """Commanded rotor angles at the joints (rad) from the step generators."""
-        return np.array([s._exact() * m for s, m in zip(self._steppers, self._microstep,
-                                                         strict=True)])
+        return np.array([s.position_steps() * m for s, m in zip(self._steppers, self._microstep,
+                                                                 strict=True)])
 
     def _capstan(self, i: int, q: list[float]) -> float:
-        phi = (self._phi_offset[i] + self._steppers[i]._exact() * self._microstep[i]
+        phi = (self._phi_offset[i] + self._steppers[i].position_steps() * self._microstep[i]
                + self._slip_rad[i])
         for j, cij in self._c_rows[i]:
             phi += cij * (q[j] - self._q_start[j])
@@ -502,9 +516,8 @@ class ArmPlant:
             if above != self._above_index[i]:
                 self._above_index[i] = above
                 if index:
-                    encoder.value = math.floor((self._index[i] - q_start[i]) * cpr + 0.5)
-                    encoder.pulse_index()
-            encoder.value = count
+                    encoder.pulse_index(math.floor((self._index[i] - q_start[i]) * cpr + 0.5))
+            encoder.set_count(count)
 
     def _draw_pot_noise(self) -> None:
         """The next :data:`NOISE_BLOCK_TICKS` ticks of potentiometer noise (units)."""
@@ -521,10 +534,10 @@ class ArmPlant:
         scale = self._load_scale
         for s, sensors in enumerate(self._servo_sensors):
             pot = round(POT_CENTRE + q[4 + s] * self._pot_per_rad + noise[at + s])
-            sensors["pot"] = 0 if pot < 0 else 1023 if pot > 1023 else pot
+            sensors.set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
             torque = self._servo_torque[s]
-            sensors["load"] = max(-1023, min(1023, round(torque * scale)))
-            self._motors[s].current = round(abs(torque) * self._amps_per_nm * 1000.0)
+            sensors.set_load(max(-1023, min(1023, round(torque * scale))))
+            self._motors[s].set_current_ma(round(abs(torque) * self._amps_per_nm * 1000.0))
 
     def _update_temperatures(self, span_s: float) -> None:
         """First-order I²R thermal models over ``span_s`` seconds (mean I² of the span)."""
@@ -546,9 +559,9 @@ class ArmPlant:
 
     def _write_temperatures(self) -> None:
         for sensors, t in zip(self._stepper_sensors, self._stepper_temp, strict=True):
-            sensors["temperature"] = round(t * 10)
+            sensors.set_temperature(round(t * 10))
         for sensors, t in zip(self._servo_sensors, self._servo_temp, strict=True):
-            sensors["temperature"] = round(t * 10)
+            sensors.set_temperature(round(t * 10))
 
 
 def _beyond(deflection: float, travel: float) -> float:

@@ -1,7 +1,8 @@
 """The arm's seven bus nodes on one half-duplex RS-485 line, and the host's adapter on it.
 
 IDs 1–4 are the series-elastic stepper joints (:class:`~firmware_py.arm_stepper.StepperNodeApp`,
-each programmed at the factory with its joint's reduction: 6, 10, 13, 13), IDs 5–7 the RX-64
+each programmed at the factory with its joint's reduction,
+:data:`protocol.robot.STEPPER_REDUCTIONS`), IDs 5–7 the RX-64
 servos (:class:`~firmware_py.rx64.Rx64ServoApp`).  All share one
 :class:`~hil_emulator.rs485_bus.Rs485Bus` at 1 Mbaud with the host's USB–RS-485 adapter, so
 a host frame and a node's reply occupy the same line, take its wire time, and collide when
@@ -12,20 +13,16 @@ from __future__ import annotations
 
 from typing import Final
 
-from firmware_py.dynamixel_slave import DynamixelSlave, make_arm_node
+from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal, VirtualUart
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
+from protocol.robot import STEPPER_REDUCTIONS, reduction_x100
+from protocol.topology import ARM_BUS_BAUD, SERVO_IDS, STEPPER_IDS
 
-#: Bus IDs of the stepper joints (J1–J4) and of the RX-64 servos (J5–J7).
-STEPPER_IDS: Final = (1, 2, 3, 4)
-SERVO_IDS: Final = (5, 6, 7)
-#: Effective reductions of the stepper joints (motor revs per joint rev), as on the arm.
-STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
-#: The arm bus's bit rate (bit/s).
-ARM_BAUD: Final = 1_000_000
 #: Time from the last bit of a frame to the receivers having it (µs): transceiver delay.
 ARM_TURNAROUND_US: Final = 2
 
@@ -38,14 +35,14 @@ class ArmRig(HostSide):
     """
 
     def __init__(self, scheduler: Scheduler | None = None, seed: int = 0,
-                 baud: int = ARM_BAUD) -> None:
+                 baud: int = ARM_BUS_BAUD) -> None:
         super().__init__(scheduler or Scheduler())
         self.bus = Rs485Bus(self.scheduler, baud=baud, turnaround_us=ARM_TURNAROUND_US,
                             seed=seed)
         self.nodes: dict[int, tuple[VirtualHal, DynamixelSlave]] = {}
         for dxl_id, reduction in zip(STEPPER_IDS, STEPPER_REDUCTIONS, strict=True):
             hal, app = make_arm_node(self.scheduler, BoardType.ARM_STEPPER, dxl_id)
-            value = round(reduction * 100)
+            value = reduction_x100(reduction)
             app.factory["gear_reduction_x100"] = value  # what the factory programmed
             app.set("gear_reduction_x100", value)
             self._attach(dxl_id, hal, app)

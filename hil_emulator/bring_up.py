@@ -16,27 +16,26 @@ from typing import Any, Final
 
 from firmware_py.mcu import Mcu
 from hil_emulator.errors import EmulatorError
-from protocol.framing import encode_frame
 from protocol.messages import CATALOGUE
+from protocol.messages.palm import FingerPower
+from protocol.topology import ADDR_PALM, HOP_ADDRESS, Hop
 
 #: Time a hand node needs from power-up to its application (µs): the 3 s autoboot window.
 BOOT_US: Final = 3_300_000
 #: Stagger between fingers when the palm switches them all on (ms).
 STAGGER_MS: Final = 5
-#: The palm's (and every fmcb's) bus address.
-NODE_ADDRESS: Final = 10
 
 
 def request(name: str, **fields: Any) -> bytes:
-    """A hand frame carrying request ``name`` to address 10."""
-    msg = CATALOGUE[name]
-    return encode_frame(NODE_ADDRESS, msg.type_id, msg.build_request(fields))
+    """A hand frame carrying request ``name`` to the palm (or a loose finger's fmcb: the
+    same address)."""
+    return CATALOGUE[name].request_frame(ADDR_PALM, fields)
 
 
 def routed(finger: int, name: str, **fields: Any) -> bytes:
     """``palm.route`` carrying request ``name`` to finger ``finger``'s fmcb."""
-    return request("palm.route", finger=finger, hop=0, timeout_ms=20,
-                   frame=request(name, **fields))
+    return request("palm.route", finger=finger, hop=Hop.FMCB, timeout_ms=20,
+                   frame=CATALOGUE[name].request_frame(HOP_ADDRESS[Hop.FMCB], fields))
 
 
 def bring_up(hand: Any | None, loose: Any | None, step: Callable[[int], None],
@@ -46,7 +45,7 @@ def bring_up(hand: Any | None, loose: Any | None, step: Callable[[int], None],
     not running its application afterwards."""
     if hand is not None:
         step(BOOT_US)
-        hand.send_from_host(request("palm.finger_power", finger=0xFF, state=2,
+        hand.send_from_host(request("palm.finger_power", finger=0xFF, state=FingerPower.FULL,
                                     stagger_ms=STAGGER_MS))
         step(BOOT_US + 4 * STAGGER_MS * 1000)
         for finger in range(len(hand.fingers)):

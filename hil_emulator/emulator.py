@@ -8,7 +8,7 @@
 ``loose-finger``  one finger module on a bench, its pogo bus on a 2 Mbaud port (the
                   original's 'loose finger' cable): ``fingers[0]``.
 
-Every node runs its real ``firmware_py`` program on a :class:`~firmware_py.virtual_hal.VirtualHal`
+Every node runs its real ``firmware_py`` program on a :class:`~firmware_py.sim.virtual_hal.VirtualHal`
 driven by one :class:`~firmware_py.scheduler.Scheduler` (integer µs); the plant
 (:mod:`hil_emulator.plant`) ticks on the same clock.  :meth:`Emulator.run` serves the ports
 either paced to the wall clock (``realtime=True``: programs with wall-clock timeouts work) or
@@ -19,7 +19,6 @@ A ``seed`` makes a run repeatable: same seed, same inputs → same frames, same 
 from __future__ import annotations
 
 import gc
-import math
 import os
 import select
 import threading
@@ -40,8 +39,23 @@ from hil_emulator.plant import Plant, PlantPart, new_spec
 
 #: The configurations :class:`Emulator` can build.
 CONFIGS: Final = ("full", "hand", "arm", "loose-finger")
-#: Longest the real-time loop sleeps without looking at its ports (s).
-MAX_SLEEP_S: Final = 0.002
+#: Longest the real-time loop sleeps without looking at its stop flag (s); host input and
+#: signals wake it earlier.
+MAX_SLEEP_S: Final = 0.02
+#: The real-time loop sleeps until this long before the next event and polls from there
+#: (s): a sleeper is woken up to a few hundred µs late.
+SPIN_S: Final = 0.0003
+#: Events run between looks at the wall clock and the stop flag while catching up.
+CATCH_UP_EVENTS: Final = 100
+#: Longest the real-time loop runs events before it serves the ports again (s).
+CATCH_UP_BUDGET_S: Final = 0.005
+#: Lateness (ms) from which the runner says it cannot keep up (once per episode).
+LATE_WARN_MS: Final = 5.0
+#: An episode of lateness ends after this long (s) with every event on time (within 1 ms).
+LATE_EPISODE_END_S: Final = 1.0
+#: Further behind than this (s), the simulation clock slips instead of replaying the lost
+#: wall time in a burst: the simulation runs slower than the wall clock, replies stay prompt.
+MAX_BEHIND_S: Final = 0.02
 #: Height of the hand's stand in the ``hand`` configuration (m); the palm faces up.
 STAND_Z_M: Final = 0.4
 #: Lateness samples kept for :meth:`Emulator.lateness_stats`.
@@ -98,12 +112,19 @@ class Emulator:
         self.lateness_s: deque[float] = deque(maxlen=LATENESS_SAMPLES)
         self._wall0 = 0.0
         self._sim0 = 0
+        self._last_input_us = 0
         self._realtime = False
         self._closed = False
-        #: Real time: poll instead of sleeping between events.  Sleeping costs no CPU, but
-        #: a woken process is often a millisecond or more late; polling keeps delivery
-        #: lateness well under a millisecond at the price of one busy core.
-        self.spin = True
+        #: Real time: how long before an event the loop stops sleeping and polls (s).
+        self.spin_s = SPIN_S
+        #: Told (one line of text) when the real-time loop starts to fall behind and when
+        #: it has caught up; the ``hil-emulator`` command prints it on standard error.
+        self.on_late: Callable[[str], None] | None = None
+        self.late_episodes = 0  #: episodes of lateness beyond :data:`LATE_WARN_MS`
+        self.slipped_s = 0.0  #: wall time (s) the simulation clock gave up to keep up
+        self._episode_worst_ms = 0.0
+        self._episode_last_late = 0.0
+        self._in_episode = False
         # Supplies on: the palm and the loose finger start their bootloaders; arm nodes run.
         if self.hand is not None:
             self.hand.power_on()
@@ -167,7 +188,8 @@ class Emulator:
             elif self.can_mode != "none":
                 raise EmulatorConfigError(f"unknown CAN mode {self.can_mode!r}")
         if self.arm is not None:
-            arm = SerialLink("arm", self.arm.bus.baud, self.arm.send_from_host)
+            arm = SerialLink("arm", self.arm.bus.baud, self.arm.send_from_host,
+                             self.scheduler.now_us)
             self.arm.on_host_bytes = arm.emit
             self.links["arm"] = arm
         if self.loose is not None:
@@ -177,6 +199,8 @@ class Emulator:
         for link in self.links.values():
             link.on_emit = self._record_lateness
             link.schedule_input = self._schedule_input
+            if isinstance(link, SerialLink | SlcanLink):
+                link.input_clock = self._input_time_us
         self.link_paths: dict[str, str] = {}
         if link_dir is not None:
             for name, link in self.links.items():
@@ -217,6 +241,14 @@ class Emulator:
         left as it powers up, torque off (see :mod:`hil_emulator.bring_up`)."""
         bring_up(self.hand, self.loose, self.step, autopoll)
 
+    def transport(self, link: str) -> Any:
+        """A :class:`host.transport.Transport` for host code in this process on link
+        ``link`` (``palm``, ``arm``, ``finger0``), on the simulation clock (fast lockstep);
+        see :mod:`hil_emulator.inprocess`."""
+        from hil_emulator.inprocess import EmulatorTransport
+
+        return EmulatorTransport(self, link)
+
     # ------------------------------------------------------------------ faults
     def break_away(self, finger: int) -> None:
         """Finger ``finger`` leaves its pogo pins (overload): no link, no power, motors
@@ -252,33 +284,73 @@ class Emulator:
     def _poll_links(self) -> int:
         return sum(link.poll() for link in self.links.values())
 
-    def _schedule_input(self, apply: Callable[[], None]) -> None:
-        """Host input enters the simulation at the time matching the wall clock now (real
-        time), or at the simulation's current time (fast, in-process)."""
+    def _wall_us(self, wall_s: float) -> int:
+        """The simulation time (µs) matching monotonic wall time ``wall_s`` (real time)."""
+        return self._sim0 + int((wall_s - self._wall0) * 1e6)
+
+    def _input_time_us(self) -> int:
+        """When host input read now enters the simulation (µs): the time matching the wall
+        clock (real time, never before earlier input), or the current time (fast)."""
         if self._realtime:
-            now_us = self._sim0 + int((time.monotonic() - self._wall0) * 1e6)
-            self.scheduler.call_at(now_us, apply)
+            t = max(self._wall_us(time.monotonic()), self._last_input_us,
+                    self.scheduler.now_us())
+            self._last_input_us = t
+            return t
+        return self.scheduler.now_us()
+
+    def _schedule_input(self, apply: Callable[[], None]) -> None:
+        """Host input enters the simulation at :meth:`_input_time_us` (in fast mode and
+        in-process: at once)."""
+        if self._realtime:
+            self.scheduler.call_at(self._input_time_us(), apply)
         else:
             apply()
 
     def _record_lateness(self, t_us: int) -> None:
         if self._realtime:
-            due = self._wall0 + (t_us - self._sim0) / 1e6
-            self.lateness_s.append(time.monotonic() - due)
+            now = time.monotonic()
+            late_s = now - (self._wall0 + (t_us - self._sim0) / 1e6)
+            self.lateness_s.append(late_s)
+            self._note_lateness(late_s * 1e3, now)
+
+    def _note_lateness(self, late_ms: float, now: float) -> None:
+        """Track episodes of lateness; tell :attr:`on_late` when one starts and ends."""
+        if late_ms > 1.0:
+            self._episode_last_late = now
+        if late_ms > LATE_WARN_MS and not self._in_episode:
+            self._in_episode = True
+            self._episode_worst_ms = late_ms
+            self.late_episodes += 1
+            if self.on_late is not None:
+                self.on_late(f"cannot keep up with the wall clock: {late_ms:.1f} ms late "
+                             "(is the machine busy?); replies arrive late")
+        elif self._in_episode:
+            self._episode_worst_ms = max(self._episode_worst_ms, late_ms)
+            if now - self._episode_last_late > LATE_EPISODE_END_S:
+                self._in_episode = False
+                if self.on_late is not None:
+                    self.on_late(f"on time again; at worst {self._episode_worst_ms:.1f} ms "
+                                 f"late, {self.slipped_s:.3f} s given up in all")
 
     def run(self, stop: threading.Event, realtime: bool = True,
             on_idle: Callable[[], None] | None = None, fast_chunk_us: int = 1_000) -> None:
         """Serve the ports until ``stop`` is set.
 
-        Real time: simulation time follows the wall clock; between events the loop sleeps
-        on the ports' descriptors.  Fast: the simulation runs ``fast_chunk_us`` at a time
-        as fast as it can, polling the ports between chunks.  ``on_idle`` is called about
-        every 16 ms of wall time (the viewer's sync)."""
+        Real time: simulation time follows the wall clock.  Between events the loop sleeps
+        on the ports' descriptors until :attr:`spin_s` before the next event (host input
+        wakes it), then polls.  Catching up, it runs at most :data:`CATCH_UP_BUDGET_S` of
+        events before serving the ports and looking at ``stop`` again; more than
+        :data:`MAX_BEHIND_S` behind, the simulation clock slips (:attr:`slipped_s`).
+        Fast: the simulation runs ``fast_chunk_us`` at a time as fast as it can, polling the
+        ports between chunks.  ``on_idle`` is called about every 16 ms of wall time (the
+        viewer's sync)."""
         self._realtime = realtime
         self._wall0 = time.monotonic()
         self._sim0 = self.scheduler.now_us()
+        self._last_input_us = self._sim0
         fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]
         next_idle = self._wall0
+        scheduler = self.scheduler
         while not stop.is_set():
             now = time.monotonic()
             if on_idle is not None and now >= next_idle:
@@ -288,26 +360,48 @@ class Emulator:
                 self.step(fast_chunk_us)
                 continue
             self._poll_links()  # input is scheduled at the simulation time of "now"
-            target = self._sim0 + int((time.monotonic() - self._wall0) * 1e6)
-            self.scheduler.run_until(target)
-            due = self.scheduler.next_due_us()
-            wait = MAX_SLEEP_S if due is None else (due - self._sim0) / 1e6 - (
-                time.monotonic() - self._wall0)
-            wait = min(max(wait, 0.0), MAX_SLEEP_S)
-            if self.spin:
-                continue  # the OS wakes sleepers milliseconds late: keep the core instead
-            if wait > 0.0 and fds:
-                select.select(fds, [], [], wait)
-            elif wait > 0.0:
-                time.sleep(wait)
+            now = time.monotonic()
+            target = self._wall_us(now)
+            deadline = now + CATCH_UP_BUDGET_S
+            while scheduler.run_some(target, CATCH_UP_EVENTS) == CATCH_UP_EVENTS:
+                if stop.is_set() or time.monotonic() >= deadline:
+                    break
+            now = time.monotonic()
+            now_us = self._wall_us(now)
+            due = scheduler.next_due_us()
+            if due is not None and due < now_us:  # behind: serve the ports, then go on
+                behind_us = now_us - due
+                self._note_lateness(behind_us / 1e3, now)
+                if behind_us > MAX_BEHIND_S * 1e6:
+                    self._wall0 += behind_us / 1e6
+                    self.slipped_s += behind_us / 1e6
+                continue
+            self._note_lateness(0.0, now)
+            wait = MAX_SLEEP_S if due is None else min((due - now_us) / 1e6, MAX_SLEEP_S)
+            if wait <= self.spin_s:
+                continue  # the next event is close: poll for it
+            if fds:
+                select.select(fds, [], [], wait - self.spin_s)
+            else:
+                time.sleep(wait - self.spin_s)
 
-    def lateness_stats(self) -> dict[str, float]:
-        """Real-time delivery lateness (ms): count, median, p99, max."""
-        if not self.lateness_s:
-            return {"count": 0, "p50_ms": math.nan, "p99_ms": math.nan, "max_ms": math.nan}
-        values = np.asarray(self.lateness_s) * 1e3
-        return {"count": float(values.size), "p50_ms": float(np.percentile(values, 50)),
-                "p99_ms": float(np.percentile(values, 99)), "max_ms": float(values.max())}
+    def lateness_stats(self) -> dict[str, float | None]:
+        """Real-time delivery lateness (ms): count, median, p99, max (None before any
+        delivery), with the episodes of lateness and the wall time the clock gave up."""
+        out: dict[str, float | None] = {"count": float(len(self.lateness_s)), "p50_ms": None,
+                                        "p99_ms": None, "max_ms": None}
+        if self.lateness_s:
+            values = np.asarray(self.lateness_s) * 1e3
+            out.update(p50_ms=float(np.percentile(values, 50)),
+                       p99_ms=float(np.percentile(values, 99)), max_ms=float(values.max()))
+        out["late_episodes"] = float(self.late_episodes)
+        out["slipped_s"] = self.slipped_s
+        return out
+
+    def link_stats(self) -> dict[str, dict[str, int]]:
+        """Per port: bytes in and out, host input lost to overrun, output the host did not
+        read, the longest input queue (µs)."""
+        return {name: link.stats() for name, link in self.links.items()}
 
     # ------------------------------------------------------------------ teardown
     def close(self) -> None:

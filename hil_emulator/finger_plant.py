@@ -3,8 +3,9 @@
 A :class:`FingerPlant` connects a finger module of :mod:`hil_emulator.hand_model` to its
 three boards (fmcb, f2, f3):
 
-- **Motors** (every tick).  ``before_step`` reads each fmcb motor's ``duty``, ``enabled``
-  and ``brake`` and sets the motor actuator's ``data.ctrl`` (the duty, −1..1): *drive*
+- **Motors** (every tick).  ``before_step`` reads each fmcb motor's commanded duty, bridge
+  enable and brake (the HAL's plant side, :mod:`firmware_py.sim.virtual_hal`, which is all
+  the plant touches) and sets the motor actuator's ``data.ctrl`` (the duty, −1..1): *drive*
   (enabled) applies duty·V; *brake* shorts the winding (duty 0, back-EMF damping only);
   *coast* (not enabled, board unpowered, or finger detached) opens the bridge — no current,
   the actuator's back-EMF bias is switched off in ``model.actuator_biasprm``.  The motor
@@ -13,9 +14,9 @@ three boards (fmcb, f2, f3):
   MuJoCo's actuator on the motor tendon (see :mod:`hil_emulator.hand_model`), i.e.
   ``τ_joint = M_radᵀ τ_motor``; the limit is the actuator's force range, set per duty sign.
 - **Halls and currents** (every tick).  ``after_step`` computes each motor shaft angle
-  ``θ_m = M_rad·q`` (rad) and writes ``motor.hall = HALL_SEQUENCE[⌊θ_m·K + φ⌋ mod 6]``
+  ``θ_m = M_rad·q`` (rad) and sets the hall state ``HALL_SEQUENCE[⌊θ_m·K + φ⌋ mod 6]``
   (φ a seeded random rotor phase at power-up, in hall states), so positive duty → hall
-  count rising, exactly :mod:`firmware_py.fmcb_control`'s convention; ``motor.current`` is
+  count rising, exactly :mod:`protocol.robot`'s convention; the motor current is
   the *signed* winding current in mA (the fmcb never reads it; the palm's supply model can
   sum magnitudes via :meth:`FingerPlant.motor_currents_a`).
 - **IMUs, tactile, strain** (every ``sensor_period_ticks`` ticks, default 10 ms, staggered
@@ -42,9 +43,8 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.fmcb_control import HALL_SEQUENCE, HALL_STATES_PER_RAD
 from firmware_py.mcu import Mcu
-from firmware_py.virtual_hal import VirtualHal, VirtualMotor
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualMotor, VirtualSensors
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.hand_model import (
     DEFAULT_MOTOR,
@@ -71,6 +71,7 @@ from hil_emulator.hand_sensors import (
     taxel_forces,
     thermistor_counts,
 )
+from protocol.robot import HALL_SEQUENCE, HALL_STATES_PER_RAD
 
 _DRIVE, _BRAKE, _COAST = 0, 1, 2
 #: Where :meth:`FingerPlant.press` pushes: the pad centre (m, body frame) of each segment.
@@ -146,18 +147,21 @@ class FingerPlant:
         self.fmcb, self.f2, self.f3 = fmcb, f2, f3
         self.rng = rng
         self.attached = True
-        self._motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
-        if len(self._motors) != 3:
+        motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
+        if len(motors) != 3:
             raise PlantError("an fmcb drives three motors")
-        self._fmcb_values = _virtual_hal(fmcb, "fmcb").sensors.values
-        self._f2_values = _virtual_hal(f2, "f2").sensors.values
-        self._f3_values = _virtual_hal(f3, "f3").sensors.values
+        #: Per motor, its plant side bound once: braking, bridge enabled, commanded duty.
+        self._motor_rows = [(m.braking, m.bridge_enabled, m.commanded_duty) for m in motors]
+        self._fmcb_sensors: VirtualSensors = _virtual_hal(fmcb, "fmcb").sensors
+        self._f2_sensors: VirtualSensors = _virtual_hal(f2, "f2").sensors
+        self._f3_sensors: VirtualSensors = _virtual_hal(f3, "f3").sensors
         #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
         self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
         self._m_rad = motor_coupling_rad()
-        #: Per motor: its VirtualMotor, its row of M_rad, its hall phase.
-        self._hall_rows = [(m, float(row[0]), float(row[1]), float(row[2]), phase)
-                           for m, row, phase in zip(self._motors, self._m_rad, self.hall_phase,
+        #: Per motor: its hall state and current inputs, its row of M_rad, its hall phase.
+        self._hall_rows = [(m.set_hall_state, m.set_current_ma, float(row[0]), float(row[1]),
+                            float(row[2]), phase)
+                           for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
                                                     strict=True)]
         self._mode = [_COAST, _COAST, _COAST]
         self._duty = [0.0, 0.0, 0.0]
@@ -180,10 +184,6 @@ class FingerPlant:
         self.thermal = WindingThermal(3, p.ambient_c, p.thermal_resistance_k_per_w,
                                       p.thermal_time_constant_s)
         self.tip_temperature_c = p.ambient_c
-        self._temperature_keys = [f"temperature{i}" for i in range(3)]
-        self._thermistor_keys = [f"thermistor{k}" for k in range(4)]
-        self._f2_taxel_keys = [f"taxel{k}" for k in range(len(F2_TAXELS))]
-        self._f3_taxel_keys = [f"taxel{k}" for k in range(len(F3_TAXELS))]
         self._f2_taxels_xy = np.array(F2_TAXELS)
         self._f3_taxels_xy = np.array(F3_TAXELS)
         n2, n3 = len(F2_TAXELS), len(F3_TAXELS)
@@ -206,7 +206,7 @@ class FingerPlant:
         """Resolve the module's names; write :attr:`params`' motor constants into ``model``.
 
         Raises :class:`PlantError` if the model integrates with explicit Euler or RK4: the
-        motors' back-EMF damping (time constant ≈ 0.16 ms) diverges there at 0.5 ms steps.
+        motors' back-EMF damping (time constant ≈ 0.16 ms) diverges there even at 0.5 ms steps.
         """
         if model.opt.integrator not in (mujoco.mjtIntegrator.mjINT_IMPLICIT,
                                         mujoco.mjtIntegrator.mjINT_IMPLICITFAST):
@@ -264,18 +264,18 @@ class FingerPlant:
         powered = self.attached and self.fmcb.powered
         ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
         duties, written, copysign = self._duty, self._ctrl_written, math.copysign
-        for i, motor in enumerate(self._motors):
+        for i, (braking, bridge_enabled, commanded_duty) in enumerate(self._motor_rows):
             if not powered:
                 mode = _COAST
-            elif motor.brake:
+            elif braking():
                 mode = _BRAKE
-            elif motor.enabled:
+            elif bridge_enabled():
                 mode = _DRIVE
             else:
                 mode = _COAST
             if mode != modes[i]:
                 self._set_mode(i, mode)
-            duty = motor.duty if mode == _DRIVE else 0.0
+            duty = commanded_duty() if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
             if sign != signs[i]:
                 self._set_drive_sign(i, sign)
@@ -312,8 +312,8 @@ class FingerPlant:
         v, ke, r, lim = self._electrical
         currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
-        for i, (m, a0, a1, a2, phase) in enumerate(self._hall_rows):
-            m.hall = sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
+        for i, (set_hall, set_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
+            set_hall(sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6])
             if modes[i] == _COAST:
                 current = 0.0
             else:
@@ -325,7 +325,7 @@ class FingerPlant:
                     current = -lim
             currents[i] = current
             i2[i] += current * current
-            m.current = round(current * 1000.0)
+            set_current(round(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:
@@ -430,18 +430,18 @@ class FingerPlant:
             self._taxels_loaded = True
         noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size + 1)
         counts = self._counts.counts(self._raw, self._noise_counts)
-        fmcb, f2_values, f3_values = self._fmcb_values, self._f2_values, self._f3_values
-        fmcb["accel"] = (counts[0], counts[1], counts[2])
-        fmcb["mag"] = (counts[3], counts[4], counts[5])
-        f2_values["accel"] = (counts[6], counts[7], counts[8])
-        f2_values["mag"] = (counts[9], counts[10], counts[11])
-        f3_values["accel"] = (counts[12], counts[13], counts[14])
-        f3_values["mag"] = (counts[15], counts[16], counts[17])
+        fmcb_in, f2_in, f3_in = self._fmcb_sensors, self._f2_sensors, self._f3_sensors
+        fmcb_in.set_accel(counts[0], counts[1], counts[2])
+        fmcb_in.set_mag(counts[3], counts[4], counts[5])
+        f2_in.set_accel(counts[6], counts[7], counts[8])
+        f2_in.set_mag(counts[9], counts[10], counts[11])
+        f3_in.set_accel(counts[12], counts[13], counts[14])
+        f3_in.set_mag(counts[15], counts[16], counts[17])
         n2 = self._n_f2
-        f2_values.update(zip(self._f2_taxel_keys, counts[18:18 + n2], strict=True))
-        f3_values.update(zip(self._f3_taxel_keys, counts[18 + n2:], strict=True))
+        f2_in.set_taxels(counts[18:18 + n2])
+        f3_in.set_taxels(counts[18 + n2:])
         moment = self.gauge_moment_nm(loads[0])
-        f2_values["strain"] = strain_counts(moment, p.strain_noise_counts * noise.item(-1))
+        f2_in.set_strain(strain_counts(moment, p.strain_noise_counts * noise.item(-1)))
 
     def gauge_moment_nm(self, f2_loads: np.ndarray | None = None) -> float:
         """Bending moment at the F2 gauge about F2's flexion axis (N·m), + for palmar loads.
@@ -480,15 +480,12 @@ class FingerPlant:
         self._write_temperatures()
 
     def _write_temperatures(self) -> None:
-        values = self._fmcb_values
-        for key, t in zip(self._temperature_keys, self.thermal.temperature_c, strict=True):
-            values[key] = round(t * 10.0)
+        self._fmcb_sensors.set_temperatures([round(t * 10.0) for t in self.thermal.temperature_c])
         noise = self.rng.standard_normal(4).tolist()
         sigma = self.params.thermistor_noise_counts
         ideal = thermistor_counts(self.tip_temperature_c)
-        values = self._f3_values
-        for key, n in zip(self._thermistor_keys, noise, strict=True):
-            values[key] = max(0, min(0xFFFF, round(ideal + sigma * n)))
+        self._f3_sensors.set_thermistors(
+            [max(0, min(0xFFFF, round(ideal + sigma * n))) for n in noise])
 
 
 #: The palm's taxels are further apart (11 × 20 mm) than the fingers' (≈ 9 mm): a wider
@@ -525,8 +522,7 @@ class PalmPlant:
         self.params = params or PalmParams()
         self.palm = palm
         self.rng = rng
-        self._values = _virtual_hal(palm, "palm").sensors.values
-        self._taxel_keys = [f"taxel{k}" for k in range(len(PALM_TAXELS))]
+        self._sensors: VirtualSensors = _virtual_hal(palm, "palm").sensors
         self._taxels_xy = np.array(PALM_TAXELS)
         self._sensor_countdown = 1 + _stagger(prefix + "palm", self.params.sensor_period_ticks)
         p = self.params
@@ -552,9 +548,8 @@ class PalmPlant:
             [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
         self._imu_view = _block_view(data.sensordata, self._imu_idx)
         self._pads = PadContacts(model, data, [pad])
-        for k in range(7):
-            self._values[f"temperature{k}"] = self.params.temperature_decic
-        self._values["supply_mv"] = self.params.supply_mv
+        self._sensors.set_temperatures([self.params.temperature_decic] * 7)
+        self._sensors.set_supply_mv(self.params.supply_mv)
         self._update_sensors()
 
     def before_step(self, dt_s: float) -> None:
@@ -581,8 +576,8 @@ class PalmPlant:
             self._taxels_loaded = False
         noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size)
         counts = self._counts.counts(self._raw, noise)
-        values = self._values
-        values["accel"] = (counts[0], counts[1], counts[2])
-        values["gyro"] = (counts[3], counts[4], counts[5])
-        values["mag"] = (counts[6], counts[7], counts[8])
-        values.update(zip(self._taxel_keys, counts[9:], strict=True))
+        sensors = self._sensors
+        sensors.set_accel(counts[0], counts[1], counts[2])
+        sensors.set_gyro(counts[3], counts[4], counts[5])
+        sensors.set_mag(counts[6], counts[7], counts[8])
+        sensors.set_taxels(counts[9:])

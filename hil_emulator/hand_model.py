@@ -16,8 +16,8 @@ Kinematics of a module: J1 (F0–F1) about ``+z`` (abduction / base rotation), J
 flexes the finger.  Joint order J1, J2, J3 is the firmware's J0, J1, J2.
 
 Motors: each of the three motors is a *fixed tendon* whose length is the motor shaft angle
-(rad) ``θ_m = M_rad · q`` with ``M_rad = M / K`` (the firmware's coupling matrix,
-:func:`firmware_py.fmcb_control.coupling_matrix`, over K = 36/2π hall states per rad).  The
+(rad) ``θ_m = M_rad · q`` with ``M_rad = M / K`` (the robot's coupling matrix,
+:func:`protocol.robot.finger_coupling_matrix`, over K = 36/2π hall states per rad).  The
 tendon carries the rotor inertia as tendon *armature* (so the reflected inertia is the full
 ``M_radᵀ J_rotor M_rad``) and the motor-side friction as tendon *frictionloss*; a general
 actuator on the tendon (``ctrl`` = PWM duty, −1..1) produces the motor torque
@@ -47,8 +47,15 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.fmcb_control import HALL_STATES_PER_RAD, coupling_matrix
 from hil_emulator.errors import EmulatorConfigError
+from protocol.robot import (
+    DEFAULT_HAND_LAYOUT,
+    FINGER_JOINT_AXES,
+    FINGER_JOINT_STOPS,
+    HAND_LAYOUTS,
+    PALM_HALF_EXTENTS_M,
+    finger_coupling_matrix_rad,
+)
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -61,7 +68,7 @@ OBJECT_CONTYPE: Final = 1
 OBJECT_CONAFFINITY: Final = 3
 
 # --- palm geometry (m, kg) ----------------------------------------------------------------------
-PALM_HALF: Final = (0.045, 0.050, 0.0125)
+PALM_HALF: Final = PALM_HALF_EXTENTS_M
 PALM_MASS_KG: Final = 0.30
 PAD_HALF_THICKNESS: Final = 0.0015
 PALM_PAD_Z: Final = PALM_HALF[2] + PAD_HALF_THICKNESS
@@ -86,8 +93,8 @@ F3_PAD_Z: Final = F3_HALF_THICK + PAD_HALF_THICKNESS
 #: The strain gauge sits at the middle of F2 (body frame, m).
 GAUGE_POS: Final = (F2_LENGTH / 2, 0.0, 0.0)
 #: Joint ranges of the model (rad): the mechanical stops, a little beyond the firmware's
-#: default ±1.57 rad limits.
-JOINT_RANGES: Final = ((-1.6, 1.6), (-1.6, 1.6), (-1.6, 1.8))
+#: default limits.
+JOINT_RANGES: Final = FINGER_JOINT_STOPS
 JOINT_DAMPING: Final = 0.002             # N·m·s/rad, bearing losses at each joint
 PAD_FRICTION: Final = (1.0, 0.005, 0.0001)
 #: Impedance of the motors' friction constraints: close to hard, so a gearbox at rest holds
@@ -161,7 +168,7 @@ DEFAULT_MOTOR: Final = MotorConstants()
 
 def motor_coupling_rad() -> np.ndarray:
     """``M_rad`` (3×3): motor shaft angles (rad) per joint angle (rad), ``θ_m = M_rad·q``."""
-    return coupling_matrix() / HALL_STATES_PER_RAD
+    return finger_coupling_matrix_rad()
 
 
 @dataclass(frozen=True)
@@ -267,38 +274,13 @@ class HandLayout:
                                       "not 4")
 
 
-_ALONG_Y = _quat_from_axes((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))     # fingers along +y, pads up
-_ALONG_MINUS_Y = _quat_from_axes((0.0, -1.0, 0.0), (0.0, 0.0, 1.0))
-_EDGE_Y: Final = PALM_HALF[1]
-
-#: The hand frames of figure 6.4 that this emulator provides (finger modules unchanged).
+#: The hand frames of :data:`protocol.robot.HAND_LAYOUTS`, as MuJoCo mounts.
 LAYOUTS: Final[dict[str, HandLayout]] = {
-    # Three parallel fingers on the distal edge; the thumb module stands up from the palmar
-    # face near the proximal corner, its pads facing the fingers (opposable).
-    "four-finger-thumb": HandLayout("four-finger-thumb", (
-        ((-0.030, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.000, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.030, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.030, -0.032, PALM_HALF[2] + 0.006),
-         _quat_from_axes((0.0, 0.0, 1.0), (-0.35, 1.0, 0.0))),
-    )),
-    # Three parallel fingers; the fourth module on the proximal edge's centre line, directly
-    # opposed to the middle finger (a three-against-one gripper).
-    "three-plus-opposed": HandLayout("three-plus-opposed", (
-        ((-0.030, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.000, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.030, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.000, -_EDGE_Y, 0.0), _ALONG_MINUS_Y),
-    )),
-    # Two fingers on each end, facing each other across the palm (symmetric gripper).
-    "two-by-two": HandLayout("two-by-two", (
-        ((-0.022, _EDGE_Y, 0.0), _ALONG_Y),
-        ((0.022, _EDGE_Y, 0.0), _ALONG_Y),
-        ((-0.022, -_EDGE_Y, 0.0), _ALONG_MINUS_Y),
-        ((0.022, -_EDGE_Y, 0.0), _ALONG_MINUS_Y),
-    )),
+    name: HandLayout(name, tuple((m.position_m, _quat_from_axes(m.x_axis, m.z_axis))
+                                 for m in layout.mounts))
+    for name, layout in HAND_LAYOUTS.items()
 }
-DEFAULT_LAYOUT: Final = "four-finger-thumb"
+DEFAULT_LAYOUT: Final = DEFAULT_HAND_LAYOUT
 
 
 # --- builders -----------------------------------------------------------------------------------
@@ -347,18 +329,18 @@ def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
     f0.add_site(name=names.imu_site("fmcb"), pos=[-F0_HALF[0], 0.0, 0.0])
 
     f1 = f0.add_body(name=names.body("F1"))
-    f1.add_joint(name=names.joint(0), type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0],
-                 range=_joint_range(spec, 0), limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-                 damping=JOINT_DAMPING)
+    f1.add_joint(name=names.joint(0), type=mujoco.mjtJoint.mjJNT_HINGE,
+                 axis=list(FINGER_JOINT_AXES[0]), range=_joint_range(spec, 0),
+                 limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=JOINT_DAMPING)
     _hand_geom(f1, f"{prefix}F1_link", (F1_LENGTH / 2, 0.0, 0.0),
                (F1_LENGTH / 2, 0.009, 0.009), F1_MASS_KG, _LINK_RGBA)
     _hand_geom(f1, names.pad("F1"), (F1_LENGTH / 2, 0.0, 0.009 + PAD_HALF_THICKNESS),
                (F1_LENGTH / 2 - 0.002, 0.008, PAD_HALF_THICKNESS), PAD_MASS_KG / 2, _PAD_RGBA)
 
     f2 = f1.add_body(name=names.body("F2"), pos=[F1_LENGTH, 0.0, 0.0])
-    f2.add_joint(name=names.joint(1), type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, -1.0, 0.0],
-                 range=_joint_range(spec, 1), limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-                 damping=JOINT_DAMPING)
+    f2.add_joint(name=names.joint(1), type=mujoco.mjtJoint.mjJNT_HINGE,
+                 axis=list(FINGER_JOINT_AXES[1]), range=_joint_range(spec, 1),
+                 limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=JOINT_DAMPING)
     _hand_geom(f2, f"{prefix}F2_link", (F2_LENGTH / 2, 0.0, 0.0),
                (F2_LENGTH / 2, F2_HALF_WIDTH, F2_HALF_THICK), F2_MASS_KG, _LINK_RGBA)
     _hand_geom(f2, names.pad("F2"), (F2_LENGTH / 2, 0.0, F2_PAD_Z),
@@ -368,9 +350,9 @@ def add_finger(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str,
     f2.add_site(name=names.gauge_site, pos=list(GAUGE_POS))
 
     f3 = f2.add_body(name=names.body("F3"), pos=[F2_LENGTH, 0.0, 0.0])
-    f3.add_joint(name=names.joint(2), type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, -1.0, 0.0],
-                 range=_joint_range(spec, 2), limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-                 damping=JOINT_DAMPING)
+    f3.add_joint(name=names.joint(2), type=mujoco.mjtJoint.mjJNT_HINGE,
+                 axis=list(FINGER_JOINT_AXES[2]), range=_joint_range(spec, 2),
+                 limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=JOINT_DAMPING)
     _hand_geom(f3, f"{prefix}F3_link", (F3_LENGTH / 2, 0.0, 0.0),
                (F3_LENGTH / 2, F3_HALF_WIDTH, F3_HALF_THICK), F3_MASS_KG, _LINK_RGBA)
     _hand_geom(f3, names.pad("F3"), (F3_LENGTH / 2, 0.0, F3_PAD_Z),

@@ -15,18 +15,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_py.boards import make_node
 from firmware_py.mcu import Mcu
 from firmware_py.phalange import HOLD_UP_US
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualCan, VirtualHal, VirtualUart
+from firmware_py.sim.boards import make_node
+from firmware_py.sim.virtual_hal import VirtualCan, VirtualHal, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType
+from protocol.topology import FINGERS, TENDON_BAUD, TENDON_MANCHESTER
 
-FINGERS = 4
-#: The tendon bus's data bit rate (bit/s); Manchester doubles the chip rate on the wire.
-TENDON_BAUD = 2_000_000
 #: Supply current of one running phalange board through the tendons (mA): MCU, IMU and
 #: taxel LEDs; the fmcb's phalange switch reports the sum (its breaker trips at 200 mA).
 PHALANGE_LOAD_MA = 35
@@ -197,7 +195,8 @@ def wire_tendon_bus(finger: Finger, line_model: bool, seed: int = 0) -> None:
     master = _hal(finger.fmcb).uart("tendon")
     phalanges = [_hal(finger.f2).uart("tendon"), _hal(finger.f3).uart("tendon")]
     if line_model:
-        bus = Rs485Bus(master.scheduler, baud=TENDON_BAUD, seed=seed, line_code="manchester")
+        bus = Rs485Bus(master.scheduler, baud=TENDON_BAUD, seed=seed,
+                       line_code="manchester" if TENDON_MANCHESTER else "nrz")
         bus.attach(master, "fmcb")
         bus.attach(phalanges[0], "f2")
         bus.attach(phalanges[1], "f3")
@@ -255,7 +254,7 @@ def wire_phalange_power(finger: Finger) -> None:
                 node.power_on()
             else:
                 node.power_off()
-        switch.load_ma = PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3))
+        switch.set_load_ma(PHALANGE_LOAD_MA * sum(n.powered for n in (finger.f2, finger.f3)))
 
     switch.on_change.append(switched)
 

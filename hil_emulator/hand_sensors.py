@@ -1,8 +1,8 @@
 """Sensor models of the hand's boards: IMUs, tactile pads, strain gauge, temperatures.
 
 Everything here turns physical quantities from the MuJoCo state into the integer counts the
-firmware reads from ``hal.sensors.values``; noise comes in as arrays of standard normal
-draws from the caller's seeded generator, so a run is repeatable.
+firmware reads (the plant writes them through the HAL's plant side); noise comes in as arrays
+of standard normal draws from the caller's seeded generator, so a run is repeatable.
 
 Conversions (chosen to match the real chips' orders of magnitude; documented, not measured):
 

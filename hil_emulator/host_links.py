@@ -12,17 +12,24 @@
 
 Each link reports, through ``on_emit``, the simulation time (µs) of every chunk it writes,
 so the real-time runner can measure how late delivery was.
+
+Host input is bounded like a real adapter's: a link takes from its pty only what its wire
+carries within :data:`INPUT_FIFO_US` of now (an :class:`InputFifo`); what a host writes
+beyond that is lost as a UART overrun would lose it, and counted (:attr:`InputFifo.overrun`,
+``--stats``).  However fast a host writes, memory stays flat and a request written after the
+flood is on the wire within :data:`INPUT_FIFO_US`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
-from firmware_py.virtual_hal import VirtualCan, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
 from hil_emulator.pty_port import PtyPort, make_link, remove_links
 from hil_emulator.slcan_adapter import SlcanAdapter
+from protocol.topology import wire_time_us
 
 EmitObserver = Callable[[int], None]
 #: How a link hands host input to the simulation: called with a thunk that applies it.  The
@@ -31,15 +38,54 @@ EmitObserver = Callable[[int], None]
 InputScheduler = Callable[[Callable[[], None]], None]
 
 
+#: Wire time of host input a link accepts ahead of its line (µs): a USB-serial adapter's
+#: small FIFO.  More is an overrun: those bytes (or SLCAN frames) are dropped and counted.
+INPUT_FIFO_US: Final = 5_000
+
+Clock = Callable[[], int]
+
+
 def _apply_now(apply: Callable[[], None]) -> None:
     apply()
+
+
+class InputFifo:
+    """How much wire time host input has claimed ahead of the simulation clock (µs).
+
+    :meth:`room_us` is what is left of :data:`INPUT_FIFO_US`; :meth:`claim` books wire time
+    for what was admitted; :attr:`overrun` counts what did not fit (bytes or frames);
+    :attr:`peak_us` is the longest queue seen.
+    """
+
+    def __init__(self, capacity_us: int = INPUT_FIFO_US) -> None:
+        self.capacity_us = capacity_us
+        self.free_us = 0  # when the wire has carried everything admitted so far
+        self.overrun = 0
+        self.peak_us = 0
+
+    def room_us(self, now_us: int) -> int:
+        """Wire time (µs) still free in the FIFO at ``now_us``."""
+        return self.capacity_us - max(0, self.free_us - now_us)
+
+    def claim(self, now_us: int, wire_us: int) -> None:
+        """Book ``wire_us`` µs of the line after what is queued."""
+        self.free_us = max(self.free_us, now_us) + wire_us
+        self.peak_us = max(self.peak_us, self.free_us - now_us)
+
+    def stats(self) -> dict[str, int]:
+        """``overrun`` (count) and ``queue_peak_us`` (µs), for ``--stats``."""
+        return {"overrun": self.overrun, "queue_peak_us": self.peak_us}
 
 
 class _PtyBacked:
     """Common life cycle of a link that owns a pty: open, symlink, close."""
 
-    def __init__(self, name: str, baud: int) -> None:
+    def __init__(self, name: str, baud: int, clock: Clock) -> None:
         self.name = name
+        #: Simulation time (µs) at which host input read now enters the line; the
+        #: real-time runner replaces it with its wall-clock mapping.
+        self.input_clock = clock
+        self.fifo = InputFifo()
         self.port = PtyPort(baud)
         try:
             self.port.open()
@@ -63,8 +109,9 @@ class _PtyBacked:
         try:
             made = make_link(link_dir, name or self.name, self.port)
         except OSError as exc:
-            raise PortError(f"cannot make the link {link_dir}/{name or self.name}: {exc}"
-                            ) from exc
+            reason = exc.strerror if exc.strerror and exc.filename else str(exc)
+            raise PortError(f"cannot make the link {name or self.name!r} in the link "
+                            f"directory {link_dir}: {reason}") from exc
         self._link_dir = link_dir
         return str(made)
 
@@ -83,19 +130,35 @@ class SerialLink(_PtyBacked):
     time); :meth:`emit` is the device side's sink (bytes, arrival time in µs).
     """
 
-    def __init__(self, name: str, baud: int, to_device: Callable[[bytes], None]) -> None:
-        super().__init__(name, baud)
+    def __init__(self, name: str, baud: int, to_device: Callable[[bytes], None],
+                 clock: Clock) -> None:
+        super().__init__(name, baud, clock)
         self._to_device = to_device
+        self._us_per_byte = wire_time_us(1_000_000, baud) / 1_000_000
         self.bytes_in = 0
         self.bytes_out = 0
 
     def poll(self) -> int:
-        """Move what the host wrote into the simulation; returns the byte count."""
+        """Move what the host wrote into the simulation, up to the FIFO's room (the rest is
+        an overrun); returns the byte count admitted."""
         data = self.port.read_available()
+        if not data:
+            return 0
+        now = self.input_clock()
+        fit = max(0, int(self.fifo.room_us(now) / self._us_per_byte))
+        if len(data) > fit:
+            self.fifo.overrun += len(data) - fit
+            data = data[:fit]
         if data:
+            self.fifo.claim(now, wire_time_us(len(data), self.port.baud))
             self.bytes_in += len(data)
             self.schedule_input(lambda: self._to_device(data))
         return len(data)
+
+    def stats(self) -> dict[str, int]:
+        """Byte counts and FIFO figures, for ``--stats``."""
+        return {"bytes_in": self.bytes_in, "bytes_out": self.bytes_out,
+                "dropped_out": self.port.dropped, **self.fifo.stats()}
 
     def emit(self, data: bytes, t_us: int) -> None:
         """A device's bytes, complete at simulation time ``t_us``, go to the host."""
@@ -112,7 +175,7 @@ class SerialLink(_PtyBacked):
         adapter = VirtualUart(device_uart.scheduler, device_uart.baud, name=f"{name}-host")
         adapter.keep_sent = False
         adapter.peer = device_uart
-        link = cls(name, device_uart.baud, adapter.send)
+        link = cls(name, device_uart.baud, adapter.send, device_uart.scheduler.now_us)
         device_uart.sink = link.emit
         return link
 
@@ -121,7 +184,7 @@ class SlcanLink(_PtyBacked):
     """The palm's CAN controller behind an emulated SLCAN adapter on a pty."""
 
     def __init__(self, name: str, can: VirtualCan) -> None:
-        super().__init__(name, 115_200)
+        super().__init__(name, 115_200, can.scheduler.now_us)
         self.adapter = SlcanAdapter(self.port)
         self._can = can
         can.sink = self._from_bus
@@ -132,11 +195,25 @@ class SlcanLink(_PtyBacked):
             self.on_emit(t_us)
 
     def poll(self) -> int:
-        """Handle the host's SLCAN commands; frames it transmits reach the bus now."""
+        """Handle the host's SLCAN commands; frames it transmits reach the bus now, as
+        many as the adapter's FIFO holds (the rest are an overrun)."""
         frames = self.adapter.poll()
+        if not frames:
+            return 0
+        now = self.input_clock()
+        fit = max(0, self.fifo.room_us(now) // VirtualCan.FRAME_US)
+        if len(frames) > fit:
+            self.fifo.overrun += len(frames) - fit
+            frames = frames[:fit]
         if frames:
+            self.fifo.claim(now, len(frames) * VirtualCan.FRAME_US)
             self.schedule_input(lambda: self._deliver(frames))
         return len(frames)
+
+    def stats(self) -> dict[str, int]:
+        """Adapter errors, bytes the host did not read, FIFO figures, for ``--stats``."""
+        return {"errors": self.adapter.errors, "dropped_out": self.port.dropped,
+                **self.fifo.stats()}
 
     def _deliver(self, frames: list[tuple[int, bytes]]) -> None:
         for arbitration_id, data in frames:
@@ -187,6 +264,10 @@ class VirtualCanLink:
     def fileno(self) -> int:
         """No descriptor to wait on (the runner polls it every loop)."""
         return -1
+
+    def stats(self) -> dict[str, int]:
+        """Nothing to count: the channel is in-process and unbounded by design."""
+        return {}
 
     def close(self) -> None:
         """Shut the python-can bus down (idempotent)."""

@@ -31,7 +31,7 @@ from hil_emulator.errors import PlantError
 
 #: Physics tick period (µs): parts exchange commands and sensors with the firmware at 1 kHz.
 TICK_US: Final = 1_000
-#: Default integration step (s) and substeps per tick (2 × 0.5 ms = 1 ms).
+#: Default integration step (s) and substeps per tick (one 1 ms step per 1 ms tick).
 DEFAULT_TIMESTEP_S: Final = 0.001
 DEFAULT_SUBSTEPS: Final = 1
 
@@ -50,7 +50,7 @@ class PlantPart(Protocol):
 
 
 def new_spec(name: str = "hil") -> mujoco.MjSpec:
-    """An empty world: 0.5 ms step, gravity −9.81 m/s² along z, a floor, a light."""
+    """An empty world: 1 ms step (implicitfast), gravity −9.81 m/s² along z, a floor, a light."""
     spec = mujoco.MjSpec()
     spec.modelname = name
     spec.option.timestep = DEFAULT_TIMESTEP_S

@@ -1,15 +1,18 @@
 """The emulator's end of a virtual serial port (a Linux pty).
 
 A client (pyserial, dynamixel-sdk, python-can's ``slcan``) opens :attr:`PtyPort.path`, the
-slave device; the emulator reads and writes the master end.  Notes (see
-``/work/shared/reference/anchors.md``):
+slave device; the emulator reads and writes the master end.  Notes:
 
 * both ends are put in raw mode right after creation;
 * the emulator keeps its own slave fd open, so reading the master never raises ``EIO`` when a
   client closes the port (dynamixel-sdk reopens it on every baud change);
 * a pty does not enforce a baud rate, so pacing is done here: :meth:`PtyPort.write_paced`
   computes when the bytes would have finished on a real line and :class:`PacedWriter` holds
-  bytes back and releases them as (injected) time passes.
+  bytes back and releases them as (injected) time passes;
+* a pty cannot refuse a second client: ``TIOCEXCL`` would also lock out the first one
+  (the emulator holds the slave open itself) and root ignores it.  Two programs that open
+  one port both receive part of its replies; ``serial.Serial(path, exclusive=True)`` in
+  every client (an advisory ``flock``) is how to make a second opener fail.
 """
 
 from __future__ import annotations
@@ -21,14 +24,17 @@ from collections import deque
 from pathlib import Path
 from types import TracebackType
 
-BITS_PER_BYTE = 10  # start + 8 data + stop
+from protocol.topology import BITS_PER_CHAR
+
+#: Most bytes :meth:`PtyPort.read_available` takes in one call (a pty holds about 20 kB).
+READ_LIMIT = 65_536
 
 
 def byte_time_s(baud: int) -> float:
-    """Seconds one byte occupies on a line at ``baud`` (10 bits per byte)."""
+    """Seconds one byte occupies on a line at ``baud`` (8N1: :data:`BITS_PER_CHAR` bits)."""
     if baud <= 0:
         raise ValueError(f"baud must be positive, got {baud}")
-    return BITS_PER_BYTE / baud
+    return BITS_PER_CHAR / baud
 
 
 class PtyPort:
@@ -106,13 +112,15 @@ class PtyPort:
         return self._master
 
     # -- I/O ---------------------------------------------------------------------------------
-    def read_available(self) -> bytes:
-        """Everything the client has written so far; ``b""`` when nothing (never blocks)."""
+    def read_available(self, max_bytes: int = READ_LIMIT) -> bytes:
+        """What the client has written so far, at most ``max_bytes``; ``b""`` when nothing
+        (never blocks).  The limit keeps one call short however fast a client writes."""
         fd = self._require_master()
         chunks: list[bytes] = []
-        while True:
+        left = max_bytes
+        while left > 0:
             try:
-                chunk = os.read(fd, 4096)
+                chunk = os.read(fd, min(4096, left))
             except BlockingIOError:
                 break
             except OSError as exc:
@@ -122,6 +130,7 @@ class PtyPort:
             if not chunk:
                 break
             chunks.append(chunk)
+            left -= len(chunk)
         return b"".join(chunks)
 
     def write(self, data: bytes) -> int:

@@ -1,9 +1,9 @@
 """A multidrop half-duplex RS-485 line on the simulation :class:`~firmware_py.scheduler.Scheduler`.
 
-Every node is a :class:`~firmware_py.virtual_hal.VirtualUart` handed to :meth:`Rs485Bus.attach`.
+Every node is a :class:`~firmware_py.sim.virtual_hal.VirtualUart` handed to :meth:`Rs485Bus.attach`.
 A frame a node sends occupies the line for its wire time (``bits_per_char`` x bytes / ``baud``;
 twice that with the Manchester line code) and reaches every *other* node, in one
-:meth:`~firmware_py.virtual_hal.VirtualUart.deliver` call per frame, ``turnaround_us`` after
+:meth:`~firmware_py.sim.virtual_hal.VirtualUart.deliver` call per frame, ``turnaround_us`` after
 its last bit.  Frames that overlap in time collide: every receiver gets garbage for both.
 
 Faults (all drawn from one seeded :class:`numpy.random.Generator`, so a run is repeatable):
@@ -33,8 +33,9 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import BITS_PER_CHAR, VirtualUart, line_delivers
+from firmware_py.sim.virtual_hal import VirtualUart, line_delivers
 from protocol import manchester
+from protocol.topology import BITS_PER_CHAR, wire_time_us
 
 __all__ = ["LineCode", "Rs485Bus", "Transmission"]
 
@@ -147,8 +148,8 @@ class Rs485Bus:
 
     def wire_time_us(self, n_bytes: int) -> int:
         """Time ``n_bytes`` occupy the line (µs, rounded up); doubled on a Manchester line."""
-        bits = n_bytes * self.bits_per_char * (2 if self.line_code == "manchester" else 1)
-        return -(-bits * 1_000_000 // self.baud)
+        return wire_time_us(n_bytes, self.baud, manchester=self.line_code == "manchester",
+                            bits_per_char=self.bits_per_char)
 
     @property
     def busy(self) -> bool:

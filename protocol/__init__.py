@@ -5,7 +5,8 @@
 - :mod:`protocol.messages`: the message catalogue (:data:`protocol.messages.CATALOGUE`)
 - :mod:`protocol.canlink`: hand frames on CAN
 - :mod:`protocol.dynamixel`, :mod:`protocol.control_tables`: the arm bus
-- :mod:`protocol.image`: firmware images
+- :mod:`protocol.image`: firmware images and the flash geometry
+- :mod:`protocol.robot`: the robot's mechanical facts (gearing, coupling, limits, layouts)
 - :mod:`protocol.errors`: the one exception tree (:class:`ProtocolError`)
 """
 

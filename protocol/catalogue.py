@@ -12,6 +12,7 @@ is generated from them by :mod:`protocol.docgen`.
 
 from __future__ import annotations
 
+import enum
 import hashlib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -19,13 +20,17 @@ from typing import Any, Final
 
 import construct as c
 
+from protocol.enum_field import EnumField
 from protocol.errors import PayloadError, UnknownMessageError, wrap_construct
 from protocol.flat_codec import FlatCodec, TailCodec, flat_codec, tail_codec
+from protocol.framing import encode_frame
+from protocol.topology import ADDR_HOST, NodeKind
 
-#: Node kinds that speak hand frames.  "common" messages are understood by all of them.
-NODES: Final = ("common", "palm", "fmcb", "f2", "f3", "bootloader")
+#: Message namespaces: every hand node kind (:class:`~protocol.topology.NodeKind`) and the
+#: bootloader they all run; "common" messages are understood by all of them.
+NODES: Final = ("common", *(kind.value for kind in NodeKind), "bootloader")
 #: Node kinds whose type ids fall back to the "common" ones.
-_FALLS_BACK_TO_COMMON: Final = frozenset({"palm", "fmcb", "f2", "f3", "bootloader"})
+_FALLS_BACK_TO_COMMON: Final = frozenset(NODES) - {"common"}
 
 REQUEST: Final = "request"
 REPLY: Final = "reply"
@@ -119,6 +124,16 @@ class Message:
     def build_reply(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
         """Reply payload bytes (node → host)."""
         return self.build(REPLY, fields, **kw)
+
+    def request_frame(self, address: int, fields: Mapping[str, Any] | None = None,
+                      **kw: Any) -> bytes:
+        """The whole hand frame carrying this request to ``address``: sync, address, length,
+        type, payload built from ``fields`` and/or keywords, CRC."""
+        return encode_frame(address, self.type_id, self.build(REQUEST, fields, **kw))
+
+    def reply_frame(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
+        """The whole hand frame carrying this reply to the host (address 0)."""
+        return encode_frame(ADDR_HOST, self.type_id, self.build(REPLY, fields, **kw))
 
     def parse_request(self, payload: bytes) -> dict[str, Any]:
         """Request payload → dict."""
@@ -240,16 +255,28 @@ def _expr(value: object) -> str:
     return "<callable>" if " at 0x" in text else text
 
 
+def _key(value: object) -> str:
+    """A Switch case key as text; an IntEnum member reads as its int (the wire value)."""
+    return repr(int(value)) if isinstance(value, enum.IntEnum) else repr(value)
+
+
 def _shape(con: c.Construct) -> str:
-    """Canonical, process-independent description of one construct and what it contains."""
+    """Canonical, process-independent description of one construct and what it contains.
+
+    An :class:`~protocol.enum_field.EnumField` is described as its integer: naming the codes
+    does not change the wire, so it does not change the fingerprint.
+    """
     con = _unrename(con)
+    while isinstance(con, EnumField):
+        con = _unrename(con.subcon)
     kind = type(con).__name__
     if isinstance(con, c.FormatField):
         return con.fmtstr
     if isinstance(con, c.Struct):
         return kind + "{" + ",".join(f"{n}:{_shape(s)}" for n, s, _ in iter_fields(con)) + "}"
     if isinstance(con, c.Switch):
-        cases = ",".join(f"{k!r}={_shape(v)}" for k, v in sorted(con.cases.items(), key=repr))
+        cases = ",".join(f"{_key(k)}={_shape(v)}"
+                         for k, v in sorted(con.cases.items(), key=lambda kv: _key(kv[0])))
         return f"{kind}({_expr(con.keyfunc)};{cases};default={_shape(con.default)})"
     parts = [f"{attr}={_expr(getattr(con, attr))}"
              for attr in ("count", "length", "encoding", "func", "pattern") if hasattr(con, attr)]

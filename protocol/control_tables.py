@@ -18,6 +18,14 @@ from typing import Literal
 
 from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    RX64_POSITION_MAX,
+    STEPPER_FULL_STEPS_PER_REV,
+    STEPPER_MICROSTEPPING,
+    STEPPER_REDUCTIONS,
+    reduction_x100,
+)
 
 Access = Literal["R", "RW"]
 Area = Literal["EEPROM", "RAM"]
@@ -261,8 +269,9 @@ RX64_TABLE = ControlTable("RX-64", 64, [
     _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
     _eeprom(4, 1, "RW", 34, "baud_rate", "bps = 2 000 000 / (value + 1)", 0, 254),
     _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
-    _eeprom(6, 2, "RW", 0, "cw_angle_limit", "position units (0.29 deg)", 0, 1023),
-    _eeprom(8, 2, "RW", 1023, "ccw_angle_limit", "position units (0.29 deg)", 0, 1023),
+    _eeprom(6, 2, "RW", 0, "cw_angle_limit", "position units (0.29 deg)", 0, RX64_POSITION_MAX),
+    _eeprom(8, 2, "RW", RX64_POSITION_MAX, "ccw_angle_limit", "position units (0.29 deg)", 0,
+            RX64_POSITION_MAX),
     _eeprom(11, 1, "RW", 80, "temperature_limit", "deg C"),
     _eeprom(12, 1, "RW", 60, "min_voltage_limit", "0.1 V"),
     _eeprom(13, 1, "RW", 190, "max_voltage_limit", "0.1 V"),
@@ -276,7 +285,8 @@ RX64_TABLE = ControlTable("RX-64", 64, [
     _ram(27, 1, "RW", 1, "ccw_compliance_margin", "position units"),
     _ram(28, 1, "RW", 32, "cw_compliance_slope", "position units"),
     _ram(29, 1, "RW", 32, "ccw_compliance_slope", "position units"),
-    _ram(30, 2, "RW", 0, "goal_position", "0..1023 over 300 deg (0.29 deg/unit)", 0, 1023),
+    _ram(30, 2, "RW", 0, "goal_position", "0..1023 over 300 deg (0.29 deg/unit)", 0,
+         RX64_POSITION_MAX),
     _ram(32, 2, "RW", 0, "moving_speed", "0.111 rpm/unit, 0 = maximum", 0, 1023),
     _ram(34, 2, "RW", 1023, "torque_limit", "1/1023 of maximum torque", 0, 1023),
     _ram(36, 2, "R", 0, "present_position", "0..1023 over 300 deg"),
@@ -314,9 +324,6 @@ class StepperClear(IntFlag):
 #: Model number of the arm stepper node: 0x5E50, "SE" (series-elastic) + 0x50 - chosen to
 #: stay clear of ROBOTIS model numbers (12, 18, 24, 28, 29, 64, 310, 320, 1020, ...).
 STEPPER_MODEL_NUMBER = 0x5E50
-#: Joint encoder counts per joint revolution (0.036 deg per count).
-STEPPER_ENCODER_COUNTS_PER_REV = 10_000
-
 _COUNTS = "joint encoder counts (0.036 deg)"
 
 #: The arm stepper node: a series-elastic joint driven by a stepper motor through a
@@ -334,9 +341,12 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
     _eeprom(4, 1, "RW", 1, "baud_rate", "bps = 2 000 000 / (value + 1); 1 = 1 Mbps", 0, 254),
     _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
-    _eeprom(6, 2, "RW", 600, "gear_reduction_x100", "motor revs per joint rev x 100", 100),
-    _eeprom(8, 2, "RW", 200, "steps_per_rev", "full steps per motor rev (200 = 1.8 deg)", 1),
-    _eeprom(10, 1, "RW", 16, "microstepping", "microsteps per full step (power of 2)", 1, 128),
+    _eeprom(6, 2, "RW", reduction_x100(STEPPER_REDUCTIONS[0]), "gear_reduction_x100",
+            "motor revs per joint rev x 100", 100),
+    _eeprom(8, 2, "RW", STEPPER_FULL_STEPS_PER_REV, "steps_per_rev",
+            "full steps per motor rev (200 = 1.8 deg)", 1),
+    _eeprom(10, 1, "RW", STEPPER_MICROSTEPPING, "microstepping",
+            "microsteps per full step (power of 2)", 1, 128),
     _eeprom(11, 1, "RW", 80, "temperature_limit", "deg C (driver)", 0, 150),
     _eeprom(12, 1, "RW", 100, "min_voltage_limit", "0.1 V", 50, 250),
     _eeprom(13, 1, "RW", 250, "max_voltage_limit", "0.1 V", 50, 250),
@@ -344,7 +354,7 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(16, 1, "RW", 2, "status_return_level", "0 ping only, 1 reads, 2 all", 0, 2),
     _eeprom(17, 1, "RW", 36, "alarm_led", _ALARM, 0, 127),
     _eeprom(18, 1, "RW", 36, "alarm_shutdown", _ALARM + "; torque off on these", 0, 127),
-    _eeprom(20, 2, "R", STEPPER_ENCODER_COUNTS_PER_REV, "encoder_resolution",
+    _eeprom(20, 2, "R", ARM_ENCODER_COUNTS_PER_REV, "encoder_resolution",
             "joint encoder counts per joint rev"),
     _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
     _ram(25, 1, "RW", 0, "led", "0 off, 1 on", 0, 1),

@@ -10,6 +10,7 @@ import construct as c
 
 from protocol import control_tables
 from protocol.catalogue import REPLY, REQUEST, Message, iter_fields, static_size
+from protocol.enum_field import EnumField
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 
 _NODE_TITLES = {
@@ -30,6 +31,8 @@ def _type_name(con: c.Construct) -> str:
     for prim, label in names.items():
         if con is prim:
             return label
+    if isinstance(con, EnumField):
+        return _type_name(con.subcon)
     if isinstance(con, c.Array):
         return f"{_type_name(con.subcon)}[{con.count}]"
     if isinstance(con, c.Rebuild):
@@ -49,6 +52,21 @@ def _type_name(con: c.Construct) -> str:
     if isinstance(con, c.Check):
         return "check"
     return type(con).__name__
+
+
+def _codes(con: c.Construct, label: str = "") -> list[str]:
+    """The codes of every EnumField in ``con`` (arrays and nested structs included), as
+    ``"Enum (0 NAME, 1 NAME)"``, prefixed by ``"field: "`` for a field of a nested struct."""
+    while isinstance(con, c.Renamed):
+        con = con.subcon
+    if isinstance(con, EnumField):
+        codes = ", ".join(f"{int(m)} {m.name}" for m in con.enum_type)
+        return [f"{label}{con.enum_type.__name__} ({codes})"]
+    if isinstance(con, c.Array):
+        return _codes(con.subcon, label)
+    if isinstance(con, c.Struct):
+        return [text for name, sub, _ in iter_fields(con) for text in _codes(sub, f"{name}: ")]
+    return []
 
 
 def _unit_and_doc(docs: str) -> tuple[str, str]:
@@ -71,6 +89,7 @@ def _payload_table(con: c.Construct | None) -> list[str]:
             continue
         size = static_size(sub)
         unit, doc = _unit_and_doc(docs)
+        doc = "; ".join([doc, *_codes(sub)]) if doc else "; ".join(_codes(sub))
         where = "" if offset is None else str(offset)
         out.append(
             f"| {where} | {name} | {_type_name(sub)} | {'var' if size is None else size} "

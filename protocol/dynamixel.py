@@ -25,6 +25,7 @@ import construct as cs
 from construct import this
 
 from protocol.errors import DynamixelChecksumError, DynamixelError, wrap_construct
+from protocol.robot import RX64_POSITION_CENTRE, RX64_POSITION_MAX, RX64_RAD_PER_UNIT
 
 BytesLike = bytes | bytearray | memoryview
 HEADER = b"\xff\xff"
@@ -557,10 +558,7 @@ class DynamixelStreamDecoder:
 
 # --------------------------------------------------------------------------- RX-64 units
 
-RX64_POSITION_CENTRE = 512  #: position register at the centre of travel (0 rad here)
-RX64_POSITION_MAX = 1023  #: highest position register value (0..1023 spans 300 degrees)
-#: Radians per position unit: 300 degrees over 1024 units (0.293 degree/unit).
-RX64_RAD_PER_UNIT = math.radians(300.0) / 1024
+# The position range (300 degrees over 1024 units, centre 512) is in protocol.robot.
 RX64_RPM_PER_UNIT = 0.111  #: revolutions per minute per speed unit
 _DIRECTION_BIT = 0x400  # bit 10 of present speed / present load: set = clockwise
 

@@ -1,7 +1,7 @@
 """Describe a Dynamixel 1.0 capture of the arm bus in plain dicts (for ``handbus``).
 
-Register names come from this arm's control tables: ids 1–4 are stepper nodes
-(:data:`~protocol.control_tables.STEPPER_TABLE`), ids 5–7 RX-64 servos.  Status packets
+Register names come from this arm's control tables, by the model each id has
+(:data:`protocol.topology.ARM_JOINTS`: ids 1–4 stepper nodes, 5–7 RX-64 servos).  Status packets
 (replies) are named by the instruction they most likely answer: the last instruction seen
 for that id.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, ControlTable
+from protocol.control_tables import TABLES_BY_MODEL, ControlTable
 from protocol.dynamixel import (
     BROADCAST_ID,
     DynamixelStreamDecoder,
@@ -23,18 +23,13 @@ from protocol.dynamixel import (
     parse_write,
 )
 from protocol.errors import DynamixelError
-
-STEPPER_IDS = range(1, 5)
-SERVO_IDS = range(5, 8)
+from protocol.topology import ARM_MODEL_BY_ID
 
 
 def table_for_id(dxl_id: int) -> ControlTable | None:
     """The control table of an arm bus id (None for ids this arm does not use)."""
-    if dxl_id in STEPPER_IDS:
-        return STEPPER_TABLE
-    if dxl_id in SERVO_IDS:
-        return RX64_TABLE
-    return None
+    model = ARM_MODEL_BY_ID.get(dxl_id)
+    return None if model is None else TABLES_BY_MODEL[model]
 
 
 def _register_name(dxl_id: int, address: int) -> str | None:

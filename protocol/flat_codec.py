@@ -5,8 +5,10 @@ Nodes build and parse some payloads hundreds of times a simulated second (the 14
 costs ~200 µs for such a record; ``struct`` costs a few.  :func:`flat_codec` looks at a
 construct declaration and, when it is a ``Struct`` whose fields are only little-endian
 numbers, fixed-length arrays of numbers or of such Structs, fixed-length bytes and zero
-padding, returns a :class:`FlatCodec`
-that builds and parses the same bytes.  The declaration stays the reference: callers use
+padding, returns a :class:`FlatCodec` that builds and parses the same bytes.  A number may be
+an :class:`~protocol.enum_field.EnumField`: parse gives its member for a known code and the
+int otherwise, as construct does; build takes ints and members (a member's name goes to the
+construct path, which translates it).  The declaration stays the reference: callers use
 the fast path only for the well-formed case and let construct produce every error, and a
 test checks both agree on every such message of the catalogue.
 """
@@ -20,10 +22,13 @@ from typing import Any
 
 import construct as c
 
-#: Path of names to the value (None for padding), struct code, element count (None: scalar).
+from protocol.enum_field import EnumField
+
+#: Path of names to the value (None for padding), struct code, element count (None: scalar),
+#: and for an EnumField the members by value (None: a plain number or bytes).
 #: A fixed-length byte field is one scalar whose code is ``"<N>s"``; the elements of an array
 #: of flat Structs are reached by an int index in the path (``("fingers", 0, "power")``).
-Field = tuple[tuple[str | int, ...] | None, str, int | None]
+Field = tuple[tuple[str | int, ...] | None, str, int | None, Mapping[int, Any] | None]
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,7 @@ class FlatCodec:
         """False when the record holds arrays of Structs: :meth:`build` leaves those to
         construct (it would have to check each list's length), :meth:`parse` does them."""
         return not any(path and any(isinstance(p, int) for p in path)
-                       for path, _, _ in self.fields)
+                       for path, _, _, _ in self.fields)
 
     @property
     def size(self) -> int:
@@ -63,7 +68,7 @@ class FlatCodec:
             return None
         flat: list[Any] = []
         try:
-            for path, code, count in self.fields:
+            for path, code, count, _members in self.fields:
                 if path is None:
                     continue
                 value: Any = values
@@ -88,23 +93,37 @@ def _dict_maker(fields: tuple[Field, ...]) -> Callable[[tuple[Any, ...]], dict[s
     """A function from the unpacked values to the record's (nested) dict.
 
     It is one dict display compiled from the field list (``lambda v: {'a': v[0],
-    'b': [v[1], v[2]], 'c': {'d': v[3]}}``): a parse then costs the unpack and one
-    expression instead of a loop over the fields.  Names enter the source only as string
-    literals (``repr``), so no declaration can inject code.
+    'b': [v[1], v[2]], 'c': {'d': m0.get(v[3], v[3])}}``): a parse then costs the unpack and
+    one expression instead of a loop over the fields.  A coded (EnumField) value goes through
+    its members by value, bound as ``m0``, ``m1``, … in the expression's namespace: a known
+    code becomes its member, an unknown one stays the int, as construct parses it.  Names
+    enter the source only as string literals (``repr``), so no declaration can inject code.
     """
     tree: dict[str | int, Any] = {}
+    namespace: dict[str, Any] = {"__builtins__": {}}
+    member_names: dict[int, str] = {}  # id of a members mapping → its name in namespace
     i = 0
-    for path, _, count in fields:
+
+    def leaf(j: int, members: Mapping[int, Any] | None) -> str:
+        if members is None:
+            return f"v[{j}]"
+        name = member_names.get(id(members))
+        if name is None:
+            name = member_names[id(members)] = f"m{len(member_names)}"
+            namespace[name] = members
+        return f"{name}.get(v[{j}], v[{j}])"
+
+    for path, _, count, members in fields:
         if path is None:
             continue
         node = tree
         for name in path[:-1]:
             node = node.setdefault(name, {})
         if count is None:
-            node[path[-1]] = f"v[{i}]"
+            node[path[-1]] = leaf(i, members)
             i += 1
         else:
-            node[path[-1]] = "[" + ", ".join(f"v[{j}]" for j in range(i, i + count)) + "]"
+            node[path[-1]] = "[" + ", ".join(leaf(j, members) for j in range(i, i + count)) + "]"
             i += count
 
     def render(node: dict[str | int, Any]) -> str:
@@ -116,7 +135,7 @@ def _dict_maker(fields: tuple[Field, ...]) -> Callable[[tuple[Any, ...]], dict[s
         return "{" + ", ".join(f"{name!r}: {value(sub)}" for name, sub in node.items()) + "}"
 
     maker: Callable[[tuple[Any, ...]], dict[str, Any]] = eval(  # noqa: S307 - see above
-        f"lambda v: {render(tree)}", {"__builtins__": {}})
+        f"lambda v: {render(tree)}", namespace)
     return maker
 
 
@@ -129,12 +148,20 @@ def _unwrap(con: Any) -> Any:
 def _number(con: Any) -> str | None:
     """The struct code of a little-endian (or one-byte) number field, else None."""
     con = _unwrap(con)
+    if isinstance(con, EnumField):
+        return _number(con.subcon)
     if not isinstance(con, c.FormatField):
         return None
     order, code = con.fmtstr[0], con.fmtstr[1:]
     if len(code) != 1 or (order != "<" and struct.calcsize(code) != 1):
         return None
     return code
+
+
+def _members(con: Any) -> Mapping[int, Any] | None:
+    """The members by value of an EnumField number, else None."""
+    con = _unwrap(con)
+    return con.by_value if isinstance(con, EnumField) else None
 
 
 def _fields(struct_con: Any, prefix: tuple[str | int, ...]) -> list[Field] | None:
@@ -145,10 +172,10 @@ def _fields(struct_con: Any, prefix: tuple[str | int, ...]) -> list[Field] | Non
         inner = _unwrap(sub)
         code = _number(inner)
         if code is not None and name is not None:
-            fields.append(((*prefix, name), code, None))
+            fields.append(((*prefix, name), code, None, _members(inner)))
         elif (isinstance(inner, c.Array) and isinstance(inner.count, int)
               and name is not None and (code := _number(inner.subcon)) is not None):
-            fields.append(((*prefix, name), code, inner.count))
+            fields.append(((*prefix, name), code, inner.count, _members(inner.subcon)))
         elif (isinstance(inner, c.Array) and isinstance(inner.count, int) and name is not None
               and isinstance(element := _unwrap(inner.subcon), c.Struct)):
             for index in range(inner.count):
@@ -158,7 +185,7 @@ def _fields(struct_con: Any, prefix: tuple[str | int, ...]) -> list[Field] | Non
                 fields.extend(nested)
         elif (isinstance(inner, c.Bytes) and isinstance(inner.length, int)
               and name is not None):
-            fields.append(((*prefix, name), f"{inner.length}s", None))
+            fields.append(((*prefix, name), f"{inner.length}s", None, None))
         elif isinstance(inner, c.Struct) and name is not None:
             nested = _fields(inner, (*prefix, name))
             if nested is None or not nested:
@@ -166,7 +193,7 @@ def _fields(struct_con: Any, prefix: tuple[str | int, ...]) -> list[Field] | Non
             fields.extend(nested)
         elif (isinstance(inner, c.Padded) and isinstance(inner.length, int)
               and _unwrap(inner.subcon) is c.Pass and inner.pattern == b"\x00" and name is None):
-            fields.append((None, "x", inner.length))
+            fields.append((None, "x", inner.length, None))
         else:
             return None
     return fields
@@ -181,7 +208,7 @@ def flat_codec(declaration: Any) -> FlatCodec | None:
     if fields is None:
         return None
     fmt = "<" + "".join(code if count is None else f"{count}{code}"
-                        for _, code, count in fields)
+                        for _, code, count, _ in fields)
     return FlatCodec(tuple(fields), struct.Struct(fmt))
 
 

@@ -4,7 +4,7 @@ Wire layout (wire-compatible with the original hand)::
 
     offset  size  field
     0       1     sync, always 0x42 (not escaped: 0x42 may also appear inside a frame)
-    1       1     address (destination; host 0, fmcb/palm 10, f2 1, f3 2, broadcast 0xFF)
+    1       1     address (destination, :mod:`protocol.topology`: host 0, fmcb/palm 10, …)
     2       2     payload length N, u16 little-endian
     4       1     message type
     5       N     payload
@@ -32,13 +32,6 @@ HEADER_SIZE: Final = 5
 CRC_SIZE: Final = 2
 #: Bytes a frame adds around its payload.
 OVERHEAD: Final = HEADER_SIZE + CRC_SIZE
-
-ADDR_HOST: Final = 0x00
-ADDR_F2: Final = 0x01
-ADDR_F3: Final = 0x02
-ADDR_FMCB: Final = 0x0A
-ADDR_PALM: Final = 0x0A
-ADDR_BROADCAST: Final = 0xFF
 
 #: Default bound on the payload length (bytes): the firmware's 1024-byte receive buffers.
 DEFAULT_MAX_PAYLOAD: Final = 1024 - OVERHEAD

@@ -69,16 +69,51 @@ __all__ = [
 
 @dataclass(frozen=True)
 class FlashGeometry:
-    """Flash layout of an MCU (addresses in bytes, pages in flash-page units)."""
+    """Flash layout of an MCU (addresses in bytes, pages in flash-page units).
+
+    On the SAM3S (1024 pages × 256 B from 0x400000)::
+
+        pages 0–31      bootloader; page 31 ends with the node identity (16 B at 0x401FF0)
+        page 32         image header (``app_start_page``; one page, :data:`HEADER_SIZE`)
+        pages 33–1019   image payload
+        page 1020       parameters (kept across updates)
+        page 1021       boot control: the activation record
+        pages 1022–1023 unused
+    """
 
     flash_base: int = 0x400000
     page_size: int = 256
     page_count: int = 1024
-    bootloader_pages: range = range(0, 32)
     app_start_page: int = 32
     param_page: int = 1020
-    hw_version_address: int = 0x401FF8
-    node_address_address: int = 0x401FFC
+    boot_control_page: int = 1021
+    #: The node identity: board type, unique id, hardware version, bus address (u32 each).
+    identity_address: int = 0x401FF0
+
+    @property
+    def bootloader_pages(self) -> range:
+        """Pages of the bootloader (and the identity): everything below the application."""
+        return range(0, self.app_start_page)
+
+    @property
+    def header_page(self) -> int:
+        """Page holding an image's header (the first page of the application area)."""
+        return self.app_start_page
+
+    @property
+    def payload_first_page(self) -> int:
+        """First page of an image's payload, right after its one-page header."""
+        return self.header_page + HEADER_SIZE // self.page_size
+
+    @property
+    def hw_version_address(self) -> int:
+        """Address of the identity's hardware-version word (bytes)."""
+        return self.identity_address + 8
+
+    @property
+    def node_address_address(self) -> int:
+        """Address of the identity's bus-address word (bytes)."""
+        return self.identity_address + 12
 
     def page_address(self, page: int) -> int:
         """Flash address (bytes) of the first byte of ``page``."""

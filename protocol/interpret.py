@@ -20,15 +20,18 @@ from typing import Any
 
 from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import PayloadError
-from protocol.framing import ADDR_F2, ADDR_F3, ADDR_HOST, Frame
+from protocol.framing import Frame
 from protocol.messages import CATALOGUE
+from protocol.topology import ADDR_BROADCAST, ADDR_HOST, NODE_ADDRESS, NodeKind
 
-_BY_ADDRESS: dict[int, tuple[str, ...]] = {
-    ADDR_F2: ("f2", "bootloader"),
-    ADDR_F3: ("f3", "bootloader"),
-    0x0A: ("fmcb", "palm", "bootloader"),
-}
+#: Node kinds in the order they are tried (the bootloader answers at every node's address).
 _ALL_NODES = ("fmcb", "palm", "f2", "f3", "bootloader")
+#: Node kinds a request to each node address may be for, in :data:`_ALL_NODES` order.
+_BY_ADDRESS: dict[int, tuple[str, ...]] = {
+    address: tuple(n for n in _ALL_NODES
+                   if n == "bootloader" or NODE_ADDRESS[NodeKind(n)] == address)
+    for address in NODE_ADDRESS.values()
+}
 
 
 @dataclass(frozen=True)
@@ -52,7 +55,7 @@ class Interpretation:
 
 def candidate_nodes(address: int, hint: str | None = None) -> tuple[str, ...]:
     """Node kinds a frame to ``address`` may be for, hint first."""
-    nodes = _ALL_NODES if address in (ADDR_HOST, 0xFF) else _BY_ADDRESS.get(address, _ALL_NODES)
+    nodes = _ALL_NODES if address in (ADDR_HOST, ADDR_BROADCAST) else _BY_ADDRESS.get(address, _ALL_NODES)
     if hint:
         nodes = (hint, *[n for n in nodes if n != hint])
     return nodes

@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.errors import ManchesterError, ProtocolError
+from protocol.topology import BITS_PER_CHAR
 
 __all__ = [
     "CHIPS_PER_BIT",
@@ -75,7 +76,7 @@ BytesLike = bytes | bytearray | memoryview | npt.NDArray[np.uint8]
 
 #: Chips per bit cell.
 CHIPS_PER_BIT: Final = 2
-_UART_BITS: Final = 10  # start + 8 data + stop
+_UART_BITS: Final = BITS_PER_CHAR  # start + 8 data + stop
 _RAW_BITS: Final = 8
 _MAX_LISTED: Final = 10  # positions spelled out in an error message
 

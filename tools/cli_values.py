@@ -1,7 +1,8 @@
 """Turn ``field=value`` command-line words into the dict a construct declaration builds from.
 
 Values: integers (``10``, ``0x2a``), floats, comma lists (``1,2,3``), hex for byte fields
-(``data=42ff00``), text for strings; dotted names reach nested structs (``args.target=…``).
+(``data=42ff00``), text for strings, a code's name or number for a coded field
+(``mode=joint``, ``mode=2``); dotted names reach nested structs (``args.target=…``).
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import construct as c
+
+from protocol.enum_field import EnumField
 
 
 class FieldValueError(ValueError):
@@ -145,6 +148,14 @@ def _check_value(con: c.Construct, value: Any, path: str, message: str) -> None:
         if not isinstance(value, Mapping):
             raise FieldValueError(f"{path}: expected fields ({path}.NAME=…), got {value!r}")
         check_fields(con, value, message, path)
+    elif isinstance(con, EnumField):
+        if isinstance(value, str):
+            if value.lower() not in con.by_name:
+                names = ", ".join(m.name.lower() for m in con.enum_type)
+                raise FieldValueError(f"{path}: {value!r} is not a {con.enum_type.__name__} "
+                                      f"({names}, or its number)")
+        else:
+            _check_value(con.subcon, value, path, message)
     elif isinstance(con, c.FormatField):
         _check_number(con, value, path)
     elif isinstance(con, c.Array) and isinstance(con.count, int):
@@ -181,25 +192,36 @@ def check_fields(con: c.Construct, values: Mapping[str, Any], message: str,
         if name not in fields:
             dotted = f"{prefix}.{name}" if prefix else name
             raise FieldValueError(f"{message}: unknown field {dotted!r} {listing}")
+    coded = _by_code(fields, values)  # what a Switch key or a Check sees once built
     for name, sub in fields.items():
         dotted = f"{prefix}.{name}" if prefix else name
         if name not in values:
             raise FieldValueError(f"{message}: missing field {dotted!r} {listing}")
         if isinstance(sub, c.Switch):
             try:
-                case = sub.cases.get(sub.keyfunc(values))
+                case = sub.cases.get(sub.keyfunc(coded))
             except (KeyError, TypeError):
                 case = None
             if case is not None:
                 _check_value(case, values[name], dotted, message)
-            elif sub.default is c.Error and isinstance(key := sub.keyfunc(values), int):
-                # (a key given by name is construct's to translate and check)
+            elif sub.default is c.Error and isinstance(key := sub.keyfunc(coded), int):
                 declared = ", ".join(str(int(k)) for k in sorted(sub.cases))
                 raise FieldValueError(f"{message}: {dotted} is declared only for "
                                       f"{declared}, not for {key!r}")
             continue
         _check_value(sub, values[name], dotted, message)
-    _check_checks(con, values, message, prefix)
+    _check_checks(con, coded, message, prefix)
+
+
+def _by_code(fields: Mapping[str, c.Construct], values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` with each coded field given by name replaced by its member (names that
+    are not members stay as given: :func:`_check_value` reports them)."""
+    out = dict(values)
+    for name, value in values.items():
+        sub = fields.get(name)
+        if isinstance(sub, EnumField) and isinstance(value, str):
+            out[name] = sub.by_name.get(value.lower(), value)
+    return out
 
 
 def _check_checks(con: c.Construct, values: Mapping[str, Any], message: str,

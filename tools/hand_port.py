@@ -13,13 +13,11 @@ from typing import Any
 
 import serial
 
-from protocol.framing import ADDR_HOST, encode_frame, parse_frame
+from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
+from protocol.topology import ADDR_HOST, ADDR_PALM, HOP_ADDRESS, HOST_LINK_BAUD, Hop
 
-#: Palm (and fmcb) address; phalanges answer at 1 (f2) and 2 (f3) on their tendon bus.
-PALM_ADDRESS = 10
-HOP_ADDRESS = {0: 10, 1: 1, 2: 2}
 #: Unsolicited messages a reply wait skips over (finger events).
 _UNSOLICITED = {CATALOGUE["palm.finger_event"].type_id}
 
@@ -31,7 +29,7 @@ class ReplyTimeout(TimeoutError):
 class HandPort:
     """A hand node (the palm, or a loose finger's fmcb) on serial port ``path``."""
 
-    def __init__(self, path: str, baud: int = 2_000_000) -> None:
+    def __init__(self, path: str, baud: int = HOST_LINK_BAUD) -> None:
         self.serial = serial.Serial(path, baud, timeout=0.005)
         self.decoder = StreamDecoder()
         self.events: list[dict[str, Any]] = []  # unsolicited palm.finger_event replies
@@ -45,13 +43,13 @@ class HandPort:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def request(self, name: str, address: int = PALM_ADDRESS, timeout_s: float = 0.5,
+    def request(self, name: str, address: int = ADDR_PALM, timeout_s: float = 0.5,
                 **fields: Any) -> dict[str, Any]:
         """Send request ``name`` with ``fields`` to ``address``; return the parsed reply."""
         msg = CATALOGUE[name]
         self.serial.reset_input_buffer()
         self.decoder.reset()
-        self.serial.write(encode_frame(address, msg.type_id, msg.build_request(fields)))
+        self.serial.write(msg.request_frame(address, fields))
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             for frame in self.decoder.feed(self.serial.read(4096)):
@@ -68,7 +66,7 @@ class HandPort:
         """Send ``name`` to the node at ``hop`` of ``finger`` through the palm; return its
         parsed reply (raises :class:`ReplyTimeout` when the palm reports no answer)."""
         msg = CATALOGUE[name]
-        inner = encode_frame(HOP_ADDRESS[hop], msg.type_id, msg.build_request(fields))
+        inner = msg.request_frame(HOP_ADDRESS[Hop(hop)], fields)
         reply = self.request("palm.route", timeout_s=timeout_ms / 1000 + 0.5, finger=finger,
                              hop=hop, timeout_ms=timeout_ms, frame=inner)
         if reply["status"] != 0:

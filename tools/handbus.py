@@ -7,12 +7,17 @@
 
 Like a logic-analyser decoder: it never crashes on garbage; bad input files or bad
 arguments give a clear message on standard error and exit status 2.
+
+A coded field (an ``EnumField`` of the catalogue) decodes to its member's name, e.g.
+``"status": "NO_REPLY"``, and an unknown code to its number; ``encode`` accepts either
+(``mode=joint``, ``mode=2``).
 """
 
 from __future__ import annotations
 
 import argparse
 import difflib
+import enum
 import json
 import re
 import sys
@@ -24,10 +29,11 @@ import construct as c
 
 from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import ProtocolError
-from protocol.framing import ADDR_HOST, DEFAULT_MAX_PAYLOAD, Frame, encode_frame
+from protocol.framing import DEFAULT_MAX_PAYLOAD, Frame
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
 from protocol.stream import FrameTuple, StreamDecoder
+from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
 from tools.cli_values import FieldValueError, build_fields, check_fields
 
 
@@ -36,9 +42,12 @@ class UsageError(Exception):
 
 
 def jsonable(value: Any) -> Any:
-    """Bytes → hex strings, recursively, so any decoded payload prints as JSON."""
+    """Bytes → hex strings and code members → their names, recursively, so any decoded
+    payload prints as JSON that ``encode`` takes back."""
     if isinstance(value, bytes | bytearray):
         return value.hex()
+    if isinstance(value, enum.IntEnum):
+        return value.name
     if isinstance(value, dict):
         return {k: jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -318,19 +327,20 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     con = msg.request if direction == REQUEST else msg.reply
     if con is None:
         raise UsageError(f"{msg.name} has no {direction}")
-    address = ADDR_HOST if args.reply else args.addr
-    if address is None:
-        raise UsageError("--addr is required for a request (fmcb/palm 10, f2 1, f3 2)")
-    if not 0 <= address <= 0xFF:
-        raise UsageError(f"address {address} is outside 0..255 (fmcb/palm 10, f2 1, f3 2, "
-                         "broadcast 255)")
+    addresses = f"fmcb/palm {ADDR_FMCB}, f2 {ADDR_F2}, f3 {ADDR_F3}"
+    if not args.reply:
+        if args.addr is None:
+            raise UsageError(f"--addr is required for a request ({addresses})")
+        if not 0 <= args.addr <= 0xFF:
+            raise UsageError(f"address {args.addr} is outside 0..255 ({addresses}, "
+                             f"broadcast {ADDR_BROADCAST})")
     fields = build_fields(con, args.fields)
     check_fields(con, fields, msg.name)
     payload = msg.build(direction, fields)
     if len(payload) > args.max_payload:
         raise UsageError(f"the {msg.name} {direction} payload is {len(payload)} bytes; a decoder "
                          f"reading at most {args.max_payload} bytes (--max-payload) drops it")
-    frame = encode_frame(address, msg.type_id, payload)
+    frame = msg.reply_frame(fields) if args.reply else msg.request_frame(args.addr, fields)
     print(frame.hex(" ") if args.spaced else frame.hex(), file=out)
     return 0
 

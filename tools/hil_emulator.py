@@ -7,13 +7,22 @@
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
 ``seed``, ``links``), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
-time) and exits 0, removing its links.  Diagnostics go to standard error.
+time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
+line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
+and one when it is on time again.
+
+Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
+was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
+exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
+lateness (``null`` when nothing was delivered), episodes of lateness, and per port the
+bytes in and out, host input lost to overrun and the longest input queue.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import threading
@@ -44,8 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "(fingers and phalanges powered and booted, autopoll on), in "
                              "simulated time; the arm stays torque-off")
     parser.add_argument("--sleep", action="store_true",
-                        help="real time: sleep between events instead of polling (frees a "
-                             "CPU core; deliveries may then be a few ms late)")
+                        help="accepted for compatibility; real time always sleeps between "
+                             "events now")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
                         help="seed of every random draw (noise, faults): same seed, same run")
     parser.add_argument("--viewer", action="store_true",
@@ -56,11 +65,24 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the palm's CAN link: an SLCAN adapter on a pty (default) or none")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
                         help="stop by itself after S seconds of wall time")
     parser.add_argument("--stats", action="store_true",
-                        help="on exit, print delivery lateness and simulated time to stderr")
+                        help="on exit, print delivery lateness, simulated time and port "
+                             "counters (overruns) to stderr as JSON")
     return parser
+
+
+def _positive_seconds(text: str) -> float:
+    """``--duration``: a positive, finite number of seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(
+            f"must be a positive, finite number of seconds, got {text!r}")
+    return value
 
 
 def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:
@@ -97,7 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except EmulatorError as exc:
             print(f"hil-emulator: {exc}", file=sys.stderr)
             return 1
-        emulator.spin = not args.sleep
+        emulator.on_late = lambda text: print(f"hil-emulator: {text}", file=sys.stderr,
+                                              flush=True)
         on_idle: Callable[[], None] | None = None
         handle: Any = None
         if args.viewer:
@@ -120,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 handle.close()
             if args.stats:
                 stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
-                         **emulator.lateness_stats()}
+                         **emulator.lateness_stats(), "ports": emulator.link_stats()}
                 print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)
     return 0
 

@@ -29,8 +29,9 @@ from hil_emulator.bring_up import request, routed
 from hil_emulator.emulator import Emulator
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
-from protocol.framing import ADDR_F2, ADDR_F3, encode_frame
 from protocol.messages import CATALOGUE
+from protocol.messages.fmcb import ControlMode
+from protocol.topology import ADDR_F2, ARM_JOINTS, FINGERS, HOP_ADDRESS, SERVO_IDS, STEPPER_IDS, Hop
 
 Record = dict[str, Any]
 
@@ -39,11 +40,6 @@ def _recorder(port: str, out: list[Record]) -> Callable[[bytes, int], None]:
     def record(data: bytes, t_us: int) -> None:
         out.append({"port": port, "t_us": t_us, "hex": data.hex()})
     return record
-
-
-def _phalange_frame(address: int, name: str, **fields: Any) -> bytes:
-    msg = CATALOGUE[name]
-    return encode_frame(address, msg.type_id, msg.build_request(fields))
 
 
 def _full_run(seed: int, out: list[Record]) -> None:
@@ -61,27 +57,28 @@ def _full_run(seed: int, out: list[Record]) -> None:
     hand_send(request("ping"))
     hand_send(request("identify"))
     hand_send(request("palm.hand_status"))
-    for finger in range(4):
+    for finger in range(FINGERS):
         hand_send(routed(finger, "identify"))
-        for hop, address in ((1, ADDR_F2), (2, ADDR_F3)):
+        for hop in (Hop.F2, Hop.F3):
             hand_send(request("palm.route", finger=finger, hop=hop, timeout_ms=20,
-                              frame=_phalange_frame(address, "identify")))
-    hand_send(routed(1, "fmcb.control", mode=2, args={"target": [0.3, 0.6, 0.4]}))
+                              frame=CATALOGUE["identify"].request_frame(HOP_ADDRESS[hop])))
+    hand_send(routed(1, "fmcb.control", mode=ControlMode.JOINT, args={"target": [0.3, 0.6, 0.4]}))
     hand_send(request("palm.poll", rate_hz=50))
     emu.step(800_000)
     hand_send(routed(1, "fmcb.status"))
-    hand_send(request("palm.route", finger=1, hop=1, timeout_ms=20,
-                      frame=_phalange_frame(ADDR_F2, "f2.tactile")))
+    hand_send(request("palm.route", finger=1, hop=Hop.F2, timeout_ms=20,
+                      frame=CATALOGUE["f2.tactile"].request_frame(ADDR_F2)))
     hand_send(request("palm.hand_status"))
 
     def arm_send(packet: dxl.InstructionPacket, wait_us: int = 5_000) -> None:
         arm.send_from_host(packet.encode())
         emu.step(wait_us)
 
-    for dxl_id in range(1, 8):
+    arm_ids = [joint.dxl_id for joint in ARM_JOINTS]
+    for dxl_id in arm_ids:
         arm_send(dxl.make_ping(dxl_id))
     torque = STEPPER_TABLE["torque_enable"].address
-    for dxl_id in range(1, 8):
+    for dxl_id in arm_ids:
         arm_send(dxl.make_write(dxl_id, torque, b"\x01"))
     goal = STEPPER_TABLE["goal_position"]
     arm_send(dxl.make_write(1, goal.address, (300).to_bytes(4, "little", signed=True)))
@@ -91,11 +88,11 @@ def _full_run(seed: int, out: list[Record]) -> None:
                                                  7: (512).to_bytes(2, "little")}))
     emu.step(500_000)
     present = STEPPER_TABLE["present_position"].address
-    for dxl_id in range(1, 5):
+    for dxl_id in STEPPER_IDS:
         arm_send(dxl.make_read(dxl_id, present, 4))
-    arm_send(dxl.make_bulk_read([(4, dxl_id, present) for dxl_id in range(1, 5)]
+    arm_send(dxl.make_bulk_read([(4, dxl_id, present) for dxl_id in STEPPER_IDS]
                                 + [(2, dxl_id, RX64_TABLE["present_position"].address)
-                                   for dxl_id in range(5, 8)]), 10_000)
+                                   for dxl_id in SERVO_IDS]), 10_000)
     emu.step(200_000)
     assert emu.plant is not None
     out.append({"port": "plant", "t_us": emu.scheduler.now_us(),
@@ -110,7 +107,7 @@ def _loose_run(seed: int, out: list[Record]) -> None:
     emu.bring_up()
     loose = emu.loose
     for frame in (request("identify"),
-                  request("fmcb.control", mode=2, args={"target": [0.2, 0.4, 0.2]})):
+                  request("fmcb.control", mode=ControlMode.JOINT, args={"target": [0.2, 0.4, 0.2]})):
         loose.send_from_host(frame)
         emu.step(20_000)
     emu.step(500_000)

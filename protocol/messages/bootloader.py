@@ -9,56 +9,77 @@ activated).  Every bootloader command halts the autoboot countdown.
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 import construct as c
 
 from protocol.catalogue import Message
+from protocol.enum_field import EnumField
 from protocol.image import HEADER_SIZE
+from protocol.messages.common import BOARD
 from protocol.messages.fields import EMPTY, VERSION
 
 PAGE_SIZE = 256
 
-#: Page-write status codes.  0x80 + i: word i of the page did not program (original).
-WRITE_STATUS = {
-    0x00: "ok",
-    0x01: "page_out_of_range",
-    0x02: "page_protected",
-    0x03: "flash_busy",
-}
+
+class WriteStatus(IntEnum):
+    """Status of ``bl.write_page``; 0x80 + i (:data:`WRITE_STATUS_WORD_FAILED`) means word
+    i of the page did not program, and decodes as a plain int."""
+
+    OK = 0x00
+    PAGE_OUT_OF_RANGE = 0x01
+    PAGE_PROTECTED = 0x02
+    FLASH_BUSY = 0x03
+
+
+#: Base of the page-write codes "word i did not program" (0x80 + i), as on the original.
 WRITE_STATUS_WORD_FAILED = 0x80
 
-#: Bootloader states.
-BL_STATE = {0: "autoboot_countdown", 1: "halted", 2: "booting", 3: "no_valid_image"}
 
-#: Why the installed image is not bootable (0 = it is).
-IMAGE_STATUS = {
-    0: "valid",
-    1: "empty",
-    2: "bad_header",
-    3: "wrong_board",
-    4: "hash_mismatch",
-    5: "not_activated",
-    6: "too_large",
-}
+class BootState(IntEnum):
+    """What the bootloader is doing."""
 
-#: Generic bootloader result codes (activate, hash, boot).
-BL_RESULT = {
-    0: "ok",
-    1: "out_of_range",
-    2: "bad_image",
-    3: "hash_mismatch",
-    4: "wrong_board",
-    5: "not_activated",
-    6: "protected",
-}
+    AUTOBOOT_COUNTDOWN = 0
+    HALTED = 1
+    BOOTING = 2
+    NO_VALID_IMAGE = 3
+
+
+class ImageStatus(IntEnum):
+    """Why the installed image is not bootable (VALID: it is)."""
+
+    VALID = 0
+    EMPTY = 1
+    BAD_HEADER = 2
+    WRONG_BOARD = 3
+    HASH_MISMATCH = 4
+    NOT_ACTIVATED = 5
+    TOO_LARGE = 6
+
+
+class BootResult(IntEnum):
+    """Result of a bootloader command other than a page write (activate, hash, boot)."""
+
+    OK = 0
+    OUT_OF_RANGE = 1
+    BAD_IMAGE = 2
+    HASH_MISMATCH = 3
+    WRONG_BOARD = 4
+    NOT_ACTIVATED = 5
+    PROTECTED = 6
+
+
+STATE = EnumField(c.Int8ul, BootState)
+IMAGE_STATUS = EnumField(c.Int8ul, ImageStatus)
+RESULT = EnumField(c.Int8ul, BootResult)
 
 PAGE_DATA = c.Bytes(PAGE_SIZE)
 
 BL_INFO = c.Struct(
-    "board" / c.Int8ul * "[-] board type (protocol.image.BoardType)",
+    "board" / BOARD * "[-] board type",
     "bl_version" / VERSION * "[-] bootloader version",
-    "state" / c.Int8ul * "[-] 0 autoboot countdown, 1 halted, 2 booting, 3 no valid image",
-    "image_status" / c.Int8ul * "[-] 0 valid, 1 empty, 2 bad header, 3 wrong board, "
-    "4 hash mismatch, 5 not activated, 6 too large",
+    "state" / STATE * "[-] bootloader state",
+    "image_status" / IMAGE_STATUS * "[-] verdict on the installed image",
     "autoboot_ms_left" / c.Int16ul * "[ms] time left in the autoboot window (0 when halted)",
     "page_size" / c.Int16ul * "[bytes] flash page size",
     "page_count" / c.Int16ul * "[pages] flash pages in all",
@@ -75,9 +96,10 @@ MESSAGES = [
         0x07,
         EMPTY,
         c.Struct(
-            "state" / c.Int8ul * "[-] see bl.info state",
-            "image_status" / c.Int8ul * "[-] see bl.info image_status",
-            "last_error" / c.Int8ul * "[-] result code of the last failed command (0 none)",
+            "state" / STATE * "[-] bootloader state",
+            "image_status" / IMAGE_STATUS * "[-] verdict on the installed image",
+            "last_error" / c.Int8ul * "[-] code of the last failed command (0 none): a "
+            "WriteStatus for bl.write_page, a BootResult for the others",
             "last_page" / c.Int32ul * "[page] page of the last write (0xFFFFFFFF none)",
             "text" / c.PascalString(c.Int8ul, "ascii") * "[-] why, in words",
         ),
@@ -110,8 +132,8 @@ MESSAGES = [
         ),
         c.Struct(
             "page" / c.Int32ul * "[page] the page written (echo)",
-            "status" / c.Int8ul * "[-] 0 ok, 1 out of range, 2 protected, 3 busy, "
-            "0x80+i word i failed",
+            "status" / EnumField(c.Int8ul, WriteStatus) * "[-] outcome; 0x80+i: word i "
+            "did not program",
         ),
         "Erase and program one page; staging an image clears its activation.",
     ),
@@ -127,7 +149,7 @@ MESSAGES = [
             "pages" / c.Int32ul * "[pages] how many pages",
         ),
         c.Struct(
-            "status" / c.Int8ul * "[-] 0 ok, 1 out of range",
+            "status" / RESULT * "[-] outcome (OK or OUT_OF_RANGE)",
             "sha256" / c.Bytes(32) * "[-] SHA-256 of the pages' bytes",
         ),
         "SHA-256 of a flash range, for verification without reading it back.",
@@ -139,8 +161,9 @@ MESSAGES = [
         0x0F,
         c.Struct("sha256" / c.Bytes(32) * "[-] expected SHA-256 of the staged image payload"),
         c.Struct(
-            "status" / c.Int8ul * "[-] 0 ok, 2 bad image, 3 hash mismatch, 4 wrong board",
-            "image_status" / c.Int8ul * "[-] see bl.info image_status",
+            "status" / RESULT * "[-] outcome (OK, BAD_IMAGE, HASH_MISMATCH, WRONG_BOARD or "
+            "PROTECTED)",
+            "image_status" / IMAGE_STATUS * "[-] verdict on the staged image",
         ),
         "Verify the staged image and mark it bootable.",
         original=False,

@@ -8,28 +8,41 @@ request it answers (the original matched replies by type only).
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 import construct as c
 
 from protocol.catalogue import Message
+from protocol.enum_field import EnumField
+from protocol.image import BoardType
 from protocol.messages.fields import EMPTY, VERSION
 
-#: Status codes of a transaction reply.
-TXN_STATUS = {
-    0: "ok",
-    1: "unknown_type",
-    2: "bad_payload",
-    3: "busy",
-    4: "no_reply",
-    5: "refused",
-}
 
-#: Running-state codes in an identify reply.
-RUNNING = {0: "bootloader", 1: "application"}
+class TxnStatus(IntEnum):
+    """Status of a ``txn`` reply: did the wrapped request get an answer."""
+
+    OK = 0
+    UNKNOWN_TYPE = 1
+    BAD_PAYLOAD = 2
+    BUSY = 3
+    NO_REPLY = 4
+    REFUSED = 5
+
+
+class Running(IntEnum):
+    """Which program answers an ``identify``."""
+
+    BOOTLOADER = 0
+    APPLICATION = 1
+
+
+#: The board type of the node that answers (protocol.image.BoardType).
+BOARD = EnumField(c.Int8ul, BoardType)
 
 IDENTIFY_REPLY = c.Struct(
-    "board" / c.Int8ul * "[-] board type (protocol.image.BoardType: 1 palm, 2 fmcb, 3 f2, 4 f3)",
+    "board" / BOARD * "[-] board type",
     "address" / c.Int8ul * "[-] the node's bus address (from its identity page)",
-    "running" / c.Int8ul * "[-] 0 bootloader, 1 application",
+    "running" / EnumField(c.Int8ul, Running) * "[-] the program that answers",
     "hw_version" / c.Int32ul * "[-] hardware version word (0xBEEF0041 fingers)",
     "fw_version" / VERSION * "[-] version of the running program",
     "catalogue" / c.Bytes(8) * "[-] first 8 bytes of SHA-256 of the message catalogue",
@@ -45,10 +58,10 @@ TXN_REQUEST = c.Struct(
 
 TXN_REPLY = c.Struct(
     "seq" / c.Int8ul * "[-] the request's sequence number",
-    "board" / c.Int8ul * "[-] board type of the node that answers",
+    "board" / BOARD * "[-] board type of the node that answers",
     "address" / c.Int8ul * "[-] bus address of the node that answers",
     "inner_type" / c.Int8ul * "[-] message type of the request answered",
-    "status" / c.Int8ul * "[-] 0 ok, 1 unknown type, 2 bad payload, 3 busy, 4 no reply, 5 refused",
+    "status" / EnumField(c.Int8ul, TxnStatus) * "[-] outcome of the wrapped request",
     "inner" / c.GreedyBytes * "[-] reply payload of the wrapped message (empty unless ok)",
 )
 

@@ -6,20 +6,25 @@ status keeps its explicit padding.  New: a homing-offset message.
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 import construct as c
 
 from protocol.catalogue import Message
+from protocol.enum_field import EnumField
 from protocol.messages.fields import EMPTY, IMU6, counted_bytes
 
-#: Control modes of message 0x1d.
-CONTROL_MODES = {
-    0: "idle",
-    1: "motor",
-    2: "joint",
-    3: "joint_fixed",
-    4: "joint_effort",
-    5: "relative",
-}
+
+class ControlMode(IntEnum):
+    """Control mode of ``fmcb.control``; it selects the layout of the arguments."""
+
+    IDLE = 0
+    MOTOR = 1
+    JOINT = 2
+    JOINT_FIXED = 3
+    JOINT_EFFORT = 4
+    RELATIVE = 5
+
 
 #: Largest byte count the tunnel carries in either direction.
 TUNNEL_MAX = 512
@@ -30,18 +35,21 @@ _JOINT_EFFORT = c.Struct(
 )
 
 CONTROL = c.Struct(
-    "mode" / c.Int8ul * "[-] 0 idle, 1 motor, 2 joint, 3 joint fixed point, 4 joint+effort, "
-    "5 relative",
+    "mode" / EnumField(c.Int8ul, ControlMode) * "[-] control mode (joint fixed: fixed-point "
+    "targets; relative: deltas with effort caps)",
     "args"
     / c.Switch(
         c.this.mode,
         {
-            0: c.Struct(),
-            1: c.Struct("hall_target" / c.Array(3, c.Int16sl) * "[hall counts] motor targets"),
-            2: c.Struct("target" / c.Array(3, c.Float32l) * "[rad] joint targets J1, J2, J3"),
-            3: c.Struct("target" / c.Array(3, c.Int16sl) * "[1e-4 rad] joint targets"),
-            4: _JOINT_EFFORT,
-            5: _JOINT_EFFORT,
+            ControlMode.IDLE: c.Struct(),
+            ControlMode.MOTOR: c.Struct(
+                "hall_target" / c.Array(3, c.Int16sl) * "[hall counts] motor targets"),
+            ControlMode.JOINT: c.Struct(
+                "target" / c.Array(3, c.Float32l) * "[rad] joint targets J1, J2, J3"),
+            ControlMode.JOINT_FIXED: c.Struct(
+                "target" / c.Array(3, c.Int16sl) * "[1e-4 rad] joint targets"),
+            ControlMode.JOINT_EFFORT: _JOINT_EFFORT,
+            ControlMode.RELATIVE: _JOINT_EFFORT,
         },
         c.Error,
     )

@@ -8,31 +8,49 @@ hand status, finger polling, the current governor, and unsolicited finger events
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 import construct as c
 
 from protocol.catalogue import Message
+from protocol.enum_field import EnumField
 from protocol.messages.fields import EMPTY
+from protocol.topology import FINGERS, Hop
 
-FINGERS = 4
 PALM_TAXELS = 32
 #: Largest routed frame (bytes): a tunnel request with 512 data bytes plus framing.
 ROUTE_MAX_FRAME = 540
 
-#: Hops behind a finger's pogo link.
-HOPS = {0: "fmcb", 1: "f2", 2: "f3"}
-#: Finger power states.
-FINGER_POWER = {0: "off", 1: "low", 2: "full"}
-#: Route reply status codes.
-ROUTE_STATUS = {
-    0: "ok",
-    1: "no_reply",
-    2: "unpowered",
-    3: "bad_destination",
-    4: "link_down",
-    5: "busy",
-}
-#: Finger event codes.
-FINGER_EVENTS = {0: "lost", 1: "returned", 2: "breaker_trip", 3: "powered", 4: "unpowered"}
+class FingerPower(IntEnum):
+    """Power state of a finger's supply: off, low (9 V, current-limited) or full (24 V)."""
+
+    OFF = 0
+    LOW = 1
+    FULL = 2
+
+
+class RouteStatus(IntEnum):
+    """Outcome of a ``palm.route``: the reply frame came back, or why not."""
+
+    OK = 0
+    NO_REPLY = 1
+    UNPOWERED = 2
+    BAD_DESTINATION = 3
+    LINK_DOWN = 4
+    BUSY = 5
+
+
+class FingerEvent(IntEnum):
+    """What an unsolicited ``palm.finger_event`` reports about a finger."""
+
+    LOST = 0
+    RETURNED = 1
+    BREAKER_TRIP = 2
+    POWERED = 3
+    UNPOWERED = 4
+
+
+POWER = EnumField(c.Int8ul, FingerPower)
 
 PALM_STATE = c.Struct(
     "time" / c.Int32ul * "[µs] palm timestamp",
@@ -45,7 +63,7 @@ PALM_STATE = c.Struct(
 
 _FINGER_SUMMARY = c.Struct(
     "present" / c.Int8ul * "[-] 1 if the fmcb answered its last poll",
-    "power" / c.Int8ul * "[-] 0 off, 1 low, 2 full",
+    "power" / POWER * "[-] power state",
     "current" / c.Int16ul * "[mA] finger supply current",
     "last_seen_ms" / c.Int16ul * "[ms] since the finger last answered (saturates at 65535)",
     "hall_pos" / c.Array(3, c.Int32sl) * "[hall counts] motor positions from the last poll",
@@ -76,15 +94,14 @@ MESSAGES = [
         0x62,
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3",
-            "hop" / c.Int8ul * "[-] 0 fmcb, 1 f2, 2 f3",
+            "hop" / EnumField(c.Int8ul, Hop) * "[-] the node behind the finger's pogo link",
             "timeout_ms" / c.Int16ul * "[ms] how long to wait for the reply (0: no reply)",
             "frame" / c.GreedyBytes * "[-] a complete hand frame for that node",
         ),
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3",
-            "hop" / c.Int8ul * "[-] 0 fmcb, 1 f2, 2 f3",
-            "status" / c.Int8ul * "[-] 0 ok, 1 no reply, 2 unpowered, 3 bad destination, "
-            "4 link down, 5 busy",
+            "hop" / EnumField(c.Int8ul, Hop) * "[-] the node behind the finger's pogo link",
+            "status" / EnumField(c.Int8ul, RouteStatus) * "[-] outcome of the route",
             "frame" / c.GreedyBytes * "[-] the complete reply frame heard (empty unless ok)",
         ),
         "Deliver a hand frame to a node behind the palm and return its reply, by finger.",
@@ -96,10 +113,10 @@ MESSAGES = [
         0x63,
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3, or 0xFF for all",
-            "state" / c.Int8ul * "[-] 0 off, 1 low (9 V, current-limited), 2 full (24 V)",
+            "state" / POWER * "[-] power state to switch to",
             "stagger_ms" / c.Int16ul * "[ms] delay between fingers when switching all",
         ),
-        c.Struct("states" / c.Array(FINGERS, c.Int8ul) * "[-] power state of each finger"),
+        c.Struct("states" / c.Array(FINGERS, POWER) * "[-] power state of each finger"),
         "Switch finger power; the reply gives every finger's state.",
         original=False,
     ),
@@ -121,7 +138,7 @@ MESSAGES = [
         None,
         c.Struct(
             "finger" / c.Int8ul * "[-] finger index 0..3",
-            "event" / c.Int8ul * "[-] 0 lost, 1 returned, 2 breaker trip, 3 powered, 4 unpowered",
+            "event" / EnumField(c.Int8ul, FingerEvent) * "[-] what happened",
             "time" / c.Int32ul * "[µs] palm timestamp of the event",
         ),
         "Unsolicited: a finger vanished (breakaway), came back, or tripped a breaker.",

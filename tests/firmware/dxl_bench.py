@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.dynamixel import DynamixelStreamDecoder, StatusPacket
 
 

@@ -9,10 +9,10 @@ import random
 import pytest
 
 from firmware_py.arm_stepper import VELOCITY_WINDOW, StepperNodeApp
-from firmware_py.dynamixel_slave import make_arm_node
 from firmware_py.rx64 import SPEED_WINDOW, UNITS_PER_S_PER_SPEED, Rx64ServoApp
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, ControlTable
 from protocol.dynamixel import (
     ErrorBit,

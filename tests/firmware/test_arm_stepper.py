@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from firmware_py.arm_stepper import StepperNodeApp
-from firmware_py.dynamixel_slave import make_arm_node
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
 from protocol.dynamixel import ErrorBit, StatusPacket, make_read, make_write
 from protocol.image import BoardType

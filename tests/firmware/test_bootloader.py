@@ -8,7 +8,6 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import default_image, install_image, make_node
 from firmware_py.bootloader import AUTOBOOT_US, Bootloader, inspect_image
 from firmware_py.flash_layout import (
     BOOT_CONTROL_PAGE,
@@ -21,17 +20,18 @@ from firmware_py.hal import Hal
 from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
-from protocol.framing import ADDR_BROADCAST, encode_frame
+from firmware_py.sim.boards import default_image, install_image, make_node
+from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
 from protocol.image import MAX_PAYLOAD, BoardType, ImageHeader, Version, make_image, split_pages
 from protocol.messages import CATALOGUE
+from protocol.messages.bootloader import BootState
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 UPSTREAM = {BoardType.FMCB: "pogo", BoardType.F2: "tendon", BoardType.F3: "tendon",
             BoardType.PALM: "host"}
 ADDRESS = {BoardType.FMCB: 10, BoardType.F2: 1, BoardType.F3: 2, BoardType.PALM: 10}
 WINDOW = AUTOBOOT_US
-STATE_HALTED, STATE_NO_VALID_IMAGE = 1, 3
 
 
 class TinyApp(HandNode):
@@ -82,7 +82,7 @@ def run(mcu: Mcu, us: int) -> None:
 def send(mcu: Mcu, name: str, address: int | None = None, **fields: Any) -> None:
     msg = CATALOGUE[name]
     addr = ADDRESS[BoardType(mcu.identity.board)] if address is None else address
-    upstream(mcu).deliver(encode_frame(addr, msg.type_id, msg.build_request(fields)))
+    upstream(mcu).deliver(msg.request_frame(addr, fields))
 
 
 def replies(mcu: Mcu, name: str) -> list[dict[str, Any]]:
@@ -157,7 +157,7 @@ def test_a_bootloader_command_inside_the_window_halts_autoboot(name: str) -> Non
     run(mcu, 10 * WINDOW)
     assert mcu.in_bootloader
     info = ask(mcu, "bl.info")
-    assert info["state"] == STATE_HALTED
+    assert info["state"] == BootState.HALTED
     assert info["autoboot_ms_left"] == 0
     assert info["image_status"] == 0
 
@@ -290,7 +290,7 @@ def test_autoboot_decision_for_each_kind_of_image(case: str) -> None:
         return
     assert mcu.in_bootloader
     status = ask(mcu, "bl.status")
-    assert status["state"] == STATE_NO_VALID_IMAGE
+    assert status["state"] == BootState.NO_VALID_IMAGE
     assert status["image_status"] == expected
     assert status["text"]
     assert ask(mcu, "bl.info")["image_status"] == expected
@@ -334,7 +334,7 @@ def test_boot_of_a_valid_image_whose_app_is_missing_stays_with_a_reason() -> Non
     run(mcu, WINDOW + 1_000)
     assert mcu.in_bootloader
     status = ask(mcu, "bl.status")
-    assert status["state"] == STATE_NO_VALID_IMAGE
+    assert status["state"] == BootState.NO_VALID_IMAGE
     assert "no application" in status["text"]
 
 
@@ -419,7 +419,7 @@ def test_power_lost_mid_write_leaves_the_node_in_its_bootloader() -> None:
     assert ActivationRecord.from_page(vflash(mcu).read_page(BOOT_CONTROL_PAGE)) is None
     status = ask(mcu, "bl.status")
     assert status["image_status"] in (4, 5)
-    assert status["state"] == STATE_NO_VALID_IMAGE
+    assert status["state"] == BootState.NO_VALID_IMAGE
 
 
 def test_power_lost_while_erasing_the_activation_stays_too() -> None:

@@ -18,16 +18,15 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
-from firmware_py.boards import install_image, make_node
 from firmware_py.bootloader import AUTOBOOT_US
 from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
 from firmware_py.hal import Hal
 from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualFlash, VirtualHal
+from firmware_py.sim.boards import install_image, make_node
+from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal
 from protocol.errors import ImageError
-from protocol.framing import encode_frame
 from protocol.image import BoardType, make_image, parse_header, split_pages
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
@@ -93,7 +92,7 @@ class BootloaderMachine(RuleBasedStateMachine):
         msg = CATALOGUE[name]
         uart = self.hal.uart("pogo")
         uart.take_sent()
-        uart.deliver(encode_frame(ADDRESS, msg.type_id, msg.build_request(fields)))
+        uart.deliver(msg.request_frame(ADDRESS, fields))
         self.hal.scheduler.run_for(run_us)
         frames = decode_all(b"".join(uart.take_sent()))
         return [msg.parse_reply(f.payload) for f in frames if f.type == msg.type_id]

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_py.dynamixel_slave import EEPROM_PAGE, make_arm_node
+from firmware_py.dynamixel_slave import EEPROM_PAGE
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.dynamixel import (
     ErrorBit,

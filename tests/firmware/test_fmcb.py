@@ -10,28 +10,20 @@ import math
 import struct
 from typing import Any
 
-import numpy as np
 import pytest
 
-from firmware_py.boards import make_hal, make_node
 from firmware_py.flash_layout import PARAM_PAGE, page_address
 from firmware_py.fmcb import FmcbApp
-from firmware_py.fmcb_control import (
-    HALL_SEQUENCE,
-    HallCounter,
-    coupling_matrix,
-    joint_to_motor,
-    min_cap,
-    motor_to_joint,
-    pd_effort,
-)
+from firmware_py.fmcb_control import HallCounter, min_cap, pd_effort
 from firmware_py.fmcb_params import FMCB_PARAMS, PARAM_SENTINEL, ParamTable
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_hal, make_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
+from protocol.robot import HALL_SEQUENCE, joint_to_motor
 from protocol.stream import decode_all
 
 K = 36 / (2 * math.pi)
@@ -92,26 +84,6 @@ class Rig:
 @pytest.fixture
 def rig() -> Rig:
     return Rig()
-
-
-# --- coupling -------------------------------------------------------------------------------
-def test_joint_to_motor_matches_hand_computed_numbers() -> None:
-    # q = (0.1, 0.2, 0.3) rad, by hand: K·g0·q0 = 5.7296·17.34 = 99.35, K·g1·q1 = 225.40,
-    # K·g2·q2 = 397.06, K·c·g2·q2 = 353.38.
-    m0, m1, m2 = joint_to_motor((0.1, 0.2, 0.3))
-    assert m2 == pytest.approx(K * 231 * 0.3) == pytest.approx(397.06, abs=0.01)
-    assert m1 == pytest.approx(225.40 - 353.38, abs=0.02)
-    assert m0 == pytest.approx(99.35 + 225.40 + 353.38, abs=0.03)
-    assert np.allclose(coupling_matrix() @ np.array([0.1, 0.2, 0.3]), (m0, m1, m2))
-
-
-def test_motor_to_joint_inverts_the_coupling() -> None:
-    q = motor_to_joint((678.13, -127.98, 397.06))
-    assert q == pytest.approx((0.1, 0.2, 0.3), abs=1e-4)
-    for qs in [(0.0, 0.0, 0.0), (-1.2, 1.5, 1.7), (0.3, -0.7, 0.05)]:
-        assert motor_to_joint(joint_to_motor(qs)) == pytest.approx(qs, abs=1e-12)
-    assert np.allclose(np.linalg.inv(coupling_matrix()) @ joint_to_motor((0.3, -0.7, 0.05)),
-                       (0.3, -0.7, 0.05))
 
 
 # --- hall counting --------------------------------------------------------------------------
@@ -408,12 +380,11 @@ def test_autopoll_slow_polls_fill_strain_and_temperatures(rig: Rig) -> None:
     rig.send("fmcb.phalange_power", {"on": 1})
     rig.send("fmcb.autopoll", {"on": 1})
     answers = {
-        (1, 0x10): encode_frame(0, 0x10, CATALOGUE["f2.tactile"].build_reply(
-            taxels=[1] * 6, imu={"accel": [0] * 3, "mag": [0] * 3})),
+        (1, 0x10): CATALOGUE["f2.tactile"].reply_frame(
+            taxels=[1] * 6, imu={"accel": [0] * 3, "mag": [0] * 3}),
         (2, 0x10): f3_reply([2] * 12),
-        (1, 0x13): encode_frame(0, 0x13, CATALOGUE["f2.strain"].build_reply(strain=-12345)),
-        (2, 0x22): encode_frame(0, 0x22, CATALOGUE["f3.temperatures"].build_reply(
-            temp=[2000, 2001, 2002, 2003])),
+        (1, 0x13): CATALOGUE["f2.strain"].reply_frame(strain=-12345),
+        (2, 0x22): CATALOGUE["f3.temperatures"].reply_frame(temp=[2000, 2001, 2002, 2003]),
     }
     for _ in range(1010):  # a phalange pair answering every request 100 µs later
         for f in rig.tendon_frames():

@@ -6,25 +6,23 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import make_hal
 from firmware_py.hal import Hal
 from firmware_py.hand_node import (
     DEFERRED,
     FRAME_GAP_US,
-    TXN_BAD_PAYLOAD,
-    TXN_OK,
-    TXN_REFUSED,
-    TXN_UNKNOWN,
     HandNode,
     Request,
 )
 from firmware_py.identity import default_identity
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
-from protocol.framing import ADDR_BROADCAST, Frame, encode_frame
+from firmware_py.sim.boards import make_hal
+from firmware_py.sim.virtual_hal import VirtualHal
+from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
+from protocol.messages.common import TxnStatus
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 ADDR = 10  # every fmcb
 UID = 0x12345678
@@ -200,11 +198,11 @@ def test_txn_wraps_a_reply_and_echoes_the_sequence(rig: Any) -> None:
     for seq in (0, 7, 255):
         reply = txn(scheduler, hal, seq, 0x22)
         assert reply == {"seq": seq, "board": int(BoardType.FMCB), "address": ADDR,
-                         "inner_type": 0x22, "status": TXN_OK,
+                         "inner_type": 0x22, "status": TxnStatus.OK,
                          "inner": bytes.fromhex("fa00 fb00 fc00")}
     assert txn(scheduler, hal, 3, 0x01) == {"seq": 3, "board": int(BoardType.FMCB),
                                             "address": ADDR, "inner_type": 0x01,
-                                            "status": TXN_OK, "inner": b""}
+                                            "status": TxnStatus.OK, "inner": b""}
 
 
 def test_txn_golden_bytes(rig: Any) -> None:
@@ -220,13 +218,13 @@ def test_txn_golden_bytes(rig: Any) -> None:
 def test_txn_error_statuses(rig: Any) -> None:
     scheduler, hal, node = rig
     unknown = txn(scheduler, hal, 1, 0x77)
-    assert (unknown["status"], unknown["inner"]) == (TXN_UNKNOWN, b"")
+    assert (unknown["status"], unknown["inner"]) == (TxnStatus.UNKNOWN_TYPE, b"")
     no_handler = txn(scheduler, hal, 2, CATALOGUE["fmcb.status"].type_id)
-    assert no_handler["status"] == TXN_UNKNOWN
+    assert no_handler["status"] == TxnStatus.UNKNOWN_TYPE
     bad = txn(scheduler, hal, 3, 0x22, b"\x01\x02")
-    assert (bad["seq"], bad["status"], bad["inner"]) == (3, TXN_BAD_PAYLOAD, b"")
+    assert (bad["seq"], bad["status"], bad["inner"]) == (3, TxnStatus.BAD_PAYLOAD, b"")
     nested = txn(scheduler, hal, 4, TXN.type_id, TXN.build_request(seq=5, inner_type=1, inner=b""))
-    assert (nested["seq"], nested["status"]) == (4, TXN_REFUSED)
+    assert (nested["seq"], nested["status"]) == (4, TxnStatus.REFUSED)
     assert node.counters.unknown_type == 2 and node.counters.bad_payload == 1
 
 
@@ -234,7 +232,7 @@ def test_txn_acknowledges_a_message_without_reply(rig: Any) -> None:
     scheduler, hal, node = rig
     reply = txn(scheduler, hal, 9, 0x23, b"\x99")
     assert (reply["seq"], reply["inner_type"], reply["status"], reply["inner"]) == (
-        9, 0x23, TXN_OK, b"")
+        9, 0x23, TxnStatus.OK, b"")
     assert node.caps == [0x99]
 
 
@@ -244,7 +242,7 @@ def test_txn_carries_a_deferred_reply(rig: Any) -> None:
     assert replies(scheduler, hal, 900) == []
     (frame,) = replies(scheduler, hal, 200)
     reply = TXN.parse_reply(frame.payload)
-    assert (reply["seq"], reply["inner_type"], reply["status"]) == (17, 0x1E, TXN_OK)
+    assert (reply["seq"], reply["inner_type"], reply["status"]) == (17, 0x1E, TxnStatus.OK)
 
 
 def test_txn_to_another_address_is_ignored(rig: Any) -> None:

@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import APP_PROGRAMS, load_program, make_hal
 from firmware_py.current_governor import FULL_CAP, CurrentGovernor
 from firmware_py.palm import PalmApp
 from firmware_py.palm_router import LOST_AFTER_MISSES, QUEUE_DEPTH, tunnel_max_ms
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import APP_PROGRAMS, load_program, make_hal
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.canlink import DEFAULT_PALM_NODE, CanReassembler, can_id, segment
 from protocol.framing import Frame, encode_frame, parse_frame
 from protocol.image import BoardType
@@ -72,13 +72,13 @@ class FakeFmcb:
         if frame.type == STATUS.type_id:
             fields = STATUS.parse_reply(bytes(148))
             fields.update(hall_pos=self.hall_pos, effort=self.effort)
-            return encode_frame(0, STATUS.type_id, STATUS.build_reply(fields)), self.delay_us
+            return STATUS.reply_frame(fields), self.delay_us
         if frame.type == TUNNEL.type_id:
             req = TUNNEL.parse_request(frame.payload)
             inner = parse_frame(req["data"])
             # The tendon bus hears the request itself (echo) and then the phalange's reply.
             heard = req["data"] + encode_frame(0, inner.type, b"")
-            reply = encode_frame(0, TUNNEL.type_id, TUNNEL.build_reply(data=heard))
+            reply = TUNNEL.reply_frame(data=heard)
             return reply, self.tunnel_delay_us
         if frame.type == 0x23:
             self.caps.append(frame.payload[0])
@@ -98,8 +98,7 @@ class Palm:
         self.frames: list[Frame] = []
 
     def send(self, name: str, **fields: Any) -> None:
-        msg = CATALOGUE[name]
-        self.host.deliver(encode_frame(10, msg.type_id, msg.build_request(fields)))
+        self.host.deliver(CATALOGUE[name].request_frame(10, fields))
 
     def run(self, us: int) -> None:
         self.sched.run_for(us)
@@ -220,8 +219,7 @@ def test_powering_off_ends_waiting_routes_as_unpowered(palm: Palm) -> None:
 
 def test_route_reply_to_a_no_reply_message_and_timeout_zero(palm: Palm) -> None:
     palm.power(0)
-    cap = CATALOGUE["fmcb.effort_cap"]
-    palm.route(0, 0, encode_frame(10, cap.type_id, cap.build_request(cap=99)), timeout_ms=50)
+    palm.route(0, 0, CATALOGUE["fmcb.effort_cap"].request_frame(10, cap=99), timeout_ms=50)
     palm.route(0, 0, PING_TO_FMCB, timeout_ms=0)
     palm.run(1 * MS)
     assert [(r["status"], r["frame"]) for r in palm.replies("palm.route")] == [(0, b"")] * 2
@@ -478,7 +476,7 @@ def test_route_inside_a_txn_envelope_is_answered_with_its_sequence(palm: Palm) -
 
 
 def test_palm_boots_from_its_bootloader_and_answers() -> None:
-    from firmware_py.boards import make_node
+    from firmware_py.sim.boards import make_node
 
     sched = Scheduler()
     node = make_node(sched, BoardType.PALM)

@@ -6,7 +6,6 @@ from typing import Any
 
 import pytest
 
-from firmware_py.boards import APP_PROGRAMS, load_program, make_hal, make_node
 from firmware_py.hal import Hal
 from firmware_py.mcu import Mcu
 from firmware_py.phalange import (
@@ -19,11 +18,13 @@ from firmware_py.phalange import (
     supply_interrupted,
 )
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal, VirtualSensors
-from protocol.framing import ADDR_BROADCAST, Frame, encode_frame
+from firmware_py.sim.boards import APP_PROGRAMS, load_program, make_hal, make_node
+from firmware_py.sim.virtual_hal import VirtualHal, VirtualSensors
+from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from protocol.topology import ADDR_BROADCAST
 
 F2_ADDR, F3_ADDR = 1, 2
 BOARDS: dict[str, tuple[BoardType, type[F2App | F3App], int, int]] = {"f2": (BoardType.F2, F2App, F2_ADDR, 6), "f3": (BoardType.F3, F3App, F3_ADDR, 12)}

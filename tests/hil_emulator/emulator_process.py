@@ -17,9 +17,14 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @contextmanager
 def running_emulator(*args: str, startup_timeout_s: float = 60.0) -> Iterator[dict[str, Any]]:
-    """Start ``hil-emulator ARGS``, yield its JSON line (plus ``"process"``), stop it with
-    SIGINT and check it exits 0 with nothing more on standard output."""
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", *args], cwd=ROOT,
+    """Start ``hil-emulator --stats ARGS``, yield its JSON line (plus ``"process"``), stop it
+    with SIGINT and check it exits 0 with nothing more on standard output.
+
+    After the ``with`` block, ``info["stats"]`` holds the emulator's own ``--stats`` report
+    (delivery lateness in ms, port counters): tests take their wall-clock margins from it
+    instead of assuming an idle machine."""
+    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--stats", *args],
+                            cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
@@ -32,10 +37,26 @@ def running_emulator(*args: str, startup_timeout_s: float = 60.0) -> Iterator[di
         out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err
         assert out == "", f"more than one line on stdout: {out!r}"
+        info["stats"] = emulator_stats(err)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def emulator_stats(stderr: str) -> dict[str, Any]:
+    """The ``hil-emulator stats: {...}`` line of ``stderr``, parsed (strict JSON: no NaN)."""
+    line = next(x for x in stderr.splitlines() if x.startswith("hil-emulator stats:"))
+    return dict(json.loads(line.partition(":")[2], parse_constant=_no_constant))
+
+
+def late_s(stats: dict[str, Any]) -> float:
+    """The worst delivery lateness the emulator reported (s); 0 when nothing was late."""
+    return max(0.0, (stats["max_ms"] or 0.0) / 1e3)
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"--stats printed {name}, which is not JSON")
 
 
 def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:

@@ -16,16 +16,14 @@ import numpy as np
 import pytest
 
 from firmware_py.arm_stepper import StepperNodeApp
-from firmware_py.dynamixel_slave import make_arm_node
 from firmware_py.rx64 import Rx64ServoApp
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_arm_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_model import (
     ARM_JOINTS,
     JOINT_RANGES,
     MOUNT_HEIGHT_M,
-    RX64_RANGE_RAD,
-    STEPPER_REDUCTIONS,
     add_arm,
 )
 from hil_emulator.arm_plant import POT_CENTRE, ArmParams, ArmPlant
@@ -33,6 +31,7 @@ from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import Plant, new_spec
 from protocol.control_tables import StepperFlag
 from protocol.image import BoardType
+from protocol.robot import RX64_RANGE_RAD, STEPPER_REDUCTIONS
 
 MS = 1_000  # µs
 COUNTS_PER_RAD = 10_000 / (2 * np.pi)

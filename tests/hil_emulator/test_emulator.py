@@ -11,7 +11,7 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
-from protocol.framing import encode_frame, parse_frame
+from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
 
@@ -19,8 +19,7 @@ S = 1_000_000
 
 
 def _frame(name: str, address: int = 10, **fields: Any) -> bytes:
-    msg = CATALOGUE[name]
-    return encode_frame(address, msg.type_id, msg.build_request(fields))
+    return CATALOGUE[name].request_frame(address, fields)
 
 
 def _route(finger: int, hop: int, name: str, **fields: Any) -> bytes:

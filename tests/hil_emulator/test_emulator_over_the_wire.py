@@ -11,10 +11,13 @@ from typing import Any
 import pytest
 
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
-from protocol.framing import encode_frame
 from protocol.messages import CATALOGUE
-from tests.hil_emulator.emulator_process import running_emulator
+from protocol.topology import ADDR_FMCB, ADDR_PALM
+from tests.hil_emulator.emulator_process import late_s, running_emulator
 from tools.hand_port import HandPort, ReplyTimeout
+
+#: How late this test process itself may be woken on a busy machine (s).
+CLIENT_SLACK_S = 0.05
 
 
 def _until(what: Callable[[], Any], timeout_s: float, every_s: float = 0.1) -> Any:
@@ -37,7 +40,7 @@ def _running(reply: dict[str, Any]) -> dict[str, Any] | None:
 
 @pytest.mark.slow
 def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) -> None:
-    """What the issue's "done" says: run it with --link-dir and talk to DIR/arm."""
+    """As a user runs it: with --link-dir, talking to DIR/arm."""
     from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
 
     robot = tmp_path / "robot"
@@ -48,11 +51,11 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
         sdk = PacketHandler(1.0)
         try:
             for dxl_id in range(1, 8):
-                model, result, error = sdk.ping(port, dxl_id)
+                model, result, error = _retried(lambda i=dxl_id: sdk.ping(port, i))
                 assert result == COMM_SUCCESS and error == 0, (dxl_id, result, error)
                 expected = STEPPER_MODEL_NUMBER if dxl_id <= 4 else RX64_TABLE.model_number
                 assert model == expected
-                value, result, _ = sdk.read2ByteTxRx(port, dxl_id, 0)
+                value, result, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(port, i, 0))
                 assert result == COMM_SUCCESS and value == expected
             _, result, _ = sdk.ping(port, 9)
             assert result != COMM_SUCCESS  # nobody at 9: a timeout, as on the real bus
@@ -62,16 +65,16 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
             start: dict[int, int] = {}
             for dxl_id in range(1, 8):
                 if dxl_id <= 4:
-                    start[dxl_id], res, _ = sdk.read4ByteTxRx(
-                        port, dxl_id, STEPPER_TABLE["present_position"].address)
+                    start[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read4ByteTxRx(
+                        port, i, STEPPER_TABLE["present_position"].address))
                     start[dxl_id] = _signed32(start[dxl_id])
                 else:
-                    start[dxl_id], res, _ = sdk.read2ByteTxRx(
-                        port, dxl_id, RX64_TABLE["present_position"].address)
+                    start[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(
+                        port, i, RX64_TABLE["present_position"].address))
                 assert res == COMM_SUCCESS
                 torque = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
-                res, err = sdk.write1ByteTxRx(port, dxl_id,
-                                                 torque["torque_enable"].address, 1)
+                res, err = _retried(lambda i=dxl_id, t=torque: sdk.write1ByteTxRx(
+                    port, i, t["torque_enable"].address, 1))
                 assert res == COMM_SUCCESS and err == 0, (dxl_id, res, err)
 
             # Joint 1 (no coupling into it) and the wrist servos; joints 2-4 hold.
@@ -90,12 +93,12 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
             present: dict[int, int] = {}
             for dxl_id in range(1, 8):
                 if dxl_id <= 4:
-                    value, res, _ = sdk.read4ByteTxRx(
-                        port, dxl_id, STEPPER_TABLE["present_position"].address)
+                    value, res, _ = _retried(lambda i=dxl_id: sdk.read4ByteTxRx(
+                        port, i, STEPPER_TABLE["present_position"].address))
                     present[dxl_id] = _signed32(value)
                 else:
-                    present[dxl_id], res, _ = sdk.read2ByteTxRx(
-                        port, dxl_id, RX64_TABLE["present_position"].address)
+                    present[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(
+                        port, i, RX64_TABLE["present_position"].address))
                 assert res == COMM_SUCCESS
             for dxl_id, delta in moves.items():
                 moved = present[dxl_id] - start[dxl_id]
@@ -106,6 +109,18 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
                 assert abs(present[dxl_id] - start[dxl_id]) < 112  # held within ±4 deg
         finally:
             port.closePort()
+
+
+def _retried(call: Callable[[], tuple[Any, ...]], tries: int = 5) -> tuple[Any, ...]:
+    """Call a dynamixel-sdk TxRx function again when it timed out, as a host on a busy
+    machine would (the sdk's own timeout is a few tens of ms of wall time)."""
+    from dynamixel_sdk import COMM_RX_TIMEOUT
+
+    for _ in range(tries - 1):
+        out = call()
+        if COMM_RX_TIMEOUT not in out[-2:]:
+            return out
+    return call()
 
 
 def _signed32(value: int) -> int:
@@ -158,7 +173,7 @@ def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
     import serial
 
     status = CATALOGUE["fmcb.status"]
-    request = encode_frame(10, status.type_id, status.build_request({}))
+    request = status.request_frame(ADDR_FMCB)
     wire_s = (len(request) + 148 + 7) * 10 / 2_000_000
     with running_emulator("--config", "loose-finger") as info:
         with HandPort(info["fingers"][0]) as finger:
@@ -170,16 +185,18 @@ def test_a_148_byte_status_takes_its_wire_time_through_the_pty() -> None:
                 got = b""
                 t0 = time.perf_counter()
                 port.write(request)
-                while len(got) < 155 and time.perf_counter() - t0 < 0.1:
+                while len(got) < 155 and time.perf_counter() - t0 < 2.0:
                     got += port.read(4096)
                 times.append(time.perf_counter() - t0)
                 assert len(got) == 155
+                assert got[0] == request[0]  # a whole frame, from its sync byte
                 time.sleep(0.01)
     times.sort()
-    # Never faster than the wire; at best within 2 ms of it (the exact time is checked on
-    # the simulation clock in test_emulator.py; here a busy machine may add to the median).
-    assert wire_s <= times[0] <= wire_s + 0.002
-    assert times[len(times) // 2] <= wire_s + 0.010
+    # Never faster than the wire, whatever the load.  How much later is up to the machine:
+    # the emulator reports its own worst lateness; this client may be woken late as well.
+    assert wire_s <= times[0]
+    assert times[len(times) // 2] <= wire_s + late_s(info["stats"]) + CLIENT_SLACK_S
+    # (the exact time is checked on the simulation clock in test_emulator.py)
 
 
 @pytest.mark.slow
@@ -193,7 +210,7 @@ def test_python_can_slcan_reaches_the_palm() -> None:
                       sleep_after_open=0)
         try:
             ident = CATALOGUE["identify"]
-            frame = encode_frame(10, ident.type_id, ident.build_request({}))
+            frame = ident.request_frame(ADDR_PALM)
             rx = CanReassembler()
             deadline = time.monotonic() + 10
             reply = None
@@ -227,3 +244,58 @@ def test_ready_names_the_ports_with_every_hand_node_running() -> None:
                 assert hand.route(k, hop, "identify")["running"] == 1
         status = hand.route(2, 0, "fmcb.status")
         assert status["pp_time"] > 0 and status["dp_time"] > 0  # autopoll has run
+
+
+def _rss_kb(pid: int) -> int:
+    text = Path(f"/proc/{pid}/status").read_text()
+    return int(next(x for x in text.splitlines() if x.startswith("VmRSS:")).split()[1])
+
+
+@pytest.mark.slow
+def test_a_flood_on_the_arm_port_is_an_overrun_and_the_next_ping_is_answered() -> None:
+    """A host writing as fast as a pty takes for 3 s: the port keeps only what its
+    1 Mbaud wire carries soon (the rest is an overrun, counted); memory stays flat; a ping
+    written afterwards is answered within 50 ms (plus what the emulator reports as late)."""
+    import os
+
+    import serial
+
+    from hil_emulator.host_links import INPUT_FIFO_US
+    from protocol.dynamixel import InstructionPacket
+
+    ping = InstructionPacket(1, 0x01, b"").encode()
+    with running_emulator("--config", "arm", "--no-physics") as info:
+        pid = info["process"].pid
+        with serial.Serial(info["arm"], 1_000_000, timeout=0) as port:
+            port.write(ping)
+            assert _until(lambda: port.read(64), 5, every_s=0.01)[:2] == b"\xff\xff"
+            rss_before = _rss_kb(pid)
+            fd = port.fileno()
+            os.set_blocking(fd, False)
+            junk = b"\x55" * 4096
+            written = 0
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                try:
+                    written += os.write(fd, junk)
+                except BlockingIOError:
+                    time.sleep(0.0005)
+            os.set_blocking(fd, True)
+            port.flush()  # the pty has handed everything over to the emulator
+            rss_after = _rss_kb(pid)
+            time.sleep(0.02)
+            port.reset_input_buffer()
+            t0 = time.perf_counter()
+            port.write(ping)
+            got = b""
+            while len(got) < 6 and time.perf_counter() - t0 < 2.0:
+                got += port.read(64)
+            answered_s = time.perf_counter() - t0
+    stats = info["stats"]
+    arm = stats["ports"]["arm"]
+    assert got[:6] == bytes([0xFF, 0xFF, 1, 2, 0, 0xFC])  # id 1, no error
+    assert answered_s <= 0.050 + late_s(stats) + CLIENT_SLACK_S, (answered_s, stats)
+    assert written > 3 * 100_000  # more than the 1 Mbaud wire could carry in 3 s
+    assert arm["overrun"] > written - 3.5 * 100_000  # the rest was lost, and counted
+    assert arm["queue_peak_us"] <= INPUT_FIFO_US + 1_000  # the queue stayed bounded
+    assert rss_after - rss_before < 10_000  # kB: memory flat

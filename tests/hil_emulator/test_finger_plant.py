@@ -14,12 +14,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from firmware_py.boards import make_node
 from firmware_py.fmcb import FmcbApp
-from firmware_py.fmcb_control import HallCounter, coupling_matrix, motor_to_joint
+from firmware_py.fmcb_control import HallCounter
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.boards import make_node
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand_model import (
@@ -33,10 +33,12 @@ from hil_emulator.hand_model import (
 from hil_emulator.hand_rig import HandRig
 from hil_emulator.hand_sensors import DEFAULT_TACTILE, STRAIN_COUNTS_PER_NM
 from hil_emulator.plant import Plant, new_spec
-from protocol.framing import encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
+from protocol.robot import finger_coupling_matrix as coupling_matrix
+from protocol.robot import motor_to_joint
 from protocol.stream import decode_all
+from protocol.topology import ADDR_FMCB
 
 S = 1_000_000  # µs
 #: Height of the hand above the floor (m): nothing touches the floor.
@@ -122,8 +124,7 @@ def test_an_unpowered_or_detached_board_gets_no_torque() -> None:
 
 # --- closed loop through the real fmcb application ----------------------------------------
 def send_fmcb(fmcb: Mcu, name: str, fields: dict[str, Any]) -> None:
-    msg = CATALOGUE[name]
-    vhal(fmcb).uart("pogo").deliver(encode_frame(10, msg.type_id, msg.build_request(fields)))
+    vhal(fmcb).uart("pogo").deliver(CATALOGUE[name].request_frame(ADDR_FMCB, fields))
 
 
 def ask_fmcb(hand: HandRig, fmcb: Mcu, name: str, fields: dict[str, Any]) -> dict[str, Any]:

@@ -8,7 +8,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from firmware_py.fmcb_control import HALL_STATES_PER_RAD, coupling_matrix
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand_model import (
     DEFAULT_LAYOUT,
@@ -22,6 +21,8 @@ from hil_emulator.hand_model import (
     motor_coupling_rad,
 )
 from hil_emulator.plant import new_spec
+from protocol.robot import HALL_STATES_PER_RAD
+from protocol.robot import finger_coupling_matrix as coupling_matrix
 
 
 def compiled(layout: str = DEFAULT_LAYOUT, degree: bool = True) -> mujoco.MjModel:

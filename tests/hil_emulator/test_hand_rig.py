@@ -10,9 +10,10 @@ from typing import Any
 import pytest
 
 from hil_emulator.hand_rig import HandRig
-from protocol.framing import encode_frame, parse_frame
+from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from protocol.topology import ADDR_PALM, HOP_ADDRESS, Hop
 
 S = 1_000_000  # µs
 
@@ -21,7 +22,7 @@ def ask(rig: HandRig, name: str, wait_us: int = 20_000, **fields: Any) -> dict[s
     """Send a request for message ``name`` to the palm and return the parsed reply."""
     msg = CATALOGUE[name]
     rig.take_host_bytes()
-    rig.send_from_host(encode_frame(10, msg.type_id, msg.build_request(fields)))
+    rig.send_from_host(msg.request_frame(ADDR_PALM, fields))
     rig.run_for(wait_us)
     replies = [f for f in decode_all(rig.take_host_bytes()) if f.type == msg.type_id]
     assert replies, f"no reply to {name}"
@@ -32,8 +33,7 @@ def route(rig: HandRig, finger: int, hop: int, name: str, timeout_ms: int = 20,
           **fields: Any) -> tuple[int, dict[str, Any] | None]:
     """Route ``name`` to a node behind the palm; return (route status, parsed inner reply)."""
     msg = CATALOGUE[name]
-    address = {0: 10, 1: 1, 2: 2}[hop]
-    inner = encode_frame(address, msg.type_id, msg.build_request(fields))
+    inner = msg.request_frame(HOP_ADDRESS[Hop(hop)], fields)
     reply = ask(rig, "palm.route", wait_us=(timeout_ms + 10) * 1000, finger=finger, hop=hop,
                 timeout_ms=timeout_ms, frame=inner)
     assert (reply["finger"], reply["hop"]) == (finger, hop)

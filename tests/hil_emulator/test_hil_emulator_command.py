@@ -64,6 +64,7 @@ def test_sigterm_also_stops_it_cleanly(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=20)
         assert proc.returncode == 0
+        assert "Traceback" not in proc.communicate()[1]
         assert not (tmp_path / "arm").exists()
     finally:
         if proc.poll() is None:
@@ -122,3 +123,22 @@ def test_a_link_name_taken_by_a_file_is_a_clear_error(tmp_path: Path) -> None:
     assert result.stdout == ""
     assert "arm" in result.stderr and "not a symlink" in result.stderr
     assert (tmp_path / "arm").read_text() == "not a link"  # nothing of the user's is lost
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
+def test_duration_must_be_positive_and_finite(value: str) -> None:
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--duration", value],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stdout == ""
+    assert "--duration" in result.stderr and "seconds" in result.stderr
+
+
+def test_a_link_dir_that_cannot_be_made_is_named(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("")
+    bad = tmp_path / "file" / "robot"
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                             "--no-physics", "--link-dir", str(bad)],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert str(bad) in result.stderr and "Not a directory" in result.stderr

@@ -7,6 +7,7 @@ touching this file.
 
 from __future__ import annotations
 
+import enum
 import struct
 from typing import Any
 
@@ -24,6 +25,7 @@ from protocol.catalogue import (
     iter_fields,
     static_size,
 )
+from protocol.enum_field import EnumField
 from protocol.errors import MessageError, PayloadError, ProtocolError, UnknownMessageError
 from protocol.framing import Frame
 from protocol.interpret import candidate_nodes, interpret
@@ -89,6 +91,13 @@ def values_for(con: c.Construct) -> st.SearchStrategy[Any]:
     con = _unwrap(con)
     if isinstance(con, c.Struct):
         return _struct_values(con)
+    if isinstance(con, EnumField):
+        members = list(con.enum_type)
+        return st.one_of(
+            st.sampled_from(members),
+            st.sampled_from([m.name for m in members] + [m.name.lower() for m in members]),
+            values_for(con.subcon),  # any code, known or not
+        )
     if isinstance(con, c.FormatField):
         code = con.fmtstr[-1]
         if code == "f":
@@ -173,6 +182,8 @@ def assert_matches(values: Any, parsed: Any, computed: set[str]) -> None:
         assert len(parsed) == len(values)
         for v, p in zip(values, parsed, strict=True):
             assert_matches(v, p, computed)
+    elif isinstance(values, str) and isinstance(parsed, enum.IntEnum):
+        assert parsed.name.lower() == values.lower()  # a code built from its name
     else:
         assert parsed == values
 

@@ -2,7 +2,7 @@
 writes, and the layout rules of the arm stepper node's table.
 
 The expected RX-64 addresses, sizes and defaults are copied by hand from
-shared/reference/dynamixel.md, not read from the code under test.
+the ROBOTIS RX-64 e-Manual (protocol 1.0 control table), not read from the code under test.
 """
 
 from __future__ import annotations

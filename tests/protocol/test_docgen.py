@@ -29,3 +29,12 @@ def test_status_table_gives_offsets_and_units() -> None:
     assert "| 128 | hall_pos | i32[3] | 12 | hall counts |" in section
     assert "| 110 | <pad> | pad | 2 |" in section
     assert "Total: 148 bytes." in section
+
+
+def test_coded_fields_list_their_enum_members() -> None:
+    text = docgen.render()
+    route = text.split("### `palm.route`")[1].split("### ")[0]
+    assert ("| 2 | status | u8 | 1 | - | outcome of the route; RouteStatus (0 OK, 1 NO_REPLY, "
+            "2 UNPOWERED, 3 BAD_DESTINATION, 4 LINK_DOWN, 5 BUSY) |") in route
+    status = text.split("### `palm.hand_status`")[1].split("### ")[0]
+    assert "power: FingerPower (0 OFF, 1 LOW, 2 FULL)" in status  # a field of a nested struct

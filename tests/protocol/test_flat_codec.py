@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from typing import Any
 
@@ -14,6 +15,9 @@ from protocol.catalogue import to_plain
 from protocol.errors import PayloadError
 from protocol.flat_codec import flat_codec, tail_codec
 from protocol.messages import CATALOGUE
+from protocol.messages.bootloader import BootResult, ImageStatus
+from protocol.messages.fmcb import ControlMode
+from protocol.messages.palm import FingerEvent, FingerPower
 
 FLAT = [(m, direction, decl) for m in CATALOGUE
         for direction, decl in (("request", m.request), ("reply", m.reply))
@@ -155,3 +159,74 @@ def test_tail_fast_path_parses_what_construct_does(msg: Any, direction: str, dec
         assert _same(msg.parse(direction, payload), reference)
     elif reference is not None:  # declined: construct parses it (the catalogue still does)
         assert _same(msg.parse(direction, payload), reference)
+
+
+# --- coded (EnumField) fields -----------------------------------------------------------------
+
+def test_coded_messages_have_a_fast_path() -> None:
+    names = {(m.name, d) for m, d, _ in FLAT}
+    assert {("palm.finger_power", "reply"), ("palm.finger_event", "reply"),
+            ("bl.activate", "reply")} <= names
+
+
+@pytest.mark.parametrize(("name", "direction", "payload", "expected"), [
+    ("palm.finger_power", "reply", bytes([2, 0, 7, 255]),
+     {"states": [FingerPower.FULL, FingerPower.OFF, 7, 255]}),
+    ("palm.finger_power", "request", bytes([0xFF, 1, 10, 0]),
+     {"finger": 0xFF, "state": FingerPower.LOW, "stagger_ms": 10}),
+    ("palm.finger_power", "request", bytes([0, 3, 0, 0]),
+     {"finger": 0, "state": 3, "stagger_ms": 0}),
+    ("palm.finger_event", "reply", bytes([1, 4, 1, 0, 0, 0]),
+     {"finger": 1, "event": FingerEvent.UNPOWERED, "time": 1}),
+    ("palm.finger_event", "reply", bytes([1, 0x80, 1, 0, 0, 0]),
+     {"finger": 1, "event": 0x80, "time": 1}),
+    ("bl.activate", "reply", bytes([4, 3]),
+     {"status": BootResult.WRONG_BOARD, "image_status": ImageStatus.WRONG_BOARD}),
+    ("bl.activate", "reply", bytes([200, 7]), {"status": 200, "image_status": 7}),
+])
+def test_fast_path_names_known_codes_and_keeps_unknown_ones(
+        name: str, direction: str, payload: bytes, expected: dict[str, Any]) -> None:
+    msg = CATALOGUE[name]
+    decl = msg.declaration(direction)
+    codec = flat_codec(decl)
+    assert codec is not None
+    fast = codec.parse(payload)
+    assert fast is not None and _same(fast, expected)  # members, and plain ints otherwise
+    assert _same(fast, to_plain(decl.parse(payload)))
+    assert codec.build(fast) == payload
+    # A name is not a number: the fast path declines and construct translates it.
+    named = {k: (v.name.lower() if isinstance(v, enum.IntEnum) else v) for k, v in fast.items()}
+    if named != fast:
+        assert codec.build(named) is None
+        assert msg.build(direction, named) == payload
+
+
+def test_codes_inside_arrays_of_structs_and_tail_heads_are_named() -> None:
+    # palm.hand_status reply: time u32, effort_cap u8, poll_hz u8, bus_voltage u16, then four
+    # fingers of present u8, power u8 (FingerPower), current u16, last_seen_ms u16,
+    # hall_pos 3×i32, effort 3×i16 (a 24-byte element).
+    decl = CATALOGUE["palm.hand_status"].reply
+    assert decl is not None
+    codec = flat_codec(decl)
+    assert codec is not None and codec.size == 8 + 4 * 24
+    powers = [2, 0, 9, 1]  # 9 has no name
+    payload = bytes(8) + b"".join(bytes([1, p]) + bytes(22) for p in powers)
+    fast = codec.parse(payload)
+    assert fast is not None
+    assert [f["power"] for f in fast["fingers"]] == powers
+    assert [type(f["power"]) for f in fast["fingers"]] == [FingerPower, FingerPower, int,
+                                                         FingerPower]
+    assert _same(fast, to_plain(decl.parse(payload)))
+    # fmcb.control request: the Switch key in the head is a ControlMode member
+    control = tail_codec(CATALOGUE["fmcb.control"].request)
+    assert control is not None
+    parsed = control.parse(bytes([3]) + bytes.fromhex("e803" "ffff" "0000"))
+    assert parsed is not None and type(parsed["mode"]) is ControlMode
+    assert parsed == {"mode": ControlMode.JOINT_FIXED, "args": {"target": [1000, -1, 0]}}
+
+
+def test_plain_numbers_and_fixed_bytes_carry_no_members() -> None:
+    codec = flat_codec(CATALOGUE["fmcb.param_set"].request)
+    assert codec is not None
+    assert [f[3] for f in codec.fields] == [None, None]
+    assert type(codec.parse(bytes(6))["index"]) is int  # type: ignore[index]

@@ -16,12 +16,6 @@ from hypothesis import strategies as st
 from protocol.crc import crc16_xmodem, crc16_xmodem_fast
 from protocol.errors import CrcError, FrameError, FrameLengthError, ProtocolError
 from protocol.framing import (
-    ADDR_BROADCAST,
-    ADDR_F2,
-    ADDR_F3,
-    ADDR_FMCB,
-    ADDR_HOST,
-    ADDR_PALM,
     BAD_CRC,
     BAD_LENGTH,
     CRC_SIZE,
@@ -40,6 +34,7 @@ from protocol.framing import (
     encode_frame,
     parse_frame,
 )
+from protocol.topology import ADDR_FMCB
 
 
 def _bitwise_crc16_xmodem(data: bytes) -> int:
@@ -124,24 +119,16 @@ def test_golden_parse(golden: bytes, address: int, msg_type: int, payload: bytes
 def test_golden_messages_from_catalogue() -> None:
     from protocol.messages import CATALOGUE
 
-    ping = CATALOGUE["ping"]
-    assert encode_frame(ADDR_FMCB, ping.type_id, ping.build_request()) == GOLDEN_PING
-    power = CATALOGUE["fmcb.phalange_power"]
-    assert encode_frame(ADDR_FMCB, power.type_id, power.build_request(on=1)) == (
+    assert CATALOGUE["ping"].request_frame(ADDR_FMCB) == GOLDEN_PING
+    assert CATALOGUE["fmcb.phalange_power"].request_frame(ADDR_FMCB, on=1) == (
         GOLDEN_PHALANGE_POWER
     )
-    hw = CATALOGUE["hw_version"]
-    assert encode_frame(ADDR_HOST, hw.type_id, hw.build_reply(version=0xBEEF0041)) == (
-        GOLDEN_HW_VERSION_REPLY
-    )
+    assert CATALOGUE["hw_version"].reply_frame(version=0xBEEF0041) == GOLDEN_HW_VERSION_REPLY
 
 
 def test_constants() -> None:
     assert SYNC == 0x42
     assert (HEADER_SIZE, CRC_SIZE, OVERHEAD) == (5, 2, 7)
-    assert (ADDR_HOST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_PALM, ADDR_BROADCAST) == (
-        0, 1, 2, 10, 10, 0xFF,
-    )
     assert DEFAULT_MAX_PAYLOAD == 1024 - 7
     assert set(OUTCOME_NAMES) == {NEED_MORE, FRAME, SKIP, BAD_LENGTH, BAD_CRC}
     assert len(set(OUTCOME_NAMES.values())) == 5

@@ -114,6 +114,12 @@ def test_flash_geometry() -> None:
     assert FLASH.page_address(FLASH.param_page) == 0x43FC00  # 0x400000 + 1020 * 256
     assert FLASH.page_of(FLASH.hw_version_address) == 31 == FLASH.page_of(0x401FFC)
     assert FLASH.node_address_address == 0x401FFC and FLASH.hw_version_address == 0x401FF8
+    assert (FLASH.header_page, FLASH.payload_first_page) == (32, 33)
+    assert FLASH.page_address(FLASH.payload_first_page) == 0x402100 == APP_START_ADDRESS + 256
+    assert FLASH.boot_control_page == 1021 and FLASH.boot_control_page not in FLASH.app_pages
+    assert FLASH.identity_address == 0x401FF0 and FLASH.page_of(FLASH.identity_address) == 31
+    # the identity's 16 bytes end exactly at the end of the last bootloader page
+    assert FLASH.identity_address + 16 == FLASH.page_address(FLASH.bootloader_pages.stop)
 
 
 # --- Version ------------------------------------------------------------------------------

@@ -224,10 +224,10 @@ def reference_lines(data: bytes, node: str | None = None) -> str:
     """What ``handbus decode`` printed before it was made fast: a dict per frame, deep-copied
     by ``jsonable`` and printed by ``json.dumps`` (the oracle of the fast writer)."""
     from protocol.catalogue import REQUEST
-    from protocol.framing import ADDR_HOST
     from protocol.interpret import Interpretation, candidate_nodes
     from protocol.messages import CATALOGUE
     from protocol.stream import decode_all
+    from protocol.topology import ADDR_HOST
 
     def interpret_slowly(frame: Any, hint: str | None) -> Interpretation:
         direction = "reply" if frame.address == ADDR_HOST else REQUEST
@@ -401,6 +401,34 @@ def test_encode_control_with_nested_args(capsys: pytest.CaptureFixture[str]) -> 
     assert bytes.fromhex(out.strip())[2:6] == bytes.fromhex("01001d00")
 
 
+def test_coded_fields_decode_to_names_that_encode_back(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # palm.route reply: finger 1, hop 2, status 1 (NO_REPLY); then status 0x99 (no name).
+    path = tmp_path / "c.bin"
+    path.write_bytes(encode_frame(0, 0x62, bytes([1, 2, 1])) +
+                     encode_frame(0, 0x62, bytes([1, 2, 0x99])))
+    _, out, _ = run_main(["decode", "--node", "palm", str(path)], capsys)
+    known, unknown = json_lines(out)[:2]
+    assert known["fields"] == {"finger": 1, "hop": "F3", "status": "NO_REPLY", "frame": ""}
+    assert unknown["fields"]["status"] == 0x99
+    code, out, err = run_main(["encode", "palm.route", "--reply", "finger=1", "hop=2",
+                               "status=NO_REPLY", "frame="], capsys)
+    assert (code, err) == (0, "")
+    assert bytes.fromhex(out.strip()) == encode_frame(0, 0x62, bytes([1, 2, 1]))
+
+
+def test_encode_a_code_by_name(capsys: pytest.CaptureFixture[str]) -> None:
+    by_number = run_main(["encode", "fmcb.control", "mode=3", "args.target=1000,-1,0",
+                          "--addr", "10"], capsys)
+    by_name = run_main(["encode", "fmcb.control", "mode=joint_fixed", "args.target=1000,-1,0",
+                        "--addr", "10"], capsys)
+    assert by_name == by_number
+    assert bytes.fromhex(by_name[1].strip())[5:-2] == bytes.fromhex("03" "e803" "ffff" "0000")
+    code, _, err = run_main(["encode", "fmcb.control", "mode=sideways", "--addr", "10"], capsys)
+    assert code == 2 and "ControlMode" in err
+
+
 def test_encode_bytes_and_text_fields(capsys: pytest.CaptureFixture[str]) -> None:
     _, out, _ = run_main(
         ["encode", "fmcb.tunnel", "max_ms=5", "data=420a", "--addr", "10"], capsys
@@ -440,6 +468,16 @@ def test_encode_unknown_name_suggests(capsys: pytest.CaptureFixture[str]) -> Non
         (["encode", "fmcb.control", "mode=2", "args.target=0.1,0.2,x", "--addr", "10"],
          "args.target[2]: expected a number, got 'x'"),
         (["encode", "fmcb.phalange_power", "on=256", "--addr", "10"], "on: 256 is outside 0..255"),
+        # coded fields: a name is checked against the members, a number against the field,
+        # and a Switch keyed by a code given by name checks that case's arguments
+        (["encode", "fmcb.control", "mode=sideways", "--addr", "10"],
+         "mode: 'sideways' is not a ControlMode (idle, motor, joint, joint_fixed, "
+         "joint_effort, relative, or its number)"),
+        (["encode", "fmcb.control", "mode=256", "--addr", "10"], "mode: 256 is outside 0..255"),
+        (["encode", "fmcb.control", "mode=joint", "args.target=0.1,0.2", "--addr", "10"],
+         "args.target: expected 3 numbers, got 2"),
+        (["encode", "fmcb.control", "mode=JOINT", "args.targt=1,2,3", "--addr", "10"],
+         "fmcb.control: unknown field 'args.targt' (fields of args: target)"),
         (["encode", "fmcb.phalange_power", "on=1.5", "--addr", "10"],
          "on: expected an integer, got 1.5"),
         (["encode", "fmcb.param_set", "index=1", "value=0102", "--addr", "10"],

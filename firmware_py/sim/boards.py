@@ -1,10 +1,11 @@
 """The boards of the hand and arm as virtual nodes: peripherals, identity, installed image.
 
 :func:`make_node` gives a powered-off :class:`~firmware_py.mcu.Mcu` on a
-:class:`~firmware_py.virtual_hal.VirtualHal` with the board's UARTs, power switches, motors
+:class:`~firmware_py.sim.virtual_hal.VirtualHal` with the board's UARTs, power switches, motors
 and sensors, its identity programmed, and (optionally) an application image installed and
-activated as a factory would.  Tests use it directly; the emulator wires the same nodes to
-the plant and the buses.
+activated as a factory would; :func:`make_arm_node` gives a running arm node (Dynamixel
+slave).  Tests use them directly; the emulator wires the same nodes to the plant and the
+buses.
 """
 
 from __future__ import annotations
@@ -14,13 +15,18 @@ import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from firmware_py.arm_stepper import StepperNodeApp
+from firmware_py.dynamixel_slave import DynamixelSlave
+from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
 from firmware_py.hal import Hal
 from firmware_py.identity import IDENTITY_ADDRESS, Identity, default_identity
 from firmware_py.mcu import Mcu, Program, ProgramFactory
+from firmware_py.rx64 import Rx64ServoApp
 from firmware_py.scheduler import Scheduler
-from firmware_py.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.image import BoardType, make_image, parse_image
+from protocol.topology import ARM_BUS_BAUD, FINGERS, HOST_LINK_BAUD, POGO_BAUD, TENDON_BAUD
 
 #: Application name (in the image header) → "module:Class" of its program.
 APP_PROGRAMS: dict[str, str] = {
@@ -56,37 +62,36 @@ _IMU: dict[str, int | tuple[int, ...]] = {"accel": (0, 0, 1000), "mag": (0, 0, 0
 BOARD_SPECS: dict[BoardType, BoardSpec] = {
     BoardType.PALM: BoardSpec(
         BoardType.PALM, "palm",
-        {"host": 2_000_000, "finger0": 2_000_000, "finger1": 2_000_000, "finger2": 2_000_000,
-         "finger3": 2_000_000},
+        {"host": HOST_LINK_BAUD, **{f"finger{k}": POGO_BAUD for k in range(FINGERS)}},
         power_switches=("finger0", "finger1", "finger2", "finger3"),
         can=True,
         sensors={**_IMU, "gyro": (0, 0, 0), **_channels("taxel", 32, 2000),
                  **_channels("temperature", 7, 250), "supply_mv": 24000},
     ),
     BoardType.FMCB: BoardSpec(
-        BoardType.FMCB, "fmcb", {"pogo": 2_000_000, "tendon": 2_000_000},
+        BoardType.FMCB, "fmcb", {"pogo": POGO_BAUD, "tendon": TENDON_BAUD},
         power_switches=("phalange",), motors=3,
         sensors={**_IMU, **_channels("temperature", 3, 250), "supply_mv": 24000},
     ),
     BoardType.F2: BoardSpec(
-        BoardType.F2, "f2", {"tendon": 2_000_000},
+        BoardType.F2, "f2", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 6, 2000), "strain": 0,
                  **_channels("thermistor", 4, 0)},
     ),
     BoardType.F3: BoardSpec(
-        BoardType.F3, "f3", {"tendon": 2_000_000},
+        BoardType.F3, "f3", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 12, 2000), **_channels("thermistor", 4, 2048)},
     ),
     # Arm nodes: Dynamixel protocol 1.0 slaves on one RS-485 bus; they run their application
-    # directly (firmware_py.dynamixel_slave.make_arm_node), with no hand bootloader.
+    # directly (make_arm_node), with no hand bootloader.
     # "temperature" is in 0.1 degC, "supply_mv" in mV, "pot" 0..1023 over 300 deg, "load" in
     # 1/1023 of maximum torque (signed, + = CCW).
     BoardType.ARM_STEPPER: BoardSpec(
-        BoardType.ARM_STEPPER, "arm_stepper", {"bus": 1_000_000},
+        BoardType.ARM_STEPPER, "arm_stepper", {"bus": ARM_BUS_BAUD},
         sensors={"temperature": 250, "supply_mv": 24000}, stepper=True, encoder=True,
     ),
     BoardType.RX64: BoardSpec(
-        BoardType.RX64, "rx64", {"bus": 1_000_000}, motors=1,
+        BoardType.RX64, "rx64", {"bus": ARM_BUS_BAUD}, motors=1,
         sensors={"pot": 512, "temperature": 250, "supply_mv": 18000, "load": 0},
     ),
 }
@@ -167,3 +172,22 @@ def make_node(scheduler: Scheduler, board: BoardType, *, image: bytes | None = N
         install_image(hal, image if image is not None else default_image(board))
     programs = apps if apps is not None else _LazyApps(APP_PROGRAMS)
     return Mcu(hal, bootloader or load_program(BOOTLOADER_PROGRAM), programs)
+
+
+def make_arm_node(scheduler: Scheduler, board: BoardType, dxl_id: int
+                  ) -> tuple[VirtualHal, DynamixelSlave]:
+    """A powered arm node of ``board`` (ARM_STEPPER or RX64) with factory ID ``dxl_id`` at
+    1 Mbaud, its application started (arm nodes have no hand bootloader).  The HAL's reset
+    (watchdog, ``hal.reset()``) reboots the application."""
+    app_class: type[StepperNodeApp] | type[Rx64ServoApp]
+    if board == BoardType.ARM_STEPPER:
+        app_class = StepperNodeApp
+    elif board == BoardType.RX64:
+        app_class = Rx64ServoApp
+    else:
+        raise ConfigError(f"{board!r} is not an arm node")
+    hal = make_hal(scheduler, board)
+    app = app_class(hal, dxl_id)
+    hal.on_reset = app.reboot
+    app.start()
+    return hal, app

@@ -4,19 +4,37 @@ Tests drive firmware through it in microseconds; the emulator builds on the same
 replaces the sensor values, motor loads and wires with the plant and the bus fabric.
 Everything a test sets is a plain attribute (``hal.sensors.values["accel"] = (0, 0, 1000)``);
 everything the firmware did is recorded (``uart.sent``, ``motor.duty``, ``flash.writes``).
+
+**Plant side.**  Besides the :mod:`firmware_py.hal` interface the firmware calls, each part
+has methods for the world outside the MCU (the emulator's plant), and a plant uses only
+those: it drives the inputs and reads the outputs, never the firmware's side nor the
+recording attributes.
+
+* :class:`VirtualSensors`: ``set_accel``, ``set_mag``, ``set_gyro`` (3-axis counts),
+  ``set_taxels``, ``set_strain``, ``set_temperature(s)``, ``set_thermistors``,
+  ``set_supply_mv``, ``set_pot``, ``set_load`` (``set_input`` for any other channel);
+* :class:`VirtualMotor`: reads ``commanded_duty``, ``bridge_enabled``, ``braking``; drives
+  ``set_hall_state``, ``set_current_ma``;
+* :class:`VirtualStepper`: reads ``position_steps`` (exact), ``commanded_rate``,
+  ``commanded_current_ma``;
+* :class:`VirtualEncoder`: drives ``set_count``, ``pulse_index``;
+* :class:`VirtualPowerSwitch`: reads ``state``; drives ``set_load_ma``.
+
+They run in the emulator's 1 kHz tick for every node: each is one attribute read or write
+behind a method (the sensors' also check that the board has the channel), and a plant may
+bind them once (``set_hall = motor.set_hall_state``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from firmware_py import hal
 from firmware_py.errors import FlashError, HalError
 from firmware_py.scheduler import Scheduler, TimerHandle
+from protocol.topology import wire_time_us
 
-#: Bits on the wire per UART character (start, 8 data, stop).
-BITS_PER_CHAR = 10
 #: Time to erase and program one flash page (µs); SAM3S datasheet order of magnitude.
 PAGE_WRITE_US = 2_000
 
@@ -94,7 +112,7 @@ class VirtualUart(hal.Uart):
 
     def wire_time_us(self, n_bytes: int) -> int:
         """Time ``n_bytes`` occupy the line (µs, rounded up)."""
-        return -(-n_bytes * BITS_PER_CHAR * 1_000_000 // self.baud)
+        return wire_time_us(n_bytes, self.baud)
 
     def send(self, data: bytes) -> None:
         """Transmit ``data``; it arrives (``sink``, ``peer``) after its wire time.  A UART
@@ -208,12 +226,20 @@ class VirtualPowerSwitch(hal.PowerSwitch):
     def current_ma(self) -> int:
         return self.load_ma if self._state else 0
 
+    # --- plant side
+
+    def set_load_ma(self, milliamps: int) -> None:
+        """The downstream load draws ``milliamps`` (mA) whenever the switch is on."""
+        self.load_ma = int(milliamps)
+
 
 class VirtualFlash(hal.Flash):
     """Flash memory as a bytearray, erased to 0xFF, with timed page writes and lock bits."""
 
-    def __init__(self, scheduler: Scheduler, page_size: int = 256, page_count: int = 1024,
-                 base_address: int = 0x400000, page_write_us: int = PAGE_WRITE_US) -> None:
+    def __init__(self, scheduler: Scheduler, page_size: int = hal.Flash.page_size,
+                 page_count: int = hal.Flash.page_count,
+                 base_address: int = hal.Flash.base_address,
+                 page_write_us: int = PAGE_WRITE_US) -> None:
         self.scheduler = scheduler
         self.page_size = page_size
         self.page_count = page_count
@@ -309,6 +335,28 @@ class VirtualMotor(hal.MotorDriver):
     def current_ma(self) -> int:
         return self.current
 
+    # --- plant side
+
+    def commanded_duty(self) -> float:
+        """The signed duty the firmware commands, −1..1 (whether or not the bridge is on)."""
+        return self.duty
+
+    def bridge_enabled(self) -> bool:
+        """The bridge drives the windings (else they coast, unless :meth:`braking`)."""
+        return self.enabled
+
+    def braking(self) -> bool:
+        """The windings are shorted (braking wins over the duty)."""
+        return self.brake
+
+    def set_hall_state(self, state: int) -> None:
+        """The three hall sensor bits the rotor angle gives now, 0..7."""
+        self.hall = state
+
+    def set_current_ma(self, milliamps: int) -> None:
+        """The winding current the current sense measures (mA, signed)."""
+        self.current = milliamps
+
 
 class VirtualStepper(hal.Stepper):
     """A pulse generator whose counter integrates the commanded rate exactly over time."""
@@ -320,11 +368,8 @@ class VirtualStepper(hal.Stepper):
         self._count0 = 0.0
         self._t0 = scheduler.now_us()
 
-    def _exact(self) -> float:
-        return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
-
-    # set_step_rate and step_count run every tick of every stepper node: _exact() is
-    # written out in both.
+    # set_step_rate and step_count run every tick of every stepper node: position_steps()
+    # is written out in both.
     def set_step_rate(self, steps_per_s: float) -> None:
         now = self.scheduler.now_us()
         self._count0 = self._count0 + self.rate * (now - self._t0) / 1e6
@@ -337,9 +382,25 @@ class VirtualStepper(hal.Stepper):
     def set_current(self, milliamps: int) -> None:
         self.current = int(milliamps)
 
+    # --- plant side
+
+    def position_steps(self) -> float:
+        """Microsteps emitted so far, exactly (fractional): the rotor's commanded position,
+        which :meth:`step_count` truncates.  Positive steps turn the shaft positive."""
+        return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
+
+    def commanded_rate(self) -> float:
+        """The signed step rate the firmware commands (microsteps/s)."""
+        return self.rate
+
+    def commanded_current_ma(self) -> int:
+        """The phase current the firmware commands (mA; 0: de-energised)."""
+        return self.current
+
 
 class VirtualEncoder(hal.Encoder):
-    """An encoder whose count the test (or plant) sets; :meth:`pulse_index` fires the index."""
+    """An encoder whose count the plant sets (:meth:`set_count`); :meth:`pulse_index` fires
+    the index."""
 
     def __init__(self) -> None:
         self.value = 0
@@ -351,15 +412,36 @@ class VirtualEncoder(hal.Encoder):
     def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
         self._callback = callback
 
-    def pulse_index(self) -> None:
-        """The index mark passes the reader now."""
+    # --- plant side
+
+    def set_count(self, count: int) -> None:
+        """The reader's count now (counts since power-up)."""
+        self.value = count
+
+    def pulse_index(self, count: int | None = None) -> None:
+        """The index mark passes the reader now, at ``count`` (which becomes the count;
+        None: the present count); the firmware's index callback gets it."""
+        if count is not None:
+            self.value = count
         if self._callback is not None:
             self._callback(self.value)
 
 
+#: Channel names of numbered series (``taxel0`` …), longer than any board's series.
+_SERIES_LENGTH = 64
+_TAXEL_KEYS = tuple(f"taxel{k}" for k in range(_SERIES_LENGTH + 1))
+_TEMPERATURE_KEYS = tuple(f"temperature{k}" for k in range(_SERIES_LENGTH + 1))
+_THERMISTOR_KEYS = tuple(f"thermistor{k}" for k in range(_SERIES_LENGTH + 1))
+
+
 @dataclass
 class VirtualSensors(hal.Sensors):
-    """Sensor values by channel name, set by the test or the plant."""
+    """Sensor values by channel name, set by the test or the plant.
+
+    The plant side sets only channels the board has (else :class:`HalError`), in the counts
+    :meth:`firmware_py.hal.Sensors.read` documents; a numbered series (taxels,
+    temperatures, thermistors) is set whole, exactly as many values as the board has.
+    """
 
     values: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
 
@@ -381,6 +463,94 @@ class VirtualSensors(hal.Sensors):
         if isinstance(value, tuple):
             raise HalError(f"sensor {channel!r} is not a scalar")
         return value * count
+
+    # --- plant side (each named setter checks and stores itself, without a nested call:
+    # the arm plant calls some every tick)
+
+    def set_input(self, channel: str, value: int | tuple[int, ...]) -> None:
+        """Channel ``channel`` reads ``value`` from now on (the board must have it)."""
+        values = self.values
+        if channel not in values:
+            _no_channel(channel)
+        values[channel] = value
+
+    def _set_series(self, keys: tuple[str, ...], counts: Sequence[int]) -> None:
+        values, n = self.values, len(counts)
+        if n > _SERIES_LENGTH or (n and keys[n - 1] not in values) or keys[n] in values:
+            raise HalError(f"this board has no series of {n} {keys[0][:-1]!r} channels")
+        values.update(zip(keys, counts, strict=False))  # keys run past the series
+
+    def set_accel(self, x: int, y: int, z: int) -> None:
+        """Accelerometer, board axes (counts, ≈ 1 mg each)."""
+        values = self.values
+        if "accel" not in values:
+            _no_channel("accel")
+        values["accel"] = (x, y, z)
+
+    def set_mag(self, x: int, y: int, z: int) -> None:
+        """Magnetometer, board axes (counts)."""
+        values = self.values
+        if "mag" not in values:
+            _no_channel("mag")
+        values["mag"] = (x, y, z)
+
+    def set_gyro(self, x: int, y: int, z: int) -> None:
+        """Gyroscope, board axes (counts, 0.01 °/s each)."""
+        values = self.values
+        if "gyro" not in values:
+            _no_channel("gyro")
+        values["gyro"] = (x, y, z)
+
+    def set_taxels(self, counts: Sequence[int]) -> None:
+        """Every taxel ``taxel0`` … of the board, in order (ADC counts)."""
+        self._set_series(_TAXEL_KEYS, counts)
+
+    def set_strain(self, counts: int) -> None:
+        """Strain gauge bridge (24-bit signed ADC counts)."""
+        values = self.values
+        if "strain" not in values:
+            _no_channel("strain")
+        values["strain"] = counts
+
+    def set_temperature(self, decidegrees: int) -> None:
+        """The board's one temperature sensor ``temperature`` (0.1 °C; the arm nodes)."""
+        values = self.values
+        if "temperature" not in values:
+            _no_channel("temperature")
+        values["temperature"] = decidegrees
+
+    def set_temperatures(self, decidegrees: Sequence[int]) -> None:
+        """Every temperature channel ``temperature0`` … of the board, in order (0.1 °C)."""
+        self._set_series(_TEMPERATURE_KEYS, decidegrees)
+
+    def set_thermistors(self, counts: Sequence[int]) -> None:
+        """Every thermistor ``thermistor0`` … of the board, in order (ADC counts)."""
+        self._set_series(_THERMISTOR_KEYS, counts)
+
+    def set_supply_mv(self, millivolts: int) -> None:
+        """The board's supply (bus) voltage (mV)."""
+        values = self.values
+        if "supply_mv" not in values:
+            _no_channel("supply_mv")
+        values["supply_mv"] = millivolts
+
+    def set_pot(self, units: int) -> None:
+        """Servo potentiometer (0..1023 over 300°)."""
+        values = self.values
+        if "pot" not in values:
+            _no_channel("pot")
+        values["pot"] = units
+
+    def set_load(self, units: int) -> None:
+        """Servo load (1/1023 of the maximum torque, signed, + = counter-clockwise)."""
+        values = self.values
+        if "load" not in values:
+            _no_channel("load")
+        values["load"] = units
+
+
+def _no_channel(channel: str) -> None:
+    raise HalError(f"this board has no sensor channel {channel!r}")
 
 
 class VirtualWatchdog(hal.Watchdog):

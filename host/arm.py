@@ -1,0 +1,435 @@
+"""The 7-DOF arm on one Dynamixel 1.0 bus: discovery, commands as data, one-exchange cycles.
+
+::
+
+    with Arm.open("emu://arm/arm") as arm:            # or "/dev/ttyUSB0", "./robot/arm"
+        arm.torque(True)
+        state = arm.cycle([arm.make_position(0, 0.3), arm.make_position(5, -0.2)])
+        state.joints, state.torques, state.slip
+
+**The cycle.**  :meth:`Arm.cycle` turns a list of commands (:meth:`Arm.make_position`,
+:meth:`Arm.make_torque`) into at most a few SYNC_WRITEs (torque enable; stepper speed
+limits; stepper goals; servo goals, with speeds when asked) followed by one BULK_READ of
+the seven nodes' state, all sent as one write; the nodes answer in turn and the cycle
+returns an :class:`~host.arm_state.ArmState`.  Nothing else crosses the bus.
+
+**What a cycle reads** (the least the state needs, as each node answers one contiguous
+range): a stepper node's ``status_flags`` .. ``step_count`` (addresses 26-43: flags, goal,
+encoder, velocity, steps; 18 bytes), an RX-64's ``present_position`` ..
+``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
+alarm bits come in every status packet's error byte.  The stepper's ``deflection`` register
+(address 60) is not in that range; reading it too would cost 18 more bytes per stepper
+(the cycle's bound on the wire falls from ~470 Hz to ~350 Hz at 1 Mbaud).  So the host
+computes it as the node does - ``round(steps / microsteps_per_count) - (encoder -
+encoder_at_power_up)`` - with the power-up encoder count learnt at :meth:`Arm.open` (and
+:meth:`Arm.calibrate`) from one read of the register; ``read_deflection=True`` reads the
+register in every cycle instead.  Either way equals the node's register as long as nobody
+zeroes the step count or restarts a node behind the arm's back (then call
+:meth:`Arm.calibrate`).
+
+**Fast mode.**  Nodes leave the factory with a return delay of 250 × 2 µs = 0.5 ms, which
+costs 3.5 ms per cycle of seven replies.  ``Arm.open(url, return_delay=0)`` (the default)
+writes register 5 of every node to the value given (2 µs units; 0-2 is fine on a short
+RS-485 bus; the emulator honours it); ``return_delay=None`` leaves the nodes as they are.
+The register is in EEPROM: it persists.
+
+**Errors.**  Alarms (overheating, input voltage, overload) are reported by name in
+:attr:`ArmState.errors` and cleared with :meth:`Arm.clear_errors`: a stepper node's
+SLIP/STALLED latch through its ``clear_flags`` register, an RX-64's latched alarms only by
+RESET (after which this class restores the return delay it set; torque stays off).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterable, Sequence
+from typing import Any, Final
+
+from host.arm_state import (
+    DEFAULT_STIFFNESS_NM_PER_RAD,
+    JOINT_IDS,
+    JOINT_NAMES,
+    N_JOINTS,
+    N_STEPPERS,
+    ArmState,
+    Command,
+    JointInfo,
+    PositionCommand,
+    ServoState,
+    StepperState,
+    TorqueCommand,
+)
+from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
+from host.errors import NodeError, ReplyTimeout, UsageError
+from host.transport import Transport, open_transport, url_options, url_scheme
+from protocol.control_tables import (
+    RX64_TABLE,
+    STEPPER_TABLE,
+    TABLES_BY_MODEL,
+    StepperClear,
+    StepperFlag,
+)
+from protocol.dynamixel import (
+    ErrorBit,
+    InstructionPacket,
+    make_bulk_read,
+    make_reset,
+    make_sync_write,
+    radians_to_rx64_position,
+    rpm_to_rx64_speed,
+    rx64_load_to_fraction,
+    rx64_position_to_radians,
+    rx64_present_speed_to_rad_s,
+)
+
+_S = STEPPER_TABLE
+_R = RX64_TABLE
+#: What a cycle reads from a stepper node: status_flags .. step_count (see the module docs).
+STEPPER_READ_AT: Final = _S["status_flags"].address
+STEPPER_READ_LEN: Final = _S["step_count"].end - STEPPER_READ_AT
+#: ... and with the node's own deflection register (``read_deflection=True``).
+STEPPER_FULL_READ_LEN: Final = _S["deflection"].end - STEPPER_READ_AT
+#: What a cycle reads from an RX-64: present_position .. present_temperature.
+SERVO_READ_AT: Final = _R["present_position"].address
+SERVO_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
+_STEPPER_FIELDS = struct.Struct("<BBiiii")  # flags, clear, goal, position, velocity, steps
+_DEFLECTION = struct.Struct("<h")
+_DEFLECTION_AT = _S["deflection"].address - STEPPER_READ_AT
+_SERVO_FIELDS = struct.Struct("<HHHBB")  # position, speed, load, voltage, temperature
+assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
+#: Fast-mode return delay written at open (2 µs units).
+FAST_RETURN_DELAY: Final = 0
+_INT16 = (-32768, 32767)
+
+
+class Arm:
+    """The arm's seven joints on ``bus``; use :meth:`open`.  ``joints`` as discovered;
+    ``read_deflection``: read the stepper nodes' deflection register every cycle."""
+
+    def __init__(self, bus: DynamixelBus, joints: Sequence[JointInfo], *,
+                 read_deflection: bool = False) -> None:
+        if [j.dxl_id for j in joints] != list(JOINT_IDS):
+            raise UsageError(f"the arm needs joints at IDs {JOINT_IDS}")
+        self.bus = bus
+        self.joints = tuple(joints)
+        self.read_deflection = read_deflection
+        self.return_delay: int | None = None
+        #: Encoder count at each stepper node's power-up (learnt by :meth:`calibrate`).
+        self.encoder_at_power_up = [0] * N_STEPPERS
+        #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
+        self._servo_speed = [0, 0, 0]
+        self._stepper_len = STEPPER_FULL_READ_LEN if read_deflection else STEPPER_READ_LEN
+        entries = [(self._stepper_len, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
+        entries += [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
+        self._bulk_read = make_bulk_read(entries)
+        self._expected = [Expect(dxl_id, length) for length, dxl_id, _ in entries]
+
+    # ------------------------------------------------------------------ opening
+
+    @classmethod
+    def open(cls, url: str, *, return_delay: int | None = FAST_RETURN_DELAY,
+             read_deflection: bool = False, retries: int = 2,
+             latency_s: float | None = None,
+             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
+        """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, or any
+        transport URL), discover the seven joints, set every node's return delay to
+        ``return_delay`` (2 µs units; None: leave it) and learn the deflection offsets.
+
+        Raises :class:`~host.errors.TransportError` (no such port),
+        :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
+        :class:`~host.errors.NodeError` (a node that is not what the arm has there).
+        """
+        options: dict[str, Any] = {}
+        if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
+            options["baud"] = ARM_BUS_BAUD
+        transport = open_transport(url, **options)
+        try:
+            bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
+                               retries=retries, latency_s=latency_s)
+            arm = cls(bus, discover(bus, stiffness), read_deflection=read_deflection)
+            if return_delay is not None:
+                arm.set_return_delay(return_delay)
+            arm.calibrate()
+        except BaseException:
+            transport.close()
+            raise
+        return arm
+
+    @property
+    def transport(self) -> Transport:
+        """The bus's transport."""
+        return self.bus.transport
+
+    def close(self) -> None:
+        """Close the transport (torque is left as it is)."""
+        self.bus.transport.close()
+
+    def __enter__(self) -> Arm:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def steppers(self) -> tuple[JointInfo, ...]:
+        """J1..J4."""
+        return self.joints[:N_STEPPERS]
+
+    @property
+    def servos(self) -> tuple[JointInfo, ...]:
+        """J5..J7."""
+        return self.joints[N_STEPPERS:]
+
+    def set_return_delay(self, units: int) -> None:
+        """Write every node's return delay (register 5, 2 µs units, 0..254; EEPROM)."""
+        if not 0 <= units <= 254:
+            raise UsageError(f"return delay {units} outside 0..254 (2 µs units)")
+        for j in self.joints:
+            self.bus.set_return_delay(j.dxl_id, units)
+        self.return_delay = units
+
+    def calibrate(self) -> None:
+        """Learn each stepper node's power-up encoder count from one read of its
+        ``deflection``, ``step_count`` and ``present_position`` registers (see the module
+        docs: the host's deflection then equals the node's)."""
+        entries = [(STEPPER_FULL_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
+        replies = self.bus.bulk_read(entries)
+        for i, j in enumerate(self.steppers):
+            data = replies[j.dxl_id].params
+            _, _, _, position, _, steps = _STEPPER_FIELDS.unpack_from(data)
+            (deflection,) = _DEFLECTION.unpack_from(data, _DEFLECTION_AT)
+            self.encoder_at_power_up[i] = (deflection + position
+                                           - round(steps / j.microsteps_per_count))
+
+    # ------------------------------------------------------------------ commands as data
+
+    def _joint(self, joint: int | str) -> int:
+        if isinstance(joint, str):
+            if joint not in JOINT_NAMES:
+                raise UsageError(f"no joint {joint!r}; joints are {', '.join(JOINT_NAMES)}")
+            return JOINT_NAMES.index(joint)
+        if not 0 <= joint < N_JOINTS:
+            raise UsageError(f"joint {joint} outside 0..{N_JOINTS - 1} (J1..J7)")
+        return joint
+
+    def make_position(self, joint: int | str, angle: float,
+                      speed: float | None = None) -> PositionCommand:
+        """A command moving ``joint`` (0..6 or ``"J1"``..``"J7"``) to ``angle`` (rad), at
+        most ``speed`` (rad/s) if given.  Nothing is sent until :meth:`cycle`."""
+        if not math.isfinite(angle):
+            raise UsageError(f"joint angle {angle} is not a number")
+        if speed is not None and not speed > 0:
+            raise UsageError(f"joint speed {speed} must be > 0 rad/s")
+        return PositionCommand(self._joint(joint), float(angle), speed)
+
+    def make_torque(self, joint: int | str, on: bool) -> TorqueCommand:
+        """A command enabling or disabling ``joint``'s torque."""
+        return TorqueCommand(self._joint(joint), bool(on))
+
+    def make_positions(self, angles: Sequence[float],
+                       speeds: Sequence[float | None] | None = None) -> list[PositionCommand]:
+        """Position commands for all seven joints (rad; speeds rad/s or None each)."""
+        if len(angles) != N_JOINTS or (speeds is not None and len(speeds) != N_JOINTS):
+            raise UsageError(f"give {N_JOINTS} joint angles (and speeds), J1..J7")
+        return [self.make_position(i, a, None if speeds is None else speeds[i])
+                for i, a in enumerate(angles)]
+
+    def packets_for(self, commands: Iterable[Command]) -> list[InstructionPacket]:
+        """The SYNC_WRITEs that carry ``commands`` (the last command for a joint wins)."""
+        torque: dict[int, bytes] = {}
+        stepper_goal: dict[int, bytes] = {}
+        stepper_speed: dict[int, bytes] = {}
+        servo: dict[int, PositionCommand] = {}
+        for c in commands:
+            j = self.joints[c.joint]
+            if isinstance(c, TorqueCommand):
+                torque[j.dxl_id] = b"\x01" if c.on else b"\x00"
+            elif j.kind == "stepper":
+                stepper_goal[j.dxl_id] = _S["goal_position"].encode(j.rad_to_counts(c.angle))
+                if c.speed is not None:
+                    counts = min(max(j.rad_to_counts(c.speed), 1), _S["velocity_limit"].maximum
+                                 or 1_000_000)
+                    stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
+            else:
+                servo[j.dxl_id] = c
+        packets = []
+        if torque:  # torque_enable is address 24 on both models
+            packets.append(make_sync_write(_S["torque_enable"].address, 1, torque))
+        if stepper_speed:
+            packets.append(make_sync_write(_S["velocity_limit"].address, 4, stepper_speed))
+        if stepper_goal:
+            packets.append(make_sync_write(_S["goal_position"].address, 4, stepper_goal))
+        if servo:
+            packets.append(self._servo_goals(servo))
+        return packets
+
+    def _servo_goals(self, servo: dict[int, PositionCommand]) -> InstructionPacket:
+        goal = _R["goal_position"]
+        with_speed = any(c.speed is not None for c in servo.values())
+        data: dict[int, bytes] = {}
+        for dxl_id, c in servo.items():
+            value = goal.encode(radians_to_rx64_position(c.angle))
+            if with_speed:
+                k = dxl_id - self.servos[0].dxl_id
+                if c.speed is not None:
+                    self._servo_speed[k] = rpm_to_rx64_speed(c.speed * 60 / (2 * math.pi))
+                value += _R["moving_speed"].encode(self._servo_speed[k])
+            data[dxl_id] = value
+        return make_sync_write(goal.address, 4 if with_speed else 2, data)
+
+    # ------------------------------------------------------------------ the cycle
+
+    def cycle(self, commands: Iterable[Command] = ()) -> ArmState:
+        """Send ``commands`` and read the state of all seven joints in one exchange."""
+        packets = [*self.packets_for(commands), self._bulk_read]
+        replies = self.bus.exchange(packets, self._expected)
+        return self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
+                                                            for s in replies})
+
+    def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
+        """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
+        steppers = []
+        for i, j in enumerate(self.steppers):
+            error, data = replies[j.dxl_id]
+            flags, _, goal, position, velocity, steps = _STEPPER_FIELDS.unpack_from(data)
+            if self.read_deflection:
+                (deflection,) = _DEFLECTION.unpack_from(data, _DEFLECTION_AT)
+            else:
+                value = (round(steps / j.microsteps_per_count)
+                         - (position - self.encoder_at_power_up[i]))
+                deflection = min(max(value, _INT16[0]), _INT16[1])
+            deflection_rad = j.counts_to_rad(deflection)
+            steppers.append(StepperState(
+                joint=j.joint, angle=j.counts_to_rad(position),
+                velocity=j.counts_to_rad(velocity),
+                motor_angle=j.steps_to_rad(steps) + j.counts_to_rad(self.encoder_at_power_up[i]),
+                step_count=steps, deflection=deflection, deflection_rad=deflection_rad,
+                torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
+                errors=ErrorBit(error), goal=j.counts_to_rad(goal)))
+        servos = []
+        for j in self.servos:
+            error, data = replies[j.dxl_id]
+            position, speed, load, volts, temperature = _SERVO_FIELDS.unpack_from(data)
+            servos.append(ServoState(
+                joint=j.joint, angle=rx64_position_to_radians(position),
+                velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
+                temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
+        raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
+        return ArmState(t, tuple(steppers), tuple(servos), raw)
+
+    # ------------------------------------------------------------------ conveniences
+
+    def state(self) -> ArmState:
+        """Read the state of all seven joints (a cycle without commands)."""
+        return self.cycle()
+
+    def torque(self, on: bool, joints: Iterable[int | str] | None = None) -> ArmState:
+        """Enable or disable the torque of ``joints`` (default: all)."""
+        chosen = range(N_JOINTS) if joints is None else joints
+        return self.cycle([self.make_torque(j, on) for j in chosen])
+
+    def set_position(self, joint: int | str, angle: float,
+                     speed: float | None = None) -> ArmState:
+        """Move one joint (rad, rad/s)."""
+        return self.cycle([self.make_position(joint, angle, speed)])
+
+    def set_positions(self, angles: Sequence[float],
+                      speeds: Sequence[float | None] | None = None) -> ArmState:
+        """Move all seven joints at once (rad, rad/s)."""
+        return self.cycle(self.make_positions(angles, speeds))
+
+    def move(self, angles: Sequence[float], *, duration: float | None = None,
+             tolerance: float = 0.02, settle_speed: float = 0.05, timeout: float = 10.0,
+             period: float = 0.01) -> tuple[ArmState, bool]:
+        """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
+        (s), until the move settled or ``timeout`` (s) passed.  Settled: every stepper
+        node stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
+        sits off it by the elastic deflection under load) and its joint slower than
+        ``settle_speed`` (rad/s: the elastic element's ringing has died down), every servo
+        within ``tolerance`` of its goal.  ``duration`` (s) sets each joint's speed so all arrive
+        together.  Returns the last state and whether the move settled."""
+        now = self.state()
+        speeds: list[float | None] = [None] * N_JOINTS
+        if duration is not None:
+            if not duration > 0:
+                raise UsageError(f"move duration {duration} must be > 0 s")
+            speeds = [max(abs(a - b) / duration, 1e-3) for a, b in zip(angles, now.joints,
+                                                                       strict=True)]
+        state = self.set_positions(angles, speeds)
+        clock = self.bus.transport
+        deadline = clock.now() + timeout
+        while True:
+            if settled(state, angles, tolerance, settle_speed):
+                return state, True
+            if clock.now() >= deadline:
+                return state, False
+            clock.sleep(period)
+            state = self.cycle()
+
+    def clear_errors(self) -> None:
+        """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
+        an alarm (restoring the return delay this arm set; their torque stays off)."""
+        clear = _S["clear_flags"].encode(int(StepperClear.SLIP | StepperClear.STALL))
+        self.bus.sync_write(_S["clear_flags"].address, 1,
+                            {j.dxl_id: clear for j in self.steppers})
+        state = self.state()
+        for j, s in zip(self.servos, state.servos, strict=True):
+            if s.errors:
+                self.bus.exchange([make_reset(j.dxl_id)], [Expect(j.dxl_id)])
+                if self.return_delay is not None:
+                    self.bus.set_return_delay(j.dxl_id, self.return_delay)
+
+
+def settled(state: ArmState, goals: Sequence[float], tolerance: float,
+            settle_speed: float = math.inf) -> bool:
+    """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
+    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
+    is within ``tolerance`` of its goal."""
+    for s in state.steppers:
+        if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
+                or abs(s.velocity) > settle_speed):
+            return False
+    return all(abs(s.angle - goals[s.joint]) <= tolerance for s in state.servos)
+
+
+def discover(bus: DynamixelBus,
+             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> list[JointInfo]:
+    """Ping the seven joints and read what each node is: model, firmware and, for a stepper
+    node, its reduction, steps per rev, microstepping and encoder resolution.
+
+    Raises :class:`~host.errors.ReplyTimeout` naming a joint that does not answer and
+    :class:`~host.errors.NodeError` for a node of the wrong model."""
+    joints = []
+    for joint, dxl_id in enumerate(JOINT_IDS):
+        want = STEPPER_TABLE if joint < N_STEPPERS else RX64_TABLE
+        try:
+            bus.ping(dxl_id)
+        except ReplyTimeout as exc:
+            raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
+                               ) from exc
+        head = bus.read(dxl_id, 0, 3)
+        model, firmware = int.from_bytes(head[:2], "little"), head[2]
+        table = TABLES_BY_MODEL.get(model)
+        if table is not want:
+            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) is model {model} "
+                            f"({table.name if table else 'unknown'}), the arm has "
+                            f"{want.name} there; check the node's ID")
+        if table is RX64_TABLE:
+            joints.append(JointInfo(joint, dxl_id, "servo", model, firmware))
+            continue
+        at = _S["gear_reduction_x100"].address
+        end = _S["encoder_resolution"].end
+        eeprom = bus.read(dxl_id, at, end - at)
+
+        def value(name: str, eeprom: bytes = eeprom, at: int = at) -> int:
+            reg = _S[name]
+            return reg.decode(eeprom[reg.address - at : reg.end - at])
+
+        joints.append(JointInfo(
+            joint, dxl_id, "stepper", model, firmware,
+            reduction=value("gear_reduction_x100") / 100,
+            steps_per_rev=value("steps_per_rev"), microstepping=value("microstepping"),
+            encoder_counts_per_rev=value("encoder_resolution"),
+            stiffness=float(stiffness[joint])))
+    return joints

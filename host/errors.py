@@ -1,0 +1,57 @@
+"""The host library's one exception tree.
+
+Every error also inherits the matching built-in, so ``except TimeoutError`` or ``except
+ConnectionError`` catches it where a caller does not know this library::
+
+    HostError
+    ├── TransportError(ConnectionError)   the link itself: no such port, unplugged, closed
+    ├── ReplyTimeout(TimeoutError)        a request got no (matching) reply in time
+    ├── RouteError                        the palm could not deliver to a finger node
+    ├── NodeError                         a node answered, but with a refusal or a bad reply
+    └── UsageError(ValueError)            the caller asked for something impossible
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class HostError(Exception):
+    """Base of every error raised by the host library."""
+
+
+class TransportError(HostError, ConnectionError):
+    """The link failed: the port does not exist, was unplugged, or is closed."""
+
+
+class ReplyTimeout(HostError, TimeoutError):
+    """No reply matching the request arrived within its deadline."""
+
+
+class RouteError(HostError):
+    """The palm answered ``palm.route`` with a status other than ok.
+
+    ``status`` is the route status code (an IntEnum member where the catalogue declares
+    one), ``finger`` and ``hop`` say where the frame was going.
+    """
+
+    def __init__(self, message: str, *, status: Any, finger: int, hop: int) -> None:
+        super().__init__(message)
+        self.status = status
+        self.finger = finger
+        self.hop = hop
+
+
+class NodeError(HostError):
+    """A node answered but refused the request or sent a reply that does not parse.
+
+    ``status`` is the ``txn`` status code of a refusal (None for an unparsable reply).
+    """
+
+    def __init__(self, message: str, *, status: Any = None) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class UsageError(HostError, ValueError):
+    """A request the library refuses before sending anything (bad URL, joint limit …)."""

@@ -1,0 +1,430 @@
+"""The hand as objects: the palm, four fingers, each finger's three boards.
+
+::
+
+    with Hand.open("/dev/ttyACM0") as hand:          # or "emu://hand/palm", "socket://…"
+        found = hand.discover()                       # 13 NodeInfo: who answers, versions
+        hand.power("all", "full")
+        hand.fingers[1].move((0.3, 0.6, 0.4))         # rad, waits until it settles
+        for state in hand.states(rate_hz=50, seconds=1.0):
+            print(state.joints)
+
+``hand.palm`` is a :class:`Node`; ``hand.fingers[k]`` a :class:`Finger` with ``.motor``
+(fmcb, hop 0), ``.proximal`` (f2, hop 1) and ``.distal`` (f3, hop 2).  Commands are data
+first (:meth:`Finger.make_command` → :class:`FingerCommand`) and sent by
+:meth:`Hand.send` (all fingers in one pipelined round) or :meth:`Finger.command`.  Joint
+targets pass the hand's :class:`~host.joint_limits.JointLimits` (clamp or refuse) first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from host._finger_kinematics import DEFAULT_DEADBAND, JOINTS_PER_FINGER
+from host.errors import HostError, RouteError, UsageError
+from host.finger_params import FingerParams
+from host.hand_codes import (
+    ALL_FINGERS,
+    FINGERS,
+    HOP_NODE,
+    MODE_IDLE,
+    MODE_JOINT,
+    MODE_JOINT_EFFORT,
+    MODE_MOTOR,
+    MODE_RELATIVE,
+    power_code,
+    power_name,
+    route_status_name,
+    running_name,
+)
+from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
+from host.hand_state import FingerState, HandState, NodeInfo
+from host.joint_limits import JointLimits
+from host.transport import Transport, open_transport
+from protocol.messages import CATALOGUE_HASH
+
+#: Full effort (1/255 of full PWM).
+FULL_EFFORT: Final = 255
+#: Default stagger between fingers when all are switched (ms).
+POWER_STAGGER_MS: Final = 5
+#: Status polling period while waiting for a move to settle (s).
+SETTLE_POLL_S: Final = 0.02
+#: A finger whose motors moved less than this (hall counts) in :data:`STALL_S` has stopped.
+STALL_COUNTS: Final = 3
+STALL_S: Final = 0.2
+#: Highest rate the palm polls fingers at (Hz).
+MAX_POLL_HZ: Final = 200
+
+
+class Node:
+    """One board the host can talk to: the palm, or a finger's fmcb / f2 / f3."""
+
+    def __init__(self, session: HandSession, target: Target, where: str) -> None:
+        self.session = session
+        self.target = target
+        self.where = where
+
+    def request(self, name: str, fields: dict[str, Any] | None = None,
+                **options: Any) -> dict[str, Any]:
+        """Request ``name`` of this node (see :meth:`HandSession.request` for options)."""
+        return self.session.request(name, fields, to=self.target, **options)
+
+    def start(self, name: str, fields: dict[str, Any] | None = None,
+              **options: Any) -> PendingReply:
+        """Send request ``name`` to this node without waiting (:meth:`HandSession.wait`)."""
+        return self.session.start(name, fields, to=self.target, **options)
+
+    def ping(self) -> None:
+        """Ask the node to answer (raises if it does not)."""
+        self.request("ping")
+
+    def identify(self) -> NodeInfo:
+        """Who answers here: running program, board, versions (:class:`NodeInfo`)."""
+        return self._info(self.request("identify"))
+
+    def _info(self, reply: dict[str, Any]) -> NodeInfo:
+        v = reply["fw_version"]
+        return NodeInfo(
+            where=self.where, finger=self.target.finger,
+            hop=None if self.where == "palm" else self.target.hop, answered=True,
+            running=running_name(reply["running"]), board=reply["board"],
+            address=reply["address"], fw_version=f"{v['major']}.{v['minor']}.{v['patch']}",
+            hw_version=reply["hw_version"], uid=reply["uid"],
+            catalogue_matches=bytes(reply["catalogue"]) == CATALOGUE_HASH)
+
+    def __repr__(self) -> str:
+        return f"Node({self.where})"
+
+
+@dataclass(frozen=True)
+class FingerCommand:
+    """An ``fmcb.control`` request for finger ``finger`` as data: ``mode`` and ``args``."""
+
+    finger: int
+    mode: int
+    args: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        """The ``fmcb.control`` request fields."""
+        return {"mode": self.mode, "args": self.args}
+
+
+@dataclass
+class MoveResult:
+    """How a move ended: ``settled`` when every finger's motors are within the deadband
+    tolerance of their targets; ``stalled`` fingers stopped short (blocked, effort too
+    low); ``errors`` joint errors (rad, target − actual) per finger moved."""
+
+    settled: bool
+    stalled: list[int]
+    errors: dict[int, tuple[float, float, float]]
+    states: dict[int, FingerState]
+    elapsed_s: float
+
+
+class Finger:
+    """Finger ``index``: its fmcb (``motor``), proximal (f2) and distal (f3) boards."""
+
+    def __init__(self, hand: Hand, index: int) -> None:
+        self.hand = hand
+        self.index = index
+        session = hand.session
+        nodes = [Node(session, Target(index, hop), f"finger {index} {HOP_NODE[hop]}")
+                 for hop in range(3)]
+        self.motor, self.proximal, self.distal = nodes
+        self.params = FingerParams(self.motor.request)
+
+    @property
+    def nodes(self) -> list[Node]:
+        """fmcb, f2, f3."""
+        return [self.motor, self.proximal, self.distal]
+
+    def power(self, state: int | str) -> list[str]:
+        """Switch this finger's power (``"off"``, ``"low"``, ``"full"``); every finger's
+        power state after."""
+        return self.hand.power(self.index, state)
+
+    def status(self) -> FingerState:
+        """The fmcb's status now (joints, tactile, currents)."""
+        state = FingerState(self.index)
+        state.update_from_status(self.motor.request("fmcb.status"))
+        return state
+
+    def make_command(self, joints: Sequence[float] | None = None, *,
+                     effort: Sequence[int] | int | None = None, relative: bool = False,
+                     hall: Sequence[int] | None = None, idle: bool = False) -> FingerCommand:
+        """A control command as data: joint targets (rad; ``relative``: deltas) with an
+        optional per-joint effort cap (1/255 of full PWM), motor targets ``hall`` (hall
+        counts), or ``idle`` (motors off).  Absolute targets pass the joint limits."""
+        if idle:
+            return FingerCommand(self.index, MODE_IDLE, {})
+        if hall is not None:
+            if len(hall) != JOINTS_PER_FINGER:
+                raise UsageError(f"a finger takes {JOINTS_PER_FINGER} motor targets")
+            return FingerCommand(self.index, MODE_MOTOR, {"hall_target": [int(h) for h in hall]})
+        if joints is None:
+            raise UsageError("give joint targets, motor targets or idle")
+        if relative:
+            target = [float(q) for q in joints]
+            if len(target) != JOINTS_PER_FINGER:
+                raise UsageError(f"a finger takes {JOINTS_PER_FINGER} joint deltas")
+        else:
+            target = list(self.hand.limits.apply(self.index, joints))
+        if effort is None and not relative:
+            return FingerCommand(self.index, MODE_JOINT, {"target": target})
+        caps = _efforts(FULL_EFFORT if effort is None else effort)
+        mode = MODE_RELATIVE if relative else MODE_JOINT_EFFORT
+        return FingerCommand(self.index, mode, {"target": target, "max_effort": caps})
+
+    def command(self, joints: Sequence[float] | None = None, **options: Any) -> None:
+        """Send :meth:`make_command` (same arguments) now, without waiting to settle."""
+        self.hand.send([self.make_command(joints, **options)])
+
+    def idle(self) -> None:
+        """Motors off (control mode idle)."""
+        self.command(idle=True)
+
+    def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
+             timeout: float = 3.0) -> MoveResult:
+        """Command joint targets (rad) and wait until the finger settles or ``timeout`` s."""
+        return self.hand.move_fingers({self.index: joints}, effort=effort, timeout=timeout)
+
+    def set_home(self, offsets: Sequence[int] | None = None) -> None:
+        """Make the current pose (or motor ``offsets``, raw hall counts) the zero."""
+        if offsets is None:
+            offsets = self.motor.request("fmcb.hall_counts", {"raw": 1})["counts"]
+        self.motor.request("fmcb.set_home", {"offset": [int(v) for v in offsets]})
+
+    def __repr__(self) -> str:
+        return f"Finger({self.index})"
+
+
+def _efforts(effort: Sequence[int] | int) -> list[int]:
+    caps = [int(effort)] * JOINTS_PER_FINGER if isinstance(effort, int) else [
+        int(e) for e in effort]
+    if len(caps) != JOINTS_PER_FINGER or not all(0 <= e <= FULL_EFFORT for e in caps):
+        raise UsageError(f"efforts are {JOINTS_PER_FINGER} values in 0..{FULL_EFFORT} "
+                         f"(1/255 of full PWM), got {effort}")
+    return caps
+
+
+class Hand:
+    """A hand behind its palm link.  A context manager; :meth:`close` closes the link."""
+
+    def __init__(self, session: HandSession, limits: JointLimits | None = None) -> None:
+        if session.link != "palm":
+            raise UsageError("Hand needs the palm's link; a loose finger is driven with "
+                             "HandSession(transport, link='finger')")
+        self.session = session
+        self.limits = limits or JointLimits()
+        self.palm = Node(session, LINK_NODE, "palm")
+        self.fingers = [Finger(self, k) for k in range(FINGERS)]
+
+    @classmethod
+    def open(cls, url: str | Transport, *, limits: JointLimits | None = None,
+             timeouts: Timeouts | None = None, retries: int = 2) -> Hand:
+        """Open the palm link ``url`` (a path, any transport URL, or an open Transport)."""
+        transport = open_transport(url) if isinstance(url, str) else url
+        return cls(HandSession(transport, timeouts=timeouts, retries=retries), limits)
+
+    def close(self) -> None:
+        """Close the link (idempotent)."""
+        self.session.close()
+
+    def __enter__(self) -> Hand:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- discovery and power ---------------------------------------------------------------
+    def discover(self) -> list[NodeInfo]:
+        """Ask every place (palm, then each finger's fmcb, f2, f3) who answers there; one
+        :class:`NodeInfo` each, in that order, with ``problem`` where nothing answered."""
+        nodes = [self.palm, *(n for f in self.fingers for n in f.nodes)]
+        pending: list[tuple[Node, PendingReply | HostError]] = []
+        for node in nodes:
+            try:
+                pending.append((node, node.start("identify")))
+            except HostError as exc:
+                pending.append((node, exc))
+        found = []
+        for node, p in pending:
+            try:
+                if isinstance(p, HostError):
+                    raise p
+                found.append(node._info(self.session.wait(p)))
+            except HostError as exc:
+                hop = None if node is self.palm else node.target.hop
+                found.append(NodeInfo(node.where, node.target.finger, hop, False,
+                                      problem=_problem(exc)))
+        return found
+
+    def power(self, finger: int | str, state: int | str,
+              stagger_ms: int = POWER_STAGGER_MS) -> list[str]:
+        """Switch finger ``finger`` (0..3, or ``"all"``, ``stagger_ms`` apart) to ``state``
+        (``"off"``, ``"low"``, ``"full"``); every finger's power state as the palm reports.
+        Fingers switched on boot for about 3 s before their fmcb answers."""
+        try:
+            code = power_code(state)
+        except KeyError as exc:
+            raise UsageError(f"power state {state!r}: choose off, low or full") from exc
+        index = ALL_FINGERS if finger == "all" else int(finger)
+        if index != ALL_FINGERS and not 0 <= index < FINGERS:
+            raise UsageError(f"finger {finger}: the hand has fingers 0..{FINGERS - 1}")
+        reply = self.palm.request("palm.finger_power",
+                                  {"finger": index, "state": code, "stagger_ms": stagger_ms})
+        return [power_name(s) for s in reply["states"]]
+
+    # --- state -------------------------------------------------------------------------------
+    def status(self, fingers: bool = True) -> HandState:
+        """The hand now: the palm's summary and (``fingers``) each answering finger's fmcb
+        status; requests go out together, so this costs about one finger round trip."""
+        summary = self.palm.start("palm.hand_status")
+        polls = [f.motor.start("fmcb.status", retries=0) for f in self.fingers] if fingers else []
+        state = HandState(self.session.now(), [FingerState(k) for k in range(FINGERS)])
+        state.update_from_hand_status(self.session.wait(summary))
+        for finger, p in zip(state.fingers, polls, strict=False):
+            finger.present = False
+            try:
+                finger.update_from_status(self.session.wait(p))
+            except HostError:
+                pass  # unpowered, booting or gone: the palm's summary stands
+        return state
+
+    def set_poll_rate(self, rate_hz: int) -> None:
+        """Have the palm poll every powered finger's status at ``rate_hz`` (0: off)."""
+        self.palm.request("palm.poll", {"rate_hz": max(0, min(MAX_POLL_HZ, int(rate_hz)))})
+
+    def states(self, rate_hz: float, seconds: float | None = None, *,
+               fingers: bool = True) -> Iterator[HandState]:
+        """Yield the hand's state ``rate_hz`` times a second (the link's clock) for
+        ``seconds`` (None: forever).  ``fingers`` False reads only the palm's summary (the
+        palm polls the fingers at that rate; cheapest); events arrive meanwhile."""
+        if rate_hz <= 0:
+            raise UsageError(f"rate {rate_hz} Hz: give a positive rate")
+        if not fingers:
+            self.set_poll_rate(int(min(MAX_POLL_HZ, max(1, round(rate_hz)))))
+        start = self.session.now()
+        tick = 0
+        while seconds is None or tick / rate_hz <= seconds:
+            due = start + tick / rate_hz
+            wait = due - self.session.now()
+            if wait > 0:
+                self.session.sleep(wait)
+            yield self.status(fingers=fingers)
+            tick += 1
+
+    def stream(self, rate_hz: float, on_state: Callable[[HandState], None],
+               seconds: float | None = None, *, fingers: bool = True) -> None:
+        """Call ``on_state`` with :meth:`states` until ``seconds`` have passed."""
+        for state in self.states(rate_hz, seconds, fingers=fingers):
+            on_state(state)
+
+    # --- events --------------------------------------------------------------------------------
+    def subscribe(self, callback: Callable[[FingerEvent], None]) -> Callable[[], None]:
+        """Call ``callback`` for every finger event (lost, returned, breaker trip, …)."""
+        return self.session.subscribe(callback)
+
+    def next_event(self, timeout: float = 0.0) -> FingerEvent | None:
+        """The oldest finger event not yet taken, waiting up to ``timeout`` s."""
+        return self.session.next_event(timeout)
+
+    # --- commands and moves -----------------------------------------------------------------
+    def make_commands(self, joints: Sequence[float], *,
+                      effort: Sequence[int] | int | None = None) -> list[FingerCommand]:
+        """Commands for all 12 joints (rad, finger by finger); ``effort`` one cap for all,
+        or 12 (1/255 of full PWM)."""
+        n = FINGERS * JOINTS_PER_FINGER
+        if len(joints) != n:
+            raise UsageError(f"the hand takes {n} joint targets, got {len(joints)}")
+        per_finger: list[Any]
+        if effort is None or isinstance(effort, int):
+            per_finger = [effort] * FINGERS
+        elif len(effort) != n:
+            raise UsageError(f"give one effort or {n}, got {len(effort)}")
+        else:
+            per_finger = [list(effort[3 * k: 3 * k + 3]) for k in range(FINGERS)]
+        out = []
+        for k, f in enumerate(self.fingers):
+            q = joints[3 * k: 3 * k + 3]
+            out.append(f.make_command(q, effort=per_finger[k]))
+        return out
+
+    def send(self, commands: Sequence[FingerCommand]) -> None:
+        """Send ``commands`` in one pipelined round (each finger has its own palm queue)."""
+        pending = [self.fingers[c.finger].motor.start("fmcb.control", c.fields)
+                   for c in commands]
+        errors = []
+        for p in pending:
+            try:
+                self.session.wait(p)
+            except HostError as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+    def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
+             timeout: float = 3.0) -> MoveResult:
+        """All 12 joints (rad): command, then wait until every finger settles."""
+        commands = self.make_commands(joints, effort=effort)
+        self.send(commands)
+        return self.wait_settled([c.finger for c in commands], timeout)
+
+    def move_fingers(self, targets: dict[int, Sequence[float]], *,
+                     effort: Sequence[int] | int | None = None,
+                     timeout: float = 3.0) -> MoveResult:
+        """Joint targets (rad) for some fingers; command them, then wait until they settle."""
+        self.send([self.fingers[k].make_command(q, effort=effort) for k, q in targets.items()])
+        return self.wait_settled(list(targets), timeout)
+
+    def wait_settled(self, fingers: Sequence[int], timeout: float = 3.0,
+                     tolerance_hall: int = DEFAULT_DEADBAND + 15) -> MoveResult:
+        """Poll the fingers' status until every motor is within ``tolerance_hall`` counts
+        of its target (settled), or none moved for 0.2 s (stalled), or ``timeout`` s."""
+        start = self.session.now()
+        last_move = {k: start for k in fingers}
+        last_pos: dict[int, list[int]] = {}
+        while True:
+            # First wait: the fmcb refreshes its status snapshot every 5 ms, so a status
+            # read at once may still show the old target.
+            self.session.sleep(SETTLE_POLL_S)
+            pending = {k: self.fingers[k].motor.start("fmcb.status") for k in fingers}
+            states = {}
+            for k, p in pending.items():
+                s = FingerState(k)
+                s.update_from_status(self.session.wait(p))
+                states[k] = s
+            now = self.session.now()
+            near, stalled = [], []
+            for k, s in states.items():
+                tgt = s.targets_hall or s.joints_hall
+                near.append(max(abs(a - b) for a, b in zip(s.joints_hall, tgt, strict=True))
+                            <= tolerance_hall)
+                prev = last_pos.get(k)
+                if prev is None or max(abs(a - b) for a, b in zip(s.joints_hall, prev,
+                                                                  strict=True)) > STALL_COUNTS:
+                    last_move[k] = now
+                    last_pos[k] = list(s.joints_hall)
+                elif now - last_move[k] >= STALL_S:
+                    stalled.append(k)
+            settled = all(near)
+            if settled or len(stalled) == len(states) or now - start >= timeout:
+                errors = {k: _joint_error(s) for k, s in states.items()}
+                return MoveResult(settled, [] if settled else stalled, errors, states,
+                                  now - start)
+
+
+def _joint_error(state: FingerState) -> tuple[float, float, float]:
+    target = state.joint_targets or state.joints
+    return (target[0] - state.joints[0], target[1] - state.joints[1],
+            target[2] - state.joints[2])
+
+
+def _problem(exc: HostError) -> str:
+    if isinstance(exc, RouteError):
+        return route_status_name(exc.status)
+    return type(exc).__name__ + ": " + str(exc)

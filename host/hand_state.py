@@ -1,0 +1,156 @@
+"""What the host knows of the hand at one moment, as plain data.
+
+:class:`FingerState` and :class:`HandState` are built from the palm's ``palm.hand_status``
+summaries and, where a finger answered, its ``fmcb.status`` snapshot.  Joint angles (rad)
+come from the motor hall counts through the gear ratios and the tendon coupling
+(:mod:`host._finger_kinematics`); ``to_dict`` gives JSON-ready dicts (``handctl --json``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from host._finger_kinematics import motor_to_joint
+from host.hand_codes import power_name
+
+#: ``pb_current`` value meaning the phalange-bus breaker has tripped.
+BREAKER_TRIPPED: Final = 0xFFFF
+
+Vec3 = tuple[float, float, float]
+
+
+def joints_from_hall(hall: list[int] | tuple[int, ...]) -> Vec3:
+    """Joint angles (rad) of motor positions ``hall`` (hall counts, homing-relative)."""
+    return motor_to_joint(hall)
+
+
+@dataclass
+class FingerState:
+    """One finger: ``present`` if its fmcb answered now; ``power`` ``"off"|"low"|"full"``;
+    ``joints_hall`` motor positions (hall counts), ``joints`` the joint angles they mean
+    (rad, J0 J1 J2), ``targets_hall`` the fmcb's motor targets (hall counts), ``effort``
+    (1/255 of full PWM), ``tactile`` taxels (ADC counts) of ``proximal`` (6) and ``distal``
+    (12), ``currents`` in mA (``supply`` from the palm, ``phalange_bus`` from the fmcb;
+    None when unknown), ``breaker_tripped`` for the phalange bus."""
+
+    index: int
+    present: bool = False
+    power: str = "off"
+    joints_hall: list[int] = field(default_factory=lambda: [0, 0, 0])
+    targets_hall: list[int] | None = None
+    effort: list[int] = field(default_factory=lambda: [0, 0, 0])
+    tactile: dict[str, list[int]] = field(default_factory=dict)
+    currents: dict[str, int | None] = field(
+        default_factory=lambda: {"supply": None, "phalange_bus": None})
+    breaker_tripped: bool = False
+    fmcb_time_us: int | None = None
+
+    @property
+    def joints(self) -> Vec3:
+        """Joint angles (rad) from :attr:`joints_hall`."""
+        return joints_from_hall(self.joints_hall)
+
+    @property
+    def joint_targets(self) -> Vec3 | None:
+        """Joint angles (rad) the fmcb is driving toward, when known."""
+        return None if self.targets_hall is None else joints_from_hall(self.targets_hall)
+
+    def update_from_summary(self, summary: dict[str, Any]) -> None:
+        """Take the palm's per-finger summary (``palm.hand_status``)."""
+        self.power = power_name(summary["power"])
+        self.present = bool(summary["present"])
+        self.currents["supply"] = int(summary["current"])
+        self.joints_hall = [int(v) for v in summary["hall_pos"]]
+        self.effort = [int(v) for v in summary["effort"]]
+
+    def update_from_status(self, status: dict[str, Any]) -> None:
+        """Take the fmcb's ``fmcb.status`` (it answered: the finger is present)."""
+        self.present = True
+        self.joints_hall = [int(v) for v in status["hall_pos"]]
+        self.targets_hall = [int(v) for v in status["hall_tgt"]]
+        self.effort = [int(v) for v in status["effort"]]
+        self.tactile = {"proximal": [int(v) for v in status["pp_tactile"]],
+                        "distal": [int(v) for v in status["dp_tactile"]]}
+        pb = int(status["pb_current"])
+        self.breaker_tripped = pb == BREAKER_TRIPPED
+        self.currents["phalange_bus"] = None if self.breaker_tripped else pb
+        self.fmcb_time_us = int(status["fmcb_time"])
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: joints (rad), joints_hall, tactile, currents (mA), present, power …"""
+        return {
+            "index": self.index,
+            "present": self.present,
+            "power": self.power,
+            "joints": [round(q, 6) for q in self.joints],
+            "joints_hall": list(self.joints_hall),
+            "targets_hall": None if self.targets_hall is None else list(self.targets_hall),
+            "effort": list(self.effort),
+            "tactile": {k: list(v) for k, v in self.tactile.items()},
+            "currents": dict(self.currents),
+            "breaker_tripped": self.breaker_tripped,
+        }
+
+
+@dataclass
+class HandState:
+    """The hand at time ``t`` (s, the link's clock): four fingers and the palm's summary
+    (``effort_cap`` 1/255 of full PWM, ``poll_hz``, ``bus_voltage_mv``, ``palm_time_us``)."""
+
+    t: float
+    fingers: list[FingerState]
+    effort_cap: int | None = None
+    poll_hz: int | None = None
+    bus_voltage_mv: int | None = None
+    palm_time_us: int | None = None
+
+    @property
+    def joints(self) -> list[float]:
+        """All 12 joint angles (rad), finger by finger."""
+        return [q for f in self.fingers for q in f.joints]
+
+    def update_from_hand_status(self, status: dict[str, Any]) -> None:
+        """Take ``palm.hand_status``."""
+        self.effort_cap = int(status["effort_cap"])
+        self.poll_hz = int(status["poll_hz"])
+        self.bus_voltage_mv = int(status["bus_voltage"])
+        self.palm_time_us = int(status["time"])
+        for finger, summary in zip(self.fingers, status["fingers"], strict=False):
+            finger.update_from_summary(summary)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready, with ``fingers`` a list of four :meth:`FingerState.to_dict`."""
+        return {
+            "t": round(self.t, 6),
+            "palm_time_us": self.palm_time_us,
+            "effort_cap": self.effort_cap,
+            "poll_hz": self.poll_hz,
+            "bus_voltage_mv": self.bus_voltage_mv,
+            "fingers": [f.to_dict() for f in self.fingers],
+        }
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    """What discovery found at one place: ``where`` (``"palm"``, ``"finger 1 f2"``),
+    ``answered``; if it did, ``running`` (``"bootloader"`` / ``"application"``), board
+    type, address, versions (``fw_version`` ``"major.minor.patch"``, ``hw_version``),
+    ``uid`` and whether its message catalogue matches the host's; else ``problem``."""
+
+    where: str
+    finger: int | None
+    hop: int | None
+    answered: bool
+    running: str | None = None
+    board: int | None = None
+    address: int | None = None
+    fw_version: str | None = None
+    hw_version: int | None = None
+    uid: int | None = None
+    catalogue_matches: bool | None = None
+    problem: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}

@@ -1,0 +1,95 @@
+"""Hand frames over CAN through python-can (socketcan, slcan, virtual, … any interface).
+
+The palm carries hand frames in CAN 2.0A frames of at most 8 bytes (``protocol.canlink``):
+identifier ``0x100 + node`` towards the palm, ``0x180 + node`` back.  This transport cuts
+each frame it sends into CAN frames and returns the data of the palm's identifier as one
+byte stream, which the session's stream decoder reassembles as on a serial line.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import can
+
+from host.errors import TransportError
+from host.transport import Transport, url_options
+from protocol.canlink import DEFAULT_PALM_NODE, can_id, segment
+
+#: Default CAN bit rate of the palm (bit/s).
+DEFAULT_BITRATE = 1_000_000
+
+
+class CanTransport(Transport):
+    """One palm on a CAN bus: ``interface`` and ``channel`` as python-can names them."""
+
+    def __init__(self, interface: str, channel: str, *, bitrate: int = DEFAULT_BITRATE,
+                 node: int = DEFAULT_PALM_NODE, url: str | None = None, **bus_options: Any):
+        super().__init__(url or f"can://{interface}/{channel}")
+        self.interface = interface
+        self.channel = channel
+        self.bitrate = int(bitrate)
+        self.node = int(node)
+        self._to_node = can_id(self.node, to_host=False)
+        self._to_host = can_id(self.node, to_host=True)
+        self._bus_options = bus_options
+        self.bus = self._open()
+
+    @classmethod
+    def from_url(cls, url: str, **options: Any) -> CanTransport:
+        """``can://INTERFACE/CHANNEL?bitrate=1000000&node=10``."""
+        rest = url.split("://", 1)[1].split("?", 1)[0]
+        interface, _, channel = rest.partition("/")
+        if not interface or not channel:
+            raise TransportError(f"{url}: expected can://INTERFACE/CHANNEL, e.g. "
+                                 "can://socketcan/can0 or can://slcan//dev/ttyACM0")
+        merged: dict[str, Any] = {**url_options(url), **options}
+        bitrate = int(merged.pop("bitrate", DEFAULT_BITRATE))
+        node = int(merged.pop("node", DEFAULT_PALM_NODE))
+        return cls(interface, channel, bitrate=bitrate, node=node, url=url, **merged)
+
+    def _open(self) -> can.BusABC:
+        options = dict(self._bus_options)
+        if self.interface == "slcan":
+            options.setdefault("sleep_after_open", 0)
+        if self.interface != "virtual":
+            options.setdefault("bitrate", self.bitrate)
+        try:
+            return can.Bus(interface=self.interface, channel=self.channel, **options)
+        except (can.CanError, OSError, ValueError, ImportError) as exc:
+            raise TransportError(f"cannot open CAN {self.interface} {self.channel}: {exc}"
+                                 ) from exc
+
+    def _send(self, data: bytes) -> None:
+        try:
+            for chunk in segment(data):
+                self.bus.send(can.Message(arbitration_id=self._to_node, data=chunk,
+                                          is_extended_id=False))
+        except (can.CanError, OSError) as exc:
+            raise TransportError(f"{self.url}: CAN send failed ({exc})") from exc
+
+    def _recv(self, timeout: float | None) -> bytes:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        out = bytearray()
+        try:
+            while True:
+                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                message = self.bus.recv(0.0 if out else wait)
+                if message is None:
+                    return bytes(out)
+                if message.arbitration_id == self._to_host and not message.is_extended_id:
+                    out += message.data
+                elif deadline is not None and time.monotonic() >= deadline and not out:
+                    return b""
+        except (can.CanError, OSError) as exc:
+            raise TransportError(f"{self.url}: CAN receive failed ({exc})") from exc
+
+    def _close(self) -> None:
+        try:
+            self.bus.shutdown()
+        except (can.CanError, OSError):
+            pass
+
+    def _reopen(self) -> None:
+        self.bus = self._open()

@@ -1,0 +1,73 @@
+"""Emulator.run in real time, in process: it sleeps, it stops at once however far behind it
+is, it says when it is late, and its stats are strict JSON."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+from firmware_py.scheduler import Scheduler
+from hil_emulator.emulator import LATE_WARN_MS, Emulator
+
+
+def _run_in_thread(emulator: Emulator, stop: threading.Event) -> threading.Thread:
+    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
+    thread.start()
+    return thread
+
+
+def test_stop_takes_effect_within_100_ms_when_far_behind() -> None:
+    """Every simulated 100 µs costs 1 ms of wall time: the loop can never catch up."""
+    emulator = Emulator("arm", physics=False)
+    emulator.scheduler.call_every(100, lambda: time.sleep(0.001))
+    said: list[str] = []
+    emulator.on_late = said.append
+    stop = threading.Event()
+    thread = _run_in_thread(emulator, stop)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    stop.set()
+    thread.join(2.0)
+    assert not thread.is_alive()
+    assert time.monotonic() - t0 < 0.100
+    # It said so, once, with the figure; and gave up wall time instead of bursting.
+    assert len(said) == 1 and "ms late" in said[0], said
+    assert float(said[0].split(" ms late")[0].rsplit(" ", 1)[1]) > LATE_WARN_MS
+    assert emulator.late_episodes == 1
+    assert emulator.slipped_s > 0.0
+
+
+def test_an_idle_run_sleeps_and_keeps_time() -> None:
+    emulator = Emulator("arm", physics=False)
+    stop = threading.Event()
+    cpu0 = time.process_time()
+    wall0 = time.monotonic()
+    sim0 = emulator.scheduler.now_us()
+    thread = _run_in_thread(emulator, stop)
+    time.sleep(1.0)
+    stop.set()
+    thread.join(2.0)
+    wall = time.monotonic() - wall0
+    sim = (emulator.scheduler.now_us() - sim0) / 1e6
+    assert sim <= wall  # never ahead of the wall clock
+    assert sim >= wall - 0.1 - emulator.slipped_s
+    # The arm's firmware alone needs a small fraction of a core; polling would take it all.
+    assert time.process_time() - cpu0 < 0.8 * wall
+
+
+def test_stats_are_strict_json_with_null_before_any_delivery() -> None:
+    stats = Emulator("arm", physics=False).lateness_stats()
+    text = json.dumps(stats, allow_nan=False)
+    assert json.loads(text)["p99_ms"] is None
+
+
+def test_run_some_stops_after_max_events_and_carries_on() -> None:
+    scheduler = Scheduler()
+    seen: list[int] = []
+    for t in (10, 20, 30, 40):
+        scheduler.call_at(t, lambda t=t: seen.append(t))
+    assert scheduler.run_some(100, 2) == 2
+    assert seen == [10, 20] and scheduler.now_us() == 20  # time stays at the last event
+    assert scheduler.run_some(100, 5) == 2
+    assert seen == [10, 20, 30, 40] and scheduler.now_us() == 100

@@ -1,0 +1,141 @@
+"""The arm end to end on the in-process emulator (``emu://arm/arm``, simulation clock)."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Iterator
+
+import pytest
+
+from hil_emulator.inprocess import forget_shared_emulators
+from host.arm import Arm
+from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
+from protocol.control_tables import STEPPER_TABLE, StepperFlag
+from protocol.dynamixel import ErrorBit
+from tools import armctl
+
+URL = "emu://arm/arm?name=test_arm"
+
+
+@pytest.fixture(scope="module")
+def arm() -> Iterator[Arm]:
+    with Arm.open(URL) as opened:
+        yield opened
+    forget_shared_emulators()
+
+
+def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
+    assert [j.dxl_id for j in arm.joints] == [1, 2, 3, 4, 5, 6, 7]
+    assert [j.kind for j in arm.joints] == ["stepper"] * 4 + ["servo"] * 3
+    assert [j.model_number for j in arm.joints] == [0x5E50] * 4 + [64] * 3
+    assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
+    assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 16)}
+    assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
+    assert all(j.firmware_version == 1 for j in arm.steppers)
+
+
+def test_open_sets_the_fast_return_delay(arm: Arm) -> None:
+    assert [arm.bus.read(i, 5, 1) for i in range(1, 8)] == [b"\x00"] * 7
+    assert arm.bus.return_delay_us == {i: 0 for i in range(1, 8)}
+
+
+def test_a_stepper_joint_and_a_servo_reach_their_goals(arm: Arm) -> None:
+    arm.torque(True)
+    goals = [0.0, 0.0, 0.0, 0.25, 0.0, -0.3, 0.0]
+    t0 = arm.transport.now()
+    state, ok = arm.move(goals, timeout=5.0)
+    elapsed = arm.transport.now() - t0
+    assert ok and 0.1 < elapsed < 5.0
+    j4 = state.steppers[3]
+    assert j4.goal == pytest.approx(0.25, abs=1e-3)
+    assert j4.motor_angle == pytest.approx(0.25, abs=0.02)
+    # the joint sits off the motor by the elastic deflection (gravity on the forearm)
+    # (to the count: the node rounds the motor position to whole counts)
+    assert j4.angle - j4.motor_angle == pytest.approx(-j4.deflection_rad, abs=2 * math.pi / 1e4)
+    assert abs(j4.angle - 0.25) < 0.1
+    assert state.servos[1].angle == pytest.approx(-0.3, abs=0.02)
+    assert state.t == pytest.approx(arm.transport.now())
+
+
+def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
+    state = arm.cycle()
+    assert len(state.joints) == 7 and len(state.motor_joints) == 4
+    for s, k in zip(state.steppers, DEFAULT_STIFFNESS_NM_PER_RAD, strict=True):
+        assert s.torque == pytest.approx(k * s.deflection_rad)
+        assert s.deflection_rad == pytest.approx(s.deflection * 2 * math.pi / 10_000)
+    assert state.slip == [False] * 4
+    assert state.errors == {}
+    assert all(20.0 <= s.temperature <= 60.0 for s in state.servos)
+    assert all(10.0 <= s.voltage <= 20.0 for s in state.servos)
+
+
+def test_host_deflection_equals_the_nodes_register(arm: Arm) -> None:
+    full = Arm(arm.bus, arm.joints, read_deflection=True)
+    full.encoder_at_power_up = list(arm.encoder_at_power_up)
+    arm.transport.sleep(0.5)  # J4 holds 0.25 rad against gravity: its element deflects
+    mine = arm.cycle()
+    nodes = full.cycle()
+    assert any(s.deflection for s in nodes.steppers)
+    for a, b in zip(mine.steppers, nodes.steppers, strict=True):
+        assert abs(a.deflection - b.deflection) <= 1
+
+
+def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:
+    state = arm.cycle()
+    replies = {s.joint + 1: (0, state.raw[s.joint + 1]) for s in state.steppers}
+    replies |= {s.joint + 1: (0, state.raw[s.joint + 1]) for s in state.servos}
+    data = bytearray(replies[2][1])
+    data[0] = int(StepperFlag.SLIP | StepperFlag.MOVING | StepperFlag.STALLED)
+    replies[2] = (int(ErrorBit.OVERLOAD), bytes(data))
+    replies[6] = (int(ErrorBit.OVERHEATING | ErrorBit.INPUT_VOLTAGE), replies[6][1])
+    decoded = arm.decode_state(0.0, replies)
+    assert decoded.slip == [False, True, False, False]
+    assert decoded.steppers[1].stalled and decoded.steppers[1].moving
+    assert decoded.errors == {"J2": ["OVERLOAD"], "J6": ["INPUT_VOLTAGE", "OVERHEATING"]}
+
+
+def test_clear_errors_clears_a_latched_slip(arm: Arm) -> None:
+    app = arm.transport.emulator.arm.app(3)  # type: ignore[attr-defined]
+    app._flags |= int(StepperFlag.SLIP)  # what the node latches when steps are lost
+    assert arm.cycle().slip == [False, False, True, False]
+    arm.clear_errors()
+    assert arm.cycle().slip == [False] * 4
+    assert STEPPER_TABLE["clear_flags"].address == 27
+
+
+def test_armctl_json_status(arm: Arm) -> None:
+    out = io.StringIO()
+    assert armctl.main(["--port", URL, "--json", "status"], out=out) == 0
+    status = json.loads(out.getvalue())
+    assert len(status["joints"]) == 7 and len(status["motor_joints"]) == 4
+    assert len(status["torques"]) == 4 and status["slip"] == [False] * 4
+    assert status["errors"] == {}
+    assert status["joints"][3] == pytest.approx(0.25, abs=0.1)
+
+
+def test_armctl_says_what_to_do_when_the_port_is_missing(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert armctl.main(["--port", "/nonexistent/arm", "status"]) == armctl.EXIT_ROBOT
+    err = capsys.readouterr().err
+    assert err.startswith("armctl: ") and "check the path" in err and "Traceback" not in err
+
+
+def test_armctl_record_writes_raw_bytes_and_states(arm: Arm, tmp_path: object) -> None:
+    from pathlib import Path
+
+    from mcap.reader import make_reader
+
+    from protocol.dynamixel import DynamixelStreamDecoder
+
+    path = Path(str(tmp_path)) / "arm.mcap"
+    assert armctl.main(["--port", URL, "record", str(path), "--seconds", "0.1"],
+                       out=io.StringIO()) == 0
+    with path.open("rb") as stream:
+        messages = [(ch.topic, msg.data) for _, ch, msg in make_reader(stream).iter_messages()]
+    states = [json.loads(d) for t, d in messages if t == "/arm/state"]
+    assert len(states) == 10 and all(len(s["joints"]) == 7 for s in states)
+    decoder = DynamixelStreamDecoder("status")
+    replies = [p for t, d in messages if t == "/arm/bus/rx" for p in decoder.feed(d)]
+    assert len(replies) == 7 * 10

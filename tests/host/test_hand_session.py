@@ -1,0 +1,219 @@
+"""HandSession against a scripted transport: reply matching, hops, timeouts, events.
+
+The test double is a *transport* (bytes in, bytes out, a clock that moves only when the
+session waits); the session under test is the real one.  Replies are built here from the
+catalogue declarations, the way a palm and its fingers would answer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from host.errors import NodeError, ReplyTimeout, RouteError
+from host.hand_session import HandSession, Target, Timeouts, is_idempotent
+from host.transport import Transport, open_transport
+from protocol.framing import encode_frame, parse_frame
+from protocol.messages import CATALOGUE
+
+TXN = CATALOGUE["txn"]
+ROUTE = CATALOGUE["palm.route"]
+EVENT = CATALOGUE["palm.finger_event"]
+
+
+class ScriptedTransport(Transport):
+    """Frames sent are kept in ``sent``; ``responder(frame_bytes)`` may queue replies with
+    :meth:`deliver`.  ``recv`` returns what is queued, or lets ``timeout`` pass on ``clock``."""
+
+    def __init__(self, responder: Callable[[bytes], None] | None = None) -> None:
+        super().__init__("scripted://")
+        self.clock = 0.0
+        self.sent: list[bytes] = []
+        self.inbox: list[bytes] = []
+        self.responder = responder
+
+    def deliver(self, data: bytes) -> None:
+        self.inbox.append(data)
+
+    def now(self) -> float:
+        return self.clock
+
+    def _send(self, data: bytes) -> None:
+        self.sent.append(data)
+        if self.responder is not None:
+            self.responder(data)
+
+    def _recv(self, timeout: float | None) -> bytes:
+        if not self.inbox:
+            self.clock += timeout or 0.0
+            return b""
+        self.clock += 0.0005
+        return self.inbox.pop(0)
+
+    def _close(self) -> None:
+        pass
+
+
+def unwrap(frame: bytes) -> dict[str, Any]:
+    """The txn request in a frame the session sent."""
+    f = parse_frame(frame)
+    assert f.address == 10 and f.type == TXN.type_id
+    return TXN.parse_request(f.payload)
+
+
+def txn_reply(seq: int, inner_type: int, inner: bytes, status: int = 0, board: int = 1) -> bytes:
+    return encode_frame(0, TXN.type_id, TXN.build_reply(
+        seq=seq, board=board, address=10, inner_type=inner_type, status=status, inner=inner))
+
+
+def answer(frame: bytes, name: str, fields: dict[str, Any] | None = None, *,
+           route_status: int = 0, node_status: int = 0) -> bytes:
+    """The reply a palm (and the routed node) give to ``frame`` for request ``name``."""
+    outer = unwrap(frame)
+    msg = CATALOGUE[name]
+    body = msg.build_reply(fields or {}) if msg.reply is not None and not route_status else b""
+    if outer["inner_type"] != ROUTE.type_id:
+        return txn_reply(outer["seq"], outer["inner_type"], body, node_status)
+    route = ROUTE.parse_request(outer["inner"])
+    inner = TXN.parse_request(parse_frame(route["frame"]).payload)
+    routed = b"" if route_status else txn_reply(inner["seq"], inner["inner_type"], body,
+                                                node_status, board=2)
+    return txn_reply(outer["seq"], ROUTE.type_id, ROUTE.build_reply(
+        finger=route["finger"], hop=route["hop"], status=route_status, frame=routed))
+
+
+def event(finger: int, code: int) -> bytes:
+    return encode_frame(0, EVENT.type_id, EVENT.build_reply(finger=finger, event=code, time=7))
+
+
+IDENTIFY = {"board": 2, "address": 10, "running": 1, "hw_version": 0xBEEF0041,
+            "fw_version": {"major": 1, "minor": 2, "patch": 3}, "catalogue": b"\0" * 8,
+            "uid": 77, "uptime_us": 5}
+
+
+def test_replies_are_matched_by_sequence_number_in_any_order_around_events() -> None:
+    link = ScriptedTransport()
+    session = HandSession(link)
+    seen = []
+    session.subscribe(seen.append)
+    first = session.start("palm.poll", {"rate_hz": 10})
+    second = session.start("identify", to=Target(2, 0))
+    third = session.start("fmcb.status", to=Target(3, 0))
+    assert len({unwrap(f)["seq"] for f in link.sent}) == 3
+    status = CATALOGUE["fmcb.status"].parse_reply(bytes(148))
+    status["hall_pos"] = [11, 22, 33]
+    # Replies come back reversed, with an event between them, all in one chunk.
+    link.deliver(answer(link.sent[2], "fmcb.status", status) + event(1, 0)
+                 + answer(link.sent[1], "identify", IDENTIFY))
+    link.deliver(answer(link.sent[0], "palm.poll"))
+    assert session.wait(second)["uid"] == 77
+    assert session.wait(first) == {}
+    assert session.wait(third)["hall_pos"] == [11, 22, 33]
+    assert [(e.finger, e.event) for e in seen] == [(1, "lost")]
+    assert session.next_event().event == "lost"  # also kept in the queue
+    assert session.next_event() is None
+
+
+def test_a_late_reply_to_an_expired_request_is_dropped_and_the_retry_answered() -> None:
+    link = ScriptedTransport()
+
+    def respond(frame: bytes) -> None:
+        if len(link.sent) == 2:  # the retry: the stale reply to try 1 arrives first
+            link.deliver(answer(link.sent[0], "identify", {**IDENTIFY, "uid": 1}))
+            link.deliver(answer(frame, "identify", {**IDENTIFY, "uid": 2}))
+
+    link.responder = respond
+    session = HandSession(link, retries=1)
+    assert session.request("identify", to=Target(0, 0))["uid"] == 2
+    assert session.counters.stale_replies == 1
+    assert session.counters.retries == 1
+
+
+@pytest.mark.parametrize(("target", "route_ms"), [
+    (Target(), None), (Target(1, 0), 10), (Target(1, 1), 20), (Target(1, 2), 20)])
+def test_the_timeout_adds_up_along_the_hops(target: Target, route_ms: int | None) -> None:
+    link = ScriptedTransport()
+    session = HandSession(link, timeouts=Timeouts(link_s=0.03, fmcb_ms=10, tendon_ms=10))
+    with pytest.raises(ReplyTimeout):
+        session.request("ping", to=target, retries=0)
+    expected = 0.03 + (route_ms or 0) / 1000
+    assert link.clock == pytest.approx(expected, abs=1e-6)
+    outer = unwrap(link.sent[0])
+    if route_ms is not None:
+        route = ROUTE.parse_request(outer["inner"])
+        assert (route["finger"], route["hop"], route["timeout_ms"]) == (1, target.hop, route_ms)
+        assert parse_frame(route["frame"]).address == {0: 10, 1: 1, 2: 2}[target.hop]
+
+
+def test_requests_queued_for_one_finger_wait_for_those_ahead() -> None:
+    link = ScriptedTransport()
+    session = HandSession(link, timeouts=Timeouts(link_s=0.03, fmcb_ms=10, tendon_ms=10))
+    first = session.start("ping", to=Target(1, 2), retries=0)
+    second = session.start("ping", to=Target(1, 0), retries=0)
+    other = session.start("ping", to=Target(2, 0), retries=0)
+    assert second.deadline == pytest.approx(0.03 + 0.010 + 0.020)
+    assert other.deadline == pytest.approx(0.03 + 0.010)
+    assert first.deadline == pytest.approx(0.03 + 0.020)
+
+
+def test_an_unpowered_finger_is_a_route_error_and_not_retried() -> None:
+    link = ScriptedTransport(lambda f: link.deliver(answer(f, "fmcb.status", route_status=2)))
+    session = HandSession(link, retries=3)
+    with pytest.raises(RouteError) as caught:
+        session.request("fmcb.status", to=Target(3, 0))
+    assert (caught.value.status, caught.value.finger, caught.value.hop) == (2, 3, 0)
+    assert "power" in str(caught.value)
+    assert len(link.sent) == 1
+
+
+def test_a_route_without_reply_is_retried_for_idempotent_requests_only() -> None:
+    link = ScriptedTransport(lambda f: link.deliver(answer(f, "fmcb.control", route_status=1)))
+    session = HandSession(link, retries=2)
+    absolute = {"mode": 2, "args": {"target": [0.1, 0.2, 0.3]}}
+    with pytest.raises(RouteError):
+        session.request("fmcb.control", absolute, to=Target(0, 0))
+    assert len(link.sent) == 3
+    relative = {"mode": 5, "args": {"target": [0.1, 0.0, 0.0], "max_effort": [9, 9, 9]}}
+    assert not is_idempotent("fmcb.control", relative)
+    with pytest.raises(RouteError):
+        session.request("fmcb.control", relative, to=Target(0, 0))
+    assert len(link.sent) == 4
+
+
+def test_a_refusal_is_a_node_error_with_the_txn_status() -> None:
+    link = ScriptedTransport(lambda f: link.deliver(answer(f, "fmcb.param_commit",
+                                                           node_status=5)))
+    session = HandSession(link)
+    with pytest.raises(NodeError) as caught:
+        session.request("fmcb.param_commit", to=Target(1, 0))
+    assert caught.value.status == 5 and "refused" in str(caught.value)
+
+
+def test_a_loose_finger_reaches_its_phalanges_through_the_tunnel() -> None:
+    tunnel = CATALOGUE["fmcb.tunnel"]
+
+    def respond(frame: bytes) -> None:
+        outer = unwrap(frame)
+        assert outer["inner_type"] == tunnel.type_id
+        request = tunnel.parse_request(outer["inner"])
+        assert request["max_ms"] == 10
+        inner = parse_frame(request["data"])
+        assert inner.address == 2  # f3
+        seq = TXN.parse_request(inner.payload)["seq"]
+        heard = request["data"] + txn_reply(seq, 0x60, CATALOGUE["identify"].build_reply(
+            {**IDENTIFY, "board": 4}), board=4)
+        link.deliver(txn_reply(outer["seq"], tunnel.type_id, tunnel.build_reply(data=heard)))
+
+    link = ScriptedTransport(respond)
+    session = HandSession(link, link="finger")
+    assert session.request("identify", to=Target(None, 2))["board"] == 4
+
+
+def test_the_session_runs_over_a_pyserial_loop_url() -> None:
+    """loop:// echoes the request: a frame to address 10, never a reply."""
+    with HandSession(open_transport("loop://"), timeouts=Timeouts(link_s=0.02)) as session:
+        with pytest.raises(ReplyTimeout, match="no reply to ping"):
+            session.request("ping", retries=0)
+        assert session.counters.stray_frames == 1

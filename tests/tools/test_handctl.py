@@ -1,0 +1,104 @@
+"""handctl on the emulated hand: in process (emu://) and through the emulator's pty."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from hil_emulator.emulator import Emulator
+from protocol.framing import parse_frame
+from tools.handctl import main
+
+URL = "emu://hand/palm?name=host-tests"
+
+
+def _json(capsys: pytest.CaptureFixture[str]) -> dict:
+    return json.loads(capsys.readouterr().out)
+
+
+def test_json_status_gives_four_fingers_with_joints_taxels_and_currents(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "--json", "status"]) == 0
+    fingers = _json(capsys)["fingers"]
+    assert len(fingers) == 4
+    f0 = fingers[0]
+    assert set(f0) >= {"joints", "joints_hall", "tactile", "currents", "present", "power"}
+    assert f0["present"] and f0["power"] == "full" and len(f0["joints"]) == 3
+    assert len(f0["tactile"]["proximal"]) == 6 and len(f0["tactile"]["distal"]) == 12
+    assert f0["currents"]["phalange_bus"] is not None
+
+
+def test_move_waits_until_the_finger_settles(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "--json", "move", "--finger", "0", "--joints",
+                 "0.2,0.4,0.3", "--effort", "200"]) == 0
+    out = _json(capsys)
+    assert out["settled"]
+    assert out["fingers"]["0"]["joints"] == pytest.approx([0.2, 0.4, 0.3], abs=0.15)
+
+
+def test_a_target_beyond_the_joint_limit_is_refused_without_a_traceback(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "move", "--finger", "0", "--joints", "0,2.5,0"]) == 2
+    err = capsys.readouterr().err
+    assert "joint limit" in err and "Traceback" not in err
+
+
+def test_a_wrong_port_says_what_to_check(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", "/dev/no-such-hand", "status"]) == 1
+    err = capsys.readouterr().err
+    assert "/dev/no-such-hand" in err and "Check the path" in err and "Traceback" not in err
+
+
+def test_record_writes_frames_and_states_to_mcap(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.mcap"
+    assert main(["--port", URL, "--json", "record", str(path), "--seconds", "0.1"]) == 0
+    summary = _json(capsys)
+    topics: dict[str, int] = {}
+    with path.open("rb") as stream:
+        for _schema, channel, message in make_reader(stream).iter_messages():
+            topics[channel.topic] = topics.get(channel.topic, 0) + 1
+            if channel.topic.startswith("/hand/frames/"):
+                parse_frame(message.data)  # raw frames, whole and CRC-valid
+            elif channel.topic == "/hand/state":
+                assert len(json.loads(message.data)["fingers"]) == 4
+    assert topics["/hand/state"] == summary["states"] >= 5
+    assert topics["/hand/frames/tx"] + topics["/hand/frames/rx"] == summary["frames"]
+
+
+@pytest.fixture(scope="module")
+def palm_pty() -> Iterator[str]:
+    """An emulated hand (firmware only, no physics) serving its palm pty in real time."""
+    emulator = Emulator("hand", physics=False, can="none")
+    emulator.bring_up()
+    ports = emulator.open_ports()
+    stop = threading.Event()
+    runner = threading.Thread(target=emulator.run, args=(stop,), kwargs={"realtime": True})
+    runner.start()
+    try:
+        yield ports["palm"]
+    finally:
+        stop.set()
+        runner.join(timeout=10)
+        emulator.close()
+
+
+def test_ping_through_the_emulators_pty_finds_every_node(
+        palm_pty: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", palm_pty, "--json", "ping"]) == 0
+    nodes = _json(capsys)["nodes"]
+    assert len(nodes) == 13 and all(n["running"] == "application" for n in nodes)
+
+
+def test_power_and_status_through_the_emulators_pty(
+        palm_pty: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", palm_pty, "--json", "power", "2", "off"]) == 0
+    assert _json(capsys)["power"] == ["full", "full", "off", "full"]
+    assert main(["--port", palm_pty, "--json", "status"]) == 0
+    fingers = _json(capsys)["fingers"]
+    assert [f["present"] for f in fingers] == [True, True, False, True]

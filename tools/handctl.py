@@ -1,0 +1,203 @@
+"""``handctl``: drive the hand from a terminal through the host library.
+
+::
+
+    handctl --port /dev/ttyACM0 ping                      # who answers (13 nodes)
+    handctl --port emu://hand/palm --json status           # joints (rad), taxels, currents
+    handctl --port P power 2 full                          # finger 2 (or "all") off|low|full
+    handctl --port P move --finger 1 --joints 0.2,0.5,0.3 [--effort 120] [--duration 3]
+    handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
+    handctl --port P record run.mcap --seconds 5 [--rate 50]
+
+``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …).
+Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from host.errors import HostError, ReplyTimeout, RouteError, TransportError, UsageError
+from host.hand import Hand, MoveResult
+from host.hand_state import HandState, NodeInfo
+
+EXIT_ROBOT = 1
+EXIT_USAGE = 2
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip() != ""]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated numbers") from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
+    p.add_argument("--port", required=True,
+                   help="the palm's serial port or a transport URL (emu://hand/palm, …)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    sub = p.add_subparsers(dest="command", required=True)
+    sub.add_parser("ping", help="discover every node: program, versions")
+    sub.add_parser("status", help="joints, taxels, currents, power of every finger")
+    power = sub.add_parser("power", help="switch finger power")
+    power.add_argument("finger", help="0..3 or all")
+    power.add_argument("state", choices=("off", "low", "full"))
+    move = sub.add_parser("move", help="move joints (rad) and wait until they settle")
+    group = move.add_mutually_exclusive_group(required=True)
+    group.add_argument("--hand", type=_floats, metavar="Q0,…,Q11", help="12 joint targets")
+    group.add_argument("--joints", type=_floats, metavar="Q0,Q1,Q2",
+                       help="3 joint targets of --finger")
+    move.add_argument("--finger", type=int, help="finger index for --joints")
+    move.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
+    move.add_argument("--duration", type=float, default=3.0,
+                      help="seconds to wait for the move to settle (default 3)")
+    move.add_argument("--clamp", action="store_true",
+                      help="clamp targets beyond the joint limits instead of refusing")
+    record = sub.add_parser("record", help="record frames and states to an MCAP file")
+    record.add_argument("file")
+    record.add_argument("--seconds", type=float, required=True)
+    record.add_argument("--rate", type=float, default=50.0, help="state rate (Hz)")
+    return p
+
+
+def _emit(args: argparse.Namespace, data: Any, text: str) -> None:
+    print(json.dumps(data) if args.json else text)
+
+
+def _cmd_ping(hand: Hand, args: argparse.Namespace) -> int:
+    found = hand.discover()
+    lines = [_node_line(n) for n in found]
+    _emit(args, {"nodes": [n.to_dict() for n in found]}, "\n".join(lines))
+    if not found[0].answered:
+        raise ReplyTimeout(f"the palm does not answer on {args.port}: {found[0].problem}")
+    return 0
+
+
+def _node_line(n: NodeInfo) -> str:
+    if not n.answered:
+        return f"{n.where:15} -- {n.problem}"
+    cat = "" if n.catalogue_matches else "  (different message catalogue: update firmware)"
+    return f"{n.where:15} {n.running:11} v{n.fw_version}  uid {n.uid:#010x}{cat}"
+
+
+def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
+    state = hand.status()
+    _emit(args, state.to_dict(), _status_text(state))
+    return 0
+
+
+def _status_text(state: HandState) -> str:
+    lines = [f"palm: effort cap {state.effort_cap}/255, polling {state.poll_hz} Hz, "
+             f"supply {state.bus_voltage_mv} mV"]
+    for f in state.fingers:
+        if not f.present:
+            lines.append(f"finger {f.index}: power {f.power}, not answering")
+            continue
+        q = ", ".join(f"{v:+.3f}" for v in f.joints)
+        taxels = sum(len(v) for v in f.tactile.values())
+        lines.append(f"finger {f.index}: power {f.power}, joints [{q}] rad, halls "
+                     f"{f.joints_hall}, {taxels} taxels, supply {f.currents['supply']} mA, "
+                     f"phalange bus {f.currents['phalange_bus']} mA")
+    return "\n".join(lines)
+
+
+def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
+    finger: int | str = args.finger
+    if finger != "all":
+        try:
+            finger = int(finger)
+        except ValueError:
+            raise UsageError(f"finger {args.finger!r}: give 0..3 or all") from None
+    states = hand.power(finger, args.state)
+    text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
+    if args.state != "off":
+        text += "\n(fingers switched on boot for about 3 s before they answer)"
+    _emit(args, {"power": states}, text)
+    return 0
+
+
+def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
+    if args.clamp:
+        hand.limits = hand.limits.with_action("clamp")
+    if args.hand is not None:
+        result = hand.move(args.hand, effort=args.effort, timeout=args.duration)
+    else:
+        if args.finger is None:
+            raise UsageError("--joints needs --finger N (0..3)")
+        if not 0 <= args.finger < len(hand.fingers):
+            raise UsageError(f"finger {args.finger}: the hand has fingers 0..3")
+        result = hand.move_fingers({args.finger: args.joints}, effort=args.effort,
+                                   timeout=args.duration)
+    _emit(args, _move_dict(result), _move_text(result))
+    if result.settled:
+        return 0
+    print(f"handctl: the move did not settle within {args.duration} s "
+          f"(stalled fingers: {result.stalled or 'none'}); an obstacle, too little "
+          f"--effort, or a longer --duration?", file=sys.stderr)
+    return EXIT_ROBOT
+
+
+def _move_dict(r: MoveResult) -> dict[str, Any]:
+    return {"settled": r.settled, "stalled": r.stalled, "elapsed_s": round(r.elapsed_s, 4),
+            "fingers": {str(k): {"joints": list(s.joints), "error": list(r.errors[k])}
+                        for k, s in r.states.items()}}
+
+
+def _move_text(r: MoveResult) -> str:
+    lines = [f"{'settled' if r.settled else 'not settled'} after {r.elapsed_s:.2f} s"]
+    for k, s in r.states.items():
+        q = ", ".join(f"{v:+.3f}" for v in s.joints)
+        e = ", ".join(f"{v:+.3f}" for v in r.errors[k])
+        lines.append(f"finger {k}: joints [{q}] rad, error [{e}] rad")
+    return "\n".join(lines)
+
+
+def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
+    from host.hand_recording import HandRecorder
+
+    with HandRecorder(hand, args.file) as recorder:
+        recorder.record(args.seconds, args.rate)
+    _emit(args, {"file": args.file, "frames": recorder.frames, "states": recorder.states},
+          f"{args.file}: {recorder.frames} frames, {recorder.states} states")
+    return 0
+
+
+COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
+            "move": _cmd_move, "record": _cmd_record}
+
+
+def _advice(exc: HostError, port: str) -> str:
+    if isinstance(exc, TransportError):
+        return (f"cannot use {port}: {exc}\nCheck the path (ls /dev/ttyACM* /dev/ttyUSB*), "
+                f"that nothing else holds the port, or start the emulator (hil-emulator).")
+    if isinstance(exc, RouteError):
+        return str(exc)
+    if isinstance(exc, ReplyTimeout):
+        return (f"{exc}\nNothing answered in time: check that {port} is the palm's port, "
+                f"that the hand is powered, and try `handctl --port {port} ping`.")
+    return str(exc)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run handctl; returns the exit status."""
+    args = _parser().parse_args(argv)
+    try:
+        with Hand.open(args.port) as hand:
+            return COMMANDS[args.command](hand, args)
+    except UsageError as exc:
+        print(f"handctl: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except HostError as exc:
+        print(f"handctl: {_advice(exc, args.port)}", file=sys.stderr)
+        return EXIT_ROBOT
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
