@@ -23,6 +23,10 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
 * The first index pulse after power-up (or after REARM_INDEX) latches ``index_step_count``
   and ``index_encoder_count`` and sets ``index_seen`` and INDEX_SEEN, so the host can
   calibrate the encoder offset; later pulses leave the latch alone.
+* The cycle block (``cycle_present_position`` .. ``cycle_status_flags``, addresses 76-88)
+  mirrors ``present_position``, ``step_count``, ``present_velocity`` (saturated to int16),
+  ``deflection`` and ``status_flags``, written together with them, so one contiguous read
+  gets a cycle's state.
 * Torque off: current 0 and no steps; on: ``run_current`` while moving, ``holding_current``
   at standstill, both capped by ``max_current``.
 
@@ -89,6 +93,10 @@ _DEFLECTION, _DEFLECTION_AT = _packer("deflection")
 _FLAGS, _FLAGS_AT = _packer("status_flags")
 _HW_VOLT_TEMP, _HW_VOLT_TEMP_AT = _packer("hardware_error_status", "present_voltage",
                                           "present_temperature")
+# The cycle block: mirrors of the above in one range, written with them.
+_CYCLE_BLOCK, _CYCLE_BLOCK_AT = _packer("cycle_present_position", "cycle_step_count",
+                                        "cycle_velocity", "cycle_deflection",
+                                        "cycle_status_flags")
 
 
 class StepperNodeApp(DynamixelSlave):
@@ -325,6 +333,9 @@ class StepperNodeApp(DynamixelSlave):
         volts = supply_mv // 100
         degrees = temperature // 10
         _FLAGS.pack_into(image, _FLAGS_AT, flags)
+        _CYCLE_BLOCK.pack_into(image, _CYCLE_BLOCK_AT, enc, steps,
+                               _INT16_MIN if speed < _INT16_MIN else
+                               _INT16 if speed > _INT16 else speed, deflection, flags)
         _HW_VOLT_TEMP.pack_into(image, _HW_VOLT_TEMP_AT, errors,
                                 0 if volts < 0 else 255 if volts > 255 else volts,
                                 0 if degrees < 0 else 255 if degrees > 255 else degrees)

@@ -14,18 +14,18 @@ the seven nodes' state, all sent as one write; the nodes answer in turn and the 
 returns an :class:`~host.arm_state.ArmState`.  Nothing else crosses the bus.
 
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
-range): a stepper node's ``status_flags`` .. ``step_count`` (addresses 26-43: flags, goal,
-encoder, velocity, steps; 18 bytes), an RX-64's ``present_position`` ..
+range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
+deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
+:data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
 ``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
-alarm bits come in every status packet's error byte.  The stepper's ``deflection`` register
-(address 60) is not in that range; reading it too would cost 18 more bytes per stepper
-(the cycle's bound on the wire falls from ~470 Hz to ~350 Hz at 1 Mbaud).  So the host
-computes it as the node does - ``round(steps / microsteps_per_count) - (encoder -
-encoder_at_power_up)`` - with the power-up encoder count learnt at :meth:`Arm.open` (and
-:meth:`Arm.calibrate`) from one read of the register; ``read_deflection=True`` reads the
-register in every cycle instead.  Either way equals the node's register as long as nobody
-zeroes the step count or restarts a node behind the arm's back (then call
-:meth:`Arm.calibrate`).
+alarm bits come in every status packet's error byte.  That is 191 bytes per cycle with the
+seven goals (~519 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
+``step_count`` plus ``deflection`` instead would cost 18 + 18 bytes more per stepper).
+The stepper's goal is not in the block: the state reports the goal this arm last sent
+(learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;
+call the latter if anything else writes goals).  Discovery refuses stepper nodes whose
+firmware predates the block (``firmware_version`` <
+:data:`~protocol.control_tables.STEPPER_CYCLE_BLOCK_FIRMWARE`).
 
 **Fast mode.**  Nodes leave the factory with a return delay of 250 × 2 µs = 0.5 ms, which
 costs 3.5 ms per cycle of seven replies.  ``Arm.open(url, return_delay=0)`` (the default)
@@ -65,6 +65,8 @@ from host.errors import NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from protocol.control_tables import (
     RX64_TABLE,
+    STEPPER_CYCLE_BLOCK,
+    STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_TABLE,
     TABLES_BY_MODEL,
     StepperClear,
@@ -85,42 +87,35 @@ from protocol.dynamixel import (
 
 _S = STEPPER_TABLE
 _R = RX64_TABLE
-#: What a cycle reads from a stepper node: status_flags .. step_count (see the module docs).
-STEPPER_READ_AT: Final = _S["status_flags"].address
-STEPPER_READ_LEN: Final = _S["step_count"].end - STEPPER_READ_AT
-#: ... and with the node's own deflection register (``read_deflection=True``).
-STEPPER_FULL_READ_LEN: Final = _S["deflection"].end - STEPPER_READ_AT
+#: What a cycle reads from a stepper node: its cycle block (see the module docs).
+STEPPER_READ_AT: Final = _S[STEPPER_CYCLE_BLOCK[0]].address
+STEPPER_READ_LEN: Final = _S[STEPPER_CYCLE_BLOCK[1]].end - STEPPER_READ_AT
 #: What a cycle reads from an RX-64: present_position .. present_temperature.
 SERVO_READ_AT: Final = _R["present_position"].address
 SERVO_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
-_STEPPER_FIELDS = struct.Struct("<BBiiii")  # flags, clear, goal, position, velocity, steps
-_DEFLECTION = struct.Struct("<h")
-_DEFLECTION_AT = _S["deflection"].address - STEPPER_READ_AT
+_STEPPER_FIELDS = struct.Struct("<iihhB")  # position, steps, velocity, deflection, flags
 _SERVO_FIELDS = struct.Struct("<HHHBB")  # position, speed, load, voltage, temperature
 assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
+_GOAL = _S["goal_position"]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
-_INT16 = (-32768, 32767)
 
 
 class Arm:
-    """The arm's seven joints on ``bus``; use :meth:`open`.  ``joints`` as discovered;
-    ``read_deflection``: read the stepper nodes' deflection register every cycle."""
+    """The arm's seven joints on ``bus``; use :meth:`open`.  ``joints`` as discovered."""
 
-    def __init__(self, bus: DynamixelBus, joints: Sequence[JointInfo], *,
-                 read_deflection: bool = False) -> None:
+    def __init__(self, bus: DynamixelBus, joints: Sequence[JointInfo]) -> None:
         if [j.dxl_id for j in joints] != list(JOINT_IDS):
             raise UsageError(f"the arm needs joints at IDs {JOINT_IDS}")
         self.bus = bus
         self.joints = tuple(joints)
-        self.read_deflection = read_deflection
         self.return_delay: int | None = None
-        #: Encoder count at each stepper node's power-up (learnt by :meth:`calibrate`).
-        self.encoder_at_power_up = [0] * N_STEPPERS
+        #: Each stepper node's goal (joint encoder counts): what this arm last sent, learnt
+        #: from the nodes by :meth:`read_goals`.
+        self.stepper_goals = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
-        self._stepper_len = STEPPER_FULL_READ_LEN if read_deflection else STEPPER_READ_LEN
-        entries = [(self._stepper_len, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
+        entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
         entries += [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
         self._bulk_read = make_bulk_read(entries)
         self._expected = [Expect(dxl_id, length) for length, dxl_id, _ in entries]
@@ -128,13 +123,12 @@ class Arm:
     # ------------------------------------------------------------------ opening
 
     @classmethod
-    def open(cls, url: str, *, return_delay: int | None = FAST_RETURN_DELAY,
-             read_deflection: bool = False, retries: int = 2,
+    def open(cls, url: str, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
              latency_s: float | None = None,
              stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
         """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, or any
         transport URL), discover the seven joints, set every node's return delay to
-        ``return_delay`` (2 µs units; None: leave it) and learn the deflection offsets.
+        ``return_delay`` (2 µs units; None: leave it) and read the stepper nodes' goals.
 
         Raises :class:`~host.errors.TransportError` (no such port),
         :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
@@ -147,10 +141,10 @@ class Arm:
         try:
             bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
                                retries=retries, latency_s=latency_s)
-            arm = cls(bus, discover(bus, stiffness), read_deflection=read_deflection)
+            arm = cls(bus, discover(bus, stiffness))
             if return_delay is not None:
                 arm.set_return_delay(return_delay)
-            arm.calibrate()
+            arm.read_goals()
         except BaseException:
             transport.close()
             raise
@@ -189,18 +183,12 @@ class Arm:
             self.bus.set_return_delay(j.dxl_id, units)
         self.return_delay = units
 
-    def calibrate(self) -> None:
-        """Learn each stepper node's power-up encoder count from one read of its
-        ``deflection``, ``step_count`` and ``present_position`` registers (see the module
-        docs: the host's deflection then equals the node's)."""
-        entries = [(STEPPER_FULL_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
-        replies = self.bus.bulk_read(entries)
-        for i, j in enumerate(self.steppers):
-            data = replies[j.dxl_id].params
-            _, _, _, position, _, steps = _STEPPER_FIELDS.unpack_from(data)
-            (deflection,) = _DEFLECTION.unpack_from(data, _DEFLECTION_AT)
-            self.encoder_at_power_up[i] = (deflection + position
-                                           - round(steps / j.microsteps_per_count))
+    def read_goals(self) -> None:
+        """Learn each stepper node's ``goal_position`` (counts) with one BULK_READ, for the
+        states' ``goal`` (a node sets it to its encoder count at power-up)."""
+        replies = self.bus.bulk_read([(_GOAL.size, j.dxl_id, _GOAL.address)
+                                      for j in self.steppers])
+        self.stepper_goals = [_GOAL.decode(replies[j.dxl_id].params) for j in self.steppers]
 
     # ------------------------------------------------------------------ commands as data
 
@@ -246,7 +234,7 @@ class Arm:
             if isinstance(c, TorqueCommand):
                 torque[j.dxl_id] = b"\x01" if c.on else b"\x00"
             elif j.kind == "stepper":
-                stepper_goal[j.dxl_id] = _S["goal_position"].encode(j.rad_to_counts(c.angle))
+                stepper_goal[j.dxl_id] = _GOAL.encode(j.rad_to_counts(c.angle))
                 if c.speed is not None:
                     counts = min(max(j.rad_to_counts(c.speed), 1), _S["velocity_limit"].maximum
                                  or 1_000_000)
@@ -282,8 +270,12 @@ class Arm:
 
     def cycle(self, commands: Iterable[Command] = ()) -> ArmState:
         """Send ``commands`` and read the state of all seven joints in one exchange."""
+        commands = list(commands)
         packets = [*self.packets_for(commands), self._bulk_read]
         replies = self.bus.exchange(packets, self._expected)
+        for c in commands:  # the nodes took the goals: the state reports them
+            if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
+                self.stepper_goals[c.joint] = self.joints[c.joint].rad_to_counts(c.angle)
         return self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                             for s in replies})
 
@@ -292,21 +284,15 @@ class Arm:
         steppers = []
         for i, j in enumerate(self.steppers):
             error, data = replies[j.dxl_id]
-            flags, _, goal, position, velocity, steps = _STEPPER_FIELDS.unpack_from(data)
-            if self.read_deflection:
-                (deflection,) = _DEFLECTION.unpack_from(data, _DEFLECTION_AT)
-            else:
-                value = (round(steps / j.microsteps_per_count)
-                         - (position - self.encoder_at_power_up[i]))
-                deflection = min(max(value, _INT16[0]), _INT16[1])
+            position, steps, velocity, deflection, flags = _STEPPER_FIELDS.unpack_from(data)
             deflection_rad = j.counts_to_rad(deflection)
             steppers.append(StepperState(
                 joint=j.joint, angle=j.counts_to_rad(position),
                 velocity=j.counts_to_rad(velocity),
-                motor_angle=j.steps_to_rad(steps) + j.counts_to_rad(self.encoder_at_power_up[i]),
+                motor_angle=j.counts_to_rad(position + deflection),
                 step_count=steps, deflection=deflection, deflection_rad=deflection_rad,
                 torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
-                errors=ErrorBit(error), goal=j.counts_to_rad(goal)))
+                errors=ErrorBit(error), goal=j.counts_to_rad(self.stepper_goals[i])))
         servos = []
         for j in self.servos:
             error, data = replies[j.dxl_id]
@@ -415,6 +401,10 @@ def discover(bus: DynamixelBus,
             raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) is model {model} "
                             f"({table.name if table else 'unknown'}), the arm has "
                             f"{want.name} there; check the node's ID")
+        if table is STEPPER_TABLE and firmware < STEPPER_CYCLE_BLOCK_FIRMWARE:
+            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) runs stepper firmware "
+                            f"{firmware}, without the cycle block (from version "
+                            f"{STEPPER_CYCLE_BLOCK_FIRMWARE}); update the node")
         if table is RX64_TABLE:
             joints.append(JointInfo(joint, dxl_id, "servo", model, firmware))
             continue

@@ -123,10 +123,11 @@ Command = PositionCommand | TorqueCommand
 class StepperState:
     """A stepper joint at one cycle.
 
-    ``angle`` (rad, joint encoder), ``velocity`` (rad/s, encoder), ``motor_angle`` (rad at
-    the joint, from ``step_count``, in the joint's frame: ``motor_angle - angle`` is the
-    deflection), ``goal`` (rad, the node's goal for the motor), ``step_count`` (microsteps), ``deflection`` (joint
-    encoder counts, as the node's register defines it) and ``deflection_rad``, ``torque``
+    ``angle`` (rad, joint encoder), ``velocity`` (rad/s, encoder, resolution 1 count/s),
+    ``motor_angle`` (rad at the joint, to the count: ``angle`` plus the deflection),
+    ``goal`` (rad, the node's goal for the motor as the host last set it), ``step_count``
+    (microsteps), ``deflection`` (joint encoder counts, as the node's register defines it)
+    and ``deflection_rad``, ``torque``
     (N·m, stiffness × deflection), ``flags`` (:class:`StepperFlag`), ``errors`` (the status
     packet's alarm bits).
     """

@@ -8,12 +8,15 @@ catalogue's tables into IntEnums changes this module only.
 
 from __future__ import annotations
 
+from enum import IntEnum
 from typing import Final
 
-from protocol.framing import ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST, ADDR_PALM
-from protocol.messages.common import RUNNING, TXN_STATUS
-from protocol.messages.fmcb import CONTROL_MODES
-from protocol.messages.palm import FINGER_EVENTS, FINGER_POWER, FINGERS, HOPS, ROUTE_STATUS
+from protocol.messages.common import Running, TxnStatus
+from protocol.messages.fmcb import ControlMode
+from protocol.messages.palm import FingerEvent, FingerPower, RouteStatus
+from protocol.topology import ADDR_HOST, ADDR_PALM, FINGERS
+from protocol.topology import HOP_ADDRESS as _HOP_ADDRESS
+from protocol.topology import HOP_NODE as _HOP_NODE
 
 __all__ = [
     "ADDR_HOST", "ADDR_PALM", "FINGERS", "HOP_ADDRESS", "HOP_NODE", "ROUTE_OK",
@@ -25,6 +28,19 @@ __all__ = [
 ]
 
 
+def _names(codes: type[IntEnum]) -> dict[int, str]:
+    """code → lower-case name of the catalogue's IntEnum ``codes``."""
+    return {int(member): member.name.lower() for member in codes}
+
+
+ROUTE_STATUS: Final = _names(RouteStatus)
+TXN_STATUS: Final = _names(TxnStatus)
+FINGER_POWER: Final = _names(FingerPower)
+FINGER_EVENTS: Final = _names(FingerEvent)
+CONTROL_MODES: Final = _names(ControlMode)
+RUNNING: Final = _names(Running)
+
+
 def _code(table: dict[int, str], name: str) -> int:
     for code, text in table.items():
         if text == name:
@@ -33,8 +49,8 @@ def _code(table: dict[int, str], name: str) -> int:
 
 
 #: Hop behind a finger's pogo link → catalogue node kind, and → bus address.
-HOP_NODE: Final[dict[int, str]] = dict(HOPS)
-HOP_ADDRESS: Final[dict[int, int]] = {0: ADDR_FMCB, 1: ADDR_F2, 2: ADDR_F3}
+HOP_NODE: Final[dict[int, str]] = {int(hop): str(kind.value) for hop, kind in _HOP_NODE.items()}
+HOP_ADDRESS: Final[dict[int, int]] = {int(hop): address for hop, address in _HOP_ADDRESS.items()}
 
 ROUTE_OK: Final = _code(ROUTE_STATUS, "ok")
 ROUTE_NO_REPLY: Final = _code(ROUTE_STATUS, "no_reply")

@@ -14,7 +14,7 @@ import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntFlag
-from typing import Literal
+from typing import Final, Literal
 
 from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError
@@ -324,6 +324,8 @@ class StepperClear(IntFlag):
 #: Model number of the arm stepper node: 0x5E50, "SE" (series-elastic) + 0x50 - chosen to
 #: stay clear of ROBOTIS model numbers (12, 18, 24, 28, 29, 64, 310, 320, 1020, ...).
 STEPPER_MODEL_NUMBER = 0x5E50
+#: The stepper node's firmware version; the first with the cycle block (addresses 76-88).
+STEPPER_CYCLE_BLOCK_FIRMWARE = 2
 _COUNTS = "joint encoder counts (0.036 deg)"
 
 #: The arm stepper node: a series-elastic joint driven by a stepper motor through a
@@ -331,13 +333,20 @@ _COUNTS = "joint encoder counts (0.036 deg)"
 #: mean on a Dynamixel where a stepper has the same notion (model, ID, baud, return delay,
 #: limits, status return level, alarms), so dynamixel-sdk's ping (a READ of 2 bytes at 0) and
 #: bus scans work unchanged; RAM starts at 24; 4-byte registers are 4-aligned.
+#: Addresses 76-88 are the *cycle block*: read-only mirrors, refreshed whenever the registers
+#: they mirror are, of what a host's read-and-command cycle needs - ``present_position``,
+#: ``step_count``, ``present_velocity`` (saturated to int16: ±32767 counts/s = ±20.6 rad/s),
+#: ``deflection`` and ``status_flags`` - in one contiguous 13-byte range, so a BULK_READ
+#: (one range per node) gets them without the 34 bytes of other registers between the
+#: originals.  The goal is not in it: the host knows what it wrote.  Nodes report
+#: firmware_version >= :data:`STEPPER_CYCLE_BLOCK_FIRMWARE` when they have it.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
 #: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
 #: joint encoder counts (joint side) so they do not change with microstepping or gearing.
 STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(0, 2, "R", STEPPER_MODEL_NUMBER, "model_number", "model number (0x5E50)"),
-    _eeprom(2, 1, "R", 1, "firmware_version", "firmware version"),
+    _eeprom(2, 1, "R", STEPPER_CYCLE_BLOCK_FIRMWARE, "firmware_version", "firmware version"),
     _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
     _eeprom(4, 1, "RW", 1, "baud_rate", "bps = 2 000 000 / (value + 1); 1 = 1 Mbps", 0, 254),
     _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
@@ -381,7 +390,17 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _ram(72, 1, "R", 0, "present_voltage", "0.1 V"),
     _ram(73, 1, "R", 0, "present_temperature", "deg C (driver)"),
     _ram(74, 1, "R", 0, "registered", "1 = a REG_WRITE awaits ACTION"),
+    # the cycle block: read-only mirrors in one range (see above)
+    _ram(76, 4, "R", 0, "cycle_present_position", "mirror of present_position", signed=True),
+    _ram(80, 4, "R", 0, "cycle_step_count", "mirror of step_count", signed=True),
+    _ram(84, 2, "R", 0, "cycle_velocity", "present_velocity saturated to int16, counts/s",
+         signed=True),
+    _ram(86, 2, "R", 0, "cycle_deflection", "mirror of deflection", signed=True),
+    _ram(88, 1, "R", 0, "cycle_status_flags", "mirror of status_flags"),
 ])
+
+#: The stepper node's cycle block: its first and last register (see :data:`STEPPER_TABLE`).
+STEPPER_CYCLE_BLOCK: Final = ("cycle_present_position", "cycle_status_flags")
 
 #: Tables by model number (what a PING + READ(0, 2) reports).
 TABLES_BY_MODEL: dict[int, ControlTable] = {t.model_number: t for t in (RX64_TABLE, STEPPER_TABLE)}

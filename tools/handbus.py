@@ -2,6 +2,8 @@
 
     handbus decode [FILE|-] [--hex] [--dynamixel] [--node NODE]   one JSON object per frame,
                                                                   then a summary line
+    handbus decode RUN.mcap [--dynamixel]                         the raw-frame channels of a
+                                                                  recording, with channel, t
     handbus encode NAME [field=value …] --addr A [--reply]        the frame as hex
     handbus list                                                  the message catalogue
 
@@ -306,12 +308,40 @@ def decode_dynamixel(data: bytes, direction: str, out: Any) -> dict[str, int]:
 
 
 def cmd_decode(args: argparse.Namespace, out: Any) -> int:
+    if args.file != "-" and not args.hex:
+        from tools import mcap_capture
+
+        if mcap_capture.is_mcap(args.file):
+            return _decode_mcap(args, out)
     data = read_input(args.file, args.hex, sys.stdin.buffer)
     if args.dynamixel:
         counters = decode_dynamixel(data, args.direction, out)
     else:
         progress = progress_for(sys.stderr, len(data))
         counters = decode_hand(data, args.node, args.max_payload, out, progress)
+    print(json.dumps({"summary": counters}), file=out)
+    return 0
+
+
+def _decode_mcap(args: argparse.Namespace, out: Any) -> int:
+    """``decode FILE.mcap``: the raw-frame channels of a recording (:mod:`tools.mcap_capture`)."""
+    from tools import mcap_capture
+
+    def decoder(topic: str) -> mcap_capture.Decoder:
+        if not args.dynamixel:
+            return lambda data, sink: decode_hand(data, args.node, args.max_payload, sink)
+        direction = args.direction
+        if direction == "auto":
+            direction = "instruction" if topic.endswith("/tx") else "status"
+        return lambda data, sink: decode_dynamixel(data, direction, sink)
+
+    encoding = (mcap_capture.ARM_BYTES_ENCODING if args.dynamixel
+                else mcap_capture.HAND_FRAME_ENCODING)
+    try:
+        counters = mcap_capture.decode_mcap(args.file, encoding, decoder, out)
+    except mcap_capture.McapCaptureError as exc:
+        raise UsageError(f"{exc}{'' if args.dynamixel else ' (arm recordings: --dynamixel)'}"
+                         ) from exc
     print(json.dumps({"summary": counters}), file=out)
     return 0
 

@@ -194,3 +194,56 @@ def test_voltage_and_temperature_from_sensors(node):
     assert status_error(sched, hal) & ErrorBit.OVERHEATING
     assert read(sched, hal, "hardware_error_status") == ErrorBit.OVERHEATING
     assert read(sched, hal, "status_flags") & StepperFlag.HARDWARE_ERROR
+
+
+CYCLE_BLOCK = [  # (mirror, original): the host's one-range read of a cycle's state
+    ("cycle_present_position", "present_position"),
+    ("cycle_step_count", "step_count"),
+    ("cycle_velocity", "present_velocity"),
+    ("cycle_deflection", "deflection"),
+    ("cycle_status_flags", "status_flags"),
+]
+
+
+def block_and_originals(sched: Scheduler, hal: VirtualHal) -> tuple[list[int], list[int]]:
+    """The cycle block and the registers it mirrors, from one READ of 26..88."""
+    (reply,) = transact(sched, hal, make_read(2, 26, 89 - 26).encode())
+    image = bytes(26) + reply.params
+
+    def value(name: str) -> int:
+        reg = STEPPER_TABLE[name]
+        return reg.decode(image[reg.address : reg.end])
+
+    return [value(m) for m, _ in CYCLE_BLOCK], [value(o) for _, o in CYCLE_BLOCK]
+
+
+def test_the_cycle_block_mirrors_its_registers_every_tick_and_at_reads(node):
+    sched, hal, app = node
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 300)
+    seen_moving = seen_deflection = False
+    for tick in range(400):
+        sched.run_for(1_000)
+        if tick == 100:
+            hal.encoder().value = 40  # the joint moves on its own: deflection, velocity
+        block = [app.get(m) for m, _ in CYCLE_BLOCK]
+        assert block == [app.get(o) for _, o in CYCLE_BLOCK]  # after every tick
+        seen_moving |= bool(block[4] & StepperFlag.MOVING)
+        seen_deflection |= block[3] != 0
+    assert seen_moving and seen_deflection
+    hal.encoder().value = 70  # between ticks: the READ refreshes both
+    mirrors, originals = block_and_originals(sched, hal)
+    assert mirrors == originals and mirrors[0] == 70
+
+
+def test_the_cycle_blocks_velocity_saturates_to_int16(node):
+    sched, hal, app = node
+    free_running(sched, hal)
+    for step in range(12):  # 10 000 counts per ms: 10 M counts/s
+        hal.encoder().value = 10_000 * step
+        sched.run_for(1_000)
+    assert app.get("present_velocity") > 32767
+    assert app.get("cycle_velocity") == 32767
+    hal.encoder().value = -10_000 * 30
+    sched.run_for(1_000)
+    assert app.get("cycle_velocity") == -32768

@@ -170,7 +170,7 @@ def test_out_of_range_write_sets_range_bit(node):
     assert read_value(sched, hal, 1, "status_return_level") == 2
     (nak,) = transact(sched, hal, make_write(1, 22, b"\x00").encode())  # a gap
     assert nak.errors == ErrorBit.RANGE
-    (nak,) = transact(sched, hal, make_read(1, 70, 10).encode())  # past the table's end
+    (nak,) = transact(sched, hal, make_read(1, 85, 10).encode())  # past the end (89)
     assert nak.errors == ErrorBit.RANGE and nak.params == b""
 
 

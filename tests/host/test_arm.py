@@ -10,8 +10,9 @@ from collections.abc import Iterator
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import Arm
+from host.arm import STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
+from host.errors import NodeError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.dynamixel import ErrorBit
 from tools import armctl
@@ -33,7 +34,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
     assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 16)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
-    assert all(j.firmware_version == 1 for j in arm.steppers)
+    assert all(j.firmware_version == 2 for j in arm.steppers)
 
 
 def test_open_sets_the_fast_return_delay(arm: Arm) -> None:
@@ -71,15 +72,33 @@ def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
     assert all(10.0 <= s.voltage <= 20.0 for s in state.servos)
 
 
-def test_host_deflection_equals_the_nodes_register(arm: Arm) -> None:
-    full = Arm(arm.bus, arm.joints, read_deflection=True)
-    full.encoder_at_power_up = list(arm.encoder_at_power_up)
+def test_the_cycle_block_reports_the_nodes_scattered_registers(arm: Arm) -> None:
     arm.transport.sleep(0.5)  # J4 holds 0.25 rad against gravity: its element deflects
-    mine = arm.cycle()
-    nodes = full.cycle()
-    assert any(s.deflection for s in nodes.steppers)
-    for a, b in zip(mine.steppers, nodes.steppers, strict=True):
-        assert abs(a.deflection - b.deflection) <= 1
+    state = arm.cycle()
+    assert any(s.deflection for s in state.steppers)
+    for j, s in zip(arm.steppers, state.steppers, strict=True):
+        data = arm.bus.read(j.dxl_id, 26, STEPPER_TABLE["deflection"].end - 26)  # one later read
+
+        def value(name: str, data: bytes = data) -> int:
+            reg = STEPPER_TABLE[name]
+            return reg.decode(data[reg.address - 26 : reg.end - 26])
+
+        # the joint holds still: a read one exchange later sees the same values
+        assert s.deflection == value("deflection")
+        assert s.step_count == value("step_count")
+        assert abs(j.rad_to_counts(s.angle) - value("present_position")) <= 1
+        assert int(s.flags) == value("status_flags")
+        assert j.rad_to_counts(s.goal) == value("goal_position")
+
+
+def test_a_node_without_the_cycle_block_is_refused(arm: Arm) -> None:
+    app = arm.transport.emulator.arm.app(2)  # type: ignore[attr-defined]
+    app.set("firmware_version", 1)
+    try:
+        with pytest.raises(NodeError, match=r"\(J2\) runs stepper firmware 1"):
+            discover(arm.bus)
+    finally:
+        app.set("firmware_version", 2)
 
 
 def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:
@@ -87,7 +106,7 @@ def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:
     replies = {s.joint + 1: (0, state.raw[s.joint + 1]) for s in state.steppers}
     replies |= {s.joint + 1: (0, state.raw[s.joint + 1]) for s in state.servos}
     data = bytearray(replies[2][1])
-    data[0] = int(StepperFlag.SLIP | StepperFlag.MOVING | StepperFlag.STALLED)
+    data[STEPPER_TABLE["cycle_status_flags"].address - STEPPER_READ_AT] = int(StepperFlag.SLIP | StepperFlag.MOVING | StepperFlag.STALLED)
     replies[2] = (int(ErrorBit.OVERLOAD), bytes(data))
     replies[6] = (int(ErrorBit.OVERHEATING | ErrorBit.INPUT_VOLTAGE), replies[6][1])
     decoded = arm.decode_state(0.0, replies)

@@ -157,18 +157,18 @@ def test_a_reply_of_the_wrong_length_is_a_node_error() -> None:
 # ----------------------------------------------------------------- the arm's packets
 
 def _arm_on(transport: ScriptedTransport) -> Arm:
-    steppers = [JointInfo(i, i + 1, "stepper", 0x5E50, 1, r, 200, 16, 10_000, 100.0)
+    steppers = [JointInfo(i, i + 1, "stepper", 0x5E50, 2, r, 200, 16, 10_000, 100.0)
                 for i, r in enumerate((6.0, 10.0, 13.0, 13.0))]
     servos = [JointInfo(i, i + 1, "servo", 64, 0) for i in range(4, 7)]
     return Arm(DynamixelBus(transport, latency_s=0.0), steppers + servos)
 
 
-# BULK_READ of the cycle: stepper nodes 1-4 read 18 bytes (0x12) at status_flags (26 =
-# 0x1A), RX-64s 5-7 read 8 bytes at present_position (36 = 0x24).  22 parameter bytes,
-# LEN 0x18; checksum ~(FE + 18 + 92 + 00 + 4*12 + (1+2+3+4) + 4*1A + 3*08 + (5+6+7) +
-# 3*24) = ~(424 + 336 = 760 = 0x2F8) = 0x07.
+# BULK_READ of the cycle: stepper nodes 1-4 read their 13-byte (0x0D) cycle block at 76
+# (0x4C), RX-64s 5-7 read 8 bytes at present_position (36 = 0x24).  22 parameter bytes,
+# LEN 0x18; checksum ~(FE + 18 + 92 + 00 + 4*0D + (1+2+3+4) + 4*4C + 3*08 + (5+6+7) +
+# 3*24) = ~(424 + 516 = 940 = 0x3AC) = 0x53.
 GOLDEN_BULK_READ = bytes.fromhex(
-    "FFFFFE1892" "00" "12011A" "12021A" "12031A" "12041A" "080524" "080624" "080724" "07")
+    "FFFFFE1892" "00" "0D014C" "0D024C" "0D034C" "0D044C" "080524" "080624" "080724" "53")
 # SYNC_WRITE of stepper goals at goal_position (28 = 0x1C), 4 bytes: J1 1000 counts
 # (E8 03 00 00), J2 -1 count (FF FF FF FF).  LEN 0x0E; checksum ~(FE + 0E + 83 + 1C + 04 +
 # 01 + E8 + 03 + 02 + 4*FF) = ~(399 + 1290 = 1689 = 0x699) = 0x66.

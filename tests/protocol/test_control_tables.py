@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 from protocol.control_tables import (
     RAM_START,
     RX64_TABLE,
+    STEPPER_CYCLE_BLOCK,
+    STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_MODEL_NUMBER,
     STEPPER_TABLE,
     TABLES_BY_MODEL,
@@ -311,3 +313,19 @@ def test_every_writable_register_round_trips_its_limits(data: st.DataObject) -> 
     encoded = value.to_bytes(reg.size, "little", signed=reg.signed)
     assert table.write(image, reg.address, encoded) == [reg]
     assert table.value(image, reg.name) == value
+
+
+def test_stepper_cycle_block_addresses() -> None:
+    # written by hand: the host reads 76..88 in one BULK_READ range
+    block = [(r.name, r.address, r.size, r.access, r.signed) for r in STEPPER_TABLE
+             if r.address >= 75]
+    assert block == [
+        ("cycle_present_position", 76, 4, "R", True),
+        ("cycle_step_count", 80, 4, "R", True),
+        ("cycle_velocity", 84, 2, "R", True),
+        ("cycle_deflection", 86, 2, "R", True),
+        ("cycle_status_flags", 88, 1, "R", False),
+    ]
+    assert STEPPER_TABLE.size == 89
+    assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_CYCLE_BLOCK_FIRMWARE == 2
