@@ -151,17 +151,25 @@ def _plain_declaration(con: Any) -> bool:
     return all(_plain_declaration(sub) for sub in subs)
 
 
-_plain_cache: dict[tuple[str, str], bool] = {}
+_coded_cache: dict[tuple[str, str], frozenset[str]] = {}
 
 
-def _plain(msg: Message, direction: str) -> bool:
-    """Whether ``msg``'s ``direction`` decodes to plain values (else ``jsonable`` maps them,
-    e.g. coded values of an adapter)."""
+def _coded_keys(msg: Message, direction: str) -> frozenset[str]:
+    """The top-level fields of ``msg``'s ``direction`` whose values may hold something other
+    than plain values (e.g. coded values of an adapter): only those go through ``jsonable``."""
     key = (msg.name, direction)
-    plain = _plain_cache.get(key)
-    if plain is None:
-        plain = _plain_cache[key] = _plain_declaration(msg.declaration(direction))
-    return plain
+    coded = _coded_cache.get(key)
+    if coded is None:
+        struct_con = msg.declaration(direction)
+        while isinstance(struct_con, c.Renamed):
+            struct_con = struct_con.subcon
+        if isinstance(struct_con, c.Struct):
+            coded = frozenset(sub.name for sub in struct_con.subcons
+                              if sub.name is not None and not _plain_declaration(sub))
+        else:  # not a Struct: map the whole record
+            coded = frozenset() if _plain_declaration(struct_con) else frozenset({"*"})
+        _coded_cache[key] = coded
+    return coded
 
 
 #: JSON text of each message name and direction (and of no name).
@@ -219,8 +227,12 @@ class HandRecords:
         meaning = interpret(frame, hint)
         msg = meaning.message
         fields = meaning.fields
-        if msg is not None and fields is not None and not _plain(msg, meaning.direction):
-            fields = jsonable(fields)
+        if msg is not None and fields is not None:
+            coded = _coded_keys(msg, meaning.direction)
+            if "*" in coded:
+                fields = jsonable(fields)
+            elif coded:
+                fields = {k: jsonable(v) if k in coded else v for k, v in fields.items()}
         text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_names[meaning.name]}, '
                 f'"length": {len(frame.payload)}, "crc_ok": true, '
                 f'"fields": {_encode(fields)}, "direction": {_names[meaning.direction]}')

@@ -13,12 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from protocol.framing import encode_frame
 from tools import handbus
 from tools.cli_values import FieldValueError, build_fields, parse_value
+from tools.mcap_capture import MCAP_MAGIC
 
 # Golden frames written by hand (CRCs from the bitwise reference in test_framing.py).
 PING_HEX = "420a000001612d"
@@ -202,6 +203,7 @@ def test_empty_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
 @settings(max_examples=60, deadline=None)
 @given(st.binary(max_size=400), st.booleans())
 def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
+    assume(not data.startswith(MCAP_MAGIC))  # read as a recording (test_handbus_mcap.py)
     if sprinkle_frames:
         data = data[: len(data) // 2] + PING + data[len(data) // 2 :]
     with tempfile.TemporaryDirectory() as tmp:
@@ -321,10 +323,34 @@ def test_fields_of_adapted_declarations_go_through_jsonable(
         return {"on": "ON"}
 
     monkeypatch.setattr(handbus, "jsonable", spy)
-    monkeypatch.setitem(handbus._plain_cache, ("fmcb.phalange_power", "request"), False)
+    monkeypatch.setitem(handbus._coded_cache, ("fmcb.phalange_power", "request"),
+                        frozenset({"*"}))  # as for a record that is not a Struct
     line = fast_lines(POWER_ON + encode_frame(10, 0x1E, b"\x02")).splitlines()[0]
     assert seen == [{"on": 1}, {"on": 2}]
     assert json.loads(line)["fields"] == {"on": "ON"}
+
+
+def test_only_the_coded_fields_of_a_record_go_through_jsonable(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from protocol.messages import CATALOGUE
+    from protocol.messages.palm import RouteStatus
+    from protocol.topology import Hop
+
+    # palm.route reply: finger u8, hop (Hop), status (RouteStatus), frame (greedy bytes)
+    assert handbus._coded_keys(CATALOGUE["palm.route"], "reply") == {"hop", "status"}
+    assert handbus._coded_keys(CATALOGUE["fmcb.status"], "reply") == frozenset()
+    seen: list[Any] = []
+    real = handbus.jsonable
+
+    def spy(value: Any) -> Any:
+        seen.append(value)
+        return real(value)
+
+    monkeypatch.setattr(handbus, "jsonable", spy)
+    line = fast_lines(encode_frame(0, 0x62, bytes([1, 2, 1, 0xAB])), node="palm")
+    assert seen == [Hop.F3, RouteStatus.NO_REPLY]
+    assert json.loads(line.splitlines()[0])["fields"] == {
+        "finger": 1, "hop": "F3", "status": "NO_REPLY", "frame": "ab"}
 
 
 class _FakeTerminal(io.StringIO):
