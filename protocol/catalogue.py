@@ -22,7 +22,7 @@ import construct as c
 
 from protocol.enum_field import EnumField
 from protocol.errors import PayloadError, UnknownMessageError, wrap_construct
-from protocol.flat_codec import FlatCodec, flat_codec
+from protocol.flat_codec import FlatCodec, TailCodec, flat_codec, tail_codec
 from protocol.framing import encode_frame
 from protocol.topology import ADDR_HOST, NodeKind
 
@@ -60,6 +60,8 @@ class Message:
     _strict_reply: c.Construct | None = field(default=None, repr=False, compare=False)
     _flat_request: FlatCodec | None = field(default=None, repr=False, compare=False)
     _flat_reply: FlatCodec | None = field(default=None, repr=False, compare=False)
+    _tail_request: TailCodec | None = field(default=None, repr=False, compare=False)
+    _tail_reply: TailCodec | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.node not in NODES:
@@ -70,6 +72,10 @@ class Message:
         object.__setattr__(self, "_strict_reply", _strict(self.reply) if self.reply else None)
         object.__setattr__(self, "_flat_request", flat_codec(self.request) if self.request else None)
         object.__setattr__(self, "_flat_reply", flat_codec(self.reply) if self.reply else None)
+        for direction, con, flat in ((REQUEST, self.request, self._flat_request),
+                                     (REPLY, self.reply, self._flat_reply)):
+            if con is not None and flat is None:
+                object.__setattr__(self, f"_tail_{direction}", tail_codec(con))
 
     @property
     def replies(self) -> bool:
@@ -82,6 +88,10 @@ class Message:
         if con is None:
             raise PayloadError(f"{self.name} has no {direction}")
         return con
+
+    def flat_codec(self, direction: str) -> FlatCodec | None:
+        """The struct fast path of one direction, or None when its payload is not flat."""
+        return self._flat_request if direction == REQUEST else self._flat_reply
 
     def build(self, direction: str, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:
         """Build the payload of ``direction`` from ``fields`` (a dict) and/or keywords."""
@@ -102,6 +112,9 @@ class Message:
         flat = self._flat_request if direction == REQUEST else self._flat_reply
         if flat is not None and (parsed := flat.parse(payload)) is not None:
             return parsed  # the struct fast path; construct below explains any failure
+        tail = self._tail_request if direction == REQUEST else self._tail_reply
+        if tail is not None and (parsed := tail.parse(payload)) is not None:
+            return parsed  # a flat head and a variable last field, likewise
         return to_plain(wrap_construct(lambda: con.parse(payload), f"{self.name} {direction}"))
 
     def build_request(self, fields: Mapping[str, Any] | None = None, **kw: Any) -> bytes:

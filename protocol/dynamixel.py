@@ -442,6 +442,17 @@ class DecodedPacket:
         return isinstance(self.packet, StatusPacket)
 
 
+@dataclass(frozen=True)
+class BadChecksumPacket:
+    """A candidate packet whose checksum failed (kept with ``report_bad_checksums``):
+    ``offset`` of its first header byte, its ``raw`` bytes as framed by its LEN byte, and
+    the time (s) passed to the ``feed()`` that completed it."""
+
+    offset: int
+    raw: bytes
+    t: float | None = None
+
+
 class DynamixelStreamDecoder:
     """Turns a byte stream (in chunks of any size) into packets, counting what it drops.
 
@@ -457,9 +468,13 @@ class DynamixelStreamDecoder:
     Counters: ``packets`` (yielded), ``checksum_failures``, ``resyncs`` (discard events,
     checksum failures and rejections included), ``bytes_discarded``, ``rejected``,
     ``gap_drops``.  ``feed()`` never raises for any byte content.
+
+    With ``report_bad_checksums`` each checksum failure is also kept in
+    :attr:`bad_checksums` (for capture tools; the scan still resumes inside it).
     """
 
-    def __init__(self, direction: Direction = "auto", gap_timeout: float | None = None) -> None:
+    def __init__(self, direction: Direction = "auto", gap_timeout: float | None = None,
+                 report_bad_checksums: bool = False) -> None:
         if direction not in ("instruction", "status", "auto"):
             raise ValueError(f"direction must be instruction, status or auto, not {direction!r}")
         if gap_timeout is not None and not gap_timeout >= 0:
@@ -471,6 +486,9 @@ class DynamixelStreamDecoder:
         self._last_t: float | None = None
         self.packets = self.checksum_failures = self.resyncs = 0  # counters: see the class doc
         self.bytes_discarded = self.rejected = self.gap_drops = 0
+        self.report_bad_checksums = report_bad_checksums
+        #: Checksum failures seen, in stream order (only with ``report_bad_checksums``).
+        self.bad_checksums: list[BadChecksumPacket] = []
 
     @property
     def pending(self) -> int:
@@ -516,6 +534,9 @@ class DynamixelStreamDecoder:
                 n = _resync_distance(buf, pos)
             elif kind is FrameKind.BAD_CHECKSUM:
                 self.checksum_failures += 1
+                if self.report_bad_checksums:
+                    raw = bytes(buf[pos : pos + buf[pos + 3] + 4])
+                    self.bad_checksums.append(BadChecksumPacket(self._base + pos, raw, t))
             self.resyncs += 1
             self.bytes_discarded += n
             pos += n

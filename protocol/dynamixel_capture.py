@@ -62,8 +62,13 @@ def _instruction_fields(pkt: InstructionPacket) -> dict[str, Any]:
 
 def decode_dynamixel_capture(data: bytes, direction: str = "auto"
                              ) -> tuple[list[dict[str, Any]], dict[str, int]]:
-    """One record per packet found in ``data``, and the decoder's counters."""
-    decoder = DynamixelStreamDecoder(direction=direction)  # type: ignore[arg-type]
+    """One record per packet found in ``data``, and the decoder's counters.
+
+    A candidate whose checksum failed is a record too, in stream order, with
+    ``checksum_ok: false``, no kind, name or fields, and its ``raw`` bytes.
+    """
+    decoder = DynamixelStreamDecoder(direction=direction,  # type: ignore[arg-type]
+                                     report_bad_checksums=True)
     records: list[dict[str, Any]] = []
     last_instruction: dict[int, str] = {}
     for found in decoder.feed(data):
@@ -83,6 +88,11 @@ def decode_dynamixel_capture(data: bytes, direction: str = "auto"
             record.update(kind="status", name=last_instruction.get(pkt.id),
                           fields={"error": pkt.error, "errors": errors, "params": pkt.params})
         records.append(record)
+    if decoder.bad_checksums:
+        records.extend({"offset": bad.offset, "id": bad.raw[2], "length": len(bad.raw),
+                        "checksum_ok": False, "kind": None, "name": None, "fields": None,
+                        "raw": bad.raw} for bad in decoder.bad_checksums)
+        records.sort(key=lambda record: record["offset"])
     counters = {
         "packets": decoder.packets,
         "checksum_failures": decoder.checksum_failures,

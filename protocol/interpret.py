@@ -5,6 +5,12 @@ to 1 (f2), 2 (f3) or 10 (fmcb, palm or a bootloader), so :func:`interpret` tries
 kinds the address allows, in a fixed order, and takes the first whose declaration consumes
 the payload exactly.  A caller that knows the node (a driver, or a capture tool that saw
 the request) passes it as a hint and it is tried first.
+
+The candidates of each (address, type, payload length, hint) are worked out once and kept
+(a capture of a million frames names a few hundred kinds of frame).  A candidate whose
+payload is a flat fixed-size record (it has a :class:`~protocol.flat_codec.FlatCodec`)
+accepts exactly the payloads of its size and rejects every other length with the same
+words, so its rejection is kept too; every other candidate is tried on each payload.
 """
 
 from __future__ import annotations
@@ -55,25 +61,64 @@ def candidate_nodes(address: int, hint: str | None = None) -> tuple[str, ...]:
     return nodes
 
 
-def interpret(frame: Frame, hint: str | None = None) -> Interpretation:
-    """Decode ``frame`` against the catalogue (never raises for any payload)."""
-    direction = REPLY if frame.address == ADDR_HOST else REQUEST
-    first_error: str | None = None
-    first_message: Message | None = None
+def _candidates(address: int, msg_type: int, hint: str | None) -> list[Message]:
+    """The messages a frame may be, in the order they are tried (each once)."""
+    direction = REPLY if address == ADDR_HOST else REQUEST
+    out: list[Message] = []
     seen: set[str] = set()
-    for node in candidate_nodes(frame.address, hint):
-        msg = CATALOGUE.lookup(node, frame.type)
+    for node in candidate_nodes(address, hint):
+        msg = CATALOGUE.lookup(node, msg_type)
         if msg is None or msg.name in seen:
             continue
         seen.add(msg.name)
-        con = msg.request if direction == REQUEST else msg.reply
-        if con is None:
-            continue
-        try:
-            fields = msg.parse(direction, frame.payload)
-        except PayloadError as exc:
-            if first_error is None:
-                first_error, first_message = str(exc), msg
-            continue
-        return Interpretation(msg, direction, fields)
+        if (msg.request if direction == REQUEST else msg.reply) is not None:
+            out.append(msg)
+    return out
+
+
+#: One candidate of a plan: the message, and the error it always gives for this payload
+#: length (None: try it on each payload).
+_Step = tuple[Message, str | None]
+_PLANS: dict[tuple[int, int, int, str | None], tuple[_Step, ...]] = {}
+#: Bound on the plans kept (all are dropped when it is reached: garbage cannot grow it).
+_PLAN_LIMIT = 8192
+
+
+def _plan(address: int, msg_type: int, payload: bytes, hint: str | None) -> tuple[_Step, ...]:
+    """The steps of :func:`interpret` for frames like this one (made once per length)."""
+    key = (address, msg_type, len(payload), hint)
+    plan = _PLANS.get(key)
+    if plan is not None:
+        return plan
+    direction = REPLY if address == ADDR_HOST else REQUEST
+    steps: list[_Step] = []
+    for msg in _candidates(address, msg_type, hint):
+        flat = msg.flat_codec(direction)
+        error: str | None = None
+        if flat is not None and flat.size != len(payload):
+            try:
+                msg.parse(direction, payload)
+            except PayloadError as exc:
+                error = str(exc)  # a flat record rejects a length, whatever the bytes
+        steps.append((msg, error))
+    if len(_PLANS) >= _PLAN_LIMIT:
+        _PLANS.clear()
+    plan = _PLANS[key] = tuple(steps)
+    return plan
+
+
+def interpret(frame: Frame, hint: str | None = None) -> Interpretation:
+    """Decode ``frame`` against the catalogue (never raises for any payload)."""
+    payload = frame.payload
+    direction = REPLY if frame.address == ADDR_HOST else REQUEST
+    first_error: str | None = None
+    first_message: Message | None = None
+    for msg, error in _plan(frame.address, frame.type, payload, hint):
+        if error is None:
+            try:
+                return Interpretation(msg, direction, msg.parse(direction, payload))
+            except PayloadError as exc:
+                error = str(exc)
+        if first_error is None:
+            first_error, first_message = error, msg
     return Interpretation(first_message, direction, None, first_error)

@@ -23,17 +23,20 @@ import enum
 import json
 import re
 import sys
-from collections.abc import Sequence
-from typing import Any, BinaryIO
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, BinaryIO, TextIO
 
-from protocol.catalogue import REPLY, REQUEST
+import construct as c
+
+from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import ProtocolError
-from protocol.framing import DEFAULT_MAX_PAYLOAD
+from protocol.framing import DEFAULT_MAX_PAYLOAD, Frame
 from protocol.interpret import interpret
 from protocol.messages import CATALOGUE
-from protocol.stream import StreamDecoder
-from protocol.topology import ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
-from tools.cli_values import FieldValueError, build_fields
+from protocol.stream import FrameTuple, StreamDecoder
+from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
+from tools.cli_values import FieldValueError, build_fields, check_fields
 
 
 class UsageError(Exception):
@@ -90,36 +93,219 @@ def read_input(path: str, as_hex: bool, stdin: BinaryIO) -> bytes:
         raise UsageError(f"{path} is not hex text (byte {exc.start} is not ASCII)") from exc
 
 
-def decode_hand(data: bytes, node: str | None, max_payload: int, out: Any) -> dict[str, int]:
-    """Print one JSON line per frame found in ``data`` (rejected ones with crc_ok false)."""
+#: Bytes fed to the stream decoder at a time (the progress bar moves once per chunk).
+CHUNK = 1 << 18
+#: Frames whose payload is at most this long have their whole JSON line kept by content.
+_LINE_CACHE_PAYLOAD = 16
+#: Bound on the lines kept (all are dropped when it is reached).
+_LINE_CACHE_LIMIT = 1 << 16
+
+
+def _hex_bytes(value: Any) -> str:
+    """The encoder's fallback: bytes print as hex (as :func:`jsonable` makes them)."""
+    if isinstance(value, bytes | bytearray):
+        return value.hex()
+    raise TypeError(f"Object of type {value.__class__.__name__} is not JSON serializable")
+
+
+def _json_encoder() -> Callable[[Any], str]:
+    """``json.dumps(jsonable(x), ensure_ascii=False)`` without the copy, made once.
+
+    ``JSONEncoder.encode`` makes a new C encoder on every call; this keeps one (the same
+    C encoder with the same settings, so the same text), or falls back to ``encode`` where
+    the C accelerator is missing.
+    """
+    encoder = json.JSONEncoder(ensure_ascii=False, default=_hex_bytes)
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None:
+        return encoder.encode
+    c_encode = make(None, encoder.default, json.encoder.encode_basestring, encoder.indent,
+                    encoder.key_separator, encoder.item_separator, encoder.sort_keys,
+                    encoder.skipkeys, encoder.allow_nan)
+
+    def encode(value: Any) -> str:
+        return "".join(c_encode(value, 0))
+
+    return encode
+
+
+_encode = _json_encoder()
+
+
+#: Construct classes whose parsed values are only ints, floats, text, bytes, lists and
+#: dicts: the encoder prints those exactly as ``jsonable`` + ``json.dumps`` would.
+_PLAIN_CONSTRUCTS = (c.FormatField, c.Struct, c.Array, c.Bytes, c.StringEncoded, c.Prefixed,
+                     c.Padded, c.Renamed, c.Switch, c.Rebuild, c.Check, c.Const, c.FocusedSeq,
+                     c.Terminated.__class__, c.GreedyBytes.__class__, c.Pass.__class__,
+                     c.Error.__class__)
+
+
+def _plain_declaration(con: Any) -> bool:
+    """True when every construct in ``con`` is one of :data:`_PLAIN_CONSTRUCTS`."""
+    if not isinstance(con, _PLAIN_CONSTRUCTS):
+        return False
+    subs = [*getattr(con, "subcons", ()),
+            *(getattr(con, attr) for attr in ("subcon", "lengthfield", "default")
+              if isinstance(getattr(con, attr, None), c.Construct)),
+            *getattr(con, "cases", {}).values()]
+    return all(_plain_declaration(sub) for sub in subs)
+
+
+_coded_cache: dict[tuple[str, str], frozenset[str]] = {}
+
+
+def _coded_keys(msg: Message, direction: str) -> frozenset[str]:
+    """The top-level fields of ``msg``'s ``direction`` whose values may hold something other
+    than plain values (e.g. coded values of an adapter): only those go through ``jsonable``."""
+    key = (msg.name, direction)
+    coded = _coded_cache.get(key)
+    if coded is None:
+        struct_con = msg.declaration(direction)
+        while isinstance(struct_con, c.Renamed):
+            struct_con = struct_con.subcon
+        if isinstance(struct_con, c.Struct):
+            coded = frozenset(sub.name for sub in struct_con.subcons
+                              if sub.name is not None and not _plain_declaration(sub))
+        else:  # not a Struct: map the whole record
+            coded = frozenset() if _plain_declaration(struct_con) else frozenset({"*"})
+        _coded_cache[key] = coded
+    return coded
+
+
+#: JSON text of each message name and direction (and of no name).
+_names: dict[str | None, str] = {n: _encode(n) for n in (*CATALOGUE.names(), REQUEST, REPLY)}
+_names[None] = "null"
+
+
+class HandRecords:
+    """Turns decoded hand frames into the JSON lines ``handbus decode`` prints.
+
+    One line per frame: ``offset``, ``addr``, ``type``, ``name``, ``length``, ``crc_ok``,
+    ``fields``, then ``direction`` (and ``error`` when no declaration fits, ``payload`` hex
+    when the type is unknown) for a good frame, ``payload`` for a CRC-failed one.  A reply
+    is named with the node of the last request of its type when no ``node`` is given.
+    Lines of short payloads are kept by content, since the same polls recur all capture
+    long; everything else is encoded as it comes.
+    """
+
+    def __init__(self, node: str | None = None) -> None:
+        self.node = node
+        self._last_node_for_type: dict[int, str] = {}
+        self._lines: dict[tuple[int, int, bytes, str | None], tuple[str, str | None]] = {}
+
+    def lines(self, frames: list[FrameTuple]) -> str:
+        """The lines of ``frames`` (from :meth:`StreamDecoder.feed_tuples`), each ending in
+        a newline."""
+        node = self.node
+        last_node = self._last_node_for_type
+        cache = self._lines
+        out: list[str] = []
+        append = out.append
+        for address, msg_type, payload, offset, crc_ok in frames:
+            if not crc_ok:
+                append(self._rejected(address, msg_type, payload, offset))
+                continue
+            hint = node or (last_node.get(msg_type) if address == ADDR_HOST else None)
+            if len(payload) <= _LINE_CACHE_PAYLOAD:
+                key = (address, msg_type, payload, hint)
+                hit = cache.get(key)
+                if hit is None:
+                    if len(cache) >= _LINE_CACHE_LIMIT:
+                        cache.clear()
+                    hit = cache[key] = self._tail(Frame(address, msg_type, payload), hint)
+            else:
+                hit = self._tail(Frame(address, msg_type, payload), hint)
+            tail, request_node = hit
+            if request_node is not None:
+                last_node[msg_type] = request_node
+            append(f'{{"offset": {offset}, {tail}')
+        return "".join(out)
+
+    @staticmethod
+    def _tail(frame: Frame, hint: str | None) -> tuple[str, str | None]:
+        """A good frame's line after its offset, and the node it names as requested."""
+        meaning = interpret(frame, hint)
+        msg = meaning.message
+        fields = meaning.fields
+        if msg is not None and fields is not None:
+            coded = _coded_keys(msg, meaning.direction)
+            if "*" in coded:
+                fields = jsonable(fields)
+            elif coded:
+                fields = {k: jsonable(v) if k in coded else v for k, v in fields.items()}
+        text = (f'"addr": {frame.address}, "type": {frame.type}, "name": {_names[meaning.name]}, '
+                f'"length": {len(frame.payload)}, "crc_ok": true, '
+                f'"fields": {_encode(fields)}, "direction": {_names[meaning.direction]}')
+        if meaning.error:
+            text += f', "error": {_encode(meaning.error)}'
+        if msg is None:
+            text += f', "payload": "{frame.payload.hex()}"'
+        request_node = msg.node if msg is not None and meaning.direction == REQUEST else None
+        return text + "}\n", request_node
+
+    @staticmethod
+    def _rejected(address: int, msg_type: int, payload: bytes, offset: int) -> str:
+        record = {"offset": offset, "addr": address, "type": msg_type, "name": None,
+                  "length": len(payload), "crc_ok": False, "fields": None,
+                  "payload": payload.hex()}
+        return _encode(record) + "\n"
+
+
+class Progress:
+    """A one-line progress bar on a terminal (``stream``), redrawn at most 10 times a second."""
+
+    def __init__(self, stream: TextIO, total: int, what: str = "decoding") -> None:
+        self.stream = stream
+        self.total = total
+        self.what = what
+        self._start = time.perf_counter()
+        self._drawn = 0.0
+        self._shown = -1  # bytes shown by the last redraw
+
+    def update(self, done: int, force: bool = False) -> None:
+        """Show ``done`` of ``total`` bytes (throttled unless ``force``)."""
+        now = time.perf_counter()
+        if (not force and now - self._drawn < 0.1) or done == self._shown:
+            return
+        self._drawn, self._shown = now, done
+        fraction = done / self.total if self.total else 1.0
+        width = 30
+        filled = int(width * fraction)
+        rate = done / max(now - self._start, 1e-9) / 1e6
+        self.stream.write(f"\rhandbus: {self.what} [{'#' * filled}{'.' * (width - filled)}] "
+                          f"{fraction:4.0%} {done / 1e6:.1f}/{self.total / 1e6:.1f} MB "
+                          f"{rate:.1f} MB/s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Draw 100 % and end the line."""
+        self.update(self.total, force=True)
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def progress_for(stream: TextIO, total: int) -> Progress | None:
+    """A :class:`Progress` when ``stream`` is a terminal, else None (pipes stay clean)."""
+    try:
+        tty = stream.isatty()
+    except (AttributeError, ValueError):
+        tty = False
+    return Progress(stream, total) if tty else None
+
+
+def decode_hand(data: bytes, node: str | None, max_payload: int, out: Any,
+                progress: Progress | None = None) -> dict[str, int]:
+    """Write one JSON line per frame found in ``data`` (rejected ones with crc_ok false)."""
     decoder = StreamDecoder(max_payload=max_payload, gap_s=None, report_rejected=True)
-    last_node_for_type: dict[int, str] = {}
-    for frame in decoder.feed(data) + decoder.flush():
-        record: dict[str, Any] = {
-            "offset": frame.offset,
-            "addr": frame.address,
-            "type": frame.type,
-            "name": None,
-            "length": len(frame.payload),
-            "crc_ok": frame.crc_ok,
-            "fields": None,
-        }
-        if frame.crc_ok:
-            hint = node or (last_node_for_type.get(frame.type) if frame.address == ADDR_HOST
-                            else None)
-            meaning = interpret(frame, hint)
-            record["name"] = meaning.name
-            record["direction"] = meaning.direction
-            record["fields"] = jsonable(meaning.fields)
-            if meaning.error:
-                record["error"] = meaning.error
-            if meaning.message and meaning.direction == REQUEST:
-                last_node_for_type[frame.type] = meaning.message.node
-            if meaning.message is None:
-                record["payload"] = frame.payload.hex()
-        else:
-            record["payload"] = frame.payload.hex()
-        print(json.dumps(record, ensure_ascii=False), file=out)
+    records = HandRecords(node)
+    view = memoryview(data)
+    for start in range(0, len(data), CHUNK):
+        out.write(records.lines(decoder.feed_tuples(view[start : start + CHUNK])))
+        if progress is not None:
+            progress.update(min(start + CHUNK, len(data)))
+    out.write(records.lines(decoder.flush_tuples()))
+    if progress is not None:
+        progress.close()
     return decoder.counters.as_dict()
 
 
@@ -143,7 +329,8 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     if args.dynamixel:
         counters = decode_dynamixel(data, args.direction, out)
     else:
-        counters = decode_hand(data, args.node, args.max_payload, out)
+        progress = progress_for(sys.stderr, len(data))
+        counters = decode_hand(data, args.node, args.max_payload, out, progress)
     print(json.dumps({"summary": counters}), file=out)
     return 0
 
@@ -182,14 +369,20 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     con = msg.request if direction == REQUEST else msg.reply
     if con is None:
         raise UsageError(f"{msg.name} has no {direction}")
+    addresses = f"fmcb/palm {ADDR_FMCB}, f2 {ADDR_F2}, f3 {ADDR_F3}"
+    if not args.reply:
+        if args.addr is None:
+            raise UsageError(f"--addr is required for a request ({addresses})")
+        if not 0 <= args.addr <= 0xFF:
+            raise UsageError(f"address {args.addr} is outside 0..255 ({addresses}, "
+                             f"broadcast {ADDR_BROADCAST})")
     fields = build_fields(con, args.fields)
-    if args.reply:
-        frame = msg.reply_frame(fields)
-    elif args.addr is None:
-        raise UsageError(f"--addr is required for a request (fmcb/palm {ADDR_FMCB}, "
-                         f"f2 {ADDR_F2}, f3 {ADDR_F3})")
-    else:
-        frame = msg.request_frame(args.addr, fields)
+    check_fields(con, fields, msg.name)
+    payload = msg.build(direction, fields)
+    if len(payload) > args.max_payload:
+        raise UsageError(f"the {msg.name} {direction} payload is {len(payload)} bytes; a decoder "
+                         f"reading at most {args.max_payload} bytes (--max-payload) drops it")
+    frame = msg.reply_frame(fields) if args.reply else msg.request_frame(args.addr, fields)
     print(frame.hex(" ") if args.spaced else frame.hex(), file=out)
     return 0
 
@@ -231,6 +424,8 @@ def make_parser() -> argparse.ArgumentParser:
     enc.add_argument("--addr", type=_int, help="destination address")
     enc.add_argument("--reply", action="store_true", help="build the reply (to address 0)")
     enc.add_argument("--spaced", action="store_true", help="separate bytes by spaces")
+    enc.add_argument("--max-payload", type=_int, default=DEFAULT_MAX_PAYLOAD,
+                     help="refuse payloads longer than a decoder with this bound reads (bytes)")
     enc.set_defaults(func=cmd_encode)
 
     lst = sub.add_parser("list", help="list the message catalogue")

@@ -68,7 +68,8 @@ def raw_chunks(path: str | Path, encoding: str) -> Iterator[RawChunk]:
             for _, channel, message in reader.iter_messages(log_time_order=True):
                 if channel.message_encoding == encoding:
                     yield RawChunk(channel.topic, message.log_time, bytes(message.data))
-    except (McapError, ValueError, EOFError) as exc:
+    except (McapError, ValueError, EOFError, OSError) as exc:  # OSError: a seek before the
+        # start of a file too short for the footer
         raise McapCaptureError(f"{path}: not a readable MCAP file ({exc})") from exc
 
 

@@ -526,3 +526,24 @@ def test_decoder_does_not_keep_the_callers_buffer() -> None:
 def test_frame_size_property() -> None:
     frames = decode_all(HW_REPLY)
     assert frames[0].size == len(HW_REPLY) == 4 + OVERHEAD
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.one_of(st.binary(max_size=30), st.sampled_from(
+    [PING, POWER_ON, HW_REPLY, POWER_ON_BAD_CRC, LONG_PROMISE])), max_size=12),
+    st.lists(st.integers(0, 200), max_size=4), st.booleans())
+def test_tuples_are_the_frames_feed_returns(parts: list[bytes], cuts: list[int],
+                                            rejected: bool) -> None:
+    data = b"".join(parts)
+    framed = StreamDecoder(gap_s=None, report_rejected=rejected)
+    plain = StreamDecoder(gap_s=None, report_rejected=rejected)
+    frames: list[Frame] = []
+    tuples = []
+    for chunk in split_at(data, cuts):
+        frames += framed.feed(chunk)
+        tuples += plain.feed_tuples(memoryview(chunk))
+    frames += framed.flush()
+    tuples += plain.flush_tuples()
+    assert tuples == [(f.address, f.type, f.payload, f.offset, f.crc_ok) for f in frames]
+    assert all(type(payload) is bytes for _, _, payload, _, _ in tuples)
+    assert plain.counters == framed.counters

@@ -13,12 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from protocol.framing import encode_frame
 from tools import handbus
 from tools.cli_values import FieldValueError, build_fields, parse_value
+from tools.mcap_capture import MCAP_MAGIC
 
 # Golden frames written by hand (CRCs from the bitwise reference in test_framing.py).
 PING_HEX = "420a000001612d"
@@ -202,6 +203,7 @@ def test_empty_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
 @settings(max_examples=60, deadline=None)
 @given(st.binary(max_size=400), st.booleans())
 def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
+    assume(not data.startswith(MCAP_MAGIC))  # read as a recording (test_handbus_mcap.py)
     if sprinkle_frames:
         data = data[: len(data) // 2] + PING + data[len(data) // 2 :]
     with tempfile.TemporaryDirectory() as tmp:
@@ -218,6 +220,169 @@ def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
     assert counters["frames"] == sum(1 for r in records if r["crc_ok"])
     if sprinkle_frames:
         assert counters["frames"] >= 1
+
+
+def reference_lines(data: bytes, node: str | None = None) -> str:
+    """What ``handbus decode`` printed before it was made fast: a dict per frame, deep-copied
+    by ``jsonable`` and printed by ``json.dumps`` (the oracle of the fast writer)."""
+    from protocol.catalogue import REQUEST
+    from protocol.interpret import Interpretation, candidate_nodes
+    from protocol.messages import CATALOGUE
+    from protocol.stream import decode_all
+    from protocol.topology import ADDR_HOST
+
+    def interpret_slowly(frame: Any, hint: str | None) -> Interpretation:
+        direction = "reply" if frame.address == ADDR_HOST else REQUEST
+        first: tuple[Any, str | None] = (None, None)
+        seen: set[str] = set()
+        for kind in candidate_nodes(frame.address, hint):
+            msg = CATALOGUE.lookup(kind, frame.type)
+            if msg is None or msg.name in seen:
+                continue
+            seen.add(msg.name)
+            if (msg.request if direction == REQUEST else msg.reply) is None:
+                continue
+            try:
+                return Interpretation(msg, direction, msg.parse(direction, frame.payload))
+            except handbus.ProtocolError as exc:
+                if first[1] is None:
+                    first = (msg, str(exc))
+        return Interpretation(first[0], direction, None, first[1])
+
+    from protocol.stream import StreamDecoder
+    decoder = StreamDecoder(gap_s=None, report_rejected=True)
+    frames = decoder.feed(data) + decoder.flush()
+    assert [f for f in frames if f.crc_ok] == decode_all(data)
+    lines = []
+    last: dict[int, str] = {}
+    for frame in frames:
+        record: dict[str, Any] = {"offset": frame.offset, "addr": frame.address,
+                                  "type": frame.type, "name": None,
+                                  "length": len(frame.payload), "crc_ok": frame.crc_ok,
+                                  "fields": None}
+        if frame.crc_ok:
+            hint = node or (last.get(frame.type) if frame.address == ADDR_HOST else None)
+            meaning = interpret_slowly(frame, hint)
+            record["name"] = meaning.name
+            record["direction"] = meaning.direction
+            record["fields"] = handbus.jsonable(meaning.fields)
+            if meaning.error:
+                record["error"] = meaning.error
+            if meaning.message and meaning.direction == REQUEST:
+                last[frame.type] = meaning.message.node
+            if meaning.message is None:
+                record["payload"] = frame.payload.hex()
+        else:
+            record["payload"] = frame.payload.hex()
+        lines.append(json.dumps(record, ensure_ascii=False) + "\n")
+    return "".join(lines)
+
+
+def fast_lines(data: bytes, node: str | None = None) -> str:
+    out = io.StringIO()
+    handbus.decode_hand(data, node, handbus.DEFAULT_MAX_PAYLOAD, out)
+    return out.getvalue()
+
+
+def test_fast_writer_prints_what_the_reference_does(monkeypatch: pytest.MonkeyPatch) -> None:
+    from benchmarks.capture import make_capture
+
+    data = make_capture(60_000, seed=5, noise=True)
+    expected = reference_lines(data)
+    monkeypatch.setattr(handbus, "CHUNK", 997)  # frames straddle the chunks fed
+    assert fast_lines(data) == expected
+    assert fast_lines(data, "palm") == reference_lines(data, "palm")
+
+
+_FRAME_PARTS = st.tuples(st.sampled_from([0, 1, 2, 10, 0xFF, 7]),
+                         st.sampled_from([0x01, 0x10, 0x12, 0x1D, 0x21, 0x22, 0x60, 0x61, 0x62,
+                                          0x64, 0x07, 0x0A, 0x0D, 0xEE]),
+                         st.binary(max_size=160))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(_FRAME_PARTS, max_size=12), st.sampled_from([None, "palm", "f2", "bootloader"]))
+def test_fast_writer_matches_the_reference_on_any_frames(
+        parts: list[tuple[int, int, bytes]], node: str | None) -> None:
+    # Frames of every kind, twice each so the line cache answers the second time.
+    data = b"".join(encode_frame(a, t, p) for a, t, p in parts) * 2
+    assert fast_lines(data, node) == reference_lines(data, node)
+
+
+def test_fields_of_adapted_declarations_go_through_jsonable(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import construct as c
+
+    assert handbus._plain_declaration(c.Struct("a" / c.Int8ul, "b" / c.GreedyBytes))
+    assert not handbus._plain_declaration(c.Struct("a" / c.Enum(c.Int8ul, on=1)))
+    assert not handbus._plain_declaration(c.Struct("s" / c.Switch(c.this.a, {1: c.Flag})))
+    seen: list[Any] = []
+
+    def spy(value: Any) -> Any:
+        seen.append(value)
+        return {"on": "ON"}
+
+    monkeypatch.setattr(handbus, "jsonable", spy)
+    monkeypatch.setitem(handbus._coded_cache, ("fmcb.phalange_power", "request"),
+                        frozenset({"*"}))  # as for a record that is not a Struct
+    line = fast_lines(POWER_ON + encode_frame(10, 0x1E, b"\x02")).splitlines()[0]
+    assert seen == [{"on": 1}, {"on": 2}]
+    assert json.loads(line)["fields"] == {"on": "ON"}
+
+
+def test_only_the_coded_fields_of_a_record_go_through_jsonable(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from protocol.messages import CATALOGUE
+    from protocol.messages.palm import RouteStatus
+    from protocol.topology import Hop
+
+    # palm.route reply: finger u8, hop (Hop), status (RouteStatus), frame (greedy bytes)
+    assert handbus._coded_keys(CATALOGUE["palm.route"], "reply") == {"hop", "status"}
+    assert handbus._coded_keys(CATALOGUE["fmcb.status"], "reply") == frozenset()
+    seen: list[Any] = []
+    real = handbus.jsonable
+
+    def spy(value: Any) -> Any:
+        seen.append(value)
+        return real(value)
+
+    monkeypatch.setattr(handbus, "jsonable", spy)
+    line = fast_lines(encode_frame(0, 0x62, bytes([1, 2, 1, 0xAB])), node="palm")
+    assert seen == [Hop.F3, RouteStatus.NO_REPLY]
+    assert json.loads(line.splitlines()[0])["fields"] == {
+        "finger": 1, "hop": "F3", "status": "NO_REPLY", "frame": "ab"}
+
+
+class _FakeTerminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_bar_only_on_a_terminal(tmp_path: Path,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "capture.bin"
+    path.write_bytes(capture() * 50)
+    for stderr, shown in ((io.StringIO(), False), (_FakeTerminal(), True)):
+        out = io.StringIO()
+        monkeypatch.setattr(sys, "stderr", stderr)
+        monkeypatch.setattr(handbus, "CHUNK", 64)
+        with contextlib.redirect_stdout(out):
+            assert handbus.main(["decode", str(path)]) == 0
+        text = stderr.getvalue()
+        assert bool(text) == shown
+        if shown:
+            assert text.startswith("\rhandbus: decoding [") and text.endswith("\n")
+            assert "100%" in text.splitlines()[-1]
+        assert json_lines(out.getvalue())[-1]["summary"]["frames"] == 4 * 50
+
+
+def test_progress_bar_absent_for_a_console_script_with_stderr_piped(tmp_path: Path) -> None:
+    path = tmp_path / "capture.bin"
+    path.write_bytes(capture())
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    result = subprocess.run([sys.executable, "-m", "tools.handbus", "decode", str(path)],
+                            capture_output=True, env=env, check=False)
+    assert (result.returncode, result.stderr) == (0, b"")
 
 
 # --- encode -------------------------------------------------------------------------------------
@@ -314,8 +479,42 @@ def test_encode_unknown_name_suggests(capsys: pytest.CaptureFixture[str]) -> Non
     ("argv", "fragment"),
     [
         (["encode", "ping"], "--addr is required"),
-        (["encode", "fmcb.control", "mode=9", "--addr", "10"], "fmcb.control request"),
-        (["encode", "fmcb.phalange_power", "--addr", "10"], "fmcb.phalange_power request"),
+        (["encode", "fmcb.control", "mode=9", "--addr", "10"],
+         "fmcb.control: args is declared only for 0, 1, 2, 3, 4, 5, not for 9"),
+        (["encode", "fmcb.phalange_power", "--addr", "10"],
+         "fmcb.phalange_power: missing field 'on' (fields: on)"),
+        (["encode", "fmcb.control", "mode=2", "targt=1,2,3", "--addr", "10"],
+         "fmcb.control: unknown field 'targt' (fields: mode, args)"),
+        (["encode", "fmcb.control", "mode=2", "args.targt=1,2,3", "--addr", "10"],
+         "fmcb.control: unknown field 'args.targt' (fields of args: target)"),
+        (["encode", "fmcb.control", "mode=0", "args.target=1", "--addr", "10"],
+         "fmcb.control: unknown field 'args.target' (args has no fields)"),
+        (["encode", "fmcb.control", "mode=2", "args.target=0.1,0.2", "--addr", "10"],
+         "args.target: expected 3 numbers, got 2"),
+        (["encode", "fmcb.control", "mode=2", "args.target=0.1,0.2,x", "--addr", "10"],
+         "args.target[2]: expected a number, got 'x'"),
+        (["encode", "fmcb.phalange_power", "on=256", "--addr", "10"], "on: 256 is outside 0..255"),
+        # coded fields: a name is checked against the members, a number against the field,
+        # and a Switch keyed by a code given by name checks that case's arguments
+        (["encode", "fmcb.control", "mode=sideways", "--addr", "10"],
+         "mode: 'sideways' is not a ControlMode (idle, motor, joint, joint_fixed, "
+         "joint_effort, relative, or its number)"),
+        (["encode", "fmcb.control", "mode=256", "--addr", "10"], "mode: 256 is outside 0..255"),
+        (["encode", "fmcb.control", "mode=joint", "args.target=0.1,0.2", "--addr", "10"],
+         "args.target: expected 3 numbers, got 2"),
+        (["encode", "fmcb.control", "mode=JOINT", "args.targt=1,2,3", "--addr", "10"],
+         "fmcb.control: unknown field 'args.targt' (fields of args: target)"),
+        (["encode", "fmcb.phalange_power", "on=1.5", "--addr", "10"],
+         "on: expected an integer, got 1.5"),
+        (["encode", "fmcb.param_set", "index=1", "value=0102", "--addr", "10"],
+         "value: expected 4 bytes, got 2"),
+        (["encode", "fmcb.tunnel", "max_ms=1", "data=" + "00" * 513, "--addr", "10"],
+         "fmcb.tunnel: length=513 fails the declared check (this['length'] <= 512)"),
+        (["encode", "txn", "seq=1", "inner_type=1", "inner=" + "00" * 1100, "--addr", "10"],
+         "the txn request payload is 1102 bytes; a decoder reading at most 1017 bytes"),
+        (["encode", "txn", "seq=1", "inner_type=1", "inner=" + "00" * 20, "--addr", "10",
+          "--max-payload", "16"], "payload is 22 bytes; a decoder reading at most 16 bytes"),
+        (["encode", "ping", "--addr", "-1"], "address -1 is outside 0..255"),
         (["encode", "fmcb.phalange_power", "on", "--addr", "10"], "not field=value"),
         (["encode", "fmcb.tunnel", "data=xyz", "max_ms=1", "--addr", "10"], "not hex bytes"),
         (["encode", "palm.finger_event", "--addr", "10"], "has no request"),
@@ -329,6 +528,15 @@ def test_encode_errors(argv: list[str], fragment: str, capsys: pytest.CaptureFix
     assert out == ""
     assert err.startswith("handbus: error:")
     assert fragment in err
+    assert "Traceback" not in err and err.count("\n") == 1
+
+
+def test_encode_at_the_payload_limit_is_accepted(capsys: pytest.CaptureFixture[str]) -> None:
+    # txn: seq u8, inner_type u8, then the inner payload: 2 + 1015 = 1017 bytes exactly.
+    code, out, err = run_main(
+        ["encode", "txn", "seq=1", "inner_type=1", "inner=" + "ab" * 1015, "--addr", "10"], capsys)
+    assert (code, err) == (0, "")
+    assert bytes.fromhex(out.strip())[2:4] == (1017).to_bytes(2, "little")
 
 
 def test_unrecognised_arguments_exit_2(capsys: pytest.CaptureFixture[str]) -> None:

@@ -43,11 +43,29 @@ def test_arm_capture_names_registers_and_errors(tmp_path: Path,
     assert summary["summary"]["bytes_discarded"] == len(noise)
 
 
-def test_corrupted_packet_is_counted_not_printed(tmp_path: Path,
-                                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_corrupted_packet_is_printed_as_a_checksum_failure(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bad = bytearray(READ_STEPS)
-    bad[5] ^= 0x01
-    records = run(tmp_path, bytes(bad) + WRITE_GOAL, capsys)
+    bad[5] ^= 0x01  # 28 -> 29: FF FF 02 04 02 29 04 CB, checksum no longer matches
+    records = run(tmp_path, STATUS_OK + bytes(bad) + WRITE_GOAL, capsys)
     *packets, summary = records
-    assert [p["id"] for p in packets] == [5]
+    assert [(p["offset"], p["id"], p["checksum_ok"]) for p in packets] == [
+        (0, 5, True), (len(STATUS_OK), 2, False), (len(STATUS_OK) + len(bad), 5, True)]
+    failed = packets[1]
+    assert failed == {"offset": 6, "id": 2, "length": 8, "checksum_ok": False, "kind": None,
+                      "name": None, "fields": None, "raw": "ffff0204022904cb"}
     assert summary["summary"]["checksum_failures"] == 1
+    assert summary["summary"]["packets"] == 2
+
+
+def test_checksum_failures_are_kept_only_when_asked() -> None:
+    from protocol.dynamixel import DynamixelStreamDecoder
+
+    bad = READ_STEPS[:-1] + bytes([READ_STEPS[-1] ^ 0xFF])
+    quiet = DynamixelStreamDecoder()
+    quiet.feed(bad)
+    assert (quiet.checksum_failures, quiet.bad_checksums) == (1, [])
+    loud = DynamixelStreamDecoder(report_bad_checksums=True)
+    assert loud.feed(b"\x00" + bad[:4]) == []
+    loud.feed(bad[4:] + WRITE_GOAL, t=1.5)
+    assert [(b.offset, b.raw, b.t) for b in loud.bad_checksums] == [(1, bad, 1.5)]

@@ -84,3 +84,12 @@ def test_an_arm_recording_decodes_with_dynamixel(tmp_path: Path,
     assert times == sorted(times) and times[-1] - times[0] == pytest.approx(0.09, abs=0.005)
     assert all(r["checksum_ok"] for r in records) and summary
 
+
+
+def test_a_file_with_the_mcap_magic_but_no_recording_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "short.mcap"
+    path.write_bytes(MCAP_MAGIC)  # too short for a footer: the reader seeks before the start
+    assert handbus.main(["decode", str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "not a readable MCAP file" in err and "Traceback" not in err
