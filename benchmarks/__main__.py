@@ -1,6 +1,7 @@
 """``python -m benchmarks`` (``make bench``): run every benchmark, print rates and ratios.
 
-Each ``bench_*`` module exposes ``run(quick) -> list[Result]``.  Ratios compare results of
+Each ``bench_*`` module exposes ``run(quick) -> list[Result | Table]``; tables print after
+the rates.  Ratios compare results of
 the same group measured in this same run, so they hold on any machine.
 """
 
@@ -12,7 +13,7 @@ import pkgutil
 import sys
 
 import benchmarks
-from benchmarks.harness import Result
+from benchmarks.harness import Result, Table
 
 
 def _fmt(rate: float) -> str:
@@ -49,11 +50,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.only:
         names = [n for n in names if n in args.only or n.removeprefix("bench_") in args.only]
     results: list[Result] = []
+    tables: list[Table] = []
     for name in names:
         module = importlib.import_module(f"benchmarks.{name}")
         print(f"running {name} …", file=sys.stderr, flush=True)
-        results.extend(module.run(quick=args.quick))
+        for item in module.run(quick=args.quick):
+            (tables if isinstance(item, Table) else results).append(item)
     print("\n".join(report(results)))
+    for table in tables:
+        print(f"\n{table.title}")
+        print("\n".join(table.lines))
     return 0
 
 

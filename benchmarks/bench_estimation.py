@@ -7,15 +7,18 @@ On ``Emulator("hand")`` (palm up; the thumb, finger 3, has every joint axis obse
 * **static**: N random poses of the thumb (moved unhomed, then idled and left to rest); the
   closed form (:mod:`host.inertial_closed_form`, 6 status samples averaged) against the
   plant's MuJoCo joint angles: RMS and max error per joint (deg).  Targets: ≤ 0.5° RMS on
-  J2 (distal), ≤ 1° on J0/J1.
-* **moving**: the thumb driven through random targets while its status is read at 50 Hz;
-  the joint EKF (:mod:`host.joint_ekf`, accelerometers only) and the per-sample closed form
-  against the plant at each read (the readings lag by up to one IMU period).
+  J2 (distal), ≤ 1° on J0/J1.  Once the thumb has been homed at one pose, the next pose is
+  also estimated by the joint EKF fusing the halls with the accelerometers.
+* **moving**: the thumb (homed) driven through random targets while its status is read at
+  50 Hz; the joint EKF with the accelerometers only, the EKF fused with the halls
+  (:meth:`host.joint_ekf.JointEkf.update_status`) and the per-sample closed form against
+  the plant at each read (the readings lag by up to one IMU period, 40 ms).
 * **homing**: at each static pose, :func:`host.hand_homing.home_finger`; a success is a
   homed finger whose hall-derived joints then read within 1° of the plant; time in
   simulated seconds.
 
-``python -m benchmarks.bench_estimation [--poses 50] [--seed 1]``
+``make bench`` runs a short variant (:data:`BENCH_POSES` poses, shorter rests);
+``python -m benchmarks.bench_estimation [--poses 50] [--seed 1]`` the full one.
 """
 
 from __future__ import annotations
@@ -24,18 +27,41 @@ import argparse
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 
+from benchmarks.harness import Table
 from hil_emulator.emulator import Emulator
 from host.errors import HostError
 from host.hand import Hand
 from host.hand_homing import accels_from_status, home_finger, inertial_estimate
 from host.inertial_closed_form import estimate
-from host.joint_ekf import JointEkf, accel_counts_to_g
+from host.joint_ekf import EkfParams, JointEkf, accel_counts_to_g
 
 THUMB = 3
 JOINTS = ("J0 (abduction)", "J1 (proximal)", "J2 (distal)")
+#: Poses of ``make bench`` (``--quick``: :data:`QUICK_POSES`) and of the standalone run.
+BENCH_POSES: Final = 6
+QUICK_POSES: Final = 3
+FULL_POSES: Final = 50
+#: The EKF's parameters when it has the accelerometers alone.
+ACCELS_ONLY: Final = EkfParams(accel_motion_sigma=0.0)
+#: Status samples the EKF takes at a static pose (50 Hz).
+STATIC_EKF_SAMPLES: Final = 10
+
+
+@dataclass(frozen=True)
+class Settings:
+    """One run: ``poses`` static poses, ``rest_s`` of rest after each (s, simulated),
+    ``moves`` random targets of ``move_s`` each while moving."""
+
+    poses: int
+    seed: int = 1
+    rest_s: float = 0.2
+    moves: int = 4
+    move_s: float = 0.8
 
 
 def _pose(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -44,81 +70,111 @@ def _pose(rng: np.random.Generator) -> tuple[float, float, float]:
 
 
 def _row(name: str, errors: Sequence[Sequence[float]]) -> str:
-    e = np.degrees(np.asarray(errors, dtype=float))
-    cells = [f"{math.sqrt(float(np.nanmean(e[:, j] ** 2))):6.3f} / {np.nanmax(np.abs(e[:, j])):6.3f}"
-             for j in range(3)]
-    return f"{name:28} " + "  ".join(f"{c:>17}" for c in cells) + f"   n={len(e)}"
+    e = np.degrees(np.asarray(errors, dtype=float).reshape(-1, 3))
+    if not np.isfinite(e).any():
+        return f"{name:34} " + "  ".join(f"{'—':>17}" for _ in range(3)) + f"   n={len(e)}"
+    cells = [f"{math.sqrt(float(np.nanmean(e[:, j] ** 2))):6.3f} / "
+             f"{np.nanmax(np.abs(e[:, j])):6.3f}" for j in range(3)]
+    return f"{name:34} " + "  ".join(f"{c:>17}" for c in cells) + f"   n={len(e)}"
 
 
-def run(poses: int, seed: int) -> None:
+def measure(settings: Settings) -> list[str]:
+    """Run the benchmark; the table's lines."""
     wall = time.perf_counter()
-    emulator = Emulator("hand", seed=seed, can="none")
+    emulator = Emulator("hand", seed=settings.seed, can="none")
     emulator.bring_up()
     plant = emulator.finger_plants[THUMB]
     hand = Hand.open(emulator.transport("palm"))
     thumb = hand.fingers[THUMB]
-    rng = np.random.default_rng(seed)
+    session = hand.session
+    rng = np.random.default_rng(settings.seed)
 
-    static, homed_err = [], []
+    static, static_fused, homed_err = [], [], []
     successes, home_times = 0, []
-    for _ in range(poses):
+    for _ in range(settings.poses):
         thumb.move(_pose(rng), effort=200, timeout=2.0, unhomed=True)
         thumb.idle()
-        hand.session.sleep(0.2)
+        session.sleep(settings.rest_s)
         truth = plant.joint_angles()
         found = inertial_estimate(thumb)
         static.append([np.nan if q is None else q - t for q, t in zip(found.q, truth,
                                                                       strict=True)])
-        t0 = hand.session.now()
+        if thumb.homed:
+            ekf = JointEkf(q0=thumb.status().joints, q0_sigma=0.05)
+            for _ in range(STATIC_EKF_SAMPLES):
+                session.sleep(0.02)
+                status = thumb.motor.request("fmcb.status")
+                ekf.update_status(session.now(), accels_from_status(status),
+                                  status["hall_pos"])
+            static_fused.append(ekf.q - plant.joint_angles())
+        t0 = session.now()
         try:
             home_finger(thumb)
         except HostError:
             continue
-        home_times.append(hand.session.now() - t0)
+        home_times.append(session.now() - t0)
         err = np.asarray(thumb.status().joints) - plant.joint_angles()
         homed_err.append(err)
         successes += bool(np.all(np.abs(np.degrees(err)) < 1.0))
 
-    ekf = JointEkf(q0=plant.joint_angles(), q0_sigma=0.05)
-    moving_ekf, moving_cf = [], []
-    for _ in range(4):
-        thumb.command(_pose(rng), effort=120)
-        end = hand.session.now() + 0.8
-        while hand.session.now() < end:
-            hand.session.sleep(0.02)
+    # Accelerometers alone: no σ growth with speed (with nothing else to go on, the filter
+    # must follow them), as the filter was before it fused the halls.
+    ekf_accels = JointEkf(ACCELS_ONLY, q0=plant.joint_angles(), q0_sigma=0.05)
+    ekf_fused = JointEkf(q0=plant.joint_angles(), q0_sigma=0.05)
+    moving_ekf, moving_fused, moving_cf = [], [], []
+    for _ in range(settings.moves):
+        thumb.command(_pose(rng), effort=120, unhomed=True)
+        end = session.now() + settings.move_s
+        while session.now() < end:
+            session.sleep(0.02)
             status = thumb.motor.request("fmcb.status")
-            t, truth = hand.session.now(), plant.joint_angles()
+            t, truth = session.now(), plant.joint_angles()
             accels = accels_from_status(status)
             g = {b: accel_counts_to_g(v) for b, v in accels.items()}
-            ekf.predict(t)
-            ekf.update_accels(g["fmcb"], g["f2"], g["f3"], t)
-            moving_ekf.append(ekf.q - truth)
-            cf = estimate(accels, previous=ekf.q)
+            ekf_accels.predict(t)
+            ekf_accels.update_accels(g["fmcb"], g["f2"], g["f3"], t)
+            moving_ekf.append(ekf_accels.q - truth)
+            if thumb.homed:
+                ekf_fused.update_status(t, accels, status["hall_pos"])
+                moving_fused.append(ekf_fused.q - truth)
+            cf = estimate(accels, previous=ekf_accels.q)
             moving_cf.append([np.nan if q is None else q - tr for q, tr in zip(cf.q, truth,
                                                                                strict=True)])
     thumb.idle()
-
-    header = f"{'error (deg): RMS / max':28} " + "  ".join(f"{j:>17}" for j in JOINTS)
-    print(header)
-    print("-" * len(header))
-    print(_row("static, closed form", static))
-    print(_row("after homing, hall counts", homed_err or [[np.nan] * 3]))
-    print(_row("moving, EKF (accels only)", moving_ekf))
-    print(_row("moving, closed form", moving_cf))
-    mean_t = float(np.mean(home_times)) if home_times else float("nan")
-    print(f"homing: {successes}/{poses} poses homed within 1° "
-          f"({100.0 * successes / max(1, poses):.0f} %), {mean_t:.3f} s each (simulated); "
-          f"wall {time.perf_counter() - wall:.0f} s")
     hand.close()
     emulator.close()
+
+    header = f"{'error (deg): RMS / max':34} " + "  ".join(f"{j:>17}" for j in JOINTS)
+    n = settings.poses
+    mean_t = float(np.mean(home_times)) if home_times else float("nan")
+    return [
+        header, "-" * len(header),
+        _row("static, closed form", static),
+        _row("static, EKF fused with halls", static_fused or [[np.nan] * 3]),
+        _row("after homing, hall counts", homed_err or [[np.nan] * 3]),
+        _row("moving, EKF (accels only)", moving_ekf),
+        _row("moving, EKF fused with halls", moving_fused or [[np.nan] * 3]),
+        _row("moving, closed form", moving_cf),
+        "targets: static J2 ≤ 0.5° RMS, J0/J1 ≤ 1° RMS (thumb, no vertical axis)",
+        f"homing: {successes}/{n} poses homed within 1° ({100.0 * successes / max(1, n):.0f} %), "
+        f"{mean_t:.3f} s each (simulated); {n} poses, wall {time.perf_counter() - wall:.0f} s",
+    ]
+
+
+def run(quick: bool = False) -> list[Table]:
+    """``python -m benchmarks``: the short variant, as a table."""
+    settings = Settings(poses=QUICK_POSES if quick else BENCH_POSES, rest_s=0.1,
+                        moves=2 if quick else 3)
+    return [Table("inertial estimation (thumb, hand stand; dissertation 4.6.1)",
+                  tuple(measure(settings)))]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_estimation")
-    parser.add_argument("--poses", type=int, default=50)
+    parser.add_argument("--poses", type=int, default=FULL_POSES)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args(argv)
-    run(args.poses, args.seed)
+    print("\n".join(measure(Settings(poses=args.poses, seed=args.seed))))
     return 0
 
 

@@ -45,3 +45,12 @@ def best_rate(func: Callable[[], int], repeat: int = 5, min_time: float = 0.2) -
             elapsed = time.perf_counter() - start
         best = max(best, units / elapsed)
     return best
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table a benchmark prints after the rates (``title`` and its text ``lines``), for
+    figures that are not rates (estimation errors, success rates)."""
+
+    title: str
+    lines: tuple[str, ...]

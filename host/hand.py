@@ -33,6 +33,7 @@ from protocol.messages import CATALOGUE_HASH
 from protocol.messages.common import Running
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import ALL_FINGERS, FingerPower, RouteStatus
+from protocol.robot import DEFAULT_HAND_LAYOUT
 from protocol.topology import FINGERS, HOP_NODE, Hop
 
 #: Full effort (1/255 of full PWM).
@@ -223,21 +224,28 @@ def _efforts(effort: Sequence[int] | int) -> list[int]:
 class Hand:
     """A hand behind its palm link.  A context manager; :meth:`close` closes the link."""
 
-    def __init__(self, session: HandSession, limits: JointLimits | None = None) -> None:
+    def __init__(self, session: HandSession, limits: JointLimits | None = None,
+                 layout: str = DEFAULT_HAND_LAYOUT) -> None:
         if session.link != "palm":
             raise UsageError("Hand needs the palm's link; a loose finger is driven with "
                              "HandSession(transport, link='finger')")
         self.session = session
         self.limits = limits or JointLimits()
+        #: The hand frame's name (:data:`protocol.robot.HAND_LAYOUTS`): which module is the
+        #: thumb or opposed, where each spreads (grasps read it).
+        self.layout = layout
         self.palm = Node(session, LINK_NODE, "palm")
         self.fingers = [Finger(self, k) for k in range(FINGERS)]
 
     @classmethod
     def open(cls, url: str | Transport, *, limits: JointLimits | None = None,
-             timeouts: Timeouts | None = None, retries: int = 2) -> Hand:
-        """Open the palm link ``url`` (a path, any transport URL, or an open Transport)."""
+             timeouts: Timeouts | None = None, retries: int = 2,
+             layout: str = DEFAULT_HAND_LAYOUT) -> Hand:
+        """Open the palm link ``url`` (a path, any transport URL, or an open Transport) of
+        a hand built as ``layout``."""
         transport = open_transport(url) if isinstance(url, str) else url
-        return cls(HandSession(transport, timeouts=timeouts, retries=retries), limits)
+        return cls(HandSession(transport, timeouts=timeouts, retries=retries), limits,
+                   layout)
 
     def close(self) -> None:
         """Close the link (idempotent)."""
@@ -394,6 +402,14 @@ class Hand:
         self.send([self.fingers[k].make_command(q, effort=effort) for k, q in targets.items()],
                   unhomed=unhomed)
         return self.wait_settled(list(targets), timeout)
+
+    def grasp(self, name: str, amount: float = 1.0, **options: Any) -> Any:
+        """Blend towards grasp or pose ``name`` at ``amount`` (0..1): see
+        :func:`host.grasp.grasp` (options ``speed`` rad/s, ``fingers``, ``until_contact``,
+        ``effort``, ``timeout``, ``unhomed``); returns its :class:`~host.grasp.GraspResult`."""
+        from host.grasp import grasp
+
+        return grasp(self, name, amount, **options)
 
     # --- homing (host.hand_homing) ---------------------------------------------------------
     def home(self, finger: int | None = None, **options: Any) -> list[Any]:

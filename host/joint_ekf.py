@@ -1,8 +1,11 @@
 """An extended Kalman filter of one finger's joints from its accelerometers and hall counts.
 
-State (the dissertation, eq. 4.1): ``x = [q, q̇, q̈]`` (rad, rad/s, rad/s²; J0 J1 J2), 9
-values.  Prediction (eq. 4.2): constant acceleration over ``dt``, ``q ← q + dt·q̇ + dt²/2·q̈``,
-``q̇ ← q̇ + dt·q̈``, driven by white jerk of spectral density :attr:`EkfParams.jerk_psd`.
+State (the dissertation, eq. 4.1, plus hall offsets): ``x = [q, q̇, q̈, b]`` (rad, rad/s,
+rad/s², rad; J0 J1 J2 each), 12 values; ``b`` is what the hall-derived joint angles read
+above the true ones (the homing offsets' error).  Prediction (eq. 4.2): constant
+acceleration over ``dt``, ``q ← q + dt·q̇ + dt²/2·q̈``, ``q̇ ← q̇ + dt·q̈``, driven by white
+jerk of spectral density :attr:`EkfParams.jerk_psd`; ``b`` a slow random walk
+(:attr:`EkfParams.hall_offset_walk`).
 
 Measurements:
 
@@ -12,10 +15,16 @@ Measurements:
   from the fmcb's accelerometer on F0, low-passed over :attr:`EkfParams.base_tau_s` (the
   role of the calibrated ``R_0^w`` of eq. 4.3, here measured since F0 may move with the arm);
   the Jacobian is taken numerically.  A joint whose axis is vertical simply gets no
-  information (its column of the Jacobian vanishes) and its variance grows;
+  information (its column of the Jacobian vanishes) and its variance grows.  The model
+  leaves out the accelerations of motion and the fmcb samples the accelerometers every
+  40 ms, so while the joints move their σ grows with the joint speed
+  (:attr:`EkfParams.accel_motion_sigma`), and a reading repeated unchanged in the next
+  status (the same sample) is not fused twice (:meth:`JointEkf.update_status`);
 - once the finger is homed, the hall counts (homing-relative) turned into joint angles
   through the gears and the tendon coupling (:func:`protocol.robot.motor_to_joint`), a
-  linear measurement of ``q`` with noise :attr:`EkfParams.hall_sigma_rad`.
+  linear measurement of ``q + b`` with noise :attr:`EkfParams.hall_sigma_rad`: exact through
+  the gears, so the halls carry the motion and the accelerometers, through ``b``, only the
+  slow offset.
 """
 
 from __future__ import annotations
@@ -30,8 +39,12 @@ import numpy as np
 from host.finger_gravity_model import Vector, predict_readings, to_segment
 from protocol.robot import ACCEL_COUNTS_PER_G, motor_to_joint
 
-#: State size: three joints × (angle, velocity, acceleration).
-STATE_SIZE: Final = 9
+#: State size: three joints × (angle, velocity, acceleration, hall offset).
+STATE_SIZE: Final = 12
+#: Where the hall offsets ``b`` sit in the state.
+OFFSETS: Final = slice(9, 12)
+#: Most relinearisations of one accelerometer update (iterated EKF).
+ACCEL_ITERATIONS: Final = 4
 #: Step of the numerical Jacobian (rad).
 JACOBIAN_STEP_RAD: Final = 1e-6
 
@@ -47,32 +60,45 @@ class EkfParams:
     standard deviation of a joint angle from the hall counts (rad: one hall count is
     1–1.6 mrad at the joint, plus tendon stretch); ``base_tau_s`` time constant of the
     low-pass on the F0 reading (s); ``initial_sigma`` standard deviations of the first
-    angle, velocity and acceleration (rad, rad/s, rad/s²) when no prior is given.
+    angle, velocity and acceleration (rad, rad/s, rad/s²) when no prior is given;
+    ``accel_motion_sigma`` how much each accelerometer axis' σ grows per rad/s of the
+    fastest joint (g·s/rad: the left-out accelerations of motion and the reading's age);
+    ``hall_offset_sigma`` the first σ of the hall offsets (rad: homing is good to about
+    0.5°) and ``hall_offset_walk`` their random walk (rad/√s).
     """
 
     jerk_psd: float = 400.0
     accel_sigma_g: float = 0.004
-    hall_sigma_rad: float = 0.003
+    hall_sigma_rad: float = 0.002
     base_tau_s: float = 0.05
     initial_sigma: tuple[float, float, float] = (1.0, 1.0, 5.0)
+    accel_motion_sigma: float = 0.05
+    hall_offset_sigma: float = 0.005
+    hall_offset_walk: float = 0.001
 
 
 DEFAULT_PARAMS: Final = EkfParams()
 
 
 def transition(dt: float) -> np.ndarray:
-    """``F`` (9×9) of eq. 4.2: constant acceleration over ``dt`` (s)."""
+    """``F`` (12×12) of eq. 4.2: constant acceleration over ``dt`` (s); offsets held."""
     f1 = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    return np.kron(f1, np.eye(3))
+    f = np.eye(STATE_SIZE)
+    f[:9, :9] = np.kron(f1, np.eye(3))
+    return f
 
 
-def process_noise(dt: float, jerk_psd: float) -> np.ndarray:
-    """``Q`` (9×9): white jerk of density ``jerk_psd`` integrated over ``dt`` (s)."""
+def process_noise(dt: float, jerk_psd: float, offset_walk: float = 0.0) -> np.ndarray:
+    """``Q`` (12×12): white jerk of density ``jerk_psd`` integrated over ``dt`` (s), and the
+    hall offsets' random walk (``offset_walk`` rad/√s)."""
     q1 = jerk_psd * np.array([
         [dt ** 5 / 20, dt ** 4 / 8, dt ** 3 / 6],
         [dt ** 4 / 8, dt ** 3 / 3, dt ** 2 / 2],
         [dt ** 3 / 6, dt ** 2 / 2, dt]])
-    return np.kron(q1, np.eye(3))
+    q = np.zeros((STATE_SIZE, STATE_SIZE))
+    q[:9, :9] = np.kron(q1, np.eye(3))
+    q[OFFSETS, OFFSETS] = np.eye(3) * offset_walk ** 2 * dt
+    return q
 
 
 def accel_counts_to_g(counts: Vector) -> np.ndarray:
@@ -89,7 +115,8 @@ class JointEkf:
                  q0_sigma: Vector | float | None = None) -> None:
         self.params = params
         self.x = np.zeros(STATE_SIZE)
-        sig = np.repeat(np.asarray(params.initial_sigma, dtype=float), 3)
+        sig = np.concatenate((np.repeat(np.asarray(params.initial_sigma, dtype=float), 3),
+                              np.full(3, params.hall_offset_sigma)))
         if q0 is not None:
             self.x[:3] = np.asarray(q0, dtype=float)
         if q0_sigma is not None:
@@ -98,6 +125,7 @@ class JointEkf:
         self.t: float | None = None
         self.up0: np.ndarray | None = None
         self._base_t: float | None = None
+        self._last_accels: tuple[float, ...] | None = None
 
     @property
     def q(self) -> np.ndarray:
@@ -110,6 +138,11 @@ class JointEkf:
         return self.x[3:6].copy()
 
     @property
+    def hall_offsets(self) -> np.ndarray:
+        """What the hall-derived joint angles read above the true ones (rad)."""
+        return self.x[OFFSETS].copy()
+
+    @property
     def q_sigma(self) -> np.ndarray:
         """Standard deviations of the joint angles (rad)."""
         return np.sqrt(np.diag(self.P)[:3])
@@ -120,7 +153,8 @@ class JointEkf:
             dt = t - self.t
             f = transition(dt)
             self.x = f @ self.x
-            self.P = f @ self.P @ f.T + process_noise(dt, self.params.jerk_psd)
+            self.P = f @ self.P @ f.T + process_noise(dt, self.params.jerk_psd,
+                                                      self.params.hall_offset_walk)
         if self.t is None or t > self.t:
             self.t = t
 
@@ -147,21 +181,58 @@ class JointEkf:
         """Fuse one reading of each accelerometer (g, board axes) taken at ``t`` (s)."""
         self._base(np.asarray(fmcb, dtype=float), t)
         z = np.concatenate((np.asarray(f2, dtype=float), np.asarray(f3, dtype=float)))
-        q = self.x[:3]
+        speed = float(np.max(np.abs(self.x[3:6])))
+        sigma = self.params.accel_sigma_g + self.params.accel_motion_sigma * speed
+        r = np.eye(6) * sigma ** 2
+        # Iterated EKF: relinearise at the corrected angles, so a first reading far from the
+        # prior (σ of a rad) does not leave a linearisation error for the offsets to absorb.
+        x_prior = self.x.copy()
+        xi = x_prior.copy()
+        for _ in range(ACCEL_ITERATIONS):
+            h0, jac = self._accel_jacobian(xi[:3])
+            s_ = jac @ self.P @ jac.T + r
+            k = np.linalg.solve(s_, jac @ self.P).T
+            step = x_prior + k @ (z - h0 - jac @ (x_prior - xi))
+            converged = float(np.max(np.abs(step[:3] - xi[:3]))) < 1e-6
+            xi = step
+            if converged:
+                break
+        self.x = xi
+        i_kh = np.eye(STATE_SIZE) - k @ jac
+        self.P = i_kh @ self.P @ i_kh.T + k @ r @ k.T
+
+    def _accel_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h0 = self.predicted_accels(q)
         jac = np.zeros((6, STATE_SIZE))
         for j in range(3):
             dq = q.copy()
             dq[j] += JACOBIAN_STEP_RAD
             jac[:, j] = (self.predicted_accels(dq) - h0) / JACOBIAN_STEP_RAD
-        self._correct(z - h0, jac, np.eye(6) * self.params.accel_sigma_g ** 2)
+        return h0, jac
 
     def update_halls(self, hall_pos: Vector) -> None:
-        """Fuse homing-relative motor positions (hall counts) as joint angles."""
+        """Fuse homing-relative motor positions (hall counts) as joint angles ``q + b``."""
         z = np.array(motor_to_joint([float(v) for v in hall_pos]), dtype=float)
         h = np.zeros((3, STATE_SIZE))
         h[:, :3] = np.eye(3)
-        self._correct(z - self.x[:3], h, np.eye(3) * self.params.hall_sigma_rad ** 2)
+        h[:, OFFSETS] = np.eye(3)
+        self._correct(z - self.x[:3] - self.x[OFFSETS], h,
+                      np.eye(3) * self.params.hall_sigma_rad ** 2)
+
+    def update_status(self, t: float, accels: Mapping[str, Vector],
+                      hall_pos: Vector | None = None) -> None:
+        """One finger status read at ``t`` (s): predict to ``t``, fuse its accelerometers
+        (counts, mg; skipped when the reading repeats the last one: the fmcb samples them
+        every 40 ms, a status may carry the same sample again) and, for a homed finger,
+        ``hall_pos`` (hall counts, homing-relative)."""
+        self.predict(t)
+        key = tuple(float(v) for b in ("fmcb", "f2", "f3") for v in accels[b])
+        if key != self._last_accels:
+            self._last_accels = key
+            self.update_accels(accel_counts_to_g(accels["fmcb"]), accel_counts_to_g(accels["f2"]),
+                               accel_counts_to_g(accels["f3"]), t)
+        if hall_pos is not None:
+            self.update_halls(hall_pos)
 
     def _correct(self, innovation: np.ndarray, h: np.ndarray, r: np.ndarray) -> None:
         s = h @ self.P @ h.T + r

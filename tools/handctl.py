@@ -9,6 +9,8 @@
     handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
     handctl --port P record run.mcap --seconds 5 [--rate 50]
     handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
+    handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
+    handctl --port P grasp open 1.0                       # poses: open, relax, point
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …).
 Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line).
@@ -23,11 +25,13 @@ from collections.abc import Sequence
 from typing import Any
 
 from host.errors import HostError, ReplyTimeout, RouteError, TransportError, UsageError
+from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_homing import homed_on_robot
 from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import estimate
 from host.joint_ekf import fuse_snapshot
+from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
 
 EXIT_ROBOT = 1
 EXIT_USAGE = 2
@@ -68,6 +72,23 @@ def _parser() -> argparse.ArgumentParser:
     home = sub.add_parser("home", help="set the hall offsets from the accelerometers "
                                        "(no joint axis near vertical)")
     home.add_argument("--finger", type=int, help="one finger (default: every finger)")
+    grasp = sub.add_parser("grasp", help="blend towards a grasp or pose (host.grasp): "
+                                         + ", ".join(sorted(SYNERGIES)))
+    grasp.add_argument("name", help="grasp or pose name")
+    grasp.add_argument("amount", type=float, help="0 (open / relaxed) .. 1 (closed / pose)")
+    grasp.add_argument("--speed", type=float, default=DEFAULT_SPEED_RAD_S,
+                       help=f"blend speed of the joint moving most, rad/s "
+                            f"(default {DEFAULT_SPEED_RAD_S})")
+    grasp.add_argument("--until-contact", action="store_true",
+                       help="stop closing a finger when its taxels or effort say contact")
+    grasp.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
+    grasp.add_argument("--layout", choices=sorted(HAND_LAYOUTS), default=DEFAULT_HAND_LAYOUT,
+                       help=f"the hand frame (default {DEFAULT_HAND_LAYOUT})")
+    grasp.add_argument("--duration", type=float, default=3.0,
+                       help="seconds to wait for the fingers to settle after the blend")
+    grasp.add_argument("--unhomed", action="store_true",
+                       help="move fingers that were never homed (joint angles then mean "
+                            "nothing)")
     record = sub.add_parser("record", help="record frames and states to an MCAP file")
     record.add_argument("file")
     record.add_argument("--seconds", type=float, required=True)
@@ -133,6 +154,28 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
             lines.append(f"finger {r.finger}: not homed: {r.problem}")
     _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
     return 0 if all(r.homed for r in results) else EXIT_ROBOT
+
+
+def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
+    hand.layout = args.layout
+    result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
+                        until_contact=args.until_contact, timeout=args.duration,
+                        unhomed=args.unhomed)
+    move = result.move
+    assert move is not None
+    data = {"grasp": result.name, "amount": result.amount,
+            "targets": {str(k): list(q) for k, q in result.targets.items()},
+            "contacts": {str(k): why for k, why in result.contacts.items()},
+            **_move_dict(move)}
+    lines = [f"{result.name} {result.amount:g}: "
+             f"{'settled' if move.settled else 'not settled'} after {result.elapsed_s:.2f} s"]
+    for k, s in move.states.items():
+        q = ", ".join(f"{v:+.3f}" for v in s.joints)
+        t = ", ".join(f"{v:+.3f}" for v in result.targets[k])
+        why = f", contact: {result.contacts[k]}" if k in result.contacts else ""
+        lines.append(f"finger {k}: joints [{q}] rad, target [{t}] rad{why}")
+    _emit(args, data, "\n".join(lines))
+    return 0 if move.settled or result.contacts else EXIT_ROBOT
 
 
 def _status_text(state: HandState) -> str:
@@ -213,7 +256,8 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
-            "move": _cmd_move, "record": _cmd_record, "home": _cmd_home}
+            "move": _cmd_move, "record": _cmd_record, "home": _cmd_home,
+            "grasp": _cmd_grasp}
 
 
 def _advice(exc: HostError, port: str) -> str:

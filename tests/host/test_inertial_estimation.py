@@ -187,3 +187,24 @@ def test_calibration_refuses_coplanar_poses() -> None:
     ups = np.array([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0], [0.7, 0.7, 0]])
     with pytest.raises(UsageError, match="not all in one plane"):
         calibrate(ups * 1000, ups)
+
+
+def test_ekf_with_halls_learns_a_homing_offset_from_the_accelerometers() -> None:
+    # The halls read 0.9° high on J1 and low on J2 (an imperfect homing); while the finger
+    # moves, the halls carry the motion and the accelerometers find the offset.
+    rng = np.random.default_rng(8)
+    t = np.arange(0.0, 6.0, 0.01)
+    q = _trajectory(t)
+    offset = np.array([0.0, 0.016, -0.016])
+    ekf = JointEkf()
+    errors = []
+    for k, tk in enumerate(t):
+        r = predict_readings(q[k], UP_ALONG_X)
+        counts = {b: np.round((v + rng.normal(0.0, 0.002, 3)) * 1000) for b, v in r.items()}
+        hall = [round(m) for m in joint_to_motor(q[k] + offset)]
+        ekf.update_status(float(tk), counts, hall)
+        if tk > 4.0:
+            errors.append(ekf.q - q[k])
+    assert ekf.hall_offsets[1:] == pytest.approx(offset[1:], abs=0.005)
+    rms = np.degrees(np.sqrt(np.mean(np.square(errors), axis=0)))
+    assert np.all(rms < 0.4), rms

@@ -1,0 +1,97 @@
+"""Grasps end to end on the emulated hand (the ``hand`` stand, palm up, an object on the
+palm), in process on the simulation clock.  Ground truth: the plant's joint angles.
+
+Fingers 0-2 stand with J0 vertical and cannot be homed from their accelerometers, so the
+grasps here run ``unhomed``; refusal before homing is checked separately.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from hil_emulator.emulator import Emulator
+from host.errors import NotHomedError
+from host.grasp import synergy_targets
+from host.hand import Hand
+from tools.handctl import main
+
+URL = "emu://hand/palm?name=grasp-tests"
+
+
+@pytest.fixture(scope="module")
+def hand() -> Iterator[Hand]:
+    with Hand.open(URL) as opened:
+        yield opened
+
+
+def _truth(hand: Hand) -> np.ndarray:
+    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
+    return np.array([emulator.finger_plants[k].joint_angles() for k in range(4)])
+
+
+def test_a_grasp_is_refused_before_homing(hand: Hand) -> None:
+    before = _truth(hand)
+    with pytest.raises(NotHomedError, match=r"not homed"):
+        hand.grasp("cylindrical", 0.8)
+    hand.session.sleep(0.1)
+    assert np.allclose(_truth(hand), before, atol=0.01)  # nothing moved
+
+
+def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
+    before = _truth(hand)
+    result = hand.grasp("cylindrical", 0.8, speed=1.5, unhomed=True)
+    closed = _truth(hand)
+    targets = synergy_targets("cylindrical", 0.8)
+    for k in range(4):
+        # J1 and J2 flex (the closing direction) by most of the way to their targets.
+        moved = closed[k, 1:] - before[k, 1:]
+        assert np.all(moved > 0.5), (k, closed[k], before[k])
+        assert np.all(np.abs(closed[k, 1:] - np.asarray(targets[k][1:])) < 0.15), k
+    assert result.move is not None and result.move.settled
+    # The blend is rate-limited: 0.8 · 1.35 rad at 1.5 rad/s takes ≥ 0.72 s.
+    assert result.elapsed_s >= 0.72
+    hand.grasp("open", 1.0, speed=2.0, unhomed=True)
+    opened = _truth(hand)
+    assert np.all(opened[:, 1:] < closed[:, 1:] - 0.5)
+    assert np.all(np.abs(opened[:, 1:]) < 0.1)
+
+
+def test_handctl_grasp_refuses_unhomed_and_names_unknown_grasps(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "grasp", "pinch", "0.5"]) == 2  # NotHomedError is usage
+    assert "not homed" in capsys.readouterr().err
+    assert main(["--port", URL, "grasp", "fist", "0.5", "--unhomed"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown grasp 'fist'" in err and "cylindrical" in err and "point" in err
+
+
+def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "--json", "grasp", "pinch", "1.0", "--speed", "2",
+                 "--unhomed"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["grasp"] == "pinch" and out["settled"]
+    index, thumb = out["fingers"]["2"], out["fingers"]["3"]
+    assert index["joints"][1] > 0.7 and thumb["joints"][1] > 0.7
+    assert abs(out["fingers"]["0"]["joints"][1]) < 0.1  # the others stay open
+
+
+def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> None:
+    # After the grasps above the object lies across the open fingers' proximal pads: a
+    # cylindrical grasp until contact stops those fingers at once and closes the others.
+    hand.grasp("open", 1.0, speed=2.0, unhomed=True)
+    before = _truth(hand)
+    result = hand.grasp("cylindrical", 1.0, speed=2.0, unhomed=True, until_contact=True)
+    after = _truth(hand)
+    targets = synergy_targets("cylindrical", 1.0)
+    for k in range(4):
+        if k in result.contacts:
+            assert "taxels" in result.contacts[k] or "blocked" in result.contacts[k]
+            assert after[k, 1] < targets[k][1] - 0.3, k  # stopped short
+        else:
+            assert after[k, 1] - before[k, 1] > 0.8, k   # closed
+    assert result.contacts, "the object on the pads went unnoticed"
+    hand.grasp("open", 1.0, speed=2.0, unhomed=True)
