@@ -169,8 +169,10 @@ def url_scheme(url: str) -> str:
 
 
 def url_options(url: str) -> dict[str, str]:
-    """The ``?key=value`` options of a URL."""
-    return dict(parse_qsl(urlsplit(url).query)) if "://" in url else {}
+    """The ``?key=value`` options of a URL or of a bare path (``./robot/arm?baud=1000000``)."""
+    if "://" in url:
+        return dict(parse_qsl(urlsplit(url).query))
+    return dict(parse_qsl(url.partition("?")[2]))
 
 
 def schemes() -> list[str]:
