@@ -169,8 +169,10 @@ def url_scheme(url: str) -> str:
 
 
 def url_options(url: str) -> dict[str, str]:
-    """The ``?key=value`` options of a URL."""
-    return dict(parse_qsl(urlsplit(url).query)) if "://" in url else {}
+    """The ``?key=value`` options of a URL or of a path (``/dev/ttyUSB0?baud=1000000``)."""
+    if "://" in url:
+        return dict(parse_qsl(urlsplit(url).query))
+    return dict(parse_qsl(url.split("?", 1)[1])) if "?" in url else {}
 
 
 def schemes() -> list[str]:
