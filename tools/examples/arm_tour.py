@@ -29,14 +29,14 @@ def main(url: str = "emu://arm/arm") -> dict[str, object]:
         calibration = arm.home()
         print("homed; offsets (rad):", [round(o, 3) for o in calibration.offsets[:4]])
 
+        # Cartesian: the flange to x y z (m, base frame), orientation kept free.
+        reached = arm.moveto([0.25, -0.08, -0.52])
+        print("moveto:", reached.reached, round(reached.position_error * 1000, 1), "mm")
+
         # Joint-space move: all joints arrive together after `duration` s.
         goal = [0.0, 0.3, 0.0, 0.4, 0.0, 0.2, 0.0]
         state, settled = arm.move(goal, duration=1.0, timeout=6.0)
         print("move settled:", settled)
-
-        # Cartesian: the flange to x y z (m, base frame), orientation kept free.
-        reached = arm.moveto([0.25, -0.08, -0.52])
-        print("moveto:", reached.reached, round(reached.position_error * 1000, 1), "mm")
 
         arm.torque(False)  # the arm hangs again
         return {"joints": [j.name for j in arm.joints], "homed": arm.homed,
