@@ -33,7 +33,7 @@ from typing import Any, Final
 
 from host.code_names import code_name
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
-from host.transport import Transport
+from host.transport import Transport, link_kind
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
 from protocol.framing import encode_frame, parse_frame
@@ -110,9 +110,28 @@ class Timeouts:
     fmcb_ms: int = 10
     tendon_ms: int = 10
 
+    @classmethod
+    def for_url(cls, url: str, link_s: float | None = None) -> Timeouts:
+        """The defaults for the link ``url`` names, with ``link_s`` (s) if given:
+        :data:`LINK_BUDGET_S` by :func:`~host.transport.link_kind`."""
+        if link_s is None:
+            link_s = LINK_BUDGET_S.get(link_kind(url), cls.link_s)
+        if not link_s > 0:
+            raise UsageError(f"link budget {link_s} s: it must be > 0")
+        return cls(link_s=float(link_s))
+
     def route_ms(self, hop: int, extra_ms: int = 0) -> int:
         """The ``palm.route`` timeout (ms) for a node at ``hop``."""
         return self.fmcb_ms + (self.tendon_ms if hop else 0) + extra_ms
+
+
+#: Default :attr:`Timeouts.link_s` (s) by kind of link.  In process the simulation clock
+#: makes wire times exact, so the palm's own budget (30 ms) is all; a serial link adds a USB
+#: adapter's latency timer (16 ms by default, each way) and, on the emulator's ptys, a busy
+#: machine's scheduling; CAN adapters buffer similarly; a network link adds its round trip.
+LINK_BUDGET_S: Final[dict[str, float]] = {
+    "in-process": 0.030, "loop": 0.030, "serial": 0.100, "can": 0.100, "network": 0.250,
+}
 
 
 @dataclass(frozen=True)
@@ -172,11 +191,12 @@ class HandSession:
 
     def __init__(self, transport: Transport, *, link: str = "palm",
                  timeouts: Timeouts | None = None, retries: int = 2) -> None:
+        """``timeouts`` default to :meth:`Timeouts.for_url` of the transport's URL."""
         if link not in ("palm", "finger"):
             raise UsageError(f"link {link!r}: a hand link is 'palm' or 'finger'")
         self.transport = transport
         self.link = link
-        self.timeouts = timeouts or Timeouts()
+        self.timeouts = timeouts or Timeouts.for_url(transport.url)
         self.retries = retries
         self.decoder = StreamDecoder()
         self.counters = SessionCounters()

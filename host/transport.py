@@ -168,11 +168,26 @@ def url_scheme(url: str) -> str:
     return url.split("://", 1)[0].lower()
 
 
+#: What kind of link each built-in scheme is, for timing defaults (:func:`link_kind`).
+_KINDS: Final[dict[str, str]] = {
+    "serial": "serial", "spy": "serial", "loop": "loop", "socket": "network",
+    "rfc2217": "network", "can": "can", "emu": "in-process",
+}
+
+
+def link_kind(url: str) -> str:
+    """``"serial"`` (a device or pty: USB adapters buffer up to their latency timer, 16 ms
+    by default), ``"can"``, ``"network"`` (``socket://``, ``rfc2217://``), ``"loop"``,
+    ``"in-process"`` (``emu://``: the simulation clock, exact wire times), or ``"other"``
+    for a scheme registered by another package."""
+    return _KINDS.get(url_scheme(url), "other")
+
+
 def url_options(url: str) -> dict[str, str]:
-    """The ``?key=value`` options of a URL or of a bare path (``./robot/arm?baud=1000000``)."""
+    """The ``?key=value`` options of a URL or of a path (``/dev/ttyUSB0?baud=1000000``)."""
     if "://" in url:
         return dict(parse_qsl(urlsplit(url).query))
-    return dict(parse_qsl(url.partition("?")[2]))
+    return dict(parse_qsl(url.split("?", 1)[1])) if "?" in url else {}
 
 
 def schemes() -> list[str]:

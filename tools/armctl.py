@@ -17,10 +17,12 @@ they lose power, so a later armctl picks it up); ``--unhomed`` moves in the node
 (angles from power-up) anyway.
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
-(``emu://arm/arm`` runs the emulator in this process).  Opening sets every node's return
-delay to 0 for fast cycles unless ``--keep-return-delay``.  Errors are one line on standard
-error saying what to do next; exit status 1 for a robot or link problem, 2 for bad
-arguments, 3 when a move did not settle in time.
+(``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
+allowed on top of each exchange's wire time (default 20 ms on a serial link, 0.2 ms in
+process).  Opening sets every node's return delay to 0 for fast cycles unless
+``--keep-return-delay``.  Errors say what to do next (:mod:`tools.cli_common`); exit status 1
+for a robot or link problem, 2 for bad arguments, 3 when a move did not settle in time, 130
+when interrupted.
 """
 
 from __future__ import annotations
@@ -34,23 +36,19 @@ from typing import Any, TextIO
 from host.arm import Arm
 from host.arm_homing import restore
 from host.arm_state import JOINT_NAMES, N_JOINTS, ArmState
-from host.errors import HomingError, HostError, ReplyTimeout, TransportError, UsageError
+from host.errors import UsageError
+from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
 
-#: Exit statuses.
-EXIT_OK, EXIT_ROBOT, EXIT_USAGE, EXIT_NOT_SETTLED = 0, 1, 2, 3
-
-
-def add_port_argument(parser: argparse.ArgumentParser) -> None:
-    """``--port``: a serial path or a transport URL."""
-    parser.add_argument("--port", required=True, metavar="P",
-                        help="serial port path (1 Mbaud unless ?baud=N) or transport URL "
-                             "(emu://arm/arm, socket://host:port, ...)")
+#: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
+EXIT_NOT_SETTLED = 3
+__all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "make_parser"]
 
 
 def make_parser() -> argparse.ArgumentParser:
+    """armctl's command line."""
     parser = argparse.ArgumentParser(prog="armctl", description=__doc__.split("\n\n")[0])
-    add_port_argument(parser)
-    parser.add_argument("--json", action="store_true", help="print JSON instead of text")
+    add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
+                         timeout_default="20 ms on a serial link, 0.2 ms in process")
     parser.add_argument("--keep-return-delay", action="store_true",
                         help="leave the nodes' return delay (register 5) as it is")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -222,44 +220,16 @@ COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move"
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    parser = make_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    try:
-        arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0)
-    except TransportError as exc:
-        print(f"armctl: {exc}; check the path (ls /dev/ttyUSB*), "
-              "permissions (dialout group) or that hil-emulator is running", file=sys.stderr)
-        return EXIT_ROBOT
-    except ReplyTimeout as exc:
-        print(f"armctl: {exc}; check the arm's power and cabling, and the baud rate "
-              "(?baud=N)", file=sys.stderr)
-        return EXIT_ROBOT
-    except UsageError as exc:
-        print(f"armctl: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except HostError as exc:
-        print(f"armctl: {exc}", file=sys.stderr)
-        return EXIT_ROBOT
-    try:
+    """Run armctl, printing results to ``out`` (default stdout); returns the exit status."""
+    stream = out or sys.stdout
+
+    def body(args: argparse.Namespace) -> int:
+        arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
+                       latency_s=args.link_timeout)
         with arm:
-            return COMMANDS[args.command](arm, args, out)
-    except UsageError as exc:
-        print(f"armctl: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except ReplyTimeout as exc:
-        print(f"armctl: {exc}; the arm stopped answering: check power and the cable",
-              file=sys.stderr)
-        return EXIT_ROBOT
-    except HomingError as exc:
-        print(f"armctl: homing failed: {exc}", file=sys.stderr)
-        return EXIT_ROBOT
-    except (HostError, OSError) as exc:
-        print(f"armctl: {exc}", file=sys.stderr)
-        return EXIT_ROBOT
+            return COMMANDS[args.command](arm, args, stream)
+
+    return run_cli(make_parser(), argv, body)
 
 
 if __name__ == "__main__":

@@ -10,8 +10,10 @@ Every image is checked before anything is touched (exists, parses, right board, 
 ``--key`` when given), and the palm and every finger must answer.  A node already holding
 its image is skipped unless ``--force``; an interrupted run is resumed by running again.
 Progress goes to stderr; the table (or ``--json``) to stdout.  Exit 0 only if every node
-ends verified and running the requested version; 1 if not; 2 for a bad command line or a
-plan refused before touching anything.
+ends verified and running the requested version; 1 if not (or the link failed: run again to
+resume); 2 for a bad command line or a plan refused before touching anything (an image, a
+key, a finger not answering, a port that does not open); 130 when interrupted.
+``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
 """
 
 from __future__ import annotations
@@ -24,17 +26,19 @@ from pathlib import Path
 from typing import TextIO
 
 from bootloader.batch import RunReport, run_plan
-from bootloader.errors import FlashError
+from bootloader.errors import FlashError, PlanError
 from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan
 from bootloader.signing import load_public_key
-from host.errors import HostError
+from host.errors import TransportError
 from host.hand_session import HandSession
 from host.transport import open_transport
 from protocol.image import BoardType
+from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 
-EXIT_FAILED = 1
-EXIT_USAGE = 2
+#: Not every node ended verified (or the link failed mid-run).
+EXIT_FAILED = EXIT_ROBOT
+__all__ = ["EXIT_FAILED", "EXIT_USAGE", "main"]
 
 
 def _fingers(text: str) -> list[int]:
@@ -47,7 +51,7 @@ def _fingers(text: str) -> list[int]:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="flash-all-fingers", description=__doc__.split("\n\n")[0])
-    p.add_argument("--port", required=True, help="the palm's serial port or a transport URL")
+    add_common_arguments(p, what="the palm's port")
     p.add_argument("--fmcb", type=Path, help="image for the motor boards")
     p.add_argument("--f2", type=Path, help="image for the proximal phalanges")
     p.add_argument("--f3", type=Path, help="image for the distal phalanges")
@@ -57,7 +61,6 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-or-nothing", action="store_true",
                    help="stage and verify every node, activate only if all verified")
     p.add_argument("--key", type=Path, help="public key the nodes require signatures from")
-    p.add_argument("--json", action="store_true", help="print one JSON object at the end")
     return p
 
 
@@ -99,42 +102,29 @@ def table(report: RunReport) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``flash-all-fingers``; returns the exit status."""
-    args = _parser().parse_args(argv)
-    try:
-        plan = plan_from_args(args)
-    except FlashError as exc:
-        print(f"flash-all-fingers: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+def _run(args: argparse.Namespace) -> int:
+    plan = plan_from_args(args)
     if args.dry_run:
         lines = plan.describe()
-        if args.json:
-            print(json.dumps({"dry_run": True, "plan": lines}))
-        else:
-            print("\n".join(lines))
+        print(json.dumps({"dry_run": True, "plan": lines}) if args.json else "\n".join(lines))
         return 0
     try:
         transport = open_transport(args.port)
-    except HostError as exc:
-        print(f"flash-all-fingers: cannot open {args.port}: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    on_change = progress_printer(sys.stderr)
-    with HandSession(transport) as session:
-        try:
-            report = run_plan(session, plan, on_change=on_change)  # type: ignore[arg-type]
-        except FlashError as exc:
-            print(f"flash-all-fingers: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-        except HostError as exc:
-            print(f"flash-all-fingers: the link failed: {exc}; run again to resume",
-                  file=sys.stderr)
-            return EXIT_FAILED
+    except TransportError as exc:
+        raise PlanError(f"cannot open {args.port}: {exc}; nothing was touched") from exc
+    with HandSession(transport, timeouts=hand_timeouts(args)) as session:
+        report = run_plan(session, plan, on_change=progress_printer(sys.stderr))  # type: ignore[arg-type]
     if args.json:
         print(json.dumps(report.to_dict()))
     else:
         print(table(report))
     return 0 if report.ok else EXIT_FAILED
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``flash-all-fingers``; returns the exit status."""
+    return run_cli(_parser(), argv, _run, usage=(FlashError,),
+                   hint="run flash-all-fingers again to resume")
 
 
 if __name__ == "__main__":

@@ -12,8 +12,10 @@
     handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
     handctl --port P grasp open 1.0                       # poses: open, relax, point
 
-``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …).
-Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line).
+``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
+``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
+Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line,
+130: interrupted).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from host.errors import HostError, ReplyTimeout, RouteError, TransportError, UsageError
+from host.errors import HostError, ReplyTimeout, UsageError
 from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_homing import homed_on_robot
@@ -32,9 +34,9 @@ from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import estimate
 from host.joint_ekf import fuse_snapshot
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
+from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 
-EXIT_ROBOT = 1
-EXIT_USAGE = 2
+__all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main"]
 
 
 def _floats(text: str) -> list[float]:
@@ -46,9 +48,7 @@ def _floats(text: str) -> list[float]:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
-    p.add_argument("--port", required=True,
-                   help="the palm's serial port or a transport URL (emu://hand/palm, …)")
-    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    add_common_arguments(p, what="the palm's port")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("ping", help="discover every node: program, versions")
     sub.add_parser("status", help="joints, taxels, currents, power of every finger")
@@ -260,32 +260,14 @@ COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
             "grasp": _cmd_grasp}
 
 
-def _advice(exc: HostError, port: str) -> str:
-    if isinstance(exc, TransportError):
-        return (f"cannot use {port}: {exc}\nCheck the path (ls /dev/ttyACM* /dev/ttyUSB*), "
-                f"that nothing else holds the port, or start the emulator (hil-emulator).")
-    if isinstance(exc, RouteError):
-        return str(exc)
-    if isinstance(exc, ReplyTimeout):
-        return (f"{exc}\nNothing answered in time: check that {port} is the palm's port, "
-                f"that the hand is powered, and try `handctl --port {port} ping`.")
-    return str(exc)
+def _run(args: argparse.Namespace) -> int:
+    with Hand.open(args.port, timeouts=hand_timeouts(args)) as hand:
+        return COMMANDS[args.command](hand, args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run handctl; returns the exit status."""
-    args = _parser().parse_args(argv)
-    try:
-        with Hand.open(args.port) as hand:
-            return COMMANDS[args.command](hand, args)
-    except UsageError as exc:
-        print(f"handctl: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except HostError as exc:
-        print(f"handctl: {_advice(exc, args.port)}", file=sys.stderr)
-        return EXIT_ROBOT
-    except KeyboardInterrupt:
-        return 130
+    return run_cli(_parser(), argv, _run)
 
 
 if __name__ == "__main__":

@@ -13,10 +13,13 @@ from typing import Any
 
 import can
 
-from host.errors import TransportError
+from host.errors import TransportError, UsageError
 from host.transport import Transport, url_options
 from protocol.canlink import DEFAULT_PALM_NODE, can_id, segment
 
+#: What a user reads when the bus fails under an open transport.
+_GONE = ("the CAN adapter is gone or the bus is off (adapter unplugged, cable, "
+         "termination); fix it and call reopen(), or open it again")
 #: Default CAN bit rate of the palm (bit/s).
 DEFAULT_BITRATE = 1_000_000
 
@@ -42,11 +45,14 @@ class CanTransport(Transport):
         rest = url.split("://", 1)[1].split("?", 1)[0]
         interface, _, channel = rest.partition("/")
         if not interface or not channel:
-            raise TransportError(f"{url}: expected can://INTERFACE/CHANNEL, e.g. "
+            raise UsageError(f"{url}: expected can://INTERFACE/CHANNEL, e.g. "
                                  "can://socketcan/can0 or can://slcan//dev/ttyACM0")
         merged: dict[str, Any] = {**url_options(url), **options}
-        bitrate = int(merged.pop("bitrate", DEFAULT_BITRATE))
-        node = int(merged.pop("node", DEFAULT_PALM_NODE))
+        try:
+            bitrate = int(merged.pop("bitrate", DEFAULT_BITRATE))
+            node = int(str(merged.pop("node", DEFAULT_PALM_NODE)), 0)
+        except ValueError:
+            raise UsageError(f"{url}: bitrate and node must be numbers") from None
         return cls(interface, channel, bitrate=bitrate, node=node, url=url, **merged)
 
     def _open(self) -> can.BusABC:
@@ -67,7 +73,7 @@ class CanTransport(Transport):
                 self.bus.send(can.Message(arbitration_id=self._to_node, data=chunk,
                                           is_extended_id=False))
         except (can.CanError, OSError) as exc:
-            raise TransportError(f"{self.url}: CAN send failed ({exc})") from exc
+            raise TransportError(f"{self.url}: CAN send failed ({exc}): {_GONE}") from exc
 
     def _recv(self, timeout: float | None) -> bytes:
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -83,7 +89,7 @@ class CanTransport(Transport):
                 elif deadline is not None and time.monotonic() >= deadline and not out:
                     return b""
         except (can.CanError, OSError) as exc:
-            raise TransportError(f"{self.url}: CAN receive failed ({exc})") from exc
+            raise TransportError(f"{self.url}: CAN receive failed ({exc}): {_GONE}") from exc
 
     def _close(self) -> None:
         try:

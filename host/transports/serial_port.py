@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import select
 from typing import Any
+from urllib.parse import urlencode
 
 import serial
 
-from host.errors import TransportError
+from host.errors import TransportError, UsageError
 from host.transport import HAND_SERIAL_BAUD, Transport, url_options
+
+#: What a user reads when a port stops working under an open transport.
+_GONE = ("the port is gone (USB adapter unplugged, robot switched off, or the emulator "
+         "stopped); plug it back in and call reopen(), or open it again")
 
 
 class SerialTransport(Transport):
@@ -15,7 +21,9 @@ class SerialTransport(Transport):
 
     ``baud`` in bit/s (hand links 2 000 000, the arm bus 1 000 000).  ``exclusive`` asks
     the OS to refuse a second client of the same port (POSIX), so two programs never split
-    one robot's replies.
+    one robot's replies.  Waiting in :meth:`recv` is on the wall clock; a device port is
+    waited on with ``select`` (the port's settings are not touched per call), a pyserial
+    URL handler (``loop://``, ``socket://``) with its read timeout.
     """
 
     def __init__(self, port: str, baud: int = HAND_SERIAL_BAUD, *, exclusive: bool = True,
@@ -25,18 +33,30 @@ class SerialTransport(Transport):
         self.baud = int(baud)
         self.exclusive = exclusive
         self.serial = self._open()
+        self._timeout: float | None = 0.0
 
     @classmethod
     def from_url(cls, url: str, **options: Any) -> SerialTransport:
-        """``/dev/ttyUSB0?baud=1000000``, ``serial:///dev/ttyUSB0``, ``loop://``, …"""
+        """``/dev/ttyUSB0?baud=1000000``, ``serial:///dev/ttyUSB0``, ``loop://``, …
+
+        ``baud`` (bit/s) and ``exclusive`` (0/1) are this transport's options; other
+        options of a pyserial URL handler (``loop://?logging=debug``) go to pyserial, and
+        on a plain path they are a :class:`UsageError`.
+        """
         merged: dict[str, Any] = {**url_options(url), **options}
         port = url.split("?", 1)[0]
         if port.startswith("serial://"):
             port = port[len("serial://"):]
-        baud = int(merged.pop("baud", HAND_SERIAL_BAUD))
+        try:
+            baud = int(merged.pop("baud", HAND_SERIAL_BAUD))
+        except ValueError:
+            raise UsageError(f"{url}: baud must be a number of bit/s") from None
         exclusive = str(merged.pop("exclusive", "1")).lower() not in ("0", "false", "no")
         if merged:
-            raise TransportError(f"{url}: unknown serial options {sorted(merged)}")
+            if "://" not in port:
+                raise UsageError(f"{url}: unknown serial options {sorted(merged)}; "
+                                 "a serial port takes ?baud=N&exclusive=0|1")
+            port = f"{port}?{urlencode(merged)}"
         return cls(port, baud, exclusive=exclusive, url=url)
 
     def _open(self) -> serial.SerialBase:
@@ -44,27 +64,38 @@ class SerialTransport(Transport):
         if self.exclusive and "://" not in self.port:
             kwargs["exclusive"] = True
         try:
-            return serial.serial_for_url(self.port, **kwargs)
+            port = serial.serial_for_url(self.port, **kwargs)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise TransportError(f"cannot open {self.port}: {exc}") from exc
+        self._timeout = 0.0
+        return port
 
     def _send(self, data: bytes) -> None:
         try:
             self.serial.write(data)
         except (serial.SerialException, OSError) as exc:
-            raise TransportError(f"{self.port}: write failed ({exc}); unplugged?") from exc
+            raise TransportError(f"{self.port}: write failed ({exc}): {_GONE}") from exc
 
     def _recv(self, timeout: float | None) -> bytes:
         try:
-            self.serial.timeout = timeout
-            first = self.serial.read(1)
+            fd = getattr(self.serial, "fd", None)
+            if isinstance(fd, int):
+                # A device: wait on the descriptor; a vanished device reads as an error.
+                if timeout != 0.0:
+                    ready, _, _ = select.select([fd], [], [], timeout)
+                    if not ready:
+                        return b""
+                first = self.serial.read(1)
+            else:
+                if timeout != self._timeout:
+                    self.serial.timeout = self._timeout = timeout
+                first = self.serial.read(1)
             if not first:
                 return b""
-            self.serial.timeout = 0
             waiting = self.serial.in_waiting
             return first + (self.serial.read(waiting) if waiting else b"")
-        except (serial.SerialException, OSError, TypeError) as exc:
-            raise TransportError(f"{self.port}: read failed ({exc}); unplugged?") from exc
+        except (serial.SerialException, OSError, TypeError, ValueError) as exc:
+            raise TransportError(f"{self.port}: read failed ({exc}): {_GONE}") from exc
 
     def _close(self) -> None:
         try:

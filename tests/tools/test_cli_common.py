@@ -1,0 +1,134 @@
+"""The robot CLIs share one --port/--json/--timeout and one error-to-exit-status mapping."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+import pytest
+
+from host.errors import (
+    HomingError,
+    NodeError,
+    ReplyTimeout,
+    RouteError,
+    TransportError,
+    UsageError,
+)
+from host.hand import Hand
+from host.hand_session import LINK_BUDGET_S, HandSession, Timeouts
+from host.transport import open_transport, schemes
+from tools import armctl, cli_common, flash_all_fingers, handctl
+
+CLIS: dict[str, Callable[[list[str]], int]] = {
+    "handctl": handctl.main, "armctl": armctl.main, "flash-all-fingers": flash_all_fingers.main}
+#: A command each CLI accepts after the common options.
+COMMAND = {"handctl": ["status"], "armctl": ["status"], "flash-all-fingers": []}
+
+
+@pytest.mark.parametrize("name", sorted(CLIS))
+def test_every_cli_has_the_common_options_and_lists_the_schemes(
+        name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert CLIS[name](["--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for option in ("--port P", "--json", "--timeout S"):
+        assert option in text
+    assert ", ".join(schemes()) in text.replace("\n", " ")
+
+
+@pytest.mark.parametrize("name", sorted(CLIS))
+def test_a_bad_command_line_is_exit_2(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert CLIS[name](["--port", "loop://", "--timeout", "0", *COMMAND[name]]) == 2
+    assert "give a time > 0" in capsys.readouterr().err
+    assert CLIS[name](["--bogus"]) == 2
+
+
+@pytest.mark.parametrize("name", ["handctl", "armctl"])
+def test_a_missing_port_is_exit_1_with_advice(
+        name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert CLIS[name](["--port", "/dev/no-such-robot", *COMMAND[name]]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"{name}: cannot use /dev/no-such-robot")
+    assert "Check the path" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("name", ["handctl", "armctl"])
+def test_ctrl_c_is_exit_130(name: str, monkeypatch: pytest.MonkeyPatch,
+                            capsys: pytest.CaptureFixture[str]) -> None:
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("host.hand.Hand.open", interrupted)
+    monkeypatch.setattr("host.arm.Arm.open", interrupted)
+    assert CLIS[name](["--port", "loop://", *COMMAND[name]]) == 130
+    assert capsys.readouterr().err == f"{name}: interrupted\n"
+
+
+@pytest.mark.parametrize(("exc", "status", "words"), [
+    (UsageError("joint limit"), 2, "prog: error: joint limit"),
+    (TransportError("gone"), 1, "Check the path"),
+    (ReplyTimeout("no reply to identify"), 1, "--timeout S"),
+    (RouteError("route unpowered", status=1, finger=2, hop=0), 1, "route unpowered"),
+    (NodeError("refused: busy"), 1, "refused: busy"),
+    (HomingError("no index mark on J2", joint="J2"), 1, "homing failed: no index mark"),
+    (PermissionError("cannot write run.mcap"), 1, "cannot write run.mcap"),
+    (KeyboardInterrupt(), 130, "interrupted"),
+])
+def test_one_mapping_of_errors_to_exit_statuses(
+        exc: BaseException, status: int, words: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    def body() -> int:
+        raise exc
+
+    assert cli_common.run("prog", "/dev/ttyX", body) == status
+    err = capsys.readouterr().err
+    assert err.startswith("prog: ") and words in err
+
+
+def test_a_clis_own_refusals_count_as_usage_and_hints_end_robot_errors(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    class Refused(Exception):
+        pass
+
+    def refused() -> int:
+        raise Refused("wrong board")
+
+    def link_failed() -> int:
+        raise TransportError("unplugged")
+
+    assert cli_common.run("prog", "P", refused, usage=(Refused,)) == 2
+    assert capsys.readouterr().err == "prog: wrong board\n"
+    assert cli_common.run("prog", "P", link_failed, hint="run again to resume") == 1
+    assert capsys.readouterr().err.endswith("\nrun again to resume.\n")
+    with pytest.raises(Refused):
+        cli_common.run("prog", "P", refused)
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    cli_common.add_common_arguments(parser, what="the palm's port")
+    return parser.parse_args(list(argv))
+
+
+@pytest.mark.parametrize(("port", "link_s"), [
+    ("emu://hand/palm", 0.030), ("loop://", 0.030), ("/dev/ttyUSB0", 0.100),
+    ("./robot/palm?baud=2000000", 0.100), ("serial:///dev/ttyACM0", 0.100),
+    ("can://slcan//dev/ttyACM0", 0.100), ("socket://localhost:5000", 0.250),
+])
+def test_link_budget_defaults_by_link_kind(port: str, link_s: float) -> None:
+    assert cli_common.hand_timeouts(_args("--port", port)).link_s == link_s
+    assert cli_common.hand_timeouts(_args("--port", port, "--timeout", "0.4")).link_s == 0.4
+
+
+def test_serial_budgets_cover_a_usb_adapters_latency_timer_both_ways() -> None:
+    assert LINK_BUDGET_S["serial"] >= 0.1 and LINK_BUDGET_S["can"] >= 0.1
+    assert LINK_BUDGET_S["in-process"] == Timeouts().link_s
+    with pytest.raises(UsageError):
+        Timeouts.for_url("loop://", 0.0)
+
+
+def test_sessions_pick_the_budget_of_their_link() -> None:
+    with HandSession(open_transport("loop://")) as session:
+        assert session.timeouts.link_s == LINK_BUDGET_S["loop"]
+    with Hand.open("loop://", timeouts=Timeouts(link_s=0.2)) as hand:
+        assert hand.session.timeouts.link_s == 0.2

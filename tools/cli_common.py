@@ -1,0 +1,144 @@
+"""What every robot command line shares: ``--port``, ``--json``, ``--timeout``, and one
+mapping from errors to a message saying what to do next and an exit status.
+
+Exit statuses (every CLI built on :func:`run_cli`):
+
+=====  ===================================================================================
+0      done
+1      the robot or the link: no such port, unplugged, no answer, refused (``HostError``)
+2      the command line, or a request refused before anything was sent (``UsageError``)
+3+     a CLI's own outcome (``armctl``: a move that did not settle)
+130    interrupted (Ctrl-C)
+=====  ===================================================================================
+
+``--timeout S`` is the link budget (s): how long the host waits for the link itself on top
+of the wire times and the nodes' own deadlines.  Its default depends on the kind of link
+(:data:`host.hand_session.LINK_BUDGET_S` for the hand: 30 ms in process, where the
+simulation clock makes wire times exact; 100 ms over a serial port or pty, where a USB
+adapter's 16 ms latency timer and a busy machine add up; 100 ms on CAN; 250 ms over the
+network).  On the arm's bus it is the adapter latency added to each exchange's computed
+wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 20 ms otherwise).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import Final
+
+from host.errors import (
+    HomingError,
+    HostError,
+    NodeError,
+    ReplyTimeout,
+    RouteError,
+    TransportError,
+    UsageError,
+)
+from host.hand_session import Timeouts
+from host.transport import schemes
+
+EXIT_OK: Final = 0
+EXIT_ROBOT: Final = 1
+EXIT_USAGE: Final = 2
+EXIT_INTERRUPTED: Final = 130
+
+
+def port_help(what: str) -> str:
+    """Help text of ``--port``: ``what`` it is, and the schemes known now."""
+    return (f"{what}: a serial path (/dev/ttyACM0, a pty, ./robot/palm; ?baud=N) or a "
+            f"transport URL; schemes: {', '.join(schemes())} (e.g. emu://hand/palm, "
+            "can://slcan//dev/ttyACM0, socket://host:port)")
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text} s: give a time > 0")
+    return value
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, *, what: str,
+                         timeout_default: str = "by link kind") -> None:
+    """``--port`` (required), ``--json`` and ``--timeout`` (dest ``link_timeout``, so a
+    sub-command may have its own ``--timeout``)."""
+    parser.add_argument("--port", required=True, metavar="P", help=port_help(what))
+    parser.add_argument("--json", action="store_true", help="print JSON instead of text")
+    parser.add_argument("--timeout", dest="link_timeout", type=_positive_seconds,
+                        default=None, metavar="S",
+                        help="link budget (s) on top of wire times; raise it for slow USB "
+                             f"adapters or a busy machine (default: {timeout_default})")
+
+
+def hand_timeouts(args: argparse.Namespace) -> Timeouts:
+    """The hand session's timeouts for ``--port`` and ``--timeout``."""
+    return Timeouts.for_url(args.port, args.link_timeout)
+
+
+def advice(exc: HostError, port: str, prog: str) -> str:
+    """The message for ``exc``: what went wrong and what to do next."""
+    if isinstance(exc, TransportError):
+        return (f"cannot use {port}: {exc}\nCheck the path (ls /dev/ttyACM* /dev/ttyUSB*), "
+                "the permissions (dialout group), that nothing else holds the port, or "
+                "start the emulator (hil-emulator).")
+    if isinstance(exc, ReplyTimeout):
+        return (f"{exc}\nNothing answered in time: check the robot's power and cabling, "
+                f"that {port} is its port (and ?baud=N), try `{prog} --port {port} ping`, "
+                "or give a slow adapter more time with --timeout S.")
+    if isinstance(exc, HomingError):
+        return f"homing failed: {exc}"
+    if isinstance(exc, RouteError | NodeError):
+        return str(exc)
+    return str(exc)
+
+
+def run(prog: str, port: str, body: Callable[[], int], *,
+        usage: tuple[type[BaseException], ...] = (), hint: str = "") -> int:
+    """Run ``body`` and map what it raises to a message on stderr and an exit status:
+    :class:`UsageError` (and ``usage``: a CLI's own "refused before anything was
+    touched") → 2, other :class:`HostError` → 1 (``hint``, if given, ends its message),
+    ``OSError`` (a file) → 1, Ctrl-C → 130."""
+    try:
+        return body()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except UsageError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except usage as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except HostError as exc:
+        print(f"{prog}: {advice(exc, port, prog)}" + (f"\n{hint}." if hint else ""),
+              file=sys.stderr)
+        return EXIT_ROBOT
+    except OSError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_ROBOT
+
+
+def parse(parser: argparse.ArgumentParser,
+          argv: Sequence[str] | None) -> argparse.Namespace | int:
+    """The parsed arguments, or the exit status argparse chose (0 for --help, 2 for a bad
+    command line; its message is already on stderr)."""
+    try:
+        return parser.parse_args(argv)
+    except SystemExit as exc:
+        if exc.code is None:
+            return EXIT_OK
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+
+
+def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
+            body: Callable[[argparse.Namespace], int], *,
+            usage: tuple[type[BaseException], ...] = (), hint: str = "") -> int:
+    """Parse ``argv`` and :func:`run` ``body(args)``; the ``main`` of every robot CLI."""
+    args = parse(parser, argv)
+    if isinstance(args, int):
+        return args
+    return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint)

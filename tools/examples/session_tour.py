@@ -1,0 +1,46 @@
+"""The conversation under :class:`~host.hand.Hand`: :class:`~host.hand_session.HandSession`
+requests by catalogue name, routed through the palm, several in flight at once.
+
+    python -m tools.examples.session_tour [URL]
+"""
+
+from __future__ import annotations
+
+import sys
+
+from host.errors import RouteError
+from host.hand_session import HandSession, Target
+from host.transport import open_transport
+from protocol.messages.palm import FingerPower
+
+
+def main(url: str = "emu://hand/palm") -> dict[str, object]:
+    """Run the tour on ``url``; returns what it saw."""
+    with HandSession(open_transport(url)) as session:
+        # The palm itself: every request travels in a txn envelope, matched by sequence.
+        palm = session.request("identify")
+        # A node behind the palm: finger 2's distal board (hop 2), routed by palm.route
+        # and, past the fmcb, through its tendon tunnel.  Timeouts add up along the hops.
+        f3 = session.request("identify", to=Target(finger=2, hop=2))
+        # Pipelining: start requests to all four fmcbs, then wait for each reply.
+        pending = [session.start("fmcb.status", to=Target(finger=k)) for k in range(4)]
+        halls = [session.wait(p)["hall_pos"] for p in pending]
+        # A finger that is switched off answers with a route error saying what to do.
+        session.request("palm.finger_power", {"finger": 0, "state": FingerPower.OFF,
+                                                     "stagger_ms": 0})
+        try:
+            session.request("identify", to=Target(finger=0), retries=0)
+            refused = ""
+        except RouteError as exc:
+            refused = str(exc)
+            print(exc)
+        session.request("palm.finger_power", {"finger": 0, "state": FingerPower.FULL,
+                                                     "stagger_ms": 0})
+        session.sleep(3.5)  # the finger boots (link clock: simulated seconds on emu://)
+        print(palm, f3, sep="\n")
+        return {"palm": palm, "f3": f3, "halls": halls, "refused": refused,
+                "counters": session.counters}
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:2])
