@@ -14,7 +14,9 @@ address (10) and runs, all on ``hal.clock`` timers:
   half-duplex: a request is only sent when no reply is awaited.  Replies (frames to
   address 0) are decoded with the tendon bus's own stream decoder and land in the status.
 - the tunnel (0x1f): raw bytes out on the tendon bus, every byte heard during the
-  request's wire time plus ``max_ms`` back to the host; autopoll pauses meanwhile.
+  request's wire time plus ``max_ms`` back to the host; autopoll pauses meanwhile.  A tunnel
+  request arriving while another is on the bus waits its turn (:data:`TUNNEL_QUEUE` deep)
+  and is answered after it, in order, as the original fmcb's receive ring did.
 
 Parameters live in flash page 1020 (:mod:`firmware_py.fmcb_params`).  Hall positions are
 reported and controlled relative to the homing offsets (``fmcb.set_home``); ``hall_counts``
@@ -70,6 +72,10 @@ VELOCITY_WINDOW: Final = 10
 #: Velocity span (s) over a history of n tick counts, by n (n - 1 control periods).
 _VELOCITY_SPAN_S: Final = tuple((n - 1) * CONTROL_PERIOD_US / 1e6
                                 for n in range(VELOCITY_WINDOW + 2))
+#: Tunnel requests (0x1f) the fmcb holds while one is on the tendon bus: each is answered in
+#: turn, as the original's receive ring did; one more than this is refused (BUSY, which an
+#: un-enveloped request never hears: the original dropped a ring overflow silently too).
+TUNNEL_QUEUE: Final = 4
 #: pb_current while the breaker is tripped.
 PB_TRIPPED: Final = 0xFFFF
 
@@ -176,7 +182,9 @@ class FmcbApp(HandNode):
         self._pending: _Pending | None = None
         self._queue: list[str] = []
         self._cycles = 0
-        self._tunnel_req: tuple[Request, bytes, int] | None = None
+        #: Tunnel requests waiting or in progress (the head is on the bus while
+        #: ``_tunnel_heard`` is not None): request, bytes to send, listening time (ms).
+        self._tunnels: deque[tuple[Request, bytes, int]] = deque()
         self._tunnel_heard: bytearray | None = None
         self.phalanges: dict[str, Any] = {
             "pp_time": 0, "dp_time": 0, "pp_tactile": [0] * 6, "dp_tactile": [0] * 12,
@@ -468,7 +476,7 @@ class FmcbApp(HandNode):
     def _autopoll_cycle(self) -> None:
         """Every 10 ms: queue this cycle's phalange requests and start the first."""
         self._cycles += 1
-        if not self.autopoll or not self.phalange.state or self._tunnel_req is not None:
+        if not self.autopoll or not self.phalange.state or self._tunnels:
             return
         if self._pending is not None or self._queue:
             self.tendon_counters.overruns += 1
@@ -489,7 +497,7 @@ class FmcbApp(HandNode):
         """The bus is free: start the waiting tunnel, else the next queued request."""
         if self._pending is not None or self._tunnel_heard is not None:
             return
-        if self._tunnel_req is not None:
+        if self._tunnels:
             self._start_tunnel()
             return
         if self._queue:
@@ -551,17 +559,18 @@ class FmcbApp(HandNode):
 
     # --- tunnel ---------------------------------------------------------------------------
     def _on_tunnel(self, req: Request) -> Any:
-        if self._tunnel_req is not None:
+        """Queue the tunnel request (up to :data:`TUNNEL_QUEUE` behind the one on the bus);
+        autopoll pauses while any waits; a poll in flight finishes first."""
+        if len(self._tunnels) > TUNNEL_QUEUE:
             req.respond(None, TxnStatus.BUSY)
             return DEFERRED
-        self._tunnel_req = (req, bytes(req.fields["data"]), int(req.fields["max_ms"]))
-        self._queue.clear()  # autopoll pauses; a request in flight finishes first
+        self._tunnels.append((req, bytes(req.fields["data"]), int(req.fields["max_ms"])))
+        self._queue.clear()
         self._next_on_bus()
         return DEFERRED
 
     def _start_tunnel(self) -> None:
-        assert self._tunnel_req is not None
-        _req, data, max_ms = self._tunnel_req
+        _req, data, max_ms = self._tunnels[0]
         self.tendon_counters.tunnels += 1
         self._tunnel_heard = bytearray()
         self.tendon.send(data)
@@ -569,10 +578,9 @@ class FmcbApp(HandNode):
                                  self._finish_tunnel)
 
     def _finish_tunnel(self) -> None:
-        assert self._tunnel_req is not None and self._tunnel_heard is not None
-        req = self._tunnel_req[0]
+        assert self._tunnels and self._tunnel_heard is not None
+        req = self._tunnels.popleft()[0]
         heard = bytes(self._tunnel_heard)
-        self._tunnel_req = None
         self._tunnel_heard = None
         self._tendon_decoder.reset()
         req.respond({"data": heard})

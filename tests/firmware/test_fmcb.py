@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from firmware_py.flash_layout import PARAM_PAGE, page_address
-from firmware_py.fmcb import FmcbApp
+from firmware_py.fmcb import TUNNEL_QUEUE, FmcbApp
 from firmware_py.fmcb_control import HallCounter, min_cap, pd_effort
 from firmware_py.fmcb_params import FMCB_PARAMS, PARAM_SENTINEL, ParamTable
 from firmware_py.mcu import Mcu
@@ -419,6 +419,35 @@ def test_tunnel_returns_bytes_heard_and_pauses_autopoll(rig: Rig) -> None:
     assert reply["data"] == b"\x42\x00\x00\x00\x0c\xab\xcd"
     rig.run_ms(20)
     assert any(f.address == 1 for f in rig.tendon_frames())  # autopoll resumed
+
+
+def test_overlapping_tunnels_are_queued_and_answered_in_order(rig: Rig) -> None:
+    """The original host may send a second relay request before the first is answered:
+    the fmcb answers both, each with the bytes heard during its own turn on the bus."""
+    rig.send("fmcb.phalange_power", {"on": 1})
+    first, second = encode_frame(1, 0x01), encode_frame(2, 0x01)
+    rig.send("fmcb.tunnel", {"max_ms": 10, "data": first}, run_ms=0)
+    rig.send("fmcb.tunnel", {"max_ms": 10, "data": second}, run_ms=0)
+    rig.run_ms(2)
+    assert b"".join(rig.tendon.take_sent()) == first  # one at a time on the bus
+    rig.tendon.deliver(b"one")
+    rig.run_ms(10)
+    assert b"".join(rig.tendon.take_sent()) == second  # the second's turn
+    rig.tendon.deliver(b"two")
+    rig.run_ms(12)
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    heard = [CATALOGUE["fmcb.tunnel"].parse_reply(f.payload)["data"] for f in frames]
+    assert heard == [b"one", b"two"]
+
+
+def test_a_tunnel_queue_overflow_is_refused_not_reordered(rig: Rig) -> None:
+    rig.send("fmcb.phalange_power", {"on": 1})
+    for k in range(TUNNEL_QUEUE + 3):
+        rig.send("fmcb.tunnel", {"max_ms": 1, "data": bytes([k])}, run_ms=0)
+    rig.run_ms(50)
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    assert len(frames) == TUNNEL_QUEUE + 1  # the one on the bus and the queue
+    assert rig.app.tendon_counters.tunnels == TUNNEL_QUEUE + 1
 
 
 # --- booted by the Mcu ----------------------------------------------------------------------
