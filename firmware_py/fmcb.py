@@ -5,7 +5,9 @@ address (10) and runs, all on ``hal.clock`` timers:
 
 - a 1 kHz control tick: hall counting and velocities of the three motors, the phalange-bus
   breaker check, and the PD law of the current control mode (:mod:`firmware_py.fmcb_control`);
-- the 148-byte status snapshot, refreshed every 5 ms; the motor-module IMU sampled every
+- the 148-byte status snapshot, refreshed every 5 ms (supply voltage, phalange-bus current
+  and motor temperatures as raw ADC counts, as the original sent them:
+  :mod:`protocol.sensor_counts`); the motor-module IMU sampled every
   40 ms; temperatures every 250 ms;
 - the tendon-bus master: with autopoll on, every 10 ms it asks f2 (address 1) then f3
   (address 2) for their tactile sample, **both in sequence within the 10 ms cycle** (100 Hz
@@ -57,6 +59,7 @@ from protocol.messages import CATALOGUE
 from protocol.messages.common import TxnStatus
 from protocol.messages.fmcb import TUNNEL_MAX, ControlMode
 from protocol.robot import joint_to_motor, motor_to_joint
+from protocol.sensor_counts import pb_current_counts, supply_counts, temperature_counts
 from protocol.stream import StreamDecoder
 from protocol.topology import ADDR_HOST, NODE_ADDRESS, NodeKind, wire_time_us
 
@@ -257,8 +260,8 @@ class FmcbApp(HandNode):
     def _sample_temperatures(self) -> None:
         temps = []
         for i in range(3):
-            v = self._read(f"temperature{i}", 0)
-            temps.append(_u16(v) if isinstance(v, int) else 0)
+            v = self._read(f"temperature{i}", 0)  # 0.1 °C; the ADC reading goes out
+            temps.append(temperature_counts(v / 10) if isinstance(v, int) else 0)
         self.temperatures = temps
 
     @property
@@ -268,12 +271,13 @@ class FmcbApp(HandNode):
 
     @property
     def pb_current(self) -> int:
-        """Phalange-bus current as reported (mA); 0xFFFF while the breaker is tripped."""
-        return PB_TRIPPED if self.breaker_tripped else _u16(min(self._pb_current, 0xFFFE))
+        """Phalange-bus current as reported: its ADC reading (counts, as the original fmcb
+        sent it); 0xFFFF while the breaker is tripped."""
+        return PB_TRIPPED if self.breaker_tripped else pb_current_counts(self._pb_current / 1000)
 
     def _refresh_status(self) -> None:
-        supply = self._read("supply_mv", 0)
-        self.voltage = _u16(supply) if isinstance(supply, int) else 0
+        supply = self._read("supply_mv", 0)  # mV; the ADC reading (counts) goes out
+        self.voltage = supply_counts(supply / 1000) if isinstance(supply, int) else 0
         ph = self.phalanges
         self.snapshot = {
             "pp_time": ph["pp_time"], "dp_time": ph["dp_time"],

@@ -146,7 +146,10 @@ def _status_text(state: HandState) -> str:
         taxels = sum(len(v) for v in f.tactile.values())
         lines.append(f"finger {f.index}: power {f.power}, joints [{q}] rad, halls "
                      f"{f.joints_hall}, {taxels} taxels, supply {f.currents['supply']} mA, "
-                     f"phalange bus {f.currents['phalange_bus']} mA")
+                     f"phalange bus {f.currents['phalange_bus']} mA"
+                     + (f", logic {f.supply_v:.2f} V" if f.supply_v is not None else "")
+                     + (", motors " + "/".join(f"{t:.1f}" for t in f.temperatures_c) + " °C"
+                        if f.temperatures_c else ""))
     return "\n".join(lines)
 
 

@@ -234,14 +234,16 @@ def test_status_layout_and_values(rig: Rig) -> None:
     fmcb_time = struct.unpack_from("<I", raw, 8)[0]
     assert 0 < rig.hal.clock.now_us() - fmcb_time <= 5_000
     assert struct.unpack_from("<6h", raw, 72) == (1, -2, 1000, -300, 400, 500)
-    assert struct.unpack_from("<3H", raw, 100) == (251, 252, 253)
-    assert struct.unpack_from("<HH", raw, 106) == (23_456, 150)
+    # Raw 12-bit ADC counts on a 3.3 V reference, as the original sent them (by hand):
+    # 25.1 °C → 0.751 V → 931.9; 23.456 V / 11 → 2.1324 V → 2646.1; 0.150 A · 2.7 V/A → 502.6.
+    assert struct.unpack_from("<3H", raw, 100) == (932, 933, 934)
+    assert struct.unpack_from("<HH", raw, 106) == (2646, 503)
     assert raw[110:112] == b"\x00\x00" and raw[146:148] == b"\x00\x00"
     assert struct.unpack_from("<3i", raw, 116) == (-100, 7, 0)
     assert struct.unpack_from("<3i", raw, 128) == (0, 7, 0)
     effort = struct.unpack_from("<3h", raw, 140)
     assert effort[0] == -100 and effort[1:] == (0, 0)
-    assert rig.ask("fmcb.temperatures")["temp"] == [251, 252, 253]
+    assert rig.ask("fmcb.temperatures")["temp"] == [932, 933, 934]
     assert rig.ask("fmcb.imu") == {"accel": [1, -2, 1000], "mag": [-300, 400, 500]}
     # The snapshot is monotonic and refreshed every 5 ms.
     rig.run_ms(5)
@@ -318,7 +320,7 @@ def test_breaker_trips_after_more_than_10_ms(rig: Rig) -> None:
     sw.load_ma = 120
     rig.send("fmcb.phalange_power", {"on": 1}, run_ms=6)  # commanded on again: cleared
     assert sw.state == 2
-    assert CATALOGUE["fmcb.status"].parse_reply(rig.status_bytes())["pb_current"] == 120
+    assert CATALOGUE["fmcb.status"].parse_reply(rig.status_bytes())["pb_current"] == 402  # 0.324 V
 
 
 # --- tendon bus -----------------------------------------------------------------------------
