@@ -163,7 +163,7 @@ def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
     states = hand.power(finger, args.state)
     text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
     if args.state != "off":
-        text += "\n(fingers switched on boot for about 3 s before they answer)"
+        text += "\n(fingers switched on boot for about 4.5 s before they answer)"
     _emit(args, {"power": states}, text)
     return 0
 
