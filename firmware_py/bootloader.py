@@ -263,19 +263,21 @@ class Bootloader(HandNode):
         if self.state == BootState.AUTOBOOT_COUNTDOWN:
             self.state = BootState.HALTED
 
-    def on_frame(self, frame: Frame, uart: Uart) -> None:
-        """A bootloader command (``bl.*``) for this node halts the autoboot countdown.
+    def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
+                 send: Callable[[bytes | None, int], None]) -> None:
+        """A bootloader command (``bl.*``) for this node halts the autoboot countdown, sent
+        plain or inside a ``txn`` envelope (the envelope's inner request is dispatched here
+        too).
 
         The common messages (ping, identify) and application traffic that a bootloader does
         not understand (the palm polling ``fmcb.status`` while a finger boots, say) do not:
         otherwise a polled or pinged finger would never leave its bootloader after a power
         cycle.
         """
-        if self.accepts(frame):
-            message = CATALOGUE.lookup(self.node_kind, frame.type)
-            if message is not None and message.node == "bootloader":
-                self.halt_autoboot()
-        super().on_frame(frame, uart)
+        message = CATALOGUE.lookup(self.node_kind, msg_type)
+        if message is not None and message.node == "bootloader":
+            self.halt_autoboot()
+        super().dispatch(msg_type, payload, frame, uart, send)
 
     def _autoboot(self) -> None:
         self._timer = None

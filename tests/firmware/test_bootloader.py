@@ -182,6 +182,18 @@ def test_common_messages_are_answered_without_halting_autoboot(name: str) -> Non
     assert mcu.program_name == "fmcb"
 
 
+def test_an_enveloped_bootloader_command_halts_autoboot() -> None:
+    """The host library sends bl.* inside a txn envelope: that halts the countdown too (a
+    halted phalange left waiting while its sibling is flashed must not boot meanwhile)."""
+    mcu = new_node(BoardType.F3)
+    mcu.power_on()
+    run(mcu, 1_000)
+    send(mcu, "txn", seq=7, inner_type=CATALOGUE["bl.halt"].type_id, inner=b"")
+    run(mcu, 2 * WINDOW)
+    assert mcu.in_bootloader
+    assert ask(mcu, "bl.info")["autoboot_ms_left"] == 0
+
+
 def test_a_broadcast_halts_autoboot_without_a_reply() -> None:
     mcu = new_node()
     mcu.power_on()
