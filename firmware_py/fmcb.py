@@ -16,7 +16,8 @@ address (10) and runs, all on ``hal.clock`` timers:
   half-duplex: a request is only sent when no reply is awaited.  Replies (frames to
   address 0) are decoded with the tendon bus's own stream decoder and land in the status.
 - the tunnel (0x1f): raw bytes out on the tendon bus, every byte heard during the
-  request's wire time plus ``max_ms`` back to the host; autopoll pauses meanwhile.  A tunnel
+  request's wire time plus ``max_ms`` back to the host, or sooner: as soon as a complete
+  frame to the host (a phalange's reply) has been heard; autopoll pauses meanwhile.  A tunnel
   request arriving while another is on the bus waits its turn (:data:`TUNNEL_QUEUE` deep)
   and is answered after it, in order, as the original fmcb's receive ring did.
 
@@ -188,6 +189,7 @@ class FmcbApp(HandNode):
         #: Tunnel requests waiting or in progress (the head is on the bus while
         #: ``_tunnel_heard`` is not None): request, bytes to send, listening time (ms).
         self._tunnels: deque[tuple[Request, bytes, int]] = deque()
+        self._tunnel_timer: Timer | None = None
         self._tunnel_heard: bytearray | None = None
         self.phalanges: dict[str, Any] = {
             "pp_time": 0, "dp_time": 0, "pp_tactile": [0] * 6, "dp_tactile": [0] * 12,
@@ -526,6 +528,14 @@ class FmcbApp(HandNode):
         if self._tunnel_heard is not None:
             room = TUNNEL_MAX - len(self._tunnel_heard)
             self._tunnel_heard += data[:max(0, room)]
+            # A complete reply to the host ends the listening early: a relayed request is
+            # answered as soon as its answer is in, not after the whole ``max_ms``.
+            replied = any(f.address == ADDR_HOST
+                          for f in self._tendon_decoder.feed(data, t_us / 1e6))
+            if replied and self._tunnel_timer is not None:
+                self._tunnel_timer.cancel()
+                self._tunnel_timer = None
+                self._finish_tunnel()
             return
         for frame in self._tendon_decoder.feed(data, t_us / 1e6):
             self._on_tendon_frame(frame)
@@ -577,9 +587,14 @@ class FmcbApp(HandNode):
         _req, data, max_ms = self._tunnels[0]
         self.tendon_counters.tunnels += 1
         self._tunnel_heard = bytearray()
+        self._tendon_decoder.reset()
         self.tendon.send(data)
-        self.hal.clock.call_later(wire_time_us(len(data), int(self.tendon.baud)) + max_ms * 1000,
-                                 self._finish_tunnel)
+        self._tunnel_timer = self.hal.clock.call_later(
+            wire_time_us(len(data), int(self.tendon.baud)) + max_ms * 1000, self._end_tunnel)
+
+    def _end_tunnel(self) -> None:
+        self._tunnel_timer = None
+        self._finish_tunnel()
 
     def _finish_tunnel(self) -> None:
         assert self._tunnels and self._tunnel_heard is not None

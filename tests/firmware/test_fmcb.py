@@ -442,6 +442,20 @@ def test_overlapping_tunnels_are_queued_and_answered_in_order(rig: Rig) -> None:
     assert heard == [b"one", b"two"]
 
 
+def test_a_tunnel_ends_as_soon_as_a_reply_to_the_host_is_heard(rig: Rig) -> None:
+    rig.send("fmcb.phalange_power", {"on": 1})
+    rig.send("fmcb.tunnel", {"max_ms": 30, "data": encode_frame(1, 0x01)}, run_ms=0)
+    rig.run_ms(1)
+    rig.tendon.take_sent()
+    pong = encode_frame(0, 0x01)
+    rig.tendon.deliver(b"\x00\x13")  # noise first: not a frame to the host
+    rig.tendon.deliver(pong)
+    rig.run_ms(1)  # far less than max_ms
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    assert [CATALOGUE["fmcb.tunnel"].parse_reply(f.payload)["data"] for f in frames] == [
+        b"\x00\x13" + pong]
+
+
 def test_a_tunnel_queue_overflow_is_refused_not_reordered(rig: Rig) -> None:
     rig.send("fmcb.phalange_power", {"on": 1})
     for k in range(TUNNEL_QUEUE + 3):
