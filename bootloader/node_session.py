@@ -37,7 +37,8 @@ from protocol.topology import Hop
 
 #: Power off time when forcing a node into its bootloader (s).
 POWER_OFF_S: Final = 0.05
-#: How long after power-on the host keeps trying to halt autoboot (s); the window is 3 s.
+#: How long after power-on the host keeps trying to halt autoboot (s); inside the
+#: bootloader's :data:`~protocol.messages.bootloader.AUTOBOOT_WINDOW_US`.
 HALT_WITHIN_S: Final = 2.5
 #: Pause between halt attempts (s).
 HALT_RETRY_S: Final = 0.02

@@ -19,7 +19,8 @@ Flashing is staged: the first write to the image area in a session first erases 
 activation record (and waits for that), so an interrupted update never boots half an image;
 ``bl.activate`` verifies the staged image and writes the record.  An explicit ``bl.boot``
 is the host's consent: a verified but not activated image is activated, then booted (so the
-original write-then-boot flow still works); an image that does not verify never boots.
+original write-then-boot flow still works); an image that does not verify never boots, and
+its ``bl.boot`` gets no reply (the original host's sign of a failed boot).
 
 Choices beyond the original:
 
@@ -73,6 +74,7 @@ from protocol.image import (
 )
 from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import (
+    AUTOBOOT_WINDOW_US,
     WRITE_STATUS_WORD_FAILED,
     BootResult,
     BootState,
@@ -81,8 +83,9 @@ from protocol.messages.bootloader import (
 )
 from protocol.messages.common import Running
 
-#: Default autoboot window (µs).
-AUTOBOOT_US: Final = 3_000_000
+#: Default autoboot window (µs): the protocol's window, long enough for the original host
+#: tools' reset, wait 1 s + 2 s, halt (see :data:`AUTOBOOT_WINDOW_US`).
+AUTOBOOT_US: Final = AUTOBOOT_WINDOW_US
 #: Delay between an acknowledgement and the jump to the application (µs).
 BOOT_DELAY_US: Final = 200
 #: Poll period while waiting for a flash write this program did not start (µs).
@@ -260,19 +263,21 @@ class Bootloader(HandNode):
         if self.state == BootState.AUTOBOOT_COUNTDOWN:
             self.state = BootState.HALTED
 
-    def on_frame(self, frame: Frame, uart: Uart) -> None:
-        """A bootloader command (``bl.*``) for this node halts the autoboot countdown.
+    def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
+                 send: Callable[[bytes | None, int], None]) -> None:
+        """A bootloader command (``bl.*``) for this node halts the autoboot countdown, sent
+        plain or inside a ``txn`` envelope (the envelope's inner request is dispatched here
+        too).
 
         The common messages (ping, identify) and application traffic that a bootloader does
         not understand (the palm polling ``fmcb.status`` while a finger boots, say) do not:
         otherwise a polled or pinged finger would never leave its bootloader after a power
         cycle.
         """
-        if self.accepts(frame):
-            message = CATALOGUE.lookup(self.node_kind, frame.type)
-            if message is not None and message.node == "bootloader":
-                self.halt_autoboot()
-        super().on_frame(frame, uart)
+        message = CATALOGUE.lookup(self.node_kind, msg_type)
+        if message is not None and message.node == "bootloader":
+            self.halt_autoboot()
+        super().dispatch(msg_type, payload, frame, uart, send)
 
     def _autoboot(self) -> None:
         self._timer = None
@@ -445,23 +450,41 @@ class Bootloader(HandNode):
 
         self._program(BOOT_CONTROL_PAGE, ActivationRecord(check.header.sha256).to_page(), written)
 
-    def _on_boot(self, req: Request) -> None:
-        req.respond({})
-        self.hal.clock.call_later(BOOT_DELAY_US, lambda: self._when_idle(self._boot_requested))
-        return None
+    def _on_boot(self, req: Request) -> Any:
+        """Boot only what verifies, and say so truthfully.
 
-    def _boot_requested(self) -> None:
+        After any page write in progress, the image is checked (and, verified, activated);
+        only then is the request acknowledged and the jump made :data:`BOOT_DELAY_US` later,
+        once the acknowledgement has left the UART.  An image that does not verify (a
+        header-less raw binary, a truncated or foreign image) gets no reply: the original
+        host listens for a reply of this type and reports "failed to boot" without one.
+        """
+        self._when_idle(lambda: self._boot_requested(req))
+        return DEFERRED
+
+    def _boot_requested(self, req: Request) -> None:
         check = self.inspect()
         if not check.staged_ok:
             self.state = BootState.NO_VALID_IMAGE
-            self._fail(_RESULT_OF_IMAGE_STATUS[check.status], "boot refused")
+            self._fail(_RESULT_OF_IMAGE_STATUS[check.status], f"boot refused: {check.reason}")
+            return
+        assert check.header is not None
+        if check.header.app_name not in self.mcu.apps:
+            self.state = BootState.NO_VALID_IMAGE
+            self._fail(BootResult.BAD_IMAGE,
+                       f"boot refused: no application {check.header.app_name!r} on this board")
             return
 
         def activated(code: int, after: ImageCheck) -> None:
-            if code == BootResult.OK:
-                self._jump(after)
-            else:
+            if code != BootResult.OK:
                 self.state = BootState.NO_VALID_IMAGE
+                return
+            req.respond({})
+            self.hal.clock.call_later(BOOT_DELAY_US, lambda: self._jump_if_running(after))
 
         # An explicit boot is the host's consent to activate a verified image.
         self._activate(check, activated)
+
+    def _jump_if_running(self, check: ImageCheck) -> None:
+        if self._running():
+            self._jump(check)

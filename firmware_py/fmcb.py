@@ -5,7 +5,9 @@ address (10) and runs, all on ``hal.clock`` timers:
 
 - a 1 kHz control tick: hall counting and velocities of the three motors, the phalange-bus
   breaker check, and the PD law of the current control mode (:mod:`firmware_py.fmcb_control`);
-- the 148-byte status snapshot, refreshed every 5 ms; the motor-module IMU sampled every
+- the 148-byte status snapshot, refreshed every 5 ms (supply voltage, phalange-bus current
+  and motor temperatures as raw ADC counts, as the original sent them:
+  :mod:`protocol.sensor_counts`); the motor-module IMU sampled every
   40 ms; temperatures every 250 ms;
 - the tendon-bus master: with autopoll on, every 10 ms it asks f2 (address 1) then f3
   (address 2) for their tactile sample, **both in sequence within the 10 ms cycle** (100 Hz
@@ -14,7 +16,10 @@ address (10) and runs, all on ``hal.clock`` timers:
   half-duplex: a request is only sent when no reply is awaited.  Replies (frames to
   address 0) are decoded with the tendon bus's own stream decoder and land in the status.
 - the tunnel (0x1f): raw bytes out on the tendon bus, every byte heard during the
-  request's wire time plus ``max_ms`` back to the host; autopoll pauses meanwhile.
+  request's wire time plus ``max_ms`` back to the host, or sooner: as soon as a complete
+  frame to the host (a phalange's reply) has been heard; autopoll pauses meanwhile.  A tunnel
+  request arriving while another is on the bus waits its turn (:data:`TUNNEL_QUEUE` deep)
+  and is answered after it, in order, as the original fmcb's receive ring did.
 
 Parameters live in flash page 1020 (:mod:`firmware_py.fmcb_params`).  Hall positions are
 reported and controlled relative to the homing offsets (``fmcb.set_home``); ``hall_counts``
@@ -55,6 +60,7 @@ from protocol.messages import CATALOGUE
 from protocol.messages.common import TxnStatus
 from protocol.messages.fmcb import TUNNEL_MAX, ControlMode
 from protocol.robot import joint_to_motor, motor_to_joint
+from protocol.sensor_counts import pb_current_counts, supply_counts, temperature_counts
 from protocol.stream import StreamDecoder
 from protocol.topology import ADDR_HOST, NODE_ADDRESS, NodeKind, wire_time_us
 
@@ -70,6 +76,10 @@ VELOCITY_WINDOW: Final = 10
 #: Velocity span (s) over a history of n tick counts, by n (n - 1 control periods).
 _VELOCITY_SPAN_S: Final = tuple((n - 1) * CONTROL_PERIOD_US / 1e6
                                 for n in range(VELOCITY_WINDOW + 2))
+#: Tunnel requests (0x1f) the fmcb holds while one is on the tendon bus: each is answered in
+#: turn, as the original's receive ring did; one more than this is refused (BUSY, which an
+#: un-enveloped request never hears: the original dropped a ring overflow silently too).
+TUNNEL_QUEUE: Final = 4
 #: pb_current while the breaker is tripped.
 PB_TRIPPED: Final = 0xFFFF
 
@@ -176,7 +186,10 @@ class FmcbApp(HandNode):
         self._pending: _Pending | None = None
         self._queue: list[str] = []
         self._cycles = 0
-        self._tunnel_req: tuple[Request, bytes, int] | None = None
+        #: Tunnel requests waiting or in progress (the head is on the bus while
+        #: ``_tunnel_heard`` is not None): request, bytes to send, listening time (ms).
+        self._tunnels: deque[tuple[Request, bytes, int]] = deque()
+        self._tunnel_timer: Timer | None = None
         self._tunnel_heard: bytearray | None = None
         self.phalanges: dict[str, Any] = {
             "pp_time": 0, "dp_time": 0, "pp_tactile": [0] * 6, "dp_tactile": [0] * 12,
@@ -249,8 +262,8 @@ class FmcbApp(HandNode):
     def _sample_temperatures(self) -> None:
         temps = []
         for i in range(3):
-            v = self._read(f"temperature{i}", 0)
-            temps.append(_u16(v) if isinstance(v, int) else 0)
+            v = self._read(f"temperature{i}", 0)  # 0.1 °C; the ADC reading goes out
+            temps.append(temperature_counts(v / 10) if isinstance(v, int) else 0)
         self.temperatures = temps
 
     @property
@@ -260,12 +273,13 @@ class FmcbApp(HandNode):
 
     @property
     def pb_current(self) -> int:
-        """Phalange-bus current as reported (mA); 0xFFFF while the breaker is tripped."""
-        return PB_TRIPPED if self.breaker_tripped else _u16(min(self._pb_current, 0xFFFE))
+        """Phalange-bus current as reported: its ADC reading (counts, as the original fmcb
+        sent it); 0xFFFF while the breaker is tripped."""
+        return PB_TRIPPED if self.breaker_tripped else pb_current_counts(self._pb_current / 1000)
 
     def _refresh_status(self) -> None:
-        supply = self._read("supply_mv", 0)
-        self.voltage = _u16(supply) if isinstance(supply, int) else 0
+        supply = self._read("supply_mv", 0)  # mV; the ADC reading (counts) goes out
+        self.voltage = supply_counts(supply / 1000) if isinstance(supply, int) else 0
         ph = self.phalanges
         self.snapshot = {
             "pp_time": ph["pp_time"], "dp_time": ph["dp_time"],
@@ -468,7 +482,7 @@ class FmcbApp(HandNode):
     def _autopoll_cycle(self) -> None:
         """Every 10 ms: queue this cycle's phalange requests and start the first."""
         self._cycles += 1
-        if not self.autopoll or not self.phalange.state or self._tunnel_req is not None:
+        if not self.autopoll or not self.phalange.state or self._tunnels:
             return
         if self._pending is not None or self._queue:
             self.tendon_counters.overruns += 1
@@ -489,7 +503,7 @@ class FmcbApp(HandNode):
         """The bus is free: start the waiting tunnel, else the next queued request."""
         if self._pending is not None or self._tunnel_heard is not None:
             return
-        if self._tunnel_req is not None:
+        if self._tunnels:
             self._start_tunnel()
             return
         if self._queue:
@@ -514,6 +528,14 @@ class FmcbApp(HandNode):
         if self._tunnel_heard is not None:
             room = TUNNEL_MAX - len(self._tunnel_heard)
             self._tunnel_heard += data[:max(0, room)]
+            # A complete reply to the host ends the listening early: a relayed request is
+            # answered as soon as its answer is in, not after the whole ``max_ms``.
+            replied = any(f.address == ADDR_HOST
+                          for f in self._tendon_decoder.feed(data, t_us / 1e6))
+            if replied and self._tunnel_timer is not None:
+                self._tunnel_timer.cancel()
+                self._tunnel_timer = None
+                self._finish_tunnel()
             return
         for frame in self._tendon_decoder.feed(data, t_us / 1e6):
             self._on_tendon_frame(frame)
@@ -551,28 +573,33 @@ class FmcbApp(HandNode):
 
     # --- tunnel ---------------------------------------------------------------------------
     def _on_tunnel(self, req: Request) -> Any:
-        if self._tunnel_req is not None:
+        """Queue the tunnel request (up to :data:`TUNNEL_QUEUE` behind the one on the bus);
+        autopoll pauses while any waits; a poll in flight finishes first."""
+        if len(self._tunnels) > TUNNEL_QUEUE:
             req.respond(None, TxnStatus.BUSY)
             return DEFERRED
-        self._tunnel_req = (req, bytes(req.fields["data"]), int(req.fields["max_ms"]))
-        self._queue.clear()  # autopoll pauses; a request in flight finishes first
+        self._tunnels.append((req, bytes(req.fields["data"]), int(req.fields["max_ms"])))
+        self._queue.clear()
         self._next_on_bus()
         return DEFERRED
 
     def _start_tunnel(self) -> None:
-        assert self._tunnel_req is not None
-        _req, data, max_ms = self._tunnel_req
+        _req, data, max_ms = self._tunnels[0]
         self.tendon_counters.tunnels += 1
         self._tunnel_heard = bytearray()
+        self._tendon_decoder.reset()
         self.tendon.send(data)
-        self.hal.clock.call_later(wire_time_us(len(data), int(self.tendon.baud)) + max_ms * 1000,
-                                 self._finish_tunnel)
+        self._tunnel_timer = self.hal.clock.call_later(
+            wire_time_us(len(data), int(self.tendon.baud)) + max_ms * 1000, self._end_tunnel)
+
+    def _end_tunnel(self) -> None:
+        self._tunnel_timer = None
+        self._finish_tunnel()
 
     def _finish_tunnel(self) -> None:
-        assert self._tunnel_req is not None and self._tunnel_heard is not None
-        req = self._tunnel_req[0]
+        assert self._tunnels and self._tunnel_heard is not None
+        req = self._tunnels.popleft()[0]
         heard = bytes(self._tunnel_heard)
-        self._tunnel_req = None
         self._tunnel_heard = None
         self._tendon_decoder.reset()
         req.respond({"data": heard})

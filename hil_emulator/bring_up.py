@@ -3,7 +3,7 @@
 ``hil-emulator --ready`` (and benchmarks, tests) start from a robot whose thirteen hand
 microcontrollers run their applications.  The host library does it, through the emulator's
 in-process transport (:class:`~hil_emulator.inprocess.EmulatorTransport`): a
-:class:`~host.hand.Hand` on the palm's link waits out the palm's 3 s bootloader window,
+:class:`~host.hand.Hand` on the palm's link waits out the palm's bootloader window (4.5 s),
 powers the fingers (``palm.finger_power``), waits for each fmcb to boot, powers the
 phalanges over the tendons (``fmcb.phalange_power``) and, after their boot, switches on
 every fmcb's 100 Hz autopoll of its phalanges; a :class:`~host.hand_session.HandSession` on
@@ -27,14 +27,16 @@ from hil_emulator.inprocess import EmulatorTransport
 from host.errors import HostError
 from host.hand import Hand, Node
 from host.hand_session import LINK_NODE, HandSession, Timeouts
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import ALL_FINGERS, FingerPower
 from protocol.topology import FINGERS
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
 
-#: Time a hand node needs from power-up to its application (µs): the 3 s autoboot window.
-BOOT_US: Final = 3_300_000
+#: Time a hand node needs from power-up to its application (µs): the autoboot window and
+#: 0.3 s for the application to start.
+BOOT_US: Final = AUTOBOOT_WINDOW_US + 300_000
 #: Stagger between fingers when the palm switches them all on (ms).
 STAGGER_MS: Final = 5
 #: How long the palm waits for an fmcb's reply to a routed bring-up request (ms).

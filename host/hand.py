@@ -284,7 +284,7 @@ class Hand:
               stagger_ms: int = POWER_STAGGER_MS) -> list[str]:
         """Switch finger ``finger`` (0..3, or ``"all"``, ``stagger_ms`` apart) to ``state``
         (``"off"``, ``"low"``, ``"full"``); every finger's power state as the palm reports.
-        Fingers switched on boot for about 3 s before their fmcb answers."""
+        Fingers switched on boot for about 4.5 s (the autoboot window) before their fmcb answers."""
         try:
             code = FingerPower[state.upper()] if isinstance(state, str) else FingerPower(state)
         except (KeyError, ValueError) as exc:

@@ -14,6 +14,7 @@ from typing import Any, Final
 from host.code_names import code_name
 from protocol.messages.palm import FingerPower
 from protocol.robot import motor_to_joint
+from protocol.sensor_counts import pb_current_amps, supply_volts, temperature_c
 
 #: ``pb_current`` value meaning the phalange-bus breaker has tripped.
 BREAKER_TRIPPED: Final = 0xFFFF
@@ -33,7 +34,9 @@ class FingerState:
     (rad, J0 J1 J2), ``targets_hall`` the fmcb's motor targets (hall counts), ``effort``
     (1/255 of full PWM), ``tactile`` taxels (ADC counts) of ``proximal`` (6) and ``distal``
     (12), ``currents`` in mA (``supply`` from the palm, ``phalange_bus`` from the fmcb;
-    None when unknown), ``breaker_tripped`` for the phalange bus."""
+    None when unknown), ``breaker_tripped`` for the phalange bus, ``supply_v`` the fmcb's
+    logic supply (V) and ``temperatures_c`` its motor temperatures (°C), converted from the
+    status's raw ADC counts (:mod:`protocol.sensor_counts`)."""
 
     index: int
     present: bool = False
@@ -45,6 +48,8 @@ class FingerState:
     currents: dict[str, int | None] = field(
         default_factory=lambda: {"supply": None, "phalange_bus": None})
     breaker_tripped: bool = False
+    supply_v: float | None = None
+    temperatures_c: list[float] | None = None
     fmcb_time_us: int | None = None
     #: Accelerometers (counts, mg; board axes) ``fmcb``, ``f2``, ``f3`` from the status.
     accels: dict[str, list[int]] = field(default_factory=dict)
@@ -77,7 +82,10 @@ class FingerState:
                         "distal": [int(v) for v in status["dp_tactile"]]}
         pb = int(status["pb_current"])
         self.breaker_tripped = pb == BREAKER_TRIPPED
-        self.currents["phalange_bus"] = None if self.breaker_tripped else pb
+        self.currents["phalange_bus"] = (None if self.breaker_tripped
+                                         else round(pb_current_amps(pb) * 1000))
+        self.supply_v = supply_volts(int(status["voltage"]))
+        self.temperatures_c = [temperature_c(int(v)) for v in status["fmcb_temp"]]
         self.fmcb_time_us = int(status["fmcb_time"])
         self.accels = {"fmcb": [int(v) for v in status["fmcb_imu"][:3]],
                        "f2": [int(v) for v in status["pp_imu"][:3]],
@@ -96,6 +104,9 @@ class FingerState:
             "tactile": {k: list(v) for k, v in self.tactile.items()},
             "currents": dict(self.currents),
             "breaker_tripped": self.breaker_tripped,
+            "supply_v": None if self.supply_v is None else round(self.supply_v, 3),
+            "temperatures_c": (None if self.temperatures_c is None
+                               else [round(t, 1) for t in self.temperatures_c]),
         }
 
 

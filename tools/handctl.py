@@ -189,7 +189,10 @@ def _status_text(state: HandState) -> str:
         taxels = sum(len(v) for v in f.tactile.values())
         lines.append(f"finger {f.index}: power {f.power}, joints [{q}] rad, halls "
                      f"{f.joints_hall}, {taxels} taxels, supply {f.currents['supply']} mA, "
-                     f"phalange bus {f.currents['phalange_bus']} mA")
+                     f"phalange bus {f.currents['phalange_bus']} mA"
+                     + (f", logic {f.supply_v:.2f} V" if f.supply_v is not None else "")
+                     + (", motors " + "/".join(f"{t:.1f}" for t in f.temperatures_c) + " °C"
+                        if f.temperatures_c else ""))
     return "\n".join(lines)
 
 
@@ -203,7 +206,7 @@ def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
     states = hand.power(finger, args.state)
     text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
     if args.state != "off":
-        text += "\n(fingers switched on boot for about 3 s before they answer)"
+        text += "\n(fingers switched on boot for about 4.5 s before they answer)"
     _emit(args, {"power": states}, text)
     return 0
 

@@ -10,6 +10,7 @@ activated).  Every bootloader command halts the autoboot countdown.
 from __future__ import annotations
 
 from enum import IntEnum
+from typing import Final
 
 import construct as c
 
@@ -20,6 +21,17 @@ from protocol.messages.common import BOARD
 from protocol.messages.fields import EMPTY, VERSION
 
 PAGE_SIZE = 256
+
+#: The autoboot window (µs): how long a hand bootloader waits after power-up or reset for a
+#: bootloader command before it starts a verified image.  The original bootloader had no
+#: timer: it counted down 3 000 000 busy-loop iterations after about 1 000 000 of start-up
+#: loops, "several seconds" on its 64 MHz Cortex-M3.  Its host tools were written against
+#: that: the reset-based ``burn`` of a motor module or palm sends reset, listens 1 s then
+#: 2 s, and only then sends halt, about 3.02 s after the reset (3.5 s when the reset's
+#: acknowledgement is lost and its 0.5 s wait runs out), with 0.5 s more for the reply; the
+#: phalange burns halt about 2 s after power-on.  4.5 s lets the slowest of these in with
+#: 1 s to spare, and costs a power-up only 1.5 s over the 3 s a shorter window would.
+AUTOBOOT_WINDOW_US: Final = 4_500_000
 
 
 class WriteStatus(IntEnum):
@@ -115,7 +127,10 @@ MESSAGES = [
         0x08,
         EMPTY,
         EMPTY,
-        "Acknowledge, then start the application (only a verified, activated image).",
+        "Start the application: acknowledged only when the image verifies (a verified image "
+        "is activated first), then the node jumps to it.  An image that does not verify gets "
+        "no reply, the original host's sign of a failed boot (it listens for this type only); "
+        "the node stays in its bootloader and bl.status says why.",
     ),
     Message(
         "bl.read_page",
@@ -140,7 +155,10 @@ MESSAGES = [
         ),
         "Erase and program one page; staging an image clears its activation.",
     ),
-    Message("bl.halt", "bootloader", 0x0C, EMPTY, EMPTY, "Halt the autoboot countdown."),
+    Message("bl.halt", "bootloader", 0x0C, EMPTY, EMPTY,
+            f"Halt the autoboot countdown (the window: {AUTOBOOT_WINDOW_US / 1e6:g} s after "
+            "power-up or reset, long enough for the original host tools' reset, listen "
+            "1 s + 2 s, halt)."),
     Message("bl.info", "bootloader", 0x0D, EMPTY, BL_INFO, "Board, versions, flash geometry "
             "and the installed image header.", original=False),
     Message(

@@ -67,9 +67,12 @@ STATUS = c.Struct(
     "fmcb_imu" / c.Array(6, c.Int16sl) * "[mg, counts] motor module accel xyz, mag xyz",
     "pp_temp" / c.Array(4, c.Int16ul) * "[ADC counts] proximal thermistors",
     "dp_temp" / c.Array(4, c.Int16ul) * "[ADC counts] distal thermistors",
-    "fmcb_temp" / c.Array(3, c.Int16ul) * "[0.1 °C] motor temperatures",
-    "voltage" / c.Int16ul * "[mV] logic supply voltage",
-    "pb_current" / c.Int16ul * "[mA] phalange bus current; 0xFFFF = breaker tripped",
+    "fmcb_temp" / c.Array(3, c.Int16ul) * "[ADC counts] motor temperatures "
+    "(protocol.sensor_counts.temperature_c)",
+    "voltage" / c.Int16ul * "[ADC counts] logic supply voltage "
+    "(protocol.sensor_counts.supply_volts)",
+    "pb_current" / c.Int16ul * "[ADC counts] phalange bus current "
+    "(protocol.sensor_counts.pb_current_amps); 0xFFFF = breaker tripped",
     c.Padding(2) * "explicit padding at offset 110 (C struct alignment)",
     "pp_strain" / c.Int32sl * "[counts] proximal strain gauge (24-bit, sign-extended)",
     "hall_tgt" / c.Array(3, c.Int32sl) * "[hall counts] motor targets",
@@ -188,7 +191,8 @@ MESSAGES = [
         "fmcb",
         0x22,
         EMPTY,
-        c.Struct("temp" / c.Array(3, c.Int16ul) * "[0.1 °C] motor temperatures"),
+        c.Struct("temp" / c.Array(3, c.Int16ul) * "[ADC counts] motor temperatures "
+                 "(protocol.sensor_counts.temperature_c)"),
         "Motor temperatures.",
     ),
     Message(

@@ -101,6 +101,14 @@ def ask(mcu: Mcu, name: str, run_us: int = 20_000, **fields: Any) -> dict[str, A
     return got[0]
 
 
+def unanswered(mcu: Mcu, name: str, run_us: int = 100_000, **fields: Any) -> None:
+    """Send one request, run the node, and check that nothing answered it."""
+    upstream(mcu).take_sent()
+    send(mcu, name, **fields)
+    run(mcu, run_us)
+    assert replies(mcu, name) == [], f"{name} was answered"
+
+
 def halted_node(board: BoardType = BoardType.FMCB, **kw: Any) -> Mcu:
     mcu = new_node(board, **kw)
     mcu.power_on()
@@ -172,6 +180,18 @@ def test_common_messages_are_answered_without_halting_autoboot(name: str) -> Non
         run(mcu, 200_000)
     run(mcu, WINDOW)
     assert mcu.program_name == "fmcb"
+
+
+def test_an_enveloped_bootloader_command_halts_autoboot() -> None:
+    """The host library sends bl.* inside a txn envelope: that halts the countdown too (a
+    halted phalange left waiting while its sibling is flashed must not boot meanwhile)."""
+    mcu = new_node(BoardType.F3)
+    mcu.power_on()
+    run(mcu, 1_000)
+    send(mcu, "txn", seq=7, inner_type=CATALOGUE["bl.halt"].type_id, inner=b"")
+    run(mcu, 2 * WINDOW)
+    assert mcu.in_bootloader
+    assert ask(mcu, "bl.info")["autoboot_ms_left"] == 0
 
 
 def test_a_broadcast_halts_autoboot_without_a_reply() -> None:
@@ -273,6 +293,8 @@ CASES: dict[str, tuple[bytes | None, bytes | None, int]] = {
     "not_activated": (GOOD, None, 5),
     "activated_for_other_image": (GOOD, hashlib.sha256(b"other").digest(), 5),
     "too_large": (_too_large_header(), None, 6),
+    # What the original host tools write: a raw binary, vectors on page 32, no header.
+    "raw_binary": (bytes(range(256)) * 8, None, 2),
 }
 
 
@@ -305,8 +327,8 @@ def test_explicit_boot_never_starts_an_invalid_image(case: str) -> None:
     record_before = vflash(mcu).read_page(BOOT_CONTROL_PAGE)
     mcu.power_on()
     run(mcu, 1_000)
-    assert ask(mcu, "bl.boot") == {}
-    run(mcu, 100_000)
+    # No acknowledgement: the original host reads the missing reply as "failed to boot".
+    unanswered(mcu, "bl.boot")
     assert mcu.in_bootloader
     status = ask(mcu, "bl.status")
     assert status["image_status"] == expected
@@ -336,6 +358,25 @@ def test_boot_of_a_valid_image_whose_app_is_missing_stays_with_a_reason() -> Non
     status = ask(mcu, "bl.status")
     assert status["state"] == BootState.NO_VALID_IMAGE
     assert "no application" in status["text"]
+    unanswered(mcu, "bl.boot")  # nothing to jump to: not acknowledged either
+    assert mcu.in_bootloader
+    assert "no application" in ask(mcu, "bl.status")["text"]
+
+
+def test_boot_is_acknowledged_only_once_the_image_is_activated() -> None:
+    """The acknowledgement follows the activation record's programming, then the jump."""
+    mcu = new_node(installed=False)
+    install_image(vhal(mcu), GOOD, activate=False)
+    mcu.power_on()
+    run(mcu, 1_000)
+    ask(mcu, "bl.halt")
+    upstream(mcu).take_sent()
+    send(mcu, "bl.boot")
+    run(mcu, 200)  # far less than a page program: not yet acknowledged
+    assert replies(mcu, "bl.boot") == []
+    run(mcu, 50_000)
+    assert replies(mcu, "bl.boot") == [{}]
+    assert mcu.program_name == "fmcb"
 
 
 # --- page writes ------------------------------------------------------------------------------

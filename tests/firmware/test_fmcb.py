@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from firmware_py.flash_layout import PARAM_PAGE, page_address
-from firmware_py.fmcb import FmcbApp
+from firmware_py.fmcb import TUNNEL_QUEUE, FmcbApp
 from firmware_py.fmcb_control import HallCounter, min_cap, pd_effort
 from firmware_py.fmcb_params import FMCB_PARAMS, PARAM_SENTINEL, ParamTable
 from firmware_py.mcu import Mcu
@@ -234,14 +234,16 @@ def test_status_layout_and_values(rig: Rig) -> None:
     fmcb_time = struct.unpack_from("<I", raw, 8)[0]
     assert 0 < rig.hal.clock.now_us() - fmcb_time <= 5_000
     assert struct.unpack_from("<6h", raw, 72) == (1, -2, 1000, -300, 400, 500)
-    assert struct.unpack_from("<3H", raw, 100) == (251, 252, 253)
-    assert struct.unpack_from("<HH", raw, 106) == (23_456, 150)
+    # Raw 12-bit ADC counts on a 3.3 V reference, as the original sent them (by hand):
+    # 25.1 °C → 0.751 V → 931.9; 23.456 V / 11 → 2.1324 V → 2646.1; 0.150 A · 2.7 V/A → 502.6.
+    assert struct.unpack_from("<3H", raw, 100) == (932, 933, 934)
+    assert struct.unpack_from("<HH", raw, 106) == (2646, 503)
     assert raw[110:112] == b"\x00\x00" and raw[146:148] == b"\x00\x00"
     assert struct.unpack_from("<3i", raw, 116) == (-100, 7, 0)
     assert struct.unpack_from("<3i", raw, 128) == (0, 7, 0)
     effort = struct.unpack_from("<3h", raw, 140)
     assert effort[0] == -100 and effort[1:] == (0, 0)
-    assert rig.ask("fmcb.temperatures")["temp"] == [251, 252, 253]
+    assert rig.ask("fmcb.temperatures")["temp"] == [932, 933, 934]
     assert rig.ask("fmcb.imu") == {"accel": [1, -2, 1000], "mag": [-300, 400, 500]}
     # The snapshot is monotonic and refreshed every 5 ms.
     rig.run_ms(5)
@@ -318,7 +320,7 @@ def test_breaker_trips_after_more_than_10_ms(rig: Rig) -> None:
     sw.load_ma = 120
     rig.send("fmcb.phalange_power", {"on": 1}, run_ms=6)  # commanded on again: cleared
     assert sw.state == 2
-    assert CATALOGUE["fmcb.status"].parse_reply(rig.status_bytes())["pb_current"] == 120
+    assert CATALOGUE["fmcb.status"].parse_reply(rig.status_bytes())["pb_current"] == 402  # 0.324 V
 
 
 # --- tendon bus -----------------------------------------------------------------------------
@@ -419,6 +421,49 @@ def test_tunnel_returns_bytes_heard_and_pauses_autopoll(rig: Rig) -> None:
     assert reply["data"] == b"\x42\x00\x00\x00\x0c\xab\xcd"
     rig.run_ms(20)
     assert any(f.address == 1 for f in rig.tendon_frames())  # autopoll resumed
+
+
+def test_overlapping_tunnels_are_queued_and_answered_in_order(rig: Rig) -> None:
+    """The original host may send a second relay request before the first is answered:
+    the fmcb answers both, each with the bytes heard during its own turn on the bus."""
+    rig.send("fmcb.phalange_power", {"on": 1})
+    first, second = encode_frame(1, 0x01), encode_frame(2, 0x01)
+    rig.send("fmcb.tunnel", {"max_ms": 10, "data": first}, run_ms=0)
+    rig.send("fmcb.tunnel", {"max_ms": 10, "data": second}, run_ms=0)
+    rig.run_ms(2)
+    assert b"".join(rig.tendon.take_sent()) == first  # one at a time on the bus
+    rig.tendon.deliver(b"one")
+    rig.run_ms(10)
+    assert b"".join(rig.tendon.take_sent()) == second  # the second's turn
+    rig.tendon.deliver(b"two")
+    rig.run_ms(12)
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    heard = [CATALOGUE["fmcb.tunnel"].parse_reply(f.payload)["data"] for f in frames]
+    assert heard == [b"one", b"two"]
+
+
+def test_a_tunnel_ends_as_soon_as_a_reply_to_the_host_is_heard(rig: Rig) -> None:
+    rig.send("fmcb.phalange_power", {"on": 1})
+    rig.send("fmcb.tunnel", {"max_ms": 30, "data": encode_frame(1, 0x01)}, run_ms=0)
+    rig.run_ms(1)
+    rig.tendon.take_sent()
+    pong = encode_frame(0, 0x01)
+    rig.tendon.deliver(b"\x00\x13")  # noise first: not a frame to the host
+    rig.tendon.deliver(pong)
+    rig.run_ms(1)  # far less than max_ms
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    assert [CATALOGUE["fmcb.tunnel"].parse_reply(f.payload)["data"] for f in frames] == [
+        b"\x00\x13" + pong]
+
+
+def test_a_tunnel_queue_overflow_is_refused_not_reordered(rig: Rig) -> None:
+    rig.send("fmcb.phalange_power", {"on": 1})
+    for k in range(TUNNEL_QUEUE + 3):
+        rig.send("fmcb.tunnel", {"max_ms": 1, "data": bytes([k])}, run_ms=0)
+    rig.run_ms(50)
+    frames = decode_all(b"".join(rig.pogo.take_sent()))
+    assert len(frames) == TUNNEL_QUEUE + 1  # the one on the bus and the queue
+    assert rig.app.tendon_counters.tunnels == TUNNEL_QUEUE + 1
 
 
 # --- booted by the Mcu ----------------------------------------------------------------------

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hil_emulator.bring_up import BOOT_US
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from protocol.framing import parse_frame
@@ -38,13 +39,13 @@ def _boot_hand(emu: Emulator) -> bytearray:
     assert hand is not None
     out = bytearray()
     hand.on_host_bytes = lambda data, t: out.extend(data)
-    emu.step(3_300_000)
+    emu.step(BOOT_US)
     hand.send_from_host(_frame("palm.finger_power", finger=0xFF, state=2, stagger_ms=5))
-    emu.step(3_400_000)
+    emu.step(BOOT_US + 100_000)
     for k in range(4):
         hand.send_from_host(_route(k, 0, "fmcb.phalange_power", on=1))
         emu.step(30_000)
-    emu.step(3_300_000)
+    emu.step(BOOT_US)
     return out
 
 
@@ -97,7 +98,7 @@ def test_a_148_byte_status_takes_its_wire_time_on_the_simulation_clock() -> None
     fd = os.open(ports["fingers"][0], os.O_RDWR | os.O_NOCTTY)
     try:
         tty.setraw(fd)
-        emu.step(3_300_000)  # bootloader window, then the fmcb application
+        emu.step(BOOT_US)  # bootloader window, then the fmcb application
         emitted: list[int] = []
         emu.links["finger0"].on_emit = emitted.append
         request = _frame("fmcb.status")
@@ -128,7 +129,7 @@ def test_breakaway_is_reported_and_a_bouncing_reattach_comes_back() -> None:
     assert not emu.finger_plants[2].attached
     assert _routed(emu, out, 2, 0, "identify") is None
     emu.reattach(2, bounce=True)
-    emu.step(3_600_000)  # contacts settle, the fmcb's bootloader window, its application
+    emu.step(BOOT_US + 300_000)  # contacts settle, the fmcb's bootloader window, its application
     assert emu.finger_plants[2].attached
     ident = _routed(emu, out, 2, 0, "identify")
     assert ident is not None and ident["running"] == 1
@@ -161,7 +162,7 @@ def test_python_can_virtual_channel_reaches_the_palm_in_process() -> None:
     assert ports["can"] == "virtual:hil-test-palm" and ports["can_interface"] == "virtual"
     host = can.Bus(interface="virtual", channel="hil-test-palm", receive_own_messages=False)
     try:
-        emu.step(3_300_000)  # the palm's bootloader window, then its application
+        emu.step(BOOT_US)  # the palm's bootloader window, then its application
         ident = CATALOGUE["identify"]
         for chunk in segment(_frame("identify")):
             host.send(can.Message(arbitration_id=can_id(10, to_host=False), data=chunk,

@@ -15,6 +15,7 @@ from host.hand_session import HandSession, Target, Timeouts
 from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
 from protocol.messages import CATALOGUE
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import FingerPower
 from protocol.topology import ADDR_FMCB, ADDR_PALM, Hop
 from tests.hil_emulator.emulator_process import late_s, running_emulator
@@ -163,13 +164,13 @@ def test_original_bootloader_sequence_over_a_loose_finger_port() -> None:
         # The original host's frames: no txn envelope.
         finger.request("reset", txn=False)  # acknowledged, then the fmcb restarts into its bootloader
         time.sleep(0.05)
-        assert finger.request("bl.halt", txn=False) == {}  # inside the 3 s window
+        assert finger.request("bl.halt", txn=False) == {}  # inside the autoboot window
         assert finger.request("ping", txn=False) == {}
         ident = finger.request("identify", txn=False)
         assert ident["board"] == 2 and ident["running"] == 0
         page = finger.request("bl.read_page", {"page": 32}, txn=False)
         assert len(page["data"]) == 256 and page["data"][:4] == b"HAND"  # the image header
-        time.sleep(3.5)  # the halted bootloader does not boot by itself
+        time.sleep(AUTOBOOT_WINDOW_US / 1e6 + 0.5)  # the halted bootloader does not boot by itself
         assert finger.request("identify", txn=False)["running"] == 0
         finger.request("bl.boot", txn=False)
         ident = _until(lambda: _running(finger.request("identify", txn=False)), 2)

@@ -20,6 +20,7 @@ from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
 from firmware_py.sim.virtual_hal import VirtualHal
+from hil_emulator.bring_up import BOOT_US
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand_model import (
@@ -151,7 +152,7 @@ def hand() -> tuple[HandRig, list[FingerPlant], Plant]:
     plant = Plant(spec, [*fingers, PalmPlant("hand/", hand.palm, rng)])
     plant.attach(hand.scheduler)
     hand.fingers[0].fmcb.power_on()
-    hand.run_for(3_500_000)  # bootloader window, then the fmcb application
+    hand.run_for(BOOT_US)  # bootloader window, then the fmcb application
     assert isinstance(hand.fingers[0].fmcb.program, FmcbApp)
     return hand, fingers, plant
 
@@ -349,7 +350,7 @@ def test_four_fmcbs_close_on_an_object_and_hold_it_upside_down() -> None:
     plant.attach(hand.scheduler)
     for f in hand.fingers:
         f.fmcb.power_on()
-    hand.run_for(3_500_000)
+    hand.run_for(BOOT_US)
     for k, f in enumerate(hand.fingers):
         target = [0.0, 1.5, 1.5] if k < 3 else [0.0, 1.2, 1.0]  # fingers curl, thumb opposes
         send_fmcb(f.fmcb, "fmcb.control", {"mode": 2, "args": {"target": target}})

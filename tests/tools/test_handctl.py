@@ -31,6 +31,10 @@ def test_json_status_gives_four_fingers_with_joints_taxels_and_currents(
     assert f0["present"] and f0["power"] == "full" and len(f0["joints"]) == 3
     assert len(f0["tactile"]["proximal"]) == 6 and len(f0["tactile"]["distal"]) == 12
     assert f0["currents"]["phalange_bus"] is not None
+    # The wire carries raw ADC counts; the host shows engineering units: the emulated fmcb
+    # runs on 24 V with motors at the plant's ambient (about 25 °C).
+    assert f0["supply_v"] == pytest.approx(24.0, abs=0.05)
+    assert all(15 < t < 60 for t in f0["temperatures_c"])
 
 
 def test_move_waits_until_the_finger_settles(capsys: pytest.CaptureFixture[str]) -> None:
