@@ -63,8 +63,9 @@ REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_
                          | ErrorBit.CHECKSUM)
 #: Extra wait for replies by transport scheme (s): adapter and OS latency.
 DEFAULT_LATENCY_S: Final = {"emu": 0.0002}
-#: Extra wait for replies on any other link (s): USB adapters and ptys.
-SERIAL_LATENCY_S: Final = 0.02
+#: Extra wait for replies on any other link (s): USB adapters (a 16 ms latency timer) and
+#: ptys to an emulator on a busy machine; only a missing reply waits it out.
+SERIAL_LATENCY_S: Final = 0.1
 
 
 def error_names(error: int) -> tuple[str, ...]:
@@ -107,7 +108,7 @@ class DynamixelBus:
     """Protocol 1.0 client of the nodes on ``transport`` at ``baud`` bit/s.
 
     ``retries``: repeats of an idempotent request that got no (valid) reply.  ``latency_s``:
-    extra wait for replies (s; default by transport scheme: 0.2 ms in process, 20 ms on a
+    extra wait for replies (s; default by transport scheme: 0.2 ms in process, 100 ms on a
     serial link).  ``on_bytes(direction, data, t)``, if given, sees every chunk sent
     (``"tx"``) and received (``"rx"``) with the transport's time (s) - for recording.
     """

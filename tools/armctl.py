@@ -18,7 +18,7 @@ they lose power, so a later armctl picks it up); ``--unhomed`` moves in the node
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
 (``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
-allowed on top of each exchange's wire time (default 20 ms on a serial link, 0.2 ms in
+allowed on top of each exchange's wire time (default 100 ms on a serial link, 0.2 ms in
 process).  Opening sets every node's return delay to 0 for fast cycles unless
 ``--keep-return-delay``.  Errors say what to do next (:mod:`tools.cli_common`); exit status 1
 for a robot or link problem, 2 for bad arguments, 3 when a move did not settle in time, 130
@@ -48,7 +48,7 @@ def make_parser() -> argparse.ArgumentParser:
     """armctl's command line."""
     parser = argparse.ArgumentParser(prog="armctl", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
-                         timeout_default="20 ms on a serial link, 0.2 ms in process")
+                         timeout_default="100 ms on a serial link, 0.2 ms in process")
     parser.add_argument("--keep-return-delay", action="store_true",
                         help="leave the nodes' return delay (register 5) as it is")
     sub = parser.add_subparsers(dest="command", required=True)

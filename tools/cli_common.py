@@ -17,7 +17,7 @@ of the wire times and the nodes' own deadlines.  Its default depends on the kind
 simulation clock makes wire times exact; 100 ms over a serial port or pty, where a USB
 adapter's 16 ms latency timer and a busy machine add up; 100 ms on CAN; 250 ms over the
 network).  On the arm's bus it is the adapter latency added to each exchange's computed
-wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 20 ms otherwise).
+wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 100 ms otherwise).
 """
 
 from __future__ import annotations
