@@ -17,8 +17,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from tools.bench.scenario import load_scenario, with_overrides
 from tools.bench.runner import run_scenario
+from tools.bench.scenario import load_scenario, parse_scenario, with_overrides
 
 Job = dict[str, Any]
 
@@ -38,10 +38,7 @@ def expand(paths: Sequence[str | Path], seeds: Sequence[int] | None = None,
             for values in itertools.product(*(vary[k] for k in keys)):
                 overrides = dict(zip(keys, values, strict=True))
                 raw = with_overrides(scenario.raw, seed, overrides)
-                load_check = raw  # parsed again in the worker; checked here too
-                from tools.bench.scenario import parse_scenario
-
-                parse_scenario(load_check, str(path))
+                parse_scenario(raw, str(path))  # every point checked before any runs
                 jobs.append({"raw": raw, "source": str(path), "keep_trace": keep_trace,
                              "overrides": overrides})
     return jobs

@@ -81,7 +81,8 @@ def plot_faults(result: dict[str, Any], out: Path, name: str) -> list[Path]:
         t0 = event["t_s"]
         lo, hi = t0 - PLOT_BEFORE_S, t0 + PLOT_AFTER_S
 
-        def window(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        def window(rows: list[dict[str, Any]], lo: float = lo, hi: float = hi
+                   ) -> list[dict[str, Any]]:
             return [s for s in rows if lo <= s["t"] <= hi]
 
         fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
@@ -111,7 +112,7 @@ def plot_faults(result: dict[str, Any], out: Path, name: str) -> list[Path]:
             bottom.axvline(e["t"], color="grey", lw=0.8, ls=":")
         for ax in axes:
             ax.axvline(t0, color="red", lw=1.2)
-            if ax.lines:
+            if any(not line.get_label().startswith("_") for line in ax.lines):
                 ax.legend(fontsize=6, loc="upper right")
         top.set_title(f"{result['scenario']} (seed {result['seed']}): {event['label']} "
                       f"at {t0:.3f} s", fontsize=9)

@@ -74,6 +74,7 @@ class Bench:
             row["fmcb_on"] = [int(f.fmcb.powered) for f in emu.hand.fingers]
         if emu.arm_plant is not None:
             row["arm_q"] = [round(float(q), 5) for q in emu.arm_plant.joint_angles()]
+            row["arm_slips"] = [int(n) for n in emu.arm_plant.slips()]
         self.record.truth.append(row)
 
     # ------------------------------------------------------------------ host objects
@@ -167,14 +168,28 @@ class Bench:
         self.hand.set_poll_rate(rate_hz)
 
     def _do_stream(self, seconds: float, rate_hz: float) -> dict[str, Any]:
-        n = 0
-        for state in self.hand.states(rate_hz, seconds):
-            self.record.hand_samples.append({
-                "t": round(state.t - self.record.t0_us / 1e6, 6),
-                "present": [int(f.present) for f in state.fingers],
-                "joints": [[round(q, 4) for q in f.joints] for f in state.fingers]})
+        """Read the hand's status ``rate_hz`` times a second for ``seconds``; a read that
+        fails is recorded (no finger present) and the stream goes on."""
+        hand, t0 = self.hand, self.record.t0_us / 1e6
+        start = hand.session.now()
+        n = failed = 0
+        while n / rate_hz <= seconds:
+            wait = start + n / rate_hz - hand.session.now()
+            if wait > 0:
+                hand.session.sleep(wait)
+            try:
+                state = hand.status()
+            except HostError as exc:
+                failed += 1
+                self.record.hand_samples.append({"t": round(hand.session.now() - t0, 6),
+                                                 "present": [0] * FINGERS, "error": str(exc)})
+            else:
+                self.record.hand_samples.append({
+                    "t": round(state.t - t0, 6),
+                    "present": [int(f.present) for f in state.fingers],
+                    "joints": [[round(q, 4) for q in f.joints] for f in state.fingers]})
             n += 1
-        return {"samples": n}
+        return {"samples": n, "failed": failed}
 
     def _do_move(self, targets: dict[str, list[float]], effort: int | None, timeout: float,
                  unhomed: bool) -> dict[str, Any]:
