@@ -449,3 +449,50 @@ def test_rngs_differ_by_entry_and_occurrence() -> None:
     draws = {(e, k): emu.faults._rng(e, k).random() for e in range(2) for k in range(2)}
     assert len(set(draws.values())) == 4
     assert np.isclose(emu.faults._rng(1, 1).random(), draws[(1, 1)])
+
+
+def test_the_command_loads_a_plan_and_takes_faults_from_another_process(tmp_path: Path
+                                                                        ) -> None:
+    import time
+
+    from tests.hil_emulator.emulator_process import running_emulator
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[[faults]]\nfault = "supply_sag"\nparams = { supply_mv = 6000 }\n'
+                    'at_s = 0.0\nduration_s = 0.05\nlabel = "sag"\n')
+    links = tmp_path / "links"
+    links.mkdir()
+    with running_emulator("--config", "arm", "--no-physics", "--link-dir", str(links),
+                          "--faults", str(plan)) as info:
+        assert info["control"] == str(links / "control") and info["faults"] == 1
+        client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        client.settimeout(10)
+        client.connect(info["control"])
+        fd = os.open(links / "arm", os.O_RDWR | os.O_NOCTTY)
+        try:
+            client.sendall(b'{"op": "inject", "fault": "line_cut", "params": {"bus": "arm"}}\n')
+            assert json.loads(client.recv(4096))["ok"]
+            os.write(fd, make_ping(5).encode())
+            time.sleep(0.2)
+            os.set_blocking(fd, False)
+            with pytest.raises(BlockingIOError):
+                os.read(fd, 64)  # the line is cut: no answer
+            client.sendall(b'{"op": "clear", "id": 1}\n')
+            assert json.loads(client.recv(4096)) == {"ok": True}
+            os.write(fd, make_ping(5).encode())
+            deadline = time.monotonic() + 5
+            reply = b""
+            while not reply and time.monotonic() < deadline:
+                time.sleep(0.02)
+                try:
+                    reply = os.read(fd, 64)
+                except BlockingIOError:
+                    pass
+            assert reply[:3] == b"\xff\xff\x05"
+        finally:
+            os.close(fd)
+            client.close()
+    timeline = info["stats"]["fault_timeline"]
+    assert sorted((e["label"], e["action"]) for e in timeline) == [
+        ("line_cut", "apply"), ("line_cut", "clear"), ("sag", "apply"), ("sag", "clear")]
+    assert not (links / "control").exists()
