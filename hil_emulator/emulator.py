@@ -32,6 +32,7 @@ import numpy as np
 from firmware_py.scheduler import Scheduler
 from hil_emulator.arm_rig import ArmRig
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.faults.host_link import LinkTap
 from hil_emulator.hand_rig import HandRig, LooseFinger
 from hil_emulator.host_links import SerialLink, SlcanLink, VirtualCanLink
 from hil_emulator.plant import Plant, PlantPart, new_spec
@@ -129,6 +130,11 @@ class Emulator:
             self.hand.power_on()
         if self.loose is not None:
             self.loose.power_on()
+        from hil_emulator.faults import FaultInjector
+
+        #: The fault registry's injector: plans, in-process injection, the timeline.
+        self.faults = FaultInjector(self)
+        self._taps: dict[str, LinkTap] = {}
 
     # ------------------------------------------------------------------ building
     def _build_plant(self, layout: str, seeds: Any) -> Plant:
@@ -176,6 +182,7 @@ class Emulator:
         """Create the host ports (and ``link_dir`` symlinks); returns :meth:`describe`."""
         if self.hand is not None:
             palm = SerialLink.to_uart("palm", self.hand.host_uart)
+            self.hand.host_uart.sink = self.hand._to_host  # through the link's fault tap
             self.hand.on_host_bytes = palm.emit
             self.links["palm"] = palm
             palm_can = self.hand.palm_can
@@ -193,8 +200,12 @@ class Emulator:
             self.links["arm"] = arm
         if self.loose is not None:
             finger = SerialLink.to_uart("finger0", self.loose.host_uart)
+            self.loose.host_uart.sink = self.loose._to_host  # through the link's fault tap
             self.loose.on_host_bytes = finger.emit
             self.links["finger0"] = finger
+        for name, tap in self._taps.items():
+            if isinstance(self.links.get(name), SerialLink):
+                self.links[name].tap = tap
         for link in self.links.values():
             link.on_emit = self._record_lateness
             link.schedule_input = self._schedule_input
@@ -271,6 +282,35 @@ class Emulator:
     def tendon_glitch(self, finger: int, duration_us: int) -> None:
         """Finger ``finger``'s tendon contact opens for ``duration_us`` µs."""
         self._require_hand().tendon_glitch(finger, duration_us)
+
+    def rig(self, link: str) -> HandRig | ArmRig | LooseFinger:
+        """The rig behind host link ``link`` (``palm``, ``arm``, ``finger0``)."""
+        rig = {"palm": self.hand, "arm": self.arm, "finger0": self.loose}.get(link)
+        if rig is None:
+            raise EmulatorConfigError(f"the {self.config!r} configuration has no host link "
+                                      f"{link!r}")
+        return rig
+
+    def link_tap(self, link: str) -> LinkTap:
+        """The fault stages of host link ``link`` (made and wired on first use: the rig's
+        output toward the host, the in-process transport and the pty's input)."""
+        tap = self._taps.get(link)
+        if tap is None:
+            rig = self.rig(link)
+            tap = self._taps[link] = LinkTap(link, self.scheduler)
+            rig.link_tap = tap
+            port = self.links.get(link)
+            if isinstance(port, SerialLink):
+                port.tap = tap
+        return tap
+
+    def open_control(self, path: str) -> str:
+        """Listen for fault requests of another process on the unix socket ``path``
+        (:mod:`hil_emulator.faults.control`); served by :meth:`run` like a port."""
+        from hil_emulator.faults.control import ControlChannel
+
+        self.links["control"] = ControlChannel(self, path)
+        return path
 
     def _require_hand(self) -> HandRig:
         if self.hand is None:
@@ -350,7 +390,6 @@ class Emulator:
         self._wall0 = time.monotonic()
         self._sim0 = self.scheduler.now_us()
         self._last_input_us = self._sim0
-        fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]
         next_idle = self._wall0
         scheduler = self.scheduler
         while not stop.is_set():
@@ -382,6 +421,8 @@ class Emulator:
             wait = MAX_SLEEP_S if due is None else min((due - now_us) / 1e6, MAX_SLEEP_S)
             if wait <= self.spin_s:
                 continue  # the next event is close: poll for it
+            # Descriptors each time: a port that vanished and came back has a new one.
+            fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]
             if fds:
                 select.select(fds, [], [], wait - self.spin_s)
             else:

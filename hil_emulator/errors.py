@@ -22,3 +22,8 @@ class PortError(EmulatorError, OSError):
 
 class PlantError(EmulatorError, RuntimeError):
     """The MuJoCo plant could not be built, bound to the firmware, or went unstable."""
+
+
+class FaultPlanError(EmulatorConfigError):
+    """A fault plan, a fault's parameters or a scenario file the emulator cannot use; the
+    message names the key (``faults[2].params.finger``)."""

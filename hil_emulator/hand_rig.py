@@ -48,6 +48,8 @@ class Finger:
     f2: Mcu
     f3: Mcu
     attached: bool = True
+    #: False while the pogo pins carry power but no data (a partial contact).
+    data_contact: bool = True
     #: The tendon line (with the emulator's line model), or None when wired ideally.
     tendon_bus: Rs485Bus | None = None
 
@@ -102,11 +104,11 @@ class HandRig(HostSide):
         wire_phalange_power(finger)
 
     def _pogo_down(self, finger: Finger, data: bytes) -> None:
-        if finger.attached and finger.fmcb.powered:
+        if finger.attached and finger.data_contact and finger.fmcb.powered:
             _hal(finger.fmcb).uart("pogo").deliver(data)
 
     def _pogo_up(self, finger: Finger, data: bytes) -> None:
-        if finger.attached:
+        if finger.attached and finger.data_contact:
             _hal(self.palm).uart(f"finger{finger.index}").deliver(data)
 
     def _finger_power(self, finger: Finger, state: int) -> None:
@@ -154,28 +156,38 @@ class HandRig(HostSide):
         noise to the palm's UART) and settle only after them."""
         finger = self.fingers[index]
         if not bounce:
-            self._make_contact(finger)
+            self.make_contact(finger)
             return
-        t = 0
-        for _ in range(POGO_BOUNCES):
-            length = int(self._rng.integers(*POGO_BOUNCE_US))
-            noise = self._rng.integers(0, 256, size=int(self._rng.integers(1, 8)),
-                                       dtype=np.uint8).tobytes()
-            self.scheduler.call_later(t, functools.partial(self._bounce_contact, finger, noise))
-            self.scheduler.call_later(t + length, lambda: self._lose_contact(finger))
-            t += 2 * length
-        self.scheduler.call_later(t, lambda: self._make_contact(finger))
+        t = self.chatter(finger, POGO_BOUNCES, POGO_BOUNCE_US, self._rng)
+        self.scheduler.call_later(t, lambda: self.make_contact(finger))
 
-    def _make_contact(self, finger: Finger) -> None:
+    def chatter(self, finger: Finger, contacts: int, length_us: tuple[int, int],
+                rng: np.random.Generator) -> int:
+        """Schedule ``contacts`` short contacts of ``finger``'s pogo pins from now, each of a
+        random length in ``length_us`` (µs) carrying a burst of line noise to the palm's UART
+        and followed by as long without contact; returns when the last ends (µs from now),
+        the pins open."""
+        t = 0
+        for _ in range(contacts):
+            length = int(rng.integers(*length_us))
+            noise = rng.integers(0, 256, size=int(rng.integers(1, 8)), dtype=np.uint8).tobytes()
+            self.scheduler.call_later(t, functools.partial(self._bounce_contact, finger, noise))
+            self.scheduler.call_later(t + length, lambda: self.lose_contact(finger))
+            t += 2 * length
+        return t
+
+    def make_contact(self, finger: Finger) -> None:
+        """The pogo pins of ``finger`` touch: it gets the palm's power state."""
         finger.attached = True
         if _hal(self.palm).power(f"finger{finger.index}").state:
             finger.fmcb.power_on()
 
     def _bounce_contact(self, finger: Finger, noise: bytes) -> None:
-        self._make_contact(finger)
+        self.make_contact(finger)
         _hal(self.palm).uart(f"finger{finger.index}").deliver(noise)
 
-    def _lose_contact(self, finger: Finger) -> None:
+    def lose_contact(self, finger: Finger) -> None:
+        """The pogo pins of ``finger`` open: link and power gone."""
         finger.attached = False
         for node in (finger.f2, finger.f3, finger.fmcb):
             node.power_off()

@@ -94,6 +94,9 @@ class _PtyBacked:
         self.on_emit: EmitObserver | None = None
         self.schedule_input: InputScheduler = _apply_now
         self._link_dir: str | None = None
+        self._link_name: str | None = None
+        #: The link's fault stages (:mod:`hil_emulator.faults.host_link`), or None.
+        self.tap: Any = None
 
     @property
     def path(self) -> str:
@@ -101,8 +104,8 @@ class _PtyBacked:
         return self.port.path
 
     def fileno(self) -> int:
-        """The master descriptor, for ``select``."""
-        return self.port.fileno()
+        """The master descriptor, for ``select`` (-1 while the port has vanished)."""
+        return self.port.fileno() if self.port.is_open else -1
 
     def link(self, link_dir: str, name: str | None = None) -> str:
         """Make ``link_dir/name`` (default: the link's name) point at the pty."""
@@ -113,7 +116,27 @@ class _PtyBacked:
             raise PortError(f"cannot make the link {name or self.name!r} in the link "
                             f"directory {link_dir}: {reason}") from exc
         self._link_dir = link_dir
+        self._link_name = name or self.name
         return str(made)
+
+    def vanish(self) -> None:
+        """The port disappears (a USB adapter unplugged): the pty is closed and the
+        symlink removed; output meanwhile is lost."""
+        if self._link_dir is not None and self.port.is_open:
+            remove_links(self._link_dir, self.port)
+        self.port.close()
+
+    def reappear(self) -> None:
+        """The port comes back: a new pty, linked at the same ``--link-dir`` path."""
+        if self.port.is_open:
+            return
+        self.port = PtyPort(self.port.baud)
+        try:
+            self.port.open()
+            if self._link_dir is not None and self._link_name is not None:
+                make_link(self._link_dir, self._link_name, self.port)
+        except OSError as exc:
+            raise PortError(f"cannot re-create the pty for {self.name}: {exc}") from exc
 
     def close(self) -> None:
         """Remove the symlinks this link made and close the pty (idempotent)."""
@@ -141,7 +164,11 @@ class SerialLink(_PtyBacked):
     def poll(self) -> int:
         """Move what the host wrote into the simulation, up to the FIFO's room (the rest is
         an overrun); returns the byte count admitted."""
+        if not self.port.is_open:
+            return 0
         data = self.port.read_available()
+        if data and self.tap is not None:
+            data = self.tap.down(data)
         if not data:
             return 0
         now = self.input_clock()
@@ -163,7 +190,8 @@ class SerialLink(_PtyBacked):
     def emit(self, data: bytes, t_us: int) -> None:
         """A device's bytes, complete at simulation time ``t_us``, go to the host."""
         self.bytes_out += len(data)
-        self.port.write(data)
+        if self.port.is_open:
+            self.port.write(data)
         if self.on_emit is not None:
             self.on_emit(t_us)
 

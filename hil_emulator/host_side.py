@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from firmware_py.scheduler import Scheduler
+
+if TYPE_CHECKING:
+    from hil_emulator.faults.host_link import LinkTap
 
 
 class HostSide:
@@ -16,8 +20,16 @@ class HostSide:
         self.scheduler = scheduler
         self.host_received: list[tuple[bytes, int]] = []
         self.on_host_bytes: Callable[[bytes, int], None] | None = None
+        #: The host link's fault stages (:mod:`hil_emulator.faults.host_link`), or None.
+        self.link_tap: LinkTap | None = None
 
     def _to_host(self, data: bytes, t_us: int) -> None:
+        if self.link_tap is not None:
+            self.link_tap.up(data, t_us, self._reach_host)
+        else:
+            self._reach_host(data, t_us)
+
+    def _reach_host(self, data: bytes, t_us: int) -> None:
         if self.on_host_bytes is not None:
             self.on_host_bytes(data, t_us)
         else:

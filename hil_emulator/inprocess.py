@@ -99,6 +99,13 @@ class EmulatorTransport(Transport):
             self.emulator.step(int(round(seconds * 1e6)))
 
     def _send(self, data: bytes) -> None:
+        tap = self._rig.link_tap
+        if tap is not None:
+            if tap.vanished:
+                raise TransportError(f"{self.url}: the port has vanished (fault injected)")
+            data = tap.down(data)
+            if not data:
+                return
         self._rig.send_from_host(data)
 
     def _recv(self, timeout: float | None) -> bytes:

@@ -11,6 +11,9 @@ Faults (all drawn from one seeded :class:`numpy.random.Generator`, so a run is r
 * ``bit_error_rate``: each data bit of a frame flips with this probability;
 * :meth:`Rs485Bus.drop`: each frame is lost with this probability;
 * :meth:`Rs485Bus.set_line_cut`: nothing is delivered while the line is cut;
+* ``fault_filter``: a function given what the receivers would get and returning what they
+  do get (``b""``: nothing), set by the fault registry (:mod:`hil_emulator.faults`) for
+  burst loss and jammed lines;
 * ``line_code="manchester"``: the frame is sent as Manchester chips
   (:func:`protocol.manchester.encode_packed`), each chip flips with ``chip_error_rate``, and
   the receivers get what :func:`protocol.manchester.decode_report_packed` recovers: characters
@@ -26,6 +29,7 @@ bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip ra
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final, Literal
 
@@ -106,6 +110,8 @@ class Rs485Bus:
         self.chip_error_rate = float(chip_error_rate)
         self.drop_probability = 0.0
         self.line_cut = False
+        #: What the receivers get instead of a frame's bytes (None: no filter).
+        self.fault_filter: Callable[[bytes], bytes] | None = None
         self.collisions = 0
         self.manchester_bad_characters = 0
         #: The most recent transmissions (at most :data:`LOG_LENGTH`).
@@ -207,6 +213,8 @@ class Rs485Bus:
 
     def _hand_over(self, sender: _Node, tx: Transmission, received: bytes) -> None:
         """Record what arrived and give it to every node but the sender."""
+        if self.fault_filter is not None and received:
+            received = self.fault_filter(received)
         tx.received = received
         if not received:
             return

@@ -132,21 +132,24 @@ class Arm:
     # ------------------------------------------------------------------ opening
 
     @classmethod
-    def open(cls, url: str, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
+    def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
              latency_s: float | None = None,
              stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
-        """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, or any
-        transport URL), discover the seven joints, set every node's return delay to
+        """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, any
+        transport URL, or an open :class:`~host.transport.Transport`), discover the seven joints, set every node's return delay to
         ``return_delay`` (2 µs units; None: leave it) and read the stepper nodes' goals.
 
         Raises :class:`~host.errors.TransportError` (no such port),
         :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
         :class:`~host.errors.NodeError` (a node that is not what the arm has there).
         """
-        options: dict[str, Any] = {}
-        if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
-            options["baud"] = ARM_BUS_BAUD
-        transport = open_transport(url, **options)
+        if isinstance(url, Transport):
+            transport = url
+        else:
+            options: dict[str, Any] = {}
+            if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
+                options["baud"] = ARM_BUS_BAUD
+            transport = open_transport(url, **options)
         try:
             bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
                                retries=retries, latency_s=latency_s)

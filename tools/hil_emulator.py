@@ -3,6 +3,7 @@
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
+                 [--faults FILE] [--control PATH]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
@@ -10,6 +11,12 @@ Prints exactly one JSON line on standard output once its ports are ready (keys `
 time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
 line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
 and one when it is on time again.
+
+``--faults FILE`` loads a fault plan (TOML ``[[faults]]`` tables, see docs/HIL_BENCH.md;
+times count from the moment the ports are ready) and prints the timeline on exit with
+``--stats``.  A separate process injects faults while it runs through the control socket
+(JSON lines, :mod:`hil_emulator.faults.control`): ``DIR/control`` with ``--link-dir DIR``,
+or ``--control PATH``; its path is the ``control`` key of the JSON line.
 
 Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
@@ -23,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -32,6 +40,7 @@ from typing import Any
 
 from hil_emulator.emulator import CONFIGS, Emulator, has_display
 from hil_emulator.errors import EmulatorError
+from hil_emulator.faults import load_plan
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -67,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
                         help="stop by itself after S seconds of wall time")
+    parser.add_argument("--faults", metavar="FILE",
+                        help="load a fault plan (TOML [[faults]]) when the ports are ready")
+    parser.add_argument("--control", metavar="PATH",
+                        help="fault control socket (default: DIR/control with --link-dir)")
     parser.add_argument("--stats", action="store_true",
                         help="on exit, print delivery lateness, simulated time and port "
                              "counters (overruns) to stderr as JSON")
@@ -105,6 +118,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     try:
+        plan = load_plan(args.faults) if args.faults else []
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
                             physics=args.physics, can=args.can)
     except EmulatorError as exc:
@@ -116,6 +130,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 emulator.bring_up()
             ports = emulator.open_ports(args.link_dir)
             ports["ready"] = bool(args.ready)
+            control = args.control or (os.path.join(args.link_dir, "control")
+                                       if args.link_dir else None)
+            if control is not None:
+                ports["control"] = emulator.open_control(control)
+            emulator.faults.load(plan)
+            ports["faults"] = len(plan)
         except EmulatorError as exc:
             print(f"hil-emulator: {exc}", file=sys.stderr)
             return 1
@@ -143,7 +163,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 handle.close()
             if args.stats:
                 stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
-                         **emulator.lateness_stats(), "ports": emulator.link_stats()}
+                         **emulator.lateness_stats(), "ports": emulator.link_stats(),
+                         "fault_timeline": emulator.faults.timeline_dicts()}
                 print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)
     return 0
 

@@ -1,0 +1,170 @@
+"""Faults of the arm: external torques, a missed index pulse, RX-64 overheat and overload,
+a sagging supply.
+
+They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`), the joint
+encoders' index line (:class:`~firmware_py.sim.virtual_hal.VirtualEncoder`) and the nodes'
+sensors (:class:`~hil_emulator.faults.nodes.SensorFault`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from firmware_py.sim.virtual_hal import VirtualEncoder
+from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.faults import targets
+from hil_emulator.faults.base import Fault
+from hil_emulator.faults.nodes import SensorFault
+from protocol.topology import SERVO_IDS, STEPPER_IDS
+
+if TYPE_CHECKING:
+    from hil_emulator.emulator import Emulator
+
+
+@dataclass
+class ArmPush(Fault):
+    """An external torque ``torque_nm`` (N·m, + = positive joint direction) on joint
+    ``joint`` (0..6 = J1..J7); beyond a stepper's holding torque it slips and its node
+    latches SLIP."""
+
+    name = "arm_push"
+    entry_point = "plant force"
+    summary = "an external torque on an arm joint (a stepper slips beyond its holding torque)"
+    joint: int = 0  #: 0..6 = J1..J7
+    torque_nm: float = 5.0  #: N·m
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        _arm_plant(emulator).push(self.joint, self.torque_nm)
+
+    def clear(self, emulator: Emulator) -> None:
+        _arm_plant(emulator).push(self.joint, 0.0)
+
+
+class _BlindIndexEncoder(VirtualEncoder):
+    """An encoder whose index pulses do not reach the firmware (``missed`` counts them)."""
+
+    missed: int
+
+    @property  # type: ignore[override]
+    def _callback(self) -> Callable[[int], None] | None:
+        def swallow(count: int) -> None:
+            self.missed += 1
+
+        return swallow if self.__dict__.get("_callback") is not None else None
+
+    @_callback.setter
+    def _callback(self, callback: Callable[[int], None] | None) -> None:
+        self.__dict__["_callback"] = callback
+
+
+@dataclass
+class MissedIndex(Fault):
+    """Stepper joint ``joint`` (0..3 = J1..J4) misses its index pulses (dirty code wheel):
+    the node never latches the mark while the fault lasts."""
+
+    name = "missed_index"
+    entry_point = "node"
+    summary = "a stepper joint's encoder index pulse missed"
+    joint: int = 0  #: 0..3 = J1..J4
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.joint < len(STEPPER_IDS):
+            raise ValueError(f"joint {self.joint} is not a stepper joint 0..3")
+
+    def _encoder(self, emulator: Emulator) -> VirtualEncoder:
+        return targets.node(emulator, f"arm.{STEPPER_IDS[self.joint]}").hal.encoder()
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        encoder = self._encoder(emulator)
+        encoder.__class__ = _BlindIndexEncoder
+        assert isinstance(encoder, _BlindIndexEncoder)
+        encoder.missed = 0
+
+    def clear(self, emulator: Emulator) -> None:
+        encoder = self._encoder(emulator)
+        encoder.__class__ = VirtualEncoder
+
+
+@dataclass
+class ServoOverheat(Fault):
+    """RX-64 ``servo`` (Dynamixel id 5..7) reads ``temperature_c`` °C: beyond its limit it
+    sets OVERHEATING and, as its alarm shutdown says, drops torque."""
+
+    name = "servo_overheat"
+    entry_point = "node"
+    summary = "an RX-64 overheating (alarm shutdown)"
+    servo: int = 5  #: Dynamixel id 5..7
+    temperature_c: float = 95.0  #: °C
+    _sensor: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.servo not in SERVO_IDS:
+            raise ValueError(f"servo {self.servo} is not an RX-64 id {SERVO_IDS}")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        self._sensor = SensorFault(node=f"arm.{self.servo}", channel="temperature",
+                                   mode="stuck", value=int(round(self.temperature_c * 10)))
+        self._sensor.apply(emulator, rng)
+
+    def clear(self, emulator: Emulator) -> None:
+        if self._sensor is not None:
+            self._sensor.clear(emulator)
+
+
+@dataclass
+class ServoOverload(Fault):
+    """RX-64 ``servo`` (id 5..7) reads a load of ``load`` (1/1023 of stall): at or beyond
+    its torque limit for long it sets OVERLOAD and drops torque."""
+
+    name = "servo_overload"
+    entry_point = "node"
+    summary = "an RX-64 overloaded (alarm shutdown)"
+    servo: int = 5  #: Dynamixel id 5..7
+    load: int = 1023  #: 1/1023 of stall torque
+    _sensor: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.servo not in SERVO_IDS:
+            raise ValueError(f"servo {self.servo} is not an RX-64 id {SERVO_IDS}")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        self._sensor = SensorFault(node=f"arm.{self.servo}", channel="load", mode="stuck",
+                                   value=self.load)
+        self._sensor.apply(emulator, rng)
+
+    def clear(self, emulator: Emulator) -> None:
+        if self._sensor is not None:
+            self._sensor.clear(emulator)
+
+
+@dataclass
+class SupplySag(Fault):
+    """The arm's supply sags to ``supply_mv`` (mV) at every node: below a node's minimum it
+    reports INPUT_VOLTAGE."""
+
+    name = "supply_sag"
+    entry_point = "node"
+    summary = "the arm's supply sagging (input voltage alarms)"
+    supply_mv: int = 7_000  #: mV at every arm node
+    _sensors: list[SensorFault] = field(default_factory=list, init=False, repr=False)
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        self._sensors = [SensorFault(node=f"arm.{i}", channel="supply_mv", mode="stuck",
+                                     value=self.supply_mv) for i in (*STEPPER_IDS, *SERVO_IDS)]
+        for s in self._sensors:
+            s.apply(emulator, rng)
+
+    def clear(self, emulator: Emulator) -> None:
+        for s in self._sensors:
+            s.clear(emulator)
+        self._sensors = []
+
+
+def _arm_plant(emulator: Emulator) -> Any:
+    if emulator.arm_plant is None:
+        raise EmulatorConfigError("arm faults on the plant need the arm with physics")
+    return emulator.arm_plant

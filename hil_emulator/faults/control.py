@@ -1,0 +1,149 @@
+"""The fault control channel: a JSON-lines unix socket for a process outside the emulator.
+
+``hil-emulator --link-dir DIR`` listens on ``DIR/control`` (``--control PATH`` elsewhere).
+Each line a client writes is one JSON request; the emulator answers each with one line:
+
+=================================================================  ==========================
+request                                                            answer
+=================================================================  ==========================
+``{"op": "inject", "fault": NAME, "params": {...}, "at_s": 0,``     ``{"ok": true, "id": N,``
+``"duration_s": null, "label": null}``                              ``"t_us": ...}``
+``{"op": "clear", "id": N}``                                        ``{"ok": true}``
+``{"op": "clear_all"}``                                             ``{"ok": true}``
+``{"op": "active"}``                                                ``{"ok": true, "ids": [...]}``
+``{"op": "timeline"}``                                              ``{"ok": true, "events": [...]}``
+``{"op": "list"}``                                                  ``{"ok": true, "faults": [...]}``
+=================================================================  ==========================
+
+A request that fails answers ``{"ok": false, "error": "..."}`` (an unknown fault or
+parameter names the key).  Requests act at the simulation time of the moment they are read,
+as host input does.  The socket lives only on this machine (a path, not a network port).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from typing import TYPE_CHECKING, Any
+
+from hil_emulator.errors import EmulatorError, PortError
+from hil_emulator.faults.base import FAULTS
+
+if TYPE_CHECKING:
+    from hil_emulator.emulator import Emulator
+
+
+class ControlChannel:
+    """A listening unix socket at ``path`` served by the emulator's loop (``poll``)."""
+
+    name = "control"
+
+    def __init__(self, emulator: Emulator, path: str) -> None:
+        self.emulator = emulator
+        self.path = path
+        if os.path.exists(path):
+            os.unlink(path)
+        self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            self._server.bind(path)
+        except OSError as exc:
+            self._server.close()
+            raise PortError(f"cannot listen on the control socket {path}: {exc}") from exc
+        self._server.listen(4)
+        self._server.setblocking(False)
+        self._clients: dict[socket.socket, bytearray] = {}
+        self.on_emit = None  # the link interface the emulator's loop expects
+        self.schedule_input = None
+        self.requests = 0
+
+    def fileno(self) -> int:
+        """The listening socket (clients are polled every loop)."""
+        return self._server.fileno()
+
+    def poll(self) -> int:
+        """Accept clients, answer every complete line; returns the requests handled."""
+        handled = 0
+        while True:
+            try:
+                client, _ = self._server.accept()
+            except (BlockingIOError, OSError):
+                break
+            client.setblocking(False)
+            self._clients[client] = bytearray()
+        for client, buffer in list(self._clients.items()):
+            try:
+                chunk = client.recv(65536)
+            except BlockingIOError:
+                continue
+            except OSError:
+                chunk = b""
+            if not chunk:
+                self._drop(client)
+                continue
+            buffer += chunk
+            while b"\n" in buffer:
+                line, _, rest = bytes(buffer).partition(b"\n")
+                buffer[:] = rest
+                if line.strip():
+                    self._answer(client, self.handle_line(line))
+                    handled += 1
+        self.requests += handled
+        return handled
+
+    def handle_line(self, line: bytes) -> dict[str, Any]:
+        """The answer to one request line."""
+        try:
+            request = json.loads(line)
+            if not isinstance(request, dict):
+                raise ValueError("a request is a JSON object")
+            return {"ok": True, **self.handle(request)}
+        except (ValueError, KeyError, TypeError, EmulatorError) as exc:
+            return {"ok": False, "error": str(exc)}
+
+    def handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Carry out one request (see the module's table)."""
+        faults = self.emulator.faults
+        op = request.get("op")
+        if op == "inject":
+            entry = faults.inject(str(request["fault"]), request.get("params") or {},
+                                  at_s=float(request.get("at_s") or 0.0),
+                                  duration_s=request.get("duration_s"),
+                                  label=request.get("label"))
+            return {"id": entry, "t_us": self.emulator.scheduler.now_us()}
+        if op == "clear":
+            faults.clear(int(request["id"]))
+            return {}
+        if op == "clear_all":
+            faults.clear_all()
+            return {}
+        if op == "active":
+            return {"ids": faults.active}
+        if op == "timeline":
+            return {"events": faults.timeline_dicts()}
+        if op == "list":
+            return {"faults": sorted(FAULTS)}
+        raise ValueError(f"unknown op {op!r}: inject, clear, clear_all, active, timeline, list")
+
+    def _answer(self, client: socket.socket, answer: dict[str, Any]) -> None:
+        try:
+            client.sendall(json.dumps(answer).encode() + b"\n")
+        except OSError:
+            self._drop(client)
+
+    def _drop(self, client: socket.socket) -> None:
+        self._clients.pop(client, None)
+        client.close()
+
+    def stats(self) -> dict[str, int]:
+        """Requests answered, for ``--stats``."""
+        return {"requests": self.requests}
+
+    def close(self) -> None:
+        """Close every connection and remove the socket (idempotent)."""
+        for client in list(self._clients):
+            self._drop(client)
+        if self._server.fileno() >= 0:
+            self._server.close()
+            if os.path.exists(self.path):
+                os.unlink(self.path)

@@ -1,0 +1,215 @@
+"""Faults of a host link (the palm's or arm's USB serial port, the loose finger's cable).
+
+A :class:`LinkTap` sits on one host link in both directions: bytes from the host pass
+:meth:`LinkTap.down` before they enter the simulation (in process: the
+:class:`~hil_emulator.inprocess.EmulatorTransport`; through a pty: the
+:class:`~hil_emulator.host_links.SerialLink`), bytes toward the host pass :meth:`LinkTap.up`
+(the rig's ``_to_host``).  The emulator makes one tap per link on demand
+(:meth:`Emulator.link_tap <hil_emulator.emulator.Emulator.link_tap>`); link faults set its
+stages.  The tap also keeps the frames the host sent and what the device side received when
+``record`` is on, so a run can check that nothing the host never sent was accepted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from hil_emulator.faults.base import Fault
+
+if TYPE_CHECKING:
+    from firmware_py.scheduler import Scheduler
+    from hil_emulator.emulator import Emulator
+
+Direction = Literal["down", "up", "both"]
+Stage = Callable[[bytes], bytes]
+
+
+class LinkTap:
+    """The fault stages of one host link, both directions, and what passed them."""
+
+    def __init__(self, name: str, scheduler: Scheduler) -> None:
+        self.name = name
+        self.scheduler = scheduler
+        self.down_stages: dict[int, Stage] = {}
+        self.up_stages: dict[int, Stage] = {}
+        #: Added delay of bytes toward the host (µs), and its jitter draw (µs).
+        self.latency_us = 0
+        self.jitter: Callable[[], int] | None = None
+        #: True while the port is gone (a USB adapter unplugged).
+        self.vanished = False
+        self.record = False
+        self.sent: bytearray = bytearray()  #: what the host sent (record on)
+        self.received: bytearray = bytearray()  #: what entered the simulation (record on)
+        self._last_up_us = 0
+
+    def down(self, data: bytes) -> bytes:
+        """Host → device: what enters the simulation of ``data`` the host wrote."""
+        if self.record:
+            self.sent += data
+        if self.vanished:
+            return b""
+        for stage in list(self.down_stages.values()):
+            data = stage(data)
+        if self.record:
+            self.received += data
+        return data
+
+    def up(self, data: bytes, t_us: int, deliver: Callable[[bytes, int], None]) -> None:
+        """Device → host: ``deliver`` what reaches the host of ``data`` (complete at
+        ``t_us``), later by the added latency (order kept)."""
+        if self.vanished:
+            return
+        for stage in list(self.up_stages.values()):
+            data = stage(data)
+        if not data:
+            return
+        delay = self.latency_us + (self.jitter() if self.jitter is not None else 0)
+        if delay <= 0 and self._last_up_us <= t_us:
+            deliver(data, t_us)
+            return
+        at = max(t_us + delay, self._last_up_us)
+        self._last_up_us = at
+        self.scheduler.call_at(at, lambda: deliver(data, at))
+
+
+def _install(tap: LinkTap, direction: Direction, key: int, stage: Stage) -> None:
+    if direction in ("down", "both"):
+        tap.down_stages[key] = stage
+    if direction in ("up", "both"):
+        tap.up_stages[key] = stage
+
+
+def _remove(tap: LinkTap, key: int) -> None:
+    tap.down_stages.pop(key, None)
+    tap.up_stages.pop(key, None)
+
+
+@dataclass
+class LinkCorruption(Fault):
+    """Each byte on host link ``link`` is replaced by a different random byte with
+    ``byte_error_rate`` (in ``direction``: ``down`` host → device, ``up``, ``both``)."""
+
+    name = "link_corruption"
+    entry_point = "port"
+    summary = "host serial link: bytes corrupted at a rate"
+    link: str = "palm"  #: palm, arm or finger0
+    byte_error_rate: float = 1e-3  #: per byte
+    direction: Direction = "both"
+    corrupted: int = field(default=0, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.byte_error_rate <= 1.0:
+            raise ValueError(f"byte_error_rate {self.byte_error_rate} is not a probability")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        def corrupt(data: bytes) -> bytes:
+            raw = np.frombuffer(data, dtype=np.uint8)
+            hit = rng.random(raw.size) < self.byte_error_rate
+            if not hit.any():
+                return data
+            self.corrupted += int(hit.sum())
+            flips = rng.integers(1, 256, size=raw.size, dtype=np.uint8) * hit
+            return (raw ^ flips.astype(np.uint8)).tobytes()
+
+        _install(emulator.link_tap(self.link), self.direction, id(self), corrupt)
+
+    def clear(self, emulator: Emulator) -> None:
+        _remove(emulator.link_tap(self.link), id(self))
+
+
+@dataclass
+class LinkLoss(Fault):
+    """Each chunk the host link ``link`` carries (what one read or one frame delivers) is
+    lost with ``probability`` (in ``direction``)."""
+
+    name = "link_loss"
+    entry_point = "port"
+    summary = "host serial link: chunks lost at a rate"
+    link: str = "palm"  #: palm, arm or finger0
+    probability: float = 0.1  #: per chunk
+    direction: Direction = "both"
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.probability <= 1.0:
+            raise ValueError(f"probability {self.probability} is not in [0, 1]")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        def lose(data: bytes) -> bytes:
+            return b"" if rng.random() < self.probability else data
+
+        _install(emulator.link_tap(self.link), self.direction, id(self), lose)
+
+    def clear(self, emulator: Emulator) -> None:
+        _remove(emulator.link_tap(self.link), id(self))
+
+
+@dataclass
+class LinkNoiseBurst(Fault):
+    """A burst of ``length`` random bytes on host link ``link`` (both ways: the device's
+    decoder and the host's both have to resynchronise)."""
+
+    name = "link_noise_burst"
+    entry_point = "port"
+    summary = "host serial link: a burst of random bytes both ways"
+    instantaneous = True
+    link: str = "palm"  #: palm, arm or finger0
+    length: int = 16  #: bytes of noise
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        noise = rng.integers(0, 256, size=self.length, dtype=np.uint8).tobytes()
+        rig = emulator.rig(self.link)
+        rig.send_from_host(noise)
+        rig._to_host(noise, emulator.scheduler.now_us())
+
+
+@dataclass
+class LinkLatency(Fault):
+    """Bytes toward the host on link ``link`` arrive ``latency_us`` later, plus a uniform
+    jitter in [0, ``jitter_us``] (order kept): a slow USB adapter or host scheduler."""
+
+    name = "link_latency"
+    entry_point = "port"
+    summary = "host serial link: added latency and jitter toward the host"
+    link: str = "palm"  #: palm, arm or finger0
+    latency_us: int = 2_000  #: added delay (µs)
+    jitter_us: int = 0  #: up to this much more (µs), drawn per chunk
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        tap = emulator.link_tap(self.link)
+        tap.latency_us = self.latency_us
+        if self.jitter_us > 0:
+            tap.jitter = lambda: int(rng.integers(0, self.jitter_us + 1))
+
+    def clear(self, emulator: Emulator) -> None:
+        tap = emulator.link_tap(self.link)
+        tap.latency_us = 0
+        tap.jitter = None
+
+
+@dataclass
+class PortVanish(Fault):
+    """The USB serial port of link ``link`` vanishes (adapter unplugged): the pty is closed
+    and its link-dir symlink removed, an in-process transport fails its sends; cleared, a new
+    pty appears at the same ``--link-dir`` path."""
+
+    name = "port_vanish"
+    entry_point = "port"
+    summary = "host USB serial port gone, then back at the same --link-dir path"
+    link: str = "palm"  #: palm, arm or finger0
+    _port: Any = field(default=None, init=False, repr=False)
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        emulator.link_tap(self.link).vanished = True
+        port = emulator.links.get(self.link)
+        if port is not None and hasattr(port, "vanish"):
+            port.vanish()
+
+    def clear(self, emulator: Emulator) -> None:
+        emulator.link_tap(self.link).vanished = False
+        port = emulator.links.get(self.link)
+        if port is not None and hasattr(port, "reappear"):
+            port.reappear()

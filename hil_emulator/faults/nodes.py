@@ -1,0 +1,137 @@
+"""Faults of a node: hang, reset, reset storm, a sensor stuck, noisy or biased.
+
+They act through the node's HAL (:class:`~firmware_py.sim.virtual_hal.VirtualHal`: ``halt``,
+``reset``, its sensors) and never through a branch in the firmware.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from firmware_py.sim.virtual_hal import VirtualSensors
+from hil_emulator.faults import targets
+from hil_emulator.faults.base import Fault
+
+if TYPE_CHECKING:
+    from hil_emulator.emulator import Emulator
+
+SensorValue = int | tuple[int, ...]
+
+
+class FaultySensors(VirtualSensors):
+    """A board's sensors with faults on some channels: what :meth:`read` returns passes the
+    channel's fault function.  The sensors of a faulty node are switched to this class (and
+    back when its last sensor fault clears); the plant keeps writing the true values."""
+
+    sensor_faults: dict[str, Callable[[SensorValue], SensorValue]]
+
+    def read(self, channel: str) -> SensorValue:
+        value = super().read(channel)
+        fault = self.sensor_faults.get(channel)
+        return value if fault is None else fault(value)
+
+
+@dataclass
+class NodeHang(Fault):
+    """Node ``node`` hangs: its program stops (timers, receivers, motors off) with no
+    watchdog to save it; cleared, it is reset and boots again."""
+
+    name = "node_hang"
+    entry_point = "node"
+    summary = "a node's program hangs (no watchdog); cleared by a reset"
+    node: str = "finger0.fmcb"  #: palm, finger<k>.fmcb|f2|f3, arm.<id>
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        targets.node(emulator, self.node).hal.halt(restart_clock=False)
+
+    def clear(self, emulator: Emulator) -> None:
+        targets.node(emulator, self.node).reset()
+
+
+@dataclass
+class NodeReset(Fault):
+    """Node ``node`` resets once (brown-out detector, watchdog): a hand node restarts in its
+    bootloader, an arm node reboots its application."""
+
+    name = "node_reset"
+    entry_point = "node"
+    summary = "a node resets once"
+    instantaneous = True
+    node: str = "finger0.fmcb"  #: palm, finger<k>.fmcb|f2|f3, arm.<id>
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        targets.node(emulator, self.node).reset()
+
+
+@dataclass
+class ResetStorm(Fault):
+    """Node ``node`` resets ``resets`` times, ``period_us`` apart (± ``jitter_us`` drawn
+    from the seed), starting now."""
+
+    name = "reset_storm"
+    entry_point = "node"
+    summary = "a node resetting again and again"
+    instantaneous = True
+    node: str = "finger0.fmcb"  #: palm, finger<k>.fmcb|f2|f3, arm.<id>
+    resets: int = 5  #: how many
+    period_us: int = 20_000  #: µs between resets
+    jitter_us: int = 0  #: up to this much later each (µs)
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        ref = targets.node(emulator, self.node)
+        for k in range(self.resets):
+            extra = int(rng.integers(0, self.jitter_us + 1)) if self.jitter_us else 0
+            emulator.scheduler.call_later(k * self.period_us + extra, ref.reset)
+
+
+@dataclass
+class SensorFault(Fault):
+    """Channel ``channel`` of node ``node`` reads wrong: ``stuck`` at ``value``, ``noisy``
+    (Gaussian, ``sigma`` counts, drawn per read), or ``biased`` by ``bias`` counts."""
+
+    name = "sensor_fault"
+    entry_point = "node"
+    summary = "a sensor channel stuck, noisy or biased"
+    node: str = "finger0.f2"  #: palm, finger<k>.fmcb|f2|f3, arm.<id>
+    channel: str = "strain"  #: the HAL's channel name (strain, accel, pot, temperature …)
+    mode: Literal["stuck", "noisy", "biased"] = "stuck"
+    value: int = 0  #: stuck: the value read (counts)
+    sigma: float = 10.0  #: noisy: standard deviation (counts)
+    bias: int = 100  #: biased: added (counts)
+    _key: Any = field(default=None, init=False, repr=False)
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        sensors = targets.node(emulator, self.node).hal.sensors
+        sensors.read(self.channel)  # the board must have it
+
+        def shift(value: SensorValue, by: Callable[[], int]) -> SensorValue:
+            if isinstance(value, tuple):
+                return tuple(v + by() for v in value)
+            return value + by()
+
+        def fault(value: SensorValue) -> SensorValue:
+            if self.mode == "stuck":
+                return tuple(self.value for _ in value) if isinstance(value, tuple) \
+                    else self.value
+            if self.mode == "biased":
+                return shift(value, lambda: self.bias)
+            return shift(value, lambda: int(round(rng.normal(0.0, self.sigma))))
+
+        if type(sensors) is VirtualSensors:
+            sensors.__class__ = FaultySensors
+            assert isinstance(sensors, FaultySensors)
+            sensors.sensor_faults = {}
+        assert isinstance(sensors, FaultySensors)
+        sensors.sensor_faults[self.channel] = fault
+
+    def clear(self, emulator: Emulator) -> None:
+        sensors: VirtualSensors = targets.node(emulator, self.node).hal.sensors
+        if isinstance(sensors, FaultySensors):
+            sensors.sensor_faults.pop(self.channel, None)
+            if not sensors.sensor_faults:
+                del sensors.sensor_faults
+                sensors.__class__ = VirtualSensors  # type: ignore[assignment]

@@ -1,0 +1,188 @@
+"""hil-bench: scenario files checked key by key, a subset of the standard suite with its
+reports, exit codes, the fault catalogue, and campaigns equal on local processes and on a
+local Dask cluster."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools import hil_bench
+from tools.bench.campaign import comparable, expand, run_jobs
+from tools.bench.scenario import ScenarioError, parse_scenario, scenario_dir, standard_suite
+
+SUITE = scenario_dir()
+#: The subset of the standard suite run by default (about 15 s).
+SUBSET = ("break_away", "link_corruption", "tendon_glitch_long", "port_vanish",
+          "servo_overheat", "arm_push", "supply_sag")
+
+
+def _raw(name: str) -> dict[str, Any]:
+    with open(SUITE / f"{name}.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"config": "octopus"}, r"config: 'octopus' is not one of"),
+    ({"seed": -1}, r"seed: -1 is not an integer"),
+    ({"colour": 1}, r"colour: unknown key"),
+    ({"actions": [{"do": "dance"}]}, r"actions\[0\]\.do: 'dance' is not one of"),
+    ({"actions": [{"do": "wait"}]}, r"actions\[0\]\.seconds: missing"),
+    ({"actions": [{"do": "wait", "seconds": "soon"}]}, r"actions\[0\]\.seconds: 'soon'"),
+    ({"actions": [{"do": "wait", "seconds": 1, "speed": 2}]}, r"actions\[0\]\.speed: 'wait'"),
+    ({"assertions": [{"check": "action_ok", "action": "nope"}]},
+     r"assertions\[0\]\.action: no action with id 'nope'"),
+    ({"assertions": [{"check": "finger_event", "finger": 2, "event": "lost",
+                      "after": "boom"}]}, r"assertions\[0\]\.after: no fault labelled 'boom'"),
+    ({"faults": [{"fault": "break_away", "params": {"finger": "x"}}]},
+     r"faults\[0\]\.params\.finger"),
+    ({"faults": [{"fault": "break_away", "at_s": -1}]}, r"faults\[0\]\.at_s"),
+])
+def test_scenario_errors_name_the_file_and_the_key(change: dict[str, Any], message: str
+                                                   ) -> None:
+    raw = {**_raw("break_away"), **change}
+    with pytest.raises(ScenarioError, match=r"^x\.toml: " + message):
+        parse_scenario(raw, "x.toml")
+
+
+def test_every_implemented_fault_has_a_standard_scenario() -> None:
+    from hil_emulator.faults import FAULTS
+
+    used = {f["fault"] for p in standard_suite()
+            for f in tomllib.loads(p.read_text()).get("faults", [])}
+    assert set(FAULTS) <= used, sorted(set(FAULTS) - used)
+    for path in standard_suite():
+        parse_scenario(tomllib.loads(path.read_text()), str(path))
+
+
+def test_a_subset_of_the_standard_suite_passes_with_reports(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]
+                                                            ) -> None:
+    out = tmp_path / "results.json"
+    files = [str(SUITE / f"{n}.toml") for n in SUBSET]
+    code = hil_bench.main(["run", *files, "--json", str(out), "--report",
+                           str(tmp_path / "report")])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    results = json.loads(out.read_text())
+    assert [r["scenario"] for r in results] == list(SUBSET)
+    by_name = {r["scenario"]: r for r in results}
+    lost = by_name["break_away"]["assertions"][0]
+    assert lost["check"] == "finger_event" and 0 < lost["measured"]["latency_ms"] <= 50
+    slip = by_name["arm_push"]["assertions"][0]["measured"]
+    assert slip["latency_ms"] <= 10  # within one 100 Hz control cycle
+    assert by_name["link_corruption"]["assertions"][0]["measured"]["foreign_frames"] == 0
+    report = tmp_path / "report"
+    assert "7 of 7 runs passed" in (report / "summary.md").read_text()
+    assert (report / "break_away-seed1.json").exists()
+    assert (report / "break_away-seed1-fault0.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_failed_assertion_exits_1_and_a_bad_file_2(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]
+                                                     ) -> None:
+    scenario = tmp_path / "strict.toml"
+    scenario.write_text((SUITE / "tendon_glitch_long.toml").read_text().replace(
+        'state = "bootloader"', 'state = "running"'))
+    assert hil_bench.main(["run", str(scenario)]) == 1
+    assert "FAIL (node_state0)" in capsys.readouterr().out
+    bad = tmp_path / "bad.toml"
+    bad.write_text('config = "arm"\n[[actions]]\ndo = "wait"\n')
+    assert hil_bench.main(["run", str(bad)]) == 2
+    assert "actions[0].seconds: missing" in capsys.readouterr().err
+
+
+def test_list_faults_prints_every_fault_with_parameters_and_the_missing_ones(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from hil_emulator.faults import FAULTS, NOT_YET_IMPLEMENTED
+
+    assert hil_bench.main(["list-faults"]) == 0
+    text = capsys.readouterr().out
+    for name in FAULTS:
+        assert f"\n{name}  (" in f"\n{text}"
+    for name in NOT_YET_IMPLEMENTED:
+        assert f"{name}  (-)  [not yet implemented]" in text
+    assert "- duration_us: int = 1000" in text
+    assert hil_bench.main(["list-faults", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == len(FAULTS) + len(NOT_YET_IMPLEMENTED)
+
+
+def test_experiments_dispatches_or_says_the_module_is_missing(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    import sys
+    import types
+
+    fake = types.ModuleType("tools.bench_experiments")
+    seen: list[list[str]] = []
+    fake.main = lambda argv: seen.append(argv) or 0  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "tools.bench_experiments", fake)
+    assert hil_bench.main(["experiments", "sweep", "--x", "1"]) == 0
+    assert seen == [["sweep", "--x", "1"]]
+    monkeypatch.setitem(sys.modules, "tools.bench_experiments", None)  # import fails
+    monkeypatch.setattr(hil_bench.importlib, "import_module", _missing)
+    assert hil_bench.main(["experiments"]) == 2
+    assert "bench_experiments.py is not installed" in capsys.readouterr().err
+
+
+def _missing(name: str) -> Any:
+    raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+
+def _campaign(n_seeds: int) -> list[dict[str, Any]]:
+    return expand([SUITE / "servo_overheat.toml", SUITE / "supply_sag.toml"],
+                  seeds=list(range(n_seeds)))
+
+
+def test_a_campaign_on_a_local_dask_cluster_equals_the_in_process_run() -> None:
+    from dask.distributed import Client, LocalCluster
+
+    jobs = _campaign(2)
+    here = [comparable(r) for r in run_jobs(jobs)]
+    with LocalCluster(processes=True, n_workers=2, threads_per_worker=1,
+                      dashboard_address=None, host="127.0.0.1") as cluster, \
+            Client(cluster) as client:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        there = [comparable(r) for r in run_jobs(jobs, scheduler=client)]
+        by_address = [comparable(r) for r in run_jobs(jobs[:1],
+                                                      scheduler=cluster.scheduler_address)]
+    assert there == here and by_address == here[:1]
+    assert [r["seed"] for r in here] == [0, 1, 0, 1] and all(r["passed"] for r in here)
+
+
+def test_campaign_vary_runs_every_combination_and_local_workers_agree(tmp_path: Path
+                                                                      ) -> None:
+    path = tmp_path / "vary.toml"
+    text = (SUITE / "tendon_glitch_short.toml").read_text()
+    head, sep, rest = text.partition("[[faults]]")
+    path.write_text(head + '[campaign]\nseeds = [1, 2]\n'
+                    'vary = { "faults.0.params.duration_us" = [500, 1900] }\n' + sep + rest)
+    jobs = expand([path])
+    assert [(j["raw"]["seed"], j["overrides"]["faults.0.params.duration_us"]) for j in jobs] \
+        == [(1, 500), (1, 1900), (2, 500), (2, 1900)]
+    here = [comparable(r) for r in run_jobs(jobs)]
+    assert [comparable(r) for r in run_jobs(jobs, workers=2)] == here
+    assert all(r["passed"] for r in here)
+
+
+@pytest.mark.slow
+def test_the_whole_standard_suite_passes_on_two_local_processes(tmp_path: Path) -> None:
+    assert hil_bench.main(["run", "--suite", "standard", "--workers", "2",
+                           "--json", str(tmp_path / "r.json")]) == 0
+
+
+@pytest.mark.slow
+def test_a_200_run_campaign_on_a_local_dask_cluster() -> None:
+    from dask.distributed import Client, LocalCluster
+
+    jobs = _campaign(100)
+    assert len(jobs) == 200
+    with LocalCluster(processes=True, n_workers=2, threads_per_worker=1,
+                      dashboard_address=None, host="127.0.0.1") as cluster, \
+            Client(cluster) as client:
+        results = run_jobs(jobs, scheduler=client)
+    assert len(results) == 200 and all(r["passed"] for r in results)
+    assert comparable(results[7]) == comparable(run_jobs([jobs[7]])[0])

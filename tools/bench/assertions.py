@@ -1,0 +1,185 @@
+"""The assertions a scenario can make, judged on a run's record.
+
+Each returns ``{"check", "id", "passed", "measured": {...}, "message"}``: the figures it
+measured (latencies in ms, counts) whether it passed or not.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from protocol.stream import decode_all
+
+if TYPE_CHECKING:
+    from tools.bench.runner import RunRecord
+    from tools.bench.scenario import Step
+
+Verdict = tuple[bool, dict[str, Any], str]
+
+
+def judge(step: Step, record: RunRecord) -> dict[str, Any]:
+    """The verdict of assertion ``step`` on ``record``."""
+    passed, measured, message = CHECKS[step.kind](record, **step.params)
+    return {"check": step.kind, "id": step.id, "params": step.params, "passed": passed,
+            "measured": measured, "message": message}
+
+
+def _first_apply(record: RunRecord, label: str) -> float | None:
+    times = record.fault_times(label)
+    return times[0] if times else None
+
+
+def action_ok(record: RunRecord, action: str) -> Verdict:
+    a = record.actions.get(action)
+    if a is None:
+        return False, {}, f"action {action!r} did not run"
+    took = round((a["t_end"] - a["t_start"]) * 1e3, 3)
+    return bool(a["ok"]), {"ms": took}, a.get("error", "ok")
+
+
+def action_fails(record: RunRecord, action: str, match: str) -> Verdict:
+    a = record.actions.get(action)
+    if a is None:
+        return False, {}, f"action {action!r} did not run"
+    if a["ok"]:
+        return False, {}, f"action {action!r} succeeded; it should have failed"
+    error = a.get("error", "")
+    ok = re.search(match, error) is not None if match else True
+    return ok, {"ms": round((a["t_end"] - a["t_start"]) * 1e3, 3)}, error
+
+
+def finger_event(record: RunRecord, finger: int, event: str, after: str,
+                 within_ms: float) -> Verdict:
+    t0 = _first_apply(record, after)
+    if t0 is None:
+        return False, {}, f"fault {after!r} was never applied"
+    seen = [e["t"] for e in record.events if e["finger"] == finger and e["event"] == event
+            and e["t"] >= t0]
+    if not seen:
+        return False, {"events": len(record.events)}, f"no {event!r} of finger {finger}"
+    latency = round((seen[0] - t0) * 1e3, 3)
+    return (latency <= within_ms, {"latency_ms": latency},
+            f"{event} of finger {finger} {latency} ms after {after} (limit {within_ms} ms)")
+
+
+def fingers_present(record: RunRecord, fingers: list[int], after: str,
+                    settle_ms: float) -> Verdict:
+    t0 = _first_apply(record, after)
+    if t0 is None:
+        return False, {}, f"fault {after!r} was never applied"
+    samples = [s for s in record.hand_samples if s["t"] >= t0 + settle_ms / 1e3]
+    missing = sum(1 for s in samples for k in fingers if not s["present"][k])
+    ok = bool(samples) and missing == 0
+    return (ok, {"samples": len(samples), "missing": missing},
+            f"fingers {fingers} answered in {len(samples) * len(fingers) - missing} of "
+            f"{len(samples) * len(fingers)} status reads after {after}")
+
+
+def no_unsent_frames(record: RunRecord, link: str, min_corrupted: int) -> Verdict:
+    """Every frame the device side decoded on ``link`` is one the host sent, whole or nested
+    in another (a corrupted frame never got through its CRC)."""
+    seen = record.links.get(link)
+    if seen is None:
+        return False, {}, f"link {link!r} was not recorded"
+    def key(f: Any) -> tuple[int, int, bytes]:
+        return f.address, f.type, bytes(f.payload)
+
+    # What the host sent: its frames and the frames nested in them (a txn envelope carries
+    # the whole inner request, which a decoder resynchronising after a corrupted envelope
+    # finds and accepts: uncorrupted, and sent by the host).
+    sent: set[tuple[int, int, bytes]] = set()
+    todo = [f for f in decode_all(seen["sent"]) if f.crc_ok]
+    while todo:
+        frame = todo.pop()
+        if key(frame) not in sent:
+            sent.add(key(frame))
+            todo += [f for f in decode_all(bytes(frame.payload)) if f.crc_ok]
+    received = [f for f in decode_all(seen["received"]) if f.crc_ok]
+    foreign = [f for f in received if key(f) not in sent]
+    corrupted = sum(a != b for a, b in zip(seen["sent"], seen["received"], strict=False))
+    ok = not foreign and corrupted >= min_corrupted
+    return (ok, {"frames_sent": len(sent), "frames_accepted": len(received),
+                 "foreign_frames": len(foreign), "bytes_differing": corrupted},
+            f"{len(foreign)} frames accepted that the host never sent; "
+            f"{corrupted} bytes differed on the way")
+
+
+def flash_verified(record: RunRecord, action: str) -> Verdict:
+    a = record.actions.get(action)
+    if a is None or not a["ok"]:
+        return False, {}, f"flash action {action!r} failed: {a and a.get('error')}"
+    report = a["result"]
+    done = sum(1 for n in report["nodes"] if n.get("result") in ("flashed", "skipped"))
+    return (bool(report["ok"]), {"nodes": len(report["nodes"]), "done": done,
+                                 "seconds": report["total_seconds"]},
+            f"{done} of {len(report['nodes'])} nodes verified and running")
+
+
+def arm_flag(record: RunRecord, joint: int, flag: str, after: str,
+             within_ms: float) -> Verdict:
+    """The host sees ``flag`` (``slip``) of stepper ``joint`` within ``within_ms`` of the
+    plant's first slip event after fault ``after`` (of the fault itself without physics)."""
+    t0 = _first_apply(record, after)
+    if t0 is None:
+        return False, {}, f"fault {after!r} was never applied"
+    base = [s for s in record.truth if s["t"] <= t0 and "arm_slips" in s]
+    before = base[-1]["arm_slips"][joint] if base else 0
+    slipped = [s["t"] for s in record.truth if s["t"] >= t0 and "arm_slips" in s
+               and s["arm_slips"][joint] > before]
+    start = slipped[0] if slipped else t0
+    seen = [s["t"] for s in record.arm_samples if s["t"] >= start and "slip" in s
+            and flag == "slip" and s["slip"][joint]]
+    if not seen:
+        return False, {"samples": len(record.arm_samples)}, f"{flag} of J{joint + 1} never seen"
+    latency = round((seen[0] - start) * 1e3, 3)
+    measured = {"latency_ms": latency, "after_fault_ms": round((seen[0] - t0) * 1e3, 3)}
+    return (latency <= within_ms, measured,
+            f"{flag} of J{joint + 1} reported {latency} ms after the plant slipped "
+            f"({measured['after_fault_ms']} ms after {after})")
+
+
+def servo_error(record: RunRecord, joint: str, bit: str, after: str, within_ms: float,
+                cleared_by: str | None) -> Verdict:
+    t0 = _first_apply(record, after)
+    if t0 is None:
+        return False, {}, f"fault {after!r} was never applied"
+    seen = [s["t"] for s in record.arm_samples if s["t"] >= t0
+            and bit in s.get("errors", {}).get(joint, [])]
+    if not seen:
+        return False, {}, f"{bit} of {joint} never reported"
+    measured: dict[str, Any] = {"latency_ms": round((seen[0] - t0) * 1e3, 3)}
+    ok = measured["latency_ms"] <= within_ms
+    message = f"{bit} of {joint} reported {measured['latency_ms']} ms after {after}"
+    if cleared_by is not None:
+        end = record.actions[cleared_by]["t_end"]
+        later = [s for s in record.arm_samples if s["t"] > end and "errors" in s]
+        still = sum(1 for s in later if bit in s["errors"].get(joint, []))
+        measured.update(samples_after_clear=len(later), still_reported=still)
+        ok = ok and bool(later) and still == 0
+        message += f"; {still} of {len(later)} reads after {cleared_by} still report it"
+    return ok, measured, message
+
+
+def fault_applied(record: RunRecord, label: str, count: int) -> Verdict:
+    n = len(record.fault_times(label))
+    return n == count, {"applied": n}, f"{label} applied {n} times (expected {count})"
+
+
+def node_state(record: RunRecord, node: str, state: str) -> Verdict:
+    """At the end: ``state`` is ``running``, ``bootloader`` or ``off``."""
+    info = record.nodes.get(node)
+    if info is None:
+        return False, {}, f"no node {node!r}"
+    actual = ("off" if not info["powered"] else
+              "bootloader" if info["program"] == "bootloader" else "running")
+    return actual == state, {"state": actual}, f"{node} is {actual}"
+
+
+CHECKS: dict[str, Callable[..., Verdict]] = {
+    "action_ok": action_ok, "action_fails": action_fails, "finger_event": finger_event,
+    "fingers_present": fingers_present, "no_unsent_frames": no_unsent_frames,
+    "flash_verified": flash_verified, "arm_flag": arm_flag, "servo_error": servo_error,
+    "fault_applied": fault_applied, "node_state": node_state,
+}

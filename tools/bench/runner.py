@@ -1,0 +1,310 @@
+"""Run one scenario on the in-process emulator (fast mode) and judge its assertions.
+
+:func:`run_scenario` builds the emulator of the scenario's configuration and seed, brings
+the hand up (``ready``), loads the fault plan (its times count from there), performs the
+host actions through the host library (``host.hand``, ``host.arm``, the ``bootloader``
+engine) on the emulator's in-process transports, and records: the fault timeline, each
+action's outcome and times, finger events, the host's status samples (``stream``,
+``arm_stream``) and, every 10 ms, the plant's truth (finger contacts and power, arm joint
+angles).  Then each assertion is judged on that record, with the figures it measured.
+
+Times in results are simulation seconds from the moment the plan was loaded.  A result is
+plain data (JSON), equal for equal (scenario, seed) whichever process ran it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from hil_emulator.emulator import Emulator
+from hil_emulator.faults import targets
+from host.errors import HostError
+from protocol.topology import FINGERS
+from tools.bench.assertions import judge
+from tools.bench.scenario import Scenario, Step, parse_scenario
+
+#: Period of the plant-truth samples (µs).
+TRUTH_PERIOD_US: Final = 10_000
+
+
+@dataclass
+class RunRecord:
+    """What a run observed (times in s from the plan's start)."""
+
+    t0_us: int = 0
+    timeline: list[dict[str, Any]] = field(default_factory=list)
+    actions: dict[str, dict[str, Any]] = field(default_factory=dict)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    hand_samples: list[dict[str, Any]] = field(default_factory=list)
+    arm_samples: list[dict[str, Any]] = field(default_factory=list)
+    truth: list[dict[str, Any]] = field(default_factory=list)
+    links: dict[str, dict[str, bytes]] = field(default_factory=dict)
+    nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def fault_times(self, label: str, action: str = "apply") -> list[float]:
+        """When faults labelled ``label`` were applied (or cleared), s."""
+        return [e["t_s"] for e in self.timeline if e["label"] == label
+                and e["action"] == action]
+
+
+class Bench:
+    """The emulator and the host objects one scenario's actions use."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.emu = Emulator(scenario.config, seed=scenario.seed, physics=scenario.physics,
+                            can="none")
+        self.record = RunRecord()
+        self._hand: Any = None
+        self._arm: Any = None
+
+    # ------------------------------------------------------------------ clock
+    def now_s(self) -> float:
+        """Simulation time (s) from the plan's start."""
+        return (self.emu.scheduler.now_us() - self.record.t0_us) / 1e6
+
+    def _sample_truth(self) -> None:
+        emu = self.emu
+        row: dict[str, Any] = {"t": round(self.now_s(), 6)}
+        if emu.hand is not None:
+            row["attached"] = [int(f.attached and f.data_contact) for f in emu.hand.fingers]
+            row["fmcb_on"] = [int(f.fmcb.powered) for f in emu.hand.fingers]
+        if emu.arm_plant is not None:
+            row["arm_q"] = [round(float(q), 5) for q in emu.arm_plant.joint_angles()]
+            row["arm_slips"] = [int(n) for n in emu.arm_plant.slips()]
+        self.record.truth.append(row)
+
+    # ------------------------------------------------------------------ host objects
+    @property
+    def hand(self) -> Any:
+        if self._hand is None:
+            from host.hand import Hand
+            from host.hand_session import HandSession
+
+            self._hand = Hand(HandSession(self.emu.transport("palm"), retries=1))
+            self._hand.subscribe(self._event)
+        return self._hand
+
+    def _event(self, event: Any) -> None:
+        self.record.events.append({"t": round(event.t - self.record.t0_us / 1e6, 6),
+                                   "finger": event.finger, "event": event.event})
+
+    @property
+    def arm(self) -> Any:
+        if self._arm is None:
+            from host.arm import Arm
+
+            self._arm = Arm.open(self.emu.transport("arm"))
+        return self._arm
+
+    # ------------------------------------------------------------------ running
+    def run(self) -> RunRecord:
+        emu, s = self.emu, self.scenario
+        if s.ready and (emu.hand is not None or emu.loose is not None):
+            emu.bring_up()
+        for a in s.assertions:
+            if a.kind == "no_unsent_frames":
+                emu.link_tap(a.params["link"]).record = True
+        self.record.t0_us = emu.scheduler.now_us()
+        emu.scheduler.call_every(TRUTH_PERIOD_US, self._sample_truth)
+        emu.faults.load(s.faults)
+        for step in s.actions:
+            self._act(step)
+        for ev in emu.faults.timeline:
+            d = ev.to_dict()
+            d["t_s"] = round((ev.t_us - self.record.t0_us) / 1e6, 6)
+            self.record.timeline.append(d)
+        for name, tap in emu._taps.items():
+            if tap.record:
+                self.record.links[name] = {"sent": bytes(tap.sent),
+                                           "received": bytes(tap.received)}
+        self.record.nodes = self._node_states()
+        return self.record
+
+    def _node_states(self) -> dict[str, dict[str, Any]]:
+        out: dict[str, dict[str, Any]] = {}
+        if self.emu.hand is not None:
+            for k in range(FINGERS):
+                for board in ("fmcb", "f2", "f3"):
+                    mcu = targets.node(self.emu, f"finger{k}.{board}").mcu
+                    assert mcu is not None
+                    out[f"finger{k}.{board}"] = {
+                        "powered": mcu.powered, "program": mcu.program_name,
+                        "version": ".".join(map(str, getattr(mcu.program, "fw_version", ())))}
+        return out
+
+    def _act(self, step: Step) -> None:
+        entry: dict[str, Any] = {"kind": step.kind, "t_start": round(self.now_s(), 6)}
+        try:
+            entry["result"] = getattr(self, f"_do_{step.kind}")(**step.params)
+            entry["ok"] = True
+        except HostError as exc:
+            entry["ok"] = False
+            entry["error"] = f"{type(exc).__name__}: {exc}"
+        entry["t_end"] = round(self.now_s(), 6)
+        self.record.actions[step.id] = entry
+
+    # ------------------------------------------------------------------ actions
+    def _do_wait(self, seconds: float) -> None:
+        """Let ``seconds`` pass as a host does: listening on the hand's link, so events are
+        taken in (and timed) when they arrive, not when the next action reads."""
+        if self._hand is None:
+            self.emu.step(round(seconds * 1e6))
+            return
+        transport = self._hand.session.transport
+        deadline = transport.now() + seconds
+        while (left := deadline - transport.now()) > 0:
+            self._hand.session.pump(left)
+
+    def _do_power(self, finger: int | str, state: str) -> list[str]:
+        return list(self.hand.power(finger, state))
+
+    def _do_ping(self, node: str) -> dict[str, Any]:
+        if node.startswith("arm"):
+            self.arm.bus.ping(int(node.split(".")[1]))
+            return {}
+        if node == "palm":
+            return dict(self.hand.palm.identify().to_dict())
+        finger, board = node.removeprefix("finger").split(".")
+        where = {"fmcb": "motor", "f2": "proximal", "f3": "distal"}[board]
+        return dict(getattr(self.hand.fingers[int(finger)], where).identify().to_dict())
+
+    def _do_poll(self, rate_hz: int) -> None:
+        self.hand.set_poll_rate(rate_hz)
+
+    def _do_stream(self, seconds: float, rate_hz: float) -> dict[str, Any]:
+        """Read the hand's status ``rate_hz`` times a second for ``seconds``; a read that
+        fails is recorded (no finger present) and the stream goes on."""
+        hand, t0 = self.hand, self.record.t0_us / 1e6
+        start = hand.session.now()
+        n = failed = 0
+        while n / rate_hz <= seconds:
+            wait = start + n / rate_hz - hand.session.now()
+            if wait > 0:
+                hand.session.sleep(wait)
+            try:
+                state = hand.status()
+            except HostError as exc:
+                failed += 1
+                self.record.hand_samples.append({"t": round(hand.session.now() - t0, 6),
+                                                 "present": [0] * FINGERS, "error": str(exc)})
+            else:
+                self.record.hand_samples.append({
+                    "t": round(state.t - t0, 6),
+                    "present": [int(f.present) for f in state.fingers],
+                    "joints": [[round(q, 4) for q in f.joints] for f in state.fingers]})
+            n += 1
+        return {"samples": n, "failed": failed}
+
+    def _do_move(self, targets: dict[str, list[float]], effort: int | None, timeout: float,
+                 unhomed: bool) -> dict[str, Any]:
+        result = self.hand.move_fingers({int(k): v for k, v in targets.items()},
+                                        effort=effort, timeout=timeout, unhomed=unhomed)
+        return {"settled": result.settled, "stalled": result.stalled,
+                "elapsed_s": round(result.elapsed_s, 4)}
+
+    def _do_grasp(self, fingers: list[int], closure: float, effort: int,
+                  timeout: float) -> dict[str, Any]:
+        pose = [closure * 0.2, closure, closure]
+        result = self.hand.move_fingers({k: pose for k in fingers}, effort=effort,
+                                        timeout=timeout, unhomed=True)
+        return {"settled": result.settled, "stalled": result.stalled,
+                "elapsed_s": round(result.elapsed_s, 4)}
+
+    def _do_home(self, finger: int | None) -> list[str]:
+        return [str(r) for r in self.hand.home(finger)]
+
+    def _do_flash(self, version: str, fingers: list[int], all_or_nothing: bool
+                  ) -> dict[str, Any]:
+        from bootloader.batch import run_plan
+        from bootloader.plan import make_plan
+        from protocol.image import BoardType, FirmwareImage
+
+        images = {b: FirmwareImage.build(bytes(range(256)) * 9 + version.encode()
+                                         + b.name.encode(), b, version, b.name.lower())
+                  for b in (BoardType.FMCB, BoardType.F2, BoardType.F3)}
+        report = run_plan(self.hand.session, make_plan(images, fingers,
+                                                       all_or_nothing=all_or_nothing))
+        return dict(report.to_dict())
+
+    def _do_arm_open(self) -> dict[str, Any]:
+        return {"joints": len(self.arm.steppers) + len(self.arm.servos)}
+
+    def _do_arm_torque(self, on: bool) -> None:
+        self.arm.torque(on)
+
+    def _do_arm_move(self, angles: list[float], duration: float, timeout: float
+                     ) -> dict[str, Any]:
+        state = self.arm.move(angles, duration=duration, timeout=timeout)
+        return {"errors": state[0].errors if isinstance(state, tuple) else None}
+
+    def _do_arm_stream(self, seconds: float, rate_hz: float) -> dict[str, Any]:
+        arm, transport = self.arm, self.arm.transport
+        end = transport.now() + seconds
+        period = 1.0 / rate_hz
+        n = 0
+        while transport.now() < end:
+            due = transport.now() + period
+            try:
+                state = arm.cycle()
+            except HostError as exc:
+                self.record.arm_samples.append({"t": round(self.now_s(), 6),
+                                                "error": str(exc)})
+            else:
+                self.record.arm_samples.append({
+                    "t": round(state.t - self.record.t0_us / 1e6, 6),
+                    "angles": [round(q, 5) for q in state.joints],
+                    "slip": [int(s) for s in state.slip],
+                    "errors": {k: list(v) for k, v in state.errors.items()}})
+            n += 1
+            wait = due - transport.now()
+            if wait > 0:
+                transport.sleep(wait)
+        return {"cycles": n}
+
+    def _do_arm_clear_errors(self) -> None:
+        self.arm.clear_errors()
+
+
+def run_scenario(raw: dict[str, Any], source: str = "<scenario>",
+                 keep_trace: bool = False) -> dict[str, Any]:
+    """Run the scenario table ``raw``; its result as plain data: ``passed``, one entry per
+    assertion (``passed``, ``measured``, ``message``), the actions, the timeline (and, with
+    ``keep_trace``, the samples for plots).  ``wall_s`` is the only field that varies
+    between equal runs."""
+    scenario = parse_scenario(raw, source)
+    started = time.perf_counter()
+    bench = Bench(scenario)
+    try:
+        record = bench.run()
+    finally:
+        bench.emu.close()
+    results = [judge(a, record) for a in scenario.assertions]
+    out: dict[str, Any] = {
+        "scenario": scenario.name, "source": source, "seed": scenario.seed,
+        "config": scenario.config,
+        "passed": all(r["passed"] for r in results),
+        "assertions": results,
+        "actions": record.actions,
+        "timeline": record.timeline,
+        "sim_s": round(bench.now_s(), 6),
+        "wall_s": round(time.perf_counter() - started, 3),
+    }
+    if keep_trace:
+        out["trace"] = {"truth": record.truth, "hand": record.hand_samples,
+                        "arm": record.arm_samples, "events": record.events}
+    return _plain(out)
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with tuples as lists and non-finite floats as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
