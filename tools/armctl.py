@@ -57,8 +57,9 @@ def make_parser() -> argparse.ArgumentParser:
     torque = sub.add_parser("torque", help="enable or disable every joint's torque")
     torque.add_argument("state", choices=("on", "off"))
     move = sub.add_parser("move", help="move all joints and wait until the move settles")
-    move.add_argument("--joints", nargs=N_JOINTS, type=float, required=True, metavar="RAD",
-                      help="seven joint angles J1..J7 (rad)")
+    move.add_argument("--joints", nargs="+", required=True, metavar="RAD",
+                      help="seven joint angles J1..J7 (rad), as seven values or one "
+                           "comma-separated list")
     move.add_argument("--duration", type=float, default=None, metavar="S",
                       help="take this long (s): speeds set so every joint arrives together")
     move.add_argument("--timeout", type=float, default=10.0, metavar="S",
@@ -192,7 +193,8 @@ def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _require_homed(arm, args, "move")
-    state, ok = arm.move(args.joints, duration=args.duration, timeout=args.timeout)
+    state, ok = arm.move(_joint_values(args.joints), duration=args.duration,
+                         timeout=args.timeout)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:
@@ -217,6 +219,18 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
             "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
             "waypoints": cmd_waypoints}
+
+
+def _joint_values(words: list[str]) -> list[float]:
+    """Seven joint angles (rad) from ``0 0.3 0 …`` or ``0,0.3,0,…``."""
+    parts = [p for w in words for p in w.split(",") if p.strip()]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"--joints takes numbers (rad), got {' '.join(words)!r}") from None
+    if len(values) != N_JOINTS:
+        raise UsageError(f"--joints takes {N_JOINTS} angles J1..J7 (rad), got {len(values)}")
+    return values
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
