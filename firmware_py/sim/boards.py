@@ -126,9 +126,13 @@ class _LazyApps(dict[str, ProgramFactory]):
         self._table = dict(table)
 
     def get(self, key: str, default: ProgramFactory | None = None) -> ProgramFactory | None:  # type: ignore[override]
-        if key not in self and key in self._table:
+        if not dict.__contains__(self, key) and key in self._table:
             self[key] = load_program(self._table[key])
         return super().get(key, default)
+
+    def __contains__(self, key: object) -> bool:
+        """A program this board can boot, loaded or not yet."""
+        return dict.__contains__(self, key) or key in self._table
 
 
 def make_hal(scheduler: Scheduler, board: BoardType, identity: Identity | None = None

@@ -574,3 +574,13 @@ def test_original_write_then_boot_flow_activates_on_boot() -> None:
     ask(mcu, "bl.boot")
     assert mcu.program_name == "fmcb"
     assert inspect_image(vflash(mcu), BoardType.FMCB).status == 0
+
+
+def test_a_board_knows_its_applications_before_it_has_booted_one() -> None:
+    """A reset while still in the first bootloader window, then an explicit bl.boot: the
+    board's application table names the program even though it was never loaded."""
+    from firmware_py.sim.boards import _LazyApps
+
+    apps = _LazyApps({"fmcb": "firmware_py.fmcb:FmcbApp"})
+    assert "fmcb" in apps and "palm" not in apps
+    assert dict.__len__(apps) == 0  # nothing imported by asking

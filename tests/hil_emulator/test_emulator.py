@@ -183,11 +183,16 @@ def test_python_can_virtual_channel_reaches_the_palm_in_process() -> None:
 @pytest.mark.slow
 def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
     from hil_emulator.hand_rig import PHALANGE_LOAD_MA
+    from protocol.sensor_counts import pb_current_amps, pb_current_counts
 
     emu = Emulator("hand", seed=4, can="none", physics=False)
     out = _boot_hand(emu)
     status = _routed(emu, out, 3, 0, "fmcb.status")
-    assert status is not None and status["pb_current"] == 2 * PHALANGE_LOAD_MA
+    # The original status carries the ADC's counts; the conversion is protocol's.
+    assert status is not None and status["pb_current"] == pb_current_counts(
+        2 * PHALANGE_LOAD_MA / 1000)
+    assert pb_current_amps(status["pb_current"]) == pytest.approx(
+        2 * PHALANGE_LOAD_MA / 1000, abs=0.002)
     assert _routed(emu, out, 3, 0, "fmcb.phalange_power", on=0) == {}
     emu.step(5_000)
     status = _routed(emu, out, 3, 0, "fmcb.status")

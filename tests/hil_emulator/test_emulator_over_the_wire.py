@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from host.errors import HostError
+from host.errors import HostError, ReplyTimeout
 from host.hand_session import HandSession, Target, Timeouts
 from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
@@ -172,7 +172,10 @@ def test_original_bootloader_sequence_over_a_loose_finger_port() -> None:
         assert len(page["data"]) == 256 and page["data"][:4] == b"HAND"  # the image header
         time.sleep(AUTOBOOT_WINDOW_US / 1e6 + 0.5)  # the halted bootloader does not boot by itself
         assert finger.request("identify", txn=False)["running"] == 0
-        finger.request("bl.boot", txn=False)
+        try:
+            finger.request("bl.boot", txn=False)
+        except ReplyTimeout:
+            pass  # the ack came late (a busy machine); the application answering is the check
         ident = _until(lambda: _running(finger.request("identify", txn=False)), 2)
         assert ident["board"] == 2
         assert finger.request("ping", txn=False) == {}  # the application answers ping too

@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 
+from hil_emulator.bring_up import BOOT_US
 from hil_emulator.hand_rig import HandRig
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
@@ -49,15 +50,15 @@ def booted_hand() -> HandRig:
     """A hand with the palm booted, all fingers at full power and phalanges powered."""
     rig = HandRig(line_model=True, seed=3)
     rig.power_on()
-    rig.run_for(4 * S)  # palm bootloader window, then the palm application
+    rig.run_for(BOOT_US)  # palm bootloader window, then the palm application
     assert rig.palm.program_name == "palm"
     ask(rig, "palm.finger_power", finger=0xFF, state=2, stagger_ms=5)
-    rig.run_for(4 * S)  # fmcb bootloaders, then the applications
+    rig.run_for(BOOT_US)  # fmcb bootloaders, then the applications
     for k in range(4):
         assert ask(rig, "palm.finger_power", finger=k, state=2, stagger_ms=0)["states"] == [2] * 4
         status, _ = route(rig, k, 0, "fmcb.phalange_power", on=1)
         assert status == 0
-    rig.run_for(4 * S)  # phalange bootloaders, then f2/f3 applications
+    rig.run_for(BOOT_US)  # phalange bootloaders, then f2/f3 applications
     return rig
 
 
@@ -91,9 +92,9 @@ def test_phalange_tactile_reaches_the_host_through_the_tunnel(booted_hand: HandR
 def test_breakaway_is_reported_and_the_finger_comes_back() -> None:
     rig = HandRig()
     rig.power_on()
-    rig.run_for(4 * S)
+    rig.run_for(BOOT_US)
     ask(rig, "palm.finger_power", finger=1, state=2, stagger_ms=0)
-    rig.run_for(4 * S)
+    rig.run_for(BOOT_US)
     ask(rig, "palm.poll", rate_hz=50)
     rig.run_for(200_000)
     assert ask(rig, "palm.hand_status")["fingers"][1]["present"] == 1
@@ -107,7 +108,7 @@ def test_breakaway_is_reported_and_the_finger_comes_back() -> None:
     status, _ = route(rig, 1, 0, "ping")
     assert status != 0
     rig.reattach(1)
-    rig.run_for(4 * S)  # its bootloader window, then the application
+    rig.run_for(BOOT_US)  # its bootloader window, then the application
     assert rig.fingers[1].fmcb.program_name == "fmcb"
     assert route(rig, 1, 0, "ping")[0] == 0
     rig.run_for(300_000)

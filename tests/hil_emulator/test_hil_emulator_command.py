@@ -43,12 +43,13 @@ def test_every_configuration_starts_names_its_ports_and_cleans_up(config: str,
             assert info["fingers"] == []
         ports = [info[k] for k in ("palm", "arm", "can") if info.get(k)] + info["fingers"]
         assert ports and all(_is_tty(p) for p in ports)
-        made = sorted(p.name for p in links.iterdir())
+        made = sorted(p.name for p in links.iterdir() if p.name != "control")
         expected_links = sorted({"loose-finger": ["finger0"]}.get(
             config, [k for k in ("palm", "arm", "can") if k in EXPECTED[config]]))
         assert made == expected_links
         for name in made:
             assert os.path.realpath(links / name) in ports
+        assert (links / "control").is_socket()  # the fault-injection control channel
     assert list(links.iterdir()) == []  # links removed on exit
 
 
