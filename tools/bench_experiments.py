@@ -418,19 +418,20 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6)
 
 
 def finger_deadband(seed: int = DEFAULT_SEED) -> Outcome:
-    """A finger moved to joint targets through the host (loose finger on its cable): how
-    far the plant's joints stop from them."""
+    """Finger 0 of the hand moved to joint targets through the host (palm link): how far
+    the plant's joints stop from them."""
     from host.hand import Hand
 
-    emulator = Emulator("loose-finger", seed=seed)
+    emulator = Emulator("hand", seed=seed)
     emulator.bring_up()
-    hand = Hand.open(emulator.transport("finger0"))
+    hand = Hand.open(emulator.transport("palm"))
     worst = 0.0
     try:
         finger = hand.fingers[0]
         plant = emulator.finger_plants[0]
         for target in ((0.0, 0.5, 0.4), (0.2, 0.9, 0.7), (-0.2, 0.3, 0.2)):
             finger.move(target, timeout=4.0, unhomed=True)
+            hand.session.transport.sleep(1.0)  # the host's settle test allows a margin
             q = plant.joint_angles()
             worst = max(worst, *(abs(a - b) for a, b in zip(q, target, strict=True)))
     finally:
@@ -446,9 +447,9 @@ def tactile_coin(seed: int = DEFAULT_SEED, cycles: int = 4) -> Outcome:
     the taxels read through the host; the loaded step over the unloaded noise (1 σ)."""
     from host.hand import Hand
 
-    emulator = Emulator("loose-finger", seed=seed)
+    emulator = Emulator("hand", seed=seed)
     emulator.bring_up()
-    hand = Hand.open(emulator.transport("finger0"))
+    hand = Hand.open(emulator.transport("palm"))
     plant = emulator.finger_plants[0]
     clock = hand.session.transport
     samples: list[tuple[float, bool, list[int]]] = []
@@ -468,12 +469,16 @@ def tactile_coin(seed: int = DEFAULT_SEED, cycles: int = 4) -> Outcome:
     t = np.array([s[0] for s in samples])
     on = np.array([s[1] for s in samples])
     taxels = np.array([s[2] for s in samples], dtype=float)
-    settled = np.concatenate(([False], on[1:] == on[:-1]))  # skip each change's first
+    phase = np.floor((t - t[0]) / 1.0).astype(int)
+    start = np.array([t[phase == k].min() for k in phase])
+    settled = t - start >= 0.3  # each phase after the pad has settled
     base = taxels[~on & settled]
     load = taxels[on & settled]
     step = load.mean(axis=0) - base.mean(axis=0)
     best = int(np.argmax(np.abs(step)))
-    noise = float(base[:, best].std()) or 1.0
+    # the noise floor: the spread within each unloaded phase (drift between phases apart)
+    noise = float(np.median([taxels[(phase == k) & settled, best].std()
+                             for k in sorted(set(phase[~on].tolist()))])) or 1.0
     snr = abs(float(step[best])) / noise
     return Outcome("tactile", [Row(
         "tactile: 2 g coin on the pad over the noise floor (fig. 6.11)",
