@@ -13,8 +13,8 @@ from protocol.dynamixel import ErrorBit, StatusPacket, make_read, make_write
 from protocol.image import BoardType
 from tests.firmware.dxl_bench import transact as dxl_transact
 
-#: Microsteps per joint count with the defaults: 6.00 x 200 x 16 / 10 000.
-K = 600 * 200 * 16 / 1_000_000
+#: Microsteps per joint count with the defaults: 6.00 x 200 x 10 / 10 000.
+K = 600 * 200 * 10 / 1_000_000
 
 
 def transact(sched: Scheduler, hal: VirtualHal, raw: bytes) -> list[StatusPacket]:
@@ -80,7 +80,7 @@ def test_moves_to_goal_within_velocity_and_acceleration_limits(node):
     assert abs(read(sched, hal, "step_count") - 1000 * K) <= 2
     assert stepper.rate == 0.0
     assert not read(sched, hal, "status_flags") & StepperFlag.MOVING
-    assert stepper.current == 300  # holding current at standstill
+    assert stepper.current == 2000  # holding current at standstill (= run current)
 
 
 def test_torque_off_means_no_current_and_no_steps(node):
@@ -91,7 +91,7 @@ def test_torque_off_means_no_current_and_no_steps(node):
     assert hal.stepper().current == 0 and hal.stepper().rate == 0.0
     write(sched, hal, "torque_enable", 1)
     sched.run_for(20_000)
-    assert hal.stepper().current == 800  # run current while moving
+    assert hal.stepper().current == 2000  # run current while moving
     assert hal.stepper().rate > 0
     write(sched, hal, "torque_enable", 0)
     sched.run_for(2_000)
