@@ -156,7 +156,10 @@ class StepperNodeApp(DynamixelSlave):
         self._max_current = get("max_current")
         self._alarm_shutdown = get("alarm_shutdown")
         self._torque_enable = get("torque_enable")
-        self._goal = get("command_goal") / GOAL_FINE_PER_COUNT
+        # The finer goal unless goal_position was changed alone (then it rules; after_write
+        # brings command_goal along for host writes).
+        goal, fine = get("goal_position"), get("command_goal") / GOAL_FINE_PER_COUNT
+        self._goal = fine if _round_half_away(fine) == goal else float(goal)
         self._deflection_offset = get("deflection_offset")
         self._velocity_limit = get("velocity_limit")
         self._acceleration_limit = get("acceleration_limit")
@@ -313,7 +316,7 @@ class StepperNodeApp(DynamixelSlave):
         """The commanded joint velocity (counts/s) for the next tick, with the step counter
         at ``hw_steps`` and ``mpc`` microsteps per count."""
         error = self._goal - (self._enc0 + (hw_steps - self._hw_steps0) / mpc)
-        resolution = 1.0 / mpc  # one microstep, in counts
+        resolution = 0.5 / mpc  # half a microstep, in counts: goals round to microsteps
         dt = _DT
         v_max = float(self._velocity_limit)
         if v_max * mpc > STEPPER_MAX_STEP_RATE:
