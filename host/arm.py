@@ -26,8 +26,8 @@ range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocit
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
 :data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
 ``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
-alarm bits come in every status packet's error byte.  That is 191 bytes per cycle with the
-seven goals (~519 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
+alarm bits come in every status packet's error byte.  That is 199 bytes per cycle with the
+seven goals (~498 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
 ``step_count`` plus ``deflection`` instead would cost 18 + 18 bytes more per stepper).
 The stepper's goal is not in the block: the state reports the goal this arm last sent
 (learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;

@@ -20,8 +20,8 @@ from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
-    RX64_POSITION_MAX,
     ARM_STEPPER_JOINTS,
+    RX64_POSITION_MAX,
     STEPPER_DEFAULT_CURRENT_MA,
     STEPPER_FULL_STEPS_PER_REV,
     STEPPER_MICROSTEPPING,

@@ -30,7 +30,7 @@ import numpy as np
 
 from hil_emulator.emulator import Emulator
 from host.arm import Arm
-from host.arm_control import JointController, PidGains, Trajectory, TrackingLog, timed_path
+from host.arm_control import JointController, PidGains, TrackingLog, Trajectory, timed_path
 from host.arm_state import N_JOINTS
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
@@ -280,6 +280,16 @@ def base_step(seed: int = DEFAULT_SEED, steps: int = 10) -> Outcome:
             f"{count_mm:.2f} mm", "±10 %", within(count_mm, 0.64), value=count_mm)])
 
 
+def _holding(goal: Sequence[float]) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
+    """A trajectory standing at ``goal`` (rad)."""
+    q = np.array(goal, dtype=float)
+
+    def trajectory(_t: float) -> tuple[np.ndarray, np.ndarray]:
+        return q, np.zeros(N_JOINTS)
+
+    return trajectory
+
+
 def _ringing_frequency(t: np.ndarray, x: np.ndarray) -> float:
     """Frequency (Hz) of a decaying oscillation from its crossings of the final value (the
     mean of the last quarter; two full periods from the first crossing)."""
@@ -397,8 +407,7 @@ def step_responses(seed: int = DEFAULT_SEED) -> Outcome:
             target = list(pose)
             target[joint] += math.radians(step_deg)
             log = TrackingLog()
-            control.run(lambda _t, target=target: (np.array(target), np.zeros(N_JOINTS)),
-                        window, log)
+            control.run(_holding(target), window, log)
             t = np.array(log.t) - log.t[0]
             angle = np.degrees(np.array(log.measured)[:, joint] - pose[joint])
             curves[loop] = (t.tolist(), angle.tolist())
