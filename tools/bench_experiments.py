@@ -440,7 +440,7 @@ REPEAT_TARGETS: Final = (
 def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
                   settle_timeout_s: float = 12.0) -> Outcome:
     """Figure 5.7: closed loop, home ↔ eight distant locations; the flange at home after
-    each return, once the host's PID has settled there (encoders within a count), from the
+    each return, once the host's PID has settled there (encoders within two counts), from the
     plant rounded to the tracker's 0.1 mm.  Repeatability as the
     largest distance from the points' mean (and ISO 9283's mean + 3σ)."""
     emulator, arm = open_arm(seed)
@@ -450,10 +450,11 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
     count = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
 
     def settled(state: Any) -> bool:
-        """The host's own test: steppers within a count of home and still, servos within
-        one pot unit (0.29°) or their compliance margin's."""
+        """The host's own test: steppers within two counts of home (the PID hunts across a
+        count against the bearings' stiction) and still, servos within their compliance
+        margin (0.34°)."""
         error = np.abs(home - np.array(state.joints))
-        return bool(np.all(error[:4] <= 1.01 * count) and np.all(error[4:] <= 0.006)
+        return bool(np.all(error[:4] <= 2.01 * count) and np.all(error[4:] <= 0.006)
                     and all(abs(s.velocity) < 0.002 for s in state.steppers))
 
     go(control, REPEAT_HOME, speed=speed, settle_s=3.0)
