@@ -3,8 +3,8 @@
 One cycle = SYNC_WRITE of the seven goals (stepper goals and servo goals: two packets, the
 models' goal registers differ) + BULK_READ of the seven nodes' state (what
 :class:`host.arm.Arm` reads: the 13-byte cycle block per stepper node, 8 bytes per RX-64),
-nodes in fast mode (return delay 0): 191 bytes per cycle (211 before the stepper nodes had
-the cycle block, ≈ 470 cycles/s).
+nodes in fast mode (return delay 0): 199 bytes per cycle with the stepper command block
+(191 with 4-byte goals; 211 before the stepper nodes had the cycle block, ≈ 470 cycles/s).
 
 * **Bound**: the cycle's bytes at 1 Mbaud, 10 bits per byte, plus one 2 µs turnaround per
   reply and one back to the host, plus the return delays (0 here): the most cycles per

@@ -10,14 +10,23 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   ``gear_reduction_x100 * steps_per_rev * microstepping / 1 000 000`` (0.01 × reduction ×
   steps per motor rev × microsteps per step / 10 000 counts per joint rev).
 * ``goal_position`` starts at the encoder count at power-up, so enabling torque holds still.
+  ``command_goal`` is the same goal in 1/16 counts (:data:`GOAL_FINE_PER_COUNT`): writing
+  either sets the other (``goal_position`` to the nearest count), and the node steps towards
+  the finer one, so a host can command single microsteps.
+* The step generator never runs faster than the controller's maximum step rate
+  (:data:`protocol.robot.STEPPER_MAX_STEP_RATE` microsteps/s), whatever ``velocity_limit``
+  says.
 * ``step_count`` = hardware step counter since power-up, minus the offset recorded by
   ``clear_flags`` ZERO_STEP_COUNT.  ``present_position`` = encoder count.
 * ``deflection`` = motor angle after the reduction minus joint angle, both relative to
   power-up, in joint counts: ``round(steps_since_power_up / microsteps_per_count) -
   (encoder - encoder_at_power_up)``, clamped to int16 (ZERO_STEP_COUNT does not change it).
-* |deflection| > ``slip_threshold`` latches SLIP (the motor could not have followed its own
-  steps); |deflection| > ``deflection_limit`` latches STALLED, reported as the OVERLOAD alarm
-  bit.  Over-temperature (sensor ``temperature``, 0.1 °C) and supply (``supply_mv``) outside
+* |deflection − deflection_offset| > ``slip_threshold`` latches SLIP (the motor could not
+  have followed its own steps); the same over ``deflection_limit`` latches STALLED, reported
+  as the OVERLOAD alarm bit.  ``deflection_offset`` (counts) is what the host knows the
+  node's deflection differs from the elastic element's by: the belt and cable routes turn
+  the capstan by ``C·Δq`` of the joints before it, which the node cannot see (the host
+  writes ``−C·Δq`` every cycle with the goal, in the command block; 0 = none).  Over-temperature (sensor ``temperature``, 0.1 °C) and supply (``supply_mv``) outside
   the voltage limits are live alarm bits.  An alarm in ``alarm_shutdown`` turns the torque
   off (``torque_enable`` := 0); the host clears the cause and enables it again.
 * The first index pulse after power-up (or after REARM_INDEX) latches ``index_step_count``
@@ -47,9 +56,15 @@ from collections import deque
 
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
-from protocol.control_tables import STEPPER_TABLE, Register, StepperClear, StepperFlag
+from protocol.control_tables import (
+    GOAL_FINE_PER_COUNT,
+    STEPPER_TABLE,
+    Register,
+    StepperClear,
+    StepperFlag,
+)
 from protocol.dynamixel import ErrorBit
-from protocol.robot import ARM_ENCODER_COUNTS_PER_REV
+from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, STEPPER_MAX_STEP_RATE
 
 #: Control tick period (µs): 1 kHz.
 TICK_US = 1_000
@@ -107,6 +122,7 @@ class StepperNodeApp(DynamixelSlave):
         "min_voltage_limit", "max_voltage_limit", "max_current", "alarm_shutdown",
         "torque_enable", "goal_position", "velocity_limit", "acceleration_limit",
         "slip_threshold", "deflection_limit", "run_current", "holding_current",
+        "command_goal", "deflection_offset",
     })
 
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
@@ -123,8 +139,9 @@ class StepperNodeApp(DynamixelSlave):
         self._mpc = 0.0
         self._temperature_limit = self._min_voltage = self._max_voltage = 0
         self._max_current = self._alarm_shutdown = self._torque_enable = 0
-        self._goal = self._velocity_limit = self._acceleration_limit = 0
-        self._slip_threshold = self._deflection_limit = 0
+        self._goal = 0.0  # counts (command_goal / 16)
+        self._velocity_limit = self._acceleration_limit = 0
+        self._slip_threshold = self._deflection_limit = self._deflection_offset = 0
         self._run_current = self._holding_current = 0
 
     # ------------------------------------------------------------------ hooks
@@ -139,7 +156,11 @@ class StepperNodeApp(DynamixelSlave):
         self._max_current = get("max_current")
         self._alarm_shutdown = get("alarm_shutdown")
         self._torque_enable = get("torque_enable")
-        self._goal = get("goal_position")
+        # The finer goal unless goal_position was changed alone (then it rules; after_write
+        # brings command_goal along for host writes).
+        goal, fine = get("goal_position"), get("command_goal") / GOAL_FINE_PER_COUNT
+        self._goal = fine if _round_half_away(fine) == goal else float(goal)
+        self._deflection_offset = get("deflection_offset")
         self._velocity_limit = get("velocity_limit")
         self._acceleration_limit = get("acceleration_limit")
         self._slip_threshold = get("slip_threshold")
@@ -153,7 +174,7 @@ class StepperNodeApp(DynamixelSlave):
         self._velocity = 0.0
         self._flags = 0
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
-        self.set("goal_position", self._enc0)
+        self._set_goal_counts(self._enc0)
         self.stepper.set_step_rate(0.0)
         self.stepper.set_current(0)
         self.encoder.set_index_callback(self._on_index)
@@ -165,6 +186,12 @@ class StepperNodeApp(DynamixelSlave):
 
     def after_write(self, touched: list[Register]) -> None:
         names = {r.name for r in touched}
+        if "command_goal" in names:
+            fine = self.get("command_goal")
+            self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
+            self._goal = fine / GOAL_FINE_PER_COUNT
+        elif "goal_position" in names:
+            self._set_goal_counts(self.get("goal_position"))
         if "clear_flags" in names:
             self._clear(self.get("clear_flags"))
             self.set("clear_flags", 0)
@@ -175,6 +202,13 @@ class StepperNodeApp(DynamixelSlave):
 
     def alarm_bits(self) -> int:
         return self._hardware_errors()
+
+    def _set_goal_counts(self, counts: int) -> None:
+        """``goal_position`` := ``counts`` and ``command_goal`` with it (1/16 counts)."""
+        self.set("goal_position", counts)
+        fine = STEPPER_TABLE["command_goal"]
+        low, high = fine.encodable
+        self.set("command_goal", max(low, min(high, counts * GOAL_FINE_PER_COUNT)))
 
     # ------------------------------------------------------------------ quantities
 
@@ -248,7 +282,9 @@ class StepperNodeApp(DynamixelSlave):
         # deflection: SLIP and STALLED latch
         value = round((hw_steps - self._hw_steps0) / mpc) - (enc - self._enc0)
         deflection = _INT16_MIN if value < _INT16_MIN else _INT16 if value > _INT16 else value
-        size = -deflection if deflection < 0 else deflection
+        size = deflection - self._deflection_offset
+        if size < 0:
+            size = -size
         if size > self._slip_threshold:
             self._flags |= _SLIP
         if size > self._deflection_limit:
@@ -280,9 +316,11 @@ class StepperNodeApp(DynamixelSlave):
         """The commanded joint velocity (counts/s) for the next tick, with the step counter
         at ``hw_steps`` and ``mpc`` microsteps per count."""
         error = self._goal - (self._enc0 + (hw_steps - self._hw_steps0) / mpc)
-        resolution = 1.0 / mpc  # one microstep, in counts
+        resolution = 0.5 / mpc  # half a microstep, in counts: goals round to microsteps
         dt = _DT
         v_max = float(self._velocity_limit)
+        if v_max * mpc > STEPPER_MAX_STEP_RATE:
+            v_max = STEPPER_MAX_STEP_RATE / mpc
         accel = float(self._acceleration_limit)
         velocity = self._velocity
         size = abs(error)
@@ -339,3 +377,8 @@ class StepperNodeApp(DynamixelSlave):
         _HW_VOLT_TEMP.pack_into(image, _HW_VOLT_TEMP_AT, errors,
                                 0 if volts < 0 else 255 if volts > 255 else volts,
                                 0 if degrees < 0 else 255 if degrees > 255 else degrees)
+
+
+def _round_half_away(value: float) -> int:
+    """``value`` rounded to the nearest integer, halves away from zero (as firmware does)."""
+    return int(math.floor(value + 0.5)) if value >= 0 else -int(math.floor(-value + 0.5))

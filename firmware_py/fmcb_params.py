@@ -79,7 +79,8 @@ def _joint_limits() -> list[ParamSpec]:
 FMCB_PARAMS: Final[tuple[ParamSpec, ...]] = (
     ParamSpec("kp", "f32", 1.0, "[PWM/255 per hall count] proportional gain"),
     ParamSpec("kd", "f32", 0.002, "[PWM/255 per hall count/s] derivative gain"),
-    ParamSpec("deadband", "u32", 50, "[hall counts] no effort while |error| is within it"),
+    ParamSpec("deadband", "u32", 2, "[hall counts] no effort while |error| is within it "
+              "(2: at most 0.44° of J0, 0.19° of J1, 0.09° of J2 through the coupling)"),
     ParamSpec("max_effort", "u32", 255, "[1/255 of full PWM] board-wide effort clamp"),
     *_joint_limits(),
     ParamSpec("breaker_ma", "u32", 200, "[mA] phalange-bus breaker threshold"),

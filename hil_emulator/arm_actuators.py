@@ -22,10 +22,15 @@ tubes give, with deflection ``δ = φ − q``,
 tubes compressed solid beyond ``±travel`` (±4°), stiffness ``s·k`` there.  By virtual work the
 cable circuit also loads the joints it is routed around: generalised force ``−Cᵀ·τ``.
 
-**Stepper torque capacity.**  Holding torque at the joint ``k_T · I · G`` (``k_T`` N·m/A at
-the motor, ``I`` the commanded current); while stepping the pull-out torque is that over
-``holding_margin`` (1.6: the dissertation's controllers held ~60 % more than the maximum
-moving torque); with no current only the detent torque ``G·T_detent`` resists.  A coupling
+**Stepper torque capacity** (a torque–speed curve).  Holding torque at the joint
+``k_T · I · G`` (``k_T`` N·m/A at the motor, ``I`` the commanded current) at standstill;
+while stepping at ``f`` full steps/s the pull-out torque is
+
+    T_po(f) = k_T · I · G / holding_margin · min(1, f_c / f)
+
+— the maximum moving torque (holding / 1.6: the dissertation's controllers held ~60 % more
+than the maximum moving torque) up to the corner ``f_c``, then falling as ``f_c / f``
+(constant power); with no current only the detent torque ``G·T_detent`` resists.  A coupling
 torque beyond the capacity makes the rotor slip: it slides, transmitting just its capacity
 (:func:`deflection_at_torque`), until the torque is back under it, and then re-locks to an
 electrical equilibrium, a whole number of electrical periods (4 full steps) from where the
@@ -52,8 +57,11 @@ from protocol.robot import (
     ARM_ROUTE_COUPLING,
     SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
     STEPPER_FULL_STEPS_PER_REV,
+    STEPPER_HOLDING_MARGIN,
     STEPPER_MICROSTEPPING,
+    STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S,
     STEPPER_REDUCTIONS,
+    STEPPER_TORQUE_CONSTANT_NM_PER_A,
 )
 
 #: Electrical period of a two-phase hybrid stepper: 4 full steps.
@@ -73,26 +81,28 @@ DEFAULT_COUPLING: Final = ARM_ROUTE_COUPLING
 class ArmParams:
     """Constants of the arm plant (joint side unless named otherwise; arrays are J1..J4).
 
-    Defaults: NEMA-34 steppers on J1/J2 (``k_T`` 4.4 N·m/A, e.g. 8.8 N·m holding at 2 A),
-    NEMA-23 on J3/J4 (1.2 N·m/A).  At the firmware's default run current (800 mA) the
-    maximum moving torques are 13.2, 22.0, 7.8, 7.8 N·m and the holding torques 1.6× that
-    (21.1, 35.2, 12.5, 12.5 N·m).  The firmware drops to its default holding current
-    (300 mA) at standstill: holding torques 7.9, 13.2, 4.7, 4.7 N·m (0.6× the moving
-    maximum), enough for the arm's own weight in any pose (J2 outstretched: 10.1 N·m; J4
-    with the forearm horizontal: 2.2 N·m), though not for a 1 kg hand held outstretched;
-    ``holding_current = run_current`` gives the dissertation's 1.6 margin at standstill.
+    Defaults: :data:`protocol.robot.STEPPER_TORQUE_CONSTANT_NM_PER_A` (NEMA-34 on J1/J2,
+    NEMA-23 on J3/J4).  At the firmware's default run and holding current (2000 mA) the
+    maximum moving torques are 19.7, 32.75, 14.0, 14.0 N·m and the holding torques 1.6×
+    that (31.4, 52.4, 22.4, 22.4 N·m); J2 outstretched carries 10.15 N·m of arm and 0.18 of
+    the elbow's torque through the routes, so 2.0 kg at the flange is what it can move
+    slowly (§5.6).
     """
 
     #: Coupling stiffness (N·m/rad), :data:`protocol.robot.SERIES_ELASTIC_STIFFNESS_NM_PER_RAD`.
     stiffness: np.ndarray = field(
         default_factory=lambda: _vec(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD))
-    #: Viscous damping of the polyurethane (N·m·s/rad): damping ratio ~0.04 for J2 and the
-    #: elbow, more for the lighter J1/J3 loads.
-    damping: np.ndarray = field(default_factory=lambda: _vec((0.8, 1.2, 0.25, 0.2)))
+    #: Viscous damping of the polyurethane (N·m·s/rad): damping ratio ~0.1 for J2
+    #: outstretched, ~0.04 for the elbow, more for the lighter J1/J3 loads.
+    damping: np.ndarray = field(default_factory=lambda: _vec((0.8, 4.0, 0.25, 0.2)))
     #: Hysteresis torque (N·m): half the height of the loading/unloading loop.
     hysteresis: np.ndarray = field(default_factory=lambda: _vec((0.3, 0.4, 0.15, 0.1)))
-    #: Deflection over which the hysteresis state turns round (rad).
-    hysteresis_width_rad: float = 0.003
+    #: Deflection over which the hysteresis state turns round (rad).  Its slope for small
+    #: oscillations, ``h / width``, adds to ``k``: 0.1 / 0.015 = 6.7 N·m/rad for the elbow
+    #: (86 N·m/rad), so the elbow rings at 5.1–5.3 Hz from small to large amplitudes, the
+    #: dissertation's ``sqrt(k/I)/2π`` with the quasi-static loop's ``k`` (figure 5.6);
+    #: 0.003 made small oscillations 40 % stiffer (5.9 Hz).
+    hysteresis_width_rad: float = 0.015
     #: Soft travel of the tubes each way (rad), and the stiffness factor beyond it.
     travel_rad: np.ndarray = field(default_factory=lambda: np.full(4, math.radians(4.0)))
     stop_stiffness_factor: float = 10.0
@@ -102,14 +112,22 @@ class ArmParams:
     reductions: np.ndarray = field(default_factory=lambda: _vec(STEPPER_REDUCTIONS))
     #: Stepper torque constants at the motor shaft (N·m/A): holding torque = k_T · current.
     torque_constant_nm_per_a: np.ndarray = field(
-        default_factory=lambda: _vec((4.4, 4.4, 1.2, 1.2)))
+        default_factory=lambda: _vec(STEPPER_TORQUE_CONSTANT_NM_PER_A))
     #: Detent (unpowered cogging) torque at the motor shaft (N·m).
     detent_torque_nm: np.ndarray = field(default_factory=lambda: _vec((0.15, 0.15, 0.05, 0.05)))
     #: Holding torque over maximum moving (pull-out) torque at the same current.
-    holding_margin: float = 1.6
+    holding_margin: float = STEPPER_HOLDING_MARGIN
+    #: Corner of the pull-out curve (full steps/s): constant torque below, ``∝ 1/f`` above.
+    pull_out_corner_full_steps_per_s: float = STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S
     #: Motor full steps per rev and the drivers' microstepping (the nodes' EEPROM values).
     full_steps_per_rev: int = STEPPER_FULL_STEPS_PER_REV
     microstepping: int = STEPPER_MICROSTEPPING
+    #: Coulomb friction (stiction) of the joint bearings of J1..J4 at the joint (N·m): the
+    #: capstan hub's bearings and cable pulleys; each plant draws its own from
+    #: ``friction_spread`` (relative, 1 σ, log-normal) with its seed, as arms differ.
+    bearing_friction_nm: np.ndarray = field(default_factory=lambda: _vec((0.05, 0.1, 0.05,
+                                                                          0.05)))
+    friction_spread: float = 0.25
     #: On re-locking after a slip the rotor settles 0..this many electrical periods further on
     #: in the slip's direction (random, as long as the coupling stays within capacity).
     slip_overshoot_periods: int = 2
@@ -145,6 +163,7 @@ class ArmParams:
 
     def __post_init__(self) -> None:
         for name in ("stiffness", "damping", "hysteresis", "travel_rad", "reductions",
+                     "bearing_friction_nm",
                      "torque_constant_nm_per_a", "detent_torque_nm", "index_angles",
                      "phase_resistance_ohm", "stepper_thermal_resistance",
                      "stepper_thermal_capacity"):
@@ -166,6 +185,7 @@ class ArmParams:
             if np.any(getattr(self, name) <= 0):
                 raise EmulatorConfigError(f"ArmParams.{name} must be positive")
         if min(self.hysteresis_width_rad, self.stop_stiffness_factor, self.holding_margin,
+               self.pull_out_corner_full_steps_per_s,
                self.rx64_stall_torque_nm, self.rx64_no_load_speed_rad_s,
                self.rx64_stall_current_a, self.rx64_thermal_capacity,
                self.rx64_thermal_resistance) <= 0 or self.thermal_every_ticks < 1:
@@ -190,8 +210,19 @@ class ArmParams:
         return self.torque_constant_nm_per_a * self.reductions * np.asarray(current_ma) / 1000.0
 
     def max_moving_torque_nm(self, current_ma: np.ndarray | float) -> np.ndarray:
-        """Pull-out torque while stepping at the joint (N·m) for the current (mA)."""
+        """Pull-out torque while stepping slowly (below the corner) at the joint (N·m) for
+        the current (mA)."""
         return self.holding_torque_nm(current_ma) / self.holding_margin
+
+    def pull_out_torque_nm(self, current_ma: np.ndarray | float,
+                           microsteps_per_s: np.ndarray | float) -> np.ndarray:
+        """Pull-out torque at the joint (N·m) stepping at ``microsteps_per_s`` (either sign;
+        0 = standstill: the holding torque)."""
+        full = np.abs(np.asarray(microsteps_per_s, dtype=float)) / self.microstepping
+        corner = self.pull_out_corner_full_steps_per_s
+        fraction = np.where(full > corner, corner / np.maximum(full, 1e-12), 1.0)
+        moving = self.max_moving_torque_nm(current_ma) * fraction
+        return np.where(full == 0.0, self.holding_torque_nm(current_ma), moving)
 
     @property
     def detent_torque_at_joint(self) -> np.ndarray:

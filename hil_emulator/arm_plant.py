@@ -15,8 +15,10 @@ Stepper joints J1–J4, every 1 ms tick (:meth:`ArmPlant.before_step`):
   MuJoCo joint stiffness about ``qpos_spring = φ`` (re-set every tick to its mid-tick value,
   evaluated once per 1 ms step), the viscous part MuJoCo joint damping (implicit) plus ``c·φ̇``
   applied; hysteresis, solid-tube and ``−Cᵀτ`` terms are applied forces;
-* the stepper's capacity follows its commanded current (``commanded_current_ma()``): holding
-  torque at standstill, holding / 1.6 while stepping, the detent torque at 0 mA.  Beyond it
+* the stepper's capacity follows its commanded current (``commanded_current_ma()``) and
+  step rate (``commanded_rate()``): holding torque at standstill, the pull-out curve while
+  stepping (holding / 1.6 up to the corner, falling as corner / rate beyond), the detent
+  torque at 0 mA.  Beyond it
   the rotor slips by whole electrical periods (plus a random 0–2 more) until the torque is
   within capacity; :meth:`ArmPlant.slips` counts slip events of an energised motor (slips
   less than :attr:`ArmParams.slip_event_gap_s` apart are one event).  An unpowered rotor
@@ -38,8 +40,15 @@ the firmware, + = counter-clockwise = positive joint angle); sensors ``pot`` (0.
 
 Temperatures (stepper drivers and RX-64s) are refreshed every
 :attr:`ArmParams.thermal_every_ticks` ticks (10 ms by default); everything else every tick.
-Random draws (pot noise, drawn in blocks of 1000 ticks, and slip overshoot) come from the
-generator given.
+Random draws (each bearing's friction, once at the first bind; pot noise, drawn in blocks
+of 1000 ticks; slip overshoot) come from the generator given.
+
+**Error sources** a closed-loop stepper arm really has, and so the arm's repeatability:
+joint encoders quantised to 0.036° (the host closes its loop on them); the polyurethane's
+hysteresis (the Dahl state remembers which way the coupling last moved); Coulomb friction
+and stiction in the joint bearings (:attr:`ArmParams.bearing_friction_nm`, drawn per arm);
+stepper slips re-locking a random 0–2 electrical periods on; the RX-64 pots' noise and
+compliance margin.
 
 Performance: the per-tick work runs on Python floats joint by joint, not numpy: with 4 + 3
 joints numpy's per-call overhead made it several times slower (≈ 220 µs per tick against
@@ -60,7 +69,7 @@ import numpy as np
 
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
-from hil_emulator.arm_model import ARM_JOINTS
+from hil_emulator.arm_model import ARM_JOINTS, FRICTION_SOLIMP
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import TICK_US
 from protocol.robot import RX64_POSITION_CENTRE, RX64_UNITS_PER_RAD
@@ -123,6 +132,8 @@ class ArmPlant:
         self._detent = _floats(p.detent_torque_at_joint)
         self._index = _floats(p.index_angles)
         self._margin = float(p.holding_margin)
+        #: Corner of the pull-out curve in microsteps/s.
+        self._corner = float(p.pull_out_corner_full_steps_per_s * p.microstepping)
         self._width = float(p.hysteresis_width_rad)
         c = p.coupling
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
@@ -180,6 +191,8 @@ class ArmPlant:
         self._noise_at = 0
         self._ticks = 0
         self._bound = False
+        #: The payload at the flange (kg, :meth:`set_payload`).
+        self.payload_kg = 0.0
 
     # ------------------------------------------------------------------ binding
 
@@ -203,6 +216,16 @@ class ArmPlant:
         if not (np.all(np.diff(qadr) == 1) and np.all(np.diff(dadr) == 1)):
             raise PlantError("the arm's joints are not one contiguous chain in the model")
         self.model, self.data = model, data
+        self._flange_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY,
+                                              self.prefix + "flange")
+        self._flange_site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE,
+                                              self.prefix + "flange")
+        if self._flange_body < 0 or self._flange_site < 0:
+            raise PlantError(f"the model has no flange body and site {self.prefix}flange")
+        if not self._bound:
+            b = self._flange_body
+            self._flange_inertial = (float(model.body_mass[b]), model.body_ipos[b].copy(),
+                                     model.body_inertia[b].copy())
         q0, d0 = int(qadr[0]), int(dadr[0])
         self._qpos = data.qpos[q0 : q0 + 7]
         self._qvel = data.qvel[d0 : d0 + 7]
@@ -217,6 +240,11 @@ class ArmPlant:
         if not self._bound:  # the model's own RX-64 gear damping, before any back-EMF
             self._gear_damping = _floats(self._damping[4:])
         self._damping[4:] = self._gear_damping
+        if not self._bound:  # this arm's bearings (seeded), drawn once
+            self._bearing_friction = p.bearing_friction_nm * np.exp(
+                p.friction_spread * self.rng.standard_normal(_N_STEPPERS))
+        model.dof_frictionloss[d0 : d0 + _N_STEPPERS] = self._bearing_friction
+        model.dof_solimp[d0 : d0 + _N_STEPPERS] = FRICTION_SOLIMP
         self._servo_enabled = [False] * _N_SERVOS
 
         q_start = self._qpos.copy()
@@ -274,7 +302,7 @@ class ArmPlant:
     def holding_torques(self) -> np.ndarray:
         """What each stepper resists now before slipping (N·m at the joint)."""
         return np.array([self._capacity(i, float(s.commanded_current_ma()),
-                                        s.commanded_rate() != 0.0)
+                                        float(s.commanded_rate()))
                          for i, s in enumerate(self._steppers)])
 
     def slips(self) -> np.ndarray:
@@ -289,6 +317,29 @@ class ArmPlant:
     def servo_torques(self) -> np.ndarray:
         """Torques the RX-64s of J5..J7 applied over the last tick (N·m)."""
         return np.array(self._servo_torque)
+
+    def set_payload(self, kg: float) -> None:
+        """Experiment: a point mass of ``kg`` (≥ 0) at the flange origin, on top of the
+        flange's own mass, from the next tick (the mass the dissertation's payload test added
+        until the shoulder slipped).  0 takes it off."""
+        self._check_bound()
+        mass = float(kg)
+        if not math.isfinite(mass) or mass < 0.0:
+            raise EmulatorConfigError(f"payload {kg!r} kg is not finite and ≥ 0")
+        model, body = self.model, self._flange_body
+        base_mass, base_ipos, base_inertia = self._flange_inertial
+        total = base_mass + mass
+        ipos = base_ipos * (base_mass / total)  # the point mass sits at the body origin
+        shift = base_mass * float(base_ipos @ base_ipos) - total * float(ipos @ ipos)
+        model.body_mass[body] = total
+        model.body_ipos[body] = ipos
+        model.body_inertia[body] = base_inertia + max(shift, 0.0) + 1e-9
+        self.payload_kg = mass
+
+    def flange_position(self) -> np.ndarray:
+        """The flange site's position in the world (m): what an optical tracker sees."""
+        self._check_bound()
+        return self.data.site_xpos[self._flange_site].copy()
 
     def push(self, joint: int, torque_nm: float) -> None:
         """Fault injection: an external torque (N·m, + = positive joint direction) on joint
@@ -309,7 +360,7 @@ class ArmPlant:
         dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
         z_all, push, deflections = self._z, self._push, self._deflection
         phi_offset, slip_rad, slipping = self._phi_offset, self._slip_rad, self._slipping
-        heat, margin = self._heat_stepper, self._margin
+        heat, margin, corner = self._heat_stepper, self._margin, self._corner
         inv_width, exp = 1.0 / self._width, math.exp
         half_dt = 0.5 * dt_s
         torques = self._coupling_torque
@@ -341,7 +392,10 @@ class ArmPlant:
             torque = k * deflection + extra + viscous
             capacity = hold_per_ma * current
             if rate:
-                capacity /= margin  # pull-out torque while stepping
+                capacity /= margin  # pull-out torque while stepping: the curve
+                speed = rate if rate > 0 else -rate
+                if speed > corner:
+                    capacity *= corner / speed
             if capacity < detent:
                 capacity = detent
             over = torque > capacity or torque < -capacity
@@ -447,11 +501,14 @@ class ArmPlant:
             phi += cij * (q[j] - self._q_start[j])
         return phi
 
-    def _capacity(self, i: int, current_ma: float, stepping: bool) -> float:
-        """Torque stepper ``i`` holds before slipping (N·m at the joint)."""
+    def _capacity(self, i: int, current_ma: float, rate: float) -> float:
+        """Torque stepper ``i`` holds before slipping (N·m at the joint) at ``current_ma``
+        stepping at ``rate`` (microsteps/s; 0 = standstill)."""
         holding = self._hold_per_ma[i] * current_ma
-        if stepping:
+        if rate:
             holding /= self._margin
+            if abs(rate) > self._corner:
+                holding *= self._corner / abs(rate)
         return max(holding, self._detent[i])
 
     def _slip(self, i: int, deflection: float, torque: float, capacity: float, z: float,

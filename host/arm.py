@@ -13,13 +13,21 @@ limits; stepper goals; servo goals, with speeds when asked) followed by one BULK
 the seven nodes' state, all sent as one write; the nodes answer in turn and the cycle
 returns an :class:`~host.arm_state.ArmState`.  Nothing else crosses the bus.
 
+**Stepper goals** go to each node's *command block* (``command_goal``, in 1/16 counts, so
+one microstep can be commanded, and ``deflection_offset``): with every goal the arm tells
+the node ``−C·Δq`` (counts; :data:`protocol.robot.ARM_ROUTE_COUPLING`, ``Δq`` the joints
+since the nodes' power-up, from the last state read), by how much the belt and cable routes
+make the node's own deflection (motor − joint) differ from its elastic element's, so the
+node's SLIP/STALLED protection watches the elastic element however the joints before it
+moved.
+
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
 :data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
 ``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
-alarm bits come in every status packet's error byte.  That is 191 bytes per cycle with the
-seven goals (~519 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
+alarm bits come in every status packet's error byte.  That is 199 bytes per cycle with the
+seven goals (~498 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
 ``step_count`` plus ``deflection`` instead would cost 18 + 18 bytes more per stepper).
 The stepper's goal is not in the block: the state reports the goal this arm last sent
 (learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;
@@ -64,7 +72,9 @@ from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from protocol.control_tables import (
+    GOAL_FINE_PER_COUNT,
     RX64_TABLE,
+    STEPPER_COMMAND_BLOCK,
     STEPPER_CYCLE_BLOCK,
     STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_TABLE,
@@ -84,6 +94,7 @@ from protocol.dynamixel import (
     rx64_position_to_radians,
     rx64_present_speed_to_rad_s,
 )
+from protocol.robot import arm_route_coupling_matrix
 
 if TYPE_CHECKING:
     from host.arm_control import CartesianMove
@@ -100,7 +111,12 @@ SERVO_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
 _STEPPER_FIELDS = struct.Struct("<iihhB")  # position, steps, velocity, deflection, flags
 _SERVO_FIELDS = struct.Struct("<HHHBB")  # position, speed, load, voltage, temperature
 assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
-_GOAL = _S["goal_position"]
+_GOAL = _S["command_goal"]
+_OFFSET = _S["deflection_offset"]
+#: The stepper command block (command_goal, deflection_offset): address and length.
+COMMAND_AT: Final = _S[STEPPER_COMMAND_BLOCK[0]].address
+COMMAND_LEN: Final = _S[STEPPER_COMMAND_BLOCK[1]].end - COMMAND_AT
+_ROUTES = [[float(c) for c in row] for row in arm_route_coupling_matrix()]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
 
@@ -114,9 +130,11 @@ class Arm:
         self.bus = bus
         self.joints = tuple(joints)
         self.return_delay: int | None = None
-        #: Each stepper node's goal (joint encoder counts): what this arm last sent, learnt
-        #: from the nodes by :meth:`read_goals`.
-        self.stepper_goals = [0] * N_STEPPERS
+        #: Each stepper node's goal (joint encoder counts, in 1/16 steps): what this arm
+        #: last sent, learnt from the nodes by :meth:`read_goals`.
+        self.stepper_goals = [0.0] * N_STEPPERS
+        #: Each stepper node's encoder count in the last state read (None before any).
+        self.stepper_counts: list[int] | None = None
         #: Absolute joint frames after homing (:mod:`host.arm_homing`); None: the nodes'
         #: frames (angles from power-up), and :attr:`homed` is False.
         self.calibration: JointCalibration | None = None
@@ -151,15 +169,24 @@ class Arm:
                 options["baud"] = ARM_BUS_BAUD
             transport = open_transport(url, **options)
         try:
-            bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
-                               retries=retries, latency_s=latency_s)
-            arm = cls(bus, discover(bus, stiffness))
-            if return_delay is not None:
-                arm.set_return_delay(return_delay)
-            arm.read_goals()
+            return cls.on(transport, return_delay=return_delay, retries=retries,
+                          latency_s=latency_s, stiffness=stiffness)
         except BaseException:
             transport.close()
             raise
+
+    @classmethod
+    def on(cls, transport: Transport, *, return_delay: int | None = FAST_RETURN_DELAY,
+           retries: int = 2, latency_s: float | None = None,
+           stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
+        """As :meth:`open`, on a transport already open (e.g. an in-process emulator's
+        ``Emulator.transport("arm")``); closing the arm closes it."""
+        bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
+                           retries=retries, latency_s=latency_s)
+        arm = cls(bus, discover(bus, stiffness))
+        if return_delay is not None:
+            arm.set_return_delay(return_delay)
+        arm.read_goals()
         return arm
 
     @property
@@ -196,11 +223,24 @@ class Arm:
         self.return_delay = units
 
     def read_goals(self) -> None:
-        """Learn each stepper node's ``goal_position`` (counts) with one BULK_READ, for the
-        states' ``goal`` (a node sets it to its encoder count at power-up)."""
+        """Learn each stepper node's goal (``command_goal``, 1/16 counts) with one
+        BULK_READ, for the states' ``goal`` (a node sets it to its encoder count at
+        power-up), then read a state: the coupling offsets sent with goals need it."""
         replies = self.bus.bulk_read([(_GOAL.size, j.dxl_id, _GOAL.address)
                                       for j in self.steppers])
-        self.stepper_goals = [_GOAL.decode(replies[j.dxl_id].params) for j in self.steppers]
+        self.stepper_goals = [_GOAL.decode(replies[j.dxl_id].params) / GOAL_FINE_PER_COUNT
+                              for j in self.steppers]
+        self.cycle()
+
+    def deflection_offsets(self) -> list[int]:
+        """What each stepper node's deflection differs from its elastic element's by, now
+        (counts): ``−C·Δq``, ``Δq`` the joints since the nodes' power-up in the last state
+        read (0 before any state)."""
+        counts = self.stepper_counts
+        if counts is None:
+            return [0] * N_STEPPERS
+        moved = [c - p for c, p in zip(counts, self.encoder_at_power_up, strict=True)]
+        return [-round(sum(c * d for c, d in zip(row, moved, strict=True))) for row in _ROUTES]
 
     # ------------------------------------------------------------------ commands as data
 
@@ -239,6 +279,7 @@ class Arm:
         """The SYNC_WRITEs that carry ``commands`` (the last command for a joint wins)."""
         torque: dict[int, bytes] = {}
         stepper_goal: dict[int, bytes] = {}
+        offsets: list[int] | None = None
         stepper_speed: dict[int, bytes] = {}
         servo: dict[int, PositionCommand] = {}
         for c in commands:
@@ -246,7 +287,11 @@ class Arm:
             if isinstance(c, TorqueCommand):
                 torque[j.dxl_id] = b"\x01" if c.on else b"\x00"
             elif j.kind == "stepper":
-                stepper_goal[j.dxl_id] = _GOAL.encode(j.rad_to_counts(c.angle))
+                if offsets is None:
+                    offsets = self.deflection_offsets()
+                offset = max(-32768, min(32767, offsets[c.joint]))
+                stepper_goal[j.dxl_id] = (_GOAL.encode(j.rad_to_fine(c.angle))
+                                          + _OFFSET.encode(offset))
                 if c.speed is not None:
                     counts = min(max(j.rad_to_counts(c.speed), 1), _S["velocity_limit"].maximum
                                  or 1_000_000)
@@ -259,7 +304,7 @@ class Arm:
         if stepper_speed:
             packets.append(make_sync_write(_S["velocity_limit"].address, 4, stepper_speed))
         if stepper_goal:
-            packets.append(make_sync_write(_S["goal_position"].address, 4, stepper_goal))
+            packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
         if servo:
             packets.append(self._servo_goals(servo))
         return packets
@@ -290,7 +335,8 @@ class Arm:
         replies = self.bus.exchange(packets, self._expected)
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
-                self.stepper_goals[c.joint] = self.joints[c.joint].rad_to_counts(c.angle)
+                self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
+                                               / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                              for s in replies})
         return state if calibration is None else calibration.state_from_node(state)
@@ -298,9 +344,11 @@ class Arm:
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
         steppers = []
+        counts = [0] * N_STEPPERS
         for i, j in enumerate(self.steppers):
             error, data = replies[j.dxl_id]
             position, steps, velocity, deflection, flags = _STEPPER_FIELDS.unpack_from(data)
+            counts[i] = position
             deflection_rad = j.counts_to_rad(deflection)
             # Where the encoder stood when the step count was 0 (the node's power-up):
             # the motor side in encoder counts is that plus the steps' worth.
@@ -321,6 +369,7 @@ class Arm:
                 joint=j.joint, angle=rx64_position_to_radians(position),
                 velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
                 temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
+        self.stepper_counts = counts
         raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
         return ArmState(t, tuple(steppers), tuple(servos), raw)
 

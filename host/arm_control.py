@@ -22,9 +22,11 @@ angles since the nodes' power-up, when motor and capstan were aligned), so a ste
     u_motor = u − C·(q_des − q_power_up)
 
 (:func:`coupling_feedforward`), which keeps each capstan where the PID wants it whatever the
-joints before it do.  The nodes know nothing of the coupling: their ``deflection`` register
-(motor after reduction − joint) then differs from the elastic element's true deflection by
-``−C·Δq``; :func:`elastic_deflections` gives the true one.
+joints before it do.  A node cannot see the other joints: its ``deflection`` register
+(motor after reduction − joint) differs from the elastic element's true deflection by
+``−C·Δq`` (:func:`elastic_deflections` gives the true one), and :meth:`host.arm.Arm.cycle`
+sends it that offset with every goal (``deflection_offset``), so its SLIP/STALLED
+protection watches the elastic element and does not trip under this compensation.
 
 **Waypoint files** are JSON lines (UTF-8, one JSON object per line)::
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Final, Literal
 
 from host.dynamixel_bus import error_names
-from protocol.control_tables import StepperFlag
+from protocol.control_tables import GOAL_FINE_PER_COUNT, StepperFlag
 from protocol.dynamixel import ErrorBit
 from protocol.robot import ARM_JOINT_NAMES, SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
 from protocol.topology import ARM_JOINTS
@@ -85,6 +85,11 @@ class JointInfo:
     def rad_to_counts(self, angle: float) -> int:
         """Rad -> the nearest joint encoder count."""
         return round(angle * self.encoder_counts_per_rev / (2.0 * math.pi))
+
+    def rad_to_fine(self, angle: float) -> int:
+        """Rad -> the nearest ``command_goal`` unit (1/16 joint encoder count)."""
+        return round(angle * self.encoder_counts_per_rev * GOAL_FINE_PER_COUNT
+                     / (2.0 * math.pi))
 
     def steps_to_rad(self, steps: int) -> float:
         """Integrated microsteps -> motor angle after the reduction (rad at the joint)."""

@@ -20,10 +20,13 @@ from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
+    ARM_STEPPER_JOINTS,
     RX64_POSITION_MAX,
+    STEPPER_DEFAULT_CURRENT_MA,
     STEPPER_FULL_STEPS_PER_REV,
     STEPPER_MICROSTEPPING,
     STEPPER_REDUCTIONS,
+    max_velocity_counts_per_s,
     reduction_x100,
 )
 
@@ -327,6 +330,14 @@ STEPPER_MODEL_NUMBER = 0x5E50
 #: The stepper node's firmware version; the first with the cycle block (addresses 76-88).
 STEPPER_CYCLE_BLOCK_FIRMWARE = 2
 _COUNTS = "joint encoder counts (0.036 deg)"
+#: ``command_goal`` units per joint encoder count: a goal finer than a count, so a host can
+#: command single microsteps (J1: 1.2 microsteps per count at 1/10 stepping).
+GOAL_FINE_PER_COUNT: Final = 16
+#: Largest ``velocity_limit`` (joint encoder counts/s): the controllers' maximum step rate
+#: (:data:`protocol.robot.STEPPER_MAX_STEP_RATE`) on the joint with the smallest reduction
+#: (J1); every node also caps its own step rate there, so J2 runs at most 2300 counts/s.
+STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
+                                            for j in range(ARM_STEPPER_JOINTS)))
 
 #: The arm stepper node: a series-elastic joint driven by a stepper motor through a
 #: reduction, with an absolute-after-index joint encoder.  Addresses 0..18 mean what they
@@ -338,7 +349,12 @@ _COUNTS = "joint encoder counts (0.036 deg)"
 #: ``step_count``, ``present_velocity`` (saturated to int16: ±32767 counts/s = ±20.6 rad/s),
 #: ``deflection`` and ``status_flags`` - in one contiguous 13-byte range, so a BULK_READ
 #: (one range per node) gets them without the 34 bytes of other registers between the
-#: originals.  The goal is not in it: the host knows what it wrote.  Nodes report
+#: originals.  Addresses 92-97 are the *command block* a host writes every cycle in one
+#: SYNC_WRITE: ``command_goal`` (the goal in 1/16 counts; writing it sets ``goal_position``
+#: to the nearest count, and writing ``goal_position`` sets it to 16×) and
+#: ``deflection_offset``, what the host knows the node's deflection is off the elastic
+#: element's by (the routes' coupling, −C·Δq in counts): SLIP and STALLED compare
+#: |deflection − deflection_offset| with their thresholds; ``deflection`` itself stays raw.  The goal is not in it: the host knows what it wrote.  Nodes report
 #: firmware_version >= :data:`STEPPER_CYCLE_BLOCK_FIRMWARE` when they have it.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
@@ -355,7 +371,7 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(8, 2, "RW", STEPPER_FULL_STEPS_PER_REV, "steps_per_rev",
             "full steps per motor rev (200 = 1.8 deg)", 1),
     _eeprom(10, 1, "RW", STEPPER_MICROSTEPPING, "microstepping",
-            "microsteps per full step (power of 2)", 1, 128),
+            "microsteps per full step (1..128)", 1, 128),
     _eeprom(11, 1, "RW", 80, "temperature_limit", "deg C (driver)", 0, 150),
     _eeprom(12, 1, "RW", 100, "min_voltage_limit", "0.1 V", 50, 250),
     _eeprom(13, 1, "RW", 250, "max_voltage_limit", "0.1 V", 50, 250),
@@ -377,14 +393,17 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
          signed=True),
     _ram(48, 4, "R", 0, "index_encoder_count", "encoder count latched at the index pulse",
          signed=True),
-    _ram(52, 4, "RW", 5000, "velocity_limit", "joint encoder counts/s", 1, 1_000_000),
-    _ram(56, 4, "RW", 20000, "acceleration_limit", "joint encoder counts/s^2", 1, 10_000_000),
+    _ram(52, 4, "RW", STEPPER_VELOCITY_LIMIT_MAX, "velocity_limit",
+         "joint encoder counts/s (the node never steps faster than its maximum step rate)", 1,
+         STEPPER_VELOCITY_LIMIT_MAX),
+    _ram(56, 4, "RW", 5000, "acceleration_limit", "joint encoder counts/s^2", 1, 10_000_000),
     _ram(60, 2, "R", 0, "deflection", "motor angle after reduction - joint angle, counts",
          signed=True),
     _ram(62, 2, "RW", 300, "slip_threshold", "counts of |deflection| flagging SLIP", 1),
     _ram(64, 2, "RW", 150, "deflection_limit", "counts of |deflection| flagging STALLED", 1),
-    _ram(66, 2, "RW", 800, "run_current", "mA while moving", 0, 3000),
-    _ram(68, 2, "RW", 300, "holding_current", "mA at standstill", 0, 3000),
+    _ram(66, 2, "RW", STEPPER_DEFAULT_CURRENT_MA, "run_current", "mA while moving", 0, 3000),
+    _ram(68, 2, "RW", STEPPER_DEFAULT_CURRENT_MA, "holding_current", "mA at standstill", 0,
+         3000),
     _ram(70, 1, "R", 0, "index_seen", "1 = index pulse latched"),
     _ram(71, 1, "R", 0, "hardware_error_status", "ErrorBit bits of the active faults"),
     _ram(72, 1, "R", 0, "present_voltage", "0.1 V"),
@@ -397,7 +416,15 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
          signed=True),
     _ram(86, 2, "R", 0, "cycle_deflection", "mirror of deflection", signed=True),
     _ram(88, 1, "R", 0, "cycle_status_flags", "mirror of status_flags"),
+    # the command block: what a host writes every cycle (see above)
+    _ram(92, 4, "RW", 0, "command_goal", "goal in 1/16 joint encoder counts", signed=True),
+    _ram(96, 2, "RW", 0, "deflection_offset",
+         "counts the deflection is expected off the elastic element's (host: -C*dq)",
+         signed=True),
 ])
+
+#: The stepper node's command block: its first and last register (see :data:`STEPPER_TABLE`).
+STEPPER_COMMAND_BLOCK: Final = ("command_goal", "deflection_offset")
 
 #: The stepper node's cycle block: its first and last register (see :data:`STEPPER_TABLE`).
 STEPPER_CYCLE_BLOCK: Final = ("cycle_present_position", "cycle_status_flags")

@@ -249,8 +249,36 @@ STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
 SERIES_ELASTIC_STIFFNESS_NM_PER_RAD: Final = (160.0, 200.0, 110.0, 86.0)
 #: Stepper full steps per motor revolution (1.8° motors).
 STEPPER_FULL_STEPS_PER_REV: Final = 200
-#: Microsteps per full step of the stepper drivers.
-STEPPER_MICROSTEPPING: Final = 16
+#: Microsteps per full step of the stepper drivers (1/10 stepping): the base stepper then
+#: commands 2π/(200·10·6) = 0.030° at J1, 0.54 mm at the outstretched flange (1.04 m), the
+#: dissertation's "0.52 mm at the end effector" (§5.6; 16 gave 0.34 mm, 8 would give 0.68).
+STEPPER_MICROSTEPPING: Final = 10
+#: The stepper controllers' maximum step rate (microsteps/s): the step generator never runs
+#: faster, and ``velocity_limit`` is capped to it.  The dissertation gives the end-effector
+#: speed it allows (1.5 m/s, J2 lifting the outstretched arm, §5.6), not the rate: 4600
+#: microsteps/s is 460 full steps/s, J2 at 1.445 rad/s, the flange at 1.04 m at 1.50 m/s.
+STEPPER_MAX_STEP_RATE: Final = 4600
+#: Torque constants of the steppers of J1..J4 at the motor shaft (N·m/A): holding torque at
+#: standstill is ``k_T · I`` (NEMA-34 for J1/J2, NEMA-23 for J3/J4).  At the default run
+#: and holding current (:data:`STEPPER_DEFAULT_CURRENT_MA`) the shoulder (J2) holds
+#: 2.62·2·10 = 52.4 N·m and moves at most 52.4/1.6 = 32.75 N·m: the outstretched arm
+#: (10.15 N·m), the elbow cables' reaction through the routes (0.18 × the elbow's torque)
+#: and 2.0 kg at the flange (20.4 + 0.18·9.6 N·m), the dissertation's payload (§5.6); the
+#: elbow (0.86·2·13/1.6 = 14.0 N·m moving) carries 2.0 kg outstretched (11.9 N·m) with a
+#: margin, so the shoulder slips first.
+STEPPER_TORQUE_CONSTANT_NM_PER_A: Final = (2.62, 2.62, 0.86, 0.86)
+#: Holding torque over the maximum moving (pull-out) torque at the same current: "the
+#: holding torque is approximately 60 % more than the maximum moving torque" (§5.3.2).
+STEPPER_HOLDING_MARGIN: Final = 1.6
+#: Corner of the steppers' pull-out curve (full steps/s): the maximum moving torque holds up
+#: to it and then falls as ``corner / rate`` (constant power: the drivers' voltage can no
+#: longer force the current into the windings).  At the controllers' maximum rate (J2: 460
+#: full steps/s) the shoulder still moves 32.75·300/460 = 21.4 N·m, enough to lift the
+#: unloaded outstretched arm; at twice that rate it could not.
+STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S: Final = 300.0
+#: The stepper nodes' run and holding current at power-up (mA): equal, so the steppers hold
+#: 1.6× their maximum moving torque at standstill, as the dissertation's controllers did.
+STEPPER_DEFAULT_CURRENT_MA: Final = 2000
 #: Joint encoder counts per joint revolution (0.036° per count).
 ARM_ENCODER_COUNTS_PER_REV: Final = 10_000
 
@@ -280,6 +308,20 @@ def microsteps_per_encoder_count(joint: int) -> float:
     """Microsteps per joint encoder count of ``joint`` (0..3)."""
     return (STEPPER_FULL_STEPS_PER_REV * STEPPER_MICROSTEPPING * STEPPER_REDUCTIONS[joint]
             / ARM_ENCODER_COUNTS_PER_REV)
+
+
+def max_velocity_counts_per_s(joint: int) -> float:
+    """Joint ``joint``'s (0..3) speed at the controllers' maximum step rate (encoder
+    counts/s)."""
+    return STEPPER_MAX_STEP_RATE / microsteps_per_encoder_count(joint)
+
+
+def pull_out_fraction(full_steps_per_s: float) -> float:
+    """The maximum moving torque available at a step rate (full steps/s, either sign), as a
+    fraction of the low-speed maximum (:data:`STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S`)."""
+    rate = abs(full_steps_per_s)
+    corner = STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S
+    return 1.0 if rate <= corner else corner / rate
 
 
 def encoder_counts_to_rad(counts: float) -> float:

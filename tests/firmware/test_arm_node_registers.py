@@ -66,7 +66,7 @@ def test_gear_set_by_the_node_changes_the_step_rate_at_once(stepper):
     """The arm rig programs each joint's reduction with ``app.set`` after power-up."""
     sched, hal, app = stepper
     app.set("gear_reduction_x100", 1300)
-    assert app.microsteps_per_count == pytest.approx(1300 * 200 * 16 / 1_000_000)
+    assert app.microsteps_per_count == pytest.approx(1300 * 200 * 10 / 1_000_000)
     write(sched, hal, 2, STEPPER_TABLE, "slip_threshold", 65535)
     write(sched, hal, 2, STEPPER_TABLE, "deflection_limit", 65535)
     write(sched, hal, 2, STEPPER_TABLE, "velocity_limit", 1000)
@@ -83,6 +83,7 @@ def test_eeprom_writes_change_the_microsteps_per_count(stepper):
     raw = make_sync_write(STEPPER_TABLE["steps_per_rev"].address, 2, {2: b"\x90\x01"}).encode()
     transact(sched, hal, raw, run_us=600)  # 400 steps per rev, by SYNC_WRITE
     assert app.microsteps_per_count == pytest.approx(600 * 400 * 8 / 1_000_000)
+    sched.run_for(50_000)  # the flash write completes
     hal.reset()  # kept in flash, read back at boot
     assert app.microsteps_per_count == pytest.approx(600 * 400 * 8 / 1_000_000)
 
@@ -94,7 +95,7 @@ def test_written_limits_apply_from_the_next_tick(stepper):
     write(sched, hal, 2, STEPPER_TABLE, "torque_enable", 1)
     write(sched, hal, 2, STEPPER_TABLE, "goal_position", 3000)
     sched.run_for(5_000)
-    assert hal.stepper().current == 800
+    assert hal.stepper().current == 2000
     write(sched, hal, 2, STEPPER_TABLE, "max_current", 500)
     sched.run_for(1_000)
     assert hal.stepper().current == 500  # capped

@@ -8,13 +8,19 @@ from firmware_py.arm_stepper import StepperNodeApp
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
 from firmware_py.sim.virtual_hal import VirtualHal
-from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
+from protocol.control_tables import (
+    STEPPER_TABLE,
+    STEPPER_VELOCITY_LIMIT_MAX,
+    StepperClear,
+    StepperFlag,
+)
 from protocol.dynamixel import ErrorBit, StatusPacket, make_read, make_write
 from protocol.image import BoardType
+from protocol.robot import STEPPER_MAX_STEP_RATE
 from tests.firmware.dxl_bench import transact as dxl_transact
 
-#: Microsteps per joint count with the defaults: 6.00 x 200 x 16 / 10 000.
-K = 600 * 200 * 16 / 1_000_000
+#: Microsteps per joint count with the defaults: 6.00 x 200 x 10 / 10 000.
+K = 600 * 200 * 10 / 1_000_000
 
 
 def transact(sched: Scheduler, hal: VirtualHal, raw: bytes) -> list[StatusPacket]:
@@ -80,7 +86,7 @@ def test_moves_to_goal_within_velocity_and_acceleration_limits(node):
     assert abs(read(sched, hal, "step_count") - 1000 * K) <= 2
     assert stepper.rate == 0.0
     assert not read(sched, hal, "status_flags") & StepperFlag.MOVING
-    assert stepper.current == 300  # holding current at standstill
+    assert stepper.current == 2000  # holding current at standstill (= run current)
 
 
 def test_torque_off_means_no_current_and_no_steps(node):
@@ -91,7 +97,7 @@ def test_torque_off_means_no_current_and_no_steps(node):
     assert hal.stepper().current == 0 and hal.stepper().rate == 0.0
     write(sched, hal, "torque_enable", 1)
     sched.run_for(20_000)
-    assert hal.stepper().current == 800  # run current while moving
+    assert hal.stepper().current == 2000  # run current while moving
     assert hal.stepper().rate > 0
     write(sched, hal, "torque_enable", 0)
     sched.run_for(2_000)
@@ -247,3 +253,57 @@ def test_the_cycle_blocks_velocity_saturates_to_int16(node):
     hal.encoder().value = -10_000 * 30
     sched.run_for(1_000)
     assert app.get("cycle_velocity") == -32768
+
+
+def test_deflection_offset_moves_what_the_protection_watches(node):
+    """The host tells the node how far its deflection is off the elastic element's (the
+    routes' coupling): the same encoder reading trips with offset 0 and not with the
+    offset that explains it; beyond the offset it trips again."""
+    sched, hal, _ = node
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "deflection_offset", 400)  # motor − joint expected +400
+    hal.encoder().value = -400  # what the coupling did: deflection +400
+    sched.run_for(2_000)
+    assert not read(sched, hal, "status_flags") & (StepperFlag.SLIP | StepperFlag.STALLED)
+    assert read(sched, hal, "deflection") == 400  # the register stays raw
+    hal.encoder().value = -560  # 160 more than explained: a real stall
+    sched.run_for(2_000)
+    flags = read(sched, hal, "status_flags")
+    assert flags & StepperFlag.STALLED and not flags & StepperFlag.SLIP
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    write(sched, hal, "deflection_offset", 0)
+    hal.encoder().value = -400
+    sched.run_for(2_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.SLIP
+
+
+def test_command_goal_commands_single_microsteps(node):
+    """command_goal is in 1/16 counts: a goal of 13/16 count is 1.04 microsteps on J1
+    (1.2 microsteps per count), which the node steps; goal_position reads the nearest
+    count, and writing goal_position sets command_goal to 16×."""
+    sched, hal, _ = node
+    free_running(sched, hal)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "command_goal", 13)
+    sched.run_for(50_000)
+    assert read(sched, hal, "goal_position") == 1
+    assert hal.stepper().step_count() == 1  # one microstep: 0.83 counts
+    write(sched, hal, "goal_position", -2)
+    assert read(sched, hal, "command_goal") == -32
+    sched.run_for(100_000)
+    assert hal.stepper().step_count() == round(-2 * K)
+
+
+def test_step_rate_never_exceeds_the_controllers_maximum(node):
+    sched, hal, _ = node
+    free_running(sched, hal)
+    assert read(sched, hal, "velocity_limit") == STEPPER_VELOCITY_LIMIT_MAX
+    write(sched, hal, "gear_reduction_x100", 1300)  # J4: 2.6 microsteps per count
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 100_000)
+    rates = []
+    for _ in range(2000):
+        sched.run_for(1_000)
+        rates.append(hal.stepper().rate)
+    assert max(rates) == pytest.approx(STEPPER_MAX_STEP_RATE)
+    assert write(sched, hal, "velocity_limit", STEPPER_VELOCITY_LIMIT_MAX + 1) != 0

@@ -8,7 +8,7 @@ from firmware_py.dynamixel_slave import EEPROM_PAGE
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
 from firmware_py.sim.virtual_hal import VirtualHal
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, STEPPER_VELOCITY_LIMIT_MAX
 from protocol.dynamixel import (
     ErrorBit,
     StatusPacket,
@@ -159,7 +159,7 @@ def test_sync_write_reaches_several_nodes():
     for hal in nodes.values():
         assert transact(sched, hal, raw) == []
     assert read_value(sched, nodes[1], 1, "velocity_limit") == 100
-    assert read_value(sched, nodes[2], 2, "velocity_limit") == 5000  # not addressed
+    assert read_value(sched, nodes[2], 2, "velocity_limit") == STEPPER_VELOCITY_LIMIT_MAX
     assert read_value(sched, nodes[3], 3, "velocity_limit") == 300
 
 
@@ -170,7 +170,7 @@ def test_out_of_range_write_sets_range_bit(node):
     assert read_value(sched, hal, 1, "status_return_level") == 2
     (nak,) = transact(sched, hal, make_write(1, 22, b"\x00").encode())  # a gap
     assert nak.errors == ErrorBit.RANGE
-    (nak,) = transact(sched, hal, make_read(1, 85, 10).encode())  # past the end (89)
+    (nak,) = transact(sched, hal, make_read(1, 95, 10).encode())  # past the end (98)
     assert nak.errors == ErrorBit.RANGE and nak.params == b""
 
 
@@ -218,7 +218,7 @@ def test_reset_restores_factory_except_id(node):
     (ack,) = transact(sched, hal, make_reset(9).encode())
     assert ack.id == 9 and ack.error == 0
     assert read_value(sched, hal, 9, "return_delay_time") == 250
-    assert read_value(sched, hal, 9, "velocity_limit") == 5000
+    assert read_value(sched, hal, 9, "velocity_limit") == STEPPER_VELOCITY_LIMIT_MAX
     sched.run_for(10_000)
     hal.reset()
     assert read_value(sched, hal, 9, "return_delay_time") == 250  # saved to flash too

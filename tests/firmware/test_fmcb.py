@@ -132,13 +132,13 @@ def test_idle_at_start_motors_disabled(rig: Rig) -> None:
 
 
 def test_motor_mode_drives_toward_target_and_stops_in_deadband(rig: Rig) -> None:
-    rig.send("fmcb.control", {"mode": 1, "args": {"hall_target": [80, -80, 30]}}, run_ms=2)
+    rig.send("fmcb.control", {"mode": 1, "args": {"hall_target": [80, -80, 2]}}, run_ms=2)
     d = rig.duties()
-    assert d[0] > 0 and d[1] < 0 and d[2] == 0.0  # motor 2 is within the 50-count deadband
+    assert d[0] > 0 and d[1] < 0 and d[2] == 0.0  # motor 2 is within the 2-count deadband
     assert all(m.enabled for m in rig.hal.motors)
     assert d[0] == pytest.approx(80 / 255, abs=1 / 255)  # kp = 1 PWM count per hall count
-    rig.step_hall(0, 31)  # error 49: inside the deadband
-    rig.step_hall(1, -29)  # error 51: still driving
+    rig.step_hall(0, 78)  # error 2: inside the deadband
+    rig.step_hall(1, -77)  # error 3: still driving
     assert rig.hal.motors[0].duty == 0.0
     assert rig.hal.motors[1].duty < 0
     rig.step_hall(1, -1)
@@ -273,7 +273,7 @@ def test_params_over_the_wire_commit_and_reload(rig: Rig) -> None:
     assert "joint_upper_2" in names
     kp, deadband = names.index("kp"), names.index("deadband")
     assert rig.ask("fmcb.param_get", {"index": kp})["value"] == struct.pack("<f", 1.0)
-    assert rig.ask("fmcb.param_get", {"index": deadband})["value"] == struct.pack("<I", 50)
+    assert rig.ask("fmcb.param_get", {"index": deadband})["value"] == struct.pack("<I", 2)
     rig.ask("fmcb.param_set", {"index": kp, "value": struct.pack("<f", 2.5)})
     rig.ask("fmcb.param_set", {"index": deadband, "value": struct.pack("<I", 20)})
     assert rig.app.params["kp"] == 2.5
@@ -284,7 +284,7 @@ def test_params_over_the_wire_commit_and_reload(rig: Rig) -> None:
     rig.ask("fmcb.param_reload")
     assert rig.app.params["kp"] == 2.5
     rig.ask("fmcb.param_defaults")
-    assert rig.app.params["kp"] == 1.0 and rig.app.params["deadband"] == 50
+    assert rig.app.params["kp"] == 1.0 and rig.app.params["deadband"] == 2
     # A new application instance on the same flash starts with the committed values.
     again = FmcbApp(rig.hal, None)
     assert again.params_valid and again.params["kp"] == 2.5 and again.params["deadband"] == 20
@@ -294,7 +294,7 @@ def test_blank_or_corrupt_param_page_gives_defaults(rig: Rig) -> None:
     assert not rig.app.params_valid and rig.app.params["kp"] == 1.0
     rig.hal.flash.load(page_address(PARAM_PAGE), b"\xef\xbe\xad\xde" + b"\x00" * 252)
     app = FmcbApp(rig.hal, None)
-    assert not app.params_valid and app.params["deadband"] == 50
+    assert not app.params_valid and app.params["deadband"] == 2
 
 
 # --- breaker --------------------------------------------------------------------------------

@@ -267,7 +267,9 @@ def test_stepper_slips_beyond_its_holding_torque() -> None:
     1.3× its maximum moving torque, slips beyond 1.6× and the node latches SLIP."""
     params = ArmParams()
     bench = make_bench(params=params)
-    bench.enable_steppers(holding_current=800, deflection_limit=5000)
+    # (the elbow's electrical period is 154 counts, its coupling deflects 113 counts at
+    # 1.3× the moving maximum: a one-period slip is seen with a threshold between them)
+    bench.enable_steppers(holding_current=800, deflection_limit=5000, slip_threshold=130)
     bench.run_ms(20)
     elbow = bench.steppers[3]
     moving_max = float(params.max_moving_torque_nm(800)[3])
@@ -284,7 +286,7 @@ def test_stepper_slips_beyond_its_holding_torque() -> None:
     bench.run_ms(300)
     assert StepperFlag.SLIP & elbow.get("status_flags")
     slipped = bench.arm.slipped_periods()[3]
-    assert slipped > 1 and slipped == pytest.approx(round(slipped))  # re-locked
+    assert slipped >= 1 and slipped == pytest.approx(round(slipped))  # re-locked
     # The step count no longer matches: the node's deflection is off by the slip (and by
     # the capstan shift the J2/J3 reaction caused through C).
     lost = slipped * params.period_rad[3] * COUNTS_PER_RAD
@@ -341,7 +343,8 @@ def test_rx64_reaches_goal_and_reports_its_load() -> None:
     load = wrist.get("present_load")
     assert not load & CW_BIT and 40 < load < 400  # counter-clockwise, against gravity
     gravity = bench.plant.data.qfrc_bias[5]
-    assert bench.arm.servo_torques()[1] == pytest.approx(gravity, abs=0.1)
+    # within the gear train's Coulomb friction (0.3 N·m) of gravity
+    assert bench.arm.servo_torques()[1] == pytest.approx(gravity, abs=0.3)
     assert bench.servos[0].get("present_load") == 0  # torque off: nothing applied
     assert wrist.get("present_voltage") == 180 and wrist.get("present_temperature") == 25
 

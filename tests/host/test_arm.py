@@ -32,7 +32,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.kind for j in arm.joints] == ["stepper"] * 4 + ["servo"] * 3
     assert [j.model_number for j in arm.joints] == [0x5E50] * 4 + [64] * 3
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
-    assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 16)}
+    assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 10)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
     assert all(j.firmware_version == 2 for j in arm.steppers)
 

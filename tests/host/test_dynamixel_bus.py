@@ -157,7 +157,7 @@ def test_a_reply_of_the_wrong_length_is_a_node_error() -> None:
 # ----------------------------------------------------------------- the arm's packets
 
 def _arm_on(transport: ScriptedTransport) -> Arm:
-    steppers = [JointInfo(i, i + 1, "stepper", 0x5E50, 2, r, 200, 16, 10_000, 100.0)
+    steppers = [JointInfo(i, i + 1, "stepper", 0x5E50, 2, r, 200, 10, 10_000, 100.0)
                 for i, r in enumerate((6.0, 10.0, 13.0, 13.0))]
     servos = [JointInfo(i, i + 1, "servo", 64, 0) for i in range(4, 7)]
     return Arm(DynamixelBus(transport, latency_s=0.0), steppers + servos)
@@ -169,10 +169,11 @@ def _arm_on(transport: ScriptedTransport) -> Arm:
 # 3*24) = ~(424 + 516 = 940 = 0x3AC) = 0x53.
 GOLDEN_BULK_READ = bytes.fromhex(
     "FFFFFE1892" "00" "0D014C" "0D024C" "0D034C" "0D044C" "080524" "080624" "080724" "53")
-# SYNC_WRITE of stepper goals at goal_position (28 = 0x1C), 4 bytes: J1 1000 counts
-# (E8 03 00 00), J2 -1 count (FF FF FF FF).  LEN 0x0E; checksum ~(FE + 0E + 83 + 1C + 04 +
-# 01 + E8 + 03 + 02 + 4*FF) = ~(399 + 1290 = 1689 = 0x699) = 0x66.
-GOLDEN_STEPPER_GOALS = bytes.fromhex("FFFFFE0E831C0401E803000002FFFFFFFF66")
+# SYNC_WRITE of stepper goals to the command block (command_goal at 92 = 0x5C, 1/16 counts,
+# then deflection_offset), 6 bytes: J1 1000 counts = 16 000 (80 3E 00 00), J2 -1 count = -16
+# (F0 FF FF FF), offsets 0 (no state read yet).  LEN 0x12; checksum ~(FE + 12 + 83 + 5C +
+# 06 + 01 + 80 + 3E + 02 + F0 + 3*FF) = ~(1699 = 0x6A3) = 0x5C.
+GOLDEN_STEPPER_GOALS = bytes.fromhex("FFFFFE12835C0601803E0000000002F0FFFFFF00005C")
 # SYNC_WRITE of servo goals at goal_position (30 = 0x1E), 2 bytes: J6 (id 6) to 0 rad = 512
 # (00 02).  LEN 07; checksum ~(FE + 07 + 83 + 1E + 02 + 06 + 00 + 02) = ~0x1B0 -> 0x4F.
 GOLDEN_SERVO_GOAL = bytes.fromhex("FFFFFE07831E020600024F")

@@ -49,13 +49,13 @@ def test_a_finger_moves_toward_its_joint_targets(hand: Hand) -> None:
 def test_the_settle_tolerance_is_the_fmcbs_deadband_read_once(hand: Hand) -> None:
     finger = hand.fingers[1]  # moved above: its deadband was read then
     before = hand.session.counters.requests
-    assert finger.deadband() == 50  # the firmware's default parameter
+    assert finger.deadband() == 2  # the firmware's default parameter
     assert hand.session.counters.requests == before  # kept, not asked again
     finger.params.set("deadband", 80)
     assert finger.deadband() == 80
     assert finger.params.get("deadband") == 80  # the board has it too
     finger.params.restore_defaults()
-    assert finger.deadband() == 50
+    assert finger.deadband() == 2
 
 
 def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand) -> None:

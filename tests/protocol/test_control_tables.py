@@ -325,7 +325,9 @@ def test_stepper_cycle_block_addresses() -> None:
         ("cycle_velocity", 84, 2, "R", True),
         ("cycle_deflection", 86, 2, "R", True),
         ("cycle_status_flags", 88, 1, "R", False),
+        ("command_goal", 92, 4, "RW", True),
+        ("deflection_offset", 96, 2, "RW", True),
     ]
-    assert STEPPER_TABLE.size == 89
+    assert STEPPER_TABLE.size == 98
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_TABLE["firmware_version"].default == STEPPER_CYCLE_BLOCK_FIRMWARE == 2

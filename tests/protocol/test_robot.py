@@ -26,18 +26,23 @@ from protocol.robot import (
     RX64_POSITION_MAX,
     RX64_RAD_PER_UNIT,
     RX64_UNITS_PER_RAD,
+    STEPPER_DEFAULT_CURRENT_MA,
+    STEPPER_HOLDING_MARGIN,
     STEPPER_REDUCTIONS,
+    STEPPER_TORQUE_CONSTANT_NM_PER_A,
     encoder_counts_to_rad,
     finger_coupling_matrix,
     finger_coupling_matrix_rad,
     finger_decoupling_matrix,
     joint_to_motor,
     joint_to_motor_rad,
+    max_velocity_counts_per_s,
     microsteps_per_encoder_count,
     microsteps_per_rad,
     microsteps_to_rad,
     motor_rad_to_joint,
     motor_to_joint,
+    pull_out_fraction,
     rad_to_encoder_counts,
     rad_to_microsteps,
     reduction_x100,
@@ -181,14 +186,30 @@ def test_arm_joint_order_and_limits() -> None:
 
 
 def test_stepper_steps_to_angle_by_hand() -> None:
-    # J1: 200 steps × 16 microsteps × 6 = 19 200 microsteps per joint revolution.
-    assert microsteps_to_rad(0, 19_200) == pytest.approx(2 * math.pi)
-    assert microsteps_per_rad(0) == pytest.approx(19_200 / (2 * math.pi))
-    # J3: 200 × 16 × 13 = 41 600 per revolution, so a quarter turn is 10 400 microsteps.
-    assert rad_to_microsteps(2, math.pi / 2) == pytest.approx(10_400)
-    # microsteps per joint encoder count: 19 200 / 10 000 = 1.92 (J1), 3.2 (J2), 4.16 (J3, J4)
+    # J1: 200 steps × 10 microsteps × 6 = 12 000 microsteps per joint revolution.
+    assert microsteps_to_rad(0, 12_000) == pytest.approx(2 * math.pi)
+    assert microsteps_per_rad(0) == pytest.approx(12_000 / (2 * math.pi))
+    # J3: 200 × 10 × 13 = 26 000 per revolution, so a quarter turn is 6 500 microsteps.
+    assert rad_to_microsteps(2, math.pi / 2) == pytest.approx(6_500)
+    # microsteps per joint encoder count: 12 000 / 10 000 = 1.2 (J1), 2.0 (J2), 2.6 (J3, J4)
     assert [microsteps_per_encoder_count(j) for j in range(4)] == pytest.approx(
-        [1.92, 3.2, 4.16, 4.16])
+        [1.2, 2.0, 2.6, 2.6])
+
+
+def test_stepper_torque_speed_curve_by_hand() -> None:
+    # flat to the corner (300 full steps/s), then falling as corner / rate
+    assert pull_out_fraction(0.0) == pull_out_fraction(-300.0) == 1.0
+    assert pull_out_fraction(600.0) == pytest.approx(0.5)
+    # the controllers' maximum rate: 4600 microsteps/s = 2300 counts/s of J2 (1.445 rad/s,
+    # 1.50 m/s at the outstretched flange, 1.04 m from the J2 axis)
+    assert max_velocity_counts_per_s(1) == pytest.approx(2300.0)
+    assert encoder_counts_to_rad(max_velocity_counts_per_s(1)) * 1.04 == pytest.approx(
+        1.50, abs=0.01)
+    # the shoulder's maximum moving torque at the default current: 2.62 × 2 × 10 / 1.6
+    k_t = STEPPER_TORQUE_CONSTANT_NM_PER_A[1]
+    moving = k_t * STEPPER_DEFAULT_CURRENT_MA / 1000 * STEPPER_REDUCTIONS[1] / 1.6
+    assert moving == pytest.approx(32.75)
+    assert STEPPER_HOLDING_MARGIN == 1.6
 
 
 def test_encoder_counts_to_angle_by_hand() -> None:
@@ -203,10 +224,10 @@ def test_stepper_table_defaults_are_the_robots() -> None:
     assert [reduction_x100(r) for r in STEPPER_REDUCTIONS] == [600, 1000, 1300, 1300]
     assert STEPPER_TABLE["gear_reduction_x100"].default == 600
     assert STEPPER_TABLE["steps_per_rev"].default == 200
-    assert STEPPER_TABLE["microstepping"].default == 16
+    assert STEPPER_TABLE["microstepping"].default == 10
     assert STEPPER_TABLE["encoder_resolution"].default == 10_000
     # the node's formula: x100 × steps × microsteps / 1 000 000 = microsteps per count
-    assert 600 * 200 * 16 / 1_000_000 == microsteps_per_encoder_count(0)
+    assert 600 * 200 * 10 / 1_000_000 == microsteps_per_encoder_count(0)
 
 
 def test_rx64_range_by_hand() -> None:
