@@ -68,11 +68,13 @@ class Emulator:
 
     ``layout`` names the hand layout (:data:`hil_emulator.hand_model.LAYOUTS`); ``physics``
     False leaves the MuJoCo plant out (firmware and buses only); ``can`` is ``"slcan"``
-    (default), ``"virtual:<channel>"`` or ``"none"``.
+    (default), ``"virtual:<channel>"`` or ``"none"``; ``scene`` adds things to the world
+    (:data:`hil_emulator.scene_model.SCENES`: ``"none"``, ``"mug"`` — a table and a coffee
+    mug in front of the arm; configurations with the arm only).
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
-                 physics: bool = True, can: CanMode = "slcan") -> None:
+                 physics: bool = True, can: CanMode = "slcan", scene: str = "none") -> None:
         if config not in CONFIGS:
             raise EmulatorConfigError(
                 f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
@@ -84,7 +86,16 @@ class Emulator:
         if layout not in hand_model.LAYOUTS:
             raise EmulatorConfigError(f"unknown hand layout {layout!r}; choose one of "
                                       f"{', '.join(hand_model.LAYOUTS)}")
+        from hil_emulator.scene_model import SCENES
+
+        if scene not in SCENES:
+            raise EmulatorConfigError(f"unknown scene {scene!r}; choose one of "
+                                      f"{', '.join(SCENES)}")
+        if scene != "none" and config not in ("full", "arm"):
+            raise EmulatorConfigError(f"the {scene!r} scene stands in front of the arm: use it "
+                                      f"with the full or arm configuration, not {config!r}")
         self.config = config
+        self.scene = scene  #: the scene's name (:data:`hil_emulator.scene_model.SCENES`)
         self.seed = seed
         self.can_mode = can
         self.scheduler = Scheduler()
@@ -132,7 +143,7 @@ class Emulator:
 
     # ------------------------------------------------------------------ building
     def _build_plant(self, layout: str, seeds: Any) -> Plant:
-        from hil_emulator import arm_model, hand_model
+        from hil_emulator import arm_model, hand_model, scene_model
         from hil_emulator.arm_plant import ArmPlant
         from hil_emulator.finger_plant import FingerPlant, PalmPlant
 
@@ -169,6 +180,7 @@ class Emulator:
             fp = FingerPlant("finger0/", f.fmcb, f.f2, f.f3, rng())
             self.finger_plants.append(fp)
             parts.append(fp)
+        scene_model.add_scene(spec, self.scene)
         return Plant(spec, parts)
 
     # ------------------------------------------------------------------ ports
@@ -228,6 +240,8 @@ class Emulator:
             out["can"] = path("can")
             out["can_interface"] = "slcan" if self.can_mode == "slcan" else "virtual"
         out["seed"] = self.seed
+        if self.scene != "none":
+            out["scene"] = self.scene
         if self.hand is not None:
             out["hand_layout"] = self.layout
         if getattr(self, "link_paths", None):

@@ -3,10 +3,11 @@
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
+                 [--scene none|mug]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
-``seed``, ``links``), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
+``seed``, ``links``, and ``scene`` when one was asked for), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
 time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
 line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
 and one when it is on time again.
@@ -32,6 +33,7 @@ from typing import Any
 
 from hil_emulator.emulator import CONFIGS, Emulator, has_display
 from hil_emulator.errors import EmulatorError
+from hil_emulator.scene_model import SCENES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -63,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="hand layout (default: four-finger-thumb)")
     parser.add_argument("--can", choices=("slcan", "none"), default="slcan",
                         help="the palm's CAN link: an SLCAN adapter on a pty (default) or none")
+    parser.add_argument("--scene", choices=SCENES, default="none",
+                        help="things in front of the arm: mug = a table with a coffee mug "
+                             "on it, within the hand's reach (full and arm configurations)")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
@@ -106,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     try:
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
-                            physics=args.physics, can=args.can)
+                            physics=args.physics, can=args.can, scene=args.scene)
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2
