@@ -115,6 +115,8 @@ class Emulator:
         self.plant: Plant | None = None
         self.finger_plants: list[Any] = []
         self.arm_plant: Any = None
+        #: The scene's object trackers (:class:`hil_emulator.scene_model.MugTracker`).
+        self.scene_parts: list[Any] = []
         if physics:
             self.plant = self._build_plant(layout, seeds)
             self.plant.attach(self.scheduler)
@@ -180,7 +182,8 @@ class Emulator:
             fp = FingerPlant("finger0/", f.fmcb, f.f2, f.f3, rng())
             self.finger_plants.append(fp)
             parts.append(fp)
-        scene_model.add_scene(spec, self.scene)
+        self.scene_parts = scene_model.add_scene(spec, self.scene)
+        parts.extend(self.scene_parts)
         return Plant(spec, parts)
 
     # ------------------------------------------------------------------ ports
@@ -413,6 +416,11 @@ class Emulator:
         out["late_episodes"] = float(self.late_episodes)
         out["slipped_s"] = self.slipped_s
         return out
+
+    def scene_stats(self) -> dict[str, dict[str, float]]:
+        """Ground truth of the scene's objects (``{"mug": MugTracker.summary()}``), empty
+        without a scene or physics."""
+        return {"mug": part.summary() for part in self.scene_parts}
 
     def link_stats(self) -> dict[str, dict[str, int]]:
         """Per port: bytes in and out, host input lost to overrun, output the host did not

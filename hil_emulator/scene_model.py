@@ -26,6 +26,7 @@ import math
 from typing import Final
 
 import mujoco
+import numpy as np
 
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand_model import PAD_FRICTION
@@ -122,9 +123,61 @@ def add_mug_scene(spec: mujoco.MjSpec) -> None:
     add_mug(spec)
 
 
-def add_scene(spec: mujoco.MjSpec, scene: str) -> None:
-    """Add scene ``scene`` (:data:`SCENES`) to ``spec``."""
+class MugTracker:
+    """A plant part that watches the mug (ground truth, for demos and tests): where it
+    started, where it is, the highest it has been (m, world) and how far its axis leans
+    from vertical (rad).  It applies no force."""
+
+    def __init__(self) -> None:
+        self.start = np.zeros(3)
+        self.highest_z = 0.0
+        self._data: mujoco.MjData | None = None
+        self._id = -1
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        self._data = data
+        self._id = model.body(MUG_BODY).id
+        self.start = data.xpos[self._id].copy()
+        self.highest_z = float(self.start[2])
+
+    def before_step(self, dt_s: float) -> None:
+        pass
+
+    def after_step(self, dt_s: float) -> None:
+        assert self._data is not None
+        z = float(self._data.xpos[self._id][2])
+        if z > self.highest_z:
+            self.highest_z = z
+
+    @property
+    def position(self) -> np.ndarray:
+        """The mug's centre now (m, world)."""
+        assert self._data is not None
+        return self._data.xpos[self._id].copy()
+
+    @property
+    def tilt_rad(self) -> float:
+        """Angle between the mug's axis and the vertical now (rad)."""
+        assert self._data is not None
+        axis_z = float(self._data.xmat[self._id][8])
+        return math.acos(max(-1.0, min(1.0, axis_z)))
+
+    def summary(self) -> dict[str, float]:
+        """Start and present height, highest lift above the start (m), tilt (rad)."""
+        now = self.position
+        return {"start_z_m": float(self.start[2]), "z_m": float(now[2]),
+                "lift_m": float(now[2] - self.start[2]),
+                "highest_lift_m": self.highest_z - float(self.start[2]),
+                "moved_xy_m": float(np.linalg.norm(now[:2] - self.start[:2])),
+                "tilt_rad": self.tilt_rad}
+
+
+def add_scene(spec: mujoco.MjSpec, scene: str) -> list[MugTracker]:
+    """Add scene ``scene`` (:data:`SCENES`) to ``spec``; returns its plant parts (the
+    trackers of its objects)."""
     if scene not in SCENES:
         raise EmulatorConfigError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
     if scene == "mug":
         add_mug_scene(spec)
+        return [MugTracker()]
+    return []

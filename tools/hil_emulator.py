@@ -15,8 +15,10 @@ and one when it is on time again.
 Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
 exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
-lateness (``null`` when nothing was delivered), episodes of lateness, and per port the
-bytes in and out, host input lost to overrun and the longest input queue.
+lateness (``null`` when nothing was delivered), episodes of lateness, per port the
+bytes in and out, host input lost to overrun and the longest input queue, and with a
+``--scene`` its objects' ground truth (``scene``: the mug's start and present height,
+highest lift, tilt; :meth:`~hil_emulator.emulator.Emulator.scene_stats`).
 """
 
 from __future__ import annotations
@@ -149,6 +151,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.stats:
                 stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
                          **emulator.lateness_stats(), "ports": emulator.link_stats()}
+                if emulator.scene_parts:
+                    stats["scene"] = emulator.scene_stats()
                 print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)
     return 0
 
