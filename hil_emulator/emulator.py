@@ -420,7 +420,7 @@ class Emulator:
     def scene_stats(self) -> dict[str, dict[str, float]]:
         """Ground truth of the scene's objects (``{"mug": MugTracker.summary()}``), empty
         without a scene or physics."""
-        return {"mug": part.summary() for part in self.scene_parts}
+        return {part.name: part.summary() for part in self.scene_parts}
 
     def link_stats(self) -> dict[str, dict[str, int]]:
         """Per port: bytes in and out, host input lost to overrun, output the host did not

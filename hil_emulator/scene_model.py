@@ -48,7 +48,7 @@ TABLE_BITS: Final = 4 | 2
 MUG_RADIUS_M: Final = 0.04
 MUG_HEIGHT_M: Final = 0.10
 MUG_MASS_KG: Final = 0.30
-MUG_XY_M: Final = (0.535, 0.025)
+MUG_XY_M: Final = (0.52, 0.025)
 #: Contact bits of the mug: touches the table (4), the floor and the hand (1, 2), not the
 #: arm (whose geoms have ``contype = 0`` and only ``conaffinity = 1``).
 MUG_CONTYPE: Final = 4
@@ -127,6 +127,9 @@ class MugTracker:
     """A plant part that watches the mug (ground truth, for demos and tests): where it
     started, where it is, the highest it has been (m, world) and how far its axis leans
     from vertical (rad).  It applies no force."""
+
+    #: The tracked object's name (its body's).
+    name: Final = MUG_BODY
 
     def __init__(self) -> None:
         self.start = np.zeros(3)

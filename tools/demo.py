@@ -85,8 +85,11 @@ JOINT_SPEED_RAD_S: Final = 0.5
 #: face towards the arm, the fingers pointing left (+y).
 GRASP_RPY: Final = (0.0, -math.pi / 2, 0.0)
 #: Flange positions (m, base frame): round the mug, and above it (approach from above).
-GRASP_XYZ: Final = (0.60, 0.0, -0.26)
+GRASP_XYZ: Final = (0.60, -0.012, -0.26)
 ABOVE_M: Final = 0.12
+#: Joint speed of the Cartesian moves near the mug (rad/s, fastest joint): slow, so the
+#: elastic arm tracks its path within a few millimetres.
+NEAR_SPEED_RAD_S: Final = 0.2
 #: How far the mug is lifted (m), how long it is held up (s).
 LIFT_M: Final = 0.10
 HOLD_S: Final = 2.0
@@ -258,8 +261,9 @@ class Demo:
             raise DemoFailed(self.step, f"arm alarms {errors} (joints "
                              f"{[round(q, 2) for q in state.joints]} rad)")
 
-    def _moveto(self, xyz: tuple[float, float, float], what: str) -> None:
-        result = self.arm.moveto(list(xyz), list(GRASP_RPY))
+    def _moveto(self, xyz: tuple[float, float, float], what: str,
+                speed: float = NEAR_SPEED_RAD_S) -> None:
+        result = self.arm.moveto(list(xyz), list(GRASP_RPY), speed=speed)
         self._check_arm()
         if not result.reached and result.position_error > 0.01:
             raise DemoFailed(self.step, f"{what}: the flange stopped "
@@ -273,7 +277,7 @@ class Demo:
             self._move(pose, 7.0)
         self.hand.grasp("open", 1.0, speed=2.0)
         above = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + ABOVE_M)
-        self._moveto(above, "above the mug")
+        self._moveto(above, "above the mug", speed=0.4)
         self._moveto(GRASP_XYZ, "round the mug")
 
     def grasp(self) -> None:
@@ -287,6 +291,11 @@ class Demo:
         if not result.contacts:
             raise DemoFailed("grasp", "no finger felt the mug")
         self.log.result["contacts"] = dict(result.contacts)
+        # Contact stops a finger where it touched; squeeze: every finger on towards the
+        # closed grasp, the mug stopping it, so its motors press with their effort.
+        self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
+        self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+                        effort=GRASP_EFFORT, timeout=1.0, on_states=self._on_fingers)
 
     def lift(self, recorder: HandRecorder) -> None:
         self.begin("lift", f"up {LIFT_M * 100:.0f} cm")
@@ -297,7 +306,12 @@ class Demo:
         if self.truth is not None:
             lift = float(self.truth.position[2] - self.truth.start[2])
             self.log.result["held_lift_m"] = lift
-            self.say(f"mug {lift * 100:.1f} cm above the table (ground truth)")
+            self.say(f"mug {lift * 100:+.1f} cm from its place on the table (ground truth)")
+            if lift < MIN_LIFT_M:
+                raise DemoFailed("lift", f"the mug is not in the hand: {lift * 100:+.1f} cm "
+                                         f"from its place, tilted "
+                                         f"{math.degrees(self.truth.tilt_rad):.0f}° "
+                                         f"(ground truth)")
         self.begin("put down", "lowering the mug onto the table")
         self._moveto(GRASP_XYZ, "set down")
         self.hand.grasp("open", 1.0, speed=1.5, on_states=self._on_fingers)

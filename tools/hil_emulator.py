@@ -149,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if handle is not None:
                 handle.close()
             if args.stats:
-                stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
+                stats: dict[str, Any] = {"sim_s": emulator.scheduler.now_us() / 1e6,
                          **emulator.lateness_stats(), "ports": emulator.link_stats()}
                 if emulator.scene_parts:
                     stats["scene"] = emulator.scene_stats()
