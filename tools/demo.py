@@ -456,9 +456,18 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
         sdk = PacketHandler(1.0)
         models = []
         for joint in ARM_JOINTS:
-            model, result, _ = sdk.ping(port, joint.dxl_id)
+            model, result = 0, -1
+            for _ in range(3):  # the SDK's own timeout is tight for a pty on a busy machine
+                try:
+                    model, result, _ = sdk.ping(port, joint.dxl_id)
+                except IndexError:  # the SDK indexes a reply it did not get
+                    continue
+                if result == COMM_SUCCESS:
+                    break
             if result != COMM_SUCCESS:
-                raise DemoFailed("wire", f"arm id {joint.dxl_id}: {sdk.getTxRxResult(result)}")
+                why = sdk.getTxRxResult(result) if result != -1 else "no reply"
+                raise DemoFailed("wire", f"arm id {joint.dxl_id} did not answer dynamixel-sdk's "
+                                         f"ping ({why})")
             models.append(f"{joint.dxl_id}:{model:#06x}")
         say(f"dynamixel-sdk pinged the arm's 7 joints ({' '.join(models)})")
     finally:
