@@ -69,11 +69,13 @@ class Emulator:
 
     ``layout`` names the hand layout (:data:`hil_emulator.hand_model.LAYOUTS`); ``physics``
     False leaves the MuJoCo plant out (firmware and buses only); ``can`` is ``"slcan"``
-    (default), ``"virtual:<channel>"`` or ``"none"``.
+    (default), ``"virtual:<channel>"`` or ``"none"``; ``scene`` adds things to the world
+    (:data:`hil_emulator.scene_model.SCENES`: ``"none"``, ``"mug"`` — a table and a coffee
+    mug in front of the arm; configurations with the arm only).
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
-                 physics: bool = True, can: CanMode = "slcan") -> None:
+                 physics: bool = True, can: CanMode = "slcan", scene: str = "none") -> None:
         if config not in CONFIGS:
             raise EmulatorConfigError(
                 f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
@@ -85,7 +87,16 @@ class Emulator:
         if layout not in hand_model.LAYOUTS:
             raise EmulatorConfigError(f"unknown hand layout {layout!r}; choose one of "
                                       f"{', '.join(hand_model.LAYOUTS)}")
+        from hil_emulator.scene_model import SCENES
+
+        if scene not in SCENES:
+            raise EmulatorConfigError(f"unknown scene {scene!r}; choose one of "
+                                      f"{', '.join(SCENES)}")
+        if scene != "none" and config not in ("full", "arm"):
+            raise EmulatorConfigError(f"the {scene!r} scene stands in front of the arm: use it "
+                                      f"with the full or arm configuration, not {config!r}")
         self.config = config
+        self.scene = scene  #: the scene's name (:data:`hil_emulator.scene_model.SCENES`)
         self.seed = seed
         self.can_mode = can
         self.scheduler = Scheduler()
@@ -105,6 +116,8 @@ class Emulator:
         self.plant: Plant | None = None
         self.finger_plants: list[Any] = []
         self.arm_plant: Any = None
+        #: The scene's object trackers (:class:`hil_emulator.scene_model.MugTracker`).
+        self.scene_parts: list[Any] = []
         if physics:
             self.plant = self._build_plant(layout, seeds)
             self.plant.attach(self.scheduler)
@@ -138,7 +151,7 @@ class Emulator:
 
     # ------------------------------------------------------------------ building
     def _build_plant(self, layout: str, seeds: Any) -> Plant:
-        from hil_emulator import arm_model, hand_model
+        from hil_emulator import arm_model, hand_model, scene_model
         from hil_emulator.arm_plant import ArmPlant
         from hil_emulator.finger_plant import FingerPlant, PalmPlant
 
@@ -175,6 +188,8 @@ class Emulator:
             fp = FingerPlant("finger0/", f.fmcb, f.f2, f.f3, rng())
             self.finger_plants.append(fp)
             parts.append(fp)
+        self.scene_parts = scene_model.add_scene(spec, self.scene)
+        parts.extend(self.scene_parts)
         return Plant(spec, parts)
 
     # ------------------------------------------------------------------ ports
@@ -239,6 +254,8 @@ class Emulator:
             out["can"] = path("can")
             out["can_interface"] = "slcan" if self.can_mode == "slcan" else "virtual"
         out["seed"] = self.seed
+        if self.scene != "none":
+            out["scene"] = self.scene
         if self.hand is not None:
             out["hand_layout"] = self.layout
         if getattr(self, "link_paths", None):
@@ -440,6 +457,11 @@ class Emulator:
         out["late_episodes"] = float(self.late_episodes)
         out["slipped_s"] = self.slipped_s
         return out
+
+    def scene_stats(self) -> dict[str, dict[str, float]]:
+        """Ground truth of the scene's objects (``{"mug": MugTracker.summary()}``), empty
+        without a scene or physics."""
+        return {part.name: part.summary() for part in self.scene_parts}
 
     def link_stats(self) -> dict[str, dict[str, int]]:
         """Per port: bytes in and out, host input lost to overrun, output the host did not

@@ -8,7 +8,8 @@ the timeout (simulation seconds) passes.  Timing is therefore exact and independ
 busy the machine is: a reply arrives when its last bit would on the real wire.
 
 URLs: ``emu://full/palm``, ``emu://full/arm``, ``emu://hand/palm``, ``emu://arm/arm``,
-``emu://loose-finger/finger0``, options ``?seed=N&ready=1&physics=0&name=X``.  Transports
+``emu://loose-finger/finger0``, options ``?seed=N&ready=1&physics=0&scene=mug&name=X``
+(``scene``: :data:`hil_emulator.scene_model.SCENES`).  Transports
 opened with the same configuration, seed, options and ``name`` share one emulator, so a
 program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 ``ready=1`` (the default) brings the hand up first, as ``hil-emulator --ready`` does.
@@ -58,7 +59,7 @@ class EmulatorTransport(Transport):
 
     @classmethod
     def from_url(cls, url: str, **options: Any) -> EmulatorTransport:
-        """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&name=X``."""
+        """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&name=X``."""
         rest = url.split("://", 1)[1].split("?", 1)[0]
         config, _, link = rest.partition("/")
         if config not in LINKS:
@@ -69,14 +70,16 @@ class EmulatorTransport(Transport):
         seed = int(merged.pop("seed", "0"))
         ready = merged.pop("ready", "1") not in ("0", "false", "no")
         physics = merged.pop("physics", "1") not in ("0", "false", "no")
+        scene = merged.pop("scene", "none")
         name = merged.pop("name", "")
         if merged:
             raise TransportError(f"{url}: unknown emulator options {sorted(merged)}")
-        key = (config, str(seed), str(ready), str(physics), name)
+        key = (config, str(seed), str(ready), str(physics), scene, name)
         emulator = _shared.get(key)
         if emulator is None:
             try:
-                emulator = Emulator(config, seed=seed, physics=physics, can="none")
+                emulator = Emulator(config, seed=seed, physics=physics, can="none",
+                                    scene=scene)
             except EmulatorConfigError as exc:
                 raise TransportError(f"{url}: {exc}") from exc
             if ready:

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, Final
 
 from host.arm_state import (
@@ -142,6 +142,9 @@ class Arm:
         self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
+        #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
+        #: the cycles (a move, a controller) need not know they are watched.
+        self.state_taps: list[Callable[[ArmState], None]] = []
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
         entries += [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
         self._bulk_read = make_bulk_read(entries)
@@ -339,7 +342,11 @@ class Arm:
                                                / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                              for s in replies})
-        return state if calibration is None else calibration.state_from_node(state)
+        if calibration is not None:
+            state = calibration.state_from_node(state)
+        for tap in self.state_taps:
+            tap(state)
+        return state
 
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""

@@ -11,18 +11,21 @@ topic              message encoding            payload
 =================  ==========================  ===========================================
 
 Replay the raw channels through :class:`~protocol.dynamixel.DynamixelStreamDecoder` to get
-the packets back.
+the packets back.  :func:`record` cycles the arm itself for a while; :class:`ArmRecorder`
+writes whatever another program does with the arm (every cycle's state, every byte) while
+it is attached.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Final
+from typing import IO, Any, Final
 
 from mcap.writer import Writer
 
 from host.arm import Arm
+from host.arm_state import ArmState
 
 RAW_ENCODING: Final = "application/octet-stream"
 STATE_TOPIC: Final = "/arm/state"
@@ -39,6 +42,59 @@ STATE_SCHEMA: Final = {
         "errors": {"type": "object"},
     },
 }
+
+
+class ArmRecorder:
+    """Writes ``arm``'s bus bytes and every cycle's state to the MCAP file ``path`` while
+    attached (a context manager; :meth:`close` detaches and finishes the file)."""
+
+    def __init__(self, arm: Arm, path: str | Path) -> None:
+        self.arm = arm
+        self.path = Path(path)
+        self._stream: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._stream)
+        self._writer.start(profile="", library="lowcost-hand-stack host.arm_recording")
+        schema = self._writer.register_schema(name="ArmState", encoding="jsonschema",
+                                              data=json.dumps(STATE_SCHEMA).encode())
+        self._state_ch = self._writer.register_channel(STATE_TOPIC, "json", schema)
+        self._raw_ch = {"tx": self._writer.register_channel(TX_TOPIC, RAW_ENCODING, 0),
+                        "rx": self._writer.register_channel(RX_TOPIC, RAW_ENCODING, 0)}
+        self.states = 0
+        self._previous = arm.bus.on_bytes
+        arm.bus.on_bytes = self._on_bytes
+        arm.state_taps.append(self._on_state)
+        self._open = True
+
+    def _on_bytes(self, direction: str, data: bytes, t: float) -> None:
+        ns = max(0, int(t * 1e9))
+        self._writer.add_message(self._raw_ch[direction], log_time=ns, data=data,
+                                 publish_time=ns)
+        if self._previous is not None:
+            self._previous(direction, data, t)
+
+    def _on_state(self, state: ArmState) -> None:
+        ns = max(0, int(state.t * 1e9))
+        self._writer.add_message(self._state_ch, log_time=ns, publish_time=ns,
+                                 sequence=self.states,
+                                 data=json.dumps(state.as_dict()).encode())
+        self.states += 1
+
+    def close(self) -> None:
+        """Detach from the arm and finish the file (idempotent)."""
+        if not self._open:
+            return
+        self._open = False
+        if self._on_state in self.arm.state_taps:
+            self.arm.state_taps.remove(self._on_state)
+        self.arm.bus.on_bytes = self._previous
+        self._writer.finish()
+        self._stream.close()
+
+    def __enter__(self) -> ArmRecorder:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 def record(arm: Arm, path: str | Path, *, seconds: float, rate_hz: float = 100.0) -> int:

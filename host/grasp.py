@@ -29,7 +29,7 @@ the start, or its motors push hard (:data:`CONTACT_EFFORT`) while lagging the bl
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
@@ -274,11 +274,14 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
           fingers: Sequence[int] | None = None, until_contact: bool = False,
           effort: Sequence[int] | int | None = None, timeout: float = 3.0,
           unhomed: bool = False, layout: str | HandLayout | None = None,
-          period: float = BLEND_PERIOD_S) -> GraspResult:
+          period: float = BLEND_PERIOD_S,
+          on_states: Callable[[float, Mapping[int, FingerState]], None] | None = None
+          ) -> GraspResult:
     """Blend ``fingers`` (default: all four) from their measured pose to synergy ``name`` at
     ``amount`` (0..1) at ``speed`` rad/s, then wait up to ``timeout`` s for them to settle.
     Refused for fingers not homed unless ``unhomed``; targets pass the hand's joint limits
-    before anything moves."""
+    before anything moves.  ``on_states(t, states)`` is told every reading of the fingers'
+    status the grasp makes (the link's clock, s; finger → :class:`FingerState`)."""
     if speed <= 0:
         raise UsageError(f"speed {speed} rad/s: give a positive speed")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
@@ -288,6 +291,8 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
         hand._require_homed(chosen)
     session = hand.session
     baseline = _read(hand, chosen)
+    if on_states is not None:
+        on_states(session.now(), baseline)
     start = {k: np.asarray(baseline[k].joints) for k in chosen}
     t0 = session.now()
     result = GraspResult(name, float(amount), dict(targets))
@@ -304,6 +309,8 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
             session.sleep(period)
             states = _read(hand, active)
             now = session.now()
+            if on_states is not None:
+                on_states(now, states)
             for k in list(active):
                 why = contact(states[k], baseline[k], now_targets[k], previous.get(k),
                               now - last_read)

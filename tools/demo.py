@@ -1,221 +1,547 @@
-"""``make demo``: the robot brought up over the wire, on the built-in emulator.
+"""``make demo``: the robot picks up a coffee mug, on the built-in emulator.
 
-Starts ``hil-emulator --config full`` (the hand on the arm's wrist) in its own process and,
-as a host would over its serial ports:
+::
 
-1. waits for the palm's application and identifies it;
-2. powers the four fingers, identifies each fmcb, powers their phalanges, identifies each
-   f2 and f3 through the palm (thirteen hand microcontrollers in all);
-3. moves finger 1 (joint targets through ``fmcb.control``) and reads its hall counts back
-   as joint angles;
-4. on the arm port, with the stock dynamixel-sdk: pings IDs 1–7, enables torque, moves the
-   shoulder pan and the wrist, and reads the present positions back through the physics.
+    python -m tools.demo [--out DIR] [--seed N] [--realtime]
 
-Every reply is printed as it comes back; a node that does not answer is reported and the
-demo goes on with the others.  Exit status 0 only if every node answered and the joints
-moved; otherwise the last line is ``demo: FAILED ...`` and the status 1 (never a traceback).
+On the emulator's ``full`` configuration (the hand on the arm's wrist) with the ``mug``
+scene (a table in front of the arm, a 0.3 kg coffee mug on it), the demo does what a user
+would, with the host library and the command-line tools:
+
+1. **emulator**: starts it (the hand brought up: thirteen MCUs running);
+2. **firmware**: builds demo images with ``fwimage build`` (version :data:`FW_VERSION`) and
+   flashes all twelve finger MCUs with ``flash-all-fingers``;
+3. **homing**: the arm at its encoders' index marks (``Arm.home``), then the hand from its
+   accelerometers (``Hand.home``) in two wrist tilts (:data:`HOMING_TILTS`): the three
+   parallel fingers' axes are observable in one, the thumb's in the other;
+4. **reach**: the arm lifts the hand above the table and lowers it round the mug
+   (``Arm.moveto``, the palm upright, its face towards the arm);
+5. **grasp**: a cylindrical grasp closing until the tactile pads report contact
+   (``Hand.grasp(..., until_contact=True)``);
+6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`, down again, the hand opened;
+7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
+   and a Markdown report with plots (:mod:`tools.demo_report`).
+
+Every step prints one line with the simulated and the wall time.  By default the emulator
+runs in this process on the simulation clock (``emu://…``: deterministic, and as reliable
+on a busy machine as on an idle one); ``--realtime`` runs the same script against a
+``hil-emulator`` subprocess through its ptys, paced to the wall clock, after identifying
+the thirteen hand MCUs and pinging the arm with the stock dynamixel-sdk over the wire.
+
+Success is judged on the plant's ground truth (the mug's height in the physics, not what
+the robot's sensors say): the mug rose at least :data:`MIN_LIFT_M` and stands on the table
+again.  The last line is ``demo: OK (...)`` (exit 0) or ``demo: FAILED (<step>: <reason>)``
+(exit 1); never a traceback.
+
+The arm's steppers run at :data:`STEPPER_CURRENT_MA` (run and holding current): the
+firmware's defaults (800 / 300 mA) cannot hold the 1 kg hand with the forearm raised.
 """
 
 from __future__ import annotations
 
-import functools
+import argparse
+import contextlib
+import io
 import json
 import math
+import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
-from host.errors import HostError, ReplyTimeout
-from host.hand_session import HandSession, Target, Timeouts
-from host.transport import open_transport
-from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
-from protocol.image import BoardType
-from protocol.messages.palm import FingerPower
-from protocol.robot import motor_to_joint, rad_to_encoder_counts
-from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS, FINGERS, HOP_ADDRESS, STEPPER_IDS, Hop
+from host.arm import Arm
+from host.arm_recording import ArmRecorder
+from host.arm_state import ArmState
+from host.hand import Hand
+from host.hand_recording import HandRecorder
+from host.hand_state import FingerState, HandState
+from protocol.control_tables import STEPPER_TABLE
+from protocol.topology import FINGERS
 
 ROOT = Path(__file__).resolve().parents[1]
-FINGER_TARGET = (0.0, 0.4, 0.3)  # rad, J1 J2 J3 of finger 1
-#: Joint 1: +10° in joint encoder counts (278); servo 6: −50 position units.
-ARM_MOVES = {1: rad_to_encoder_counts(math.radians(10.0)), 6: -50}
+
+#: Version of the demo firmware images flashed to the finger MCUs.
+FW_VERSION: Final = "1.1.0"
+#: Run and holding current of the arm's steppers during the demo (mA).
+STEPPER_CURRENT_MA: Final = 1500
+#: Wrist tilts (J6, J7; rad) of the hanging arm for homing the hand, and the fingers homed
+#: in each: gravity must not lie along any joint axis of a finger being homed.
+HOMING_TILTS: Final = (((0.4, 0.9), (0, 1, 2)), ((0.6, 0.5), (3,)))
+#: Joint poses (rad, J1..J7) that take the hand from hanging to above the table without
+#: sweeping through it: the hand folded back, then the forearm raised.
+FOLD_POSES: Final = ((0.0, 0.0, 0.0, 0.0, 0.0, -1.5, 0.0),
+                     (0.0, 0.1, 0.0, 2.0, 0.0, -1.5, 0.0))
+#: Speed of every joint in the joint-space moves, and left in the nodes' speed registers
+#: for the Cartesian moves' controller (rad/s).
+JOINT_SPEED_RAD_S: Final = 0.5
+#: Flange orientation at the mug (rad, roll pitch yaw, base frame): the palm upright, its
+#: face towards the arm, the fingers pointing left (+y).
+GRASP_RPY: Final = (0.0, -math.pi / 2, 0.0)
+#: Flange positions (m, base frame): round the mug, and above it (approach from above).
+GRASP_XYZ: Final = (0.60, -0.012, -0.26)
+ABOVE_M: Final = 0.12
+#: Joint speed of the Cartesian moves near the mug (rad/s, fastest joint): slow, so the
+#: elastic arm tracks its path within a few millimetres.
+NEAR_SPEED_RAD_S: Final = 0.2
+#: How far the mug is lifted (m), how long it is held up (s).
+LIFT_M: Final = 0.10
+HOLD_S: Final = 2.0
+#: Success: the mug rose at least this much (m) and ends within SET_DOWN_M of its start
+#: height, upright within SET_DOWN_TILT_RAD.
+MIN_LIFT_M: Final = 0.05
+SET_DOWN_M: Final = 0.01
+SET_DOWN_TILT_RAD: Final = 0.3
+#: Grasp: synergy amount, closing speed (rad/s), motor effort (1/255 of full PWM).
+GRASP_AMOUNT: Final = 1.0
+GRASP_SPEED_RAD_S: Final = 1.0
+GRASP_EFFORT: Final = 255
 
 
-def say(text: str) -> None:
-    print(text, flush=True)
+class DemoFailed(Exception):
+    """A step failed: ``step`` names it, the message says why."""
+
+    def __init__(self, step: str, reason: str) -> None:
+        super().__init__(reason)
+        self.step = step
 
 
-def until(what: Callable[[], dict[str, Any]], timeout_s: float) -> dict[str, Any]:
-    """Ask until the node's application (not its bootloader) answers."""
-    deadline = time.monotonic() + timeout_s
-    while True:
+@dataclass
+class Log:
+    """What the demo saw, for the report: arm states, finger readings (t, finger, state),
+    hand states, the mug's true height (t, z) and the steps (name, sim s, wall s, text)."""
+
+    arm: list[ArmState] = field(default_factory=list)
+    fingers: list[tuple[float, int, FingerState]] = field(default_factory=list)
+    hands: list[HandState] = field(default_factory=list)
+    mug_z: list[tuple[float, float]] = field(default_factory=list)
+    steps: list[tuple[str, float, float, str]] = field(default_factory=list)
+    phases: list[tuple[str, float]] = field(default_factory=list)
+    result: dict[str, Any] = field(default_factory=dict)
+
+
+class Demo:
+    """One run: the robot's links, the log, the step printer."""
+
+    def __init__(self, hand: Hand, arm: Arm, out: Path, *, truth: Any = None,
+                 palm_port: str = "") -> None:
+        self.hand = hand
+        self.arm = arm
+        self.out = out
+        self.truth = truth  # a MugTracker (in process) or None (ground truth at the end)
+        self.palm_port = palm_port
+        self.log = Log()
+        self.wall0 = time.monotonic()
+        self.step = "start"
+        arm.state_taps.append(self._on_arm)
+
+    # ------------------------------------------------------------------ printing, logging
+    def now(self) -> float:
+        return self.hand.session.now()
+
+    def say(self, text: str) -> None:
+        wall = time.monotonic() - self.wall0
+        sim = self.now()
+        self.log.steps.append((self.step, sim, wall, text))
+        print(f"[sim {sim:6.1f} s | wall {wall:6.1f} s] {self.step}: {text}", flush=True)
+
+    def begin(self, step: str, text: str) -> None:
+        self.step = step
+        self.log.phases.append((step, self.now()))
+        self.say(text)
+
+    def _on_arm(self, state: ArmState) -> None:
+        self.log.arm.append(state)
+        if self.truth is not None:
+            self.log.mug_z.append((state.t, float(self.truth.position[2])))
+
+    def _on_fingers(self, t: float, states: Mapping[int, FingerState]) -> None:
+        for k, s in states.items():
+            self.log.fingers.append((t, k, s))
+
+    def sample_hand(self, seconds: float, recorder: HandRecorder, rate_hz: float = 20.0
+                    ) -> None:
+        """Read the hand's state at ``rate_hz`` for ``seconds``, keep and record it; the arm
+        keeps holding (one cycle per reading)."""
+        t_end = self.now() + seconds
+        while self.now() < t_end:
+            state = self.hand.status()
+            recorder.add_state(state)
+            self.log.hands.append(state)
+            for f in state.fingers:
+                self.log.fingers.append((state.t, f.index, f))
+            self.arm.cycle()
+            self.hand.session.sleep(max(0.0, 1.0 / rate_hz - 0.01))
+
+    # ------------------------------------------------------------------ steps
+    def firmware(self) -> None:
+        from tools import flash_all_fingers, fwimage
+
+        self.begin("firmware", f"building demo images {FW_VERSION} (fwimage build)")
+        fw = self.out / "firmware"
+        fw.mkdir(parents=True, exist_ok=True)
+        args: list[str] = []
+        for board in ("fmcb", "f2", "f3"):
+            payload = fw / f"{board}.bin"
+            payload.write_bytes((f"{board} demo firmware {FW_VERSION}\n".encode() * 64)[:4096])
+            image = fw / f"{board}.img"
+            status, _ = _quiet(fwimage.main, ["build", "--board", board, "--version",
+                                              FW_VERSION, "--input", str(payload),
+                                              "-o", str(image)])
+            if status != 0:
+                raise DemoFailed("firmware", f"fwimage build --board {board} failed")
+            args += [f"--{board}", str(image)]
+        self.say("flashing all twelve finger MCUs (flash-all-fingers)")
+        status, text = _quiet(flash_all_fingers.main, ["--port", self.palm_port, "--json",
+                                                       *args])
         try:
-            reply = what()
-            if reply.get("running", 1):
-                return reply
-        except HostError:
-            if time.monotonic() > deadline:
-                raise
-        if time.monotonic() > deadline:
-            raise ReplyTimeout("the application did not start")
-        time.sleep(0.1)
+            report = json.loads(text.strip().splitlines()[-1])
+        except (ValueError, IndexError):
+            report = {}
+        if status != 0:
+            raise DemoFailed("firmware", f"flash-all-fingers exit status {status}: "
+                                         f"{text.strip()[-300:]}")
+        nodes = report.get("nodes", [])
+        results = sorted({str(n.get("result")) for n in nodes})
+        self.say(f"{len(nodes)} nodes now run {FW_VERSION} ({', '.join(results)}; "
+                 f"{report.get('total_seconds', 0):.1f} s)")
+        self.log.result["flashed_nodes"] = len(nodes)
+        # The fingers rebooted into the new images: power their phalanges and start the
+        # fmcbs' polling of them again, as after power-up.
+        for finger in self.hand.fingers:
+            finger.motor.request("fmcb.phalange_power", {"on": 1})
+        self.hand.session.sleep(3.5)
+        for finger in self.hand.fingers:
+            finger.motor.request("fmcb.autopoll", {"on": 1})
 
+    def home(self) -> None:
+        arm = self.arm
+        self.begin("homing", f"arm: steppers at {STEPPER_CURRENT_MA} mA, torque on, "
+                             "searching each stepper's index mark")
+        current = STEPPER_CURRENT_MA.to_bytes(2, "little")
+        for register in ("run_current", "holding_current"):
+            arm.bus.sync_write(STEPPER_TABLE[register].address, 2,
+                               {j.dxl_id: current for j in arm.steppers})
+        arm.torque(True)
+        calibration = arm.home()
+        self.say("arm homed; index offsets (rad): "
+                 + ", ".join(f"{o:+.3f}" for o in calibration.offsets[:4]))
+        homed: dict[int, bool] = {}
+        for (j6, j7), fingers in HOMING_TILTS:
+            self._move((0.0, 0.0, 0.0, 0.0, 0.0, j6, j7), 4.0)
+            self.hand.session.sleep(2.0)  # the elastic arm and the fingers come to rest
+            for k in fingers:
+                result = self.hand.home(k)[0]
+                homed[k] = result.homed
+                q = ", ".join(f"{v:+.2f}" for v in result.joints)
+                self.say(f"hand: wrist tilted J6 {j6:+.1f} J7 {j7:+.1f} rad; finger {k} "
+                         f"homed from its accelerometers at ({q}) rad")
+        missing = [k for k, ok in homed.items() if not ok]
+        if missing:
+            raise DemoFailed("homing", f"fingers {missing} not homed")
 
-def describe(reply: dict[str, Any]) -> str:
-    version = reply["fw_version"]
-    return (f"{BoardType(reply['board']).name.lower():5s} uid {reply['uid']:#06x}  "
-            f"firmware {version['major']}.{version['minor']}.{version['patch']}  "
-            f"up {reply['uptime_us'] / 1e6:.2f} s")
+    def _move(self, pose: tuple[float, ...], timeout: float) -> None:
+        """A joint-space move at :data:`JOINT_SPEED_RAD_S` on every joint.  (Not
+        ``Arm.move(duration=…)``: it leaves the joints that did not move at 0.001 rad/s in
+        their speed registers, and a later controller's goals then crawl.)"""
+        self.arm.set_positions(list(pose), [JOINT_SPEED_RAD_S] * len(pose))
+        self.arm.move(list(pose), timeout=timeout)
+        self._check_arm()
 
+    def _check_arm(self) -> None:
+        state = self.arm.state()
+        errors = {k: v for k, v in state.errors.items() if v}
+        if errors:
+            raise DemoFailed(self.step, f"arm alarms {errors} (joints "
+                             f"{[round(q, 2) for q in state.joints]} rad)")
 
-def ask(label: str, what: Callable[[], dict[str, Any]], timeout_s: float = 10
-        ) -> dict[str, Any] | None:
-    """:func:`until`, printing the reply, or that ``label`` did not answer (None)."""
-    try:
-        reply = until(what, timeout_s)
-    except HostError as exc:
-        say(f"{label} did not answer within {timeout_s:g} s ({exc})")
-        return None
-    say(f"{label} {describe(reply)}")
-    return reply
+    def _moveto(self, xyz: tuple[float, float, float], what: str,
+                speed: float = NEAR_SPEED_RAD_S) -> None:
+        result = self.arm.moveto(list(xyz), list(GRASP_RPY), speed=speed)
+        self._check_arm()
+        if not result.reached and result.position_error > 0.01:
+            raise DemoFailed(self.step, f"{what}: the flange stopped "
+                             f"{result.position_error * 1000:.0f} mm from its target")
+        self.say(f"{what}: flange at {_fmt(xyz)} m (base frame), "
+                 f"{result.position_error * 1000:.1f} mm off")
 
+    def reach(self) -> None:
+        self.begin("reach", "hand folded back, forearm raised above the table")
+        for pose in FOLD_POSES:
+            self._move(pose, 7.0)
+        self.hand.grasp("open", 1.0, speed=2.0)
+        above = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + ABOVE_M)
+        self._moveto(above, "above the mug", speed=0.4)
+        self._moveto(GRASP_XYZ, "round the mug")
 
-def hand_session(palm_path: str) -> int:
-    answered = 0
-    with HandSession(open_transport(palm_path), timeouts=Timeouts(link_s=0.5)) as hand:
-        if ask("palm        ", lambda: hand.request("identify")) is None:
-            say("hand: the palm did not answer; nothing else to ask")
-            return 1
-        answered += 1
-        states = hand.request("palm.finger_power", {"finger": 0xFF, "state": FingerPower.FULL, "stagger_ms": 5})
-        say(f"finger power on: {states}")
+    def grasp(self) -> None:
+        self.begin("grasp", f"cylindrical grasp, closing at {GRASP_SPEED_RAD_S} rad/s until "
+                            "the tactile pads report contact")
+        result = self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+                                 until_contact=True, effort=GRASP_EFFORT,
+                                 on_states=self._on_fingers)
         for k in range(FINGERS):
-            if ask(f"finger {k} fmcb",
-                   functools.partial(hand.request, "identify", to=Target(k, Hop.FMCB))):
-                answered += 1
-                hand.request("fmcb.phalange_power", {"on": 1}, to=Target(k, Hop.FMCB))
-        for k in range(FINGERS):
-            for hop, name in ((Hop.F2, "f2"), (Hop.F3, "f3")):
-                if ask(f"finger {k} {name}  ",
-                       functools.partial(hand.request, "identify", to=Target(k, hop))):
-                    answered += 1
-        _move_finger(hand)
-        counts = hand.request("fmcb.hall_counts", {"raw": 0}, to=Target(1, Hop.FMCB))
-        joints = motor_to_joint(counts["counts"])
-        say(f"finger 1 joints after the move: {[round(q, 3) for q in joints]} rad "
-            f"(target {list(FINGER_TARGET)})")
-        moved = abs(joints[1] - FINGER_TARGET[1]) < 0.15
-    say(f"hand: {answered} of 13 microcontrollers answered; finger moved: {moved}")
-    return 0 if answered == 13 and moved else 1
+            self.say(f"finger {k}: {result.contacts.get(k, 'closed without contact')}")
+        if not result.contacts:
+            raise DemoFailed("grasp", "no finger felt the mug")
+        self.log.result["contacts"] = dict(result.contacts)
+        # Contact stops a finger where it touched; squeeze: every finger on towards the
+        # closed grasp, the mug stopping it, so its motors press with their effort.
+        self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
+        self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+                        effort=GRASP_EFFORT, timeout=1.0, on_states=self._on_fingers)
+
+    def lift(self, recorder: HandRecorder) -> None:
+        self.begin("lift", f"up {LIFT_M * 100:.0f} cm")
+        up = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + LIFT_M)
+        self._moveto(up, "lifted")
+        self.say(f"holding {HOLD_S:g} s")
+        self.sample_hand(HOLD_S, recorder)
+        if self.truth is not None:
+            lift = float(self.truth.position[2] - self.truth.start[2])
+            self.log.result["held_lift_m"] = lift
+            self.say(f"mug {lift * 100:+.1f} cm from its place on the table (ground truth)")
+            if lift < MIN_LIFT_M:
+                raise DemoFailed("lift", f"the mug is not in the hand: {lift * 100:+.1f} cm "
+                                         f"from its place, tilted "
+                                         f"{math.degrees(self.truth.tilt_rad):.0f}° "
+                                         f"(ground truth)")
+        self.begin("put down", "lowering the mug onto the table")
+        self._moveto(GRASP_XYZ, "set down")
+        self.hand.grasp("open", 1.0, speed=1.5, on_states=self._on_fingers)
+        self.say("hand opened")
+        above = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + ABOVE_M)
+        self._moveto(above, "hand withdrawn above the mug")
 
 
-def _move_finger(hand: HandSession) -> None:
-    """``fmcb.control`` has no reply: route it with a zero timeout and let it act."""
-    from protocol.messages import CATALOGUE
-
-    inner = CATALOGUE["fmcb.control"].request_frame(
-        HOP_ADDRESS[Hop.FMCB], {"mode": 2, "args": {"target": FINGER_TARGET}})
-    reply = hand.request("palm.route",
-                         {"finger": 1, "hop": Hop.FMCB, "timeout_ms": 0, "frame": inner})
-    say(f"finger 1 fmcb.control joint targets {list(FINGER_TARGET)} rad: route status "
-        f"{reply['status']}")
-    time.sleep(2.0)
+def _fmt(v: Any) -> str:
+    return "(" + ", ".join(f"{float(x):+.3f}" for x in v) + ")"
 
 
-def arm_session(arm_path: str) -> int:
-    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+def _quiet(main: Callable[[list[str]], int], argv: list[str]) -> tuple[int, str]:
+    """Run a CLI's ``main`` capturing its standard output and error."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        try:
+            status = main(argv)
+        except SystemExit as exc:
+            status = int(exc.code or 0)
+    return status, out.getvalue()
 
-    port = PortHandler(arm_path)
-    if not (port.openPort() and port.setBaudRate(ARM_BUS_BAUD)):
-        say(f"cannot open the arm port {arm_path}")
-        return 1
-    sdk = PacketHandler(1.0)
-    ok = 0
+
+def run_session(demo: Demo, out: Path) -> None:
+    """Steps 2-6 with the hand and arm recorded to MCAP under ``out``; any error is a
+    :class:`DemoFailed` naming the step it happened in."""
     try:
-        start: dict[int, int] = {}
-        for joint in ARM_JOINTS:
-            dxl_id = joint.dxl_id
-            table = STEPPER_TABLE if joint.is_stepper else RX64_TABLE
-            model, result, error = sdk.ping(port, dxl_id)
-            if result != COMM_SUCCESS:
-                say(f"arm id {dxl_id}: no answer ({sdk.getTxRxResult(result)})")
-                continue
-            start[dxl_id] = _position(sdk, port, dxl_id)
-            sdk.write1ByteTxRx(port, dxl_id, table["torque_enable"].address, 1)
-            kind = "stepper joint" if joint.is_stepper else "RX-64 servo"
-            say(f"arm id {dxl_id}: model {model:#06x} ({kind}), position {start[dxl_id]}, "
-                f"error byte {error}")
-            ok += 1
-        moves = {i: delta for i, delta in ARM_MOVES.items() if i in start}
-        for dxl_id in ARM_MOVES.keys() - moves.keys():
-            say(f"arm id {dxl_id}: not moved (it did not answer)")
-        for dxl_id, delta in moves.items():
-            table = STEPPER_TABLE if dxl_id in STEPPER_IDS else RX64_TABLE
-            size = 4 if dxl_id in STEPPER_IDS else 2
-            goal = start[dxl_id] + delta
-            write = sdk.write4ByteTxRx if size == 4 else sdk.write2ByteTxRx
-            write(port, dxl_id, table["goal_position"].address, goal & (2 ** (8 * size) - 1))
-            say(f"arm id {dxl_id}: goal {goal}")
-        time.sleep(2.0)
-        moved = 0
-        for dxl_id, delta in moves.items():
-            now = _position(sdk, port, dxl_id)
-            say(f"arm id {dxl_id}: present position {now} (moved {now - start[dxl_id]} "
-                f"of {delta})")
-            moved += abs(now - start[dxl_id] - delta) <= 0.25 * abs(delta)
+        demo.firmware()
+        with HandRecorder(demo.hand, out / "hand.mcap") as hand_rec, \
+                ArmRecorder(demo.arm, out / "arm.mcap"):
+            demo.home()
+            demo.reach()
+            demo.grasp()
+            demo.lift(hand_rec)
+        demo.arm.torque(False)
+    except DemoFailed:
+        raise
+    except Exception as exc:  # noqa: BLE001 - said as the step's failure, not a traceback
+        raise DemoFailed(demo.step, f"{type(exc).__name__}: {exc}") from exc
+
+
+def judge(summary: Mapping[str, float]) -> tuple[bool, str]:
+    """Success from the mug's ground truth (:meth:`MugTracker.summary`)."""
+    lift = summary["highest_lift_m"]
+    back = abs(summary["lift_m"]) <= SET_DOWN_M and summary["tilt_rad"] <= SET_DOWN_TILT_RAD
+    text = (f"mug lifted {lift * 100:.1f} cm (ground truth), "
+            + ("set down upright" if back else
+               f"ended {summary['lift_m'] * 100:+.1f} cm from its start height, tilted "
+               f"{math.degrees(summary['tilt_rad']):.0f}°"))
+    if lift < MIN_LIFT_M:
+        return False, f"lift: {text}; needs at least {MIN_LIFT_M * 100:.0f} cm"
+    if not back:
+        return False, f"put down: {text}"
+    return True, text
+
+
+# ---------------------------------------------------------------------------- in process
+
+
+def run_inprocess(out: Path, seed: int) -> tuple[bool, str]:
+    from hil_emulator.inprocess import EmulatorTransport
+
+    wall0 = time.monotonic()
+    url = f"emu://full/{{}}?scene=mug&seed={seed}&name=demo"
+    print(f"[sim    0.0 s | wall    0.0 s] emulator: full configuration, mug scene, in this "
+          f"process on the simulation clock ({url.format('palm')})", flush=True)
+    hand = Hand.open(url.format("palm"))
+    arm = Arm.open(url.format("arm"))
+    transport = hand.session.transport
+    assert isinstance(transport, EmulatorTransport)
+    emulator = transport.emulator
+    truth = emulator.scene_parts[0]
+    demo = Demo(hand, arm, out, truth=truth, palm_port=url.format("palm"))
+    demo.wall0 = wall0
+    demo.step = "emulator"
+    demo.say("hand up (13 MCUs running), arm powered, torque off; mug on the table at "
+             f"{_fmt(truth.start)} m")
+    try:
+        run_session(demo, out)
     finally:
-        port.closePort()
-    say(f"arm: {ok} of 7 nodes answered; {moved} of {len(ARM_MOVES)} joints reached their goal")
-    return 0 if ok == len(ARM_JOINTS) and moved == len(ARM_MOVES) else 1
+        summary = emulator.scene_stats()["mug"]
+        demo.log.result["mug"] = summary
+        hand.close()
+        arm.close()
+        _write_report(demo, out)
+    return judge(summary)
 
 
-def _position(sdk: Any, port: Any, dxl_id: int) -> int:
-    if dxl_id in STEPPER_IDS:
-        value, _, _ = sdk.read4ByteTxRx(port, dxl_id, STEPPER_TABLE["present_position"].address)
-        return int(value) - (1 << 32) if value & 0x8000_0000 else int(value)
-    value, _, _ = sdk.read2ByteTxRx(port, dxl_id, RX64_TABLE["present_position"].address)
-    return int(value)
+# ---------------------------------------------------------------------------- real time
 
 
-def main() -> int:
-    say("# hil-emulator --config full  (the hand on the arm's wrist)")
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "full"],
-                            cwd=ROOT, stdout=subprocess.PIPE, text=True)
-    why = "a node did not answer or a joint did not move"
+@contextlib.contextmanager
+def emulator_process(link_dir: Path, seed: int) -> Iterator[tuple[dict[str, Any],
+                                                                 subprocess.Popen[str]]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.hil_emulator", "--config", "full", "--scene", "mug",
+         "--ready", "--stats", "--seed", str(seed), "--link-dir", str(link_dir)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()
         if not line:
-            why = "the emulator did not start (its error is above)"
-            status = 1
-        else:
-            ports = json.loads(line)
-            say(f"ports: {json.dumps(ports)}")
-            status = _session("hand", hand_session, ports["palm"])
-            status |= _session("arm", arm_session, ports["arm"])
-    except KeyboardInterrupt:
-        why, status = "interrupted", 1
+            err = proc.stderr.read() if proc.stderr else ""
+            raise DemoFailed("emulator", f"hil-emulator did not start: {err.strip()[-300:]}")
+        yield json.loads(line), proc
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-    say("demo: " + ("every node answered and the joints moved" if status == 0
-                    else f"FAILED ({why})"))
-    return status
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
 
 
-def _session(name: str, session: Callable[[str], int], path: str) -> int:
-    """Run one session; an error on the wire is reported as a failure, not a traceback."""
+def _final_stats(proc: subprocess.Popen[str]) -> dict[str, Any]:
+    err = proc.stderr.read() if proc.stderr else ""
+    for line in err.splitlines():
+        if line.startswith("hil-emulator stats: "):
+            return dict(json.loads(line.split(": ", 1)[1]))
+    return {}
+
+
+def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
+    """Identify the thirteen hand MCUs; ping the arm's seven joints with dynamixel-sdk."""
+    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    from protocol.topology import ARM_BUS_BAUD, ARM_JOINTS
+
+    with Hand.open(ports["palm"]) as hand:
+        nodes = hand.discover()
+        answered = [n for n in nodes if n.answered]
+        say(f"{len(answered)} of {len(nodes)} hand MCUs answered over the pty")
+        if len(answered) != len(nodes):
+            raise DemoFailed("wire", "not every hand MCU answered: "
+                             + ", ".join(f"{n.where}: {n.problem}" for n in nodes
+                                         if not n.answered))
+    port = PortHandler(ports["arm"])
+    if not (port.openPort() and port.setBaudRate(ARM_BUS_BAUD)):
+        raise DemoFailed("wire", f"cannot open the arm port {ports['arm']}")
     try:
-        return session(path)
+        sdk = PacketHandler(1.0)
+        models = []
+        for joint in ARM_JOINTS:
+            model, result = 0, -1
+            for _ in range(3):  # the SDK's own timeout is tight for a pty on a busy machine
+                try:
+                    model, result, _ = sdk.ping(port, joint.dxl_id)
+                except IndexError:  # the SDK indexes a reply it did not get
+                    continue
+                if result == COMM_SUCCESS:
+                    break
+            if result != COMM_SUCCESS:
+                why = sdk.getTxRxResult(result) if result != -1 else "no reply"
+                raise DemoFailed("wire", f"arm id {joint.dxl_id} did not answer dynamixel-sdk's "
+                                         f"ping ({why})")
+            models.append(f"{joint.dxl_id}:{model:#06x}")
+        say(f"dynamixel-sdk pinged the arm's 7 joints ({' '.join(models)})")
+    finally:
+        port.closePort()
+
+
+def run_realtime(out: Path, seed: int) -> tuple[bool, str]:
+    wall0 = time.monotonic()
+    link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
+    try:
+        print("[wall    0.0 s] emulator: starting hil-emulator --config full --scene mug "
+              "--ready (the hand brought up in simulated time first)", flush=True)
+        with emulator_process(link_dir, seed) as (ports, proc):
+            def say(text: str) -> None:
+                print(f"[wall {time.monotonic() - wall0:6.1f} s] wire: {text}", flush=True)
+
+            say(f"ports {ports['palm']} (palm), {ports['arm']} (arm)")
+            over_the_wire(ports, say)
+            hand = Hand.open(ports["palm"])
+            arm = Arm.open(ports["arm"])
+            demo = Demo(hand, arm, out, palm_port=ports["palm"])
+            demo.wall0 = wall0
+            try:
+                run_session(demo, out)
+            finally:
+                hand.close()
+                arm.close()
+                proc.send_signal(signal.SIGINT)
+                proc.wait(timeout=20)
+                stats = _final_stats(proc)
+                summary = stats.get("scene", {}).get("mug")
+                demo.log.result["mug"] = summary or {}
+                _write_report(demo, out)
+        if not summary:
+            raise DemoFailed("report", "hil-emulator reported no ground truth of the mug")
+        return judge(summary)
+    finally:
+        shutil.rmtree(link_dir, ignore_errors=True)
+
+
+def _write_report(demo: Demo, out: Path) -> None:
+    from tools.demo_report import write_report
+
+    try:
+        path = write_report(demo.log, out)
+    except Exception as exc:  # noqa: BLE001 - the report must not hide the run's result
+        print(f"demo: the report could not be written ({type(exc).__name__}: {exc})",
+              flush=True)
+        return
+    print(f"report: {path}", flush=True)
+    print(f"recordings: {out / 'hand.mcap'}, {out / 'arm.mcap'} "
+          f"(decode: handbus decode {out / 'hand.mcap'})", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="demo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("demo-output"),
+                        help="where the report and recordings go (default ./demo-output)")
+    parser.add_argument("--seed", type=int, default=0, help="the emulator's seed")
+    parser.add_argument("--realtime", action="store_true",
+                        help="run against a hil-emulator subprocess through its ptys, "
+                             "paced to the wall clock")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        ok, text = (run_realtime if args.realtime else run_inprocess)(args.out, args.seed)
+    except DemoFailed as exc:
+        ok, text = False, f"{exc.step}: {exc}"
+    except KeyboardInterrupt:
+        ok, text = False, "interrupted"
     except Exception as exc:  # noqa: BLE001 - a demo reports, it does not crash
-        say(f"{name}: stopped by {type(exc).__name__}: {exc}")
-        return 1
+        ok, text = False, f"{type(exc).__name__}: {exc}"
+    print(f"demo: OK ({text})" if ok else f"demo: FAILED ({text})", flush=True)
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

@@ -3,11 +3,11 @@
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
-                 [--faults FILE] [--control PATH]
+                 [--faults FILE] [--control PATH] [--scene none|mug]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
-``seed``, ``links``), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
+``seed``, ``links``, and ``scene`` when one was asked for), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
 time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
 line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
 and one when it is on time again.
@@ -21,8 +21,10 @@ or ``--control PATH``; its path is the ``control`` key of the JSON line.
 Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
 exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
-lateness (``null`` when nothing was delivered), episodes of lateness, and per port the
-bytes in and out, host input lost to overrun and the longest input queue.
+lateness (``null`` when nothing was delivered), episodes of lateness, per port the
+bytes in and out, host input lost to overrun and the longest input queue, and with a
+``--scene`` its objects' ground truth (``scene``: the mug's start and present height,
+highest lift, tilt; :meth:`~hil_emulator.emulator.Emulator.scene_stats`).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from typing import Any
 from hil_emulator.emulator import CONFIGS, Emulator, has_display
 from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import load_plan
+from hil_emulator.scene_model import SCENES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,6 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="hand layout (default: four-finger-thumb)")
     parser.add_argument("--can", choices=("slcan", "none"), default="slcan",
                         help="the palm's CAN link: an SLCAN adapter on a pty (default) or none")
+    parser.add_argument("--scene", choices=SCENES, default="none",
+                        help="things in front of the arm: mug = a table with a coffee mug "
+                             "on it, within the hand's reach (full and arm configurations)")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
@@ -120,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         plan = load_plan(args.faults) if args.faults else []
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
-                            physics=args.physics, can=args.can)
+                            physics=args.physics, can=args.can, scene=args.scene)
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2
@@ -162,9 +168,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             if handle is not None:
                 handle.close()
             if args.stats:
-                stats = {"sim_s": emulator.scheduler.now_us() / 1e6,
-                         **emulator.lateness_stats(), "ports": emulator.link_stats(),
-                         "fault_timeline": emulator.faults.timeline_dicts()}
+                stats: dict[str, Any] = {
+                    "sim_s": emulator.scheduler.now_us() / 1e6, **emulator.lateness_stats(),
+                    "ports": emulator.link_stats(),
+                    "fault_timeline": emulator.faults.timeline_dicts()}
+                if emulator.scene_parts:
+                    stats["scene"] = emulator.scene_stats()
                 print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)
     return 0
 
