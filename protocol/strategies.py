@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import construct as c
 
@@ -51,6 +51,8 @@ INT_RANGES: Final = {
 MAX_DYNAMIC: Final = TUNNEL_MAX
 #: Largest greedy byte field generated.
 MAX_GREEDY: Final = 64
+#: Integers also come from 0..SMALL_MAX, where indices, counts and ids live.
+SMALL_MAX: Final = 32
 #: Float32 extremes worth trying on every float field.
 FLOAT32_EXTREMES: Final = (0.0, -0.0, 1.0, -1.0, 3.4028234663852886e38, -3.4028234663852886e38,
                            1.401298464324817e-45, math.inf, -math.inf)
@@ -100,10 +102,11 @@ def _integers(lo: int, hi: int) -> SearchStrategy[int]:
     from hypothesis import strategies as st
 
     extremes = sorted({lo, hi, 0 if lo <= 0 <= hi else lo, min(hi, lo + 1), max(lo, hi - 1)})
-    return st.one_of(st.sampled_from(extremes), st.integers(lo, hi))
+    small = st.integers(max(lo, 0), min(hi, SMALL_MAX))  # indices, counts, ids, modes
+    return st.one_of(st.sampled_from(extremes), small, small, st.integers(lo, hi))
 
 
-def _floats(width: int, allow_nan: bool) -> SearchStrategy[float]:
+def _floats(width: Literal[32, 64], allow_nan: bool) -> SearchStrategy[float]:
     from hypothesis import strategies as st
 
     extremes = [v for v in FLOAT32_EXTREMES if allow_nan or math.isfinite(v)]
@@ -114,8 +117,8 @@ def _floats(width: int, allow_nan: bool) -> SearchStrategy[float]:
 def values_for(con: c.Construct, *, allow_nan: bool = False) -> SearchStrategy[Any]:
     """A strategy of values that ``con`` builds (Rebuild, Padding and Check fields omitted).
 
-    Numbers are drawn from their whole range with the extremes (0, ±1, min, max and their
-    neighbours; ±inf and NaN for floats when ``allow_nan``) tried first; coded fields give
+    Numbers are drawn from their whole range, from 0..:data:`SMALL_MAX` (indices, counts)
+    and from the extremes (0, ±1, min, max and their neighbours; ±inf and NaN for floats when ``allow_nan``) tried first; coded fields give
     members, member names and unknown codes; counted bytes up to :data:`MAX_DYNAMIC`.
     """
     from hypothesis import strategies as st
@@ -206,11 +209,11 @@ def request_frames(messages: Sequence[Message], address: int, *,
     from hypothesis import strategies as st
 
     with_requests = [m for m in messages if m.request is not None]
-    return st.one_of(*(
-        request_payloads(m, allow_nan=allow_nan).map(
-            lambda payload, m=m: encode_frame(address, m.type_id, payload))
-        for m in with_requests
-    ))
+    def framed(msg: Message) -> SearchStrategy[bytes]:
+        return request_payloads(msg, allow_nan=allow_nan).map(
+            lambda payload: encode_frame(address, msg.type_id, payload))
+
+    return st.one_of(*(framed(m) for m in with_requests))
 
 
 def mutate_frame(frame: bytes, how: str, value: int) -> bytes:

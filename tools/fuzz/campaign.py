@@ -12,14 +12,15 @@ sequence again and tells whether the failure reproduces.
 
 from __future__ import annotations
 
+import fnmatch
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from host.errors import HostError
 from protocol import strategies as pst
-from protocol.catalogue import REQUEST
+from protocol.catalogue import REQUEST, Message
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.framing import encode_frame
 from protocol.topology import SERVO_IDS, STEPPER_IDS
@@ -87,7 +88,7 @@ class Checker:
         if step.motion:
             self.motion_sent = True
         if step.silent:
-            answers = self.link.answers(heard)
+            answers = self.link.answers(heard, like=step.data)
             if answers:
                 raise FuzzFailure(f"{step.label} drew an answer: {answers[0]!r}")
             if intro and intro.state_digest() != before:
@@ -134,10 +135,24 @@ def _label(frame: bytes, kind: TargetKind) -> str:
     return f"{name}{fields}"
 
 
+def focus(kind: TargetKind, patterns: Sequence[str] | None) -> list[Message]:
+    """The messages of ``kind`` whose names match one of the glob ``patterns`` (all
+    when None); a pattern matching nothing is an error."""
+    messages = kind.messages()
+    if not patterns:
+        return messages
+    chosen = [m for m in messages if any(fnmatch.fnmatchcase(m.name, p) for p in patterns)]
+    if not chosen:
+        raise ValueError(f"no {kind.name} message matches {', '.join(patterns)}; "
+                         f"choose among {', '.join(m.name for m in messages)}")
+    return chosen
+
+
 def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
-                record: list[Checker]) -> type:
+                record: list[Checker], messages: Sequence[str] | None = None) -> type:
     """The RuleBasedStateMachine of ``kind``; each instance opens the target with
-    ``opener`` and appends its :class:`Checker` to ``record``."""
+    ``opener`` and appends its :class:`Checker` to ``record``.  ``messages`` (glob
+    patterns such as ``fmcb.param_*``) focuses the frames on those messages."""
     from hypothesis import strategies as st
     from hypothesis.stateful import RuleBasedStateMachine, precondition, rule
 
@@ -148,7 +163,7 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
             pst.dynamixel_instructions(RX64_TABLE, SERVO_IDS, ARM_GUARDED_REGISTERS))
         frames = packets
     else:
-        frames = pst.request_frames(kind.messages(), kind.address)
+        frames = pst.request_frames(focus(kind, messages), kind.address)
 
     class Campaign(RuleBasedStateMachine):
         def __init__(self) -> None:
@@ -174,7 +189,8 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                                         pst.write_splits(wire, MAX_SPLIT_GAP_US)), label="split")
             motion = is_motion_packet(frame) if dynamixel else is_motion_frame(frame, kind.node)
             label = _dxl_label(frame) if dynamixel else _label(frame, kind)
-            self._run(Step(label=label, chunks=tuple(split), motion=motion))
+            self._run(Step(label=label, chunks=tuple(split), motion=motion,
+                           wait_us=self.link.reply_wait_us))
 
         @rule(data=st.data())
         def send_broken(self, data: Any) -> None:
@@ -183,16 +199,18 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 flip = data.draw(st.integers(0, 7), label="bit")
                 broken = frame[:-1] + bytes([frame[-1] ^ (1 << flip)])
                 self._run(Step(label=f"bad checksum {_dxl_label(frame)}",
-                               chunks=((broken, 0),), silent=True))
+                               chunks=((broken, 0),), silent=True,
+                               wait_us=self.link.reply_wait_us))
                 return
             how = data.draw(st.sampled_from(pst.MUTATIONS), label="mutation")
             detail = data.draw(st.integers(0, 2**16), label="detail")
             broken = pst.mutate_frame(frame, how, detail)
             silent = how in SILENT_MUTATIONS
             self._run(Step(label=f"{how} {_label(frame, kind)}",
-                           chunks=((self.link.wrap(broken), 0),), silent=silent))
+                           chunks=((self.link.wrap(broken), 0),), silent=silent,
+                           wait_us=self.link.reply_wait_us))
 
-        @rule(ms=st.integers(1, 400))
+        @rule(ms=st.integers(1, 3500 if kind.name == "bootloader" else 100))
         def wait(self, ms: int) -> None:
             self._run(Step(label=f"wait {ms} ms", chunks=(), wait_us=ms * 1000))
 
@@ -234,9 +252,11 @@ def _dxl_label(packet: bytes) -> str:
 
 def run_campaign(target: str, port: str | None = None, *, examples: int | None = 50,
                  seconds: float | None = None, seed: int = 0, steps: int = 12,
-                 shared: dict[str, Any] | None = None) -> CampaignResult:
+                 shared: dict[str, Any] | None = None,
+                 messages: Sequence[str] | None = None) -> CampaignResult:
     """Fuzz ``target`` on ``port`` (default: the emulator that has it) for ``examples``
-    sequences of up to ``steps`` steps, or for ``seconds`` of wall time."""
+    sequences of up to ``steps`` steps, or for ``seconds`` of wall time; ``messages``
+    (glob patterns) focuses the campaign on some messages."""
     from hypothesis import HealthCheck, Phase, settings
     from hypothesis import seed as hypothesis_seed
     from hypothesis.stateful import run_state_machine_as_test
@@ -251,23 +271,24 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
         counter[0] += 1
         return TargetLink.open(kind, url, seed=seed, shared=links)
 
-    config = dict(stateful_step_count=steps, deadline=None, database=None, print_blob=False,
-                  phases=[Phase.generate, Phase.shrink], suppress_health_check=list(HealthCheck))
+    base = settings(stateful_step_count=steps, deadline=None, database=None, print_blob=False,
+                    phases=[Phase.generate, Phase.shrink],
+                    suppress_health_check=list(HealthCheck))
     started = time.monotonic()
     result = CampaignResult(target, seed, 0, 0.0)
     # A time budget runs in rounds of a few examples, each round with its own seed.
     rounds = [(seed, examples or 50)] if seconds is None else (
         (seed * 100_003 + k, 10) for k in range(10**6))
     for round_seed, batch in rounds:
-        machine = machine_for(kind, opener, record)
+        machine = machine_for(kind, opener, record, messages)
         hypothesis_seed(round_seed)(machine)
         try:
-            run_state_machine_as_test(machine, settings=settings(max_examples=batch, **config))
+            run_state_machine_as_test(machine, settings=settings(base, max_examples=batch))
         except FuzzFailure as exc:
             checker = record[-1]
-            result.reproducer = Reproducer(target=target, seed=round_seed,
-                                           steps=list(checker.steps), failure=str(exc),
-                                           port=url)
+            found = Reproducer(target=target, seed=round_seed, steps=list(checker.steps),
+                               failure=str(exc), port=url)
+            result.reproducer = minimise(found) if url.startswith("emu://") else found
             break
         if seconds is None or time.monotonic() - started >= seconds:
             break
@@ -275,6 +296,22 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
     result.seconds = time.monotonic() - started
     result.steps_sent = sum(len(c.steps) for c in record)
     return result
+
+
+def minimise(reproducer: Reproducer, port: str | None = None) -> Reproducer:
+    """Drop every step whose removal keeps the same failure (replayed on fresh targets):
+    hypothesis shrinks values well, while deleting a step from a stateful run can shift
+    the draws of the steps after it, so a last greedy pass removes what is left."""
+    steps = list(reproducer.steps)
+    i = len(steps) - 1
+    while i >= 0 and len(steps) > 1:
+        trial = Reproducer(reproducer.target, reproducer.seed, steps[:i] + steps[i + 1:],
+                           reproducer.failure, reproducer.port)
+        if replay(trial, port) == reproducer.failure:
+            steps = trial.steps
+        i -= 1
+    return Reproducer(reproducer.target, reproducer.seed, steps, reproducer.failure,
+                      reproducer.port)
 
 
 def replay(reproducer: Reproducer, port: str | None = None) -> str | None:

@@ -114,6 +114,20 @@ def is_motion_packet(packet: bytes) -> bool:
                     dx.Instruction.SYNC_WRITE, dx.Instruction.RESET)
 
 
+def _same_kind(answer: Any, request: bytes, link: TargetLink) -> bool:
+    if link.kind.dynamixel:
+        return len(request) > 2 and getattr(answer, "id", None) == request[2]
+    inner = request
+    if link.kind.via_tunnel:
+        frames = StreamDecoder().feed(request)
+        if frames:
+            try:
+                inner = CATALOGUE["fmcb.tunnel"].parse_request(frames[0].payload)["data"]
+            except Exception:  # noqa: BLE001
+                return True
+    return len(inner) > 4 and answer.type == inner[4]
+
+
 class TargetLink:
     """One open link to a target, with what the oracles need: write steps, listen, ping,
     the protected state over the wire, and the introspection when emulated."""
@@ -198,9 +212,18 @@ class TargetLink:
             out += self.transport.recv(timeout=left)
         return bytes(out)
 
-    def answers(self, data: bytes) -> list[Any]:
+    @property
+    def reply_wait_us(self) -> int:
+        """How long a step listens for its answer (µs): a tunnel waits on the tendon bus."""
+        return (TUNNEL_LISTEN_MS + 5) * 1000 if self.kind.via_tunnel else 5_000
+
+    def answers(self, data: bytes, like: bytes | None = None) -> list[Any]:
         """Replies in ``data``: hand frames to the host (for a tunnelled target, the frames
-        inside non-empty tunnel replies) or Dynamixel status packets."""
+        inside non-empty tunnel replies) or Dynamixel status packets.  With ``like`` (the
+        bytes of a request) only answers to that request's type (hand) or ID (Dynamixel):
+        a slow answer to an earlier request may still be on its way."""
+        if like is not None:
+            return [a for a in self.answers(data) if _same_kind(a, like, self)]
         if self.kind.dynamixel:
             return [p.packet for p in dx.DynamixelStreamDecoder("status").feed(data)]
         decoder = StreamDecoder()
