@@ -54,6 +54,10 @@ class CampaignResult:
     seconds: float
     reproducer: Reproducer | None = None
     steps_sent: int = 0
+    #: Wall time (s) and examples from the start until the first failing example, before
+    #: any shrinking (None when nothing failed).
+    first_failure_s: float | None = None
+    examples_to_failure: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -149,7 +153,8 @@ def focus(kind: TargetKind, patterns: Sequence[str] | None) -> list[Message]:
 
 
 def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
-                record: list[Checker], messages: Sequence[str] | None = None) -> type:
+                record: list[Checker], messages: Sequence[str] | None = None,
+                on_failure: Callable[[], None] | None = None) -> type:
     """The RuleBasedStateMachine of ``kind``; each instance opens the target with
     ``opener`` and appends its :class:`Checker` to ``record``.  ``messages`` (glob
     patterns such as ``fmcb.param_*``) focuses the frames on those messages."""
@@ -179,7 +184,12 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 self.link.close()
 
         def _run(self, step: Step) -> None:
-            self.checker.run(step)
+            try:
+                self.checker.run(step)
+            except FuzzFailure:
+                if on_failure is not None:
+                    on_failure()
+                raise
 
         @rule(data=st.data())
         def send_valid(self, data: Any) -> None:
@@ -276,11 +286,17 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
                     suppress_health_check=list(HealthCheck))
     started = time.monotonic()
     result = CampaignResult(target, seed, 0, 0.0)
+
+    def noted() -> None:
+        if result.first_failure_s is None:
+            result.first_failure_s = time.monotonic() - started
+            result.examples_to_failure = counter[0]
+
     # A time budget runs in rounds of a few examples, each round with its own seed.
     rounds = [(seed, examples or 50)] if seconds is None else (
         (seed * 100_003 + k, 10) for k in range(10**6))
     for round_seed, batch in rounds:
-        machine = machine_for(kind, opener, record, messages)
+        machine = machine_for(kind, opener, record, messages, noted)
         hypothesis_seed(round_seed)(machine)
         try:
             run_state_machine_as_test(machine, settings=settings(base, max_examples=batch))
