@@ -216,10 +216,12 @@ def request_frames(messages: Sequence[Message], address: int, *,
     return st.one_of(*(framed(m) for m in with_requests))
 
 
-def mutate_frame(frame: bytes, how: str, value: int) -> bytes:
+def mutate_frame(frame: bytes, how: str, value: int, avoid: Sequence[int] = ()) -> bytes:
     """``frame`` broken in the way ``how`` names (:data:`MUTATIONS`); ``value`` (any
     non-negative int) picks the detail: the CRC bit, the cut, the length error, the address.
-    A deterministic function, so a reproducer can store (frame, how, value)."""
+    A deterministic function, so a reproducer can store (frame, how, value).  A foreign
+    address is never the frame's own, broadcast, or one of ``avoid`` (the other nodes on
+    the same line, which would rightly answer)."""
     body = bytearray(frame)
     if how == "bad_crc":
         body[-1 - (value // 8) % 2] ^= 1 << (value % 8)
@@ -229,11 +231,11 @@ def mutate_frame(frame: bytes, how: str, value: int) -> bytes:
     elif how in ("long_length", "short_length"):
         (length,) = struct.unpack_from("<H", body, 2)
         delta = 1 + value % 300
-        new = (length + delta) & 0xFFFF if how == "long_length" else max(0, length - delta)
+        new = (length + delta if how == "long_length" else length - delta) & 0xFFFF
         struct.pack_into("<H", body, 2, new)
     elif how == "foreign_address":
         address = body[1]
-        foreign = [a for a in range(256) if a not in (address, 0xFF)]
+        foreign = [a for a in range(256) if a not in (address, 0xFF, *avoid)]
         body[1] = foreign[value % len(foreign)]
         crc_frame = encode_frame(body[1], body[HEADER_SIZE - 1], bytes(body[HEADER_SIZE:-2]))
         return crc_frame
@@ -297,8 +299,8 @@ def register_writes(table: ControlTable, exclude: Sequence[str] = ()
 def dynamixel_instructions(table: ControlTable, ids: Sequence[int],
                            exclude: Sequence[str] = ()) -> SearchStrategy[bytes]:
     """Dynamixel 1.0 instruction packets (wire bytes) to ``ids`` (and the broadcast ID) over
-    ``table``: PING, READ, WRITE, REG_WRITE, ACTION, RESET, SYNC_WRITE, BULK_READ and
-    unknown instruction codes; ``exclude`` as in :func:`register_writes`."""
+    ``table``: PING, READ, WRITE, REG_WRITE, ACTION, RESET, SYNC_WRITE, BULK_READ, unknown
+    instruction codes and known ones with too few parameters; ``exclude`` as in :func:`register_writes`."""
     from hypothesis import strategies as st
 
     from protocol import dynamixel as dx
@@ -316,10 +318,15 @@ def dynamixel_instructions(table: ControlTable, ids: Sequence[int],
     bulk = st.builds(lambda entries: dx.make_bulk_read(entries), st.lists(
         st.tuples(st.integers(1, 8), st.sampled_from(list(ids)), st.integers(0, table.size)),
         min_size=1, max_size=4, unique_by=lambda e: e[1]))
+    known = sorted(int(i) for i in dx.Instruction)
     unknown = st.builds(lambda i, code, p: dx.InstructionPacket(i, code, p), any_id,
-                        st.integers(0, 0xFF), st.binary(max_size=8))
+                        st.integers(0, 0xFF).filter(lambda code: code not in known),
+                        st.binary(max_size=8))
+    # A known instruction too short for its parameters (0 or 1 byte): never a valid write.
+    malformed = st.builds(lambda i, code, p: dx.InstructionPacket(i, code, p), any_id,
+                          st.sampled_from(known), st.binary(max_size=1))
     packets = st.one_of(
         st.builds(dx.make_ping, any_id), read, write, reg_write,
         st.builds(dx.make_action, any_id), st.builds(dx.make_reset, st.sampled_from(list(ids))),
-        sync, bulk, unknown)
+        sync, bulk, unknown, malformed)
     return packets.map(lambda p: p.encode())

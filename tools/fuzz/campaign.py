@@ -214,7 +214,7 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 return
             how = data.draw(st.sampled_from(pst.MUTATIONS), label="mutation")
             detail = data.draw(st.integers(0, 2**16), label="detail")
-            broken = pst.mutate_frame(frame, how, detail)
+            broken = pst.mutate_frame(frame, how, detail, kind.neighbours)
             silent = how in SILENT_MUTATIONS
             self._run(Step(label=f"{how} {_label(frame, kind)}",
                            chunks=((self.link.wrap(broken), 0),), silent=silent,

@@ -50,6 +50,8 @@ class TargetKind:
     via_tunnel: bool = False
     dynamixel: bool = False
     ping_deadline_s: float = 0.05
+    #: Addresses of the other nodes on the target's line (never a "foreign" address).
+    neighbours: tuple[int, ...] = ()
 
     def messages(self) -> list[Message]:
         """The catalogue requests this node understands (common ones included)."""
@@ -59,8 +61,10 @@ class TargetKind:
 TARGETS: Final = {
     "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2),
     "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb"),
-    "f2": TargetKind("f2", "emu://loose-finger/finger0", "f2", ADDR_F2, via_tunnel=True),
-    "f3": TargetKind("f3", "emu://loose-finger/finger0", "f3", ADDR_F3, via_tunnel=True),
+    "f2": TargetKind("f2", "emu://loose-finger/finger0", "f2", ADDR_F2, via_tunnel=True,
+                     neighbours=(ADDR_F3,)),
+    "f3": TargetKind("f3", "emu://loose-finger/finger0", "f3", ADDR_F3, via_tunnel=True,
+                     neighbours=(ADDR_F2,)),
     "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader"),
     "arm": TargetKind("arm", "emu://arm/arm", "arm", dynamixel=True),
 }
