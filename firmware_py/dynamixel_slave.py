@@ -76,6 +76,10 @@ _EEPROM_HEADER = struct.Struct("<4sHB")  # magic, model number, length
 BULK_SLOT_US = 600
 #: Retry interval when the flash is busy with another write (µs).
 FLASH_RETRY_US = 500
+#: A partial packet older than this is dropped before new bytes are decoded (µs).  Without
+#: it, a false header inside a corrupted packet (``FF FF id LEN`` with a large LEN) kept the
+#: node deaf until LEN more bytes had passed: every following instruction was swallowed.
+PACKET_GAP_US = 10_000
 
 # Instruction codes as plain ints for the dispatch (InstructionPacket keeps unknown codes
 # as int, and an enum member read off its class costs ~0.4 µs).
@@ -107,7 +111,7 @@ class DynamixelSlave:
         self.image = bytearray(table.size)
         self.bus_id = 1  #: the ID the node answers to (the register, once a reply is out)
         self.replies = 0  #: status packets sent since power-up
-        self._decoder = DynamixelStreamDecoder("instruction")
+        self._decoder = DynamixelStreamDecoder("instruction", gap_timeout=PACKET_GAP_US / 1e6)
         self._pending_write: tuple[int, bytes] | None = None
         self._save_wanted = False
         self._bulk_wait: tuple[int, Callable[[], None], Timer] | None = None
@@ -119,7 +123,7 @@ class DynamixelSlave:
         self._boot(self._load_eeprom() or self._factory_eeprom())
 
     def _boot(self, eeprom: bytes) -> None:
-        self._decoder = DynamixelStreamDecoder("instruction")
+        self._decoder = DynamixelStreamDecoder("instruction", gap_timeout=PACKET_GAP_US / 1e6)
         self._pending_write = None
         self._bulk_wait = None
         self.image = self.table.defaults()
@@ -238,7 +242,7 @@ class DynamixelSlave:
             if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
                 self._bulk_heard(data[2])
             return
-        for decoded in self._decoder.feed(data):
+        for decoded in self._decoder.feed(data, t_us / 1e6):
             packet = decoded.packet
             assert isinstance(packet, InstructionPacket)
             self._bulk_heard(packet.id)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_py.dynamixel_slave import EEPROM_PAGE
+from firmware_py.dynamixel_slave import EEPROM_PAGE, PACKET_GAP_US
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
 from firmware_py.sim.virtual_hal import VirtualHal
@@ -250,3 +250,26 @@ def test_bulk_read_answers_in_turn():
     bus2.deliver(raw)
     sched.run_for(2_000)
     assert len(bus2.sent) == 1
+
+
+def test_false_header_in_a_corrupted_packet_does_not_deafen_the_node(node):
+    # Found by hil-fuzz: a broadcast SYNC_WRITE with a bad checksum whose parameters hold
+    # FF FF 7F D8 — a false header announcing 216 bytes.  The node resynchronises onto it;
+    # the partial packet must be dropped after the inter-packet gap, not swallow what follows.
+    sched, hal = node
+    corrupted = bytes.fromhex("FF FF FE 09 83 1C 04 01 FE FF FF 7F D8")
+    assert transact(sched, hal, corrupted) == []
+    sched.run_for(PACKET_GAP_US)  # the host's next instruction comes after a pause
+    ping = bytes.fromhex("FF FF 01 02 01 FB")
+    (status,) = transact(sched, hal, ping)
+    assert (status.id, status.error) == (1, 0)
+
+
+def test_a_packet_split_within_the_gap_still_arrives(node):
+    sched, hal = node
+    ping = bytes.fromhex("FF FF 01 02 01 FB")
+    bus = hal.uart("bus")
+    bus.take_sent()
+    bus.deliver(ping[:3])
+    sched.run_for(PACKET_GAP_US // 2)
+    assert transact(sched, hal, ping[3:]) != []

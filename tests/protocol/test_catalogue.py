@@ -1,8 +1,8 @@
 """Tests of the message catalogue: round trips of every declaration, layouts, errors, lookup.
 
-Field values are generated from the construct declarations themselves by a small strategy
-builder (:func:`values_for`), so a message added to the catalogue is covered without
-touching this file.
+Field values are generated from the construct declarations themselves by the shared
+strategies of :mod:`protocol.strategies` (``values_for``, extremes first), so a message added
+to the catalogue is covered without touching this file.
 """
 
 from __future__ import annotations
@@ -25,129 +25,16 @@ from protocol.catalogue import (
     iter_fields,
     static_size,
 )
-from protocol.enum_field import EnumField
 from protocol.errors import MessageError, PayloadError, ProtocolError, UnknownMessageError
 from protocol.framing import Frame
 from protocol.interpret import candidate_nodes, interpret
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 from protocol.messages.fields import EMPTY
 from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.strategies import unwrap as _unwrap
+from protocol.strategies import values_for
 
-# --- a strategy builder over construct declarations -----------------------------------------
-
-_INT_RANGES = {
-    "B": (0, 2**8 - 1),
-    "H": (0, 2**16 - 1),
-    "I": (0, 2**32 - 1),
-    "L": (0, 2**32 - 1),
-    "Q": (0, 2**64 - 1),
-    "b": (-(2**7), 2**7 - 1),
-    "h": (-(2**15), 2**15 - 1),
-    "i": (-(2**31), 2**31 - 1),
-    "l": (-(2**31), 2**31 - 1),
-    "q": (-(2**63), 2**63 - 1),
-}
-#: Largest dynamically sized byte field generated (the tunnel's bound).
-MAX_DYNAMIC = TUNNEL_MAX
-MAX_GREEDY = 64
-
-
-class _KeyProbe(dict[str, Any]):
-    """A context that records which field a Switch's key function reads."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.read: list[str] = []
-
-    def __getitem__(self, key: str) -> Any:
-        self.read.append(key)
-        return 0
-
-    def __getattr__(self, key: str) -> Any:
-        return self[key]
-
-
-def _unwrap(con: c.Construct) -> c.Construct:
-    while isinstance(con, c.Renamed):
-        con = con.subcon
-    return con
-
-
-def _switch_keys(struct_con: c.Struct) -> dict[str, list[Any]]:
-    """Field name → allowed values, for fields a Switch of this Struct is keyed on."""
-    keys: dict[str, list[Any]] = {}
-    for sub in struct_con.subcons:
-        inner = _unwrap(sub)
-        if isinstance(inner, c.Switch):
-            probe = _KeyProbe()
-            inner.keyfunc(probe)
-            assert len(probe.read) == 1, "a Switch keyed on one sibling field"
-            keys[probe.read[0]] = sorted(inner.cases)
-    return keys
-
-
-def values_for(con: c.Construct) -> st.SearchStrategy[Any]:
-    """A strategy of values that ``con`` builds (Rebuild, Padding and Check fields omitted)."""
-    con = _unwrap(con)
-    if isinstance(con, c.Struct):
-        return _struct_values(con)
-    if isinstance(con, EnumField):
-        members = list(con.enum_type)
-        return st.one_of(
-            st.sampled_from(members),
-            st.sampled_from([m.name for m in members] + [m.name.lower() for m in members]),
-            values_for(con.subcon),  # any code, known or not
-        )
-    if isinstance(con, c.FormatField):
-        code = con.fmtstr[-1]
-        if code == "f":
-            return st.floats(width=32, allow_nan=False)
-        if code == "d":
-            return st.floats(allow_nan=False)
-        lo, hi = _INT_RANGES[code]
-        return st.integers(lo, hi)
-    if isinstance(con, c.Array):
-        assert isinstance(con.count, int), "arrays of a fixed count"
-        return st.lists(values_for(con.subcon), min_size=con.count, max_size=con.count)
-    if isinstance(con, c.Bytes):
-        if isinstance(con.length, int):
-            return st.binary(min_size=con.length, max_size=con.length)
-        return st.binary(max_size=MAX_DYNAMIC)
-    if con is c.GreedyBytes:
-        return st.binary(max_size=MAX_GREEDY)
-    if isinstance(con, c.StringEncoded):
-        assert con.encoding == "ascii"
-        return st.text(st.characters(max_codepoint=0x7F), max_size=255)
-    raise NotImplementedError(f"no strategy for {con!r}")
-
-
-def _omitted(sub: c.Construct) -> bool:
-    inner = _unwrap(sub)
-    return (
-        getattr(sub, "name", None) is None
-        or isinstance(inner, c.Rebuild | c.Check | c.Padded | c.Const)
-    )
-
-
-def _struct_values(con: c.Struct) -> st.SearchStrategy[dict[str, Any]]:
-    switch_keys = _switch_keys(con)
-
-    @st.composite
-    def draw_struct(draw: st.DrawFn) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for sub in con.subcons:
-            if _omitted(sub):
-                continue
-            inner = _unwrap(sub)
-            if sub.name in switch_keys:
-                out[sub.name] = draw(st.sampled_from(switch_keys[sub.name]))
-            elif isinstance(inner, c.Switch):
-                out[sub.name] = draw(values_for(inner.cases[inner.keyfunc(out)]))
-            else:
-                out[sub.name] = draw(values_for(inner))
-        return out
-
-    return draw_struct()
+# Field values come from the shared strategies of protocol.strategies (``values_for``).
 
 
 def rebuilt_names(con: c.Construct | None) -> set[str]:
