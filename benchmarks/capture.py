@@ -20,6 +20,7 @@ import construct as c
 
 from protocol.enum_field import EnumField
 from protocol.messages import CATALOGUE
+from protocol.strategies import switch_keys
 from protocol.topology import ADDR_FMCB, NODE_ADDRESS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "tools" / "samples" / "hand_session.hex"
@@ -47,38 +48,11 @@ def _number(rng: random.Random, fmt: str) -> Any:
     return rng.randrange(-(1 << (8 * size - 1)), 1 << (8 * size - 1))
 
 
-class _KeyProbe(dict[str, Any]):
-    """A context that records which field a Switch's key function reads."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.read: list[str] = []
-
-    def __getitem__(self, key: str) -> Any:
-        self.read.append(key)
-        return 0
-
-    def __getattr__(self, key: str) -> Any:
-        return self[key]
-
-
-def _switch_keys(struct_con: Any) -> dict[str, list[Any]]:
-    """Field name → the values a Switch of this Struct has cases for."""
-    keys: dict[str, list[Any]] = {}
-    for sub in struct_con.subcons:
-        inner = _unwrap(sub)
-        if isinstance(inner, c.Switch):
-            probe = _KeyProbe()
-            inner.keyfunc(probe)
-            keys[probe.read[0]] = sorted(inner.cases)
-    return keys
-
-
 def _value(rng: random.Random, con: Any) -> Any:
     """A value ``con`` builds (Rebuild, Padding, Check and Const fields are left out)."""
     con = _unwrap(con)
     if isinstance(con, c.Struct):
-        keys = _switch_keys(con)
+        keys = switch_keys(con)
         out: dict[str, Any] = {}
         for sub in con.subcons:
             inner = _unwrap(sub)
