@@ -80,18 +80,33 @@ def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]
 
 
 def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> None:
-    # After the grasps above the object lies across the open fingers' proximal pads: a
-    # cylindrical grasp until contact stops those fingers at once and closes the others.
+    # Something meets finger 1's proximal pad as the grasp starts (the plant pushes the pad,
+    # as an object would): a cylindrical grasp until contact stops that finger at once and
+    # closes the others.
+    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)
     before = _truth(hand)
-    result = hand.grasp("cylindrical", 1.0, speed=2.0, unhomed=True, until_contact=True)
+    pressed: list[float] = []
+
+    def touch(t: float, states: object) -> None:
+        if not pressed:
+            pressed.append(t)
+        elif len(pressed) == 1:  # after the baseline reading: the pad is pushed now
+            emulator.finger_plants[1].press("F2", 3.0)
+            pressed.append(t)
+
+    try:
+        result = hand.grasp("cylindrical", 1.0, speed=2.0, unhomed=True, until_contact=True,
+                            on_states=touch)
+    finally:
+        emulator.finger_plants[1].press("F2", 0.0)
     after = _truth(hand)
     targets = synergy_targets("cylindrical", 1.0)
+    assert 1 in result.contacts, "the pressed pad went unnoticed"
     for k in range(4):
         if k in result.contacts:
             assert "taxels" in result.contacts[k] or "blocked" in result.contacts[k]
             assert after[k, 1] < targets[k][1] - 0.3, k  # stopped short
         else:
             assert after[k, 1] - before[k, 1] > 0.8, k   # closed
-    assert result.contacts, "the object on the pads went unnoticed"
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)

@@ -8,7 +8,11 @@ from pathlib import Path
 
 import pytest
 
+from firmware_py.fmcb_params import FMCB_PARAMS
 from tools.examples import arm_tour, hand_tour, session_tour
+
+#: The fmcb's deadband at power-up (hall counts), as its firmware declares it.
+FMCB_DEFAULT_DEADBAND = next(p.default for p in FMCB_PARAMS if p.name == "deadband")
 
 ROOT = Path(__file__).resolve().parents[2]
 GUIDE = ROOT / "docs" / "HOST.md"
@@ -73,7 +77,7 @@ def test_hand_tour(tmp_path: Path) -> None:
     seen = hand_tour.main(HAND_URL, str(path))
     assert seen["nodes"] == seen["answered"] == 13
     assert (3, "unpowered") in seen["events"] and (3, "powered") in seen["events"]
-    assert seen["deadband"] == 50 and seen["settled"]
+    assert seen["deadband"] == FMCB_DEFAULT_DEADBAND and seen["settled"]
     assert seen["joints"] == pytest.approx([0.0, 0.4, 0.3], abs=0.1)
     stream = seen["stream"]
     assert len(stream) == 5
