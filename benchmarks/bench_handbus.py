@@ -29,7 +29,7 @@ from typing import Any
 from benchmarks.capture import make_capture
 from benchmarks.harness import Result
 from protocol.catalogue import REQUEST
-from protocol.errors import PayloadError
+from protocol.errors import ProtocolError
 from protocol.framing import DEFAULT_MAX_PAYLOAD, encode_frame
 from protocol.interpret import Interpretation, candidate_nodes
 from protocol.messages import CATALOGUE
@@ -42,7 +42,9 @@ BASELINE = "per-frame-dumps"
 TARGET_MB_S = 10 / 15
 
 
-def _interpret_from_scratch(frame: Any, hint: str | None) -> Interpretation:
+def interpret_from_scratch(frame: Any, hint: str | None) -> Interpretation:
+    """How ``handbus`` named a frame before its plans were cached: every candidate declaration
+    tried in turn (the baseline of this benchmark and the oracle of the handbus tests)."""
     direction = "reply" if frame.address == ADDR_HOST else REQUEST
     first: tuple[Any, str | None] = (None, None)
     seen: set[str] = set()
@@ -55,7 +57,7 @@ def _interpret_from_scratch(frame: Any, hint: str | None) -> Interpretation:
             continue
         try:
             return Interpretation(msg, direction, msg.parse(direction, frame.payload))
-        except PayloadError as exc:
+        except ProtocolError as exc:
             if first[1] is None:
                 first = (msg, str(exc))
     return Interpretation(first[0], direction, None, first[1])
@@ -72,7 +74,7 @@ def decode_per_frame_dumps(data: bytes, out: io.StringIO) -> None:
                                   "fields": None}
         if frame.crc_ok:
             hint = last.get(frame.type) if frame.address == ADDR_HOST else None
-            meaning = _interpret_from_scratch(frame, hint)
+            meaning = interpret_from_scratch(frame, hint)
             record["name"] = meaning.name
             record["direction"] = meaning.direction
             record["fields"] = jsonable(meaning.fields)

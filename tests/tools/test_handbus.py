@@ -225,31 +225,10 @@ def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
 def reference_lines(data: bytes, node: str | None = None) -> str:
     """What ``handbus decode`` printed before it was made fast: a dict per frame, deep-copied
     by ``jsonable`` and printed by ``json.dumps`` (the oracle of the fast writer)."""
+    from benchmarks.bench_handbus import interpret_from_scratch as interpret_slowly
     from protocol.catalogue import REQUEST
-    from protocol.interpret import Interpretation, candidate_nodes
-    from protocol.messages import CATALOGUE
-    from protocol.stream import decode_all
+    from protocol.stream import StreamDecoder, decode_all
     from protocol.topology import ADDR_HOST
-
-    def interpret_slowly(frame: Any, hint: str | None) -> Interpretation:
-        direction = "reply" if frame.address == ADDR_HOST else REQUEST
-        first: tuple[Any, str | None] = (None, None)
-        seen: set[str] = set()
-        for kind in candidate_nodes(frame.address, hint):
-            msg = CATALOGUE.lookup(kind, frame.type)
-            if msg is None or msg.name in seen:
-                continue
-            seen.add(msg.name)
-            if (msg.request if direction == REQUEST else msg.reply) is None:
-                continue
-            try:
-                return Interpretation(msg, direction, msg.parse(direction, frame.payload))
-            except handbus.ProtocolError as exc:
-                if first[1] is None:
-                    first = (msg, str(exc))
-        return Interpretation(first[0], direction, None, first[1])
-
-    from protocol.stream import StreamDecoder
     decoder = StreamDecoder(gap_s=None, report_rejected=True)
     frames = decoder.feed(data) + decoder.flush()
     assert [f for f in frames if f.crc_ok] == decode_all(data)
