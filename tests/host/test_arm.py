@@ -125,6 +125,10 @@ def test_clear_errors_clears_a_latched_slip(arm: Arm) -> None:
 
 
 def test_armctl_json_status(arm: Arm) -> None:
+    arm.torque(True)  # a known pose, whatever ran before (J4 at 0.25 rad)
+    _, ok = arm.move([0.0, 0.0, 0.0, 0.25, 0.0, -0.3, 0.0], timeout=5.0)
+    assert ok
+    arm.clear_errors()
     out = io.StringIO()
     assert armctl.main(["--port", URL, "--json", "status"], out=out) == 0
     status = json.loads(out.getvalue())
