@@ -282,8 +282,10 @@ class FingerPlant:
             duties[i] = duty
             last = written[i]
             # data.ctrl keeps what was written (no one else writes these entries): write only
-            # a changed duty, bit for bit (the same object, or equal with the same sign).
-            if duty is not last and (duty != last or copysign(1.0, duty) != copysign(1.0, last)):
+            # a changed duty, bit for bit (the same object, or equal with the same sign: equal
+            # floats can differ in sign only at zero; NaN is never equal, so always written).
+            if duty is not last and (duty != last or (
+                    duty == 0.0 and copysign(1.0, duty) != copysign(1.0, last))):
                 ctrl[act[i]] = duty
                 written[i] = duty
         if self._press_dirty or self._presses:
