@@ -150,8 +150,8 @@ class FingerPlant:
         motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
         if len(motors) != 3:
             raise PlantError("an fmcb drives three motors")
-        #: Per motor, its plant side bound once: braking, bridge enabled, commanded duty.
-        self._motor_rows = [(m.braking, m.bridge_enabled, m.commanded_duty) for m in motors]
+        #: Per motor, its plant side bound once: (braking, bridge enabled, commanded duty).
+        self._motor_commands = [m.drive_command for m in motors]
         self._fmcb_sensors: VirtualSensors = _virtual_hal(fmcb, "fmcb").sensors
         self._f2_sensors: VirtualSensors = _virtual_hal(f2, "f2").sensors
         self._f3_sensors: VirtualSensors = _virtual_hal(f3, "f3").sensors
@@ -264,18 +264,19 @@ class FingerPlant:
         powered = self.attached and self.fmcb.powered
         ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
         duties, written, copysign = self._duty, self._ctrl_written, math.copysign
-        for i, (braking, bridge_enabled, commanded_duty) in enumerate(self._motor_rows):
+        for i, drive_command in enumerate(self._motor_commands):
+            braking, bridge_enabled, commanded_duty = drive_command()
             if not powered:
                 mode = _COAST
-            elif braking():
+            elif braking:
                 mode = _BRAKE
-            elif bridge_enabled():
+            elif bridge_enabled:
                 mode = _DRIVE
             else:
                 mode = _COAST
             if mode != modes[i]:
                 self._set_mode(i, mode)
-            duty = commanded_duty() if mode == _DRIVE else 0.0
+            duty = commanded_duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
             if sign != signs[i]:
                 self._set_drive_sign(i, sign)

@@ -153,6 +153,7 @@ def test_motor_commands_reach_the_plant(duty: float, enabled: bool, brake: bool)
     assert plant_side.commanded_duty() == max(-1.0, min(1.0, duty))
     assert plant_side.bridge_enabled() is enabled
     assert plant_side.braking() is brake
+    assert plant_side.drive_command() == (brake, enabled, plant_side.commanded_duty())
 
 
 @given(rate=st.floats(-50_000.0, 50_000.0), dt_us=st.integers(1, 2_000_000),
