@@ -158,8 +158,9 @@ class FingerPlant:
         #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
         self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
         self._m_rad = motor_coupling_rad()
-        #: Per motor: its hall state and current inputs, its row of M_rad, its hall phase.
-        self._hall_rows = [(m.set_hall_state, m.set_current_ma, float(row[0]), float(row[1]),
+        #: Per motor: its hall state and current input (one setter), its row of M_rad, its
+        #: hall phase.
+        self._hall_rows = [(m.set_hall_and_current, float(row[0]), float(row[1]),
                             float(row[2]), phase)
                            for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
                                                     strict=True)]
@@ -315,8 +316,8 @@ class FingerPlant:
         v, ke, r, lim = self._electrical
         currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
-        for i, (set_hall, set_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
-            set_hall(sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6])
+        for i, (set_hall_and_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
+            hall = sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
             if modes[i] == _COAST:
                 current = 0.0
             else:
@@ -328,7 +329,7 @@ class FingerPlant:
                     current = -lim
             currents[i] = current
             i2[i] += current * current
-            set_current(round(current * 1000.0))
+            set_hall_and_current(hall, round(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:

@@ -15,7 +15,7 @@ recording attributes.
   ``set_supply_mv``, ``set_pot``, ``set_load`` (``set_input`` for any other channel);
 * :class:`VirtualMotor`: reads ``commanded_duty``, ``bridge_enabled``, ``braking`` (all
   three at once: ``drive_command``); drives
-  ``set_hall_state``, ``set_current_ma``;
+  ``set_hall_state``, ``set_current_ma`` (both: ``set_hall_and_current``);
 * :class:`VirtualStepper`: reads ``position_steps`` (exact), ``commanded_rate``,
   ``commanded_current_ma``;
 * :class:`VirtualEncoder`: drives ``set_count``, ``pulse_index``;
@@ -361,6 +361,12 @@ class VirtualMotor(hal.MotorDriver):
 
     def set_current_ma(self, milliamps: int) -> None:
         """The winding current the current sense measures (mA, signed)."""
+        self.current = milliamps
+
+    def set_hall_and_current(self, state: int, milliamps: int) -> None:
+        """:meth:`set_hall_state` and :meth:`set_current_ma` in one call (the finger plant
+        writes twelve motors every tick)."""
+        self.hall = state
         self.current = milliamps
 
 

@@ -140,6 +140,11 @@ def test_motor_hall_state_and_current_reach_the_firmware(hall: int, current: int
         motor.set_current_ma(current + index)
     assert [hal.motor(i).hall_state() for i in range(3)] == [hall] * 3
     assert [hal.motor(i).current_ma() for i in range(3)] == [current, current + 1, current + 2]
+    for index, motor in enumerate(hal.motors):  # both at once, as the finger plant writes
+        motor.set_hall_and_current(7 - hall, -current - index)
+    assert [hal.motor(i).hall_state() for i in range(3)] == [7 - hall] * 3
+    assert [hal.motor(i).current_ma() for i in range(3)] == [-current, -current - 1,
+                                                             -current - 2]
 
 
 @given(duty=st.floats(-2.0, 2.0), enabled=st.booleans(), brake=st.booleans())
