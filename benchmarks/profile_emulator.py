@@ -1,6 +1,6 @@
 """Where the emulator's time goes under nominal traffic (fast mode, full configuration).
 
-``python -m benchmarks.profile_emulator [--sim-s 3] [--no-physics] [--cprofile]``
+``python -m benchmarks.profile_emulator [--sim-s 3] [--no-physics] [--cprofile] [--sample]``
 
 Boots the full configuration as :mod:`benchmarks.bench_emulator` does (fingers holding
 their pose in joint mode with autopoll, arm torque on, the host reading the arm at 100 Hz),
@@ -12,7 +12,11 @@ then runs ``--sim-s`` simulated seconds and prints
   tick, a bus delivery, the plant tick …), with its rate and cost per call,
 * the plant tick split into ``mj_step`` and each part's ``before_step`` / ``after_step``,
 * with ``--cprofile``, the top of a cProfile run sorted by own time and by cumulative
-  time (the profiler inflates Python calls several-fold: use it for ranking only).
+  time (the profiler inflates Python calls several-fold: use it for ranking only),
+* with ``--sample``, a sampling profile: the Python stack is looked at every 0.5 ms of CPU
+  time (``SIGPROF``), so small functions are not inflated; each function's share of the
+  samples where it was running (own) and where it was on the stack (cumulative).  A C call
+  (``mj_step``) counts as its Python caller's own time.
 
 It is not a ``bench_*`` module, so ``python -m benchmarks`` does not run it.
 """
@@ -25,6 +29,7 @@ import cProfile
 import heapq
 import io
 import pstats
+import signal
 import time
 from collections.abc import Callable
 
@@ -145,16 +150,57 @@ def profile(physics: bool, sim_s: float, top: int = 30) -> str:
     return out.getvalue()
 
 
+def sample(physics: bool, sim_s: float, top: int = 40, interval_s: float = 0.0005) -> str:
+    """Sampling profile of the driven run: shares of own and cumulative samples (%)."""
+    emulator = booted(physics)
+    own: collections.Counter[str] = collections.Counter()
+    cum: collections.Counter[str] = collections.Counter()
+    total = 0
+
+    def on_sample(signum: int, frame: object) -> None:
+        nonlocal total
+        total += 1
+        seen: set[str] = set()
+        f = frame
+        first = True
+        while f is not None:
+            code = f.f_code  # type: ignore[attr-defined]
+            key = f"{code.co_filename.rsplit('/', 1)[-1]}:{code.co_name}"
+            if first:
+                own[key] += 1
+                first = False
+            if key not in seen:
+                cum[key] += 1
+                seen.add(key)
+            f = f.f_back  # type: ignore[attr-defined]
+
+    previous = signal.signal(signal.SIGPROF, on_sample)
+    signal.setitimer(signal.ITIMER_PROF, interval_s, interval_s)
+    try:
+        drive(emulator, sim_s)
+    finally:
+        signal.setitimer(signal.ITIMER_PROF, 0.0, 0.0)
+        signal.signal(signal.SIGPROF, previous)
+    lines = [f"{total} samples; own (running):"]
+    lines += [f"{100 * n / total:6.1f}%  {key}" for key, n in own.most_common(top)]
+    lines.append("cumulative (on the stack):")
+    lines += [f"{100 * n / total:6.1f}%  {key}" for key, n in cum.most_common(top)]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.profile_emulator")
     parser.add_argument("--sim-s", type=float, default=3.0, help="simulated seconds")
     parser.add_argument("--no-physics", action="store_true", help="firmware and buses only")
     parser.add_argument("--cprofile", action="store_true", help="also a cProfile run")
+    parser.add_argument("--sample", action="store_true", help="also a sampling profile")
     args = parser.parse_args(argv)
     physics = not args.no_physics
     print("\n".join(breakdown(physics, args.sim_s)))
     if args.cprofile:
         print(profile(physics, args.sim_s))
+    if args.sample:
+        print(sample(physics, args.sim_s))
     return 0
 
 

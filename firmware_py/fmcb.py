@@ -196,7 +196,9 @@ class FmcbApp(HandNode):
             "pp_imu": [0] * 6, "dp_imu": [0] * 6, "pp_temp": [0] * 4, "dp_temp": [0] * 4,
             "pp_strain": 0,
         }
-        self.snapshot: dict[str, Any] = {}
+        #: What the last status refresh read (see :meth:`_refresh_status`), the fields built.
+        self._snapshot_taken: tuple[Any, ...] | None = None
+        self._snapshot: dict[str, Any] | None = None
         self._timers: list[Timer] = []
         self._register()
 
@@ -278,23 +280,42 @@ class FmcbApp(HandNode):
         return PB_TRIPPED if self.breaker_tripped else pb_current_counts(self._pb_current / 1000)
 
     def _refresh_status(self) -> None:
+        """Take the status snapshot (every :data:`STATUS_PERIOD_US`).
+
+        What it reads is kept as it is now (the lists it names are replaced, never changed
+        in place, except the effort, which is copied) and :attr:`snapshot` builds the reply
+        fields from it when asked: the palm asks far less often than every 5 ms."""
         supply = self._read("supply_mv", 0)  # mV; the ADC reading (counts) goes out
         self.voltage = supply_counts(supply / 1000) if isinstance(supply, int) else 0
         ph = self.phalanges
-        self.snapshot = {
-            "pp_time": ph["pp_time"], "dp_time": ph["dp_time"],
-            "fmcb_time": self.hal.clock.now_us() & 0xFFFFFFFF,
-            "pp_tactile": list(ph["pp_tactile"]), "dp_tactile": list(ph["dp_tactile"]),
-            "pp_imu": list(ph["pp_imu"]), "dp_imu": list(ph["dp_imu"]),
-            "fmcb_imu": list(self.imu),
-            "pp_temp": list(ph["pp_temp"]), "dp_temp": list(ph["dp_temp"]),
-            "fmcb_temp": list(self.temperatures),
-            "voltage": self.voltage, "pb_current": self.pb_current,
-            "pp_strain": ph["pp_strain"],
-            "hall_tgt": _clamped(self.hall_target, -0x80000000, 0x7FFFFFFF),
-            "hall_pos": _clamped(self.hall_pos, -0x80000000, 0x7FFFFFFF),
-            "effort": _clamped(self.effort, -0x8000, 0x7FFF),
-        }
+        self._snapshot_taken = (
+            ph["pp_time"], ph["dp_time"], self.hal.clock.now_us() & 0xFFFFFFFF,
+            ph["pp_tactile"], ph["dp_tactile"], ph["pp_imu"], ph["dp_imu"], self.imu,
+            ph["pp_temp"], ph["dp_temp"], self.temperatures, self.voltage, self.pb_current,
+            ph["pp_strain"], self.hall_target, self.hall_pos, tuple(self.effort))
+        self._snapshot = None
+
+    @property
+    def snapshot(self) -> dict[str, Any]:
+        """The ``fmcb.status`` reply fields as of the last refresh (empty before the first)."""
+        if self._snapshot is None:
+            taken = self._snapshot_taken
+            if taken is None:
+                return {}
+            (pp_time, dp_time, fmcb_time, pp_tactile, dp_tactile, pp_imu, dp_imu, imu,
+             pp_temp, dp_temp, temps, voltage, pb_current, pp_strain, hall_target, hall_pos,
+             effort) = taken
+            self._snapshot = {
+                "pp_time": pp_time, "dp_time": dp_time, "fmcb_time": fmcb_time,
+                "pp_tactile": list(pp_tactile), "dp_tactile": list(dp_tactile),
+                "pp_imu": list(pp_imu), "dp_imu": list(dp_imu), "fmcb_imu": list(imu),
+                "pp_temp": list(pp_temp), "dp_temp": list(dp_temp), "fmcb_temp": list(temps),
+                "voltage": voltage, "pb_current": pb_current, "pp_strain": pp_strain,
+                "hall_tgt": _clamped(hall_target, -0x80000000, 0x7FFFFFFF),
+                "hall_pos": _clamped(hall_pos, -0x80000000, 0x7FFFFFFF),
+                "effort": _clamped(effort, -0x8000, 0x7FFF),
+            }
+        return self._snapshot
 
     # --- control --------------------------------------------------------------------------
     def _control_tick(self) -> None:

@@ -100,7 +100,16 @@ class HandNode:
         decoder = StreamDecoder(gap_s=FRAME_GAP_US / 1e6)
         self._decoders[id(uart)] = decoder
 
+        counters, broadcast = self.counters, ADDR_BROADCAST
+
         def on_bytes(data: bytes, t_us: int) -> None:
+            # A whole frame for another node (a bus delivers frame by frame): count it as
+            # on_frame would, without building it.
+            address = data[1] if len(data) > 1 else broadcast
+            if (address != self.address and address != broadcast
+                    and decoder.pass_frame(data, t_us / 1e6)):
+                counters.not_for_me += 1
+                return
             for frame in decoder.feed(data, t_us / 1e6):
                 self.on_frame(frame, uart)
 

@@ -133,8 +133,11 @@ class _PhalangeApp(HandNode):
         return 0 if value < 0 else _U16_MAX if value > _U16_MAX else value
 
     def _scan_step(self) -> None:
+        # read_taxel(i), written out: eight phalanges run this 1000 times a second.
         i = self._next_taxel
-        self._scan_buffer[i] = self.read_taxel(i)
+        total = self.hal.sensors.read_burst(self._taxel_channels[i], ADC_SAMPLES)
+        value = (total + ADC_SAMPLES // 2) // ADC_SAMPLES
+        self._scan_buffer[i] = 0 if value < 0 else _U16_MAX if value > _U16_MAX else value
         i += 1
         if i == self.n_taxels:
             # Publish the whole scan at once: a reply never mixes two scans.

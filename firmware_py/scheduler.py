@@ -113,8 +113,10 @@ class Scheduler:
         ran = 0
         queue = self._queue
         pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
-        while ran < max_events and queue and queue[0][0] <= t_us:
+        while ran < max_events and queue:
             when, _, ev = queue[0]
+            if when > t_us:
+                break
             cb = ev.callback
             if cb is None:
                 pop(queue)
@@ -131,8 +133,8 @@ class Scheduler:
                 ev.callback = None
             cb()
             ran += 1
-        if ran < max_events:
-            self._now = max(self._now, t_us)
+        if ran < max_events and t_us > self._now:
+            self._now = t_us
         return ran
 
     def run_for(self, duration_us: int) -> int:

@@ -150,16 +150,17 @@ class FingerPlant:
         motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
         if len(motors) != 3:
             raise PlantError("an fmcb drives three motors")
-        #: Per motor, its plant side bound once: braking, bridge enabled, commanded duty.
-        self._motor_rows = [(m.braking, m.bridge_enabled, m.commanded_duty) for m in motors]
+        #: Per motor, its plant side bound once: (braking, bridge enabled, commanded duty).
+        self._motor_commands = [m.drive_command for m in motors]
         self._fmcb_sensors: VirtualSensors = _virtual_hal(fmcb, "fmcb").sensors
         self._f2_sensors: VirtualSensors = _virtual_hal(f2, "f2").sensors
         self._f3_sensors: VirtualSensors = _virtual_hal(f3, "f3").sensors
         #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
         self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
         self._m_rad = motor_coupling_rad()
-        #: Per motor: its hall state and current inputs, its row of M_rad, its hall phase.
-        self._hall_rows = [(m.set_hall_state, m.set_current_ma, float(row[0]), float(row[1]),
+        #: Per motor: its hall state and current input (one setter), its row of M_rad, its
+        #: hall phase.
+        self._hall_rows = [(m.set_hall_and_current, float(row[0]), float(row[1]),
                             float(row[2]), phase)
                            for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
                                                     strict=True)]
@@ -264,26 +265,29 @@ class FingerPlant:
         powered = self.attached and self.fmcb.powered
         ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
         duties, written, copysign = self._duty, self._ctrl_written, math.copysign
-        for i, (braking, bridge_enabled, commanded_duty) in enumerate(self._motor_rows):
+        for i, drive_command in enumerate(self._motor_commands):
+            braking, bridge_enabled, commanded_duty = drive_command()
             if not powered:
                 mode = _COAST
-            elif braking():
+            elif braking:
                 mode = _BRAKE
-            elif bridge_enabled():
+            elif bridge_enabled:
                 mode = _DRIVE
             else:
                 mode = _COAST
             if mode != modes[i]:
                 self._set_mode(i, mode)
-            duty = commanded_duty() if mode == _DRIVE else 0.0
+            duty = commanded_duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
             if sign != signs[i]:
                 self._set_drive_sign(i, sign)
             duties[i] = duty
             last = written[i]
             # data.ctrl keeps what was written (no one else writes these entries): write only
-            # a changed duty, bit for bit (the same object, or equal with the same sign).
-            if duty is not last and (duty != last or copysign(1.0, duty) != copysign(1.0, last)):
+            # a changed duty, bit for bit (the same object, or equal with the same sign: equal
+            # floats can differ in sign only at zero; NaN is never equal, so always written).
+            if duty is not last and (duty != last or (
+                    duty == 0.0 and copysign(1.0, duty) != copysign(1.0, last))):
                 ctrl[act[i]] = duty
                 written[i] = duty
         if self._press_dirty or self._presses:
@@ -312,8 +316,8 @@ class FingerPlant:
         v, ke, r, lim = self._electrical
         currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
-        for i, (set_hall, set_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
-            set_hall(sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6])
+        for i, (set_hall_and_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
+            hall = sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
             if modes[i] == _COAST:
                 current = 0.0
             else:
@@ -325,7 +329,7 @@ class FingerPlant:
                     current = -lim
             currents[i] = current
             i2[i] += current * current
-            set_current(round(current * 1000.0))
+            set_hall_and_current(hall, round(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:

@@ -111,6 +111,32 @@ class StreamDecoder:
         # are sliced straight out of them) and keep only an unfinished tail.
         return self._scan(data if type(data) is bytes else bytes(data), t, final=False)
 
+    def pass_frame(self, data: bytes, t: float | None = None) -> bool:
+        """Account for ``data`` without building its frame, if it is exactly one whole
+        good frame and nothing is held: the decoder ends as :meth:`feed` would leave it
+        (counters, stream offset, arrival time) and the frame is not returned.  Returns
+        False, having done nothing, in every other case (then call :meth:`feed`).
+
+        For a listener that knows from the address byte (``data[1]``) that the frame is not
+        for it: what it would do with the frame is count it, so building it is wasted.
+        """
+        n = len(data)
+        if (self._buf or n < HEADER_SIZE + CRC_SIZE or data[0] != SYNC
+                or type(data) is not bytes):
+            return False
+        length = data[2] | (data[3] << 8)
+        body_end = HEADER_SIZE + length
+        if (length > self.max_payload or body_end + CRC_SIZE != n
+                or crc16_xmodem_fast(data[:body_end]) != data[body_end] | (data[body_end + 1] << 8)):
+            return False
+        if t is not None:
+            self._last_t = t  # nothing is held: no gap can discard anything
+        counters = self.counters
+        counters.bytes_in += n
+        counters.frames += 1
+        self._base += n
+        return True
+
     def flush(self, t: float | None = None) -> list[Frame]:
         """End of stream: recover frames behind false syncs and drop the rest."""
         frames = self._scan(self._buf, t, final=True)

@@ -13,8 +13,9 @@ recording attributes.
 * :class:`VirtualSensors`: ``set_accel``, ``set_mag``, ``set_gyro`` (3-axis counts),
   ``set_taxels``, ``set_strain``, ``set_temperature(s)``, ``set_thermistors``,
   ``set_supply_mv``, ``set_pot``, ``set_load`` (``set_input`` for any other channel);
-* :class:`VirtualMotor`: reads ``commanded_duty``, ``bridge_enabled``, ``braking``; drives
-  ``set_hall_state``, ``set_current_ma``;
+* :class:`VirtualMotor`: reads ``commanded_duty``, ``bridge_enabled``, ``braking`` (all
+  three at once: ``drive_command``); drives
+  ``set_hall_state``, ``set_current_ma`` (both: ``set_hall_and_current``);
 * :class:`VirtualStepper`: reads ``position_steps`` (exact), ``commanded_rate``,
   ``commanded_current_ma``;
 * :class:`VirtualEncoder`: drives ``set_count``, ``pulse_index``;
@@ -349,12 +350,23 @@ class VirtualMotor(hal.MotorDriver):
         """The windings are shorted (braking wins over the duty)."""
         return self.brake
 
+    def drive_command(self) -> tuple[bool, bool, float]:
+        """:meth:`braking`, :meth:`bridge_enabled` and :meth:`commanded_duty` in one call
+        (the finger plant reads twelve motors every tick)."""
+        return self.brake, self.enabled, self.duty
+
     def set_hall_state(self, state: int) -> None:
         """The three hall sensor bits the rotor angle gives now, 0..7."""
         self.hall = state
 
     def set_current_ma(self, milliamps: int) -> None:
         """The winding current the current sense measures (mA, signed)."""
+        self.current = milliamps
+
+    def set_hall_and_current(self, state: int, milliamps: int) -> None:
+        """:meth:`set_hall_state` and :meth:`set_current_ma` in one call (the finger plant
+        writes twelve motors every tick)."""
+        self.hall = state
         self.current = milliamps
 
 

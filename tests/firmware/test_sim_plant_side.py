@@ -140,6 +140,11 @@ def test_motor_hall_state_and_current_reach_the_firmware(hall: int, current: int
         motor.set_current_ma(current + index)
     assert [hal.motor(i).hall_state() for i in range(3)] == [hall] * 3
     assert [hal.motor(i).current_ma() for i in range(3)] == [current, current + 1, current + 2]
+    for index, motor in enumerate(hal.motors):  # both at once, as the finger plant writes
+        motor.set_hall_and_current(7 - hall, -current - index)
+    assert [hal.motor(i).hall_state() for i in range(3)] == [7 - hall] * 3
+    assert [hal.motor(i).current_ma() for i in range(3)] == [-current, -current - 1,
+                                                             -current - 2]
 
 
 @given(duty=st.floats(-2.0, 2.0), enabled=st.booleans(), brake=st.booleans())
@@ -153,6 +158,7 @@ def test_motor_commands_reach_the_plant(duty: float, enabled: bool, brake: bool)
     assert plant_side.commanded_duty() == max(-1.0, min(1.0, duty))
     assert plant_side.bridge_enabled() is enabled
     assert plant_side.braking() is brake
+    assert plant_side.drive_command() == (brake, enabled, plant_side.commanded_duty())
 
 
 @given(rate=st.floats(-50_000.0, 50_000.0), dt_us=st.integers(1, 2_000_000),

@@ -547,3 +547,50 @@ def test_tuples_are_the_frames_feed_returns(parts: list[bytes], cuts: list[int],
     assert tuples == [(f.address, f.type, f.payload, f.offset, f.crc_ok) for f in frames]
     assert all(type(payload) is bytes for _, _, payload, _, _ in tuples)
     assert plain.counters == framed.counters
+
+
+# --- pass_frame -------------------------------------------------------------------------------
+
+
+def _state(dec: StreamDecoder) -> tuple[object, ...]:
+    return (dec.counters, dec.pending, dec._base, dec._last_t)
+
+
+@pytest.mark.parametrize("frame", [PING, POWER_ON, HW_REPLY])
+def test_pass_frame_leaves_the_decoder_as_feed_does(frame: bytes) -> None:
+    fed, passed = StreamDecoder(), StreamDecoder()
+    for dec in (fed, passed):  # some history first
+        assert len(dec.feed(PING, 0.001)) == 1
+    assert len(fed.feed(frame, 0.002)) == 1
+    assert passed.pass_frame(frame, 0.002)
+    assert _state(passed) == _state(fed)
+    # and the next frame decodes at the same stream offset
+    assert fed.feed(POWER_ON, 0.003)[0].offset == passed.feed(POWER_ON, 0.003)[0].offset
+
+
+@pytest.mark.parametrize("data", [
+    POWER_ON_BAD_CRC,            # bad CRC: feed counts a failure and rescans
+    POWER_ON[:-1],               # not whole
+    POWER_ON + PING,             # more than one frame
+    b"\x00" + POWER_ON,          # junk before the sync
+    LONG_PROMISE,                # a promise of more bytes
+    b"",
+])
+def test_pass_frame_refuses_anything_but_one_good_frame(data: bytes) -> None:
+    dec = StreamDecoder()
+    before = (DecoderCounters(**dec.counters.as_dict()), dec.pending, dec._base, dec._last_t)
+    assert not dec.pass_frame(data, 0.001)
+    assert (dec.counters, dec.pending, dec._base, dec._last_t) == before
+
+
+def test_pass_frame_refuses_while_a_partial_frame_is_held() -> None:
+    dec = StreamDecoder()
+    assert dec.feed(PING[:3], 0.001) == []
+    assert not dec.pass_frame(POWER_ON, 0.002)
+    assert dec.pending == 3
+
+
+def test_pass_frame_respects_the_length_bound() -> None:
+    dec = StreamDecoder(max_payload=0)
+    assert dec.pass_frame(PING, 0.001)
+    assert not dec.pass_frame(POWER_ON, 0.002)
