@@ -28,7 +28,7 @@ def run(quick: bool = False) -> list[Result]:
     results = [Result(GROUP, "fmcb campaign (emulator, fast)", rate, "ex",
                       note=f"{clean.steps_sent / clean.seconds:.0f} steps/s, "
                            f"{'FOUND ' + clean.reproducer.failure if clean.reproducer else 'clean'}")]
-    seeds = range(2 if quick else 5)
+    seeds = range(2 if quick else 3)
     saved = boards.APP_PROGRAMS["fmcb"]
     from tests.tools.fuzz_planted import PROGRAM
 
