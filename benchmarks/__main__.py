@@ -11,6 +11,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import time
 
 import benchmarks
 from benchmarks.harness import Result, Table
@@ -20,13 +21,14 @@ def _fmt(rate: float) -> str:
     for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
         if rate >= scale:
             return f"{rate / scale:8.2f}{suffix}"
-    return f"{rate:9.1f}"
+    return f"{rate:9.1f}" if rate >= 10 or rate != rate else f"{rate:9.3f}"
 
 
 def report(results: list[Result]) -> list[str]:
-    """Table lines: group, name, rate, ratio to baseline, target met."""
+    """Table lines: group, name, value (a rate per second, or a figure in its unit where
+    smaller is better), ratio to baseline, target met."""
     by_key = {(r.group, r.name): r for r in results}
-    lines = [f"{'group':18s} {'name':34s} {'rate/s':>10s} {'unit':6s} {'vs baseline':>14s}  target"]
+    lines = [f"{'group':18s} {'name':34s} {'value':>10s} {'unit':6s} {'vs baseline':>14s}  target"]
     for r in results:
         ratio = ""
         if r.baseline and (r.group, r.baseline) in by_key:
@@ -34,8 +36,10 @@ def report(results: list[Result]) -> list[str]:
             ratio = f"{r.rate / base:8.1f}× {r.baseline}" if base else ""
         target = ""
         if r.target is not None:
-            target = f"{'met' if r.rate >= r.target else 'MISSED'} (≥ {_fmt(r.target).strip()})"
-        lines.append(f"{r.group:18s} {r.name:34s} {_fmt(r.rate):>10s} {r.unit:6s} {ratio:>14s}  "
+            bound = "≤" if r.at_most else "≥"
+            target = f"{'met' if r.met else 'MISSED'} ({bound} {_fmt(r.target).strip()})"
+        unit = r.unit if r.at_most else f"{r.unit}/s"
+        lines.append(f"{r.group:18s} {r.name:34s} {_fmt(r.rate):>10s} {unit:6s} {ratio:>14s}  "
                      f"{target}{('  ' + r.note) if r.note else ''}")
     return lines
 
@@ -54,8 +58,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         module = importlib.import_module(f"benchmarks.{name}")
         print(f"running {name} …", file=sys.stderr, flush=True)
+        start = time.perf_counter()
         for item in module.run(quick=args.quick):
             (tables if isinstance(item, Table) else results).append(item)
+        print(f"  {name}: {time.perf_counter() - start:.0f} s (wall)", file=sys.stderr, flush=True)
     print("\n".join(report(results)))
     for table in tables:
         print(f"\n{table.title}")

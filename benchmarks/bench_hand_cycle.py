@@ -49,9 +49,10 @@ _TXN = CATALOGUE.by_name("txn")
 
 
 def cycle(hand: Hand, commands: list[FingerCommand]) -> None:
-    """One state-and-command cycle: the 12 joint targets out, the hand's summary back."""
+    """One state-and-command cycle: the 12 joint targets out, the hand's summary back.
+    The fingers are not homed (the cycle's cost does not depend on it): ``unhomed``."""
     summary = hand.palm.start("palm.hand_status")
-    hand.send(commands)
+    hand.send(commands, unhomed=True)
     hand.session.wait(summary)
 
 

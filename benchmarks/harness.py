@@ -14,10 +14,13 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Result:
-    """One measured rate.
+    """One measured rate (or, with ``at_most``, a figure that should stay small).
 
     ``rate`` is in ``unit`` per second; ``baseline`` names another result of the same group
-    that this one is compared with; ``target`` is a goal in ``unit``/s (None if none).
+    that this one is compared with; ``target`` is a goal in ``unit``/s (None if none), met
+    when ``rate`` ≥ ``target``.  With ``at_most``, ``rate`` is a figure in ``unit`` (a
+    lateness in ms, a memory growth in MB, cores) and the target is met when it is ≤
+    ``target``.
     """
 
     group: str
@@ -27,6 +30,14 @@ class Result:
     baseline: str | None = None
     target: float | None = None
     note: str = ""
+    at_most: bool = False
+
+    @property
+    def met(self) -> bool | None:
+        """Whether the target is met (None: no target; a NaN figure misses it)."""
+        if self.target is None:
+            return None
+        return self.rate <= self.target if self.at_most else self.rate >= self.target
 
 
 def best_rate(func: Callable[[], int], repeat: int = 5, min_time: float = 0.2) -> float:

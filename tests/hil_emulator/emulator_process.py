@@ -7,8 +7,10 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -73,3 +75,66 @@ def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:
         _, err = proc.communicate(timeout=10)
         raise RuntimeError(f"hil-emulator exited ({proc.returncode}) before its ports: {err}")
     return line
+
+
+@dataclass(frozen=True)
+class Flood:
+    """What :func:`flood_arm_port` saw: ``written`` bytes of junk the pty took, the
+    emulator's resident memory growth over the flood (kB), the reply to the ping written
+    afterwards and how long it took (s, wall clock), and the emulator's ``--stats``."""
+
+    written: int
+    rss_growth_kb: int
+    reply: bytes
+    answered_s: float
+    stats: dict[str, Any]
+
+
+def rss_kb(pid: int) -> int:
+    """Resident memory of process ``pid`` (kB, ``VmRSS``)."""
+    text = Path(f"/proc/{pid}/status").read_text()
+    return int(next(x for x in text.splitlines() if x.startswith("VmRSS:")).split()[1])
+
+
+def flood_arm_port(seconds: float = 3.0) -> Flood:
+    """Run ``hil-emulator --config arm --no-physics``, write junk to its arm port as fast as
+    the pty takes it for ``seconds``, then write a ping to servo 1 and time its reply."""
+    import serial
+
+    from protocol.dynamixel import InstructionPacket
+
+    ping = InstructionPacket(1, 0x01, b"").encode()
+    with running_emulator("--config", "arm", "--no-physics") as info:
+        pid = info["process"].pid
+        with serial.Serial(info["arm"], 1_000_000, timeout=0) as port:
+            port.write(ping)
+            deadline = time.monotonic() + 5.0
+            first = b""
+            while not first.startswith(b"\xff\xff") and time.monotonic() < deadline:
+                first += port.read(64)
+                time.sleep(0.01)
+            if not first.startswith(b"\xff\xff"):
+                raise AssertionError(f"no reply to a ping before the flood: {first!r}")
+            rss_before = rss_kb(pid)
+            fd = port.fileno()
+            os.set_blocking(fd, False)
+            junk = b"\x55" * 4096
+            written = 0
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                try:
+                    written += os.write(fd, junk)
+                except BlockingIOError:
+                    time.sleep(0.0005)
+            os.set_blocking(fd, True)
+            port.flush()  # the pty has handed everything over to the emulator
+            rss_after = rss_kb(pid)
+            time.sleep(0.02)
+            port.reset_input_buffer()
+            t0 = time.perf_counter()
+            port.write(ping)
+            got = b""
+            while len(got) < 6 and time.perf_counter() - t0 < 2.0:
+                got += port.read(64)
+            answered_s = time.perf_counter() - t0
+    return Flood(written, rss_after - rss_before, got, answered_s, info["stats"])

@@ -18,7 +18,7 @@ from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import FingerPower
 from protocol.topology import ADDR_FMCB, ADDR_PALM, Hop
-from tests.hil_emulator.emulator_process import late_s, running_emulator
+from tests.hil_emulator.emulator_process import flood_arm_port, late_s, running_emulator
 
 #: The host link's share of a reply's time over a pty (s): generous on a busy machine.
 PTY_LINK = Timeouts(link_s=0.5)
@@ -261,56 +261,20 @@ def test_ready_names_the_ports_with_every_hand_node_running() -> None:
         assert status["pp_time"] > 0 and status["dp_time"] > 0  # autopoll has run
 
 
-def _rss_kb(pid: int) -> int:
-    text = Path(f"/proc/{pid}/status").read_text()
-    return int(next(x for x in text.splitlines() if x.startswith("VmRSS:")).split()[1])
-
-
 @pytest.mark.slow
 def test_a_flood_on_the_arm_port_is_an_overrun_and_the_next_ping_is_answered() -> None:
     """A host writing as fast as a pty takes for 3 s: the port keeps only what its
     1 Mbaud wire carries soon (the rest is an overrun, counted); memory stays flat; a ping
-    written afterwards is answered within 50 ms (plus what the emulator reports as late)."""
-    import os
-
-    import serial
-
+    written afterwards is answered within 50 ms (plus what the emulator reports as late).
+    benchmarks/bench_backpressure.py reports the same figures."""
     from hil_emulator.host_links import INPUT_FIFO_US
-    from protocol.dynamixel import InstructionPacket
 
-    ping = InstructionPacket(1, 0x01, b"").encode()
-    with running_emulator("--config", "arm", "--no-physics") as info:
-        pid = info["process"].pid
-        with serial.Serial(info["arm"], 1_000_000, timeout=0) as port:
-            port.write(ping)
-            assert _until(lambda: port.read(64), 5, every_s=0.01)[:2] == b"\xff\xff"
-            rss_before = _rss_kb(pid)
-            fd = port.fileno()
-            os.set_blocking(fd, False)
-            junk = b"\x55" * 4096
-            written = 0
-            end = time.monotonic() + 3.0
-            while time.monotonic() < end:
-                try:
-                    written += os.write(fd, junk)
-                except BlockingIOError:
-                    time.sleep(0.0005)
-            os.set_blocking(fd, True)
-            port.flush()  # the pty has handed everything over to the emulator
-            rss_after = _rss_kb(pid)
-            time.sleep(0.02)
-            port.reset_input_buffer()
-            t0 = time.perf_counter()
-            port.write(ping)
-            got = b""
-            while len(got) < 6 and time.perf_counter() - t0 < 2.0:
-                got += port.read(64)
-            answered_s = time.perf_counter() - t0
-    stats = info["stats"]
+    flood = flood_arm_port(3.0)
+    stats, written = flood.stats, flood.written
     arm = stats["ports"]["arm"]
-    assert got[:6] == bytes([0xFF, 0xFF, 1, 2, 0, 0xFC])  # id 1, no error
-    assert answered_s <= 0.050 + late_s(stats) + CLIENT_SLACK_S, (answered_s, stats)
+    assert flood.reply[:6] == bytes([0xFF, 0xFF, 1, 2, 0, 0xFC])  # id 1, no error
+    assert flood.answered_s <= 0.050 + late_s(stats) + CLIENT_SLACK_S, (flood.answered_s, stats)
     assert written > 3 * 100_000  # more than the 1 Mbaud wire could carry in 3 s
     assert arm["overrun"] > written - 3.5 * 100_000  # the rest was lost, and counted
     assert arm["queue_peak_us"] <= INPUT_FIFO_US + 1_000  # the queue stayed bounded
-    assert rss_after - rss_before < 10_000  # kB: memory flat
+    assert flood.rss_growth_kb < 10_000  # kB: memory flat

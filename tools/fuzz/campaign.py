@@ -263,10 +263,12 @@ def _dxl_label(packet: bytes) -> str:
 def run_campaign(target: str, port: str | None = None, *, examples: int | None = 50,
                  seconds: float | None = None, seed: int = 0, steps: int = 12,
                  shared: dict[str, Any] | None = None,
-                 messages: Sequence[str] | None = None) -> CampaignResult:
+                 messages: Sequence[str] | None = None, shrink: bool = True) -> CampaignResult:
     """Fuzz ``target`` on ``port`` (default: the emulator that has it) for ``examples``
     sequences of up to ``steps`` steps, or for ``seconds`` of wall time; ``messages``
-    (glob patterns) focuses the campaign on some messages."""
+    (glob patterns) focuses the campaign on some messages.  ``shrink=False`` stops at the
+    first failing example and keeps it as found (no shrinking, no minimising: how soon a
+    defect is found, without the cost of making its reproducer small)."""
     from hypothesis import HealthCheck, Phase, settings
     from hypothesis import seed as hypothesis_seed
     from hypothesis.stateful import run_state_machine_as_test
@@ -282,7 +284,7 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
         return TargetLink.open(kind, url, seed=seed, shared=links)
 
     base = settings(stateful_step_count=steps, deadline=None, database=None, print_blob=False,
-                    phases=[Phase.generate, Phase.shrink],
+                    phases=[Phase.generate, Phase.shrink] if shrink else [Phase.generate],
                     suppress_health_check=list(HealthCheck))
     started = time.monotonic()
     result = CampaignResult(target, seed, 0, 0.0)
@@ -304,7 +306,8 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
             checker = record[-1]
             found = Reproducer(target=target, seed=round_seed, steps=list(checker.steps),
                                failure=str(exc), port=url)
-            result.reproducer = minimise(found) if url.startswith("emu://") else found
+            result.reproducer = (minimise(found) if shrink and url.startswith("emu://")
+                                 else found)
             break
         if seconds is None or time.monotonic() - started >= seconds:
             break
