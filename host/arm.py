@@ -21,6 +21,18 @@ make the node's own deflection (motor − joint) differ from its elastic element
 node's SLIP/STALLED protection watches the elastic element however the joints before it
 moved.
 
+**Torque off, and on again.**  An unpowered stepper's rotor turns with its joint (the
+elastic element relaxes; a hand moving the arm, a joint coasting on), which the node's step
+count cannot follow: its deflection then says the element is wound up, and enabling the
+torque would latch STALLED.  So when a cycle turns on a stepper's torque that this arm
+turned off and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first
+sends that node its command block (the goal it has, the coupling offset now) and
+``clear_flags`` RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin
+to match (``step_count`` moves with it); SLIP/STALLED latched while unpowered are cleared
+with it, latches the joint had when its torque went off stay.  The joint then heads for the
+goal it had.  (Torque the node turned off itself - an alarm - or that was off when this arm
+opened is not re-synced.)
+
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
@@ -77,6 +89,7 @@ from protocol.control_tables import (
     STEPPER_COMMAND_BLOCK,
     STEPPER_CYCLE_BLOCK,
     STEPPER_CYCLE_BLOCK_FIRMWARE,
+    STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
     TABLES_BY_MODEL,
     StepperClear,
@@ -119,6 +132,14 @@ COMMAND_LEN: Final = _S[STEPPER_COMMAND_BLOCK[1]].end - COMMAND_AT
 _ROUTES = [[float(c) for c in row] for row in arm_route_coupling_matrix()]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
+#: A stepper joint whose encoder moved more than this (counts) while this arm had its
+#: torque off gets its rotor re-synced when the torque comes on again (see the module docs).
+RESYNC_MIN_COUNTS: Final = 2
+#: The least speed limit (rad/s) :meth:`Arm.move` with a ``duration`` gives a joint: one
+#: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
+#: later command without a speed does not crawl.
+MOVE_MIN_SPEED: Final = 0.2
+_LATCHES = StepperFlag.SLIP | StepperFlag.STALLED
 
 
 class Arm:
@@ -142,6 +163,9 @@ class Arm:
         self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
+        #: Stepper joints whose torque this arm turned off: joint -> (encoder count, latched
+        #: SLIP/STALLED flags) in the state read with that command.
+        self._unpowered: dict[int, tuple[int, StepperFlag]] = {}
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
@@ -302,6 +326,20 @@ class Arm:
             else:
                 servo[j.dxl_id] = c
         packets = []
+        resync = self._resyncs(torque)
+        if resync:  # the command block (offsets), then the re-sync, then the torque
+            if offsets is None:
+                offsets = self.deflection_offsets()
+            for joint in resync:
+                j = self.joints[joint]
+                if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
+                    stepper_goal[j.dxl_id] = (
+                        _GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
+                        + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
+            packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
+            stepper_goal = {}
+            packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
+                {self.joints[joint].dxl_id: flags for joint, flags in resync.items()})))
         if torque:  # torque_enable is address 24 on both models
             packets.append(make_sync_write(_S["torque_enable"].address, 1, torque))
         if stepper_speed:
@@ -311,6 +349,21 @@ class Arm:
         if servo:
             packets.append(self._servo_goals(servo))
         return packets
+
+    def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
+        """The stepper joints that ``torque`` turns on after this arm turned them off and
+        whose encoder moved since (more than :data:`RESYNC_MIN_COUNTS`), with the
+        SLIP/STALLED latches they had when their torque went off."""
+        counts = self.stepper_counts
+        out: dict[int, StepperFlag] = {}
+        if counts is None:
+            return out
+        for joint, (count, flags) in self._unpowered.items():
+            j = self.joints[joint]
+            if (torque.get(j.dxl_id) == b"\x01" and abs(counts[joint] - count) > RESYNC_MIN_COUNTS
+                    and j.firmware_version >= STEPPER_ROTOR_RESYNC_FIRMWARE):
+                out[joint] = flags
+        return out
 
     def _servo_goals(self, servo: dict[int, PositionCommand]) -> InstructionPacket:
         goal = _R["goal_position"]
@@ -342,6 +395,14 @@ class Arm:
                                                / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                              for s in replies})
+        counts = self.stepper_counts or [0] * N_STEPPERS
+        for c in commands:  # which steppers are unpowered, and since where
+            if isinstance(c, TorqueCommand) and c.joint < N_STEPPERS:
+                if c.on:
+                    self._unpowered.pop(c.joint, None)
+                elif c.joint not in self._unpowered:
+                    self._unpowered[c.joint] = (counts[c.joint],
+                                                state.steppers[c.joint].flags & _LATCHES)
         if calibration is not None:
             state = calibration.state_from_node(state)
         for tap in self.state_taps:
@@ -428,19 +489,22 @@ class Arm:
              tolerance: float = 0.02, settle_speed: float = 0.05, timeout: float = 10.0,
              period: float = 0.01) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
-        (s), until the move settled or ``timeout`` (s) passed.  Settled: every stepper
+        (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
+        until the move settled or ``timeout`` (s) passed.  Settled: every stepper
         node stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
         sits off it by the elastic deflection under load) and its joint slower than
         ``settle_speed`` (rad/s: the elastic element's ringing has died down), every servo
         within ``tolerance`` of its goal.  ``duration`` (s) sets each joint's speed so all arrive
-        together.  Returns the last state and whether the move settled."""
+        together, none below :data:`MOVE_MIN_SPEED` (a joint that barely moves arrives early
+        and keeps a speed limit it can hold with).  Returns the last state and whether the
+        move settled."""
         now = self.state()
         speeds: list[float | None] = [None] * N_JOINTS
         if duration is not None:
             if not duration > 0:
                 raise UsageError(f"move duration {duration} must be > 0 s")
-            speeds = [max(abs(a - b) / duration, 1e-3) for a, b in zip(angles, now.joints,
-                                                                       strict=True)]
+            speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
+                      for a, b in zip(angles, now.joints, strict=True)]
         state = self.set_positions(angles, speeds)
         clock = self.bus.transport
         deadline = clock.now() + timeout
@@ -450,7 +514,8 @@ class Arm:
             if clock.now() >= deadline:
                 return state, False
             clock.sleep(period)
-            state = self.cycle()
+            # the goals again, with the coupling offsets of the joints as they are now
+            state = self.set_positions(angles)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
@@ -464,6 +529,23 @@ class Arm:
                 self.bus.exchange([make_reset(j.dxl_id)], [Expect(j.dxl_id)])
                 if self.return_delay is not None:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
+
+
+def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
+    """The ``clear_flags`` values re-syncing the rotors of these stepper nodes (bus ID ->
+    the SLIP/STALLED latches each had when its torque went off): RESYNC_ROTOR, and clear the
+    latches that came while unpowered (they measured a rotor the step count could not
+    follow); latches from before stay for the host to see."""
+    reg = _S["clear_flags"]
+    out = {}
+    for dxl_id, before in flags.items():
+        bits = StepperClear.RESYNC_ROTOR
+        if not before & StepperFlag.SLIP:
+            bits |= StepperClear.SLIP
+        if not before & StepperFlag.STALLED:
+            bits |= StepperClear.STALL
+        out[dxl_id] = reg.encode(int(bits))
+    return out
 
 
 def settled(state: ArmState, goals: Sequence[float], tolerance: float,

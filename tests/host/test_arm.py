@@ -34,7 +34,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
     assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 10)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
-    assert all(j.firmware_version == 2 for j in arm.steppers)
+    assert all(j.firmware_version == 3 for j in arm.steppers)
 
 
 def test_open_sets_the_fast_return_delay(arm: Arm) -> None:
@@ -98,7 +98,7 @@ def test_a_node_without_the_cycle_block_is_refused(arm: Arm) -> None:
         with pytest.raises(NodeError, match=r"\(J2\) runs stepper firmware 1"):
             discover(arm.bus)
     finally:
-        app.set("firmware_version", 2)
+        app.set("firmware_version", STEPPER_TABLE["firmware_version"].default)
 
 
 def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:

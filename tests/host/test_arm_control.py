@@ -18,6 +18,7 @@ from host.arm import Arm
 from host.arm_control import (
     JointPid,
     PidGains,
+    TrackingLog,
     Trajectory,
     Waypoint,
     coupling_feedforward,
@@ -152,11 +153,6 @@ def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
     assert not any(s.stalled for s in result.state.steppers)
 
 
-@pytest.mark.xfail(reason="with the bearings' stiction J1 coasts on after the recording "
-                   "ends and stops > 150 counts from its unpowered rotor's step count, so "
-                   "re-enabling torque latches STALLED: the host should tell the node the "
-                   "slid rotor's offset when it re-enables torque (not done yet)",
-                   strict=False)
 def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     if not arm.homed:
         arm.home()
@@ -181,8 +177,13 @@ def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     assert moved[0] > 0.05 and moved[5] > 0.05
     path = tmp_path / "hand.jsonl"
     save_waypoints(path, points)
-    arm.torque(True)
+    # the rotors turned with the joints while unpowered: re-enabling torque re-syncs them
+    # instead of latching STALLED
+    state = arm.torque(True)
+    assert not any(s.stalled or s.slip for s in state.steppers)
     arm.move(start, timeout=5.0)  # somewhere else first
-    play_waypoints(arm, load_waypoints(path))
+    log = TrackingLog()
+    play_waypoints(arm, load_waypoints(path), log=log)
+    assert log.stall_events == []
     final = np.array(arm.state().joints)
     assert final == pytest.approx(points[-1].joints, abs=0.03)
