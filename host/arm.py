@@ -37,10 +37,14 @@ opened is not re-synced.)
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
 :data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
-``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
-alarm bits come in every status packet's error byte.  That is 199 bytes per cycle with the
-seven goals (~498 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
-``step_count`` plus ``deflection`` instead would cost 18 + 18 bytes more per stepper).
+``present_load`` (36-41: position, speed, load; 6 bytes), and one cycle in
+:data:`SLOW_READ_EVERY` (the first included) on to ``present_temperature`` (voltage and
+temperature, 2 bytes more: they drift over seconds; a state reports the last read, at most
+9 cycles old); the alarm bits (overheating, input voltage among them) come in every status
+packet's error byte.  That is 193 bytes per cycle with the seven goals, 199 on the slow
+cycles (~512 cycles/s at 1 Mbaud in fast mode; reading every cycle's 199 bytes gave ~498;
+reading ``status_flags`` .. ``step_count`` plus ``deflection`` instead of the cycle block
+would cost 18 + 18 bytes more per stepper).
 The stepper's goal is not in the block: the state reports the goal this arm last sent
 (learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;
 call the latter if anything else writes goals).  Discovery refuses stepper nodes whose
@@ -118,12 +122,18 @@ _R = RX64_TABLE
 #: What a cycle reads from a stepper node: its cycle block (see the module docs).
 STEPPER_READ_AT: Final = _S[STEPPER_CYCLE_BLOCK[0]].address
 STEPPER_READ_LEN: Final = _S[STEPPER_CYCLE_BLOCK[1]].end - STEPPER_READ_AT
-#: What a cycle reads from an RX-64: present_position .. present_temperature.
+#: What a cycle reads from an RX-64: present_position .. present_load ...
 SERVO_READ_AT: Final = _R["present_position"].address
-SERVO_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
+SERVO_READ_LEN: Final = _R["present_load"].end - SERVO_READ_AT
+#: ... and every :data:`SLOW_READ_EVERY` cycles on to present_temperature (with the voltage).
+SERVO_SLOW_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
+#: One cycle in this many (the first included) reads the RX-64s' voltage and temperature.
+SLOW_READ_EVERY: Final = 10
 _STEPPER_FIELDS = struct.Struct("<iihhB")  # position, steps, velocity, deflection, flags
-_SERVO_FIELDS = struct.Struct("<HHHBB")  # position, speed, load, voltage, temperature
+_SERVO_FIELDS = struct.Struct("<HHH")  # position, speed, load
+_SERVO_SLOW_FIELDS = struct.Struct("<BB")  # voltage (0.1 V), temperature (°C)
 assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
+assert SERVO_READ_LEN + _SERVO_SLOW_FIELDS.size == SERVO_SLOW_READ_LEN
 _GOAL = _S["command_goal"]
 _OFFSET = _S["deflection_offset"]
 #: The stepper command block (command_goal, deflection_offset): address and length.
@@ -169,10 +179,17 @@ class Arm:
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
+        #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
+        self.cycles = 0
+        #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
+        self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
-        entries += [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
-        self._bulk_read = make_bulk_read(entries)
-        self._expected = [Expect(dxl_id, length) for length, dxl_id, _ in entries]
+        fast = entries + [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
+        slow = entries + [(SERVO_SLOW_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
+        #: The cycle's BULK_READ and its replies: (every cycle, the slow-register cycles).
+        self.bulk_reads = (make_bulk_read(fast), make_bulk_read(slow))
+        self.expected_replies = ([Expect(dxl_id, length) for length, dxl_id, _ in fast],
+                                 [Expect(dxl_id, length) for length, dxl_id, _ in slow])
 
     # ------------------------------------------------------------------ opening
 
@@ -387,8 +404,10 @@ class Arm:
         calibration = self.calibration
         if calibration is not None:
             commands = calibration.commands_to_node(commands)
-        packets = [*self.packets_for(commands), self._bulk_read]
-        replies = self.bus.exchange(packets, self._expected)
+        slow = int(self.cycles % SLOW_READ_EVERY == 0)
+        packets = [*self.packets_for(commands), self.bulk_reads[slow]]
+        replies = self.bus.exchange(packets, self.expected_replies[slow])
+        self.cycles += 1
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
                 self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
@@ -430,9 +449,12 @@ class Arm:
                 torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
                 errors=ErrorBit(error), goal=j.counts_to_rad(self.stepper_goals[i])))
         servos = []
-        for j in self.servos:
+        for k, j in enumerate(self.servos):
             error, data = replies[j.dxl_id]
-            position, speed, load, volts, temperature = _SERVO_FIELDS.unpack_from(data)
+            position, speed, load = _SERVO_FIELDS.unpack_from(data)
+            if len(data) >= SERVO_SLOW_READ_LEN:
+                self._servo_slow[k] = _SERVO_SLOW_FIELDS.unpack_from(data, SERVO_READ_LEN)
+            volts, temperature = self._servo_slow[k]
             servos.append(ServoState(
                 joint=j.joint, angle=rx64_position_to_radians(position),
                 velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import STEPPER_READ_AT, Arm, discover
+from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
@@ -70,6 +70,24 @@ def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
     assert state.errors == {}
     assert all(20.0 <= s.temperature <= 60.0 for s in state.servos)
     assert all(10.0 <= s.voltage <= 20.0 for s in state.servos)
+
+
+def test_servo_voltage_and_temperature_are_read_one_cycle_in_ten(arm: Arm) -> None:
+    """They drift over seconds: the ordinary cycle reads 6 bytes per RX-64, the slow one 8,
+    and every state reports the last values read."""
+    sensors = arm.transport.emulator.arm.app(5).hal.sensors.values  # type: ignore[attr-defined]
+    supply = sensors["supply_mv"]
+    while arm.cycles % SLOW_READ_EVERY:
+        arm.cycle()
+    sensors["supply_mv"] = 15_100
+    state = arm.cycle()
+    assert state.servos[0].voltage == pytest.approx(15.1) and len(state.raw[5]) == 8
+    sensors["supply_mv"] = 16_200
+    for _ in range(SLOW_READ_EVERY - 1):
+        state = arm.cycle()
+        assert state.servos[0].voltage == pytest.approx(15.1) and len(state.raw[5]) == 6
+    assert arm.cycle().servos[0].voltage == pytest.approx(16.2)
+    sensors["supply_mv"] = supply
 
 
 def test_the_cycle_block_reports_the_nodes_scattered_registers(arm: Arm) -> None:
