@@ -15,7 +15,7 @@ stepper nodes had the cycle block, ≈ 470 cycles/s).
   per *simulated* second: what the library achieves on the wire (host time is free on the
   simulation clock), as a fraction of the bound (target ≥ 90 %).
 * **Real time over the pty** (``hil-emulator --config arm`` in its own process): the stock
-  dynamixel-sdk 4.1.0 (GroupSyncWrite ×2 + seven reads of the same registers: its
+  dynamixel-sdk 4.1.0 (GroupSyncWrite ×2 + seven reads of the same registers, the RX-64s' voltage and temperature every cycle: its
   GroupBulkRead raises TypeError under protocol 1.0) against this library's same cycle on
   the same pty, cycles per wall second.  Both pay the pty and the emulator's pacing.
 """
