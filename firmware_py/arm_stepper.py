@@ -29,6 +29,11 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   writes ``−C·Δq`` every cycle with the goal, in the command block; 0 = none).  Over-temperature (sensor ``temperature``, 0.1 °C) and supply (``supply_mv``) outside
   the voltage limits are live alarm bits.  An alarm in ``alarm_shutdown`` turns the torque
   off (``torque_enable`` := 0); the host clears the cause and enables it again.
+* ``clear_flags`` RESYNC_ROTOR, with torque off only (a powered rotor does not turn with
+  the joint, and a stall must stay one): the rotor turned with the joint while unpowered,
+  so the step counter no longer says where it is; the node takes the elastic element as
+  relaxed and moves its step origin so that ``deflection`` = ``deflection_offset``
+  (``step_count`` moves by the same microsteps).  Ignored with torque on.
 * The first index pulse after power-up (or after REARM_INDEX) latches ``index_step_count``
   and ``index_encoder_count`` and sets ``index_seen`` and INDEX_SEEN, so the host can
   calibrate the encoder offset; later pulses leave the latch alone.
@@ -89,6 +94,7 @@ _CLEAR_SLIP = int(StepperClear.SLIP)
 _CLEAR_STALL = int(StepperClear.STALL)
 _CLEAR_ZERO = int(StepperClear.ZERO_STEP_COUNT)
 _CLEAR_REARM = int(StepperClear.REARM_INDEX)
+_CLEAR_RESYNC = int(StepperClear.RESYNC_ROTOR)
 
 
 def _packer(*names: str) -> tuple[struct.Struct, int]:
@@ -129,8 +135,8 @@ class StepperNodeApp(DynamixelSlave):
         super().__init__(hal, STEPPER_TABLE, {"id": dxl_id, "baud_rate": 1})
         self.stepper = hal.stepper()
         self.encoder = hal.encoder()
-        self._hw_steps0 = 0  # hardware counter at power-up
-        self._step_offset = 0  # hardware counter at the last ZERO_STEP_COUNT
+        self._hw_steps0 = 0  # hardware counter at power-up (moved by RESYNC_ROTOR)
+        self._step_offset = 0  # hardware counter at the last ZERO_STEP_COUNT (ditto)
         self._enc0 = 0  # encoder at power-up
         self._velocity = 0.0  # commanded joint velocity (counts/s)
         self._flags = 0  # latched StepperFlag bits (SLIP, STALLED, INDEX_SEEN), plain int
@@ -268,6 +274,21 @@ class StepperNodeApp(DynamixelSlave):
             self._flags &= ~_INDEX_SEEN
             for name in ("index_step_count", "index_encoder_count", "index_seen"):
                 self.set(name, 0)
+        if bits & _CLEAR_RESYNC and not self._torque_enable:
+            self._resync_rotor()
+
+    def _resync_rotor(self) -> None:
+        """RESYNC_ROTOR: an unpowered rotor turns with the joint (the elastic element
+        relaxes), which the step counter cannot see.  Take the element as relaxed: move the
+        step origin (microsteps) so that ``deflection`` = ``deflection_offset``, and
+        ``step_count`` with it (``step_count`` − ``deflection`` × microsteps per count, the
+        power-up reference a host derives, stays).  The goal stays where it is, in the
+        joint's frame: enabling torque heads there."""
+        hw_steps = self.stepper.step_count()
+        slid = self._deflection(hw_steps, self.encoder.count()) - self._deflection_offset
+        shift = round(slid * self._mpc)
+        self._hw_steps0 += shift
+        self._step_offset += shift
 
     def _tick(self) -> None:
         """The 1 kHz control tick: alarms, trajectory, step rate, current, registers.

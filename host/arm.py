@@ -21,14 +21,30 @@ make the node's own deflection (motor − joint) differ from its elastic element
 node's SLIP/STALLED protection watches the elastic element however the joints before it
 moved.
 
+**Torque off, and on again.**  An unpowered stepper's rotor turns with its joint (the
+elastic element relaxes; a hand moving the arm, a joint coasting on), which the node's step
+count cannot follow: its deflection then says the element is wound up, and enabling the
+torque would latch STALLED.  So when a cycle turns on a stepper's torque that this arm
+turned off and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first
+sends that node its command block (the goal it has, the coupling offset now) and
+``clear_flags`` RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin
+to match (``step_count`` moves with it); SLIP/STALLED latched while unpowered are cleared
+with it, latches the joint had when its torque went off stay.  The joint then heads for the
+goal it had.  (Torque the node turned off itself - an alarm - or that was off when this arm
+opened is not re-synced.)
+
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
 :data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
-``present_temperature`` (36-43: position, speed, load, voltage, temperature; 8 bytes); the
-alarm bits come in every status packet's error byte.  That is 199 bytes per cycle with the
-seven goals (~498 cycles/s at 1 Mbaud in fast mode; reading ``status_flags`` ..
-``step_count`` plus ``deflection`` instead would cost 18 + 18 bytes more per stepper).
+``present_load`` (36-41: position, speed, load; 6 bytes), and one cycle in
+:data:`SLOW_READ_EVERY` (the first included) on to ``present_temperature`` (voltage and
+temperature, 2 bytes more: they drift over seconds; a state reports the last read, at most
+9 cycles old); the alarm bits (overheating, input voltage among them) come in every status
+packet's error byte.  That is 193 bytes per cycle with the seven goals, 199 on the slow
+cycles (~512 cycles/s at 1 Mbaud in fast mode; reading every cycle's 199 bytes gave ~498;
+reading ``status_flags`` .. ``step_count`` plus ``deflection`` instead of the cycle block
+would cost 18 + 18 bytes more per stepper).
 The stepper's goal is not in the block: the state reports the goal this arm last sent
 (learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;
 call the latter if anything else writes goals).  Discovery refuses stepper nodes whose
@@ -77,6 +93,7 @@ from protocol.control_tables import (
     STEPPER_COMMAND_BLOCK,
     STEPPER_CYCLE_BLOCK,
     STEPPER_CYCLE_BLOCK_FIRMWARE,
+    STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
     TABLES_BY_MODEL,
     StepperClear,
@@ -105,12 +122,18 @@ _R = RX64_TABLE
 #: What a cycle reads from a stepper node: its cycle block (see the module docs).
 STEPPER_READ_AT: Final = _S[STEPPER_CYCLE_BLOCK[0]].address
 STEPPER_READ_LEN: Final = _S[STEPPER_CYCLE_BLOCK[1]].end - STEPPER_READ_AT
-#: What a cycle reads from an RX-64: present_position .. present_temperature.
+#: What a cycle reads from an RX-64: present_position .. present_load ...
 SERVO_READ_AT: Final = _R["present_position"].address
-SERVO_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
+SERVO_READ_LEN: Final = _R["present_load"].end - SERVO_READ_AT
+#: ... and every :data:`SLOW_READ_EVERY` cycles on to present_temperature (with the voltage).
+SERVO_SLOW_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
+#: One cycle in this many (the first included) reads the RX-64s' voltage and temperature.
+SLOW_READ_EVERY: Final = 10
 _STEPPER_FIELDS = struct.Struct("<iihhB")  # position, steps, velocity, deflection, flags
-_SERVO_FIELDS = struct.Struct("<HHHBB")  # position, speed, load, voltage, temperature
+_SERVO_FIELDS = struct.Struct("<HHH")  # position, speed, load
+_SERVO_SLOW_FIELDS = struct.Struct("<BB")  # voltage (0.1 V), temperature (°C)
 assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
+assert SERVO_READ_LEN + _SERVO_SLOW_FIELDS.size == SERVO_SLOW_READ_LEN
 _GOAL = _S["command_goal"]
 _OFFSET = _S["deflection_offset"]
 #: The stepper command block (command_goal, deflection_offset): address and length.
@@ -119,6 +142,14 @@ COMMAND_LEN: Final = _S[STEPPER_COMMAND_BLOCK[1]].end - COMMAND_AT
 _ROUTES = [[float(c) for c in row] for row in arm_route_coupling_matrix()]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
+#: A stepper joint whose encoder moved more than this (counts) while this arm had its
+#: torque off gets its rotor re-synced when the torque comes on again (see the module docs).
+RESYNC_MIN_COUNTS: Final = 2
+#: The least speed limit (rad/s) :meth:`Arm.move` with a ``duration`` gives a joint: one
+#: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
+#: later command without a speed does not crawl.
+MOVE_MIN_SPEED: Final = 0.2
+_LATCHES = StepperFlag.SLIP | StepperFlag.STALLED
 
 
 class Arm:
@@ -142,13 +173,23 @@ class Arm:
         self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
+        #: Stepper joints whose torque this arm turned off: joint -> (encoder count, latched
+        #: SLIP/STALLED flags) in the state read with that command.
+        self._unpowered: dict[int, tuple[int, StepperFlag]] = {}
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
+        #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
+        self.cycles = 0
+        #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
+        self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
-        entries += [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
-        self._bulk_read = make_bulk_read(entries)
-        self._expected = [Expect(dxl_id, length) for length, dxl_id, _ in entries]
+        fast = entries + [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
+        slow = entries + [(SERVO_SLOW_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
+        #: The cycle's BULK_READ and its replies: (every cycle, the slow-register cycles).
+        self.bulk_reads = (make_bulk_read(fast), make_bulk_read(slow))
+        self.expected_replies = ([Expect(dxl_id, length) for length, dxl_id, _ in fast],
+                                 [Expect(dxl_id, length) for length, dxl_id, _ in slow])
 
     # ------------------------------------------------------------------ opening
 
@@ -302,6 +343,20 @@ class Arm:
             else:
                 servo[j.dxl_id] = c
         packets = []
+        resync = self._resyncs(torque)
+        if resync:  # the command block (offsets), then the re-sync, then the torque
+            if offsets is None:
+                offsets = self.deflection_offsets()
+            for joint in resync:
+                j = self.joints[joint]
+                if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
+                    stepper_goal[j.dxl_id] = (
+                        _GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
+                        + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
+            packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
+            stepper_goal = {}
+            packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
+                {self.joints[joint].dxl_id: flags for joint, flags in resync.items()})))
         if torque:  # torque_enable is address 24 on both models
             packets.append(make_sync_write(_S["torque_enable"].address, 1, torque))
         if stepper_speed:
@@ -311,6 +366,21 @@ class Arm:
         if servo:
             packets.append(self._servo_goals(servo))
         return packets
+
+    def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
+        """The stepper joints that ``torque`` turns on after this arm turned them off and
+        whose encoder moved since (more than :data:`RESYNC_MIN_COUNTS`), with the
+        SLIP/STALLED latches they had when their torque went off."""
+        counts = self.stepper_counts
+        out: dict[int, StepperFlag] = {}
+        if counts is None:
+            return out
+        for joint, (count, flags) in self._unpowered.items():
+            j = self.joints[joint]
+            if (torque.get(j.dxl_id) == b"\x01" and abs(counts[joint] - count) > RESYNC_MIN_COUNTS
+                    and j.firmware_version >= STEPPER_ROTOR_RESYNC_FIRMWARE):
+                out[joint] = flags
+        return out
 
     def _servo_goals(self, servo: dict[int, PositionCommand]) -> InstructionPacket:
         goal = _R["goal_position"]
@@ -334,14 +404,24 @@ class Arm:
         calibration = self.calibration
         if calibration is not None:
             commands = calibration.commands_to_node(commands)
-        packets = [*self.packets_for(commands), self._bulk_read]
-        replies = self.bus.exchange(packets, self._expected)
+        slow = int(self.cycles % SLOW_READ_EVERY == 0)
+        packets = [*self.packets_for(commands), self.bulk_reads[slow]]
+        replies = self.bus.exchange(packets, self.expected_replies[slow])
+        self.cycles += 1
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
                 self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
                                                / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                              for s in replies})
+        counts = self.stepper_counts or [0] * N_STEPPERS
+        for c in commands:  # which steppers are unpowered, and since where
+            if isinstance(c, TorqueCommand) and c.joint < N_STEPPERS:
+                if c.on:
+                    self._unpowered.pop(c.joint, None)
+                elif c.joint not in self._unpowered:
+                    self._unpowered[c.joint] = (counts[c.joint],
+                                                state.steppers[c.joint].flags & _LATCHES)
         if calibration is not None:
             state = calibration.state_from_node(state)
         for tap in self.state_taps:
@@ -369,9 +449,12 @@ class Arm:
                 torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
                 errors=ErrorBit(error), goal=j.counts_to_rad(self.stepper_goals[i])))
         servos = []
-        for j in self.servos:
+        for k, j in enumerate(self.servos):
             error, data = replies[j.dxl_id]
-            position, speed, load, volts, temperature = _SERVO_FIELDS.unpack_from(data)
+            position, speed, load = _SERVO_FIELDS.unpack_from(data)
+            if len(data) >= SERVO_SLOW_READ_LEN:
+                self._servo_slow[k] = _SERVO_SLOW_FIELDS.unpack_from(data, SERVO_READ_LEN)
+            volts, temperature = self._servo_slow[k]
             servos.append(ServoState(
                 joint=j.joint, angle=rx64_position_to_radians(position),
                 velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
@@ -428,19 +511,22 @@ class Arm:
              tolerance: float = 0.02, settle_speed: float = 0.05, timeout: float = 10.0,
              period: float = 0.01) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
-        (s), until the move settled or ``timeout`` (s) passed.  Settled: every stepper
+        (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
+        until the move settled or ``timeout`` (s) passed.  Settled: every stepper
         node stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
         sits off it by the elastic deflection under load) and its joint slower than
         ``settle_speed`` (rad/s: the elastic element's ringing has died down), every servo
         within ``tolerance`` of its goal.  ``duration`` (s) sets each joint's speed so all arrive
-        together.  Returns the last state and whether the move settled."""
+        together, none below :data:`MOVE_MIN_SPEED` (a joint that barely moves arrives early
+        and keeps a speed limit it can hold with).  Returns the last state and whether the
+        move settled."""
         now = self.state()
         speeds: list[float | None] = [None] * N_JOINTS
         if duration is not None:
             if not duration > 0:
                 raise UsageError(f"move duration {duration} must be > 0 s")
-            speeds = [max(abs(a - b) / duration, 1e-3) for a, b in zip(angles, now.joints,
-                                                                       strict=True)]
+            speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
+                      for a, b in zip(angles, now.joints, strict=True)]
         state = self.set_positions(angles, speeds)
         clock = self.bus.transport
         deadline = clock.now() + timeout
@@ -450,7 +536,8 @@ class Arm:
             if clock.now() >= deadline:
                 return state, False
             clock.sleep(period)
-            state = self.cycle()
+            # the goals again, with the coupling offsets of the joints as they are now
+            state = self.set_positions(angles)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
@@ -464,6 +551,23 @@ class Arm:
                 self.bus.exchange([make_reset(j.dxl_id)], [Expect(j.dxl_id)])
                 if self.return_delay is not None:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
+
+
+def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
+    """The ``clear_flags`` values re-syncing the rotors of these stepper nodes (bus ID ->
+    the SLIP/STALLED latches each had when its torque went off): RESYNC_ROTOR, and clear the
+    latches that came while unpowered (they measured a rotor the step count could not
+    follow); latches from before stay for the host to see."""
+    reg = _S["clear_flags"]
+    out = {}
+    for dxl_id, before in flags.items():
+        bits = StepperClear.RESYNC_ROTOR
+        if not before & StepperFlag.SLIP:
+            bits |= StepperClear.SLIP
+        if not before & StepperFlag.STALLED:
+            bits |= StepperClear.STALL
+        out[dxl_id] = reg.encode(int(bits))
+    return out
 
 
 def settled(state: ArmState, goals: Sequence[float], tolerance: float,

@@ -12,7 +12,18 @@ reads the new state.  Each joint's goal is
 servos themselves, so ``q_des`` is the feed-forward and the PID only removes what they
 cannot see: the series-elastic deflection under load (a stepper's motor reaches its goal;
 its joint sags by torque/stiffness) and the RX-64's compliance margin.  The gains are low on
-purpose: the elastic joints ring at a few hertz, lightly damped.
+purpose: the elastic joints ring at a few hertz, lightly damped (a derivative term on the
+nodes' 10 ms, one-count-quantised velocity destabilises them: ``kd`` is 0).
+
+Two things keep the integral honest (:class:`PidGains`): an error within the *deadband*
+(one encoder count on the steppers, one position unit on the RX-64s) is no error, so the
+integral holds once the joint is as close as its sensor can tell instead of hunting across
+the last count against the bearings' stiction; and the integral takes the error clipped to
+``integral_error`` (1°), so a step or a joint still on its way winds it up no faster than a
+steady sag would (anti-windup: the closed-loop 10° shoulder step overshoots ~20 % instead of
+~50 %).  :meth:`JointController.settled` is the loop's own settle test.  Point-to-point
+moves (:func:`moveto`) follow a minimum-jerk path (``Trajectory(..., smooth=True)``),
+slowing into the goal, so the stop does not set the elastic joints ringing.
 
 **Coupling feed-forward** (the first four joints).  The belt and cable routes turn the
 capstans of J1..J4 by ``C·Δq`` (:data:`protocol.robot.ARM_ROUTE_COUPLING`, ``Δq`` the joint
@@ -55,7 +66,12 @@ import numpy as np
 from host import arm_kinematics
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
 from host.errors import UsageError
-from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    ARM_JOINT_LIMITS,
+    RX64_RAD_PER_UNIT,
+    arm_route_coupling_matrix,
+)
 
 #: Joint angles or a vector: a sequence of floats or a numpy array.
 Vector = Sequence[float] | np.ndarray
@@ -75,18 +91,29 @@ _UPPER = np.array([hi for _, hi in ARM_JOINT_LIMITS])
 # ----------------------------------------------------------------------------- the math
 
 
+#: One joint encoder count (rad): the steppers' resolution.
+ENCODER_COUNT_RAD: Final = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
+
+
 @dataclass(frozen=True)
 class PidGains:
     """Per-joint gains (7 each, J1..J7): ``kp`` (rad/rad), ``ki`` (rad/(rad·s)), ``kd``
-    (rad/(rad/s)), and ``integral_limit`` (rad, the most the integral term adds)."""
+    (rad/(rad/s)), ``integral_limit`` (rad, the most the integral term adds), ``deadband``
+    (rad: an error this small is no error - the integral holds - so the loop does not hunt
+    across the sensor's last count against stiction; one encoder count on the steppers, one
+    position unit on the RX-64s) and ``integral_error`` (rad: the integral takes the error
+    clipped to this, so a large transient error - a step, a joint still on its way - winds it
+    up no faster than a small steady one; anti-windup)."""
 
     kp: tuple[float, ...] = (0.05,) * 4 + (0.1,) * 3
     ki: tuple[float, ...] = (1.5,) * 4 + (1.0,) * 3
     kd: tuple[float, ...] = (0.0,) * 7
     integral_limit: tuple[float, ...] = (0.15,) * 4 + (0.1,) * 3
+    deadband: tuple[float, ...] = (ENCODER_COUNT_RAD,) * 4 + (RX64_RAD_PER_UNIT,) * 3
+    integral_error: tuple[float, ...] = (math.radians(1.0),) * 7
 
     def __post_init__(self) -> None:
-        for name in ("kp", "ki", "kd", "integral_limit"):
+        for name in ("kp", "ki", "kd", "integral_limit", "deadband", "integral_error"):
             if len(getattr(self, name)) != N_JOINTS:
                 raise UsageError(f"PID {name} needs {N_JOINTS} values, J1..J7")
 
@@ -101,6 +128,8 @@ class JointPid:
         self._ki = np.array(self.gains.ki)
         self._kd = np.array(self.gains.kd)
         self._limit = np.array(self.gains.integral_limit)
+        self._deadband = np.array(self.gains.deadband)
+        self._integral_error = np.array(self.gains.integral_error)
         #: The integral term (rad), already multiplied by ``ki``.
         self.integral = np.zeros(N_JOINTS)
 
@@ -112,9 +141,14 @@ class JointPid:
                qd_des: Vector | None = None, qd: Vector | None = None
                ) -> np.ndarray:
         """Correction (rad, 7) for desired ``q_des`` and measured ``q`` (rad), after ``dt``
-        (s) since the last update; velocities (rad/s) for the derivative term."""
+        (s) since the last update; velocities (rad/s) for the derivative term.  Errors within
+        the deadband count as 0; the integral takes the error clipped to ``integral_error``
+        and is clamped to ``integral_limit``."""
         e = np.asarray(q_des, dtype=float) - np.asarray(q, dtype=float)
-        self.integral = np.clip(self.integral + self._ki * e * dt, -self._limit, self._limit)
+        e = np.where(np.abs(e) <= self._deadband, 0.0, e)
+        bounded = np.clip(e, -self._integral_error, self._integral_error)
+        self.integral = np.clip(self.integral + self._ki * bounded * dt, -self._limit,
+                                self._limit)
         out = self._kp * e + self.integral
         if qd is not None:
             ed = (np.zeros(N_JOINTS) if qd_des is None else np.asarray(qd_des, dtype=float)) \
@@ -153,13 +187,27 @@ class Waypoint:
     joints: tuple[float, ...]
 
 
-class Trajectory:
-    """Linear joint-space interpolation through waypoints (times strictly increasing after
-    the first; before the first the first holds, after the last the last)."""
+#: Peak speed over mean speed of a minimum-jerk segment (``s(τ) = 10τ³ − 15τ⁴ + 6τ⁵``).
+MIN_JERK_PEAK: Final = 1.875
 
-    def __init__(self, waypoints: Sequence[Waypoint]) -> None:
+
+def _min_jerk(a: float) -> tuple[float, float]:
+    """Minimum-jerk progress ``s`` and ``ds/dτ`` at ``a`` (0..1) of a segment."""
+    return a * a * a * (10.0 + a * (-15.0 + 6.0 * a)), 30.0 * a * a * (1.0 - a) * (1.0 - a)
+
+
+class Trajectory:
+    """Joint-space interpolation through waypoints (times strictly increasing after the
+    first; before the first the first holds, after the last the last): linear, or with
+    ``smooth`` a minimum-jerk profile in every segment - it leaves and reaches each waypoint
+    at rest with no step in acceleration, slowing into the goal, so an elastic joint is not
+    set ringing by the stop (for point-to-point moves; a recorded path through many waypoints
+    wants ``smooth=False``)."""
+
+    def __init__(self, waypoints: Sequence[Waypoint], smooth: bool = False) -> None:
         if not waypoints:
             raise UsageError("a trajectory needs at least one waypoint")
+        self.smooth = smooth
         self.times = np.array([w.t for w in waypoints], dtype=float)
         self.points = np.array([w.joints for w in waypoints], dtype=float)
         if self.points.shape[1] != N_JOINTS:
@@ -184,19 +232,26 @@ class Trajectory:
         if span <= 0:
             return points[k + 1].copy(), np.zeros(N_JOINTS)
         a = (t - times[k]) / span
-        return points[k] + a * (points[k + 1] - points[k]), (points[k + 1] - points[k]) / span
+        rate = 1.0
+        if self.smooth:
+            a, rate = _min_jerk(a)
+        delta = points[k + 1] - points[k]
+        return points[k] + a * delta, rate * delta / span
 
 
 def timed_path(points: Sequence[Vector], max_speed: float, start_t: float = 0.0,
-               min_segment_s: float = 0.05) -> list[Waypoint]:
+               min_segment_s: float = 0.05, smooth: bool = False) -> list[Waypoint]:
     """Waypoints through ``points`` (7 rad each), each segment timed so no joint is faster
-    than ``max_speed`` (rad/s)."""
+    than ``max_speed`` (rad/s): linearly interpolated, or with ``smooth`` for a
+    ``Trajectory(..., smooth=True)`` (:data:`MIN_JERK_PEAK` times longer)."""
     if not max_speed > 0:
         raise UsageError(f"joint speed {max_speed} must be > 0 rad/s")
     out = [Waypoint(start_t, tuple(float(v) for v in points[0]))]
     t = start_t
+    stretch = MIN_JERK_PEAK if smooth else 1.0
     for a, b in zip(points, points[1:], strict=False):
-        t += max(float(np.max(np.abs(np.subtract(b, a)))) / max_speed, min_segment_s)
+        t += max(stretch * float(np.max(np.abs(np.subtract(b, a)))) / max_speed,
+                 min_segment_s)
         out.append(Waypoint(t, tuple(float(v) for v in b)))
     return out
 
@@ -256,6 +311,15 @@ class JointController:
         if self.feedforward:
             u[:N_STEPPERS] += coupling_feedforward(q_des, self.q_ref)
         return u
+
+    def settled(self, state: ArmState, q_des: Vector, still: float = 0.002) -> bool:
+        """True if every joint is within twice its deadband of ``q_des`` (rad: where the
+        loop comes to rest - the integral holds within the deadband, and the sensor reads in
+        steps of one) and every stepper joint slower than ``still`` (rad/s: its ringing has
+        died down)."""
+        error = np.abs(np.asarray(q_des, dtype=float) - np.array(state.joints))
+        return bool(np.all(error <= 2.0 * np.array(self.pid.gains.deadband) + 1e-9)
+                    and all(abs(s.velocity) <= still for s in state.steppers))
 
     def start(self) -> ArmState:
         """Enable every joint's torque and take the first state."""
@@ -351,7 +415,7 @@ def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
                          f"(IK misses it by {ik.position_error * 1000:.0f} mm); the flange "
                          f"reaches about 1.04 m from the shoulder axis")
     goals = ik.q
-    trajectory = Trajectory(timed_path([q_now, goals], speed))
+    trajectory = Trajectory(timed_path([q_now, goals], speed, smooth=True), smooth=True)
     state = control.run(trajectory, trajectory.duration, log)
     target = np.asarray(xyz, dtype=float)
 

@@ -168,8 +168,9 @@ class StepperState:
 @dataclass(frozen=True)
 class ServoState:
     """An RX-64 joint at one cycle: ``angle`` (rad), ``velocity`` (rad/s), ``load``
-    (signed fraction of maximum torque, counter-clockwise > 0), ``temperature`` (°C),
-    ``voltage`` (V), ``errors`` (alarm bits of its status packet)."""
+    (signed fraction of maximum torque, counter-clockwise > 0), ``temperature`` (°C) and
+    ``voltage`` (V) as last read (one cycle in :data:`host.arm.SLOW_READ_EVERY`), ``errors``
+    (alarm bits of its status packet, every cycle)."""
 
     joint: int
     angle: float

@@ -322,13 +322,20 @@ class StepperClear(IntFlag):
     STALL = 0x02  # clear StepperFlag.STALLED
     ZERO_STEP_COUNT = 0x04  # set step_count to 0
     REARM_INDEX = 0x08  # forget the index latch: index_seen, index_* registers to 0
+    RESYNC_ROTOR = 0x10  # torque off only: the unpowered rotor turned with the joint; take
+    #                      the elastic element as relaxed and move the step origin so that
+    #                      deflection = deflection_offset (step_count moves with it)
 
 
 #: Model number of the arm stepper node: 0x5E50, "SE" (series-elastic) + 0x50 - chosen to
 #: stay clear of ROBOTIS model numbers (12, 18, 24, 28, 29, 64, 310, 320, 1020, ...).
 STEPPER_MODEL_NUMBER = 0x5E50
-#: The stepper node's firmware version; the first with the cycle block (addresses 76-88).
+#: The first stepper node firmware version with the cycle block (addresses 76-88).
 STEPPER_CYCLE_BLOCK_FIRMWARE = 2
+#: The first stepper node firmware version that honours ``clear_flags`` RESYNC_ROTOR.
+STEPPER_ROTOR_RESYNC_FIRMWARE = 3
+#: The stepper node's firmware version.
+STEPPER_FIRMWARE_VERSION = STEPPER_ROTOR_RESYNC_FIRMWARE
 _COUNTS = "joint encoder counts (0.036 deg)"
 #: ``command_goal`` units per joint encoder count: a goal finer than a count, so a host can
 #: command single microsteps (J1: 1.2 microsteps per count at 1/10 stepping).
@@ -362,7 +369,7 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: joint encoder counts (joint side) so they do not change with microstepping or gearing.
 STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(0, 2, "R", STEPPER_MODEL_NUMBER, "model_number", "model number (0x5E50)"),
-    _eeprom(2, 1, "R", STEPPER_CYCLE_BLOCK_FIRMWARE, "firmware_version", "firmware version"),
+    _eeprom(2, 1, "R", STEPPER_FIRMWARE_VERSION, "firmware_version", "firmware version"),
     _eeprom(3, 1, "RW", 1, "id", "bus ID (0..253)", 0, 253),
     _eeprom(4, 1, "RW", 1, "baud_rate", "bps = 2 000 000 / (value + 1); 1 = 1 Mbps", 0, 254),
     _eeprom(5, 1, "RW", 250, "return_delay_time", "2 us units", 0, 254),
@@ -384,7 +391,10 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
     _ram(25, 1, "RW", 0, "led", "0 off, 1 on", 0, 1),
     _ram(26, 1, "R", 0, "status_flags", "StepperFlag bits"),
-    _ram(27, 1, "RW", 0, "clear_flags", "StepperClear command bits, reads 0", 0, 0x0F),
+    _ram(27, 1, "RW", 0, "clear_flags",
+         "StepperClear command bits (" + ", ".join(f"{bit.name} {int(bit)}" for bit in StepperClear)
+         + "), reads 0", 0,
+         sum(int(bit) for bit in StepperClear)),
     _ram(28, 4, "RW", 0, "goal_position", _COUNTS, signed=True),
     _ram(32, 4, "R", 0, "present_position", _COUNTS, signed=True),
     _ram(36, 4, "R", 0, "present_velocity", "joint encoder counts/s", signed=True),

@@ -88,11 +88,13 @@ def open_arm(seed: int) -> tuple[Emulator, Arm]:
 
 def go(control: JointController, goal: Sequence[float], speed: float = 0.4,
        settle_s: float = 1.5, log: TrackingLog | None = None,
-       until: Callable[[Any], bool] | None = None) -> Any:
-    """A timed joint-space path from where the arm is to ``goal`` (rad), then hold."""
+       until: Callable[[Any], bool] | None = None, smooth: bool = False) -> Any:
+    """A timed joint-space path from where the arm is to ``goal`` (rad), then hold; with
+    ``smooth`` a minimum-jerk one (slowing into the goal)."""
     state = control.state or control.start()
     start = np.array(state.joints)
-    trajectory = Trajectory(timed_path([start, np.asarray(goal, dtype=float)], speed))
+    trajectory = Trajectory(timed_path([start, np.asarray(goal, dtype=float)], speed,
+                                       smooth=smooth), smooth=smooth)
     return control.run(trajectory, trajectory.duration + settle_s, log, until=until)
 
 
@@ -439,10 +441,11 @@ REPEAT_TARGETS: Final = (
 
 def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
                   settle_timeout_s: float = 12.0) -> Outcome:
-    """Figure 5.7: closed loop, home ↔ eight distant locations; the flange at home after
-    each return, once the host's PID has settled there (encoders within two counts), from the
-    plant rounded to the tracker's 0.1 mm.  Repeatability as the
-    largest distance from the points' mean (and ISO 9283's mean + 3σ)."""
+    """Figure 5.7: closed loop, home ↔ eight distant locations (minimum-jerk paths, slowing
+    into each goal); the flange at home after each return, once the host's PID has settled
+    there (encoders within two counts), from the plant rounded to the tracker's 0.1 mm.
+    Repeatability as the largest distance from the points' mean (and ISO 9283's mean +
+    3σ)."""
     emulator, arm = open_arm(seed)
     plant = emulator.arm_plant
     control = JointController(arm)
@@ -450,9 +453,9 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
     count = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
 
     def settled(state: Any) -> bool:
-        """The host's own test: steppers within two counts of home (the PID hunts across a
-        count against the bearings' stiction) and still, servos within their compliance
-        margin (0.34°)."""
+        """The host's own test: steppers within two counts of home (the PID rests within
+        its one-count deadband; the encoder reads whole counts) and still, servos within
+        their compliance margin (0.34°)."""
         error = np.abs(home - np.array(state.joints))
         return bool(np.all(error[:4] <= 2.01 * count) and np.all(error[4:] <= 0.006)
                     and all(abs(s.velocity) < 0.002 for s in state.steppers))
@@ -463,8 +466,8 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
     unsettled = 0
     for _ in range(rounds):
         for target in REPEAT_TARGETS:
-            go(control, target, speed=speed, settle_s=1.0, log=stalls)
-            go(control, REPEAT_HOME, speed=speed, settle_s=0.0, log=stalls)
+            go(control, target, speed=speed, settle_s=1.0, log=stalls, smooth=True)
+            go(control, REPEAT_HOME, speed=speed, settle_s=0.0, log=stalls, smooth=True)
             state = control.run(lambda _t: (home, np.zeros(N_JOINTS)), settle_timeout_s,
                                 stalls, until=settled)
             unsettled += not settled(state)

@@ -277,6 +277,31 @@ def test_deflection_offset_moves_what_the_protection_watches(node):
     assert read(sched, hal, "status_flags") & StepperFlag.SLIP
 
 
+def test_resync_rotor_takes_the_element_as_relaxed_with_torque_off_only(node):
+    """An unpowered rotor turns with the joint: RESYNC_ROTOR moves the step origin so the
+    deflection is the offset the host gave (step_count with it); with torque on it is
+    ignored, so a stall stays one."""
+    sched, hal, _ = node
+    write(sched, hal, "slip_threshold", 65535)
+    write(sched, hal, "deflection_limit", 65535)
+    hal.encoder().value = -400  # the joint (and, unseen, the rotor) moved by hand
+    sched.run_for(2_000)
+    steps, deflection = read(sched, hal, "step_count"), read(sched, hal, "deflection")
+    assert deflection == 400
+    reference = steps / K - deflection  # the power-up reference a host derives
+    write(sched, hal, "deflection_offset", 25)
+    write(sched, hal, "clear_flags", StepperClear.RESYNC_ROTOR)
+    assert read(sched, hal, "deflection") == 25
+    assert read(sched, hal, "step_count") / K - 25 == pytest.approx(reference, abs=1.0)
+    assert read(sched, hal, "goal_position") == 0  # the goal stays in the joint's frame
+    write(sched, hal, "torque_enable", 1)
+    hal.encoder().value = -600
+    sched.run_for(2_000)
+    before = read(sched, hal, "deflection")
+    write(sched, hal, "clear_flags", StepperClear.RESYNC_ROTOR)  # torque on: ignored
+    assert read(sched, hal, "deflection") == before
+
+
 def test_command_goal_commands_single_microsteps(node):
     """command_goal is in 1/16 counts: a goal of 13/16 count is 1.04 microsteps on J1
     (1.2 microsteps per count), which the node steps; goal_position reads the nearest

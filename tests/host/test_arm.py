@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import STEPPER_READ_AT, Arm, discover
+from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
@@ -34,7 +34,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
     assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 10)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
-    assert all(j.firmware_version == 2 for j in arm.steppers)
+    assert all(j.firmware_version == 3 for j in arm.steppers)
 
 
 def test_open_sets_the_fast_return_delay(arm: Arm) -> None:
@@ -72,6 +72,24 @@ def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
     assert all(10.0 <= s.voltage <= 20.0 for s in state.servos)
 
 
+def test_servo_voltage_and_temperature_are_read_one_cycle_in_ten(arm: Arm) -> None:
+    """They drift over seconds: the ordinary cycle reads 6 bytes per RX-64, the slow one 8,
+    and every state reports the last values read."""
+    sensors = arm.transport.emulator.arm.app(5).hal.sensors.values  # type: ignore[attr-defined]
+    supply = sensors["supply_mv"]
+    while arm.cycles % SLOW_READ_EVERY:
+        arm.cycle()
+    sensors["supply_mv"] = 15_100
+    state = arm.cycle()
+    assert state.servos[0].voltage == pytest.approx(15.1) and len(state.raw[5]) == 8
+    sensors["supply_mv"] = 16_200
+    for _ in range(SLOW_READ_EVERY - 1):
+        state = arm.cycle()
+        assert state.servos[0].voltage == pytest.approx(15.1) and len(state.raw[5]) == 6
+    assert arm.cycle().servos[0].voltage == pytest.approx(16.2)
+    sensors["supply_mv"] = supply
+
+
 def test_the_cycle_block_reports_the_nodes_scattered_registers(arm: Arm) -> None:
     arm.transport.sleep(0.5)  # J4 holds 0.25 rad against gravity: its element deflects
     state = arm.cycle()
@@ -98,7 +116,7 @@ def test_a_node_without_the_cycle_block_is_refused(arm: Arm) -> None:
         with pytest.raises(NodeError, match=r"\(J2\) runs stepper firmware 1"):
             discover(arm.bus)
     finally:
-        app.set("firmware_version", 2)
+        app.set("firmware_version", STEPPER_TABLE["firmware_version"].default)
 
 
 def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:

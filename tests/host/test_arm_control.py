@@ -16,8 +16,12 @@ from hil_emulator.inprocess import forget_shared_emulators
 from host import arm_kinematics
 from host.arm import Arm
 from host.arm_control import (
+    ENCODER_COUNT_RAD,
+    MIN_JERK_PEAK,
+    JointController,
     JointPid,
     PidGains,
+    TrackingLog,
     Trajectory,
     Waypoint,
     coupling_feedforward,
@@ -25,6 +29,7 @@ from host.arm_control import (
     play_waypoints,
     record_waypoints,
     save_waypoints,
+    timed_path,
 )
 from host.errors import UsageError
 from protocol.robot import ARM_INDEX_ANGLES
@@ -34,7 +39,8 @@ from tools import armctl
 
 
 def test_pid_proportional_integral_and_derivative_terms() -> None:
-    gains = PidGains(kp=(2.0,) * 7, ki=(10.0,) * 7, kd=(0.5,) * 7, integral_limit=(0.3,) * 7)
+    gains = PidGains(kp=(2.0,) * 7, ki=(10.0,) * 7, kd=(0.5,) * 7, integral_limit=(0.3,) * 7,
+                     deadband=(0.0,) * 7, integral_error=(1.0,) * 7)
     pid = JointPid(gains)
     q_des = [0.1] * 7
     out = pid.update(q_des, [0.0] * 7, 0.01, qd_des=[0.0] * 7, qd=[0.2] * 7)
@@ -43,6 +49,30 @@ def test_pid_proportional_integral_and_derivative_terms() -> None:
     for _ in range(100):  # the integral saturates at its limit
         out = pid.update(q_des, [0.0] * 7, 0.01)
     assert out == pytest.approx([0.2 + 0.3] * 7)
+
+
+def test_pid_deadband_holds_the_integral_and_large_errors_wind_it_slowly() -> None:
+    gains = PidGains(kp=(0.0,) * 7, ki=(1.0,) * 7, integral_limit=(1.0,) * 7,
+                     deadband=(0.001,) * 7, integral_error=(0.01,) * 7)
+    pid = JointPid(gains)
+    pid.update([0.0005] * 7, [0.0] * 7, 1.0)  # within the deadband: nothing to integrate
+    assert pid.integral == pytest.approx([0.0] * 7)
+    pid.update([0.5] * 7, [0.0] * 7, 1.0)  # a large error winds it as a 0.01 rad one
+    assert pid.integral == pytest.approx([0.01] * 7)
+    pid.update([-0.002] * 7, [0.0] * 7, 1.0)  # outside the deadband: integrates as it is
+    assert pid.integral == pytest.approx([0.008] * 7)
+
+
+def test_a_smooth_trajectory_leaves_and_reaches_its_goal_at_rest() -> None:
+    path = timed_path([(0.0,) * 7, (1.0,) + (0.0,) * 6], max_speed=0.5, smooth=True)
+    assert path[-1].t == pytest.approx(2.0 * MIN_JERK_PEAK)
+    traj = Trajectory(path, smooth=True)
+    end = path[-1].t
+    speeds = [traj(t)[1][0] for t in np.linspace(0.0, end, 201)]
+    assert max(speeds) == pytest.approx(0.5, rel=1e-3)  # no faster than asked
+    assert speeds[0] == pytest.approx(0.0) and speeds[-1] == pytest.approx(0.0)
+    assert abs(traj(0.99 * end)[1][0]) < 0.01  # slowing into the goal
+    assert traj(end / 2)[0][0] == pytest.approx(0.5)
 
 
 def test_coupling_feedforward_cancels_the_route_coupling() -> None:
@@ -152,11 +182,6 @@ def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
     assert not any(s.stalled for s in result.state.steppers)
 
 
-@pytest.mark.xfail(reason="with the bearings' stiction J1 coasts on after the recording "
-                   "ends and stops > 150 counts from its unpowered rotor's step count, so "
-                   "re-enabling torque latches STALLED: the host should tell the node the "
-                   "slid rotor's offset when it re-enables torque (not done yet)",
-                   strict=False)
 def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     if not arm.homed:
         arm.home()
@@ -181,8 +206,25 @@ def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     assert moved[0] > 0.05 and moved[5] > 0.05
     path = tmp_path / "hand.jsonl"
     save_waypoints(path, points)
-    arm.torque(True)
+    # the rotors turned with the joints while unpowered: re-enabling torque re-syncs them
+    # instead of latching STALLED
+    state = arm.torque(True)
+    assert not any(s.stalled or s.slip for s in state.steppers)
     arm.move(start, timeout=5.0)  # somewhere else first
-    play_waypoints(arm, load_waypoints(path))
+    log = TrackingLog()
+    play_waypoints(arm, load_waypoints(path), log=log)
+    assert log.stall_events == []
     final = np.array(arm.state().joints)
     assert final == pytest.approx(points[-1].joints, abs=0.03)
+
+
+def test_the_controller_settles_within_its_deadband(arm: Arm) -> None:
+    control = JointController(arm)
+    state = control.start()
+    goals = np.array(state.joints)
+    state = control.run(lambda _t: (goals, np.zeros(7)), 3.0,
+                        until=lambda s: control.settled(s, goals))
+    assert control.settled(state, goals)
+    off = goals.copy()
+    off[0] += 3 * ENCODER_COUNT_RAD  # three counts off: not where the loop rests
+    assert not control.settled(state, off)

@@ -17,6 +17,7 @@ from protocol.control_tables import (
     STEPPER_CYCLE_BLOCK,
     STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_MODEL_NUMBER,
+    STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
     TABLES_BY_MODEL,
     ControlTable,
@@ -279,8 +280,9 @@ def test_stepper_flag_bits() -> None:
     assert STEPPER_TABLE.write(image, 27, bytes([StepperClear.ZERO_STEP_COUNT]))
     with pytest.raises(RegisterAccessError):
         STEPPER_TABLE.write(image, 40, b"\x00\x00\x00\x00")  # step count is read-only
+    assert STEPPER_TABLE.write(image, 27, bytes([StepperClear.RESYNC_ROTOR]))
     with pytest.raises(RegisterRangeError):
-        STEPPER_TABLE.write(image, 27, b"\x10")
+        STEPPER_TABLE.write(image, 27, b"\x20")
 
 
 # --------------------------------------------------------------------------- properties
@@ -330,4 +332,5 @@ def test_stepper_cycle_block_addresses() -> None:
     ]
     assert STEPPER_TABLE.size == 98
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_CYCLE_BLOCK_FIRMWARE == 2
+    assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_ROTOR_RESYNC_FIRMWARE == 3

@@ -142,9 +142,6 @@ def test_step_responses_reach_their_targets_within_the_figures_windows() -> None
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="measured 3.5 mm: the host PID hunts across an encoder count "
-                          "against bearing stiction and two of eight returns do not settle; "
-                          "the fix is controller tuning, not a tuned noise term", strict=False)
 def test_repeatability_is_nonzero_and_within_3_mm() -> None:
     outcome = bench.repeatability()
     assert_rows_pass(outcome)
