@@ -349,13 +349,27 @@ class Emulator:
 
     def _input_time_us(self) -> int:
         """When host input read now enters the simulation (µs): the time matching the wall
-        clock (real time, never before earlier input), or the current time (fast)."""
-        if self._realtime:
-            t = max(self._wall_us(time.monotonic()), self._last_input_us,
-                    self.scheduler.now_us())
-            self._last_input_us = t
-            return t
-        return self.scheduler.now_us()
+        clock (real time, never before earlier input), or the current time (fast).
+
+        Real time and behind (events due before the wall clock's time have not run): the
+        input does not queue behind that backlog.  The simulation clock slips to its
+        present time (:attr:`slipped_s`) and the input enters there, so a reply costs only
+        its own simulated time (the request's and reply's wire time, the device's
+        turnaround) however far behind a busy machine has left the simulation."""
+        if not self._realtime:
+            return self.scheduler.now_us()
+        scheduler = self.scheduler
+        wall_us = self._wall_us(time.monotonic())
+        due = scheduler.next_due_us()
+        if due is not None and due < wall_us:
+            present = max(scheduler.now_us(), self._last_input_us)
+            if wall_us > present:
+                self._wall0 += (wall_us - present) / 1e6
+                self.slipped_s += (wall_us - present) / 1e6
+                wall_us = present
+        t = max(wall_us, self._last_input_us, scheduler.now_us())
+        self._last_input_us = t
+        return t
 
     def _schedule_input(self, apply: Callable[[], None]) -> None:
         """Host input enters the simulation at :meth:`_input_time_us` (in fast mode and

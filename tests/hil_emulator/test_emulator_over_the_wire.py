@@ -3,6 +3,8 @@ the hand protocol on the palm and loose-finger ports, python-can's slcan on the 
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -116,6 +118,42 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
                 assert abs(present[dxl_id] - start[dxl_id]) < 112  # held within ±4 deg
         finally:
             port.closePort()
+
+
+@pytest.mark.slow
+def test_stock_dynamixel_sdk_pings_every_arm_node_with_a_cpu_hog_running() -> None:
+    """A user's first check, on a busy machine: the stock sdk's ping (no retries) against
+    ``--config full --ready`` while another process keeps a core busy.  Every one of 35
+    pings (5 rounds over the 7 arm ids) is answered within the sdk's own timeout (its
+    packet timeout with the default latency timer, ~34 ms of wall time): host input never
+    waits behind the simulation's backlog, however far behind the full configuration is."""
+    from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        with running_emulator("--config", "full", "--ready") as info:
+            port = PortHandler(info["arm"])
+            assert port.openPort() and port.setBaudRate(1_000_000)
+            sdk = PacketHandler(1.0)
+            missed: list[tuple[int, int, str]] = []
+            try:
+                for round_ in range(5):
+                    for dxl_id in range(1, 8):
+                        try:
+                            model, result, error = sdk.ping(port, dxl_id)
+                        except IndexError:  # the sdk read a stale reply as its own
+                            missed.append((round_, dxl_id, "stale reply"))
+                            continue
+                        expected = (STEPPER_MODEL_NUMBER if dxl_id <= 4
+                                    else RX64_TABLE.model_number)
+                        if result != COMM_SUCCESS or error != 0 or model != expected:
+                            missed.append((round_, dxl_id, sdk.getTxRxResult(result)))
+            finally:
+                port.closePort()
+    finally:
+        hog.kill()
+        hog.wait()
+    assert missed == [], (f"{35 - len(missed)}/35 pings answered", missed, info["stats"])
 
 
 def _retried(call: Callable[[], tuple[Any, ...]], tries: int = 5) -> tuple[Any, ...]:

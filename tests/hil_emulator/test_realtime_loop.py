@@ -7,8 +7,11 @@ import json
 import threading
 import time
 
+import serial
+
 from firmware_py.scheduler import Scheduler
-from hil_emulator.emulator import LATE_WARN_MS, Emulator
+from hil_emulator.emulator import LATE_WARN_MS, MAX_BEHIND_S, Emulator
+from protocol.dynamixel import make_ping
 
 
 def _run_in_thread(emulator: Emulator, stop: threading.Event) -> threading.Thread:
@@ -35,6 +38,56 @@ def test_stop_takes_effect_within_100_ms_when_far_behind() -> None:
     assert len(said) == 1 and "ms late" in said[0], said
     assert float(said[0].split(" ms late")[0].rsplit(" ", 1)[1]) > LATE_WARN_MS
     assert emulator.late_episodes == 1
+    assert emulator.slipped_s > 0.0
+
+
+def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
+    """Far behind (every simulated 100 µs costs 1 ms of wall time), a ping written to the
+    arm's pty enters the simulation at its present time, not at the wall clock's time
+    behind a backlog of events: the reply costs only its own simulated time."""
+    emulator = Emulator("arm", physics=False)
+    emulator.scheduler.call_every(100, lambda: time.sleep(0.001))
+    emulator.open_ports()
+    link = emulator.links["arm"]
+    entered: list[tuple[int, int]] = []  # (input time, simulation time when read), µs
+    clock = link.input_clock
+
+    def recording_clock() -> int:
+        now_us = emulator.scheduler.now_us()
+        t_us = clock()
+        entered.append((t_us, now_us))
+        return t_us
+
+    link.input_clock = recording_clock
+    replies: list[int] = []
+    emitted = link.on_emit
+
+    def on_emit(t_us: int) -> None:
+        replies.append(t_us)
+        emitted(t_us)
+
+    link.on_emit = on_emit
+    stop = threading.Event()
+    thread = _run_in_thread(emulator, stop)
+    try:
+        time.sleep(0.3)  # far behind by now: the clock has slipped
+        with serial.Serial(link.path, 1_000_000, timeout=0) as port:
+            port.write(make_ping(5).encode())
+            got = b""
+            deadline = time.monotonic() + 10.0  # a hang guard, not a timing bound
+            while len(got) < 6 and time.monotonic() < deadline:
+                got += port.read(64)
+                time.sleep(0.001)
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+    assert got[:3] == b"\xff\xff\x05", got
+    t_in, sim_at_read = entered[0]
+    assert t_in == sim_at_read  # at the present simulation time, not ahead of a backlog
+    # The reply is one event chain away on the simulation clock: the ping's and the reply's
+    # wire time and the servo's return delay, far less than the backlog (MAX_BEHIND_S).
+    assert 0 < replies[0] - t_in < 2_000 < MAX_BEHIND_S * 1e6
     assert emulator.slipped_s > 0.0
 
 
