@@ -10,7 +10,7 @@ import time
 import serial
 
 from firmware_py.scheduler import Scheduler
-from hil_emulator.emulator import LATE_WARN_MS, MAX_BEHIND_S, Emulator
+from hil_emulator.emulator import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S, Emulator
 from protocol.dynamixel import make_ping
 
 
@@ -20,10 +20,19 @@ def _run_in_thread(emulator: Emulator, stop: threading.Event) -> threading.Threa
     return thread
 
 
-def test_stop_takes_effect_within_100_ms_when_far_behind() -> None:
-    """Every simulated 100 µs costs 1 ms of wall time: the loop can never catch up."""
+def test_stop_takes_effect_at_once_when_far_behind() -> None:
+    """Every simulated 100 µs costs 1 ms of wall time: the loop can never catch up.  Once
+    ``stop`` is set it runs at most one more batch of :data:`CATCH_UP_EVENTS` events (each
+    costs 1 ms here: well within 100 ms however busy the machine); the wall clock only
+    guards against a hang (2 s)."""
     emulator = Emulator("arm", physics=False)
-    emulator.scheduler.call_every(100, lambda: time.sleep(0.001))
+    ran = [0]
+
+    def costly() -> None:
+        ran[0] += 1
+        time.sleep(0.001)
+
+    emulator.scheduler.call_every(100, costly)
     said: list[str] = []
     emulator.on_late = said.append
     stop = threading.Event()
@@ -31,9 +40,11 @@ def test_stop_takes_effect_within_100_ms_when_far_behind() -> None:
     time.sleep(0.5)
     t0 = time.monotonic()
     stop.set()
+    ran_at_stop = ran[0]
     thread.join(2.0)
     assert not thread.is_alive()
-    assert time.monotonic() - t0 < 0.100
+    stop_s = time.monotonic() - t0
+    assert ran[0] - ran_at_stop <= CATCH_UP_EVENTS + 1, (ran[0] - ran_at_stop, stop_s)
     # It said so, once, with the figure; and gave up wall time instead of bursting.
     assert len(said) == 1 and "ms late" in said[0], said
     assert float(said[0].split(" ms late")[0].rsplit(" ", 1)[1]) > LATE_WARN_MS
