@@ -21,7 +21,8 @@ or ``--control PATH``; its path is the ``control`` key of the JSON line.
 Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
 exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
-lateness (``null`` when nothing was delivered), episodes of lateness, per port the
+lateness (``null`` when nothing was delivered), episodes of lateness, ``stop_ms`` (wall
+time from SIGINT/SIGTERM or the end of ``--duration`` to the loop's end), per port the
 bytes in and out, host input lost to overrun and the longest input queue, and with a
 ``--scene`` its objects' ground truth (``scene``: the mug's start and present height,
 highest lift, tilt; :meth:`~hil_emulator.emulator.Emulator.scene_stats`).
@@ -36,6 +37,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from types import FrameType
 from typing import Any
@@ -117,9 +119,15 @@ def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     stop = threading.Event()
+    stop_asked: list[float] = []  # monotonic time (s) of the first stop request
+
+    def request_stop() -> None:
+        if not stop_asked:
+            stop_asked.append(time.monotonic())
+        stop.set()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        request_stop()
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
@@ -159,17 +167,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                       "running without the viewer", file=sys.stderr)
         print(json.dumps(ports), flush=True)
         if args.duration is not None:
-            timer = threading.Timer(args.duration, stop.set)
+            timer = threading.Timer(args.duration, request_stop)
             timer.daemon = True
             timer.start()
         try:
             emulator.run(stop, realtime=args.realtime, on_idle=on_idle)
         finally:
+            stop_ms = (time.monotonic() - stop_asked[0]) * 1e3 if stop_asked else None
             if handle is not None:
                 handle.close()
             if args.stats:
                 stats: dict[str, Any] = {
                     "sim_s": emulator.scheduler.now_us() / 1e6, **emulator.lateness_stats(),
+                    "stop_ms": stop_ms,
                     "ports": emulator.link_stats(),
                     "fault_timeline": emulator.faults.timeline_dicts()}
                 if emulator.scene_parts:

@@ -13,7 +13,14 @@ request                                                            answer
 ``{"op": "active"}``                                                ``{"ok": true, "ids": [...]}``
 ``{"op": "timeline"}``                                              ``{"ok": true, "events": [...]}``
 ``{"op": "list"}``                                                  ``{"ok": true, "faults": [...]}``
+``{"op": "status"}``                                                ``{"ok": true, "t_us": ...,``
+                                                                   ``"max_ms": ..., ...}``
 =================================================================  ==========================
+
+``status`` is the simulation clock (``t_us``) with the real-time loop's lateness figures
+(:meth:`~hil_emulator.emulator.Emulator.lateness_stats`: delivery lateness in ms,
+``late_episodes``, ``slipped_s``): a test over the wire waits on the simulation clock and
+takes its wall-clock margins from what the emulator reports, not from an idle machine.
 
 A request that fails answers ``{"ok": false, "error": "..."}`` (an unknown fault or
 parameter names the key).  Requests act at the simulation time of the moment they are read,
@@ -123,7 +130,10 @@ class ControlChannel:
             return {"events": faults.timeline_dicts()}
         if op == "list":
             return {"faults": sorted(FAULTS)}
-        raise ValueError(f"unknown op {op!r}: inject, clear, clear_all, active, timeline, list")
+        if op == "status":
+            return {"t_us": self.emulator.scheduler.now_us(), **self.emulator.lateness_stats()}
+        raise ValueError(f"unknown op {op!r}: inject, clear, clear_all, active, timeline, list, "
+                         "status")
 
     def _answer(self, client: socket.socket, answer: dict[str, Any]) -> None:
         try:

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -17,14 +19,74 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 
 
+#: How long a test waits for something that must happen before it calls it a hang (s of
+#: wall time): never a timing bound, which comes from the simulation clock or the
+#: emulator's reported lateness.
+HANG_GUARD_S = 60.0
+
+
 @contextmanager
-def running_emulator(*args: str, startup_timeout_s: float = 60.0) -> Iterator[dict[str, Any]]:
+def running_emulator(*args: str, startup_timeout_s: float = 120.0) -> Iterator[dict[str, Any]]:
     """Start ``hil-emulator --stats ARGS``, yield its JSON line (plus ``"process"``), stop it
     with SIGINT and check it exits 0 with nothing more on standard output.
 
-    After the ``with`` block, ``info["stats"]`` holds the emulator's own ``--stats`` report
-    (delivery lateness in ms, port counters): tests take their wall-clock margins from it
-    instead of assuming an idle machine."""
+    Without ``--link-dir`` or ``--control`` it is given a control socket in a temporary
+    directory, so ``info["control"]`` is always there: :func:`status` reads the simulation
+    clock and the lateness so far through it.  After the ``with`` block, ``info["stats"]``
+    holds the emulator's own ``--stats`` report (delivery lateness in ms, port counters):
+    tests take their wall-clock margins from it instead of assuming an idle machine."""
+    with tempfile.TemporaryDirectory(prefix="hil-emulator-") as scratch:
+        if "--link-dir" not in args and "--control" not in args:
+            args = (*args, "--control", os.path.join(scratch, "control"))
+        with _running(args, startup_timeout_s) as info:
+            yield info
+
+
+def status(info: dict[str, Any]) -> dict[str, Any]:
+    """The running emulator's ``status`` (control channel): ``t_us``, the simulation clock,
+    and its lateness figures so far."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
+        client.settimeout(HANG_GUARD_S)
+        client.connect(info["control"])
+        client.sendall(b'{"op": "status"}\n')
+        answer = b""
+        while not answer.endswith(b"\n"):
+            chunk = client.recv(65536)
+            if not chunk:
+                raise ConnectionError("the control channel closed without an answer")
+            answer += chunk
+    reply = dict(json.loads(answer))
+    assert reply["ok"], reply
+    return reply
+
+
+class SimulatedDeadline:
+    """``seconds`` from now on the running emulator's simulation clock (a busy machine
+    slows that clock down; the wall clock only guards against a hang, :data:`HANG_GUARD_S`)."""
+
+    def __init__(self, info: dict[str, Any], seconds: float) -> None:
+        self.info = info
+        self.seconds = seconds
+        self.end_us = status(info)["t_us"] + int(seconds * 1e6)
+        self.guard = time.monotonic() + HANG_GUARD_S
+
+    def passed(self) -> bool:
+        """True once the simulation clock is past the deadline; a hang is an error."""
+        assert time.monotonic() < self.guard, (
+            f"{self.seconds} s of simulated time did not pass within {HANG_GUARD_S} s")
+        return bool(status(self.info)["t_us"] >= self.end_us)
+
+
+def wait_simulated(info: dict[str, Any], seconds: float) -> None:
+    """Wait until the emulator's simulation clock has advanced ``seconds`` (however long
+    that takes on the wall clock of a busy machine, within :data:`HANG_GUARD_S`)."""
+    deadline = SimulatedDeadline(info, seconds)
+    while not deadline.passed():
+        time.sleep(0.02)
+
+
+@contextmanager
+def _running(args: tuple[str, ...], startup_timeout_s: float) -> Iterator[dict[str, Any]]:
     proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--stats", *args],
                             cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -439,6 +439,12 @@ def test_the_control_channel_injects_into_a_running_emulator(tmp_path: Path) -> 
         assert json.loads(lines[0]) == {"ok": True}
         assert [e["action"] for e in json.loads(lines[1])["events"]] == ["apply", "clear"]
         assert not emu.arm.bus.line_cut  # type: ignore[union-attr]
+        client.sendall(b'{"op": "status"}\n')
+        t_us = emu.scheduler.now_us()
+        emu.step(1 * MS)
+        status = json.loads(client.recv(65536))
+        assert status["ok"] and status["t_us"] == t_us  # the simulation clock when read
+        assert status["max_ms"] is None and status["slipped_s"] == 0.0  # never paced
     finally:
         client.close()
         emu.close()

@@ -11,8 +11,13 @@ import serial
 
 from hil_emulator.pty_port import PacedWriter, PtyPort, byte_time_s, make_link, remove_links
 
+#: Longest a test waits for bytes that must come (s of wall time): a hang guard, not a
+#: timing bound (reads return as soon as the bytes are there; on a loaded machine a pty's
+#: hand-off, done by a kernel worker, can take tens of ms).
+HANG_GUARD_S = 30.0
 
-def _read_for(port: PtyPort, n: int, timeout: float = 1.0) -> bytes:
+
+def _read_for(port: PtyPort, n: int, timeout: float = HANG_GUARD_S) -> bytes:
     got = b""
     deadline = time.monotonic() + timeout
     while len(got) < n and time.monotonic() < deadline:
@@ -36,7 +41,7 @@ def test_open_properties(port: PtyPort) -> None:
 
 
 def test_pyserial_both_directions(port: PtyPort) -> None:
-    with serial.Serial(port.path, 1_000_000, timeout=0.5) as client:
+    with serial.Serial(port.path, 1_000_000, timeout=HANG_GUARD_S) as client:
         client.write(b"\xff\xff\x01\x02\x01\xfb")
         assert _read_for(port, 6) == b"\xff\xff\x01\x02\x01\xfb"
         assert port.write(b"hello") == 5
@@ -44,13 +49,13 @@ def test_pyserial_both_directions(port: PtyPort) -> None:
 
 
 def test_client_close_and_reopen(port: PtyPort) -> None:
-    client = serial.Serial(port.path, 57_600, timeout=0.5)
+    client = serial.Serial(port.path, 57_600, timeout=HANG_GUARD_S)
     client.write(b"abc")
     assert _read_for(port, 3) == b"abc"
     client.close()
     assert port.read_available() == b""  # no EIO with the client gone
     assert port.read_available() == b""
-    with serial.Serial(port.path, 1_000_000, timeout=0.5) as client2:
+    with serial.Serial(port.path, 1_000_000, timeout=HANG_GUARD_S) as client2:
         client2.write(b"xyz")
         assert _read_for(port, 3) == b"xyz"
         port.write(b"ok")
@@ -97,7 +102,7 @@ def test_write_paced_computation(port: PtyPort) -> None:
 
 @pytest.mark.parametrize("baud", [9_600, 57_600, 1_000_000])
 def test_paced_writer_never_faster_than_baud(baud: int) -> None:
-    with PtyPort(baud=baud) as p, serial.Serial(p.path, baud, timeout=0.5) as client:
+    with PtyPort(baud=baud) as p, serial.Serial(p.path, baud, timeout=HANG_GUARD_S) as client:
         writer = PacedWriter(p)
         n = 40
         t0 = 10.0

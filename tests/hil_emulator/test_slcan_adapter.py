@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import fcntl
+import struct
+import termios
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -12,6 +15,11 @@ import serial
 
 from hil_emulator.pty_port import PtyPort
 from hil_emulator.slcan_adapter import SlcanAdapter
+
+#: Longest a test waits for bytes or frames that must come (s of wall time): a hang guard,
+#: not a timing bound (a read returns as soon as its bytes are there; a loaded machine's
+#: pty hand-offs take tens of ms).
+HANG_GUARD_S = 30.0
 
 
 class AdapterLoop:
@@ -37,10 +45,10 @@ class AdapterLoop:
 
     def stop(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._thread.join(timeout=HANG_GUARD_S)
         assert not self._thread.is_alive()
 
-    def wait_frames(self, n: int, timeout: float = 2.0) -> list[tuple[int, bytes]]:
+    def wait_frames(self, n: int, timeout: float = HANG_GUARD_S) -> list[tuple[int, bytes]]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             with self._lock:
@@ -50,7 +58,7 @@ class AdapterLoop:
         with self._lock:
             return list(self.frames)
 
-    def wait_until(self, cond: Callable[[], bool], timeout: float = 2.0) -> bool:
+    def wait_until(self, cond: Callable[[], bool], timeout: float = HANG_GUARD_S) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if cond():
@@ -71,6 +79,11 @@ def rig() -> Iterator[tuple[PtyPort, SlcanAdapter, AdapterLoop]]:
             loop.stop()
 
 
+def _readable(fd: int) -> int:
+    """Bytes waiting to be read on ``fd`` (``FIONREAD``)."""
+    return int(struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0])
+
+
 def _open_bus(port: PtyPort) -> can.BusABC:
     return can.Bus(interface="slcan", channel=port.path, bitrate=1_000_000, sleep_after_open=0)
 
@@ -86,7 +99,7 @@ def test_python_can_bus_round_trip(rig: tuple[PtyPort, SlcanAdapter, AdapterLoop
         assert loop.wait_frames(1) == [(0x10A, payload)]
 
         assert adapter.send_frame(0x18A, b"\x01\x02\xfe")
-        msg = bus.recv(timeout=1)
+        msg = bus.recv(timeout=HANG_GUARD_S)
         assert msg is not None
         assert msg.arbitration_id == 0x18A and not msg.is_extended_id
         assert bytes(msg.data) == b"\x01\x02\xfe"
@@ -94,7 +107,7 @@ def test_python_can_bus_round_trip(rig: tuple[PtyPort, SlcanAdapter, AdapterLoop
         bus.send(can.Message(arbitration_id=0x1ABCDEF0, data=b"", is_extended_id=True))
         assert loop.wait_frames(2)[1] == (0x1ABCDEF0, b"")
         assert adapter.send_frame(0x12345678, b"\xaa")
-        msg = bus.recv(timeout=1)
+        msg = bus.recv(timeout=HANG_GUARD_S)
         assert msg is not None and msg.is_extended_id
         assert msg.arbitration_id == 0x12345678 and bytes(msg.data) == b"\xaa"
 
@@ -113,7 +126,7 @@ def _exchange(client: serial.Serial, cmd: bytes, n: int) -> bytes:
 
 def test_raw_commands_and_garbage(rig: tuple[PtyPort, SlcanAdapter, AdapterLoop]) -> None:
     port, adapter, loop = rig
-    with serial.Serial(port.path, 115200, timeout=1.0) as c:
+    with serial.Serial(port.path, 115200, timeout=HANG_GUARD_S) as c:
         assert _exchange(c, b"t10A1FF\r", 1) == b"\a"  # channel closed
         assert _exchange(c, b"S9\r", 1) == b"\a"
         assert _exchange(c, b"S6\r", 1) == b"\r"
@@ -146,7 +159,7 @@ def test_raw_commands_and_garbage(rig: tuple[PtyPort, SlcanAdapter, AdapterLoop]
 
 def test_listen_only_rejects_transmit(rig: tuple[PtyPort, SlcanAdapter, AdapterLoop]) -> None:
     port, adapter, loop = rig
-    with serial.Serial(port.path, 115200, timeout=1.0) as c:
+    with serial.Serial(port.path, 115200, timeout=HANG_GUARD_S) as c:
         assert _exchange(c, b"L\r", 1) == b"\r"
         assert adapter.is_open and adapter.listen_only
         assert _exchange(c, b"t1001AA\r", 1) == b"\a"
@@ -168,16 +181,18 @@ def test_send_frame_validation() -> None:
 
 
 def test_unterminated_garbage_is_bounded() -> None:
-    with PtyPort() as port, serial.Serial(port.path, 115200, timeout=1.0) as c:
+    with PtyPort() as port, serial.Serial(port.path, 115200, timeout=HANG_GUARD_S) as c:
         adapter = SlcanAdapter(port)
         c.write(b"x" * 200)
         c.flush()
-        time.sleep(0.05)
+        deadline = time.monotonic() + HANG_GUARD_S
+        while _readable(port.fileno()) < 200 and time.monotonic() < deadline:
+            time.sleep(0.001)  # the pty hands the bytes over (a kernel worker) when it runs
         assert adapter.poll() == []
         assert adapter.errors == 1  # one BEL, buffer dropped instead of growing
         assert c.read(1) == b"\a"
         c.write(b"V\r")
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + HANG_GUARD_S
         reply = b""
         while time.monotonic() < deadline and not reply.endswith(b"\r"):
             adapter.poll()
