@@ -73,6 +73,7 @@ from host.arm_control import JointController, TrackingLog, Trajectory, timed_pat
 from host.arm_kinematics import matrix_to_rpy, solve_ik
 from host.arm_recording import ArmRecorder
 from host.arm_state import ArmState
+from host.grasp import finger_roles
 from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
@@ -101,10 +102,12 @@ MUG_BASE_M: Final = (MUG_XY_M[0], MUG_XY_M[1], TABLE_TOP_Z_M - MOUNT_HEIGHT_M)
 #: x, pointing down), the fingers along +y, the palmar face towards +x, the mug, so the hand
 #: comes from the arm's side.
 PALM_AXES_AT_MUG: Final = ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
-#: Where the mug's axis runs in the palm frame at the grasp (m; palm y, z): 25 mm towards the
-#: fingers' edge (the thumb, standing up from the palm 32 mm on the other side, passes
-#: beside the mug), 5 mm off the palmar face (the mug's radius is 40 mm).
-MUG_AXIS_IN_PALM_M: Final = (0.025, 0.0575)
+#: Where the mug's axis runs in the palm frame at the grasp (m; palm y, z): 30 mm towards the
+#: fingers' edge, so the closing fingers' proximal phalanges (at the cylindrical grasp's
+#: 1.35 rad) come tangent to the mug's side and the distal ones curl round it towards the
+#: palm, the thumb closing from the other side; 5 mm off the palmar face (the mug's radius is
+#: 40 mm; the fingers, 103 mm long, cannot wrap the mug's far side).
+MUG_AXIS_IN_PALM_M: Final = (0.03, 0.0575)
 #: Height of the palm's centre above the table top at the grasp (m; the mug is 0.10 m tall).
 GRASP_HEIGHT_M: Final = 0.06
 #: Pre-grasp: the palm this far back from the grasp along its normal (m).
@@ -131,6 +134,10 @@ HOLD_S: Final = 2.0
 MIN_LIFT_M: Final = 0.05
 SET_DOWN_M: Final = 0.01
 SET_DOWN_TILT_RAD: Final = 0.3
+#: The opposing finger's (the thumb's) joints (rad) while the hand comes to the mug and
+#: leaves it: bent back, away from the fingers, so it passes beside the mug (it stands up
+#: from the palm 32 mm from the centre, inside the mug's reach when straight).
+THUMB_CLEAR_Q: Final = (0.0, -0.6, -0.4)
 #: Grasp: synergy amount, closing speed (rad/s), motor effort (1/255 of full PWM).
 GRASP_AMOUNT: Final = 1.0
 GRASP_SPEED_RAD_S: Final = 1.0
@@ -351,8 +358,10 @@ class Demo:
         controlled move (``log``; the controller clears a stall and goes on)."""
         state = self.arm.state()
         errors = {k: v for k, v in state.errors.items() if v}
-        for name in () if log is None else log.stall_events:
-            errors.setdefault(name, []).append("STALLED (cleared by the controller)")
+        stalls = [] if log is None else log.stall_events
+        for name in sorted(set(stalls)):
+            errors.setdefault(name, []).append(
+                f"STALLED {stalls.count(name)}× (cleared by the controller)")
         if errors:
             raise DemoFailed(self.step, f"arm alarms {errors} (joints "
                              f"{[round(q, 2) for q in state.joints]} rad)")
@@ -367,6 +376,12 @@ class Demo:
                              f"{result.position_error * 1000:.0f} mm from its target")
         self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
                  f"{result.position_error * 1000:.1f} mm off")
+
+    def _thumb_clear(self) -> None:
+        """Bend the opposing finger back (:data:`THUMB_CLEAR_Q`)."""
+        roles = finger_roles(self.hand.layout)
+        self.hand.move_fingers({k: THUMB_CLEAR_Q for k, role in enumerate(roles)
+                                if role == "opposing"})
 
     def _truth(self) -> None:
         """In process: where the mug is (the physics' ground truth)."""
@@ -383,6 +398,7 @@ class Demo:
         self._joint_path(wrist)
         self._joint_path(ready)
         self.hand.grasp("open", 1.0, speed=2.0)
+        self._thumb_clear()
         self._moveto(flange_pose(APPROACH_M), "beside the mug, the palm facing it",
                      speed=0.4)
         self._moveto(flange_pose(), "round the mug")
@@ -390,15 +406,22 @@ class Demo:
 
     def grasp(self) -> None:
         self.begin("grasp", f"cylindrical grasp, closing at {GRASP_SPEED_RAD_S} rad/s until "
-                            "the tactile pads report contact")
-        result = self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
-                                 until_contact=True, effort=GRASP_EFFORT,
-                                 on_states=self._on_fingers)
+                            "the tactile pads report contact: the fingers round the mug's "
+                            "far side first, then the thumb against it")
+        roles = finger_roles(self.hand.layout)
+        fingers = [k for k, role in enumerate(roles) if role != "opposing"]
+        thumbs = [k for k, role in enumerate(roles) if role == "opposing"]
+        contacts: dict[int, str] = {}
+        for group in (fingers, thumbs):
+            result = self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+                                     fingers=group, until_contact=True, effort=GRASP_EFFORT,
+                                     on_states=self._on_fingers)
+            contacts.update(result.contacts)
         for k in range(FINGERS):
-            self.say(f"finger {k}: {result.contacts.get(k, 'closed without contact')}")
-        if not result.contacts:
+            self.say(f"finger {k}: {contacts.get(k, 'closed without contact')}")
+        if not contacts:
             raise DemoFailed("grasp", "no finger felt the mug")
-        self.log.result["contacts"] = dict(result.contacts)
+        self.log.result["contacts"] = dict(contacts)
         # Contact stops a finger where it touched; squeeze: every finger on towards the
         # closed grasp, the mug stopping it, so its motors press with their effort.
         self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
@@ -423,6 +446,7 @@ class Demo:
         self.begin("put down", "lowering the mug onto the table")
         self._moveto(flange_pose(), "set down")
         self.hand.grasp("open", 1.0, speed=1.5, on_states=self._on_fingers)
+        self._thumb_clear()
         self.say("hand opened")
         self._moveto(flange_pose(APPROACH_M), "hand withdrawn from the mug")
         self._truth()
