@@ -18,7 +18,7 @@ would, with the host library and the command-line tools:
    pose in front of the table's edge (joint moves), and brings it to the mug from the side
    (``Arm.moveto``): the palm upright, its face towards the mug, the fingers open along the
    mug's side and the thumb beside it, then in until the mug's body is between them;
-5. **grasp**: a cylindrical grasp closing until the tactile pads report contact
+5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the tactile pads report contact
    (``Hand.grasp(..., until_contact=True)``), then squeezing;
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
@@ -102,12 +102,13 @@ MUG_BASE_M: Final = (MUG_XY_M[0], MUG_XY_M[1], TABLE_TOP_Z_M - MOUNT_HEIGHT_M)
 #: x, pointing down), the fingers along +y, the palmar face towards +x, the mug, so the hand
 #: comes from the arm's side.
 PALM_AXES_AT_MUG: Final = ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
-#: Where the mug's axis runs in the palm frame at the grasp (m; palm y, z): 30 mm towards the
-#: fingers' edge, so the closing fingers' proximal phalanges (at the cylindrical grasp's
-#: 1.35 rad) come tangent to the mug's side and the distal ones curl round it towards the
-#: palm, the thumb closing from the other side; 5 mm off the palmar face (the mug's radius is
-#: 40 mm; the fingers, 103 mm long, cannot wrap the mug's far side).
-MUG_AXIS_IN_PALM_M: Final = (0.03, 0.0575)
+#: Where the mug's axis runs in the palm frame at the grasp (m; palm y, z): 36 mm towards the
+#: fingers' edge, so the closing fingers' pads (the prismatic grasp: proximal joints at
+#: 1.2 rad, distal nearly straight) press on the mug's side, the thumb from the other side;
+#: 5 mm off the palmar face.  (The fingers, 103 mm long, cannot wrap the far side of a mug
+#: 80 mm across: the cylindrical grasp's curled distal links poke it away from the palm
+#: before any pad touches it.)
+MUG_AXIS_IN_PALM_M: Final = (0.036, 0.0575)
 #: Height of the palm's centre above the table top at the grasp (m; the mug is 0.10 m tall).
 GRASP_HEIGHT_M: Final = 0.06
 #: Pre-grasp: the palm this far back from the grasp along its normal (m).
@@ -138,7 +139,8 @@ SET_DOWN_TILT_RAD: Final = 0.3
 #: leaves it: bent back, away from the fingers, so it passes beside the mug (it stands up
 #: from the palm 32 mm from the centre, inside the mug's reach when straight).
 THUMB_CLEAR_Q: Final = (0.0, -0.6, -0.4)
-#: Grasp: synergy amount, closing speed (rad/s), motor effort (1/255 of full PWM).
+#: Grasp: synergy, amount, closing speed (rad/s), motor effort (1/255 of full PWM).
+GRASP_SYNERGY: Final = "prismatic"
 GRASP_AMOUNT: Final = 1.0
 GRASP_SPEED_RAD_S: Final = 1.0
 GRASP_EFFORT: Final = 255
@@ -405,15 +407,15 @@ class Demo:
         self._truth()
 
     def grasp(self) -> None:
-        self.begin("grasp", f"cylindrical grasp, closing at {GRASP_SPEED_RAD_S} rad/s until "
-                            "the tactile pads report contact: the fingers round the mug's "
-                            "far side first, then the thumb against it")
+        self.begin("grasp", f"{GRASP_SYNERGY} grasp, closing at {GRASP_SPEED_RAD_S} rad/s "
+                            "until the tactile pads report contact: the fingers on the "
+                            "mug's side first, then the thumb against it")
         roles = finger_roles(self.hand.layout)
         fingers = [k for k, role in enumerate(roles) if role != "opposing"]
         thumbs = [k for k, role in enumerate(roles) if role == "opposing"]
         contacts: dict[int, str] = {}
         for group in (fingers, thumbs):
-            result = self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+            result = self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
                                      fingers=group, until_contact=True, effort=GRASP_EFFORT,
                                      on_states=self._on_fingers)
             contacts.update(result.contacts)
@@ -425,7 +427,7 @@ class Demo:
         # Contact stops a finger where it touched; squeeze: every finger on towards the
         # closed grasp, the mug stopping it, so its motors press with their effort.
         self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
-        self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+        self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
                         effort=GRASP_EFFORT, timeout=1.0, on_states=self._on_fingers)
         self._truth()
 
