@@ -18,8 +18,9 @@ would, with the host library and the command-line tools:
    pose in front of the table's edge (joint moves), and brings it to the mug from the side
    (``Arm.moveto``): the palm upright, its face towards the mug, the fingers open along the
    mug's side and the thumb beside it, then in until the mug's body is between them;
-5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the tactile pads report contact
-   (``Hand.grasp(..., until_contact=True)``), then squeezing;
+5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the
+   tactile pads report contact (``Hand.grasp(..., until_contact=True)``; the fingers, then
+   the thumb), then squeezing;
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
