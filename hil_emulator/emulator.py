@@ -36,6 +36,7 @@ from hil_emulator.faults.host_link import LinkTap
 from hil_emulator.hand_rig import HandRig, LooseFinger
 from hil_emulator.host_links import SerialLink, SlcanLink, VirtualCanLink
 from hil_emulator.plant import Plant, PlantPart, new_spec
+from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
 
 #: The configurations :class:`Emulator` can build.
 CONFIGS: Final = ("full", "hand", "arm", "loose-finger")
@@ -175,7 +176,11 @@ class Emulator:
                 # An object resting on the palm, ready to be grasped.
                 hand_model.add_grasp_object(spec, spec.worldbody,
                                             pos=(0.0, 0.012, STAND_Z_M + 0.036))
-            hand_model.add_hand(spec, hand_parent, layout=layout, prefix="hand/")
+            if self.arm is not None:  # on the wrist flange, the palm facing away from it
+                hand_model.add_hand(spec, hand_parent, layout=layout, prefix="hand/",
+                                    pos=HAND_ON_FLANGE_POSITION_M, quat=HAND_ON_FLANGE_QUAT)
+            else:
+                hand_model.add_hand(spec, hand_parent, layout=layout, prefix="hand/")
             parts.append(PalmPlant("hand/", self.hand.palm, rng()))
             for finger in self.hand.fingers:
                 fp = FingerPlant(f"hand/finger{finger.index}/", finger.fmcb, finger.f2,

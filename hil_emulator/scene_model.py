@@ -13,11 +13,11 @@ frame is the world's raised by :data:`~hil_emulator.arm_model.MOUNT_HEIGHT_M`).
 **Contacts.**  The table top has ``contype = conaffinity = TABLE_BITS`` and the mug
 ``contype = MUG_CONTYPE``, ``conaffinity = MUG_CONAFFINITY``: the mug touches the table, the
 floor and the hand (hand geoms: ``contype = 2``), and the hand touches the table, but the
-mug does **not** touch the arm's geoms (``contype = 0, conaffinity = 1``).  The hand is
-mounted with its palmar face on the wrist flange (see :mod:`hil_emulator.hand_model` and
-:func:`hil_emulator.arm_model.add_arm`), so whatever the palm holds overlaps the J7 servo
-and the flange plate; leaving those contacts out is this scene's documented
-simplification, as the hand's fingers passing through each other is the hand model's.
+mug does **not** touch the arm's geoms (``contype = 0, conaffinity = 1``): the arm passing
+through the mug is this scene's documented simplification, as the hand's fingers passing
+through each other is the hand model's.  The hand's back is on the wrist flange, its palmar
+face looking away from the arm (:data:`protocol.robot.HAND_ON_FLANGE_QUAT`), so the palm and
+the fingers, not the wrist, hold what they grasp.
 """
 
 from __future__ import annotations

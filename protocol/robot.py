@@ -363,6 +363,23 @@ ARM_JOINT_OFFSETS_M: Final[tuple[Vec3, ...]] = (
 #: The wrist flange's origin in the J7 body's frame (m): the flange face, 0.04 m past the
 #: wrist yaw axis (the hand attaches there, its ``−z`` pointing away from the arm).
 ARM_FLANGE_OFFSET_M: Final[Vec3] = (0.0, 0.0, -0.04)
+#: How the hand sits on the wrist flange (the ``full`` robot): the palm frame's origin in the
+#: flange frame (m), the palm's back face on the flange face, and the palm frame's
+#: orientation there (quaternion w, x, y, z): half a turn about the flange's ``y``, so the
+#: palmar face (palm ``+z``) looks away from the arm (flange ``−z``) and the fingers close
+#: round an object in front of it; the fingers extend along the flange's ``+y``, the palm's
+#: width (palm ``x``) runs along the flange's ``−x``.
+HAND_ON_FLANGE_POSITION_M: Final[Vec3] = (0.0, 0.0, -PALM_HALF_EXTENTS_M[2])
+HAND_ON_FLANGE_QUAT: Final[tuple[float, float, float, float]] = (0.0, 0.0, 1.0, 0.0)
+
+
+def hand_on_flange_rotation() -> np.ndarray:
+    """The palm frame's axes in the flange frame (3×3, columns x, y, z;
+    :data:`HAND_ON_FLANGE_QUAT`)."""
+    w, x, y, z = HAND_ON_FLANGE_QUAT
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 #: Joint angle (rad) of each joint encoder's index mark, J1..J4, in the kinematic frame: the
 #: homing search latches the encoder count there, which fixes the joint's absolute angle.
 ARM_INDEX_ANGLES: Final[tuple[float, float, float, float]] = (0.06, 0.07, -0.05, 0.08)

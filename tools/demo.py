@@ -14,11 +14,15 @@ would, with the host library and the command-line tools:
 3. **homing**: the arm at its encoders' index marks (``Arm.home``), then the hand from its
    accelerometers (``Hand.home``) in two wrist tilts (:data:`HOMING_TILTS`): the three
    parallel fingers' axes are observable in one, the thumb's in the other;
-4. **reach**: the arm lifts the hand above the table and lowers it round the mug
-   (``Arm.moveto``, the palm upright, its face towards the arm);
-5. **grasp**: a cylindrical grasp closing until the tactile pads report contact
-   (``Hand.grasp(..., until_contact=True)``);
-6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`, down again, the hand opened;
+4. **reach**: the hanging arm turns its upper arm and wrist, raises the hand to a ready
+   pose in front of the table's edge (joint moves), and brings it to the mug from the side
+   (``Arm.moveto``): the palm upright, its face towards the mug, the fingers open along the
+   mug's side and the thumb beside it, then in until the mug's body is between them;
+5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the
+   tactile pads report contact (``Hand.grasp(..., until_contact=True)``; the fingers, then
+   the thumb), then squeezing;
+6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
+   the hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
    and a Markdown report with plots (:mod:`tools.demo_report`).
 
@@ -33,8 +37,13 @@ the robot's sensors say): the mug rose at least :data:`MIN_LIFT_M` and stands on
 again.  The last line is ``demo: OK (...)`` (exit 0) or ``demo: FAILED (<step>: <reason>)``
 (exit 1); never a traceback.
 
-The arm's steppers run at :data:`STEPPER_CURRENT_MA` (run and holding current): the
-firmware's defaults (800 / 300 mA) cannot hold the 1 kg hand with the forearm raised.
+**Torque.**  The plan keeps every stepper joint well inside what it holds: the nodes latch
+STALLED (the OVERLOAD alarm) when the elastic deflection passes ``deflection_limit`` (150
+counts: 8.1 N·m at the elbow J4, 18.8 N·m at the shoulder J2), which a horizontal forearm
+with the 1 kg hand and the mug nearly reaches.  So the upper arm is rolled (J3) and the
+forearm hangs steeply, the wrist holding the palm upright (:data:`GRASP_SEED_Q` picks that
+arm configuration): the mug up, J4 carries about 4.7 N·m, J2 8 N·m, J3 5 N·m.  Moves are
+slow (:data:`JOINT_SPEED_RAD_S`, :data:`NEAR_SPEED_RAD_S`), so dynamics add little.
 """
 
 from __future__ import annotations
@@ -56,37 +65,66 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+import numpy as np
+
+from hil_emulator.arm_model import MOUNT_HEIGHT_M
+from hil_emulator.scene_model import MUG_XY_M, TABLE_TOP_Z_M
 from host.arm import Arm
+from host.arm_control import JointController, TrackingLog, Trajectory, timed_path
+from host.arm_kinematics import matrix_to_rpy, solve_ik
 from host.arm_recording import ArmRecorder
 from host.arm_state import ArmState
+from host.grasp import finger_roles
 from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
 from protocol.control_tables import STEPPER_TABLE
+from protocol.robot import (
+    HAND_ON_FLANGE_POSITION_M,
+    STEPPER_DEFAULT_CURRENT_MA,
+    hand_on_flange_rotation,
+)
 from protocol.topology import FINGERS
 
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Version of the demo firmware images flashed to the finger MCUs.
 FW_VERSION: Final = "1.1.0"
-#: Run and holding current of the arm's steppers during the demo (mA).
-STEPPER_CURRENT_MA: Final = 1500
+#: Run and holding current of the arm's steppers during the demo (mA): the nodes' power-up
+#: value, written again so the demo does not depend on what ran before it.
+STEPPER_CURRENT_MA: Final = STEPPER_DEFAULT_CURRENT_MA
 #: Wrist tilts (J6, J7; rad) of the hanging arm for homing the hand, and the fingers homed
 #: in each: gravity must not lie along any joint axis of a finger being homed.
 HOMING_TILTS: Final = (((0.4, 0.9), (0, 1, 2)), ((0.6, 0.5), (3,)))
-#: Joint poses (rad, J1..J7) that take the hand from hanging to above the table without
-#: sweeping through it: the hand folded back, then the forearm raised.
-FOLD_POSES: Final = ((0.0, 0.0, 0.0, 0.0, 0.0, -1.5, 0.0),
-                     (0.0, 0.1, 0.0, 2.0, 0.0, -1.5, 0.0))
-#: Speed of every joint in the joint-space moves, and left in the nodes' speed registers
-#: for the Cartesian moves' controller (rad/s).
+#: Where the mug stands (m, base frame: the world's raised by the arm's mount height): its
+#: axis's x, y on the table top (the mug scene's placement).
+MUG_BASE_M: Final = (MUG_XY_M[0], MUG_XY_M[1], TABLE_TOP_Z_M - MOUNT_HEIGHT_M)
+#: The palm's axes at the mug (base frame; rows: palm x, y, z): the palm upright (its width,
+#: x, pointing down), the fingers along +y, the palmar face towards +x, the mug, so the hand
+#: comes from the arm's side.
+PALM_AXES_AT_MUG: Final = ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
+#: Where the mug's axis runs in the palm frame at the grasp (m; palm y, z): 36 mm towards the
+#: fingers' edge, so the closing fingers' pads (the prismatic grasp: proximal joints at
+#: 1.2 rad, distal nearly straight) press on the mug's side, the thumb from the other side;
+#: 5 mm off the palmar face.  (The fingers, 103 mm long, cannot wrap the far side of a mug
+#: 80 mm across: the cylindrical grasp's curled distal links poke it away from the palm
+#: before any pad touches it.)
+MUG_AXIS_IN_PALM_M: Final = (0.036, 0.0575)
+#: Height of the palm's centre above the table top at the grasp (m; the mug is 0.10 m tall).
+GRASP_HEIGHT_M: Final = 0.06
+#: Pre-grasp: the palm this far back from the grasp along its normal (m).
+APPROACH_M: Final = 0.08
+#: Ready pose: the palm this far back from the grasp (m, along its normal) and up (m), in
+#: front of the table's edge.
+READY_BACK_M: Final = 0.15
+READY_UP_M: Final = 0.12
+#: Joint angles (rad, J1..J7) the grasp's inverse kinematics starts from, which pick its arm
+#: configuration: the upper arm rolled (J3) so the elbow bends sideways and the forearm hangs
+#: steeply, the wrist turning the palm upright (see the module docs, **Torque**).
+GRASP_SEED_Q: Final = (0.95, 0.81, -2.31, 1.4, 0.73, 0.64, 1.05)
+#: Speed of the fastest joint in the joint-space moves, and left in the nodes' speed
+#: registers for the Cartesian moves' controller (rad/s).
 JOINT_SPEED_RAD_S: Final = 0.5
-#: Flange orientation at the mug (rad, roll pitch yaw, base frame): the palm upright, its
-#: face towards the arm, the fingers pointing left (+y).
-GRASP_RPY: Final = (0.0, -math.pi / 2, 0.0)
-#: Flange positions (m, base frame): round the mug, and above it (approach from above).
-GRASP_XYZ: Final = (0.60, -0.012, -0.26)
-ABOVE_M: Final = 0.12
 #: Joint speed of the Cartesian moves near the mug (rad/s, fastest joint): slow, so the
 #: elastic arm tracks its path within a few millimetres.
 NEAR_SPEED_RAD_S: Final = 0.2
@@ -98,10 +136,53 @@ HOLD_S: Final = 2.0
 MIN_LIFT_M: Final = 0.05
 SET_DOWN_M: Final = 0.01
 SET_DOWN_TILT_RAD: Final = 0.3
-#: Grasp: synergy amount, closing speed (rad/s), motor effort (1/255 of full PWM).
+#: The opposing finger's (the thumb's) joints (rad) while the hand comes to the mug and
+#: leaves it: bent back, away from the fingers, so it passes beside the mug (it stands up
+#: from the palm 32 mm from the centre, inside the mug's reach when straight).
+THUMB_CLEAR_Q: Final = (0.0, -0.6, -0.4)
+#: Grasp: synergy, amount, closing speed (rad/s), motor effort (1/255 of full PWM).
+GRASP_SYNERGY: Final = "prismatic"
 GRASP_AMOUNT: Final = 1.0
 GRASP_SPEED_RAD_S: Final = 1.0
 GRASP_EFFORT: Final = 255
+
+
+@dataclass(frozen=True)
+class FlangePose:
+    """A flange target: position (m, base frame) and orientation (rad, roll pitch yaw)."""
+
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+
+
+def flange_pose(back_m: float = 0.0, up_m: float = 0.0) -> FlangePose:
+    """The flange pose that puts the palm at the grasp (:data:`PALM_AXES_AT_MUG`,
+    :data:`MUG_AXIS_IN_PALM_M`, :data:`GRASP_HEIGHT_M`), moved ``back_m`` (m) back along the
+    palm's normal and ``up_m`` (m) up: the palm's pose through the hand's mounting on the
+    flange (:data:`protocol.robot.HAND_ON_FLANGE_POSITION_M`)."""
+    palm = np.array(PALM_AXES_AT_MUG, dtype=float).T  # columns: the palm's axes
+    mug = np.array(MUG_BASE_M, dtype=float)
+    y, z = MUG_AXIS_IN_PALM_M
+    centre = mug - palm[:, 1] * y - palm[:, 2] * (z + back_m)
+    centre[2] = mug[2] + GRASP_HEIGHT_M + up_m
+    flange = palm @ hand_on_flange_rotation().T
+    xyz = centre - flange @ np.array(HAND_ON_FLANGE_POSITION_M)
+    r, p, w = matrix_to_rpy(flange)
+    return FlangePose((float(xyz[0]), float(xyz[1]), float(xyz[2])), (r, p, w))
+
+
+def ready_joints() -> tuple[float, ...]:
+    """Joint angles (rad) of the ready pose (:data:`READY_BACK_M`, :data:`READY_UP_M`), in
+    the grasp's arm configuration (:data:`GRASP_SEED_Q`); :class:`DemoFailed` if the
+    inverse kinematics cannot reach it."""
+    grasp = flange_pose()
+    at_mug = solve_ik(grasp.xyz, grasp.rpy, q0=GRASP_SEED_Q)
+    ready = flange_pose(READY_BACK_M, READY_UP_M)
+    ik = solve_ik(ready.xyz, ready.rpy, q0=at_mug.q)
+    if not (at_mug.converged and ik.converged):
+        raise DemoFailed("reach", "no joint angles reach the ready pose in the grasp's arm "
+                                  "configuration")
+    return tuple(float(q) for q in ik.q)
 
 
 class DemoFailed(Exception):
@@ -247,60 +328,113 @@ class Demo:
             raise DemoFailed("homing", f"fingers {missing} not homed")
 
     def _move(self, pose: tuple[float, ...], timeout: float) -> None:
-        """A joint-space move at :data:`JOINT_SPEED_RAD_S` on every joint.  (Not
+        """A joint-space move of the nodes themselves at :data:`JOINT_SPEED_RAD_S` on every
+        joint (for the servos' homing tilts: the steppers stay where they are).  (Not
         ``Arm.move(duration=…)``: it leaves the joints that did not move at 0.001 rad/s in
         their speed registers, and a later controller's goals then crawl.)"""
         self.arm.set_positions(list(pose), [JOINT_SPEED_RAD_S] * len(pose))
         self.arm.move(list(pose), timeout=timeout)
         self._check_arm()
 
-    def _check_arm(self) -> None:
+    def _joint_path(self, pose: tuple[float, ...], settle_s: float = 4.0) -> None:
+        """A straight joint-space move to ``pose`` (rad) under the host's joint controller
+        (the fastest joint at :data:`JOINT_SPEED_RAD_S`, every joint arriving together),
+        then held until the joints are still there.  The controller, not the nodes' own
+        goals: it cancels the belt and cable routes' coupling (rolling the upper arm turns
+        the elbow's capstan) and keeps the nodes' stall watch on the elastic elements."""
+        control = JointController(self.arm)
+        state = control.start()
+        log = TrackingLog()
+        trajectory = Trajectory(timed_path([state.joints, pose], JOINT_SPEED_RAD_S))
+        control.run(trajectory, trajectory.duration, log)
+        goal = np.asarray(pose, dtype=float)
+
+        def still(s: ArmState) -> bool:
+            near = float(np.max(np.abs(np.asarray(s.joints) - goal))) < 0.02
+            return near and all(abs(j.velocity) < 0.05 for j in s.steppers)
+
+        control.run(lambda _t: (goal, np.zeros(len(goal))), settle_s, log, until=still)
+        self._check_arm(log)
+
+    def _check_arm(self, log: TrackingLog | None = None) -> None:
+        """:class:`DemoFailed` if a joint reports an alarm now, or stalled during a
+        controlled move (``log``; the controller clears a stall and goes on)."""
         state = self.arm.state()
         errors = {k: v for k, v in state.errors.items() if v}
+        stalls = [] if log is None else log.stall_events
+        for name in sorted(set(stalls)):
+            errors.setdefault(name, []).append(
+                f"STALLED {stalls.count(name)}× (cleared by the controller)")
         if errors:
             raise DemoFailed(self.step, f"arm alarms {errors} (joints "
                              f"{[round(q, 2) for q in state.joints]} rad)")
 
-    def _moveto(self, xyz: tuple[float, float, float], what: str,
+    def _moveto(self, target: FlangePose, what: str,
                 speed: float = NEAR_SPEED_RAD_S) -> None:
-        result = self.arm.moveto(list(xyz), list(GRASP_RPY), speed=speed)
-        self._check_arm()
+        log = TrackingLog()
+        result = self.arm.moveto(list(target.xyz), list(target.rpy), speed=speed, log=log)
+        self._check_arm(log)
         if not result.reached and result.position_error > 0.01:
             raise DemoFailed(self.step, f"{what}: the flange stopped "
                              f"{result.position_error * 1000:.0f} mm from its target")
-        self.say(f"{what}: flange at {_fmt(xyz)} m (base frame), "
+        self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
                  f"{result.position_error * 1000:.1f} mm off")
 
+    def _thumb_clear(self) -> None:
+        """Bend the opposing finger back (:data:`THUMB_CLEAR_Q`)."""
+        roles = finger_roles(self.hand.layout)
+        self.hand.move_fingers({k: THUMB_CLEAR_Q for k, role in enumerate(roles)
+                                if role == "opposing"})
+
+    def _truth(self) -> None:
+        """In process: where the mug is (the physics' ground truth)."""
+        if self.truth is not None:
+            moved = self.truth.position - self.truth.start
+            self.say(f"mug {_fmt(moved * 100)} cm from its place, tilted "
+                     f"{math.degrees(self.truth.tilt_rad):.0f}° (ground truth)")
+
     def reach(self) -> None:
-        self.begin("reach", "hand folded back, forearm raised above the table")
-        for pose in FOLD_POSES:
-            self._move(pose, 7.0)
+        ready = ready_joints()
+        wrist = (0.0, 0.0, ready[2], 0.0, *ready[4:])
+        self.begin("reach", "upper arm rolled and wrist turned while hanging, then the hand "
+                            "raised to the ready pose in front of the table")
+        self._joint_path(wrist)
+        self._joint_path(ready)
         self.hand.grasp("open", 1.0, speed=2.0)
-        above = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + ABOVE_M)
-        self._moveto(above, "above the mug", speed=0.4)
-        self._moveto(GRASP_XYZ, "round the mug")
+        self._thumb_clear()
+        self._moveto(flange_pose(APPROACH_M), "beside the mug, the palm facing it",
+                     speed=0.4)
+        self._moveto(flange_pose(), "round the mug")
+        self._truth()
 
     def grasp(self) -> None:
-        self.begin("grasp", f"cylindrical grasp, closing at {GRASP_SPEED_RAD_S} rad/s until "
-                            "the tactile pads report contact")
-        result = self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
-                                 until_contact=True, effort=GRASP_EFFORT,
-                                 on_states=self._on_fingers)
+        self.begin("grasp", f"{GRASP_SYNERGY} grasp, closing at {GRASP_SPEED_RAD_S} rad/s "
+                            "until the tactile pads report contact: the fingers on the "
+                            "mug's side first, then the thumb against it")
+        roles = finger_roles(self.hand.layout)
+        fingers = [k for k, role in enumerate(roles) if role != "opposing"]
+        thumbs = [k for k, role in enumerate(roles) if role == "opposing"]
+        contacts: dict[int, str] = {}
+        for group in (fingers, thumbs):
+            result = self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+                                     fingers=group, until_contact=True, effort=GRASP_EFFORT,
+                                     on_states=self._on_fingers)
+            contacts.update(result.contacts)
         for k in range(FINGERS):
-            self.say(f"finger {k}: {result.contacts.get(k, 'closed without contact')}")
-        if not result.contacts:
+            self.say(f"finger {k}: {contacts.get(k, 'closed without contact')}")
+        if not contacts:
             raise DemoFailed("grasp", "no finger felt the mug")
-        self.log.result["contacts"] = dict(result.contacts)
+        self.log.result["contacts"] = dict(contacts)
         # Contact stops a finger where it touched; squeeze: every finger on towards the
         # closed grasp, the mug stopping it, so its motors press with their effort.
         self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
-        self.hand.grasp("cylindrical", GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
+        self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
                         effort=GRASP_EFFORT, timeout=1.0, on_states=self._on_fingers)
+        self._truth()
 
     def lift(self, recorder: HandRecorder) -> None:
         self.begin("lift", f"up {LIFT_M * 100:.0f} cm")
-        up = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + LIFT_M)
-        self._moveto(up, "lifted")
+        self._moveto(flange_pose(up_m=LIFT_M), "lifted")
         self.say(f"holding {HOLD_S:g} s")
         self.sample_hand(HOLD_S, recorder)
         if self.truth is not None:
@@ -313,11 +447,20 @@ class Demo:
                                          f"{math.degrees(self.truth.tilt_rad):.0f}° "
                                          f"(ground truth)")
         self.begin("put down", "lowering the mug onto the table")
-        self._moveto(GRASP_XYZ, "set down")
+        self._moveto(flange_pose(), "set down")
         self.hand.grasp("open", 1.0, speed=1.5, on_states=self._on_fingers)
+        self._thumb_clear()
         self.say("hand opened")
-        above = (GRASP_XYZ[0], GRASP_XYZ[1], GRASP_XYZ[2] + ABOVE_M)
-        self._moveto(above, "hand withdrawn above the mug")
+        self._moveto(flange_pose(APPROACH_M), "hand withdrawn from the mug")
+        self._truth()
+
+    def park(self) -> None:
+        ready = ready_joints()
+        self.begin("park", "back to the ready pose, then hanging; torque off")
+        self._moveto(flange_pose(READY_BACK_M, READY_UP_M), "ready pose", speed=0.4)
+        self._joint_path((0.0, 0.0, ready[2], 0.0, *ready[4:]))
+        self._joint_path((0.0,) * len(ready))
+        self.arm.torque(False)
 
 
 def _fmt(v: Any) -> str:
@@ -346,7 +489,7 @@ def run_session(demo: Demo, out: Path) -> None:
             demo.reach()
             demo.grasp()
             demo.lift(hand_rec)
-        demo.arm.torque(False)
+            demo.park()
     except DemoFailed:
         raise
     except Exception as exc:  # noqa: BLE001 - said as the step's failure, not a traceback

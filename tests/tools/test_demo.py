@@ -60,8 +60,9 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
-@pytest.mark.xfail(strict=False, reason="the cylindrical grasp does not hold the mug yet: "
-                   "the fingers curl it out of the hand (see tools/demo.py)")
+@pytest.mark.xfail(strict=False, reason="the grasp does not hold the mug yet: it rises with "
+                   "the hand (9.5 cm at most), then slips out of the finger pads during the hold "
+                   "(see tools/demo.py)")
 def test_demo_lifts_the_mug_and_writes_report_and_recordings(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     forget_shared_emulators()
@@ -75,7 +76,7 @@ def test_demo_lifts_the_mug_and_writes_report_and_recordings(
     last = out.strip().splitlines()[-1]
     assert last.startswith("demo: OK (mug lifted "), last
     for step in ("emulator:", "firmware:", "homing:", "reach:", "grasp:", "lift:",
-                 "put down:"):
+                 "put down:", "park:"):
         assert f"] {step}" in out
     report = (tmp_path / "report.md").read_text()
     result = json.loads(report.split("```json", 1)[1].split("```", 1)[0])
