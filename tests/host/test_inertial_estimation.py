@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from host.accel_calibration import calibrate
 from host.errors import UsageError
-from host.finger_gravity_model import axis_rotation, predict_readings
+from host.finger_gravity_model import axis_rotation, predict_readings, segment_rotations
 from host.inertial_closed_form import (
     UnobservableJointError,
     distal_angle,
@@ -25,7 +25,7 @@ from host.inertial_closed_form import (
     solve_trig,
 )
 from host.joint_ekf import JointEkf, fuse_snapshot
-from protocol.robot import joint_to_motor
+from protocol.robot import accel_mount_rotation, joint_to_motor, motor_to_joint
 
 # The thumb's pose on the hand: finger along up, pads horizontal (F0 reads +x up).
 UP_ALONG_X = (1.0, 0.0, 0.0)
@@ -208,3 +208,69 @@ def test_ekf_with_halls_learns_a_homing_offset_from_the_accelerometers() -> None
     assert ekf.hall_offsets[1:] == pytest.approx(offset[1:], abs=0.005)
     rms = np.degrees(np.sqrt(np.mean(np.square(errors), axis=0)))
     assert np.all(rms < 0.4), rms
+
+
+def _jolting_moves(rng: np.random.Generator, dt: float) -> np.ndarray:
+    """Joint angles (rad) every ``dt`` s of a finger driven hard from rest to random targets
+    and back to rest: each move accelerates at up to 150 rad/s² from a standstill (a jolt),
+    cruises at up to 1.5 rad/s and brakes as hard."""
+    q, qd = np.array([0.1, 0.5, 0.4]), np.zeros(3)
+    out = []
+    for _ in range(6):
+        target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(0.0, 1.2), rng.uniform(0.0, 1.2)])
+        for _ in range(round(0.8 / dt)):
+            v_want = np.clip(8.0 * (target - q), -1.5, 1.5)
+            qd = qd + np.clip(v_want - qd, -150.0 * dt, 150.0 * dt)
+            q = q + qd * dt
+            out.append(q.copy())
+    return np.array(out)
+
+
+def _accels_in_motion(q: np.ndarray, dt: float) -> dict[str, np.ndarray]:
+    """Accelerometer readings (g, board axes; rows follow ``q``) of a finger moving through
+    ``q`` (rad, one row every ``dt`` s) with F0 still and up along its x axis: gravity and
+    the accelerations of motion of boards 3 cm (F2, mid proximal phalanx) and 6 + 2 cm (F3)
+    out from the knuckle."""
+    pos: dict[str, list[np.ndarray]] = {"f2": [], "f3": []}
+    rots: dict[str, list[np.ndarray]] = {"f2": [], "f3": []}
+    for qk in q:
+        r = segment_rotations(qk)
+        pos["f2"].append(r["f2"] @ np.array([0.03, 0.0, 0.0]))
+        pos["f3"].append(r["f2"] @ np.array([0.06, 0.0, 0.0]) + r["f3"] @ np.array([0.02, 0, 0]))
+        for b in rots:
+            rots[b].append(r[b])
+    up = np.asarray(UP_ALONG_X)
+    out = {"fmcb": np.tile(accel_mount_rotation("fmcb").T @ up, (len(q), 1))}
+    for b in ("f2", "f3"):
+        p = np.array(pos[b])
+        acc = np.gradient(np.gradient(p, dt, axis=0), dt, axis=0) / 9.81  # g, F0 frame
+        out[b] = np.array([accel_mount_rotation(b).T @ (rot.T @ (up - a))
+                           for rot, a in zip(rots[b], acc, strict=True)])
+    return out
+
+
+def test_ekf_fused_with_exact_halls_stays_on_them_through_jolting_moves() -> None:
+    # Halls exact (the finger homed perfectly), accelerometers read the motion's own
+    # accelerations (up to a couple of g as the motors start and stop): the fused estimate
+    # must follow the halls, never be dragged off by a jolted reading into the offsets.
+    rng = np.random.default_rng(11)
+    dt = 0.001
+    q = _jolting_moves(rng, dt)
+    readings = _accels_in_motion(q, dt)
+    every = 20  # a status every 20 ms; the fmcb refreshes its accelerometers every 40 ms
+    ekf = JointEkf(q0=q[0], q0_sigma=0.05)
+    worst_dynamic = 0.0
+    errors = []
+    for k in range(0, len(q), every):
+        held = k - k % (2 * every)
+        counts = {b: np.round(v[held] * 1000) for b, v in readings.items()}
+        static = predict_readings(q[held], UP_ALONG_X)
+        worst_dynamic = max(worst_dynamic, max(float(np.max(np.abs(readings[b][held] - static[b])))
+                                               for b in ("f2", "f3")))
+        hall = [round(m) for m in joint_to_motor(q[k])]
+        ekf.update_status(k * dt, counts, hall)
+        errors.append(ekf.q - np.asarray(motor_to_joint(hall)))
+    assert worst_dynamic > 0.5  # the accelerations of motion are large
+    err = np.degrees(np.abs(np.asarray(errors)))
+    assert np.max(err) < 1.0, np.max(err, axis=0)
+    assert np.degrees(np.abs(ekf.hall_offsets)).max() < 0.5
