@@ -23,7 +23,14 @@ Measurements:
   motors start or stop, a reading carries a jolt of up to a g or two that no speed-based σ
   foresees (the speed is still zero at the start); a reading whose normalised innovation
   is beyond :attr:`EkfParams.accel_gate` has its σ inflated until it is not (a robust,
-  bounded correction), so one such reading cannot drag the joints by tens of degrees;
+  bounded correction), so one such reading cannot drag the joints by tens of degrees.  A
+  jolt passes within a sample or two, and while the joints move the readings carry the
+  motion's accelerations for as long as it lasts, so they stay gated; but readings that stay
+  beyond the gate for longer than :attr:`EkfParams.accel_jolt_s` while the joints rest
+  (every joint slower than :attr:`EkfParams.rest_speed_rad_s`) say that the halls, not the
+  accelerometers, are wrong (a bad homing, lost hall counts): the offsets' σ is widened by
+  :attr:`EkfParams.hall_offset_reset_sigma` (what they were is no longer known) and the
+  reading is fused in full, so ``b`` takes up the difference;
 - once the finger is homed, the hall counts (homing-relative) turned into joint angles
   through the gears and the tendon coupling (:func:`protocol.robot.motor_to_joint`), a
   linear measurement of ``q + b`` with noise :attr:`EkfParams.hall_sigma_rad`: exact through
@@ -75,7 +82,11 @@ class EkfParams:
     0.5°) and ``hall_offset_walk`` their random walk (rad/√s); ``accel_gate`` the
     normalised innovation squared of one accelerometer update (6 axes, χ²: 22.5 is its
     99.9 % point) above which the reading's σ is scaled by √(NIS / gate) (``math.inf``:
-    never).
+    never), for as long as the readings have been beyond it less than ``accel_jolt_s`` (s:
+    a jolt of the motors starting or stopping lasts one IMU sample, 40 ms; a disagreement
+    that lasts longer while every joint is slower than ``rest_speed_rad_s``, rad/s, is
+    believed, and the hall offsets' σ is widened by ``hall_offset_reset_sigma``, rad, to
+    take it up).
     """
 
     jerk_psd: float = 400.0
@@ -87,6 +98,9 @@ class EkfParams:
     hall_offset_sigma: float = 0.005
     hall_offset_walk: float = 0.001
     accel_gate: float = 22.5
+    accel_jolt_s: float = 0.05
+    hall_offset_reset_sigma: float = 0.5
+    rest_speed_rad_s: float = 0.05
 
 
 DEFAULT_PARAMS: Final = EkfParams()
@@ -141,6 +155,7 @@ class JointEkf:
         #: Normalised innovation squared of the last accelerometer update (before any
         #: inflation; dimensionless, 6 degrees of freedom).
         self.last_accel_nis = 0.0
+        self._beyond_gate_since: float | None = None
 
     @property
     def q(self) -> np.ndarray:
@@ -204,8 +219,17 @@ class JointEkf:
         h0, jac = self._accel_jacobian(self.x[:3])
         nu = z - h0
         self.last_accel_nis = float(nu @ np.linalg.solve(jac @ self.P @ jac.T + r, nu))
-        if self.last_accel_nis > self.params.accel_gate:
-            r = r * (self.last_accel_nis / self.params.accel_gate)
+        if self.last_accel_nis <= self.params.accel_gate:
+            self._beyond_gate_since = None
+        else:
+            if self._beyond_gate_since is None or t is None or speed > self.params.rest_speed_rad_s:
+                self._beyond_gate_since = t  # a disagreement counts from when the joints rest
+            since = self._beyond_gate_since
+            if since is None or t is None or t - since < self.params.accel_jolt_s:
+                r = r * (self.last_accel_nis / self.params.accel_gate)
+            else:  # no jolt lasts this long: the halls are off, their offsets unknown again
+                self._widen_offsets(self.params.hall_offset_reset_sigma)
+                self._beyond_gate_since = None
         # Iterated EKF: relinearise at the corrected angles, so a first reading far from the
         # prior (σ of a rad) does not leave a linearisation error for the offsets to absorb.
         x_prior = self.x.copy()
@@ -222,6 +246,14 @@ class JointEkf:
         self.x = xi
         i_kh = np.eye(STATE_SIZE) - k @ jac
         self.P = i_kh @ self.P @ i_kh.T + k @ r @ k.T
+
+    def _widen_offsets(self, sigma: float) -> None:
+        """Make the hall offsets ``b`` and the angles ``q`` uncertain by ``sigma`` (rad) in
+        opposite directions: ``q + b``, what the halls read, stays as known as it was."""
+        q_b = np.zeros((STATE_SIZE, 3))
+        q_b[:3] = np.eye(3)
+        q_b[OFFSETS] = -np.eye(3)
+        self.P = self.P + sigma ** 2 * (q_b @ q_b.T)
 
     def _accel_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h0 = self.predicted_accels(q)
