@@ -19,12 +19,27 @@ Measurements:
   leaves out the accelerations of motion and the fmcb samples the accelerometers every
   40 ms, so while the joints move their σ grows with the joint speed
   (:attr:`EkfParams.accel_motion_sigma`), and a reading repeated unchanged in the next
-  status (the same sample) is not fused twice (:meth:`JointEkf.update_status`);
+  status (the same sample) is not fused twice (:meth:`JointEkf.update_status`).  When the
+  motors start or stop, a reading carries a jolt of up to a g or two that no speed-based σ
+  foresees (the speed is still zero at the start); a reading whose normalised innovation
+  is beyond :attr:`EkfParams.accel_gate` has its σ inflated until it is not (a robust,
+  bounded correction), so one such reading cannot drag the joints by tens of degrees.  A
+  jolt passes within a sample or two, and while the joints move the readings carry the
+  motion's accelerations for as long as it lasts, so they stay gated; but readings that stay
+  beyond the gate for longer than :attr:`EkfParams.accel_jolt_s` while the joints rest
+  (every joint slower than :attr:`EkfParams.rest_speed_rad_s`) say that the halls, not the
+  accelerometers, are wrong (a bad homing, lost hall counts): the offsets' σ is widened by
+  :attr:`EkfParams.hall_offset_reset_sigma` (what they were is no longer known) and the
+  reading is fused in full, so ``b`` takes up the difference;
 - once the finger is homed, the hall counts (homing-relative) turned into joint angles
   through the gears and the tendon coupling (:func:`protocol.robot.motor_to_joint`), a
   linear measurement of ``q + b`` with noise :attr:`EkfParams.hall_sigma_rad`: exact through
   the gears, so the halls carry the motion and the accelerometers, through ``b``, only the
-  slow offset.
+  slow offset.  A status's halls are fused before its accelerometers: the halls pin
+  ``q + b``, so the accelerometer update can only move ``q`` against ``b``, and the gate
+  above judges the reading against that tight prior.  (Fused the other way round, a jolted
+  reading first moved ``q`` by tens of degrees and the halls then put nearly all of that
+  into the offsets, which take seconds to walk back.)
 """
 
 from __future__ import annotations
@@ -64,7 +79,14 @@ class EkfParams:
     ``accel_motion_sigma`` how much each accelerometer axis' σ grows per rad/s of the
     fastest joint (g·s/rad: the left-out accelerations of motion and the reading's age);
     ``hall_offset_sigma`` the first σ of the hall offsets (rad: homing is good to about
-    0.5°) and ``hall_offset_walk`` their random walk (rad/√s).
+    0.5°) and ``hall_offset_walk`` their random walk (rad/√s); ``accel_gate`` the
+    normalised innovation squared of one accelerometer update (6 axes, χ²: 22.5 is its
+    99.9 % point) above which the reading's σ is scaled by √(NIS / gate) (``math.inf``:
+    never), for as long as the readings have been beyond it less than ``accel_jolt_s`` (s:
+    a jolt of the motors starting or stopping lasts one IMU sample, 40 ms; a disagreement
+    that lasts longer while every joint is slower than ``rest_speed_rad_s``, rad/s, is
+    believed, and the hall offsets' σ is widened by ``hall_offset_reset_sigma``, rad, to
+    take it up).
     """
 
     jerk_psd: float = 400.0
@@ -75,6 +97,10 @@ class EkfParams:
     accel_motion_sigma: float = 0.05
     hall_offset_sigma: float = 0.005
     hall_offset_walk: float = 0.001
+    accel_gate: float = 22.5
+    accel_jolt_s: float = 0.05
+    hall_offset_reset_sigma: float = 0.5
+    rest_speed_rad_s: float = 0.05
 
 
 DEFAULT_PARAMS: Final = EkfParams()
@@ -126,6 +152,10 @@ class JointEkf:
         self.up0: np.ndarray | None = None
         self._base_t: float | None = None
         self._last_accels: tuple[float, ...] | None = None
+        #: Normalised innovation squared of the last accelerometer update (before any
+        #: inflation; dimensionless, 6 degrees of freedom).
+        self.last_accel_nis = 0.0
+        self._beyond_gate_since: float | None = None
 
     @property
     def q(self) -> np.ndarray:
@@ -184,6 +214,22 @@ class JointEkf:
         speed = float(np.max(np.abs(self.x[3:6])))
         sigma = self.params.accel_sigma_g + self.params.accel_motion_sigma * speed
         r = np.eye(6) * sigma ** 2
+        # Robust gate: a reading far outside what the prior allows carries accelerations of
+        # motion (a start or stop); inflating its σ bounds how far it moves the state.
+        h0, jac = self._accel_jacobian(self.x[:3])
+        nu = z - h0
+        self.last_accel_nis = float(nu @ np.linalg.solve(jac @ self.P @ jac.T + r, nu))
+        if self.last_accel_nis <= self.params.accel_gate:
+            self._beyond_gate_since = None
+        else:
+            if self._beyond_gate_since is None or t is None or speed > self.params.rest_speed_rad_s:
+                self._beyond_gate_since = t  # a disagreement counts from when the joints rest
+            since = self._beyond_gate_since
+            if since is None or t is None or t - since < self.params.accel_jolt_s:
+                r = r * (self.last_accel_nis / self.params.accel_gate)
+            else:  # no jolt lasts this long: the halls are off, their offsets unknown again
+                self._widen_offsets(self.params.hall_offset_reset_sigma)
+                self._beyond_gate_since = None
         # Iterated EKF: relinearise at the corrected angles, so a first reading far from the
         # prior (σ of a rad) does not leave a linearisation error for the offsets to absorb.
         x_prior = self.x.copy()
@@ -200,6 +246,14 @@ class JointEkf:
         self.x = xi
         i_kh = np.eye(STATE_SIZE) - k @ jac
         self.P = i_kh @ self.P @ i_kh.T + k @ r @ k.T
+
+    def _widen_offsets(self, sigma: float) -> None:
+        """Make the hall offsets ``b`` and the angles ``q`` uncertain by ``sigma`` (rad) in
+        opposite directions: ``q + b``, what the halls read, stays as known as it was."""
+        q_b = np.zeros((STATE_SIZE, 3))
+        q_b[:3] = np.eye(3)
+        q_b[OFFSETS] = -np.eye(3)
+        self.P = self.P + sigma ** 2 * (q_b @ q_b.T)
 
     def _accel_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h0 = self.predicted_accels(q)
@@ -221,18 +275,18 @@ class JointEkf:
 
     def update_status(self, t: float, accels: Mapping[str, Vector],
                       hall_pos: Vector | None = None) -> None:
-        """One finger status read at ``t`` (s): predict to ``t``, fuse its accelerometers
-        (counts, mg; skipped when the reading repeats the last one: the fmcb samples them
-        every 40 ms, a status may carry the same sample again) and, for a homed finger,
-        ``hall_pos`` (hall counts, homing-relative)."""
+        """One finger status read at ``t`` (s): predict to ``t``, fuse, for a homed finger,
+        ``hall_pos`` (hall counts, homing-relative), then its accelerometers (counts, mg;
+        skipped when the reading repeats the last one: the fmcb samples them every 40 ms, a
+        status may carry the same sample again).  Halls first: see the module's note."""
         self.predict(t)
+        if hall_pos is not None:
+            self.update_halls(hall_pos)
         key = tuple(float(v) for b in ("fmcb", "f2", "f3") for v in accels[b])
         if key != self._last_accels:
             self._last_accels = key
             self.update_accels(accel_counts_to_g(accels["fmcb"]), accel_counts_to_g(accels["f2"]),
                                accel_counts_to_g(accels["f3"]), t)
-        if hall_pos is not None:
-            self.update_halls(hall_pos)
 
     def _correct(self, innovation: np.ndarray, h: np.ndarray, r: np.ndarray) -> None:
         s = h @ self.P @ h.T + r

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from host.accel_calibration import calibrate
 from host.errors import UsageError
-from host.finger_gravity_model import axis_rotation, predict_readings
+from host.finger_gravity_model import axis_rotation, predict_readings, segment_rotations
 from host.inertial_closed_form import (
     UnobservableJointError,
     distal_angle,
@@ -25,7 +25,7 @@ from host.inertial_closed_form import (
     solve_trig,
 )
 from host.joint_ekf import JointEkf, fuse_snapshot
-from protocol.robot import joint_to_motor
+from protocol.robot import accel_mount_rotation, joint_to_motor, motor_to_joint
 
 # The thumb's pose on the hand: finger along up, pads horizontal (F0 reads +x up).
 UP_ALONG_X = (1.0, 0.0, 0.0)
@@ -208,3 +208,106 @@ def test_ekf_with_halls_learns_a_homing_offset_from_the_accelerometers() -> None
     assert ekf.hall_offsets[1:] == pytest.approx(offset[1:], abs=0.005)
     rms = np.degrees(np.sqrt(np.mean(np.square(errors), axis=0)))
     assert np.all(rms < 0.4), rms
+
+
+def _jolting_moves(rng: np.random.Generator, dt: float, accel: float,
+                   speed: float) -> np.ndarray:
+    """Joint angles (rad) every ``dt`` s of a finger driven hard from rest to random targets
+    and back to rest: each move accelerates at up to ``accel`` rad/s² from a standstill (a
+    jolt), cruises at up to ``speed`` rad/s and brakes as hard."""
+    q, qd = np.array([0.1, 0.5, 0.4]), np.zeros(3)
+    out = []
+    for _ in range(6):
+        target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(0.0, 1.2), rng.uniform(0.0, 1.2)])
+        for _ in range(round(0.8 / dt)):
+            v_want = np.clip(8.0 * (target - q), -speed, speed)
+            qd = qd + np.clip(v_want - qd, -accel * dt, accel * dt)
+            q = q + qd * dt
+            out.append(q.copy())
+    return np.array(out)
+
+
+def _accels_in_motion(q: np.ndarray, dt: float) -> dict[str, np.ndarray]:
+    """Accelerometer readings (g, board axes; rows follow ``q``) of a finger moving through
+    ``q`` (rad, one row every ``dt`` s) with F0 still and up along its x axis: gravity and
+    the accelerations of motion of boards 3 cm (F2, mid proximal phalanx) and 6 + 2 cm (F3)
+    out from the knuckle."""
+    pos: dict[str, list[np.ndarray]] = {"f2": [], "f3": []}
+    rots: dict[str, list[np.ndarray]] = {"f2": [], "f3": []}
+    for qk in q:
+        r = segment_rotations(qk)
+        pos["f2"].append(r["f2"] @ np.array([0.03, 0.0, 0.0]))
+        pos["f3"].append(r["f2"] @ np.array([0.06, 0.0, 0.0]) + r["f3"] @ np.array([0.02, 0, 0]))
+        for b in rots:
+            rots[b].append(r[b])
+    up = np.asarray(UP_ALONG_X)
+    out = {"fmcb": np.tile(accel_mount_rotation("fmcb").T @ up, (len(q), 1))}
+    for b in ("f2", "f3"):
+        p = np.array(pos[b])
+        acc = np.gradient(np.gradient(p, dt, axis=0), dt, axis=0) / 9.81  # g, F0 frame
+        out[b] = np.array([accel_mount_rotation(b).T @ (rot.T @ (up - a))
+                           for rot, a in zip(rots[b], acc, strict=True)])
+    return out
+
+
+def _fused_against_exact_halls(q: np.ndarray, dt: float) -> tuple[np.ndarray, float]:
+    """Run the EKF over ``q`` (rad, a row every ``dt`` s) with exact halls and readings that
+    carry the accelerations of motion (a status every 20 ms, the fmcb's IMU refreshed every
+    40 ms): the largest |fused − halls| per joint (deg) and the largest part of a reading
+    that is motion, not gravity (g)."""
+    readings = _accels_in_motion(q, dt)
+    every = round(0.02 / dt)
+    ekf = JointEkf(q0=q[0], q0_sigma=0.05)
+    worst_dynamic = 0.0
+    errors = []
+    for k in range(0, len(q), every):
+        held = k - k % (2 * every)
+        counts = {b: np.round(v[held] * 1000) for b, v in readings.items()}
+        static = predict_readings(q[held], UP_ALONG_X)
+        worst_dynamic = max(worst_dynamic, *(float(np.max(np.abs(readings[b][held] - static[b])))
+                                             for b in ("f2", "f3")))
+        hall = [round(m) for m in joint_to_motor(q[k])]
+        ekf.update_status(k * dt, counts, hall)
+        errors.append(ekf.q - np.asarray(motor_to_joint(hall)))
+    return np.degrees(np.abs(np.asarray(errors))).max(axis=0), worst_dynamic
+
+
+@pytest.mark.parametrize(("accel", "speed"), [(150.0, 1.5), (40.0, 3.0)])
+def test_ekf_fused_with_exact_halls_stays_on_them_through_jolting_moves(accel: float,
+                                                                        speed: float) -> None:
+    # Halls exact (the finger homed perfectly), accelerometers read the motion's own
+    # accelerations (a jolt of a g or more as the motors start and stop, or a third of a g
+    # for 75 ms): the fused estimate must follow the halls, never be dragged off by the
+    # readings into the offsets.
+    dt = 0.001
+    err, worst_dynamic = _fused_against_exact_halls(
+        _jolting_moves(np.random.default_rng(11), dt, accel, speed), dt)
+    assert worst_dynamic > 0.25  # the accelerations of motion are large
+    assert np.all(err < 1.0), err
+
+
+def test_ekf_fused_with_exact_halls_stays_on_them_through_a_tremor() -> None:
+    # A 6 Hz tremor of ±0.9° keeps the readings off gravity (by 0.1 g) for seconds while the
+    # joints move: a disagreement that lasts, but not one to believe over the halls.
+    dt = 0.001
+    t = np.arange(0.0, 3.0, dt)
+    q = np.stack([0.1 + 0.015 * np.sin(40.0 * t + p) for p in (0.0, 1.0, 2.0)], axis=1)
+    q[:, 1:] += (0.4, 0.3)
+    err, worst_dynamic = _fused_against_exact_halls(q, dt)
+    assert worst_dynamic > 0.1
+    assert np.all(err < 1.0), err
+
+
+def test_ekf_believes_accelerometers_that_keep_disagreeing_with_the_halls() -> None:
+    # The finger rests while its halls read 12° off on J0 and J1 (lost hall counts, a bad
+    # homing): unlike a jolt, the disagreement persists, so the accelerometers win and the
+    # offsets take it up.
+    q = np.array([0.3, 0.7, 0.5])
+    r = predict_readings(q, UP_ALONG_X)
+    counts = {b: np.round(v * 1000) for b, v in r.items()}
+    wrong = q + np.radians([12.0, 12.0, 0.0])
+    hall = [round(m) for m in joint_to_motor(wrong)]
+    ekf = JointEkf(q0=wrong, q0_sigma=0.05)
+    for k in range(10):  # 0.2 s of status at 50 Hz, a fresh IMU sample every 40 ms
+        ekf.update_status(0.02 * k, {b: v + (k // 2) % 2 for b, v in counts.items()}, hall)
+    assert np.degrees(np.abs(ekf.q - q)).max() < 0.5
