@@ -41,6 +41,7 @@ from protocol.topology import (
     STEPPER_IDS,
     Hop,
 )
+from tools.build_compiled import COMPILED_MODULES, loaded_compiled
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
@@ -164,6 +165,14 @@ def _lateness_result(config: str, stats: dict[str, float]) -> Result:
              f"over {int(stats['count'])} deliveries in {stats['sim_s']:.1f} s")
 
 
+def _compiled_note() -> str:
+    """Whether the optional compiled core (``make compiled``) is what ran."""
+    loaded = loaded_compiled()
+    if not loaded:
+        return "compiled: not built (pure Python)"
+    return f"compiled: {len(loaded)} of {len(COMPILED_MODULES)} modules (make compiled)"
+
+
 def run(quick: bool) -> list[Result]:
     sim_s = 2.0 if quick else 5.0
     firmware_only = fast_rtf(physics=False, sim_s=sim_s)
@@ -174,7 +183,7 @@ def run(quick: bool) -> list[Result]:
                note="booted, nominal traffic, no plant"),
         Result("emulator fast", "full, with MuJoCo plant", full, "sim-s",
                baseline="full, firmware + buses only", target=3.0,
-               note="real-time factor: simulated s per wall s"),
+               note=f"real-time factor: simulated s per wall s; {_compiled_note()}"),
         Result("emulator fast", "full, plant, heavy traffic", heavy, "sim-s",
                baseline="full, with MuJoCo plant",
                note="+ palm polls fingers at 100 Hz, arm SYNC_WRITE at 100 Hz"),
