@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
@@ -75,9 +75,9 @@ class HandNode:
     ``fw_version`` is reported by identify.
     """
 
-    node_kind: str = "common"
-    fw_version: tuple[int, int, int] = (0, 1, 0)
-    running: Running = Running.APPLICATION
+    node_kind: ClassVar[str] = "common"
+    fw_version: ClassVar[tuple[int, int, int]] = (0, 1, 0)
+    running: ClassVar[Running] = Running.APPLICATION
 
     def __init__(self, hal: Hal) -> None:
         self.hal = hal

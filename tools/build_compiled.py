@@ -26,6 +26,10 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     "firmware_py/scheduler.py",
 )
 
+#: mypy options of the compile (as pyproject's [tool.mypy]).
+_MYPY_FLAGS: Final = ("--ignore-missing-imports", "--explicit-package-bases",
+                      "--python-version", "3.11")
+
 #: The repository root (the directory holding ``protocol/``, ``firmware_py/`` …).
 ROOT: Final = Path(__file__).resolve().parent.parent
 
@@ -93,8 +97,10 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     here = Path.cwd()
     os.chdir(root)  # mypyc names the modules from paths relative to the working directory
     try:
-        extensions = mypycify(list(modules), opt_level="3",
-                              target_dir=str(build_path / "mypyc"))
+        # The type-check options of pyproject's [tool.mypy] that the compile needs, given
+        # here so that a copy of the packages without pyproject.toml builds the same.
+        extensions = mypycify([*_MYPY_FLAGS, *modules], only_compile_paths=list(modules),
+                              opt_level="3", target_dir=str(build_path / "mypyc"))
         # A bare Distribution: setuptools must not read pyproject.toml for this.
         dist = Distribution({"name": "lowcost_compiled", "ext_modules": extensions})
         command = dist.get_command_obj("build_ext")
