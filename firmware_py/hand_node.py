@@ -72,15 +72,19 @@ class HandNode:
     """Base of every hand-protocol program (applications and the bootloader).
 
     ``node_kind`` chooses the catalogue section (``"fmcb"``, ``"bootloader"``, …);
-    ``fw_version`` is reported by identify.
+    ``fw_version`` is reported by identify: the class's ``FW_VERSION`` unless the booted
+    image's version replaces it (:meth:`firmware_py.mcu.Mcu.boot`).
     """
 
     node_kind: ClassVar[str] = "common"
-    fw_version: ClassVar[tuple[int, int, int]] = (0, 1, 0)
+    #: The version the program declares (major, minor, patch).
+    FW_VERSION: ClassVar[tuple[int, int, int]] = (0, 1, 0)
     running: ClassVar[Running] = Running.APPLICATION
 
     def __init__(self, hal: Hal) -> None:
         self.hal = hal
+        #: The version identify reports (major, minor, patch).
+        self.fw_version: tuple[int, int, int] = self.FW_VERSION
         self.identity = read_identity(hal.flash)
         self.address = self.identity.address
         self.counters = NodeCounters()

@@ -23,7 +23,32 @@ from typing import Final
 
 #: The modules compiled, as paths relative to the repository root; declared once here.
 COMPILED_MODULES: Final[tuple[str, ...]] = (
+    # the clock and the wire formats
     "firmware_py/scheduler.py",
+    "protocol/crc.py",
+    "protocol/framing.py",
+    "protocol/stream.py",
+    "protocol/manchester.py",
+    # the hand nodes' firmware (HandNode and every program built on it)
+    "firmware_py/hand_node.py",
+    "firmware_py/bootloader.py",
+    "firmware_py/fmcb.py",
+    "firmware_py/fmcb_control.py",
+    "firmware_py/current_governor.py",
+    "firmware_py/phalange.py",
+    "firmware_py/palm.py",
+    "firmware_py/palm_router.py",
+    # the arm nodes' firmware
+    "firmware_py/dynamixel_slave.py",
+    "firmware_py/arm_stepper.py",
+    "firmware_py/rx64.py",
+    # the buses and the plant
+    "hil_emulator/rs485_bus.py",
+    "hil_emulator/plant.py",
+    "hil_emulator/finger_plant.py",
+    "hil_emulator/hand_sensors.py",
+    "hil_emulator/arm_plant.py",
+    "hil_emulator/arm_actuators.py",
 )
 
 #: mypy options of the compile (as pyproject's [tool.mypy]).
