@@ -122,9 +122,10 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     here = Path.cwd()
     os.chdir(root)  # mypyc names the modules from paths relative to the working directory
     try:
-        # The type-check options of pyproject's [tool.mypy] that the compile needs, given
-        # here so that a copy of the packages without pyproject.toml builds the same.
-        extensions = mypycify([*_MYPY_FLAGS, *modules], only_compile_paths=list(modules),
+        # The type-check options are pyproject's [tool.mypy] (a fresh type check of these
+        # modules needs them, check_untyped_defs among them), plus the few that matter.
+        config = ["--config-file", "pyproject.toml"] if (root / "pyproject.toml").is_file() else []
+        extensions = mypycify([*config, *_MYPY_FLAGS, *modules], only_compile_paths=list(modules),
                               opt_level="3", target_dir=str(build_path / "mypyc"))
         # A bare Distribution: setuptools must not read pyproject.toml for this.
         dist = Distribution({"name": "lowcost_compiled", "ext_modules": extensions})

@@ -72,6 +72,7 @@ def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
     for package in PACKAGES:
         shutil.copytree(ROOT / package, copy / package,
                         ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")  # its [tool.mypy]
     pure = _digest_of(copy)
     try:
         built = build(copy, tmp_path / "build")
