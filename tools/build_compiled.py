@@ -109,7 +109,9 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
           modules: Sequence[str] = COMPILED_MODULES) -> list[Path]:
     """Compile ``modules`` (paths relative to ``root``) in place; returns the extensions.
 
-    Raises :class:`BuildError` if mypyc or the C compiler is missing or fails.
+    Raises :class:`BuildError` if mypyc or the C compiler is missing or fails.  mypy finds
+    modules on ``sys.path`` too: call it from a process whose path holds no other copy of
+    the packages (``python -m tools.build_compiled`` from ``root``).
     """
     try:
         from mypyc.build import mypycify
