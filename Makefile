@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 PACKAGES := protocol firmware_py hil_emulator host bootloader tools
 
-.PHONY: all install test test-fast lint typecheck demo bench docs clean
+.PHONY: all install test test-fast lint typecheck demo bench docs clean compiled clean-compiled
 
 all: test
 
@@ -42,5 +42,15 @@ bench: $(STAMP)
 docs: $(STAMP)
 	$(PY) -m protocol.docgen > docs/PROTOCOL.md
 
-clean:
+## make compiled: optional compiled core, mypyc C extensions of the emulator's hot modules
+## (listed in tools/build_compiled.py) beside their sources; needs a C compiler.  Nothing
+## else builds it: the pure-Python modules stay the default.
+compiled: $(STAMP)
+	$(PY) -m tools.build_compiled
+
+## make clean-compiled: remove those extensions and build/ (back to pure Python).
+clean-compiled:
+	$(if $(wildcard $(PY)),$(PY),$(PYTHON)) -m tools.build_compiled --clean
+
+clean: clean-compiled
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

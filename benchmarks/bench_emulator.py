@@ -54,6 +54,7 @@ from protocol.topology import (
     STEPPER_IDS,
     Hop,
 )
+from tools.build_compiled import COMPILED_MODULES, loaded_compiled
 
 S = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
@@ -219,6 +220,14 @@ def _lateness_result(name: str, stats: dict[str, float], target_ms: float) -> Re
              f"over {int(stats['count'])} deliveries in {stats['sim_s']:.1f} s")
 
 
+def _compiled_note() -> str:
+    """Whether the optional compiled core (``make compiled``) is what ran."""
+    loaded = loaded_compiled()
+    if not loaded:
+        return "compiled: not built (pure Python)"
+    return f"compiled: {len(loaded)} of {len(COMPILED_MODULES)} modules (make compiled)"
+
+
 def run(quick: bool) -> list[Result]:
     sim_s = 2.0 if quick else 5.0
     firmware_only = fast_rtf(physics=False, sim_s=sim_s)
@@ -231,7 +240,7 @@ def run(quick: bool) -> list[Result]:
         Result("emulator fast", "full, with MuJoCo plant", full.rtf, "sim-s",
                baseline="full, firmware + buses only", target=4.0,
                note=f"real-time factor: simulated s per wall s; "
-                    f"{1 / full.cpu_per_sim_s:.2f} sim-s per CPU s"),
+                    f"{1 / full.cpu_per_sim_s:.2f} sim-s per CPU s; {_compiled_note()}"),
         Result("emulator fast", "full, plant, heavy traffic", heavy.rtf, "sim-s",
                baseline="full, with MuJoCo plant",
                note=f"+ palm polls fingers at 100 Hz, arm SYNC_WRITE at 100 Hz; "

@@ -100,7 +100,10 @@ def breakdown(physics: bool, sim_s: float) -> list[str]:
     calls: collections.Counter[str] = collections.Counter()
     plant_acc: collections.Counter[str] = collections.Counter()
     scheduler = emulator.scheduler
-    scheduler.run_until = _timed_run_until(acc, calls).__get__(scheduler)  # type: ignore[method-assign]
+    try:
+        scheduler.run_until = _timed_run_until(acc, calls).__get__(scheduler)  # type: ignore[method-assign]
+    except AttributeError:  # a compiled Scheduler (tools.build_compiled): no per-callback split
+        pass
     plant = emulator.plant
     if plant is not None and plant._timer is not None:
         clock = time.perf_counter

@@ -196,7 +196,7 @@ class Bootloader(HandNode):
 
     node_kind = "bootloader"
     running = Running.BOOTLOADER
-    fw_version = (1, 0, 0)
+    FW_VERSION = (1, 0, 0)
     #: Autoboot window (µs) after power-up or reset.
     autoboot_us: int = AUTOBOOT_US
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 import struct
 import zlib
 from collections.abc import Callable, Mapping
+from typing import ClassVar
 
 from firmware_py.flash_layout import PARAM_PAGE
 from firmware_py.hal import Hal, Timer
@@ -151,7 +152,7 @@ class DynamixelSlave:
     # ------------------------------------------------------------------ hooks
 
     #: Registers the application keeps in attributes (see :meth:`reload_registers`).
-    CACHED_REGISTERS: frozenset[str] = frozenset()
+    CACHED_REGISTERS: ClassVar[frozenset[str]] = frozenset()
 
     def reload_registers(self) -> None:
         """Re-read the registers named in :attr:`CACHED_REGISTERS` from the image into the

@@ -146,7 +146,7 @@ class FmcbApp(HandNode):
     """The fmcb application on ``hal``; ``mcu`` is the node running it (may be None)."""
 
     node_kind = "fmcb"
-    fw_version = (1, 0, 0)
+    FW_VERSION = (1, 0, 0)
 
     def __init__(self, hal: Hal, mcu: Any = None) -> None:
         super().__init__(hal)

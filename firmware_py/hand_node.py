@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
@@ -72,15 +72,19 @@ class HandNode:
     """Base of every hand-protocol program (applications and the bootloader).
 
     ``node_kind`` chooses the catalogue section (``"fmcb"``, ``"bootloader"``, …);
-    ``fw_version`` is reported by identify.
+    ``fw_version`` is reported by identify: the class's ``FW_VERSION`` unless the booted
+    image's version replaces it (:meth:`firmware_py.mcu.Mcu.boot`).
     """
 
-    node_kind: str = "common"
-    fw_version: tuple[int, int, int] = (0, 1, 0)
-    running: Running = Running.APPLICATION
+    node_kind: ClassVar[str] = "common"
+    #: The version the program declares (major, minor, patch).
+    FW_VERSION: ClassVar[tuple[int, int, int]] = (0, 1, 0)
+    running: ClassVar[Running] = Running.APPLICATION
 
     def __init__(self, hal: Hal) -> None:
         self.hal = hal
+        #: The version identify reports (major, minor, patch).
+        self.fw_version: tuple[int, int, int] = self.FW_VERSION
         self.identity = read_identity(hal.flash)
         self.address = self.identity.address
         self.counters = NodeCounters()

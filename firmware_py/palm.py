@@ -100,7 +100,7 @@ class PalmApp(HandNode):
     """The palm's application program (``firmware_py.palm:PalmApp``)."""
 
     node_kind = "palm"
-    fw_version = (1, 0, 0)
+    FW_VERSION = (1, 0, 0)
 
     def __init__(self, hal: Hal, mcu: Mcu | None = None,
                  can_node: int = DEFAULT_PALM_NODE) -> None:

@@ -30,7 +30,7 @@ returns.  :func:`supply_interrupted` (one glitch of known length) and :class:`Po
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Final, Protocol
+from typing import Any, ClassVar, Final, Protocol
 
 from firmware_py.errors import HalError
 from firmware_py.hal import Hal, Timer, Uart
@@ -70,7 +70,7 @@ class _PhalangeApp(HandNode):
     """What f2 and f3 share: tendon-bus slave, tactile scan, IMU, turnaround."""
 
     #: Number of taxels this phalange scans.
-    n_taxels: int = 0
+    n_taxels: ClassVar[int] = 0
 
     def __init__(self, hal: Hal, mcu: object | None = None) -> None:
         super().__init__(hal)

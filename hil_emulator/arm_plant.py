@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Final
+from typing import Final, cast
 
 import mujoco
 import numpy as np
@@ -354,8 +354,8 @@ class ArmPlant:
         """Firmware commands → capstan references, coupling and servo forces for ``dt_s``."""
         if not self._bound:
             self._check_bound()
-        q = self._q_mv.tolist()
-        qd = self._qd_mv.tolist()
+        q = cast("list[float]", self._q_mv.tolist())
+        qd = cast("list[float]", self._qd_mv.tolist())
         q_start = self._q_start
         dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
         z_all, push, deflections = self._z, self._push, self._deflection
@@ -448,7 +448,7 @@ class ArmPlant:
         if not self._bound:
             self._check_bound()
         self._ticks += 1
-        q = self._q_mv.tolist()
+        q = cast("list[float]", self._q_mv.tolist())
         # The encoders (as _write_encoders with index pulses), inlined for the tick.
         cpr, floor, above_index = self._counts_per_rad, math.floor, self._above_index
         for i, set_count, pulse_index, q0, index_q, index_count in self._encoder_rows:

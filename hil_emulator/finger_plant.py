@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Final, cast
 
 import mujoco
 import numpy as np
@@ -311,8 +311,8 @@ class FingerPlant:
 
     def after_step(self, dt_s: float) -> None:
         """Halls and currents every tick; IMUs, taxels, strain and temperatures when due."""
-        q0, q1, q2 = self._q_mv.tolist()
-        w0, w1, w2 = self._w_mv.tolist()
+        q0, q1, q2 = cast("list[float]", self._q_mv.tolist())
+        w0, w1, w2 = cast("list[float]", self._w_mv.tolist())
         v, ke, r, lim = self._electrical
         currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
@@ -456,10 +456,10 @@ class FingerPlant:
         Small-vector arithmetic is plain Python: numpy's per-call cost dominates at n = 3.
         """
         cfrc, com, site_pos, site_mat = self._gauge_rows
-        tx, ty, tz, fx, fy, fz = cfrc.tolist()
-        cx, cy, cz = com.tolist()
-        gx, gy, gz = site_pos.tolist()
-        rot = site_mat.tolist()
+        tx, ty, tz, fx, fy, fz = cast("list[float]", cfrc.tolist())
+        cx, cy, cz = cast("list[float]", com.tolist())
+        gx, gy, gz = cast("list[float]", site_pos.tolist())
+        rot = cast("list[float]", site_mat.tolist())
         rx, ry, rz = cx - gx, cy - gy, cz - gz
         # torque about the gauge = τ_c + (c − g) × f; its component along F2's y axis.
         mx = tx + ry * fz - rz * fy

@@ -149,9 +149,9 @@ def make_hal(scheduler: Scheduler, board: BoardType, identity: Identity | None =
 
 
 def app_version(app_name: str) -> str:
-    """The version an application program declares (its class ``fw_version``), "x.y.z"."""
+    """The version an application program declares (its class ``FW_VERSION``), "x.y.z"."""
     module, _, attr = APP_PROGRAMS[app_name].partition(":")
-    version = getattr(importlib.import_module(module), attr).fw_version
+    version = getattr(importlib.import_module(module), attr).FW_VERSION
     return ".".join(str(part) for part in version)
 
 

@@ -33,7 +33,7 @@ class TinyNode(HandNode):
     """A minimal program: two fmcb messages handled, one answered later, one without reply."""
 
     node_kind = "fmcb"
-    fw_version = (2, 7, 300)
+    FW_VERSION = (2, 7, 300)
 
     def __init__(self, hal: Hal) -> None:
         super().__init__(hal)

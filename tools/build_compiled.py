@@ -1,0 +1,174 @@
+"""Optional compiled core: build (or remove) mypyc C extensions of the emulator's hot modules.
+
+``python -m tools.build_compiled [--clean] [--list] [--build-dir DIR] [--root DIR]``
+
+mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
+its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
+Python imports instead of the source.  The pure-Python modules stay the default: nothing
+imports this, ``make test`` never builds it, and ``--clean`` (``make clean-compiled``)
+removes every extension again.  Behaviour is the same either way (the traffic digest of
+``python -m tools.traffic_record`` is identical); only the speed differs.  See the
+performance section of docs/EMULATOR.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Final
+
+#: The modules compiled, as paths relative to the repository root; declared once here.
+COMPILED_MODULES: Final[tuple[str, ...]] = (
+    # the clock and the wire formats
+    "firmware_py/scheduler.py",
+    "protocol/crc.py",
+    "protocol/framing.py",
+    "protocol/stream.py",
+    "protocol/manchester.py",
+    # the hand nodes' firmware (HandNode and every program built on it)
+    "firmware_py/hand_node.py",
+    "firmware_py/bootloader.py",
+    "firmware_py/fmcb.py",
+    "firmware_py/fmcb_control.py",
+    "firmware_py/current_governor.py",
+    "firmware_py/phalange.py",
+    "firmware_py/palm.py",
+    "firmware_py/palm_router.py",
+    # the arm nodes' firmware
+    "firmware_py/dynamixel_slave.py",
+    "firmware_py/arm_stepper.py",
+    "firmware_py/rx64.py",
+    # the buses and the plant
+    "hil_emulator/rs485_bus.py",
+    "hil_emulator/plant.py",
+    "hil_emulator/finger_plant.py",
+    "hil_emulator/hand_sensors.py",
+    "hil_emulator/arm_plant.py",
+    "hil_emulator/arm_actuators.py",
+)
+
+#: mypy options of the compile (as pyproject's [tool.mypy]).
+_MYPY_FLAGS: Final = ("--ignore-missing-imports", "--explicit-package-bases",
+                      "--python-version", "3.11")
+
+#: The repository root (the directory holding ``protocol/``, ``firmware_py/`` …).
+ROOT: Final = Path(__file__).resolve().parent.parent
+
+
+class BuildError(Exception):
+    """The compiled core could not be built (no C compiler, or mypyc rejected a module)."""
+
+
+def compiled_files(root: Path = ROOT) -> list[Path]:
+    """Every built extension under the packages of ``root`` (what ``--clean`` removes)."""
+    found: list[Path] = []
+    for module in COMPILED_MODULES:
+        source = root / module
+        found += sorted(source.parent.glob(f"{source.stem}.*.so"))
+        found += sorted(source.parent.glob(f"{source.stem}.*.pyd"))
+    # mypyc's shared library of the group: beside a lone module, else at the root.
+    for folder in {root, *((root / module).parent for module in COMPILED_MODULES)}:
+        found += sorted(folder.glob("*__mypyc.*.so"))
+    return sorted(set(found))
+
+
+def loaded_compiled() -> list[str]:
+    """The modules of :data:`COMPILED_MODULES` this process imported as C extensions.
+
+    Imports each (they are the emulator's own modules, cheap to import); an empty list means
+    the pure-Python default is in use.
+    """
+    import importlib
+
+    names = [module.removesuffix(".py").replace("/", ".") for module in COMPILED_MODULES]
+    loaded = []
+    for name in names:
+        origin = getattr(importlib.import_module(name), "__file__", None) or ""
+        if not origin.endswith(".py"):
+            loaded.append(name)
+    return loaded
+
+
+def clean(root: Path = ROOT, build_dir: Path | None = None) -> list[Path]:
+    """Remove the built extensions and the build directory; returns what was removed."""
+    removed = compiled_files(root)
+    for path in removed:
+        path.unlink()
+    build = build_dir if build_dir is not None else root / "build"
+    if build.is_dir():
+        shutil.rmtree(build)
+        removed.append(build)
+    return removed
+
+
+def build(root: Path = ROOT, build_dir: Path | None = None,
+          modules: Sequence[str] = COMPILED_MODULES) -> list[Path]:
+    """Compile ``modules`` (paths relative to ``root``) in place; returns the extensions.
+
+    Raises :class:`BuildError` if mypyc or the C compiler is missing or fails.  mypy finds
+    modules on ``sys.path`` too: call it from a process whose path holds no other copy of
+    the packages (``python -m tools.build_compiled`` from ``root``).
+    """
+    try:
+        from mypyc.build import mypycify
+        from setuptools import Distribution
+    except ImportError as exc:  # pragma: no cover - mypy (with mypyc) is a test dependency
+        raise BuildError(f"mypyc is not installed: {exc}") from exc
+    if shutil.which(os.environ.get("CC", "cc")) is None and shutil.which("gcc") is None:
+        raise BuildError("no C compiler (cc or gcc) on PATH")
+    build_path = (build_dir if build_dir is not None else root / "build").resolve()
+    here = Path.cwd()
+    os.chdir(root)  # mypyc names the modules from paths relative to the working directory
+    try:
+        # The type-check options are pyproject's [tool.mypy] (a fresh type check of these
+        # modules needs them, check_untyped_defs among them), plus the few that matter.
+        config = ["--config-file", "pyproject.toml"] if (root / "pyproject.toml").is_file() else []
+        extensions = mypycify([*config, *_MYPY_FLAGS, *modules], only_compile_paths=list(modules),
+                              opt_level="3", target_dir=str(build_path / "mypyc"))
+        # A bare Distribution: setuptools must not read pyproject.toml for this.
+        dist = Distribution({"name": "lowcost_compiled", "ext_modules": extensions})
+        command = dist.get_command_obj("build_ext")
+        command.inplace = True  # type: ignore[attr-defined]
+        command.build_temp = str(build_path / "temp")  # type: ignore[attr-defined]
+        command.build_lib = str(build_path / "lib")  # type: ignore[attr-defined]
+        dist.run_command("build_ext")
+    except SystemExit as exc:  # distutils reports a compiler failure by exiting
+        raise BuildError(f"the C build failed: {exc}") from exc
+    except Exception as exc:
+        raise BuildError(f"mypyc failed: {exc}") from exc
+    finally:
+        os.chdir(here)
+    return compiled_files(root)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tools.build_compiled")
+    parser.add_argument("--clean", action="store_true", help="remove the extensions")
+    parser.add_argument("--list", action="store_true", help="print the compiled modules")
+    parser.add_argument("--root", type=Path, default=ROOT, help="repository root")
+    parser.add_argument("--build-dir", type=Path, default=None,
+                        help="intermediate files (default: ROOT/build)")
+    args = parser.parse_args(argv)
+    if args.list:
+        print("\n".join(COMPILED_MODULES))
+        return 0
+    if args.clean:
+        for path in clean(args.root, args.build_dir):
+            print(f"removed {path}")
+        return 0
+    try:
+        built = build(args.root, args.build_dir)
+    except BuildError as exc:
+        print(f"build_compiled: {exc}", file=sys.stderr)
+        return 1
+    for path in built:
+        print(f"built {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
