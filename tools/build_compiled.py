@@ -152,7 +152,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root")
     parser.add_argument("--build-dir", type=Path, default=None,
                         help="intermediate files (default: ROOT/build)")
+    parser.add_argument("--only", nargs="+", default=None, metavar="MODULE",
+                        help="compile only these of the listed modules (paths as --list prints)")
     args = parser.parse_args(argv)
+    modules = tuple(args.only) if args.only else COMPILED_MODULES
+    unknown = sorted(set(modules) - set(COMPILED_MODULES))
+    if unknown:
+        print(f"build_compiled: not in the compiled core's list: {', '.join(unknown)} "
+              "(see --list)", file=sys.stderr)
+        return 2
     if args.list:
         print("\n".join(COMPILED_MODULES))
         return 0
@@ -161,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"removed {path}")
         return 0
     try:
-        built = build(args.root, args.build_dir)
+        built = build(args.root, args.build_dir, modules)
     except BuildError as exc:
         print(f"build_compiled: {exc}", file=sys.stderr)
         return 1
