@@ -27,11 +27,11 @@ from hil_emulator.arm_model import (
     add_arm,
 )
 from hil_emulator.arm_plant import POT_CENTRE, ArmParams, ArmPlant
+from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import Plant, new_spec
 from protocol.control_tables import StepperFlag
 from protocol.image import BoardType
-from hil_emulator.emulator import Emulator
 from protocol.robot import (
     ARM_FLANGE_MASS_PROPERTIES,
     ARM_LINK_MASS_PROPERTIES,
