@@ -49,10 +49,11 @@ def test_hanging_arm_holds_nothing_and_the_hand_adds_load() -> None:
 def _plant_torques(url: str, poses: list[list[float]], hand: bool
                    ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(predicted, measured) J1..J4 holding torques (N·m) with the arm held still at each
-    pose: measured as the elastic elements' deflection × stiffness.  The arm powers up
-    hanging at the kinematic zero, so its unhomed angles are the absolute ones."""
+    pose (rad, absolute: the arm is homed first): measured as the elastic elements'
+    deflection × stiffness."""
     out = []
     with Arm.open(url) as arm:
+        arm.home()
         control = JointController(arm)
         for pose in poses:
             arm.move(pose, timeout=6.0)
