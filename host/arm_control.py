@@ -407,27 +407,35 @@ MOVETO_LOAD_LIMIT: Final = 0.7
 
 @dataclass(frozen=True)
 class _Candidate:
-    """An IK solution and the worst static load on the way to it: the stepper ``joint``
-    (0..3), its holding torque (N·m) and that over its stall torque."""
+    """An IK solution and its worst static load: the stepper ``joint`` (0..3), its holding
+    torque (N·m) and that over its stall torque, and whether the solution is ``safe``."""
 
     ik: arm_kinematics.IkResult
     joint: int
     torque: float
     fraction: float
+    safe: bool
 
 
-def _candidate(ik: arm_kinematics.IkResult, q_now: np.ndarray, hand: bool) -> _Candidate:
-    """Rate ``ik`` by the worst stepper load along the straight joint path from ``q_now``
-    (11 points, the goal included)."""
+def _candidate(ik: arm_kinematics.IkResult, q_now: np.ndarray, hand: bool,
+               load_limit: float) -> _Candidate:
+    """Rate ``ik`` by the stepper loads along the straight joint path from ``q_now`` (11
+    points).  Safe: at the goal every joint within ``load_limit`` of its stall torque, and
+    on the way no joint more loaded than that or than it already is at ``q_now`` (a move
+    away from a heavy pose is allowed)."""
     stall = arm_gravity.stall_torques()
+    start = np.abs(arm_gravity.holding_torques(q_now, hand)[:N_STEPPERS]) / stall
+    allowed = np.maximum(start, load_limit)
     worst = (0, 0.0, -1.0)
-    for a in np.linspace(0.0, 1.0, 11):
+    safe = True
+    for a in np.linspace(0.0, 1.0, 11)[1:]:
         torques = arm_gravity.holding_torques(q_now + a * (ik.q - q_now), hand)[:N_STEPPERS]
         fractions = np.abs(torques) / stall
+        safe = safe and bool(np.all(fractions <= (load_limit if a == 1.0 else allowed)))
         j = int(np.argmax(fractions))
         if fractions[j] > worst[2]:
             worst = (j, float(torques[j]), float(fractions[j]))
-    return _Candidate(ik, *worst)
+    return _Candidate(ik, *worst, safe)
 
 
 def choose_ik(xyz: Vector, rpy: Vector | None, q_now: Vector, *, hand: bool = True,
@@ -436,8 +444,8 @@ def choose_ik(xyz: Vector, rpy: Vector | None, q_now: Vector, *, hand: bool = Tr
     ``q_now`` (rad), the IK's default start and :data:`IK_SEEDS` that reach ``xyz`` (m)
     within 1 mm (and ``rpy`` within 0.01 rad if given), the nearest to ``q_now`` (largest
     joint change) whose every stepper joint holds at most ``load_limit`` of its stall torque
-    against gravity (:mod:`host.arm_gravity`, ``hand`` on the flange or not) at the goal and
-    on the straight joint path there.  :class:`~host.errors.UsageError` if the target is out
+    against gravity (:mod:`host.arm_gravity`, ``hand`` on the flange or not) at the goal, and
+    on the straight joint path there at most that or what it holds at ``q_now``.  :class:`~host.errors.UsageError` if the target is out
     of reach, or if every solution overloads a joint (naming it, its torque and its
     limit)."""
     here = np.asarray(q_now, dtype=float)
@@ -450,8 +458,8 @@ def choose_ik(xyz: Vector, rpy: Vector | None, q_now: Vector, *, hand: bool = Tr
         raise UsageError(f"{tuple(round(float(v), 3) for v in xyz)} m is out of reach "
                          f"(IK misses it by {miss * 1000:.0f} mm); the flange "
                          f"reaches about 1.04 m from the shoulder axis")
-    rated = [_candidate(ik, here, hand) for ik in reaching]
-    safe = [c for c in rated if c.fraction <= load_limit]
+    rated = [_candidate(ik, here, hand, load_limit) for ik in reaching]
+    safe = [c for c in rated if c.safe]
     if safe:
         return min(safe, key=lambda c: float(np.max(np.abs(c.ik.q - here)))).ik
     best = min(rated, key=lambda c: c.fraction)

@@ -4,6 +4,7 @@ choice of an IK solution the stepper joints can hold (host.arm_control.choose_ik
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Final
 
 import mujoco
 import numpy as np
@@ -46,35 +47,49 @@ def test_hanging_arm_holds_nothing_and_the_hand_adds_load() -> None:
     assert bare[0] == pytest.approx(0.0, abs=1e-9)  # J1's axis is vertical
 
 
-def _plant_torques(url: str, poses: list[list[float]], hand: bool
-                   ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(predicted, measured) J1..J4 holding torques (N·m) with the arm held still at each
-    pose (rad, absolute: the arm is homed first): measured as the elastic elements'
-    deflection × stiffness."""
-    out = []
-    with Arm.open(url) as arm:
-        arm.home()
-        control = JointController(arm)
-        for pose in poses:
-            arm.move(pose, timeout=6.0)
-            for _ in range(100):   # 1 s at rest
-                state = arm.state()
-            assert not any(s.stalled or s.slip for s in state.steppers)
-            measured = (np.array(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD)
-                        * elastic_deflections(state, control.q_ref))
-            out.append((arm_gravity.holding_torques(state.joints, hand)[:4], measured))
+#: Poses (rad) to hold still, without and with the hand: loads of 5-9 N·m on J2 and 2 N·m on
+#: J4 without the hand; 55-60 % of the stall torques of J2 and J4 with it (the full robot
+#: then moves on from there: a pose held near a stall limit would latch STALLED at the first
+#: jerk).
+BARE_POSES: Final = ([0.0, 0.6, 0.0, 0.9, 0.0, 0.0, 0.0], [0.3, 1.0, 0.4, 0.5, 0.0, 0.3, 0.0])
+HAND_POSES: Final = ([0.3, 0.5, 0.4, 0.4, 0.0, 0.3, 0.0], [-0.3, 0.6, -0.3, 0.2, 0.0, 0.3, 0.0])
+
+
+@pytest.fixture(scope="module")
+def bare_arm() -> Iterator[Arm]:
+    with Arm.open("emu://arm/arm?name=test_arm_gravity_bare") as opened:
+        opened.home()
+        yield opened
     forget_shared_emulators()
-    return out
 
 
-@pytest.mark.parametrize(("config", "hand"), [("arm", False), ("full", True)])
-def test_holding_torques_match_the_plants_deflections(config: str, hand: bool) -> None:
-    poses = [[0.0, 0.6, 0.0, 0.9, 0.0, 0.0, 0.0], [0.3, 1.0, 0.4, 0.5, 0.0, 0.3, 0.0]]
-    for predicted, measured in _plant_torques(f"emu://{config}/arm?name=gravity_{config}",
-                                              poses, hand):
+@pytest.fixture(scope="module")
+def full_arm() -> Iterator[Arm]:
+    with Arm.open("emu://full/arm?name=test_arm_gravity_moveto") as opened:
+        opened.home()
+        yield opened
+    forget_shared_emulators()
+
+
+def _check_holding_torques(arm: Arm, poses: tuple[list[float], ...], hand: bool) -> None:
+    """Hold the (homed) arm still at each of ``poses`` (rad) and compare the predicted J1..J4
+    holding torques (N·m) with the elastic elements' deflection × stiffness."""
+    control = JointController(arm)
+    for pose in poses:
+        arm.move(pose, timeout=6.0)
+        for _ in range(100):   # 1 s at rest
+            state = arm.state()
+        assert not any(s.stalled or s.slip for s in state.steppers)
+        measured = (np.array(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD)
+                    * elastic_deflections(state, control.q_ref))
+        predicted = arm_gravity.holding_torques(state.joints, hand)[:4]
         # J2 and J4 carry several N·m: within 10 %; J3 little (friction's share is large)
         assert measured[[1, 3]] == pytest.approx(predicted[[1, 3]], rel=0.10)
         assert measured[2] == pytest.approx(predicted[2], abs=0.6)
+
+
+def test_holding_torques_match_the_arms_deflections(bare_arm: Arm) -> None:
+    _check_holding_torques(bare_arm, BARE_POSES, hand=False)
 
 
 def test_choose_ik_keeps_every_stepper_under_the_load_limit() -> None:
@@ -84,14 +99,6 @@ def test_choose_ik_keeps_every_stepper_under_the_load_limit() -> None:
     assert np.all(arm_gravity.stepper_load_fractions(ik.q, hand=True) <= MOVETO_LOAD_LIMIT)
     with pytest.raises(UsageError, match=r"J4 would carry \d\.\d N·m of its 8\.1 N·m"):
         choose_ik(TOO_FAR, None, home, hand=True)
-
-
-@pytest.fixture(scope="module")
-def full_arm() -> Iterator[Arm]:
-    with Arm.open("emu://full/arm?name=test_arm_gravity_moveto") as opened:
-        opened.home()
-        yield opened
-    forget_shared_emulators()
 
 
 def test_moveto_with_the_hand_reaches_without_stalling(full_arm: Arm) -> None:
@@ -113,3 +120,7 @@ def test_moveto_refuses_a_target_that_overloads_the_elbow(full_arm: Arm) -> None
     with pytest.raises(UsageError, match="J4 would carry .* stall limit"):
         full_arm.moveto(TOO_FAR)
     assert full_arm.state().joints == pytest.approx(before, abs=0.01)  # nothing moved
+
+
+def test_holding_torques_with_the_hand_match_the_arms_deflections(full_arm: Arm) -> None:
+    _check_holding_torques(full_arm, HAND_POSES, hand=True)
