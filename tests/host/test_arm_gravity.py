@@ -83,8 +83,9 @@ def _check_holding_torques(arm: Arm, poses: tuple[list[float], ...], hand: bool)
         measured = (np.array(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD)
                     * elastic_deflections(state, control.q_ref))
         predicted = arm_gravity.holding_torques(state.joints, hand)[:4]
-        # J2 and J4 carry several N·m: within 10 %; J3 little (friction's share is large)
-        assert measured[[1, 3]] == pytest.approx(predicted[[1, 3]], rel=0.10)
+        # J2 and J4 carry several N·m: within 10 % (or the plant's coupling hysteresis and
+        # bearing friction, 0.5 N·m); J3 little (friction's share is large)
+        assert measured[[1, 3]] == pytest.approx(predicted[[1, 3]], rel=0.10, abs=0.5)
         assert measured[2] == pytest.approx(predicted[2], abs=0.6)
 
 
