@@ -400,3 +400,29 @@ ARM_ROUTE_COUPLING: Final[tuple[tuple[float, float, float, float], ...]] = (
 def arm_route_coupling_matrix() -> np.ndarray:
     """``C`` (4×4, :data:`ARM_ROUTE_COUPLING`): capstan angles of J1..J4 move by ``C·Δq``."""
     return np.array(ARM_ROUTE_COUPLING, dtype=float)
+
+# --- arm mass properties (the emulator's model and the host's gravity model share them) ----
+
+#: Mass (kg) and centre of mass (m, in the body's own frame: the frame of the joint that
+#: moves it, see :data:`ARM_JOINT_OFFSETS_M`) of what each joint J1..J7 turns, besides the
+#: joints after it: link 1 (the shoulder housing with the two NEMA-23 steppers), the J2
+#: capstan hub, the upper arm (tube and elbow capstan), the forearm's J5 bracket, the forearm
+#: tube with the J6 servo, the J7 servo, the flange plate.  The emulator's MuJoCo model
+#: (:mod:`hil_emulator.arm_model`) builds the same bodies from its parts; a test keeps the two
+#: equal.  The base (5.5 kg with the NEMA-34 steppers) turns with no joint.
+ARM_LINK_MASS_PROPERTIES: Final[tuple[tuple[float, Vec3], ...]] = (
+    (3.9, (-0.06, 0.0, 0.09)),
+    (0.325, (0.0, 0.0, -0.03)),
+    (0.80, (0.0, 0.0, -0.31375)),
+    (0.25, (0.0, 0.0, -0.05)),
+    (0.40, (0.0, 0.0, -0.20875)),
+    (0.15, (0.0, 0.0, -0.03)),
+    (0.05, (0.0, 0.0, -0.02)))
+#: The flange disc's mass (kg) and centre of mass in the flange frame (m).
+ARM_FLANGE_MASS_PROPERTIES: Final[tuple[float, Vec3]] = (0.025, (0.0, 0.0, -0.002))
+#: The hand's mass (kg: palm, four finger modules and their boards) and its centre of mass
+#: in the flange frame (m) when mounted as :data:`HAND_ON_FLANGE_POSITION_M` /
+#: :data:`HAND_ON_FLANGE_QUAT` say, the fingers extended (every finger joint at 0; curling
+#: them moves it by a few millimetres).
+HAND_MASS_KG: Final = 0.83
+HAND_COM_ON_FLANGE_M: Final[Vec3] = (-0.00468, 0.01988, -0.01618)

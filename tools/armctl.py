@@ -14,7 +14,9 @@
 
 ``move`` and ``moveto`` need a homed arm (``armctl home``; the nodes keep the index latch until
 they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
-(angles from power-up) anyway.
+(angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
+would have a stepper joint hold more than 70 % of its stall torque against gravity, naming
+the joint (the hand's weight counted unless ``--no-hand``).
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
 (``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
@@ -76,6 +78,9 @@ def make_parser() -> argparse.ArgumentParser:
                         help="move although the arm is not homed")
     moveto.add_argument("--timeout", type=float, default=8.0, metavar="S",
                         help="settle time allowed after the path (s, default 8)")
+    moveto.add_argument("--no-hand", action="store_true",
+                        help="no hand on the flange: leave its weight out of the check that "
+                             "no stepper joint would hold near its stall torque")
     waypoints = sub.add_parser("waypoints", help="record waypoints by hand, or play them")
     waypoints.add_argument("action", choices=("record", "play"))
     waypoints.add_argument("file", help="waypoint file (JSON lines)")
@@ -150,7 +155,7 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _require_homed(arm, args, "moveto")
     result = arm.moveto(args.xyz, args.rpy, allow_unhomed=args.unhomed,
-                        settle_timeout=args.timeout)
+                        settle_timeout=args.timeout, hand=not args.no_hand)
     data = {"reached": result.reached, "goals": list(result.goals),
             "position_error_m": result.position_error, **result.state.as_dict()}
     _print(out, args.json, data, f"{'reached' if result.reached else 'not reached'}: "

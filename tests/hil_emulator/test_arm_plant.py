@@ -27,11 +27,19 @@ from hil_emulator.arm_model import (
     add_arm,
 )
 from hil_emulator.arm_plant import POT_CENTRE, ArmParams, ArmPlant
+from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.plant import Plant, new_spec
 from protocol.control_tables import StepperFlag
 from protocol.image import BoardType
-from protocol.robot import RX64_RANGE_RAD, STEPPER_REDUCTIONS
+from protocol.robot import (
+    ARM_FLANGE_MASS_PROPERTIES,
+    ARM_LINK_MASS_PROPERTIES,
+    HAND_COM_ON_FLANGE_M,
+    HAND_MASS_KG,
+    RX64_RANGE_RAD,
+    STEPPER_REDUCTIONS,
+)
 
 MS = 1_000  # µs
 COUNTS_PER_RAD = 10_000 / (2 * np.pi)
@@ -404,3 +412,46 @@ def test_seeded_runs_repeat_exactly() -> None:
     assert np.array_equal(first, again)
     assert not np.array_equal(first, other)  # pot noise differs
     assert np.abs(first - other).max() < 0.05
+
+
+#: The arm's bodies moved by J1..J7, and the flange (:data:`ARM_LINK_MASS_PROPERTIES`).
+_MOVING_BODIES = ("link1", "shoulder", "upper_arm", "forearm", "forearm_roll", "wrist",
+                  "wrist_yaw")
+
+
+@pytest.mark.parametrize("config", ["arm", "full"])
+def test_mass_properties_the_host_uses_are_the_models(config: str) -> None:
+    """protocol.robot's per-body masses and centres of mass (the host's gravity model) equal
+    the MuJoCo model's, and with the hand mounted its mass and centre of mass on the flange
+    (fingers extended) too: the two cannot drift apart."""
+    model = Emulator(config, seed=0, can="none").arm_plant.model  # type: ignore[union-attr]
+
+    def body(name: str) -> int:
+        return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+
+    declared = (*ARM_LINK_MASS_PROPERTIES, ARM_FLANGE_MASS_PROPERTIES)
+    for name, (mass, com) in zip((*_MOVING_BODIES, "flange"), declared, strict=True):
+        b = body(f"arm/{name}")
+        assert model.body_mass[b] == pytest.approx(mass, abs=1e-9), name
+        assert model.body_ipos[b] == pytest.approx(com, abs=1e-9), name
+    flange = body("arm/flange")
+    hand = [b for b in range(model.nbody) if model.body_rootid[b] == model.body_rootid[flange]
+            and b != flange and _descends_from(model, b, flange)]
+    assert bool(hand) == (config == "full")
+    if hand:
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        mass = float(sum(model.body_mass[b] for b in hand))
+        com = sum(model.body_mass[b] * data.xipos[b] for b in hand) / mass
+        rot = data.xmat[flange].reshape(3, 3)
+        assert mass == pytest.approx(HAND_MASS_KG, abs=1e-6)
+        assert rot.T @ (com - data.xpos[flange]) == pytest.approx(HAND_COM_ON_FLANGE_M,
+                                                                  abs=1e-4)
+
+
+def _descends_from(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body:
+        body = int(model.body_parentid[body])
+        if body == ancestor:
+            return True
+    return False

@@ -1,0 +1,127 @@
+"""The arm's static gravity model (host.arm_gravity) against the emulated plant, and moveto's
+choice of an IK solution the stepper joints can hold (host.arm_control.choose_ik)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Final
+
+import mujoco
+import numpy as np
+import pytest
+
+from hil_emulator.inprocess import forget_shared_emulators
+from host import arm_gravity, arm_kinematics
+from host.arm import Arm
+from host.arm_control import (
+    MOVETO_LOAD_LIMIT,
+    JointController,
+    TrackingLog,
+    choose_ik,
+    elastic_deflections,
+)
+from host.errors import UsageError
+from protocol.robot import SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
+
+#: The user's target: reachable, but one IK solution bends the elbow into a heavy load.
+TARGET = (0.25, -0.08, -0.52)
+#: Forearm near horizontal at shoulder level whatever the shoulder does: too much for J4.
+TOO_FAR = (0.6, 0.0, -0.1)
+
+
+def test_stall_torque_is_stiffness_times_the_nodes_deflection_limit() -> None:
+    stall = arm_gravity.stall_torques()
+    assert arm_gravity.DEFAULT_DEFLECTION_LIMIT_COUNTS == 150
+    assert stall[3] == pytest.approx(86.0 * 150 * 2 * np.pi / 10_000)  # 8.1 N·m
+    assert stall[3] == pytest.approx(8.105, abs=1e-3)
+    assert arm_gravity.stall_torques(300) == pytest.approx(2 * stall)
+
+
+def test_hanging_arm_holds_nothing_and_the_hand_adds_load() -> None:
+    assert arm_gravity.holding_torques([0.0] * 7) == pytest.approx([0.0] * 7, abs=1e-9)
+    bent = [0.0, 0.5, 0.0, 0.9, 0.0, 0.0, 0.0]
+    bare = arm_gravity.holding_torques(bent)
+    loaded = arm_gravity.holding_torques(bent, hand=True)
+    assert bare[1] > 0 and bare[3] > 0          # lifting against gravity: positive
+    assert loaded[3] - bare[3] > 3.0            # 0.83 kg ~0.5 m out from the elbow
+    assert bare[0] == pytest.approx(0.0, abs=1e-9)  # J1's axis is vertical
+
+
+#: Poses (rad) to hold still, without and with the hand: loads of 5-9 N·m on J2 and 2 N·m on
+#: J4 without the hand; 55-60 % of the stall torques of J2 and J4 with it (the full robot
+#: then moves on from there: a pose held near a stall limit would latch STALLED at the first
+#: jerk).
+BARE_POSES: Final = ([0.0, 0.6, 0.0, 0.9, 0.0, 0.0, 0.0], [0.3, 1.0, 0.4, 0.5, 0.0, 0.3, 0.0])
+HAND_POSES: Final = ([0.3, 0.5, 0.4, 0.4, 0.0, 0.3, 0.0], [-0.3, 0.6, -0.3, 0.2, 0.0, 0.3, 0.0])
+
+
+@pytest.fixture(scope="module")
+def bare_arm() -> Iterator[Arm]:
+    with Arm.open("emu://arm/arm?name=test_arm_gravity_bare") as opened:
+        opened.home()
+        yield opened
+    forget_shared_emulators()
+
+
+@pytest.fixture(scope="module")
+def full_arm() -> Iterator[Arm]:
+    with Arm.open("emu://full/arm?name=test_arm_gravity_moveto") as opened:
+        opened.home()
+        yield opened
+    forget_shared_emulators()
+
+
+def _check_holding_torques(arm: Arm, poses: tuple[list[float], ...], hand: bool) -> None:
+    """Hold the (homed) arm still at each of ``poses`` (rad) and compare the predicted J1..J4
+    holding torques (N·m) with the elastic elements' deflection × stiffness."""
+    control = JointController(arm)
+    for pose in poses:
+        arm.move(pose, timeout=6.0)
+        for _ in range(100):   # 1 s at rest
+            state = arm.state()
+        assert not any(s.stalled or s.slip for s in state.steppers)
+        measured = (np.array(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD)
+                    * elastic_deflections(state, control.q_ref))
+        predicted = arm_gravity.holding_torques(state.joints, hand)[:4]
+        # J2 and J4 carry several N·m: within 10 % (or the plant's coupling hysteresis and
+        # bearing friction, 0.5 N·m); J3 little (friction's share is large)
+        assert measured[[1, 3]] == pytest.approx(predicted[[1, 3]], rel=0.10, abs=0.5)
+        assert measured[2] == pytest.approx(predicted[2], abs=0.6)
+
+
+def test_holding_torques_match_the_arms_deflections(bare_arm: Arm) -> None:
+    _check_holding_torques(bare_arm, BARE_POSES, hand=False)
+
+
+def test_choose_ik_keeps_every_stepper_under_the_load_limit() -> None:
+    home = [0.06, 0.07, -0.05, 0.08, 0.0, 0.0, 0.0]
+    ik = choose_ik(TARGET, None, home, hand=True)
+    assert arm_kinematics.forward(ik.q).position == pytest.approx(TARGET, abs=1e-3)
+    assert np.all(arm_gravity.stepper_load_fractions(ik.q, hand=True) <= MOVETO_LOAD_LIMIT)
+    with pytest.raises(UsageError, match=r"J4 would carry \d\.\d N·m of its 8\.1 N·m"):
+        choose_ik(TOO_FAR, None, home, hand=True)
+
+
+def test_moveto_with_the_hand_reaches_without_stalling(full_arm: Arm) -> None:
+    log = TrackingLog()
+    result = full_arm.moveto(TARGET, log=log)
+    assert result.reached
+    plant = full_arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    model, data = plant.model, plant.data
+    flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/flange")
+    base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/base")
+    truth = data.xmat[base].reshape(3, 3).T @ (data.xpos[flange] - data.xpos[base])
+    assert np.linalg.norm(truth - TARGET) < 0.005
+    assert log.stall_events == []
+    assert not any(s.stalled or s.slip for s in result.state.steppers)
+
+
+def test_moveto_refuses_a_target_that_overloads_the_elbow(full_arm: Arm) -> None:
+    before = full_arm.state().joints
+    with pytest.raises(UsageError, match="J4 would carry .* stall limit"):
+        full_arm.moveto(TOO_FAR)
+    assert full_arm.state().joints == pytest.approx(before, abs=0.01)  # nothing moved
+
+
+def test_holding_torques_with_the_hand_match_the_arms_deflections(full_arm: Arm) -> None:
+    _check_holding_torques(full_arm, HAND_POSES, hand=True)
