@@ -20,7 +20,9 @@ would, with the host library and the command-line tools:
    mug's side and the thumb beside it, then in until the mug's body is between them;
 5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the
    tactile pads report contact (``Hand.grasp(..., until_contact=True)``; the fingers, then
-   the thumb), then squeezing;
+   the thumb), then squeezing (:func:`host.grasp.squeeze`: each finger's proximal flexion
+   motor sent :data:`SQUEEZE_RAD` past the contact, so its effort cap keeps the grip through
+   the lift and the hold);
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
