@@ -81,6 +81,10 @@ CONTACT_STALL_RAD_S: Final = 0.1
 #: sent; its position error then saturates the fmcb's PD (gain 1/255 of PWM per hall count:
 #: 0.3 rad of J1 is 338 counts), so the effort cap sets the force.
 SQUEEZE_RAD: Final = 0.3
+#: A squeeze sets its targets again at most this many times (:func:`squeeze`) ...
+SQUEEZE_ROUNDS: Final = 4
+#: ... until no finger's J1 closed more than this (rad) in a round.
+SQUEEZE_SETTLED_RAD: Final = 0.02
 #: Two mounts whose extended directions are within this cosine belong to one group.
 SAME_DIRECTION_COS: Final = 0.9
 #: A finger nearer than this (m) to its group's centre line is on it.
@@ -305,24 +309,43 @@ def squeeze_target(joints: Sequence[float] | np.ndarray, squeeze: float = SQUEEZ
 
 def squeeze(hand: Hand, fingers: Sequence[int] | None = None, amount: float = SQUEEZE_RAD,
             *, effort: Sequence[int] | int | None = None, timeout: float = 1.0,
+            rounds: int = SQUEEZE_ROUNDS,
             on_states: Callable[[float, Mapping[int, FingerState]], None] | None = None
             ) -> dict[int, Vec3]:
     """Press ``fingers`` (default: all four) on what they hold: each finger's target becomes
-    :func:`squeeze_target` of its measured pose (``amount`` rad of J1 past it), with the
-    motor effort cap ``effort`` (1/255 of full PWM) setting the force; waits up to
-    ``timeout`` s for the fingers to stall on the object.  The targets stand until the next
-    command, so the squeeze lasts through a hold.  Returns the targets (rad) per finger."""
+    :func:`squeeze_target` of its pose (``amount`` rad of J1 past it), with the motor effort
+    cap ``effort`` (1/255 of full PWM) setting the force (less than ``amount`` where J1's
+    upper limit is nearer); waits up to ``timeout`` s for the
+    fingers to stall on the object.  Holding motor 0 turns J0 back by g1/g0 of whatever J1
+    still closes before the object stops it, so up to ``rounds`` times the targets are set
+    again from the measured J1, J2 and the J0 before the squeeze, until no J1 closed more
+    than :data:`SQUEEZE_SETTLED_RAD` in a round.  The targets stand until the next command,
+    so the squeeze lasts through a hold.  Returns the targets (rad) per finger."""
     if amount < 0:
         raise UsageError(f"squeeze {amount} rad: give a non-negative amount")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
     states = _read(hand, chosen)
     if on_states is not None:
         on_states(hand.session.now(), states)
-    targets = {k: hand.limits.apply(k, squeeze_target(states[k].joints, amount))
-               for k in chosen}
-    hand.send([hand.fingers[k].make_command(targets[k], effort=effort) for k in chosen],
-              unhomed=True)
-    hand.wait_settled(chosen, timeout)
+    spread = {k: float(states[k].joints[0]) for k in chosen}
+    targets: dict[int, Vec3] = {}
+    for _ in range(max(1, rounds)):
+        targets = {}
+        for k in chosen:
+            q1 = float(states[k].joints[1])
+            # J1's target stays inside its upper limit (rounding: a µrad inside).
+            room = max(0.0, min(amount, hand.limits.upper[k][1] - 1e-6 - q1))
+            targets[k] = hand.limits.apply(k, squeeze_target(
+                (spread[k], q1, float(states[k].joints[2])), room))
+        hand.send([hand.fingers[k].make_command(targets[k], effort=effort) for k in chosen],
+                  unhomed=True)
+        hand.wait_settled(chosen, timeout)
+        before, states = states, _read(hand, chosen)
+        if on_states is not None:
+            on_states(hand.session.now(), states)
+        if all(abs(states[k].joints[1] - before[k].joints[1]) < SQUEEZE_SETTLED_RAD
+               for k in chosen):
+            break
     return targets
 
 
