@@ -34,7 +34,9 @@ positions, so the blocked motor pushes with its effort cap for as long as the ta
 (the hold): the cap, not a position, sets the squeeze force.  Advancing J1 in joint space
 instead would also advance motor 0, which turns J0 with J1 (the tendon differential,
 :func:`protocol.robot.joint_to_motor`): with J1 blocked by the object it would swing the
-finger sideways, off the object.
+finger sideways, off the object.  Holding motor 0 instead turns J0 back by g1/g0 of what J1
+still closes before the object stops it, so the squeeze sets its targets again from the
+measured J1 and the J0 it started from until J1 stops closing.
 """
 
 from __future__ import annotations
