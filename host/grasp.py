@@ -83,8 +83,10 @@ CONTACT_STALL_RAD_S: Final = 0.1
 #: sent; its position error then saturates the fmcb's PD (gain 1/255 of PWM per hall count:
 #: 0.3 rad of J1 is 338 counts), so the effort cap sets the force.
 SQUEEZE_RAD: Final = 0.3
-#: A squeeze sets its targets again at most this many times (:func:`squeeze`) ...
-SQUEEZE_ROUNDS: Final = 4
+#: A squeeze sets its targets again at most this many times (:func:`squeeze`): enough for a
+#: finger that nothing stops to close J1 across its whole range at :data:`SQUEEZE_RAD` a
+#: round and end at its limit with its spread kept; one on an object stops in two or three ...
+SQUEEZE_ROUNDS: Final = 12
 #: ... until no finger's J1 closed more than this (rad) in a round.
 SQUEEZE_SETTLED_RAD: Final = 0.02
 #: Two mounts whose extended directions are within this cosine belong to one group.
