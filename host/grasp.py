@@ -25,6 +25,18 @@ link's clock (``session.now``/``sleep``), sending intermediate joint targets eve
 measured pose) once its taxels rise by :data:`TACTILE_CONTACT_COUNTS` over their values at
 the start, or its motors push hard (:data:`CONTACT_EFFORT`) while lagging the blend by
 :data:`CONTACT_LAG_RAD`.
+
+A finger stopped at a contact, or closed onto an object to its target, presses with no
+force: its fmcb stops pushing once its motors are within their deadband.  :func:`squeeze`
+(``grasp(..., squeeze=rad)``) sets each finger's target past where it is by advancing its
+proximal flexion motor (motor 1, which turns J1 only) while the other two motors keep their
+positions, so the blocked motor pushes with its effort cap for as long as the target stands
+(the hold): the cap, not a position, sets the squeeze force.  Advancing J1 in joint space
+instead would also advance motor 0, which turns J0 with J1 (the tendon differential,
+:func:`protocol.robot.joint_to_motor`): with J1 blocked by the object it would swing the
+finger sideways, off the object.  Holding motor 0 instead turns J0 back by g1/g0 of what J1
+still closes before the object stops it, so the squeeze sets its targets again from the
+measured J1 and the J0 it started from until J1 stops closing.
 """
 
 from __future__ import annotations
@@ -37,7 +49,15 @@ import numpy as np
 
 from host.errors import UsageError
 from host.hand_state import FingerState
-from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HandLayout
+from protocol.robot import (
+    DEFAULT_HAND_LAYOUT,
+    FINGER_GEAR_RATIOS,
+    HALL_STATES_PER_RAD,
+    HAND_LAYOUTS,
+    HandLayout,
+    joint_to_motor,
+    motor_to_joint,
+)
 from protocol.topology import FINGERS
 
 if TYPE_CHECKING:
@@ -59,6 +79,16 @@ CONTACT_EFFORT: Final = 150
 CONTACT_LAG_RAD: Final = 0.15
 #: ... and moves slower than this (rad/s) means contact (blocked, not accelerating).
 CONTACT_STALL_RAD_S: Final = 0.1
+#: Default squeeze (rad of J1): how far past its pose a squeezed finger's proximal motor is
+#: sent; its position error then saturates the fmcb's PD (gain 1/255 of PWM per hall count:
+#: 0.3 rad of J1 is 338 counts), so the effort cap sets the force.
+SQUEEZE_RAD: Final = 0.3
+#: A squeeze sets its targets again at most this many times (:func:`squeeze`): enough for a
+#: finger that nothing stops to close J1 across its whole range at :data:`SQUEEZE_RAD` a
+#: round and end at its limit with its spread kept; one on an object stops in two or three ...
+SQUEEZE_ROUNDS: Final = 12
+#: ... until no finger's J1 closed more than this (rad) in a round.
+SQUEEZE_SETTLED_RAD: Final = 0.02
 #: Two mounts whose extended directions are within this cosine belong to one group.
 SAME_DIRECTION_COS: Final = 0.9
 #: A finger nearer than this (m) to its group's centre line is on it.
@@ -270,9 +300,63 @@ class GraspResult:
     elapsed_s: float = 0.0
 
 
+def squeeze_target(joints: Sequence[float] | np.ndarray, squeeze: float = SQUEEZE_RAD
+                   ) -> Vec3:
+    """Joint targets (rad) that squeeze from ``joints`` (rad): the proximal flexion motor
+    (motor 1) advanced by ``squeeze`` rad of J1, motors 0 and 2 where they are (J1 target
+    ``+squeeze``, J0 target ``−squeeze·g1/g0`` so motor 0 stays, J2 unchanged)."""
+    m = list(joint_to_motor([float(q) for q in joints]))
+    m[1] += float(squeeze) * FINGER_GEAR_RATIOS[1] * HALL_STATES_PER_RAD
+    q = motor_to_joint(m)
+    return (float(q[0]), float(q[1]), float(q[2]))
+
+
+def squeeze(hand: Hand, fingers: Sequence[int] | None = None, amount: float = SQUEEZE_RAD,
+            *, effort: Sequence[int] | int | None = None, timeout: float = 1.0,
+            rounds: int = SQUEEZE_ROUNDS,
+            on_states: Callable[[float, Mapping[int, FingerState]], None] | None = None
+            ) -> dict[int, Vec3]:
+    """Press ``fingers`` (default: all four) on what they hold: each finger's target becomes
+    :func:`squeeze_target` of its pose (``amount`` rad of J1 past it), with the motor effort
+    cap ``effort`` (1/255 of full PWM) setting the force (less than ``amount`` where J1's
+    upper limit is nearer); waits up to ``timeout`` s for the
+    fingers to stall on the object.  Holding motor 0 turns J0 back by g1/g0 of whatever J1
+    still closes before the object stops it, so up to ``rounds`` times the targets are set
+    again from the measured J1, J2 and the J0 before the squeeze, until no J1 closed more
+    than :data:`SQUEEZE_SETTLED_RAD` in a round.  The targets stand until the next command,
+    so the squeeze lasts through a hold.  Returns the targets (rad) per finger."""
+    if amount < 0:
+        raise UsageError(f"squeeze {amount} rad: give a non-negative amount")
+    chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
+    states = _read(hand, chosen)
+    if on_states is not None:
+        on_states(hand.session.now(), states)
+    spread = {k: float(states[k].joints[0]) for k in chosen}
+    targets: dict[int, Vec3] = {}
+    for _ in range(max(1, rounds)):
+        targets = {}
+        for k in chosen:
+            q1 = float(states[k].joints[1])
+            # J1's target stays inside its upper limit (rounding: a µrad inside).
+            room = max(0.0, min(amount, hand.limits.upper[k][1] - 1e-6 - q1))
+            targets[k] = hand.limits.apply(k, squeeze_target(
+                (spread[k], q1, float(states[k].joints[2])), room))
+        hand.send([hand.fingers[k].make_command(targets[k], effort=effort) for k in chosen],
+                  unhomed=True)
+        hand.wait_settled(chosen, timeout)
+        before, states = states, _read(hand, chosen)
+        if on_states is not None:
+            on_states(hand.session.now(), states)
+        if all(abs(states[k].joints[1] - before[k].joints[1]) < SQUEEZE_SETTLED_RAD
+               for k in chosen):
+            break
+    return targets
+
+
 def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_RAD_S,
           fingers: Sequence[int] | None = None, until_contact: bool = False,
           effort: Sequence[int] | int | None = None, timeout: float = 3.0,
+          squeeze_rad: float = 0.0,
           unhomed: bool = False, layout: str | HandLayout | None = None,
           period: float = BLEND_PERIOD_S,
           on_states: Callable[[float, Mapping[int, FingerState]], None] | None = None
@@ -281,7 +365,9 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
     ``amount`` (0..1) at ``speed`` rad/s, then wait up to ``timeout`` s for them to settle.
     Refused for fingers not homed unless ``unhomed``; targets pass the hand's joint limits
     before anything moves.  ``on_states(t, states)`` is told every reading of the fingers'
-    status the grasp makes (the link's clock, s; finger → :class:`FingerState`)."""
+    status the grasp makes (the link's clock, s; finger → :class:`FingerState`).
+    ``squeeze_rad`` > 0: once settled, :func:`squeeze` the fingers by that much (rad of J1)
+    with ``effort``; ``targets`` then holds the squeeze's targets."""
     if speed <= 0:
         raise UsageError(f"speed {speed} rad/s: give a positive speed")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
@@ -326,6 +412,9 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
         if done:
             break
     result.move = hand.wait_settled(chosen, timeout)
+    if squeeze_rad > 0:
+        result.targets.update(squeeze(hand, chosen, squeeze_rad, effort=effort,
+                                      on_states=on_states))
     result.elapsed_s = session.now() - t0
     return result
 

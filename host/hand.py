@@ -406,7 +406,7 @@ class Hand:
     def grasp(self, name: str, amount: float = 1.0, **options: Any) -> Any:
         """Blend towards grasp or pose ``name`` at ``amount`` (0..1): see
         :func:`host.grasp.grasp` (options ``speed`` rad/s, ``fingers``, ``until_contact``,
-        ``effort``, ``timeout``, ``unhomed``, ``on_states``); returns its :class:`~host.grasp.GraspResult`."""
+        ``effort``, ``timeout``, ``squeeze_rad``, ``unhomed``, ``on_states``); returns its :class:`~host.grasp.GraspResult`."""
         from host.grasp import grasp
 
         return grasp(self, name, amount, **options)

@@ -20,7 +20,9 @@ would, with the host library and the command-line tools:
    mug's side and the thumb beside it, then in until the mug's body is between them;
 5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the
    tactile pads report contact (``Hand.grasp(..., until_contact=True)``; the fingers, then
-   the thumb), then squeezing;
+   the thumb), then squeezing (:func:`host.grasp.squeeze`: each finger's proximal flexion
+   motor sent :data:`SQUEEZE_RAD` past the contact, so its effort cap keeps the grip through
+   the lift and the hold);
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
@@ -74,7 +76,7 @@ from host.arm_control import JointController, TrackingLog, Trajectory, timed_pat
 from host.arm_kinematics import matrix_to_rpy, solve_ik
 from host.arm_recording import ArmRecorder
 from host.arm_state import ArmState
-from host.grasp import finger_roles
+from host.grasp import finger_roles, squeeze
 from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
@@ -145,6 +147,9 @@ GRASP_SYNERGY: Final = "prismatic"
 GRASP_AMOUNT: Final = 1.0
 GRASP_SPEED_RAD_S: Final = 1.0
 GRASP_EFFORT: Final = 255
+#: Squeeze (rad of J1): how far past the contact each finger's proximal motor is sent
+#: (:func:`host.grasp.squeeze`), so its effort cap, not a position, sets the grip force.
+SQUEEZE_RAD: Final = 0.3
 
 
 @dataclass(frozen=True)
@@ -425,11 +430,13 @@ class Demo:
         if not contacts:
             raise DemoFailed("grasp", "no finger felt the mug")
         self.log.result["contacts"] = dict(contacts)
-        # Contact stops a finger where it touched; squeeze: every finger on towards the
-        # closed grasp, the mug stopping it, so its motors press with their effort.
-        self.say(f"squeezing (targets of the closed grasp, effort {GRASP_EFFORT}/255)")
-        self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
-                        effort=GRASP_EFFORT, timeout=1.0, on_states=self._on_fingers)
+        # Contact stops a finger where it touched, and a finger at its target presses with
+        # no force: squeeze, every finger's proximal flexion motor sent past its pose (the
+        # mug stops it), so it presses with its effort cap through the lift and the hold.
+        self.say(f"squeezing ({SQUEEZE_RAD:g} rad of J1 past the contact, effort "
+                 f"{GRASP_EFFORT}/255)")
+        squeeze(self.hand, None, SQUEEZE_RAD, effort=GRASP_EFFORT,
+                on_states=self._on_fingers)
         self._truth()
 
     def lift(self, recorder: HandRecorder) -> None:

@@ -16,9 +16,11 @@ from host.grasp import (
     contact,
     finger_roles,
     spread_signs,
+    squeeze_target,
     synergy_targets,
 )
 from host.hand_state import FingerState
+from protocol.robot import FINGER_GEAR_RATIOS, HALL_STATES_PER_RAD, joint_to_motor
 
 
 def test_roles_come_from_the_layouts() -> None:
@@ -109,3 +111,18 @@ def test_a_blocked_flexion_joint_pushing_hard_means_contact() -> None:
     assert contact(blocked, base, (0.0, 0.5, 0.0), previous=moving) is None
     # Lagging without pushing: no contact.
     assert contact(_state(), base, (0.0, 0.5, 0.0), previous=_state()) is None
+
+
+@given(st.tuples(*(st.floats(-1.0, 1.0) for _ in range(3))), st.floats(0.0, 0.5))
+def test_a_squeeze_advances_only_the_proximal_flexion_motor(q: tuple[float, float, float],
+                                                            amount: float) -> None:
+    before = np.asarray(joint_to_motor(q))
+    after = np.asarray(joint_to_motor(squeeze_target(q, amount)))
+    advance = amount * FINGER_GEAR_RATIOS[1] * HALL_STATES_PER_RAD
+    np.testing.assert_allclose(after - before, [0.0, advance, 0.0], atol=1e-6)
+    # In joints: J1 on by the amount, J2 where it was, J0 back by g1/g0 of it (motor 0 stays).
+    target = squeeze_target(q, amount)
+    assert target[1] == pytest.approx(q[1] + amount)
+    assert target[2] == pytest.approx(q[2])
+    assert target[0] == pytest.approx(q[0] - amount * FINGER_GEAR_RATIOS[1]
+                                      / FINGER_GEAR_RATIOS[0])

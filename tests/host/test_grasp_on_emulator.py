@@ -15,7 +15,7 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from host.errors import NotHomedError
-from host.grasp import synergy_targets
+from host.grasp import SQUEEZE_ROUNDS, squeeze, synergy_targets
 from host.hand import Hand
 from tools.handctl import main
 
@@ -109,4 +109,19 @@ def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> No
             assert after[k, 1] < targets[k][1] - 0.3, k  # stopped short
         else:
             assert after[k, 1] - before[k, 1] > 0.8, k   # closed
+    hand.grasp("open", 1.0, speed=2.0, unhomed=True)
+
+
+def test_a_squeeze_closes_j1_and_keeps_the_spread(hand: Hand) -> None:
+    # Nothing stops finger 0: each round closes J1 by the squeeze (motor 1 alone), which
+    # turns J0 with it while motor 0 holds; the next round turns J0 back.  At the end J1 is
+    # far closed and J0 where it started.
+    hand.move_fingers({0: (0.0, 0.4, 0.2)}, unhomed=True)
+    before = _truth(hand)[0]
+    targets = squeeze(hand, [0], 0.3, effort=255)
+    after = _truth(hand)[0]
+    assert SQUEEZE_ROUNDS >= 3
+    assert after[1] - before[1] > 0.8, (before, after)
+    assert abs(after[0] - before[0]) < 0.05, (before, after)
+    assert targets[0][1] <= hand.limits.upper[0][1]
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)

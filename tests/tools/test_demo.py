@@ -60,9 +60,6 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
-@pytest.mark.xfail(strict=False, reason="the grasp does not hold the mug yet: it rises with "
-                   "the hand (9.5 cm at most), then slips out of the finger pads during the hold "
-                   "(see tools/demo.py)")
 def test_demo_lifts_the_mug_and_writes_report_and_recordings(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     forget_shared_emulators()
