@@ -65,7 +65,7 @@ import numpy as np
 
 from host import arm_gravity, arm_kinematics
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
-from host.errors import UsageError
+from host.errors import StallError, UsageError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
     ARM_JOINT_LIMITS,
@@ -81,6 +81,11 @@ if TYPE_CHECKING:
 
 #: The original arm's control rate (Hz).
 DEFAULT_RATE_HZ: Final = 100.0
+#: A stepper joint's STALLED latches the controller clears and re-enables within
+#: :data:`STALL_WINDOW_S` (s) before it gives up (:class:`~host.errors.StallError`): a joint
+#: that someone holds, or that carries more than it can, is not driven again and again.
+STALL_RETRIES: Final = 3
+STALL_WINDOW_S: Final = 2.0
 #: Waypoint file header.
 WAYPOINTS_KIND: Final = "arm-waypoints"
 WAYPOINTS_VERSION: Final = 1
@@ -291,6 +296,8 @@ class JointController:
         self.q_ref = self.power_up_angles()
         self.state: ArmState | None = None
         self._last_t: float | None = None
+        #: Per stepper joint, when (s) its node latched STALLED lately.
+        self._stalls: dict[int, list[float]] = {}
 
     def power_up_angles(self) -> np.ndarray:
         """Joint angles (rad) where the stepper nodes powered up (their encoder count then,
@@ -321,6 +328,22 @@ class JointController:
         return bool(np.all(error <= 2.0 * np.array(self.pid.gains.deadband) + 1e-9)
                     and all(abs(s.velocity) <= still for s in state.steppers))
 
+    def _count_stalls(self, joints: list[int], t: float) -> None:
+        """Note a STALLED latch of each of ``joints`` at ``t`` (s); raise
+        :class:`~host.errors.StallError` (torque left off) for a joint that latched more
+        than :data:`STALL_RETRIES` times within :data:`STALL_WINDOW_S`."""
+        for joint in joints:
+            recent = [u for u in self._stalls.get(joint, []) if t - u < STALL_WINDOW_S] + [t]
+            self._stalls[joint] = recent
+            if len(recent) > STALL_RETRIES:
+                name = JOINT_NAMES[joint]
+                raise StallError(
+                    f"{name} latched STALLED {len(recent)} times within {STALL_WINDOW_S:g} s "
+                    f"although the controller re-enabled it: something holds the joint or its "
+                    f"load is more than its stepper holds; its torque is left off (clear the "
+                    f"obstruction or lighten the load, then Arm.clear_errors() and torque on)",
+                    joint=name)
+
     def start(self) -> ArmState:
         """Enable every joint's torque and take the first state."""
         self.state = self.arm.torque(True)
@@ -340,9 +363,10 @@ class JointController:
                                    for i in range(N_JOINTS)]
         stalled = [s for s in state.steppers if s.stalled]
         if stalled:  # the node turned its torque off: clear the latch, torque on again
-            self.arm.clear_errors()
             if log is not None:
                 log.stall_events += [JOINT_NAMES[s.joint] for s in stalled]
+            self._count_stalls([s.joint for s in stalled], state.t)
+            self.arm.clear_errors()
             commands += [self.arm.make_torque(s.joint, True) for s in stalled]
         self.state = self.arm.cycle(commands)
         if log is not None:

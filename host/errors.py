@@ -70,6 +70,16 @@ class HomingError(HostError):
         self.joint = joint
 
 
+class StallError(HostError):
+    """A stepper joint kept latching STALLED however often the controller re-enabled it:
+    something holds it, or its load is more than its stepper holds.  Its torque is left off
+    (the node turned it off).  ``joint`` names it (``"J1"`` … ``"J4"``)."""
+
+    def __init__(self, message: str, *, joint: str) -> None:
+        super().__init__(message)
+        self.joint = joint
+
+
 class NotHomedError(UsageError):
     """A motion command for a finger whose hall offsets were never set (``Hand.home``);
     ``unhomed=True`` overrides.  ``fingers`` lists the fingers concerned."""

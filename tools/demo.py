@@ -78,6 +78,7 @@ from host.arm_recording import ArmRecorder
 from host.arm_state import ArmState
 from host.grasp import finger_roles, squeeze
 from host.hand import Hand
+from host.hand_homing import FingerMovingError, HomeResult
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
 from protocol.control_tables import STEPPER_TABLE
@@ -123,6 +124,10 @@ READY_UP_M: Final = 0.12
 #: Joint angles (rad, J1..J7) the grasp's inverse kinematics starts from, which pick its arm
 #: configuration: the upper arm rolled (J3) so the elbow bends sideways and the forearm hangs
 #: steeply, the wrist turning the palm upright (see the module docs, **Torque**).
+#: Tries at homing a finger that is still swaying after the wrist's tilt, and the rest (s,
+#: simulated) before each retry.
+HOMING_ATTEMPTS: Final = 3
+HOMING_RETRY_S: Final = 1.0
 GRASP_SEED_Q: Final = (0.95, 0.81, -2.31, 1.4, 0.73, 0.64, 1.05)
 #: Speed of the fastest joint in the joint-space moves, and left in the nodes' speed
 #: registers for the Cartesian moves' controller (rad/s).
@@ -323,20 +328,33 @@ class Demo:
             self._move((0.0, 0.0, 0.0, 0.0, 0.0, j6, j7), 4.0)
             self.hand.session.sleep(2.0)  # the elastic arm and the fingers come to rest
             for k in fingers:
-                result = self.hand.home(k)[0]
+                result = self._home_finger(k)
                 homed[k] = result.homed
-                q = ", ".join(f"{v:+.2f}" for v in result.joints)
+                q = ", ".join(f"{v:+.2f}" for v in result.joints or ())
                 self.say(f"hand: wrist tilted J6 {j6:+.1f} J7 {j7:+.1f} rad; finger {k} "
                          f"homed from its accelerometers at ({q}) rad")
         missing = [k for k, ok in homed.items() if not ok]
         if missing:
             raise DemoFailed("homing", f"fingers {missing} not homed")
 
+    def _home_finger(self, k: int) -> HomeResult:
+        """Home finger ``k``; a finger still swaying after the wrist's tilt
+        (:class:`FingerMovingError`) is given :data:`HOMING_RETRY_S` more to rest, up to
+        :data:`HOMING_ATTEMPTS` tries, as one would at the bench."""
+        for attempt in range(1, HOMING_ATTEMPTS + 1):
+            try:
+                return self.hand.home(k)[0]
+            except FingerMovingError as exc:
+                if attempt == HOMING_ATTEMPTS:
+                    raise
+                self.say(f"hand: finger {k} still moving ({exc}); "
+                         f"waiting {HOMING_RETRY_S:.0f} s")
+                self.hand.session.sleep(HOMING_RETRY_S)
+        raise AssertionError("unreachable")
+
     def _move(self, pose: tuple[float, ...], timeout: float) -> None:
         """A joint-space move of the nodes themselves at :data:`JOINT_SPEED_RAD_S` on every
-        joint (for the servos' homing tilts: the steppers stay where they are).  (Not
-        ``Arm.move(duration=…)``: it leaves the joints that did not move at 0.001 rad/s in
-        their speed registers, and a later controller's goals then crawl.)"""
+        joint (for the servos' homing tilts: the steppers stay where they are)."""
         self.arm.set_positions(list(pose), [JOINT_SPEED_RAD_S] * len(pose))
         self.arm.move(list(pose), timeout=timeout)
         self._check_arm()

@@ -18,6 +18,7 @@ from host.arm import Arm
 from host.arm_control import (
     ENCODER_COUNT_RAD,
     MIN_JERK_PEAK,
+    STALL_RETRIES,
     JointController,
     JointPid,
     PidGains,
@@ -31,7 +32,7 @@ from host.arm_control import (
     save_waypoints,
     timed_path,
 )
-from host.errors import UsageError
+from host.errors import StallError, UsageError
 from protocol.robot import ARM_INDEX_ANGLES
 from tools import armctl
 
@@ -228,3 +229,29 @@ def test_the_controller_settles_within_its_deadband(arm: Arm) -> None:
     off = goals.copy()
     off[0] += 3 * ENCODER_COUNT_RAD  # three counts off: not where the loop rests
     assert not control.settled(state, off)
+
+
+def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
+    """A hand holding the forearm while the elbow is driven: the node latches STALLED, the
+    controller clears and re-enables it a few times, then raises StallError naming J4 and
+    leaves its torque off instead of driving it again and again."""
+    with Arm.open("emu://arm/arm?name=test_stall_gives_up") as held:
+        plant = held.transport.emulator.arm_plant  # type: ignore[attr-defined]
+        try:
+            control = JointController(held)
+            start = np.array(control.start().joints)
+            plant.push(3, -25.0)  # more than the elbow's stepper moves against
+            goal = start.copy()
+            goal[3] += 0.6
+            log = TrackingLog()
+            t0 = held.transport.now()
+            with pytest.raises(StallError) as caught:
+                control.run(Trajectory(timed_path([start, goal], 0.3)), 10.0, log)
+            assert caught.value.joint == "J4" and "J4 latched STALLED" in str(caught.value)
+            assert log.stall_events.count("J4") == STALL_RETRIES + 1
+            assert held.transport.now() - t0 < 10.0  # gave up long before the run's end
+            held.transport.sleep(0.1)
+            assert held.state().steppers[3].stalled  # latched, and left so: torque off
+        finally:
+            plant.push(3, 0.0)
+            forget_shared_emulators()
