@@ -328,7 +328,7 @@ def squeeze(hand: Hand, fingers: Sequence[int] | None = None, amount: float = SQ
     if amount < 0:
         raise UsageError(f"squeeze {amount} rad: give a non-negative amount")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
-    states = _read(hand, chosen)
+    states = hand.finger_states(chosen)
     if on_states is not None:
         on_states(hand.session.now(), states)
     spread = {k: float(states[k].joints[0]) for k in chosen}
@@ -344,7 +344,7 @@ def squeeze(hand: Hand, fingers: Sequence[int] | None = None, amount: float = SQ
         hand.send([hand.fingers[k].make_command(targets[k], effort=effort) for k in chosen],
                   unhomed=True)
         hand.wait_settled(chosen, timeout)
-        before, states = states, _read(hand, chosen)
+        before, states = states, hand.finger_states(chosen)
         if on_states is not None:
             on_states(hand.session.now(), states)
         if all(abs(states[k].joints[1] - before[k].joints[1]) < SQUEEZE_SETTLED_RAD
@@ -376,7 +376,7 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
     if not unhomed:
         hand._require_homed(chosen)
     session = hand.session
-    baseline = _read(hand, chosen)
+    baseline = hand.finger_states(chosen)
     if on_states is not None:
         on_states(session.now(), baseline)
     start = {k: np.asarray(baseline[k].joints) for k in chosen}
@@ -393,7 +393,7 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
         done = all(np.allclose(now_targets[k], targets[k]) for k in active)
         if until_contact:
             session.sleep(period)
-            states = _read(hand, active)
+            states = hand.finger_states(active)
             now = session.now()
             if on_states is not None:
                 on_states(now, states)
@@ -417,13 +417,3 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
                                       on_states=on_states))
     result.elapsed_s = session.now() - t0
     return result
-
-
-def _read(hand: Hand, fingers: Sequence[int]) -> dict[int, FingerState]:
-    pending = {k: hand.fingers[k].motor.start("fmcb.status") for k in fingers}
-    out = {}
-    for k, p in pending.items():
-        s = FingerState(k)
-        s.update_from_status(hand.session.wait(p))
-        out[k] = s
-    return out

@@ -297,6 +297,17 @@ class Hand:
         return [code_name(FingerPower, s, "power") for s in reply["states"]]
 
     # --- state -------------------------------------------------------------------------------
+    def finger_states(self, fingers: Sequence[int]) -> dict[int, FingerState]:
+        """One ``fmcb.status`` of each of ``fingers``, the requests in flight together;
+        finger index → :class:`FingerState`."""
+        pending = {k: self.fingers[k].motor.start("fmcb.status") for k in fingers}
+        states = {}
+        for k, p in pending.items():
+            state = FingerState(k)
+            state.update_from_status(self.session.wait(p))
+            states[k] = state
+        return states
+
     def status(self, fingers: bool = True) -> HandState:
         """The hand now: the palm's summary and (``fingers``) each answering finger's fmcb
         status; requests go out together, so this costs about one finger round trip."""
@@ -448,12 +459,7 @@ class Hand:
             # First wait: the fmcb refreshes its status snapshot every 5 ms, so a status
             # read at once may still show the old target.
             self.session.sleep(SETTLE_POLL_S)
-            pending = {k: self.fingers[k].motor.start("fmcb.status") for k in fingers}
-            states = {}
-            for k, p in pending.items():
-                s = FingerState(k)
-                s.update_from_status(self.session.wait(p))
-                states[k] = s
+            states = self.finger_states(fingers)
             now = self.session.now()
             near, stalled = [], []
             for k, s in states.items():
