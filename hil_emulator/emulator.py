@@ -420,7 +420,9 @@ class Emulator:
         wakes it), then polls.  Catching up, it runs at most :data:`CATCH_UP_BUDGET_S` of
         events before serving the ports and looking at ``stop`` again, and serves the ports
         as soon as host input is waiting (a look every :data:`CATCH_UP_EVENTS` events); more than
-        :data:`MAX_BEHIND_S` behind, the simulation clock slips (:attr:`slipped_s`).
+        :data:`MAX_BEHIND_S` behind, the simulation clock slips (:attr:`slipped_s`).  How far
+        behind it was when ``stop`` was set is recorded as lateness too (a process stopped
+        and resumed, then told to stop, may never have run an event in between).
         Fast: the simulation runs ``fast_chunk_us`` at a time as fast as it can, polling the
         ports between chunks.  ``on_idle`` is called about every 16 ms of wall time (the
         viewer's sync)."""
@@ -466,6 +468,11 @@ class Emulator:
                 select.select(fds, [], [], wait - self.spin_s)
             else:
                 time.sleep(wait - self.spin_s)
+        if realtime:  # how far behind it was when told to stop counts too
+            now = time.monotonic()
+            due = scheduler.next_due_us()
+            if due is not None and due < self._wall_us(now):
+                self._note_lateness((self._wall_us(now) - due) / 1e3, now)
 
     def lateness_stats(self) -> dict[str, float | None]:
         """Real-time delivery lateness (ms): count, median, p99, max (None before any
