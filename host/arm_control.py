@@ -448,12 +448,12 @@ def _candidate(ik: arm_kinematics.IkResult, q_now: np.ndarray, hand: bool,
     on the way no joint more loaded than that or than it already is at ``q_now`` (a move
     away from a heavy pose is allowed)."""
     stall = arm_gravity.stall_torques()
-    start = np.abs(arm_gravity.holding_torques(q_now, hand)[:N_STEPPERS]) / stall
+    start = np.abs(arm_gravity.spring_torques(q_now, hand)) / stall
     allowed = np.maximum(start, load_limit)
     worst = (0, 0.0, -1.0)
     safe = True
     for a in np.linspace(0.0, 1.0, 11)[1:]:
-        torques = arm_gravity.holding_torques(q_now + a * (ik.q - q_now), hand)[:N_STEPPERS]
+        torques = arm_gravity.spring_torques(q_now + a * (ik.q - q_now), hand)
         fractions = np.abs(torques) / stall
         safe = safe and bool(np.all(fractions <= (load_limit if a == 1.0 else allowed)))
         j = int(np.argmax(fractions))

@@ -17,6 +17,13 @@ the joint's origin and axis).  On a series-elastic joint J1..J4 the spring carri
 ``τ = k · (motor − joint)`` (:data:`~protocol.robot.SERIES_ELASTIC_STIFFNESS_NM_PER_RAD`),
 so the node's deflection register reads ``τ / k`` at rest.
 
+**Spring torque** (:func:`spring_torques`): the belt and cable routes couple J1..J4 (the
+capstan of ``i`` turns by ``Σ_j C[i][j]·Δq_j``, :data:`~protocol.robot.ARM_ROUTE_COUPLING`),
+so by virtual work a spring's torque also acts on the joints its route passes: joint ``j``
+feels ``τ_j − Σ_i C[i][j]·τ_i``.  At rest that balances gravity, ``(I − Cᵀ)·τ = g``: the
+springs carry more than the holding torques, the shoulder J2 most (+0.18 × the elbow's
+spring torque).  This is what the nodes' stall latch sees.
+
 **Stall limit** (:func:`stall_torques`): the node latches STALLED (torque off) when
 ``|deflection|`` exceeds its ``deflection_limit`` register (150 counts by default,
 :data:`protocol.control_tables.STEPPER_TABLE`): ``k · 150 · 2π/10000`` N·m, 8.1 N·m at the
@@ -40,6 +47,7 @@ from protocol.robot import (
     HAND_COM_ON_FLANGE_M,
     HAND_MASS_KG,
     SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
+    arm_route_coupling_matrix,
     encoder_counts_to_rad,
 )
 
@@ -95,10 +103,18 @@ def holding_torques(q: Vector, hand: bool = False) -> np.ndarray:
     return torques
 
 
+def spring_torques(q: Vector, hand: bool = False) -> np.ndarray:
+    """The torque (N·m) the series-elastic springs of J1..J4 carry holding the arm still at
+    ``q`` (rad): ``(I − Cᵀ)⁻¹ · g`` with ``g`` the holding torques of J1..J4 and ``C`` the
+    routes' coupling (see the module's docstring); ``k × deflection`` at rest."""
+    c = arm_route_coupling_matrix()
+    held = holding_torques(q, hand)[:ARM_STEPPER_JOINTS]
+    return np.asarray(np.linalg.solve(np.eye(ARM_STEPPER_JOINTS) - c.T, held))
+
+
 def stepper_load_fractions(q: Vector, hand: bool = False,
                            deflection_limit_counts: float = DEFAULT_DEFLECTION_LIMIT_COUNTS
                            ) -> np.ndarray:
-    """``|holding torque| / stall torque`` of J1..J4 at ``q`` (rad): 1 is the STALLED latch."""
-    return (np.abs(holding_torques(q, hand)[:ARM_STEPPER_JOINTS])
-            / stall_torques(deflection_limit_counts))
+    """``|spring torque| / stall torque`` of J1..J4 at ``q`` (rad): 1 is the STALLED latch."""
+    return np.abs(spring_torques(q, hand)) / stall_torques(deflection_limit_counts)
 

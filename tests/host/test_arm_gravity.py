@@ -47,6 +47,19 @@ def test_hanging_arm_holds_nothing_and_the_hand_adds_load() -> None:
     assert bare[0] == pytest.approx(0.0, abs=1e-9)  # J1's axis is vertical
 
 
+def test_the_springs_carry_the_routes_coupling_besides_gravity() -> None:
+    """By virtual work each spring also loads the joints its route passes: (I − Cᵀ)·τ = g,
+    with C's three entries (J2 → J3 capstan −0.12, J2 → J4 +0.18, J3 → J4 +0.08)."""
+    q = [0.3, 0.5, 0.4, 0.4, 0.0, 0.3, 0.0]
+    g = arm_gravity.holding_torques(q, hand=True)[:4]
+    s = arm_gravity.spring_torques(q, hand=True)
+    assert s[3] == pytest.approx(g[3])                        # no route passes the wrist
+    assert s[2] == pytest.approx(g[2] + 0.08 * s[3])
+    assert s[1] == pytest.approx(g[1] - 0.12 * s[2] + 0.18 * s[3])
+    assert s[1] - g[1] > 0.5                                  # the elbow's load, on J2
+    assert s[0] == pytest.approx(g[0])
+
+
 #: Poses (rad) to hold still, without and with the hand: loads of 5-9 N·m on J2 and 2 N·m on
 #: J4 without the hand; 55-60 % of the stall torques of J2 and J4 with it (the full robot
 #: then moves on from there: a pose held near a stall limit would latch STALLED at the first
@@ -82,9 +95,10 @@ def _check_holding_torques(arm: Arm, poses: tuple[list[float], ...], hand: bool)
         assert not any(s.stalled or s.slip for s in state.steppers)
         measured = (np.array(SERIES_ELASTIC_STIFFNESS_NM_PER_RAD)
                     * elastic_deflections(state, control.q_ref))
-        predicted = arm_gravity.holding_torques(state.joints, hand)[:4]
+        predicted = arm_gravity.spring_torques(state.joints, hand)
         # J2 and J4 carry several N·m: within 10 % (or the plant's coupling hysteresis and
-        # bearing friction, 0.5 N·m); J3 little (friction's share is large)
+        # bearing friction, 0.5 N·m, of either sign: it depends on the way the pose was
+        # approached); J3 little (friction's share is large)
         assert measured[[1, 3]] == pytest.approx(predicted[[1, 3]], rel=0.10, abs=0.5)
         assert measured[2] == pytest.approx(predicted[2], abs=0.6)
 
