@@ -229,7 +229,7 @@ def _compiled_note() -> str:
 
 
 def run(quick: bool) -> list[Result]:
-    sim_s = 2.0 if quick else 5.0
+    sim_s = 1.0 if quick else 5.0
     firmware_only = fast_rtf(physics=False, sim_s=sim_s)
     full = fast_rtf(physics=True, sim_s=sim_s)
     heavy = fast_rtf(physics=True, sim_s=sim_s, heavy=True)
@@ -246,7 +246,7 @@ def run(quick: bool) -> list[Result]:
                note=f"+ palm polls fingers at 100 Hz, arm SYNC_WRITE at 100 Hz; "
                     f"{1 / heavy.cpu_per_sim_s:.2f} sim-s per CPU s"),
     ]
-    wall_s = 3.0 if quick else 8.0
+    wall_s = 2.0 if quick else 8.0
     idle = realtime_lateness(wall_s, "full")
     with cpu_hog():
         hogged = realtime_lateness(wall_s, "full")

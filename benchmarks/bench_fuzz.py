@@ -22,13 +22,13 @@ GROUP = "fuzz"
 
 
 def run(quick: bool = False) -> list[Result]:
-    examples = 20 if quick else 60
+    examples = 10 if quick else 60
     clean = run_campaign("fmcb", examples=examples, seed=11, steps=12)
     rate = clean.examples / clean.seconds
     results = [Result(GROUP, "fmcb campaign (emulator, fast)", rate, "ex",
                       note=f"{clean.steps_sent / clean.seconds:.0f} steps/s, "
                            f"{'FOUND ' + clean.reproducer.failure if clean.reproducer else 'clean'}")]
-    seeds = range(2 if quick else 3)
+    seeds = range(1 if quick else 3)
     saved = boards.APP_PROGRAMS["fmcb"]
     from tests.tools.fuzz_planted import PROGRAM
 

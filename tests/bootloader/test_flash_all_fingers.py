@@ -222,7 +222,7 @@ def test_interrupted_flashing_resumes_and_never_boots_an_unverified_image(
 
 
 @pytest.mark.slow
-@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
 @given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(1, 320))
 def test_interrupted_flashing_resumes_many_cases(kind: str, finger: int, after: int) -> None:
     interrupt_and_resume(kind, finger, after)

@@ -15,8 +15,8 @@ import pytest
 from tools import build_compiled
 from tools.build_compiled import COMPILED_MODULES, ROOT, clean, compiled_files
 
-#: What the slow test compiles: the scheduler and the wire formats (every frame and tick).
-SMOKE_MODULES = COMPILED_MODULES[:5]
+#: What the slow test compiles: the scheduler, the CRCs and the frame codec (every frame and tick).
+SMOKE_MODULES = COMPILED_MODULES[:3]
 #: What a compiled traffic record needs besides the compiled modules themselves.
 PACKAGES = ("protocol", "firmware_py", "hil_emulator", "tools")
 
@@ -68,7 +68,7 @@ def _digest_of(root: Path) -> str:
 def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
     """Build into a copy of the packages, then compare the traffic digest with pure Python.
 
-    The clock and the wire formats only (:data:`SMOKE_MODULES`): building all of
+    The clock, the CRCs and the frame codec only (:data:`SMOKE_MODULES`): building all of
     ``COMPILED_MODULES`` takes about five minutes, too long for ``make test``; the same
     build path compiles the rest (``make compiled``)."""
     if shutil.which("cc") is None and shutil.which("gcc") is None:
