@@ -104,7 +104,7 @@ BL_INFO = c.Struct(
     "header" / c.Bytes(HEADER_SIZE) * "[-] the installed image header as stored in flash",
 )
 
-MESSAGES = [
+MESSAGES: list[Message] = [
     Message(
         "bl.status",
         "bootloader",

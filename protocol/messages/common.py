@@ -65,7 +65,7 @@ TXN_REPLY = c.Struct(
     "inner" / c.GreedyBytes * "[-] reply payload of the wrapped message (empty unless ok)",
 )
 
-MESSAGES = [
+MESSAGES: list[Message] = [
     Message("ping", "common", 0x01, EMPTY, EMPTY, "Is anybody there? Empty reply."),
     Message("reset", "common", 0x09, EMPTY, EMPTY, "Acknowledge, then reset the node."),
     Message(

@@ -86,7 +86,7 @@ HALL_COUNTS = c.Struct(
     "velocity" / c.Array(3, c.Int32sl) * "[hall counts/s] motor velocities",
 )
 
-MESSAGES = [
+MESSAGES: list[Message] = [
     Message("fmcb.imu", "fmcb", 0x10, EMPTY, IMU6, "Motor-module accelerometer and magnetometer."),
     Message(
         "fmcb.halls",

@@ -81,7 +81,7 @@ HAND_STATUS = c.Struct(
     "fingers" / c.Array(FINGERS, _FINGER_SUMMARY) * "[-] one summary per finger",
 )
 
-MESSAGES = [
+MESSAGES: list[Message] = [
     Message(
         "palm.tactile",
         "palm",

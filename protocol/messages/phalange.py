@@ -46,7 +46,7 @@ def _phalange(node: str) -> list[Message]:
     ]
 
 
-MESSAGES = [
+MESSAGES: list[Message] = [
     *_phalange("f2"),
     *_phalange("f3"),
     Message(
