@@ -18,6 +18,7 @@ A ``seed`` makes a run repeatable: same seed, same inputs → same frames, same 
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import os
 import select
@@ -43,9 +44,16 @@ CONFIGS: Final = ("full", "hand", "arm", "loose-finger")
 #: Longest the real-time loop sleeps without looking at its stop flag (s); host input and
 #: signals wake it earlier.
 MAX_SLEEP_S: Final = 0.02
-#: The real-time loop sleeps until this long before the next event and polls from there
-#: (s): a sleeper is woken up to a few hundred µs late.
-SPIN_S: Final = 0.0003
+#: The real-time loop sleeps until this long before the next event and spins from there
+#: (s): with :data:`TIMER_SLACK_NS` a sleeper wakes within tens of µs of its deadline.
+SPIN_S: Final = 0.00005
+#: While it is not asleep, the real-time loop reads its ports at least this often (s); asleep,
+#: host input wakes it at once.
+POLL_S: Final = 0.0002
+#: Timer slack (ns) the real-time loop asks of Linux for its own sleeps: the default 50 µs
+#: would wake it up to that late.
+TIMER_SLACK_NS: Final = 10_000
+_PR_SET_TIMERSLACK: Final = 29
 #: Events run between looks at the wall clock, the stop flag and the ports while catching
 #: up (the full configuration runs about 35 events per ms of CPU: a look every ~0.6 ms).
 CATCH_UP_EVENTS: Final = 20
@@ -64,6 +72,16 @@ STAND_Z_M: Final = 0.4
 LATENESS_SAMPLES: Final = 200_000
 
 CanMode = str  # "slcan" (a pty), "virtual:<channel>" (python-can, same process), "none"
+
+
+def tighten_timer_slack(slack_ns: int = TIMER_SLACK_NS) -> bool:
+    """Ask Linux to wake this thread's timed sleeps within ``slack_ns`` ns of their deadline
+    (``prctl(PR_SET_TIMERSLACK)``; no privilege needed).  False where it cannot be set."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return bool(libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(slack_ns), 0, 0, 0) == 0)
+    except (OSError, AttributeError):
+        return False
 
 
 class Emulator:
@@ -430,7 +448,12 @@ class Emulator:
         self._wall0 = time.monotonic()
         self._sim0 = self.scheduler.now_us()
         self._last_input_us = self._sim0
+        if realtime:
+            tighten_timer_slack()
         next_idle = self._wall0
+        next_poll = 0.0
+        readable = True  # look at the ports first
+        fds: list[int] = []
         scheduler = self.scheduler
         while not stop.is_set():
             now = time.monotonic()
@@ -440,15 +463,20 @@ class Emulator:
             if not realtime:
                 self.step(fast_chunk_us)
                 continue
-            self._poll_links()  # input is scheduled at the simulation time of "now"
-            # Descriptors each time: a port that vanished and came back has a new one.
-            fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]
-            now = time.monotonic()
+            if readable or now >= next_poll:
+                self._poll_links()  # input is scheduled at the simulation time of "now"
+                # Descriptors each time: a port that vanished and came back has a new one.
+                fds = [fd for link in self.links.values() if (fd := link.fileno()) >= 0]
+                next_poll = now + POLL_S
+                readable = False
+                now = time.monotonic()
             target = self._wall_us(now)
             deadline = now + CATCH_UP_BUDGET_S
             while scheduler.run_some(target, CATCH_UP_EVENTS) == CATCH_UP_EVENTS:
-                if (stop.is_set() or time.monotonic() >= deadline
-                        or (fds and select.select(fds, [], [], 0)[0])):
+                if stop.is_set() or time.monotonic() >= deadline:
+                    break
+                if fds and select.select(fds, [], [], 0)[0]:
+                    readable = True
                     break  # host input is served before the rest of the backlog
             now = time.monotonic()
             now_us = self._wall_us(now)
@@ -465,7 +493,7 @@ class Emulator:
             if wait <= self.spin_s:
                 continue  # the next event is close: poll for it
             if fds:
-                select.select(fds, [], [], wait - self.spin_s)
+                readable = bool(select.select(fds, [], [], wait - self.spin_s)[0])
             else:
                 time.sleep(wait - self.spin_s)
         if realtime:  # how far behind it was when told to stop counts too
