@@ -481,8 +481,8 @@ class Emulator:
             now = time.monotonic()
             now_us = self._wall_us(now)
             due = scheduler.next_due_us()
-            if due is not None and due < now_us:  # behind: serve the ports, then go on
-                behind_us = now_us - due
+            behind_us = self._behind_us(due, now_us)
+            if behind_us:  # behind: serve the ports, then go on
                 self._note_lateness(behind_us / 1e3, now)
                 if behind_us > MAX_BEHIND_S * 1e6:
                     self._wall0 += behind_us / 1e6
@@ -498,9 +498,15 @@ class Emulator:
                 time.sleep(wait - self.spin_s)
         if realtime:  # how far behind it was when told to stop counts too
             now = time.monotonic()
-            due = scheduler.next_due_us()
-            if due is not None and due < self._wall_us(now):
-                self._note_lateness((self._wall_us(now) - due) / 1e3, now)
+            behind_us = self._behind_us(scheduler.next_due_us(), self._wall_us(now))
+            if behind_us:
+                self._note_lateness(behind_us / 1e3, now)
+
+    @staticmethod
+    def _behind_us(due_us: int | None, now_us: int) -> int:
+        """How long (µs) the next event, due at ``due_us``, is overdue at ``now_us``; 0 if
+        it is not (or there is none)."""
+        return now_us - due_us if due_us is not None and due_us < now_us else 0
 
     def lateness_stats(self) -> dict[str, float | None]:
         """Real-time delivery lateness (ms): count, median, p99, max (None before any

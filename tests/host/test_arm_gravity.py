@@ -68,20 +68,22 @@ BARE_POSES: Final = ([0.0, 0.6, 0.0, 0.9, 0.0, 0.0, 0.0], [0.3, 1.0, 0.4, 0.5, 0
 HAND_POSES: Final = ([0.3, 0.5, 0.4, 0.4, 0.0, 0.3, 0.0], [-0.3, 0.6, -0.3, 0.2, 0.0, 0.3, 0.0])
 
 
-@pytest.fixture(scope="module")
-def bare_arm() -> Iterator[Arm]:
-    with Arm.open("emu://arm/arm?name=test_arm_gravity_bare") as opened:
+def _homed_arm(url: str) -> Iterator[Arm]:
+    """The arm at ``url``, homed, for a module's tests; its emulator forgotten after."""
+    with Arm.open(url) as opened:
         opened.home()
         yield opened
     forget_shared_emulators()
+
+
+@pytest.fixture(scope="module")
+def bare_arm() -> Iterator[Arm]:
+    yield from _homed_arm("emu://arm/arm?name=test_arm_gravity_bare")
 
 
 @pytest.fixture(scope="module")
 def full_arm() -> Iterator[Arm]:
-    with Arm.open("emu://full/arm?name=test_arm_gravity_moveto") as opened:
-        opened.home()
-        yield opened
-    forget_shared_emulators()
+    yield from _homed_arm("emu://full/arm?name=test_arm_gravity_moveto")
 
 
 def _check_holding_torques(arm: Arm, poses: tuple[list[float], ...], hand: bool) -> None:
