@@ -45,8 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a Dask distributed scheduler (tcp://127.0.0.1:8786) instead")
     lf = sub.add_parser("list-faults", help="the fault catalogue with parameters")
     lf.add_argument("--json", action="store_true", help="as JSON")
-    ex = sub.add_parser("experiments", help="bench experiments (tools.bench_experiments)")
-    ex.add_argument("args", nargs=argparse.REMAINDER)
+    # ``experiments`` takes its own options (--json, --report …), which argparse's REMAINDER
+    # would refuse when they come first: main hands them over before parsing
+    sub.add_parser("experiments", help="bench experiments (tools.bench_experiments): "
+                   "hil-bench experiments [--json] [--report DIR] [--only NAME …] [--seed N]",
+                   add_help=False)
     return parser
 
 
@@ -126,11 +129,12 @@ def experiments(argv: Sequence[str]) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "experiments":
+        return experiments(argv[1:])
     args = build_parser().parse_args(argv)
     if args.command == "list-faults":
         return list_faults(args.json)
-    if args.command == "experiments":
-        return experiments(args.args)
     return run(args)
 
 

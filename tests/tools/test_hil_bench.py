@@ -121,7 +121,9 @@ def test_experiments_dispatches_or_says_the_module_is_missing(
     fake.main = lambda argv: seen.append(argv) or 0  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, "tools.bench_experiments", fake)
     assert hil_bench.main(["experiments", "sweep", "--x", "1"]) == 0
-    assert seen == [["sweep", "--x", "1"]]
+    # its own options first, as a user types them (argparse's REMAINDER refused these)
+    assert hil_bench.main(["experiments", "--json", "--report", "out"]) == 0
+    assert seen == [["sweep", "--x", "1"], ["--json", "--report", "out"]]
     monkeypatch.setitem(sys.modules, "tools.bench_experiments", None)  # import fails
     monkeypatch.setattr(hil_bench.importlib, "import_module", _missing)
     assert hil_bench.main(["experiments"]) == 2
