@@ -71,8 +71,11 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_parser("home", help="find every stepper joint's encoder index (moves J1-J4 "
                                 "slowly a little)")
     moveto = sub.add_parser("moveto", help="move the flange to X Y Z (m, base frame)")
-    moveto.add_argument("xyz", nargs=3, type=float, metavar=("X", "Y", "Z"))
-    moveto.add_argument("--rpy", nargs=3, type=float, default=None, metavar=("R", "P", "Y"),
+    # three positionals, not nargs=3 with a tuple metavar: argparse's help crashes on that
+    for axis in "xyz":
+        moveto.add_argument(axis, type=float, metavar=axis.upper(),
+                            help=f"flange {axis} (m, base frame)")
+    moveto.add_argument("--rpy", nargs=3, type=float, default=None, metavar="ANGLE",
                         help="flange orientation: roll pitch yaw (rad, fixed base axes)")
     moveto.add_argument("--unhomed", action="store_true",
                         help="move although the arm is not homed")
@@ -154,7 +157,7 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _require_homed(arm, args, "moveto")
-    result = arm.moveto(args.xyz, args.rpy, allow_unhomed=args.unhomed,
+    result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
                         settle_timeout=args.timeout, hand=not args.no_hand)
     data = {"reached": result.reached, "goals": list(result.goals),
             "position_error_m": result.position_error, **result.state.as_dict()}
