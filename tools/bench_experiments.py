@@ -637,7 +637,7 @@ def _plots(outcomes: Sequence[Outcome], out: Path) -> list[str]:
         else:
             continue
         name = f"{o.name}.png"
-        fig.savefig(out / name, dpi=90)
+        fig.savefig(out / name, dpi=90, bbox_inches="tight")  # axis labels kept
         plt.close(fig)
         written.append(name)
     return written
