@@ -300,16 +300,18 @@ class StepperNodeApp(DynamixelSlave):
         self._enc_history.append(enc)
         hw_steps = stepper.step_count()
         mpc = self._mpc
-        # deflection: SLIP and STALLED latch
+        # deflection: SLIP and STALLED latch while the coils hold (unpowered, the rotor
+        # turns with the joint and the step count cannot follow: no load, no lost steps)
         value = round((hw_steps - self._hw_steps0) / mpc) - (enc - self._enc0)
         deflection = _INT16_MIN if value < _INT16_MIN else _INT16 if value > _INT16 else value
-        size = deflection - self._deflection_offset
-        if size < 0:
-            size = -size
-        if size > self._slip_threshold:
-            self._flags |= _SLIP
-        if size > self._deflection_limit:
-            self._flags |= _STALLED
+        if self._torque_enable:
+            size = deflection - self._deflection_offset
+            if size < 0:
+                size = -size
+            if size > self._slip_threshold:
+                self._flags |= _SLIP
+            if size > self._deflection_limit:
+                self._flags |= _STALLED
         # live alarms; a shutdown one turns the torque off
         read = self.hal.sensors.read
         temperature = read("temperature")

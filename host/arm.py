@@ -28,10 +28,11 @@ torque would latch STALLED.  So when a cycle turns on a stepper's torque that th
 turned off and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first
 sends that node its command block (the goal it has, the coupling offset now) and
 ``clear_flags`` RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin
-to match (``step_count`` moves with it); SLIP/STALLED latched while unpowered are cleared
-with it, latches the joint had when its torque went off stay.  The joint then heads for the
-goal it had.  (Torque the node turned off itself - an alarm - or that was off when this arm
-opened is not re-synced.)
+to match (``step_count`` moves with it); latches the joint had when its torque went off
+stay (a node latches SLIP/STALLED only while its coils hold).  The joint then heads for the
+goal it had.  A stepper found unpowered and without a latch when the arm opens (power-up,
+or another program turned it off: ``armctl waypoints record`` then ``play``) is treated the
+same way.  Torque the node turned off itself (an alarm, its latch set) is not re-synced.
 
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
@@ -135,6 +136,7 @@ _SERVO_SLOW_FIELDS = struct.Struct("<BB")  # voltage (0.1 V), temperature (°C)
 assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
 assert SERVO_READ_LEN + _SERVO_SLOW_FIELDS.size == SERVO_SLOW_READ_LEN
 _GOAL = _S["command_goal"]
+_TORQUE = _S["torque_enable"]
 _OFFSET = _S["deflection_offset"]
 #: The stepper command block (command_goal, deflection_offset): address and length.
 COMMAND_AT: Final = _S[STEPPER_COMMAND_BLOCK[0]].address
@@ -173,9 +175,10 @@ class Arm:
         self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
-        #: Stepper joints whose torque this arm turned off: joint -> (encoder count, latched
+        #: Stepper joints whose torque is off: joint -> (encoder count, latched
         #: SLIP/STALLED flags) in the state read with that command.
-        self._unpowered: dict[int, tuple[int, StepperFlag]] = {}
+        #: Those found unpowered when the arm opened have no count (None): any move counts.
+        self._unpowered: dict[int, tuple[int | None, StepperFlag]] = {}
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
@@ -274,7 +277,16 @@ class Arm:
                                       for j in self.steppers])
         self.stepper_goals = [_GOAL.decode(replies[j.dxl_id].params) / GOAL_FINE_PER_COUNT
                               for j in self.steppers]
-        self.cycle()
+        torque = self.bus.bulk_read([(_TORQUE.size, j.dxl_id, _TORQUE.address)
+                                     for j in self.steppers])
+        state = self.cycle()
+        for k, j in enumerate(self.steppers):
+            # unpowered and not alarmed (a node latches SLIP/STALLED only while its coils
+            # hold): whoever turned its torque off, another program or power-up, the rotor
+            # turned with the joint since, so enabling it re-syncs the node first
+            if (not _TORQUE.decode(torque[j.dxl_id].params)
+                    and not state.steppers[k].flags & _LATCHES):
+                self._unpowered[k] = (None, StepperFlag(0))
 
     def deflection_offsets(self) -> list[int]:
         """What each stepper node's deflection differs from its elastic element's by, now
@@ -369,15 +381,17 @@ class Arm:
 
     def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
         """The stepper joints that ``torque`` turns on after this arm turned them off and
-        whose encoder moved since (more than :data:`RESYNC_MIN_COUNTS`), with the
-        SLIP/STALLED latches they had when their torque went off."""
+        whose encoder moved since (more than :data:`RESYNC_MIN_COUNTS`), or that were
+        unpowered and not alarmed when this arm opened, with the SLIP/STALLED latches they
+        had when their torque went off."""
         counts = self.stepper_counts
         out: dict[int, StepperFlag] = {}
         if counts is None:
             return out
         for joint, (count, flags) in self._unpowered.items():
             j = self.joints[joint]
-            if (torque.get(j.dxl_id) == b"\x01" and abs(counts[joint] - count) > RESYNC_MIN_COUNTS
+            moved = count is None or abs(counts[joint] - count) > RESYNC_MIN_COUNTS
+            if (torque.get(j.dxl_id) == b"\x01" and moved
                     and j.firmware_version >= STEPPER_ROTOR_RESYNC_FIRMWARE):
                 out[joint] = flags
         return out

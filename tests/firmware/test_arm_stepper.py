@@ -183,10 +183,25 @@ def test_slip_and_stall_latch_until_cleared(node):
 
 def test_small_deflection_only_stalls(node):
     sched, hal, _ = node
+    write(sched, hal, "torque_enable", 1)
     hal.encoder().value = 200  # deflection_limit 150 < 200 <= slip_threshold 300
     sched.run_for(2_000)
     flags = read(sched, hal, "status_flags")
     assert flags & StepperFlag.STALLED and not flags & StepperFlag.SLIP
+
+
+def test_an_unpowered_joint_moved_by_hand_latches_nothing(node):
+    """With the coils off the rotor turns with the joint, which the step count cannot
+    follow: a deflection then is no load and no lost step, so neither latch is set; once the
+    coils hold, the same deflection is a stall."""
+    sched, hal, _ = node
+    hal.encoder().value = 400  # beyond slip_threshold 300 and deflection_limit 150
+    sched.run_for(2_000)
+    assert read(sched, hal, "deflection") == -400
+    assert not read(sched, hal, "status_flags") & (StepperFlag.SLIP | StepperFlag.STALLED)
+    write(sched, hal, "torque_enable", 1)
+    sched.run_for(2_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
 
 
 def test_voltage_and_temperature_from_sensors(node):
@@ -272,6 +287,7 @@ def test_deflection_offset_moves_what_the_protection_watches(node):
     assert flags & StepperFlag.STALLED and not flags & StepperFlag.SLIP
     write(sched, hal, "clear_flags", StepperClear.STALL)
     write(sched, hal, "deflection_offset", 0)
+    write(sched, hal, "torque_enable", 1)  # the stall's alarm turned the coils off
     hal.encoder().value = -400
     sched.run_for(2_000)
     assert read(sched, hal, "status_flags") & StepperFlag.SLIP

@@ -255,3 +255,39 @@ def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
         finally:
             plant.push(3, 0.0)
             forget_shared_emulators()
+
+
+def test_waypoints_recorded_by_one_program_play_back_in_another(tmp_path: Path) -> None:
+    """``armctl waypoints record`` then ``armctl waypoints play``: two processes, so the
+    second arm never turned the torque off itself.  Moved by hand while unpowered, a stepper
+    neither latches STALLED (its node latches only while the coils hold) nor does enabling
+    its torque in the second program latch it: the arm re-syncs the node it found unpowered."""
+    url = "emu://arm/arm?name=test_arm_two_programs"
+    path = tmp_path / "by_hand.jsonl"
+    try:
+        with Arm.open(url) as first:
+            first.home()
+            first.torque(True)
+            first.move([0.0] * 7, timeout=5.0)
+            plant = first.transport.emulator.arm_plant  # type: ignore[attr-defined]
+            t0 = first.transport.now()
+
+            def hand(state: object) -> None:  # a hand turning the base one way
+                plant.push(0, 1.0 if first.transport.now() - t0 < 0.3 else 0.0)
+
+            points = record_waypoints(first, 1.0, on_sample=hand)
+            plant.push(0, 0.0)
+            state = first.state()
+            assert state.joints[0] > 0.05  # the base turned, the rotor with it
+            assert not any(s.stalled or s.slip for s in state.steppers)
+            save_waypoints(path, points)
+        with Arm.open(url) as second:
+            second.calibration = None  # as a new process would: home again first
+            second.home()
+            log = TrackingLog()
+            play_waypoints(second, load_waypoints(path), log=log)
+            assert log.stall_events == []
+            assert np.array(second.state().joints) == pytest.approx(points[-1].joints,
+                                                                    abs=0.03)
+    finally:
+        forget_shared_emulators()
