@@ -278,7 +278,7 @@ class BaudMismatch(Fault):
     link: str = "palm"  #: palm, arm or finger0
     baud: int = 1_000_000  #: the wrong side's rate (bit/s)
     side: Literal["device", "host"] = "device"
-    misread_bytes: int = field(default=0, init=False, repr=False)
+    resampled_bytes: int = field(default=0, init=False, repr=False)  #: bytes re-sampled
 
     def __post_init__(self) -> None:
         if self.baud <= 0:
@@ -293,7 +293,7 @@ class BaudMismatch(Fault):
         def stage(sent: int, read: int) -> Stage:
             def resample(data: bytes) -> bytes:
                 out = misread(data, sent, read)
-                self.misread_bytes += len(data)
+                self.resampled_bytes += len(data)
                 return out
 
             return resample
