@@ -60,6 +60,7 @@ each joint's constants come in one tuple.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from typing import Final, cast
@@ -234,6 +235,7 @@ class ArmPlant:
         self._q_mv, self._qd_mv = _doubles(self._qpos), _doubles(self._qvel)
         self._force_mv, self._spring_mv = _doubles(self._force), _doubles(self._spring_ref)
         self._damping = model.dof_damping[d0 : d0 + 7]
+        self._stepper_jids = jids[:_N_STEPPERS]
         model.jnt_stiffness[jids[:4]] = p.stiffness
         model.jnt_stiffness[jids[4:]] = 0.0
         self._damping[:4] = p.damping
@@ -340,6 +342,35 @@ class ArmPlant:
         """The flange site's position in the world (m): what an optical tracker sees."""
         self._check_bound()
         return self.data.site_xpos[self._flange_site].copy()
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        """The couplings' spring stiffness of J1..J4 now (N·m/rad)."""
+        return self.params.stiffness.copy()
+
+    def set_stiffness(self, joint: int, stiffness_nm_per_rad: float) -> None:
+        """Fault injection: coupling ``joint`` (0..3 = J1..J4) has spring stiffness
+        ``stiffness_nm_per_rad`` (N·m/rad, > 0) from the next tick (a polyurethane spring
+        ageing or warming): the linear spring, its solid-tube stiffness beyond the travel and
+        the slip equilibria all follow; the deflection under the same load is ``τ / k``."""
+        if not 0 <= joint < _N_STEPPERS:
+            raise EmulatorConfigError(f"joint {joint} is not a stepper joint 0..3")
+        k = float(stiffness_nm_per_rad)
+        if not math.isfinite(k) or k <= 0.0:
+            raise EmulatorConfigError(f"stiffness {stiffness_nm_per_rad!r} N·m/rad is not "
+                                      "finite and > 0")
+        p = self.params
+        values = p.stiffness.copy()
+        values[joint] = k
+        # A new parameter set (the arrays may be shared with whoever built the params).
+        self.params = p = dataclasses.replace(p, stiffness=values)
+        self._k[joint] = k
+        self._k_solid[joint] = k * (p.stop_stiffness_factor - 1.0)
+        row = list(self._stepper_rows[joint])
+        row[6], row[10] = self._k[joint], self._k_solid[joint]
+        self._stepper_rows[joint] = tuple(row)  # type: ignore[assignment]
+        if self._bound:
+            self.model.jnt_stiffness[self._stepper_jids[joint]] = k
 
     def push(self, joint: int, torque_nm: float) -> None:
         """Fault injection: an external torque (N·m, + = positive joint direction) on joint

@@ -133,6 +133,16 @@ class Rs485Bus:
         # The bus must know a frame from its first bit to find collisions.
         uart.on_transmit = lambda chunk: self._transmit(node, chunk.data, chunk.start_us)
 
+    def detach(self, uart: VirtualUart) -> None:
+        """Take ``uart`` off the line (a node unplugged): it neither sends nor hears from
+        now on; frames it already put on the line still arrive."""
+        node = next((n for n in self._nodes if n.uart is uart), None)
+        if node is None:
+            raise ValueError(f"UART {uart.name!r} is not on this bus")
+        self._nodes.remove(node)
+        uart.on_transmit = None
+        uart.sink = None
+
     @property
     def names(self) -> list[str]:
         """The attached nodes' names, in attach order."""

@@ -1,9 +1,11 @@
-"""Faults of the arm: external torques, a missed index pulse, RX-64 overheat and overload,
-a sagging supply.
+"""Faults of the arm: external torques, a drifting spring, a missed index pulse, RX-64
+overheat and overload, a duplicate servo ID, a sagging supply.
 
-They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`), the joint
-encoders' index line (:class:`~firmware_py.sim.virtual_hal.VirtualEncoder`) and the nodes'
-sensors (:class:`~hil_emulator.faults.nodes.SensorFault`).
+They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`,
+:meth:`~hil_emulator.arm_plant.ArmPlant.set_stiffness`), the joint encoders' index line
+(:class:`~firmware_py.sim.virtual_hal.VirtualEncoder`), the nodes' sensors
+(:class:`~hil_emulator.faults.nodes.SensorFault`) and the arm's line
+(:meth:`~hil_emulator.rs485_bus.Rs485Bus.attach`: a second node).
 """
 
 from __future__ import annotations
@@ -162,6 +164,94 @@ class SupplySag(Fault):
         for s in self._sensors:
             s.clear(emulator)
         self._sensors = []
+
+
+@dataclass
+class SpringDrift(Fault):
+    """The polyurethane spring of stepper joint ``joint`` (0..3 = J1..J4) drifts: its
+    stiffness moves linearly from nominal to ``final_fraction`` × nominal over ``drift_s``
+    and stays there (updated every ``update_us``).  The same load then deflects the coupling
+    by ``τ / k``, so the host's torque estimate (nominal stiffness × deflection) drifts by
+    ``1 / final_fraction``.  Cleared, the nominal stiffness is back."""
+
+    name = "spring_drift"
+    entry_point = "plant force"
+    summary = "a series-elastic spring's stiffness drifting over time (arm plant)"
+    joint: int = 1  #: 0..3 = J1..J4
+    final_fraction: float = 0.5  #: stiffness at the end of the drift / nominal
+    drift_s: float = 1.0  #: s from nominal to the final stiffness (linear)
+    update_us: int = 10_000  #: µs between stiffness updates
+    _nominal: float = field(default=0.0, init=False, repr=False)
+    _timer: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.joint < len(STEPPER_IDS):
+            raise ValueError(f"joint {self.joint} is not a stepper joint 0..3")
+        if not self.final_fraction > 0.0:
+            raise ValueError(f"final_fraction {self.final_fraction} must be positive")
+        if self.drift_s <= 0.0 or self.update_us <= 0:
+            raise ValueError("drift_s and update_us must be positive")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        plant = _arm_plant(emulator)
+        self._nominal = float(plant.stiffness[self.joint])
+        scheduler = emulator.scheduler
+        start_us = scheduler.now_us()
+
+        def drift() -> None:
+            done = min(1.0, (scheduler.now_us() - start_us) / (self.drift_s * 1e6))
+            fraction = 1.0 + (self.final_fraction - 1.0) * done
+            plant.set_stiffness(self.joint, self._nominal * fraction)
+            if done >= 1.0 and self._timer is not None:
+                self._timer.cancel()
+
+        self._timer = scheduler.call_every(self.update_us, drift)
+
+    def clear(self, emulator: Emulator) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        _arm_plant(emulator).set_stiffness(self.joint, self._nominal)
+
+
+@dataclass
+class DuplicateServoId(Fault):
+    """A second RX-64 on the arm's line answers with servo ``servo``'s ID (5..7): a spare
+    configured as that servo (its control table copied) plugged into the bus.  Both hear
+    every request and reply after the same return delay, so their replies collide on the
+    half-duplex line and the host reads garbage or nothing; cleared, the spare is unplugged."""
+
+    name = "duplicate_servo_id"
+    entry_point = "node"
+    summary = "two RX-64s with the same ID on the arm bus (their replies collide)"
+    servo: int = 5  #: Dynamixel id 5..7
+    _spare: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.servo not in SERVO_IDS:
+            raise ValueError(f"servo {self.servo} is not an RX-64 id {SERVO_IDS}")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        from firmware_py.sim.boards import make_arm_node
+        from protocol.image import BoardType
+
+        original = targets.node(emulator, f"arm.{self.servo}")
+        assert emulator.arm is not None
+        hal, app = make_arm_node(emulator.scheduler, BoardType.RX64, self.servo)
+        app.image[:] = original.app.image  # configured exactly as the servo it duplicates
+        app.reload_registers()
+        app._apply_bus_settings()
+        hal.sensors.values.update(original.hal.sensors.values)  # at rest where it was
+        uart = hal.uart("bus")
+        uart.keep_sent = False
+        emulator.arm.bus.attach(uart, f"id{self.servo}-duplicate")
+        self._spare = hal
+
+    def clear(self, emulator: Emulator) -> None:
+        if self._spare is not None and emulator.arm is not None:
+            emulator.arm.bus.detach(self._spare.uart("bus"))
+            self._spare.halt(restart_clock=False)
+            self._spare = None
 
 
 def _arm_plant(emulator: Emulator) -> Any:

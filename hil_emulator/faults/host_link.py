@@ -213,3 +213,99 @@ class PortVanish(Fault):
         port = emulator.links.get(self.link)
         if port is not None and hasattr(port, "reappear"):
             port.reappear()
+
+
+@dataclass
+class SerialDriverStuck(Fault):
+    """The host adapter's own transmitter on link ``link`` stuck on: the device side
+    receives a continuous line condition at the link's rate — ``break`` (the line held at
+    space: a NUL character with a framing error every character time) or ``noise`` (random
+    characters, from the seed) — and nothing the host writes reaches the line.  The device
+    cannot parse a frame of the host's meanwhile; cleared, the line idles and the link works
+    again (the device's decoder resynchronises on the host's next frame).  On the arm link
+    the stuck driver occupies the RS-485 line itself, so it also collides with any node
+    that answers."""
+
+    name = "serial_driver_stuck"
+    entry_point = "port"
+    summary = "host adapter's transmitter stuck on: break or noise at line rate, host frames lost"
+    link: str = "palm"  #: palm, arm or finger0
+    mode: Literal["break", "noise"] = "break"
+    period_us: int = 1_000  #: the condition is fed to the device in chunks this long (µs)
+    _timer: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.period_us <= 0:
+            raise ValueError(f"period_us {self.period_us} must be positive")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        from protocol.topology import BITS_PER_CHAR
+
+        rig = emulator.rig(self.link)
+        per_chunk = max(1, round(link_baud(emulator, self.link) / BITS_PER_CHAR
+                                 * self.period_us / 1e6))
+
+        def drive() -> None:
+            if self.mode == "break":
+                rig.send_from_host(bytes(per_chunk))
+            else:
+                rig.send_from_host(rng.integers(0, 256, size=per_chunk,
+                                                dtype=np.uint8).tobytes())
+
+        _install(emulator.link_tap(self.link), "down", id(self), lambda data: b"")
+        drive()
+        self._timer = emulator.scheduler.call_every(self.period_us, drive)
+
+    def clear(self, emulator: Emulator) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        _remove(emulator.link_tap(self.link), id(self))
+
+
+@dataclass
+class BaudMismatch(Fault):
+    """One side of host link ``link`` runs at ``baud`` (bit/s) instead of the link's rate:
+    every character is sampled at the wrong instants (:func:`hil_emulator.uart_sampling.misread`:
+    deterministic bit-level re-sampling; characters with a framing error left out), both
+    ways — the ``side`` at the wrong rate misreads what the other sends and is misread in
+    turn.  Frames fail their checksum, so nothing reaches a motor; cleared, both sides agree
+    again."""
+
+    name = "baud_mismatch"
+    entry_point = "port"
+    summary = "host serial link: one side at a wrong baud rate, every character mis-sampled"
+    link: str = "palm"  #: palm, arm or finger0
+    baud: int = 1_000_000  #: the wrong side's rate (bit/s)
+    side: Literal["device", "host"] = "device"
+    resampled_bytes: int = field(default=0, init=False, repr=False)  #: bytes re-sampled
+
+    def __post_init__(self) -> None:
+        if self.baud <= 0:
+            raise ValueError(f"baud {self.baud} must be positive")
+
+    def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
+        from hil_emulator.uart_sampling import misread
+
+        nominal = link_baud(emulator, self.link)
+        host, device = (nominal, self.baud) if self.side == "device" else (self.baud, nominal)
+
+        def stage(sent: int, read: int) -> Stage:
+            def resample(data: bytes) -> bytes:
+                out = misread(data, sent, read)
+                self.resampled_bytes += len(data)
+                return out
+
+            return resample
+
+        tap = emulator.link_tap(self.link)
+        tap.down_stages[id(self)] = stage(host, device)
+        tap.up_stages[id(self)] = stage(device, host)
+
+    def clear(self, emulator: Emulator) -> None:
+        _remove(emulator.link_tap(self.link), id(self))
+
+
+def link_baud(emulator: Emulator, link: str) -> int:
+    """The baud rate (bit/s) host link ``link`` runs at (its device-side UART's)."""
+    return int(emulator.rig(link).host_uart.baud)

@@ -1,4 +1,4 @@
-"""Faults of a node: hang, reset, reset storm, a sensor stuck, noisy or biased.
+"""Faults of a node: hang, reset, reset storm, a sensor stuck, noisy, biased or misaligned.
 
 They act through the node's HAL (:class:`~firmware_py.sim.virtual_hal.VirtualHal`: ``halt``,
 ``reset``, its sensors) and never through a branch in the firmware.
@@ -6,6 +6,7 @@ They act through the node's HAL (:class:`~firmware_py.sim.virtual_hal.VirtualHal
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
@@ -13,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from firmware_py.sim.virtual_hal import VirtualSensors
+from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault
 
@@ -91,22 +93,35 @@ class ResetStorm(Fault):
 @dataclass
 class SensorFault(Fault):
     """Channel ``channel`` of node ``node`` reads wrong: ``stuck`` at ``value``, ``noisy``
-    (Gaussian, ``sigma`` counts, drawn per read), or ``biased`` by ``bias`` counts."""
+    (Gaussian, ``sigma`` counts, drawn per read), ``biased`` by ``bias`` counts, or
+    ``misaligned``: a three-axis channel (``accel``, ``gyro``, ``mag``) mounted rotated by
+    ``angle_deg`` about ``axis`` (``x``, ``y``, ``z`` or components ``"1,1,0"``, in the
+    sensor's frame), so it reads ``R · v`` (rounded to counts) for the true vector ``v``."""
 
     name = "sensor_fault"
     entry_point = "node"
-    summary = "a sensor channel stuck, noisy or biased"
+    summary = "a sensor channel stuck, noisy, biased or misaligned (a rotated mounting)"
     node: str = "finger0.f2"  #: palm, finger<k>.fmcb|f2|f3, arm.<id>
     channel: str = "strain"  #: the HAL's channel name (strain, accel, pot, temperature …)
-    mode: Literal["stuck", "noisy", "biased"] = "stuck"
+    mode: Literal["stuck", "noisy", "biased", "misaligned"] = "stuck"
     value: int = 0  #: stuck: the value read (counts)
     sigma: float = 10.0  #: noisy: standard deviation (counts)
     bias: int = 100  #: biased: added (counts)
+    angle_deg: float = 10.0  #: misaligned: rotation of the mounting (degrees, right-handed)
+    axis: str = "z"  #: misaligned: the rotation axis (x, y, z or "ax,ay,az")
     _key: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._rotation = rotation_matrix(self.axis, self.angle_deg)
 
     def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
         sensors = targets.node(emulator, self.node).hal.sensors
-        sensors.read(self.channel)  # the board must have it
+        true = sensors.read(self.channel)  # the board must have it
+        if self.mode == "misaligned" and not (isinstance(true, tuple) and len(true) == 3):
+            raise EmulatorConfigError(f"sensor_fault: channel {self.channel!r} of "
+                                      f"{self.node} is not a three-axis vector; a "
+                                      "misaligned mounting rotates one")
+        rotation = self._rotation
 
         def shift(value: SensorValue, by: Callable[[], int]) -> SensorValue:
             if isinstance(value, tuple):
@@ -119,6 +134,10 @@ class SensorFault(Fault):
                     else self.value
             if self.mode == "biased":
                 return shift(value, lambda: self.bias)
+            if self.mode == "misaligned":
+                assert isinstance(value, tuple)
+                x, y, z = value
+                return tuple(int(round(r[0] * x + r[1] * y + r[2] * z)) for r in rotation)
             return shift(value, lambda: int(round(rng.normal(0.0, self.sigma))))
 
         if type(sensors) is VirtualSensors:
@@ -135,3 +154,24 @@ class SensorFault(Fault):
             if not sensors.sensor_faults:
                 del sensors.sensor_faults
                 sensors.__class__ = VirtualSensors  # type: ignore[assignment]
+
+
+def rotation_matrix(axis: str, angle_deg: float) -> tuple[tuple[float, float, float], ...]:
+    """The rotation by ``angle_deg`` (degrees, right-handed) about ``axis`` — ``x``, ``y``,
+    ``z`` or comma-separated components ``"ax,ay,az"`` (normalised) — as three rows
+    (Rodrigues' formula).  Raises :class:`ValueError` for an axis it cannot read."""
+    named = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+    try:
+        parts = named.get(axis.strip().lower()) or tuple(float(a) for a in axis.split(","))
+    except ValueError:
+        parts = ()
+    norm = math.sqrt(sum(a * a for a in parts)) if len(parts) == 3 else 0.0
+    if not (math.isfinite(norm) and norm > 0.0 and math.isfinite(angle_deg)):
+        raise ValueError(f"axis {axis!r} is not x, y, z or three components 'ax,ay,az' "
+                         f"(not all 0), or angle {angle_deg!r} is not finite")
+    ux, uy, uz = (a / norm for a in parts)
+    theta = math.radians(angle_deg)
+    c, s, t = math.cos(theta), math.sin(theta), 1.0 - math.cos(theta)
+    return ((c + ux * ux * t, ux * uy * t - uz * s, ux * uz * t + uy * s),
+            (uy * ux * t + uz * s, c + uy * uy * t, uy * uz * t - ux * s),
+            (uz * ux * t - uy * s, uz * uy * t + ux * s, c + uz * uz * t))

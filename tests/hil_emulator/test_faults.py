@@ -64,6 +64,13 @@ def test_every_fault_declares_an_entry_point_a_summary_and_typed_defaults() -> N
     assert all(not listed[n]["implemented"] for n in NOT_YET_IMPLEMENTED)
 
 
+def test_every_fault_of_the_catalogue_is_implemented() -> None:
+    assert not NOT_YET_IMPLEMENTED
+    assert {"spring_drift", "serial_driver_stuck", "baud_mismatch",
+            "duplicate_servo_id"} <= set(FAULTS)
+    assert all(f["implemented"] for f in catalogue())
+
+
 def test_parameters_are_checked_and_errors_name_the_key() -> None:
     with pytest.raises(FaultPlanError, match=r"faults\[0\]\.params\.finger.*not a int"):
         parse_plan([{"fault": "break_away", "params": {"finger": "two"}}])
@@ -71,8 +78,10 @@ def test_parameters_are_checked_and_errors_name_the_key() -> None:
         parse_plan([{"fault": "node_reset"}, {"fault": "node_reset", "params": {"colour": 1}}])
     with pytest.raises(FaultPlanError, match=r"faults\[0\]: unknown fault 'gremlin'"):
         parse_plan([{"fault": "gremlin"}])
-    with pytest.raises(FaultPlanError, match=r"not implemented yet"):
-        parse_plan([{"fault": "spring_drift"}])
+    with pytest.raises(FaultPlanError, match=r"faults\[0\]: axis 'w' is not x, y, z"):
+        parse_plan([{"fault": "sensor_fault", "params": {"mode": "misaligned", "axis": "w"}}])
+    with pytest.raises(FaultPlanError, match=r"faults\[0\]\.params\.side"):
+        parse_plan([{"fault": "baud_mismatch", "params": {"side": "both"}}])
     with pytest.raises(FaultPlanError, match=r"faults\[0\]\.when: unknown key"):
         parse_plan([{"fault": "node_reset", "when": 3}])
     with pytest.raises(FaultPlanError, match=r"faults\[0\]\.every_s"):
@@ -274,6 +283,27 @@ def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: Emulator) -> None:
         hand.faults.inject("sensor_fault", {"node": "finger0.f2", "channel": "pressure"})
 
 
+def test_a_misaligned_accelerometer_reads_the_vector_rotated_and_is_restored(hand: Emulator
+                                                                            ) -> None:
+    sensors = hand.hand.fingers[1].f3.hal.sensors  # type: ignore[union-attr]
+    sensors.set_accel(0, 0, 1000)  # 1 g along its z axis
+    entry = hand.faults.inject("sensor_fault", {"node": "finger1.f3", "channel": "accel",
+                                                "mode": "misaligned", "angle_deg": 90.0,
+                                                "axis": "x"})
+    assert sensors.read("accel") == (0, -1000, 0)  # z turns to −y about x
+    hand.faults.clear(entry)
+    entry = hand.faults.inject("sensor_fault", {"node": "finger1.f3", "channel": "accel",
+                                                "mode": "misaligned", "angle_deg": 10.0,
+                                                "axis": "0,1,0"})
+    x, y, z = sensors.read("accel")  # type: ignore[misc]
+    assert (x, y, z) == (174, 0, 985)  # 1000·(sin 10°, 0, cos 10°): the magnitude kept
+    hand.faults.clear(entry)
+    assert sensors.read("accel") == (0, 0, 1000)
+    with pytest.raises(Exception, match="not a three-axis vector"):
+        hand.faults.inject("sensor_fault", {"node": "finger0.f2", "channel": "strain",
+                                            "mode": "misaligned"})
+
+
 # ---------------------------------------------------------------------------- arm
 
 
@@ -327,6 +357,70 @@ def test_an_arm_push_moves_the_joint_and_stops_when_cleared() -> None:
     assert plant._push[4] == 0.0
 
 
+@pytest.mark.slow
+def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared() -> None:
+    from host.arm import Arm
+
+    emu = Emulator("arm", seed=1)
+    plant = emu.arm_plant
+    arm = Arm.open(emu.transport("arm"))
+    arm.torque(True)
+
+    def mean_over_1_s() -> tuple[float, float]:
+        """Mean deflection (counts) and host torque estimate (N·m) of J2 over 1 s (the
+        loaded joint swings at about 1.3 Hz)."""
+        rows = []
+        for _ in range(20):
+            emu.step(50 * MS)
+            j2 = arm.cycle().steppers[1]
+            rows.append((j2.deflection, j2.torque))
+        return float(np.mean([r[0] for r in rows])), float(np.mean([r[1] for r in rows]))
+
+    emu.faults.inject("arm_push", {"joint": 1, "torque_nm": 6.0})  # a steady load on J2
+    deflection, torque = mean_over_1_s()
+    assert 5.0 < -torque < 7.0  # the host's estimate k·δ finds the load (resisting it)
+    entry = emu.faults.inject("spring_drift", {"joint": 1, "final_fraction": 0.5,
+                                               "drift_s": 0.2})
+    emu.step(100 * MS)
+    assert 100.0 < plant.stiffness[1] < 200.0  # half-way down the drift
+    drifted_deflection, drifted_torque = mean_over_1_s()
+    assert plant.stiffness[1] == pytest.approx(100.0)
+    assert drifted_deflection / deflection > 1.6  # the same load, a softer spring
+    assert drifted_torque / torque > 1.6  # so the host's estimate drifts (× 1 / 0.5)
+    emu.faults.clear(entry)
+    assert plant.stiffness[1] == 200.0
+    _, restored = mean_over_1_s()
+    assert restored == pytest.approx(torque, rel=0.2)
+
+
+def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
+    emu = Emulator("arm", seed=1)
+    plant = emu.arm_plant
+    entry = emu.faults.inject("spring_drift", {"joint": 2, "final_fraction": 1.5,
+                                               "drift_s": 0.01, "update_us": 5_000})
+    emu.step(20 * MS)
+    jid = plant._stepper_jids[2]
+    assert plant.model.jnt_stiffness[jid] == pytest.approx(165.0)
+    assert plant._stepper_rows[2][6] == pytest.approx(165.0)
+    assert plant._k_solid[2] == pytest.approx(165.0 * (plant.params.stop_stiffness_factor - 1))
+    emu.faults.clear(entry)
+    assert plant.model.jnt_stiffness[jid] == 110.0 and plant.params.stiffness[2] == 110.0
+
+
+def test_a_duplicate_servo_id_garbles_that_servos_replies_until_unplugged() -> None:
+    emu = Emulator("arm", seed=1, physics=False)
+    bus = emu.arm.bus  # type: ignore[union-attr]
+    assert _arm_ping_answered(emu, 5)
+    entry = emu.faults.inject("duplicate_servo_id", {"servo": 5})
+    collisions = bus.collisions
+    assert not any(_arm_ping_answered(emu, 5) for _ in range(3))
+    assert bus.collisions == collisions + 3  # both answered, at once
+    assert _arm_ping_answered(emu, 6)  # the others answer as before
+    emu.faults.clear(entry)
+    assert _arm_ping_answered(emu, 5) and bus.collisions == collisions + 3
+    assert bus.names.count("id5") == 1 and len(bus.names) == 8
+
+
 # ---------------------------------------------------------------------------- host links
 
 
@@ -360,6 +454,92 @@ def test_link_corruption_loss_latency_noise_and_vanish_on_the_palm_link(hand: Em
         host.palm.ping()
     hand.faults.clear(entry)
     assert _answers(host.palm)
+
+
+def test_a_stuck_host_transmitter_blocks_the_link_until_cleared(hand: Emulator) -> None:
+    host = _host(hand)
+    tap = hand.link_tap("palm")
+    tap.record = True
+    palm_received: list[bytes] = []
+    palm_uart = hand.hand.host_uart  # type: ignore[union-attr]
+    receiver = palm_uart._receiver
+    assert receiver is not None
+
+    def spy(data: bytes, t_us: int) -> None:
+        palm_received.append(data)
+        receiver(data, t_us)
+
+    palm_uart.set_receiver(spy)
+    entry = hand.faults.inject("serial_driver_stuck", {"link": "palm"})
+    hand.step(10 * MS)
+    assert not _answers(host.palm)
+    assert tap.sent and not tap.received  # nothing the host wrote reached the line
+    line = b"".join(palm_received)
+    assert len(line) >= 0.9 * 200 * 40 and set(line) == {0}  # a break at line rate (2 Mbaud)
+    hand.faults.clear(entry)
+    palm_received.clear()
+    hand.step(5 * MS)
+    assert not palm_received  # the line idles
+    assert _answers(host.palm)
+
+
+def test_a_stuck_host_transmitter_on_the_arm_link_jams_until_cleared() -> None:
+    emu = Emulator("arm", seed=1, physics=False)
+    tap = emu.link_tap("arm")
+    entry = emu.faults.inject("serial_driver_stuck", {"link": "arm", "mode": "noise"})
+    emu.step(5 * MS)
+    assert tap.down(make_ping(5).encode()) == b""  # the host's frames never reach the line
+    sent = [t for t in emu.arm.bus.log if t.name == "host"]  # type: ignore[union-attr]
+    assert sum(len(t.data) for t in sent) >= 500  # 1 Mbaud: 100 characters a ms
+    emu.faults.clear(entry)
+    emu.step(2 * MS)
+    assert tap.down(make_ping(5).encode()) == make_ping(5).encode()
+    assert _arm_ping_answered(emu, 5)
+
+
+def test_misread_resamples_uart_characters_bit_by_bit() -> None:
+    from hil_emulator.uart_sampling import misread
+
+    data = bytes(range(0, 256, 7))
+    assert misread(data, 115_200, 115_200) == data
+    assert misread(data, 2_000_000, 2_010_000) == data  # 0.5 %: within a UART's tolerance
+    # 0x55 is start 0, data 1,0,1,0,1,0,1,0 (LSB first), stop 1.  Read twice as fast, the
+    # first character samples sent bits 0,1,1,2,2,3,3,4 → 0x66 and its stop bit at 4.75
+    # finds 0 (framing error: left out); the next falling edge is the 1 → 0 at bit 6, whose
+    # samples run into the stop bit and the idle line: 0,1,1,0,0,1,1,1 → 0xE6.
+    assert misread(b"\x55", 1, 2) == b"\xe6"
+    # 0x0F read twice as slow: the start bit's sample (at bit 1) finds 1, a glitch; the next
+    # edge is bit 5, whose samples at 7, 9, 11 … read 0 then the idle line → 0xFE.
+    assert misread(b"\x0f", 2, 1) == b"\xfe"
+    fast = misread(data, 1_000_000, 2_000_000)
+    slow = misread(data, 2_000_000, 1_000_000)
+    assert fast != data and len(data) > len(slow) > 0  # a slow receiver spans characters
+    assert misread(data, 2_000_000, 2_200_000) != data  # 10 % off: every frame broken
+    assert misread(b"", 1, 2) == b""
+
+
+def test_a_baud_mismatch_breaks_every_frame_both_ways_until_cleared(hand: Emulator) -> None:
+    from protocol.stream import decode_all
+
+    host = _host(hand)
+    tap = hand.link_tap("palm")
+    tap.record = True
+    entry = hand.faults.inject("baud_mismatch", {"link": "palm", "baud": 1_000_000})
+    assert not _answers(host.palm)
+    assert tap.sent and tap.received != tap.sent
+    assert not [f for f in decode_all(bytes(tap.received)) if f.crc_ok]  # nothing whole
+    hand.faults.clear(entry)
+    assert _answers(host.palm)
+    arm = Emulator("arm", seed=1, physics=False)
+    entry = arm.faults.inject("baud_mismatch", {"link": "arm", "baud": 1_100_000,
+                                                "side": "host"})
+    arm_tap = arm.link_tap("arm")
+    assert arm_tap.down(make_ping(5).encode()) != make_ping(5).encode()
+    replies: list[bytes] = []
+    arm_tap.up(make_ping(5).encode(), 0, lambda data, t: replies.append(data))
+    assert replies and replies[0] != make_ping(5).encode()  # the host misreads the replies
+    arm.faults.clear(entry)
+    assert arm_tap.down(make_ping(5).encode()) == make_ping(5).encode()
 
 
 def test_port_vanish_recreates_the_pty_at_the_same_link_path(tmp_path: Path) -> None:

@@ -162,6 +162,49 @@ def servo_error(record: RunRecord, joint: str, bit: str, after: str, within_ms: 
     return ok, measured, message
 
 
+def arm_torque_drift(record: RunRecord, joint: int, after: str, min_ratio: float,
+                     window_ms: float, tolerance: float) -> Verdict:
+    """The host's torque estimate of stepper ``joint`` (0..3; nominal stiffness × the
+    node's deflection) drifts while fault ``after`` lasts: its mean over the last
+    ``window_ms`` before the fault is cleared (or the run ends) differs from its mean over
+    ``window_ms`` before the fault by a ratio of at least ``min_ratio`` (either way); and,
+    once cleared, its mean over the run's last ``window_ms`` is back within ``tolerance``
+    (a fraction) of the value before."""
+    t0 = _first_apply(record, after)
+    if t0 is None:
+        return False, {}, f"fault {after!r} was never applied"
+    cleared = record.fault_times(after, "clear")
+    samples = [(s["t"], s["torques"][joint]) for s in record.arm_samples if "torques" in s]
+    if not samples:
+        return False, {}, "no arm_stream samples"
+    window = window_ms / 1e3
+
+    def mean(start: float, end: float) -> float | None:
+        values = [v for t, v in samples if start <= t < end]
+        return sum(values) / len(values) if values else None
+
+    t_end = cleared[0] if cleared else samples[-1][0] + 1e-9
+    before, during = mean(t0 - window, t0), mean(t_end - window, t_end)
+    if before is None or during is None or before == 0.0:
+        return (False, {"samples": len(samples)},
+                f"no torque samples {window_ms} ms before {after} and before its end")
+    ratio = during / before
+    measured: dict[str, Any] = {"before_nm": round(before, 4), "during_nm": round(during, 4),
+                                "ratio": round(ratio, 4)}
+    ok = ratio >= min_ratio or (ratio > 0.0 and 1.0 / ratio >= min_ratio)
+    message = (f"J{joint + 1}'s torque estimate {before:.3f} → {during:.3f} N·m (× "
+               f"{ratio:.3f}) during {after}")
+    if cleared:
+        last = samples[-1][0]
+        restored = mean(last - window, last + 1e-9) if last - window >= cleared[0] else None
+        if restored is None:
+            return False, measured, message + f"; the run ends within {window_ms} ms of the clear"
+        measured["after_nm"] = round(restored, 4)
+        ok = ok and abs(restored / before - 1.0) <= tolerance
+        message += f", {restored:.3f} N·m after it was cleared"
+    return ok, measured, message
+
+
 def fault_applied(record: RunRecord, label: str, count: int) -> Verdict:
     n = len(record.fault_times(label))
     return n == count, {"applied": n}, f"{label} applied {n} times (expected {count})"
@@ -182,4 +225,5 @@ CHECKS: dict[str, Callable[..., Verdict]] = {
     "fingers_present": fingers_present, "no_unsent_frames": no_unsent_frames,
     "flash_verified": flash_verified, "arm_flag": arm_flag, "servo_error": servo_error,
     "fault_applied": fault_applied, "node_state": node_state,
+    "arm_torque_drift": arm_torque_drift,
 }

@@ -258,6 +258,7 @@ class Bench:
                     "t": round(state.t - self.record.t0_us / 1e6, 6),
                     "angles": [round(q, 5) for q in state.joints],
                     "slip": [int(s) for s in state.slip],
+                    "torques": [round(x, 4) for x in state.torques],
                     "errors": {k: list(v) for k, v in state.errors.items()}})
             n += 1
             wait = due - transport.now()

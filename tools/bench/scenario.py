@@ -46,6 +46,8 @@ ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "servo_error": (("joint", "bit", "after"), {"within_ms": 50.0, "cleared_by": None}),
     "fault_applied": (("label",), {"count": 1}),
     "node_state": (("node", "state"), {}),
+    "arm_torque_drift": (("joint", "after"), {"min_ratio": 1.5, "window_ms": 500.0,
+                                              "tolerance": 0.25}),
 }
 TOP_KEYS: Final = ("name", "description", "config", "seed", "physics", "ready", "faults",
                    "actions", "assertions", "campaign")
@@ -111,7 +113,8 @@ def _steps(raw: Any, where: str, table: dict[str, tuple[tuple[str, ...], dict[st
         ids.add(step_id)
         params = {**copy.deepcopy(optional), **{k: v for k, v in item.items()
                                                  if k not in (kind_key, "id")}}
-        for key in ("seconds", "within_ms", "settle_ms", "duration", "timeout", "rate_hz"):
+        for key in ("seconds", "within_ms", "settle_ms", "window_ms", "duration", "timeout",
+                    "rate_hz"):
             value = params.get(key)
             if value is not None and (isinstance(value, bool)
                                       or not isinstance(value, int | float) or value < 0):
