@@ -41,6 +41,9 @@ from protocol.topology import FINGERS, HOP_NODE, Hop
 FULL_EFFORT: Final = 255
 #: Default stagger between fingers when all are switched (ms).
 POWER_STAGGER_MS: Final = 5
+#: Longest further wait (s), after ``(FINGERS - 1) × stagger``, for the palm to report
+#: every finger switched when all are (its clock may lag the host's).
+POWER_SETTLE_S: Final = 0.25
 #: Status polling period while waiting for a move to settle (s).
 SETTLE_POLL_S: Final = 0.02
 #: A finger whose motors moved less than this (hall counts) in :data:`STALL_S` has stopped.
@@ -301,11 +304,19 @@ class Hand:
             raise UsageError(f"finger {finger}: the hand has fingers 0..{FINGERS - 1}")
         reply = self.palm.request("palm.finger_power",
                                   {"finger": index, "state": code, "stagger_ms": stagger_ms})
-        states = reply["states"]
+        states = list(reply["states"])
         if index == ALL_FINGERS and stagger_ms > 0:
-            # The palm's timers started before it replied, so this is past the last switch.
-            self.session.sleep((FINGERS - 1) * stagger_ms / 1000)
-            states = [f["power"] for f in self.palm.request("palm.hand_status")["fingers"]]
+            # The palm's timers started before it replied, so on its clock this is past the
+            # last switch; a palm whose clock lags the host's (an emulator behind the wall
+            # clock) is given up to POWER_SETTLE_S more.
+            stagger_s = stagger_ms / 1000
+            self.session.sleep((FINGERS - 1) * stagger_s)
+            deadline = self.session.now() + POWER_SETTLE_S
+            while True:
+                states = [f["power"] for f in self.palm.request("palm.hand_status")["fingers"]]
+                if all(s == code for s in states) or self.session.now() >= deadline:
+                    break
+                self.session.sleep(stagger_s)
         return [code_name(FingerPower, s, "power") for s in states]
 
     def bring_up(self, fingers: int | str | Sequence[int] = "all",
