@@ -25,6 +25,7 @@ from typing import Any, Final
 from host.code_names import code_name
 from host.errors import HostError, NotHomedError, RouteError, UsageError
 from host.finger_params import FingerParams
+from host.hand_bring_up import BOOT_TIMEOUT_S, FingerUp, bring_up
 from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
 from host.hand_state import FingerState, HandState, NodeInfo
 from host.joint_limits import JOINTS_PER_FINGER, JointLimits
@@ -40,6 +41,9 @@ from protocol.topology import FINGERS, HOP_NODE, Hop
 FULL_EFFORT: Final = 255
 #: Default stagger between fingers when all are switched (ms).
 POWER_STAGGER_MS: Final = 5
+#: Longest further wait (s), after ``(FINGERS - 1) × stagger``, for the palm to report
+#: every finger switched when all are (its clock may lag the host's).
+POWER_SETTLE_S: Final = 0.25
 #: Status polling period while waiting for a move to settle (s).
 SETTLE_POLL_S: Final = 0.02
 #: A finger whose motors moved less than this (hall counts) in :data:`STALL_S` has stopped.
@@ -216,8 +220,9 @@ def _efforts(effort: Sequence[int] | int) -> list[int]:
     caps = [int(effort)] * JOINTS_PER_FINGER if isinstance(effort, int) else [
         int(e) for e in effort]
     if len(caps) != JOINTS_PER_FINGER or not all(0 <= e <= FULL_EFFORT for e in caps):
+        shown = effort if isinstance(effort, int) else caps  # plain ints, never reprs
         raise UsageError(f"efforts are {JOINTS_PER_FINGER} values in 0..{FULL_EFFORT} "
-                         f"(1/255 of full PWM), got {effort}")
+                         f"(1/255 of full PWM), got {shown}")
     return caps
 
 
@@ -284,7 +289,12 @@ class Hand:
               stagger_ms: int = POWER_STAGGER_MS) -> list[str]:
         """Switch finger ``finger`` (0..3, or ``"all"``, ``stagger_ms`` apart) to ``state``
         (``"off"``, ``"low"``, ``"full"``); every finger's power state as the palm reports.
-        Fingers switched on boot for about 4.5 s (the autoboot window) before their fmcb answers."""
+
+        The palm switches ``"all"`` one finger every ``stagger_ms`` ms and answers at the
+        first switch, so for ``"all"`` this waits out the stagger on the link's clock and
+        reports the states the palm's ``palm.hand_status`` gives afterwards: what the palm
+        does, not the moment in between.  Fingers switched on boot for about 4.5 s (the
+        autoboot window) before their fmcb answers; :meth:`bring_up` waits for them."""
         try:
             code = FingerPower[state.upper()] if isinstance(state, str) else FingerPower(state)
         except (KeyError, ValueError) as exc:
@@ -294,7 +304,30 @@ class Hand:
             raise UsageError(f"finger {finger}: the hand has fingers 0..{FINGERS - 1}")
         reply = self.palm.request("palm.finger_power",
                                   {"finger": index, "state": code, "stagger_ms": stagger_ms})
-        return [code_name(FingerPower, s, "power") for s in reply["states"]]
+        states = list(reply["states"])
+        if index == ALL_FINGERS and stagger_ms > 0:
+            # The palm's timers started before it replied, so on its clock this is past the
+            # last switch; a palm whose clock lags the host's (an emulator behind the wall
+            # clock) is given up to POWER_SETTLE_S more.
+            stagger_s = stagger_ms / 1000
+            self.session.sleep((FINGERS - 1) * stagger_s)
+            deadline = self.session.now() + POWER_SETTLE_S
+            while True:
+                states = [f["power"] for f in self.palm.request("palm.hand_status")["fingers"]]
+                if all(s == code for s in states) or self.session.now() >= deadline:
+                    break
+                self.session.sleep(stagger_s)
+        return [code_name(FingerPower, s, "power") for s in states]
+
+    def bring_up(self, fingers: int | str | Sequence[int] = "all",
+                 timeout: float = BOOT_TIMEOUT_S,
+                 on_progress: Callable[[str], None] | None = None) -> list[FingerUp]:
+        """Power ``fingers`` full, wait for each fmcb to boot, power its phalanges, wait for
+        f2 and f3, switch the fmcb's autopoll on (about 10 s on the link's clock): see
+        :func:`host.hand_bring_up.bring_up`.  One :class:`~host.hand_bring_up.FingerUp`
+        per finger, saying what came up and, for what did not, why.  ``timeout`` (s)
+        bounds each board's boot after its power is switched on."""
+        return bring_up(self, fingers, timeout, on_progress)
 
     # --- state -------------------------------------------------------------------------------
     def finger_states(self, fingers: Sequence[int]) -> dict[int, FingerState]:

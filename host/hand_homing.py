@@ -21,13 +21,17 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from host.errors import HostError, UsageError
+from host.code_names import code_name
+from host.errors import HostError, ReplyTimeout, RouteError, UsageError
 from host.inertial_closed_form import (
+    ACCEL_BOARDS,
     DEFAULT_MIN_AXIS_TILT_RAD,
     InertialEstimate,
+    NoAccelerationError,
     UnobservableJointError,
     estimate,
 )
+from protocol.messages.palm import RouteStatus
 from protocol.robot import joint_to_motor
 
 if TYPE_CHECKING:
@@ -129,7 +133,11 @@ def home_finger(finger: Finger, samples: int = DEFAULT_SAMPLES,
             f"finger {finger.index} moved while being read (motors {reading.hall_moved} "
             f"hall counts, accelerometers ±{reading.spread_counts:.0f} mg); let it come to "
             f"rest (idle it) and home again")
-    found = estimate(reading.as_dict(), None, min_tilt_rad)
+    try:
+        found = estimate(reading.as_dict(), None, min_tilt_rad)
+    except NoAccelerationError as exc:
+        raise NoAccelerationError(exc.boards, exc.readings,
+                                  message=_silent_boards(finger, exc)) from None
     q = found.require(finger.index)
     if found.ambiguous:
         alt = ", ".join(f"J0 {a:+.2f} J1 {b:+.2f}" for a, b in found.candidates)
@@ -141,6 +149,47 @@ def home_finger(finger: Finger, samples: int = DEFAULT_SAMPLES,
     offsets = [r - round(m) for r, m in zip(raw, joint_to_motor(q), strict=True)]
     finger.set_home(offsets)
     return HomeResult(finger.index, True, q, offsets)
+
+
+def _silent_boards(finger: Finger, exc: NoAccelerationError) -> str:
+    """Why ``finger``'s accelerometers in ``exc`` read nothing and what to do: a phalange
+    is asked whether it answers (unpowered phalanges are the usual cause after power-up)."""
+    nodes = {"f2": finger.proximal, "f3": finger.distal}
+    silent: list[tuple[str, str]] = []
+    unpolled: list[str] = []
+    broken: list[str] = []
+    for board in exc.boards:
+        name = ACCEL_BOARDS.get(board, board)
+        node = nodes.get(board)
+        if node is None:
+            broken.append(f"the {name} reads {exc.readings.get(board)}")
+            continue
+        try:
+            node.request("ping", retries=0)
+            unpolled.append(f"the {name}")
+        except HostError as exc_ping:
+            silent.append((f"the {name}", _why(exc_ping)))
+    parts = []
+    if silent:
+        parts.append(" and ".join(name for name, _ in silent)
+                     + (" does" if len(silent) == 1 else " do") + " not answer ("
+                     + ", ".join(sorted({why for _, why in silent})) + "), so there is no "
+                     "acceleration to home from; power the phalanges: `handctl up` "
+                     "(Hand.bring_up)")
+    if unpolled:
+        parts.append(" and ".join(unpolled) + (" answers" if len(unpolled) == 1 else
+                                               " answer")
+                     + " but the fmcb reads no acceleration from it: switch the fmcb's "
+                       "autopoll on: `handctl up` (Hand.bring_up)")
+    if broken:
+        parts.append(" and ".join(broken) + ": its accelerometer gives no reading")
+    return f"finger {finger.index}: " + "; ".join(parts)
+
+
+def _why(exc: HostError) -> str:
+    if isinstance(exc, RouteError):
+        return code_name(RouteStatus, exc.status, "status")
+    return "no reply" if isinstance(exc, ReplyTimeout) else type(exc).__name__
 
 
 def home(hand: Hand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
@@ -169,5 +218,5 @@ def homed_on_robot(finger: Finger) -> bool:
 
 
 __all__ = ["AmbiguousPoseError", "FingerMovingError", "HomeResult", "InertialReading",
-           "UnobservableJointError", "home", "home_finger", "homed_on_robot",
+           "NoAccelerationError", "UnobservableJointError", "home", "home_finger", "homed_on_robot",
            "inertial_estimate", "read_at_rest"]

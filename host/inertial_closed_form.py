@@ -51,6 +51,39 @@ LIMIT_MARGIN_RAD: Final = 0.05
 TANGENT_SLACK: Final = 0.02
 
 
+#: The finger's accelerometers by board, as messages name them.
+ACCEL_BOARDS: Final = {"fmcb": "motor module (fmcb)", "f2": "proximal phalange (f2)",
+                       "f3": "distal phalange (f3)"}
+
+
+def plain(vector: Vector | None) -> list[float] | None:
+    """``vector`` as a list of plain floats, for messages (never ``np.float64(…)``)."""
+    return None if vector is None else [float(v) for v in np.asarray(vector, dtype=float)]
+
+
+class NoAccelerationError(UsageError):
+    """Accelerometer readings are missing or zero (no direction): their boards are
+    unpowered, do not answer, or are not polled.  ``boards`` names them (``"f2"`` …),
+    ``readings`` holds what was read (plain floats, None where missing)."""
+
+    def __init__(self, boards: Sequence[str], readings: Mapping[str, list[float] | None],
+                 message: str | None = None) -> None:
+        parts = [f"the {ACCEL_BOARDS.get(b, b)}"
+                 + ("" if readings.get(b) is None else f" ({readings[b]})") for b in boards]
+        super().__init__(message or "no acceleration from " + " and ".join(parts))
+        self.boards = tuple(boards)
+        self.readings = dict(readings)
+
+
+def has_direction(vector: Vector | None) -> bool:
+    """Whether an accelerometer reading is there, finite and not zero."""
+    if vector is None:
+        return False
+    a = np.asarray(vector, dtype=float)
+    n = float(np.linalg.norm(a)) if a.size else 0.0
+    return n > 0.0 and math.isfinite(n)
+
+
 def joint_label(joint: int) -> str:
     """``"J1 (proximal)"``: the joint's firmware index and name."""
     return f"J{joint} ({FINGER_JOINT_NAMES[joint]})"
@@ -142,7 +175,7 @@ def _unit(v: Vector) -> np.ndarray:
     a = np.asarray(v, dtype=float)
     n = float(np.linalg.norm(a))
     if n == 0.0 or not math.isfinite(n):
-        raise UsageError(f"an accelerometer reading of {list(a)} has no direction")
+        raise UsageError(f"an accelerometer reading of {plain(a)} has no direction")
     return a / n
 
 
@@ -220,8 +253,12 @@ def estimate(readings: Mapping[str, Vector],
     """Joint angles from the boards' readings at rest (``"fmcb"``, ``"f2"``, ``"f3"``: each
     board's own axes, any unit; the mounting of :func:`protocol.robot.accel_mount_rotation`
     is undone here).  ``previous`` (rad, None entries allowed) picks among roots
-    (continuity) and stands in for an unobservable J0 when computing J1.
+    (continuity) and stands in for an unobservable J0 when computing J1.  A reading that is
+    missing or zero raises :class:`NoAccelerationError` naming its boards.
     """
+    silent = [b for b in ACCEL_BOARDS if not has_direction(readings.get(b))]
+    if silent:
+        raise NoAccelerationError(silent, {b: plain(readings.get(b)) for b in silent})
     u0 = _unit(to_segment("fmcb", readings["fmcb"]))
     u2 = _unit(to_segment("f2", readings["f2"]))
     u3 = _unit(to_segment("f3", readings["f3"]))

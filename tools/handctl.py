@@ -4,6 +4,7 @@
 
     handctl --port /dev/ttyACM0 ping                      # who answers (13 nodes)
     handctl --port emu://hand/palm --json status           # joints (rad), taxels, currents
+    handctl --port P up [--finger 2]                      # power, boot, phalanges, autopoll
     handctl --port P power 2 full                          # finger 2 (or "all") off|low|full
     handctl --port P move --finger 1 --joints 0.2,0.5,0.3 [--effort 120] [--duration 3]
     handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
@@ -29,11 +30,13 @@ from typing import Any
 from host.errors import HostError, ReplyTimeout, UsageError
 from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
+from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.hand_homing import homed_on_robot
 from host.hand_state import FingerState, HandState, NodeInfo
-from host.inertial_closed_form import estimate
+from host.inertial_closed_form import NoAccelerationError, estimate
 from host.joint_ekf import fuse_snapshot
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
+from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main"]
@@ -52,6 +55,13 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("ping", help="discover every node: program, versions")
     sub.add_parser("status", help="joints, taxels, currents, power of every finger")
+    up = sub.add_parser("up", help="bring the fingers up after power-on: power, boot, "
+                                   "phalange power, autopoll (about 10 s)")
+    up.add_argument("--finger", type=int, choices=range(FINGERS), metavar="N",
+                    help="one finger, 0..3 (default: every finger)")
+    up.add_argument("--boot-timeout", type=float, default=BOOT_TIMEOUT_S, metavar="S",
+                    help=f"longest wait for a board to boot after its power is switched on "
+                         f"(s, default {BOOT_TIMEOUT_S:g})")
     power = sub.add_parser("power", help="switch finger power")
     power.add_argument("finger", help="0..3 or all")
     power.add_argument("state", choices=("off", "low", "full"))
@@ -121,7 +131,9 @@ def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
     data = state.to_dict()
     for f, d in zip(state.fingers, data["fingers"], strict=True):
         d.update(_inertial(hand, f))
-    _emit(args, data, _status_text(state))
+    problems = [f"finger {d['index']}: {d['accel_problem']}" for d in data["fingers"]
+                if d.get("accel_problem")]
+    _emit(args, data, "\n".join([_status_text(state), *problems]))
     return 0
 
 
@@ -134,7 +146,12 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
         homed = homed_on_robot(hand.fingers[f.index])
     except HostError:
         homed = False
-    found = estimate(f.accels)
+    try:
+        found = estimate(f.accels)
+    except UsageError as exc:  # e.g. NoAccelerationError: phalanges unpowered or unpolled
+        return {"joints_accel": None, "homed": homed,
+                "accel_problem": f"{exc}; power the phalanges: handctl up"
+                if isinstance(exc, NoAccelerationError) else str(exc)}
     out: dict[str, Any] = {
         "joints_accel": [None if q is None else round(q, 6) for q in found.q],
         "homed": homed}
@@ -151,7 +168,8 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
             q = ", ".join(f"{v:+.3f}" for v in r.joints)
             lines.append(f"finger {r.finger}: homed at [{q}] rad")
         else:
-            lines.append(f"finger {r.finger}: not homed: {r.problem}")
+            problem = str(r.problem).removeprefix(f"finger {r.finger}: ")
+            lines.append(f"finger {r.finger}: not homed: {problem}")
     _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
     return 0 if all(r.homed for r in results) else EXIT_ROBOT
 
@@ -206,9 +224,34 @@ def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
     states = hand.power(finger, args.state)
     text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
     if args.state != "off":
-        text += "\n(fingers switched on boot for about 4.5 s before they answer)"
+        text += ("\n(fingers switched on boot for about 4.5 s before they answer; their "
+                 "phalanges need power too: `handctl up` does it all and waits)")
     _emit(args, {"power": states}, text)
     return 0
+
+
+def _cmd_up(hand: Hand, args: argparse.Namespace) -> int:
+    """Bring the hand (or ``--finger``) up; progress lines as it goes (on stderr with
+    ``--json``, so stdout stays one JSON document)."""
+    progress = sys.stderr if args.json else sys.stdout
+    results = hand.bring_up("all" if args.finger is None else args.finger,
+                            timeout=args.boot_timeout,
+                            on_progress=lambda line: print(line, file=progress, flush=True))
+    down = [where for r in results for where in r.down]
+    down += [f"finger {r.finger} autopoll" for r in results
+             if not r.autopoll and r.nodes and r.nodes[0].up]
+    summary = (f"up: {sum(n.up for r in results for n in r.nodes)} of "
+               f"{sum(len(r.nodes) for r in results)} finger boards run their application, "
+               f"autopoll on for finger(s) "
+               f"{', '.join(str(r.finger) for r in results if r.autopoll) or 'none'}")
+    _emit(args, {"fingers": [r.to_dict() for r in results], "down": down}, summary)
+    if not down:
+        return 0
+    problems = [f"  {n.where}: {n.problem}" for r in results for n in r.nodes if not n.up]
+    problems += [f"  finger {r.finger} fmcb: {r.autopoll_problem}" for r in results
+                 if r.autopoll_problem]
+    print(f"handctl: not up: {', '.join(down)}\n" + "\n".join(problems), file=sys.stderr)
+    return EXIT_ROBOT
 
 
 def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
@@ -260,7 +303,7 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
 
 COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
             "move": _cmd_move, "record": _cmd_record, "home": _cmd_home,
-            "grasp": _cmd_grasp}
+            "grasp": _cmd_grasp, "up": _cmd_up}
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -1,0 +1,282 @@
+"""Bringing the hand up from power-on: palm, fingers, phalanges, autopoll.
+
+A hand just switched on runs its palm only.  Each finger's boards then need, in order:
+
+1. the palm running its application (its bootloader's autoboot window is 4.5 s,
+   :data:`protocol.messages.bootloader.AUTOBOOT_WINDOW_US`);
+2. the finger's supply: ``palm.finger_power`` full (:meth:`host.hand.Hand.power`);
+3. its fmcb running its application, after its own autoboot window;
+4. the phalange bus: ``fmcb.phalange_power`` on, which powers f2 and f3;
+5. f2 and f3 running their applications, after their autoboot window;
+6. ``fmcb.autopoll`` on: the fmcb asks f2 and f3 every 10 ms, which fills the phalange
+   fields of ``fmcb.status`` (taxels, accelerometers: homing needs them).
+
+:func:`bring_up` does this on the link's clock (about 10 s of robot time), waiting for each
+board by asking it ``identify`` every :data:`POLL_S` until it says it runs its application,
+at most ``timeout`` s after its power was switched on.  A board that does not come up is
+reported with a reason (:class:`NodeUp`); the others carry on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Final
+
+from host.code_names import code_name
+from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
+from host.hand_session import PendingReply
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.common import Running
+from protocol.messages.palm import RouteStatus
+from protocol.topology import FINGERS
+
+if TYPE_CHECKING:
+    from host.hand import Hand, Node
+
+#: Longest wait for a board to run its application after its power is switched on (s):
+#: the autoboot window (4.5 s), the application's start and a margin for a slow link.
+BOOT_TIMEOUT_S: Final = AUTOBOOT_WINDOW_US / 1e6 + 3.5
+#: How often a booting board is asked whether it runs its application yet (s).
+POLL_S: Final = 0.25
+#: Longest wait, once autopoll is on, for ``fmcb.status`` to carry the phalanges' first
+#: readings (their timestamps ``pp_time`` / ``dp_time`` stop being 0), and how often it is
+#: read meanwhile (s).  The fmcb polls them every 10 ms.
+AUTOPOLL_CHECK_S: Final = 0.5
+AUTOPOLL_READ_S: Final = 0.02
+#: What to do when a board never answered, by the last route status the palm gave.
+_ADVICE: Final = {
+    "unpowered": "the palm's switch for this finger is off",
+    "no_reply": "nothing answers: is the finger on its pogo pins, are the tendon contacts "
+                "closed?",
+    "link_down": "the palm's link to this finger is down: is it on its pogo pins?",
+}
+
+
+@dataclass
+class NodeUp:
+    """How one board came up: ``up`` once it answered running its application,
+    ``after_s`` (s on the link's clock since the bring-up began) when it was first seen so;
+    otherwise ``problem`` says what was last seen and what to check.  ``running`` is the
+    program that last answered (``"application"``, ``"bootloader"``) or None."""
+
+    where: str
+    up: bool = False
+    running: str | None = None
+    after_s: float | None = None
+    problem: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"where": self.where, "up": self.up, "running": self.running,
+                "after_s": None if self.after_s is None else round(self.after_s, 3),
+                "problem": self.problem}
+
+
+@dataclass
+class FingerUp:
+    """One finger's bring-up: its ``power`` state after, its three boards (fmcb, f2, f3)
+    and whether the fmcb's ``autopoll`` of its phalanges is on (``autopoll_problem`` if
+    switching it on failed)."""
+
+    finger: int
+    power: str
+    nodes: list[NodeUp] = field(default_factory=list)
+    autopoll: bool = False
+    autopoll_problem: str | None = None
+
+    @property
+    def up(self) -> bool:
+        """Every board runs its application and the fmcb polls its phalanges."""
+        return self.autopoll and all(n.up for n in self.nodes)
+
+    @property
+    def down(self) -> list[str]:
+        """The boards that did not come up (``"finger 2 f3"`` …)."""
+        return [n.where for n in self.nodes if not n.up]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"finger": self.finger, "up": self.up, "power": self.power,
+                "nodes": [n.to_dict() for n in self.nodes], "autopoll": self.autopoll,
+                "autopoll_problem": self.autopoll_problem}
+
+
+def _fingers(fingers: int | str | Sequence[int]) -> list[int]:
+    if fingers == "all":
+        return list(range(FINGERS))
+    try:
+        chosen = [int(fingers)] if isinstance(fingers, int | str) else [int(k) for k in fingers]
+    except ValueError:
+        raise UsageError(f"finger(s) {fingers!r}: give 0..{FINGERS - 1} or all") from None
+    bad = [k for k in chosen if not 0 <= k < FINGERS]
+    if bad or not chosen:
+        raise UsageError(f"finger(s) {bad or chosen}: the hand has fingers 0..{FINGERS - 1}")
+    return sorted(set(chosen))
+
+
+def _reason(exc: HostError) -> str:
+    if isinstance(exc, RouteError):
+        return code_name(RouteStatus, exc.status, "status")
+    if isinstance(exc, NodeError):
+        return f"refused: {exc}"
+    return "no reply"
+
+
+class _Waiter:
+    """Asks boards ``identify`` every :data:`POLL_S` until each runs its application or
+    its deadline (link clock) passes."""
+
+    def __init__(self, hand: Hand, start_s: float, say: Callable[[str], None]) -> None:
+        self.hand = hand
+        self.start_s = start_s
+        self.say = say
+
+    def wait(self, nodes: Sequence[tuple[Node, NodeUp]], timeout: float) -> None:
+        session = self.hand.session
+        deadline = session.now() + timeout
+        waiting = list(nodes)
+        last: dict[str, str] = {}
+        while waiting:
+            asked: list[tuple[Node, NodeUp, PendingReply | HostError]] = []
+            for node, up in waiting:
+                try:
+                    asked.append((node, up, node.start("identify", retries=0)))
+                except HostError as exc:
+                    asked.append((node, up, exc))
+            still = []
+            for node, up, pending in asked:
+                try:
+                    if isinstance(pending, HostError):
+                        raise pending
+                    reply = session.wait(pending)
+                except HostError as exc:
+                    last[up.where] = _reason(exc)
+                    still.append((node, up))
+                    continue
+                up.running = code_name(Running, reply["running"], "running")
+                if reply["running"] == Running.APPLICATION:
+                    up.up = True
+                    up.after_s = session.now() - self.start_s
+                    self.say(f"{up.where}: up after {up.after_s:.2f} s")
+                else:
+                    last[up.where] = f"still in its {up.running}"
+                    still.append((node, up))
+            waiting = still
+            if waiting and session.now() >= deadline:
+                for _node, up in waiting:
+                    up.problem = _timeout_problem(last.get(up.where, "no reply"), timeout)
+                    self.say(f"{up.where}: NOT UP: {up.problem}")
+                return
+            if waiting:
+                session.sleep(min(POLL_S, max(0.0, deadline - session.now())))
+
+
+def _timeout_problem(last: str, timeout: float) -> str:
+    if last.startswith("still in its bootloader"):
+        return (f"still in its bootloader {timeout:g} s after power-up: no valid, activated "
+                f"image? (flash it: flash-all-fingers)")
+    advice = _ADVICE.get(last)
+    return f"{last} {timeout:g} s after power-up" + (f": {advice}" if advice else "")
+
+
+def bring_up(hand: Hand, fingers: int | str | Sequence[int] = "all",
+             timeout: float = BOOT_TIMEOUT_S,
+             on_progress: Callable[[str], None] | None = None) -> list[FingerUp]:
+    """Bring ``fingers`` (``"all"``, an index or indices) up from power-on, as the module
+    describes: one :class:`FingerUp` each, in finger order.  ``timeout`` (s, link clock)
+    bounds each wait for a board to boot after its power is switched on; ``on_progress``
+    gets one line per step as it happens.  Raises only when the palm itself does not run
+    its application (nothing behind it can come up) or the link fails."""
+    chosen = _fingers(fingers)
+    if not timeout > 0:
+        raise UsageError(f"bring-up timeout {timeout} s: it must be > 0")
+    session = hand.session
+
+    def say(line: str) -> None:
+        if on_progress is not None:
+            on_progress(line)
+
+    waiter = _Waiter(hand, session.now(), say)
+    palm = NodeUp("palm")
+    waiter.wait([(hand.palm, palm)], timeout)
+    if not palm.up:
+        error = NodeError if palm.running is not None else ReplyTimeout
+        raise error(f"the palm does not run its application: {palm.problem}")
+
+    if len(chosen) == FINGERS:
+        power = hand.power("all", "full")
+    else:
+        for k in chosen:
+            power = hand.power(k, "full")
+    say("power: " + ", ".join(f"finger {k} {power[k]}" for k in chosen)
+        + f"; waiting up to {timeout:g} s for the fmcbs to boot")
+    results = {k: FingerUp(k, power[k], [NodeUp(n.where) for n in hand.fingers[k].nodes])
+               for k in chosen}
+    waiter.wait([(hand.fingers[k].motor, results[k].nodes[0]) for k in chosen], timeout)
+
+    powered: list[int] = []
+    for k in chosen:
+        fmcb, f2, f3 = results[k].nodes
+        if not fmcb.up:
+            for node in (f2, f3):
+                node.problem = "its fmcb did not come up, so its phalanges are unpowered"
+            continue
+        try:
+            hand.fingers[k].motor.request("fmcb.phalange_power", {"on": 1})
+            powered.append(k)
+        except HostError as exc:
+            for node in (f2, f3):
+                node.problem = f"fmcb.phalange_power failed: {exc}"
+    if powered:
+        say(f"phalanges: power on (finger{'s' if len(powered) > 1 else ''} "
+            f"{', '.join(map(str, powered))}); waiting up to {timeout:g} s for them to boot")
+        waiter.wait([(n, results[k].nodes[n.target.hop]) for k in powered
+                     for n in hand.fingers[k].nodes[1:]], timeout)
+
+    polling = []
+    for k in chosen:
+        if not results[k].nodes[0].up:
+            continue
+        try:
+            hand.fingers[k].motor.request("fmcb.autopoll", {"on": 1})
+            results[k].autopoll = True
+            polling.append(k)
+        except HostError as exc:
+            results[k].autopoll_problem = f"fmcb.autopoll failed: {exc}"
+            say(f"finger {k} fmcb: autopoll NOT ON: {exc}")
+    if polling:
+        _check_polled(hand, [results[k] for k in polling])
+        say(f"autopoll: on (finger{'s' if len(polling) > 1 else ''} "
+            f"{', '.join(map(str, polling))})")
+    return [results[k] for k in chosen]
+
+
+def _check_polled(hand: Hand, fingers: Sequence[FingerUp]) -> None:
+    """Wait until each finger's ``fmcb.status`` carries readings of every phalange that
+    came up (so the next status has their taxels and accelerometers); a finger whose
+    phalanges stay silent gets an ``autopoll_problem`` and ``autopoll`` False."""
+    session = hand.session
+    deadline = session.now() + AUTOPOLL_CHECK_S
+    waiting = list(fingers)
+    while waiting:
+        still = []
+        for r in waiting:
+            _fmcb, f2, f3 = r.nodes
+            try:
+                status = hand.fingers[r.finger].motor.request("fmcb.status", retries=0)
+            except HostError:
+                still.append(r)
+                continue
+            if (f2.up and not status["pp_time"]) or (f3.up and not status["dp_time"]):
+                still.append(r)
+        waiting = still
+        if waiting and session.now() >= deadline:
+            for r in waiting:
+                r.autopoll = False
+                r.autopoll_problem = (f"autopoll is on but fmcb.status carried no phalange "
+                                      f"readings within {AUTOPOLL_CHECK_S:g} s")
+            return
+        if waiting:
+            session.sleep(AUTOPOLL_READ_S)
+
+
+__all__ = ["AUTOPOLL_CHECK_S", "BOOT_TIMEOUT_S", "POLL_S", "FingerUp", "NodeUp", "bring_up"]
