@@ -32,12 +32,12 @@ from host.errors import (
     HostError,
     NodeError,
     ReplyTimeout,
-    RouteError,
     TransportError,
     UsageError,
 )
 from host.hand_session import Timeouts
 from host.transport import schemes
+from protocol.messages.common import TxnStatus
 
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
@@ -91,8 +91,11 @@ def advice(exc: HostError, port: str, prog: str) -> str:
                 "or give a slow adapter more time with --timeout S.")
     if isinstance(exc, HomingError):
         return f"homing failed: {exc}"
-    if isinstance(exc, RouteError | NodeError):
-        return str(exc)
+    if isinstance(exc, NodeError) and exc.status == TxnStatus.UNKNOWN_TYPE:
+        return (f"{exc}\nThe node does not know this request: most likely it still runs its "
+                f"bootloader (a board waits about 4.5 s after power-up before it starts its "
+                f"application). Wait a few seconds and retry; `{prog} --port {port} ping` "
+                "shows what each node runs.")
     return str(exc)
 
 

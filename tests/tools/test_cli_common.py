@@ -18,6 +18,7 @@ from host.errors import (
 from host.hand import Hand
 from host.hand_session import LINK_BUDGET_S, HandSession, Timeouts
 from host.transport import open_transport, schemes
+from protocol.messages.common import TxnStatus
 from tools import armctl, cli_common, flash_all_fingers, handctl
 
 CLIS: dict[str, Callable[[list[str]], int]] = {
@@ -132,3 +133,13 @@ def test_sessions_pick_the_budget_of_their_link() -> None:
         assert session.timeouts.link_s == LINK_BUDGET_S["loop"]
     with Hand.open("loop://", timeouts=Timeouts(link_s=0.2)) as hand:
         assert hand.session.timeouts.link_s == 0.2
+
+
+def test_a_request_a_bootloader_does_not_know_says_to_wait_for_the_application() -> None:
+    exc = NodeError("palm refused palm.finger_power: unknown_type",
+                    status=TxnStatus.UNKNOWN_TYPE)
+    text = cli_common.advice(exc, "./robot/palm", "handctl")
+    assert text.startswith("palm refused palm.finger_power: unknown_type")
+    assert "bootloader" in text and "handctl --port ./robot/palm ping" in text
+    other = NodeError("palm refused palm.poll: bad_payload", status=TxnStatus.BAD_PAYLOAD)
+    assert cli_common.advice(other, "./robot/palm", "handctl") == str(other)
