@@ -300,11 +300,13 @@ class StepperNodeApp(DynamixelSlave):
         self._enc_history.append(enc)
         hw_steps = stepper.step_count()
         mpc = self._mpc
-        # deflection: SLIP and STALLED latch while the coils hold (unpowered, the rotor
-        # turns with the joint and the step count cannot follow: no load, no lost steps)
+        # deflection: SLIP and STALLED latch while the coils hold, or while a latch set
+        # then stands (its alarm cut the coils: a shove goes on).  Turned off by the host
+        # with no latch, the rotor turns with the joint and the step count cannot follow:
+        # a deflection then is no load and no lost step.
         value = round((hw_steps - self._hw_steps0) / mpc) - (enc - self._enc0)
         deflection = _INT16_MIN if value < _INT16_MIN else _INT16 if value > _INT16 else value
-        if self._torque_enable:
+        if self._torque_enable or self._flags & (_SLIP | _STALLED):
             size = deflection - self._deflection_offset
             if size < 0:
                 size = -size

@@ -29,7 +29,7 @@ turned off and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS
 sends that node its command block (the goal it has, the coupling offset now) and
 ``clear_flags`` RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin
 to match (``step_count`` moves with it); latches the joint had when its torque went off
-stay (a node latches SLIP/STALLED only while its coils hold).  The joint then heads for the
+stay (a node latches SLIP/STALLED while its coils hold, not once the host turned them off).  The joint then heads for the
 goal it had.  A stepper found unpowered and without a latch when the arm opens (power-up,
 or another program turned it off: ``armctl waypoints record`` then ``play``) is treated the
 same way.  Torque the node turned off itself (an alarm, its latch set) is not re-synced.

@@ -308,9 +308,9 @@ class StepperFlag(IntFlag):
     """Bits of the stepper node's ``status_flags`` register (address 26)."""
 
     MOVING = 0x01  # a move towards goal_position is in progress
-    SLIP = 0x02  # |deflection| exceeded slip_threshold: steps were lost (latched, torque on)
+    SLIP = 0x02  # |deflection| exceeded slip_threshold: steps were lost (latched; not while the host has the coils off)
     INDEX_SEEN = 0x04  # the joint encoder's index pulse has been latched
-    STALLED = 0x08  # |deflection| exceeded deflection_limit: over-deflection/stall (latched, torque on)
+    STALLED = 0x08  # |deflection| exceeded deflection_limit: over-deflection/stall (latched; not while the host has the coils off)
     HARDWARE_ERROR = 0x10  # hardware_error_status is not 0
 
 

@@ -260,7 +260,7 @@ def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
 def test_waypoints_recorded_by_one_program_play_back_in_another(tmp_path: Path) -> None:
     """``armctl waypoints record`` then ``armctl waypoints play``: two processes, so the
     second arm never turned the torque off itself.  Moved by hand while unpowered, a stepper
-    neither latches STALLED (its node latches only while the coils hold) nor does enabling
+    neither latches STALLED (a node does not once the host turned its coils off) nor does enabling
     its torque in the second program latch it: the arm re-syncs the node it found unpowered."""
     url = "emu://arm/arm?name=test_arm_two_programs"
     path = tmp_path / "by_hand.jsonl"
