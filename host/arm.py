@@ -21,18 +21,19 @@ make the node's own deflection (motor − joint) differ from its elastic element
 node's SLIP/STALLED protection watches the elastic element however the joints before it
 moved.
 
-**Torque off, and on again.**  An unpowered stepper's rotor turns with its joint (the
-elastic element relaxes; a hand moving the arm, a joint coasting on), which the node's step
-count cannot follow: its deflection then says the element is wound up, and enabling the
-torque would latch STALLED.  So when a cycle turns on a stepper's torque that this arm
-turned off and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first
-sends that node its command block (the goal it has, the coupling offset now) and
-``clear_flags`` RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin
-to match (``step_count`` moves with it); latches the joint had when its torque went off
-stay (a node latches SLIP/STALLED while its coils hold, not once the host turned them off).  The joint then heads for the
-goal it had.  A stepper found unpowered and without a latch when the arm opens (power-up,
-or another program turned it off: ``armctl waypoints record`` then ``play``) is treated the
-same way.  Torque the node turned off itself (an alarm, its latch set) is not re-synced.
+**Torque off, and on again.** An unpowered stepper's rotor turns with its joint (the elastic
+element relaxes; a hand moving the arm, a joint coasting on), which the node's step count
+cannot follow: its deflection then says the element is wound up, and enabling the torque
+would latch STALLED. So when a cycle turns on a stepper's torque that this arm turned off
+and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first sends that
+node its command block (the goal it has, the coupling offset now) and ``clear_flags``
+RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin to match
+(``step_count`` moves with it); latches the joint had when its torque went off stay (a node
+latches SLIP/STALLED while its coils hold, not once the host turned them off). The joint
+then heads for the goal it had. A stepper found unpowered and without a latch when the arm
+opens (power-up, or another program turned it off: ``armctl waypoints record`` then
+``play``) is treated the same way. Torque the node turned off itself (an alarm, its latch
+set) is not re-synced.
 
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
