@@ -22,7 +22,10 @@ from tools.fuzz.targets import TARGETS
 
 
 def _fuzz(argv: Sequence[str]) -> int:
-    parser = argparse.ArgumentParser(prog="hil-fuzz", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="hil-fuzz", description=__doc__.split("\n")[0],
+        epilog="hil-fuzz replay FILE [--port P]: replay a saved reproducer (exit 1 if the "
+               "failure reproduces); see hil-fuzz replay --help")
     parser.add_argument("--port", help="transport URL or serial port (default: the "
                         "emulator in process that has the target)")
     parser.add_argument("--target", required=True, choices=sorted(TARGETS))
