@@ -39,6 +39,13 @@ joints before it do.  A node cannot see the other joints: its ``deflection`` reg
 sends it that offset with every goal (``deflection_offset``), so its SLIP/STALLED
 protection watches the elastic element and does not trip under this compensation.
 
+**Braking lead** (the first four joints).  A stepper node plans every goal as a stop: it
+brakes towards it at its ``acceleration_limit``.  Goals a few milliseconds apart along a path
+would each be a stop it must be able to make, so the joint slows to what it could stop from
+within one step and trails the path (more, the faster the cycle).  The controller puts each
+stepper goal ahead by the braking distance at the path's speed, ``sign(q̇_des)·q̇_des²/(2a)``
+(:func:`braking_lead`); at the path's end ``q̇_des`` is 0 and the goal is the path's.
+
 **Waypoint files** are JSON lines (UTF-8, one JSON object per line)::
 
     {"kind": "arm-waypoints", "version": 1, "joints": ["J1", …, "J7"], "units": "rad, s"}
@@ -66,6 +73,7 @@ import numpy as np
 from host import arm_gravity, arm_kinematics
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
 from host.errors import StallError, UsageError
+from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
     ARM_JOINT_LIMITS,
@@ -98,6 +106,20 @@ _UPPER = np.array([hi for _, hi in ARM_JOINT_LIMITS])
 
 #: One joint encoder count (rad): the steppers' resolution.
 ENCODER_COUNT_RAD: Final = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
+#: The stepper nodes' acceleration limit at power-up (rad/s²): their motion profile brakes
+#: towards each goal at this rate.
+STEPPER_ACCEL_RAD_S2: Final = STEPPER_TABLE["acceleration_limit"].default * ENCODER_COUNT_RAD
+
+
+def braking_lead(qd_des: Vector, accel: float = STEPPER_ACCEL_RAD_S2) -> np.ndarray:
+    """How far ahead of the path to put a stepper's goal (rad) so that its node, which
+    plans every goal as a stop and brakes towards it at ``accel`` (rad/s²), keeps the
+    path's speed ``qd_des`` (rad/s): the braking distance ``sign(v)·v²/(2·accel)``.  Without
+    it a joint sent goals a few milliseconds apart along a path slows to what it could stop
+    from within each step and trails the path; at the path's end ``qd_des`` is 0 and so is
+    the lead."""
+    v = np.asarray(qd_des, dtype=float)
+    return np.sign(v) * v * v / (2.0 * accel)
 
 
 @dataclass(frozen=True)
@@ -282,16 +304,22 @@ class TrackingLog:
 
 class JointController:
     """The joint-space PID loop of ``arm`` (see the module docs) at ``rate_hz`` (None: back
-    to back), with the coupling feed-forward unless ``feedforward=False``."""
+    to back), with the coupling feed-forward unless ``feedforward=False``, and the stepper
+    goals led by their braking distance at the nodes' ``stepper_accel`` (rad/s²; None: not
+    led)."""
 
     def __init__(self, arm: Arm, gains: PidGains | None = None,
-                 rate_hz: float | None = DEFAULT_RATE_HZ, feedforward: bool = True) -> None:
+                 rate_hz: float | None = DEFAULT_RATE_HZ, feedforward: bool = True,
+                 stepper_accel: float | None = STEPPER_ACCEL_RAD_S2) -> None:
         if rate_hz is not None and not rate_hz > 0:
             raise UsageError(f"control rate {rate_hz} must be > 0 Hz")
         self.arm = arm
         self.pid = JointPid(gains)
         self.period = 0.0 if rate_hz is None else 1.0 / rate_hz
         self.feedforward = feedforward
+        #: The stepper nodes' acceleration limit (rad/s²) for :func:`braking_lead`; None:
+        #: goals on the path itself.
+        self.stepper_accel = stepper_accel
         #: Joint angles (rad, absolute frame when homed) at the stepper nodes' power-up.
         self.q_ref = self.power_up_angles()
         self.state: ArmState | None = None
@@ -317,6 +345,8 @@ class JointController:
         u = q_des + self.pid.update(q_des, q, dt, qd_des, qd)
         if self.feedforward:
             u[:N_STEPPERS] += coupling_feedforward(q_des, self.q_ref)
+        if self.stepper_accel is not None:
+            u[:N_STEPPERS] += braking_lead(qd_des[:N_STEPPERS], self.stepper_accel)
         return u
 
     def settled(self, state: ArmState, q_des: Vector, still: float = 0.002) -> bool:

@@ -19,12 +19,14 @@ from host.arm_control import (
     ENCODER_COUNT_RAD,
     MIN_JERK_PEAK,
     STALL_RETRIES,
+    STEPPER_ACCEL_RAD_S2,
     JointController,
     JointPid,
     PidGains,
     TrackingLog,
     Trajectory,
     Waypoint,
+    braking_lead,
     coupling_feedforward,
     load_waypoints,
     play_waypoints,
@@ -291,3 +293,44 @@ def test_waypoints_recorded_by_one_program_play_back_in_another(tmp_path: Path) 
                                                                     abs=0.03)
     finally:
         forget_shared_emulators()
+
+
+def test_braking_lead_is_the_stopping_distance_at_the_paths_speed() -> None:
+    # v²/(2a): 0.4²/(2·2) = 0.04 rad ahead, behind for a joint moving the other way, none at rest
+    assert braking_lead([0.4, -0.4, 0.0], 2.0) == pytest.approx([0.04, -0.04, 0.0])
+    # the nodes' power-up acceleration_limit, 5000 counts/s², in rad/s²
+    assert STEPPER_ACCEL_RAD_S2 == pytest.approx(5000 * ENCODER_COUNT_RAD)
+
+
+def _lag_on_a_ramp(arm: Arm, accel: float | None) -> float:
+    """Mean lag (rad) of J1 behind a 0.4 rad/s ramp over its second half, back to back."""
+    arm.torque(True)
+    arm.move([0.0] * 7, timeout=5.0)
+    control = JointController(arm, rate_hz=None, stepper_accel=accel)
+    q0 = np.array(control.start().joints)
+    seen: list[tuple[float, float]] = []
+
+    def ramp(t: float) -> tuple[np.ndarray, np.ndarray]:
+        q, qd = q0.copy(), np.zeros(7)
+        q[0] += 0.4 * min(t, 1.0)
+        qd[0] = 0.4 if t < 1.0 else 0.0
+        assert control.state is not None
+        seen.append((t, q[0] - control.state.joints[0]))
+        return q, qd
+
+    control.run(ramp, 1.3)
+    return float(np.mean([e for t, e in seen if 0.5 < t < 1.0]))
+
+
+def test_stepper_goals_led_by_their_braking_distance_keep_up_with_a_ramp() -> None:
+    """Goals sent back to back along a 0.4 rad/s ramp on J1: each is a stop to its node,
+    which then trails the ramp by about a centiradian; led by the braking distance, the
+    joint keeps within half of that of it (a little ahead: the loop's gains act too).  Its
+    own arm: earlier moves leave the nodes' velocity limits lower than the ramp's speed."""
+    arm = Arm.open("emu://arm/arm?name=test_arm_braking_lead")
+    arm.home()
+    unled = _lag_on_a_ramp(arm, None)
+    led = _lag_on_a_ramp(arm, STEPPER_ACCEL_RAD_S2)
+    arm.close()
+    assert unled > 0.006  # the cause: unled, the joint trails its goals
+    assert abs(led) < unled / 2
