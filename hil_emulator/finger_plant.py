@@ -71,7 +71,7 @@ from hil_emulator.hand_sensors import (
     taxel_forces,
     thermistor_counts,
 )
-from protocol.robot import HALL_SEQUENCE, HALL_STATES_PER_RAD
+from protocol.robot import FINGER_GEAR_RATIOS, HALL_SEQUENCE, HALL_STATES_PER_RAD
 
 _DRIVE, _BRAKE, _COAST = 0, 1, 2
 #: Where :meth:`FingerPlant.press` pushes: the pad centre (m, body frame) of each segment.
@@ -397,6 +397,23 @@ class FingerPlant:
     def motor_currents_a(self) -> np.ndarray:
         """Signed winding currents of the last tick (A); 0 while coasting."""
         return np.array(self._current_a)
+
+    def capstan_torques_nm(self) -> np.ndarray:
+        """Each motor's pull on its tendon as the torque at its capstan (N·m, signed): the
+        motor torque of the last step (the actuator's force on its motor tendon, MuJoCo's
+        ``actuator_force``) times its gear ratio (:data:`protocol.robot.FINGER_GEAR_RATIOS`).
+        A tendon's tension is this over its capstan's radius, which the model does not
+        have; 0 while the motors coast (a slack finger)."""
+        force = self.data.actuator_force
+        return np.array([g * float(force[a]) for g, a in zip(FINGER_GEAR_RATIOS, self._act,
+                                                              strict=True)])
+
+    def tendon_load_nm(self) -> float:
+        """The most loaded tendon's capstan torque (N·m, ≥ 0; :meth:`capstan_torques_nm`):
+        what flexes and strains the tendons, and so their contacts."""
+        force = self.data.actuator_force
+        return max(abs(g * float(force[a])) for g, a in zip(FINGER_GEAR_RATIOS, self._act,
+                                                             strict=True))
 
     def winding_temperatures_c(self) -> np.ndarray:
         """Winding temperatures (°C) of motors 0..2."""

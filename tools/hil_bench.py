@@ -9,8 +9,9 @@
 run per file × seed × ``campaign.vary`` combination, on ``--workers`` local processes or a
 Dask scheduler (the same code path).  It prints one line per run and exits 0 only if every
 assertion of every run holds (1 otherwise; 2 for a usage or scenario-file error).
-``--json`` writes every result; ``--report`` a Markdown summary, one JSON per run and PNG
-plots around each fault.  ``list-faults`` prints the fault catalogue with parameters,
+``--json`` writes every result; ``--report`` a Markdown summary (opening with the pass rates
+per fault class and per ``campaign.vary`` parameter value, and their bar charts), one JSON
+per run and PNG plots around each fault.  ``list-faults`` prints the fault catalogue with parameters,
 including those not implemented yet.  ``experiments`` hands its arguments to
 ``tools.bench_experiments``.
 """
@@ -37,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seeds", metavar="N|A,B", help="N seeds 0..N-1, or a list of seeds "
                      "(default: each file's campaign.seeds or seed)")
     run.add_argument("--json", metavar="OUT", help="write every result to OUT (JSON)")
-    run.add_argument("--report", metavar="DIR", help="write summary.md, one JSON per run and "
+    run.add_argument("--report", metavar="DIR", help="write summary.md (pass rates per fault "
+                     "class and parameter value, with bar charts), one JSON per run and "
                      "PNG plots around each fault into DIR")
     run.add_argument("--workers", type=int, default=1, metavar="N",
                      help="local processes (default 1: this process)")

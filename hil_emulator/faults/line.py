@@ -2,11 +2,13 @@
 
 They act through :class:`~hil_emulator.rs485_bus.Rs485Bus` (its error rates, frame loss, line
 cut, and its ``fault_filter`` hook on what the receivers get) and the tendon contact
-(:func:`~hil_emulator.hand_rig.tendon_glitch`).
+(:func:`~hil_emulator.hand_rig.tendon_glitch`); ``burst_dropout`` on a tendon bus may follow
+the finger's tendon load from the physics.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -17,6 +19,9 @@ from hil_emulator.faults.base import Fault
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
+
+#: A finger's tendon bus name; group 1 the finger's index.
+_TENDON_BUS = re.compile(r"tendon(\d)")
 
 
 @dataclass
@@ -97,38 +102,69 @@ class BurstDropout(Fault):
     """Frames on ``bus`` lost in bursts: a two-state Gilbert model drawn once per frame.
     In the good state a frame is lost with ``loss_good``, in the bad state with
     ``loss_bad``; the line goes bad with ``p_enter`` and good again with ``p_leave`` per
-    frame (mean burst length ``1 / p_leave`` frames)."""
+    frame (mean burst length ``1 / p_leave`` frames).
+
+    With ``tendon_torque_nm`` (a ``tendon<k>`` bus, physics on) the steel tendons' contact
+    worsens under load, as the tendons carrying the phalanges' power and data strain and
+    flex: each frame's good → bad probability is ``p_enter · load / tendon_torque_nm``,
+    clipped to 1, where ``load`` is the finger's most loaded tendon at that moment
+    (:meth:`~hil_emulator.finger_plant.FingerPlant.tendon_load_nm`: the largest motor
+    torque times its gear ratio, N·m at the capstan, i.e. tension × capstan radius; the
+    model has tendons as motor-to-joint couplings without a capstan radius, so the load is
+    given as that torque, not in newtons).  A slack finger (motors coasting) never enters
+    bursts; one driven against a stop or an object does most.  ``frames`` counts the frames
+    seen, ``lost`` those lost."""
 
     name = "burst_dropout"
     entry_point = "line model"
-    summary = "burst frame loss (two-state Gilbert model) on a bus"
+    summary = "burst frame loss (two-state Gilbert model) on a bus, optionally tendon-load driven"
     bus: str = "arm"  #: ``arm`` or ``tendon<k>``
     p_enter: float = 0.05  #: per frame, good → bad
     p_leave: float = 0.3  #: per frame, bad → good
     loss_good: float = 0.0  #: loss probability in the good state
     loss_bad: float = 1.0  #: loss probability in the bad state
+    #: N·m at the capstan (tension × capstan radius) at which ``p_enter`` applies in full
+    #: (``tendon<k>`` buses, physics on); None: ``p_enter`` whatever the load
+    tendon_torque_nm: float | None = None
     lost: int = field(default=0, init=False, repr=False)
+    frames: int = field(default=0, init=False, repr=False)
     _bad: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
         for key in ("p_enter", "p_leave", "loss_good", "loss_bad"):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise ValueError(f"{key} {getattr(self, key)} is not a probability")
+        if self.tendon_torque_nm is not None:
+            if not self.tendon_torque_nm > 0.0:
+                raise ValueError(f"tendon_torque_nm {self.tendon_torque_nm} must be positive")
+            if _TENDON_BUS.fullmatch(self.bus) is None:
+                raise ValueError(f"tendon_torque_nm needs a tendon<k> bus, not {self.bus!r}")
 
     def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
         self._bad = False
+        line = targets.bus(emulator, self.bus)
+        full = self.tendon_torque_nm
+        load = None
+        if full is not None:
+            m = _TENDON_BUS.fullmatch(self.bus)
+            assert m is not None  # checked in __post_init__
+            load = targets.finger_plant(emulator, int(m.group(1))).tendon_load_nm
 
         def gilbert(data: bytes) -> bytes:
+            self.frames += 1
             if self._bad:
                 self._bad = rng.random() >= self.p_leave
             else:
-                self._bad = rng.random() < self.p_enter
+                p_enter = self.p_enter
+                if load is not None and full is not None:
+                    p_enter = min(1.0, p_enter * load() / full)
+                self._bad = rng.random() < p_enter
             if rng.random() < (self.loss_bad if self._bad else self.loss_good):
                 self.lost += 1
                 return b""
             return data
 
-        targets.bus(emulator, self.bus).fault_filter = gilbert
+        line.fault_filter = gilbert
 
     def clear(self, emulator: Emulator) -> None:
         targets.bus(emulator, self.bus).fault_filter = None

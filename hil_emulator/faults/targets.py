@@ -3,7 +3,8 @@
 * nodes: ``"palm"``, ``"finger<k>.fmcb"``, ``"finger<k>.f2"``, ``"finger<k>.f3"`` (k = 0..3;
   the loose finger is ``finger0``), ``"arm.<id>"`` (Dynamixel id 1..7);
 * buses: ``"arm"`` (the arm's RS-485 line), ``"tendon<k>"`` (finger k's tendon bus);
-* host links: ``"palm"``, ``"arm"``, ``"finger0"`` (the loose finger's cable).
+* host links: ``"palm"``, ``"arm"``, ``"finger0"`` (the loose finger's cable);
+* finger physics: :func:`finger_plant` by the finger's index.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from hil_emulator.rs485_bus import Rs485Bus
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
+    from hil_emulator.finger_plant import FingerPlant
 
 _FINGER_NODE = re.compile(r"finger(\d)\.(fmcb|f2|f3)$")
 _ARM_NODE = re.compile(r"arm\.(\d)$")
@@ -48,6 +50,16 @@ def finger(emulator: Emulator, index: int) -> Finger:
     if emulator.loose is not None and index == 0:
         return emulator.loose.finger
     raise EmulatorConfigError(f"the {emulator.config!r} configuration has no finger {index}")
+
+
+def finger_plant(emulator: Emulator, index: int) -> FingerPlant:
+    """The physics of finger module ``index`` (or the loose finger, index 0)."""
+    finger(emulator, index)  # the same errors for a finger the configuration lacks
+    if not emulator.finger_plants:
+        raise EmulatorConfigError(f"finger {index} has no physics (the emulator runs with "
+                                  "physics off)")
+    plant: FingerPlant = emulator.finger_plants[index]
+    return plant
 
 
 def node(emulator: Emulator, name: str) -> NodeRef:

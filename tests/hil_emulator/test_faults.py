@@ -14,7 +14,7 @@ import pytest
 
 from hil_emulator.bring_up import BOOT_US
 from hil_emulator.emulator import Emulator
-from hil_emulator.errors import FaultPlanError
+from hil_emulator.errors import EmulatorConfigError, FaultPlanError
 from hil_emulator.faults import FAULTS, NOT_YET_IMPLEMENTED, catalogue, make_fault, parse_plan
 from hil_emulator.faults.nodes import FaultySensors
 from host.errors import HostError, TransportError
@@ -120,6 +120,54 @@ def test_burst_dropout_loses_frames_in_runs() -> None:
     losses = [i for i, ok in enumerate(answered) if not ok]
     runs = sum(1 for i in losses if i - 1 not in losses)
     assert losses and len(losses) / runs > 1.8  # bursts, not isolated losses
+
+
+def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_finger_pulls(
+        ) -> None:
+    """Finger 1's tendon bus (≈ 400 frames/s: the fmcb's autopoll of f2 and f3) with bursts
+    entered at ``p_enter · load / tendon_torque_nm``: slack (motors coasting, load 0) it loses
+    nothing; holding a pose (≈ 0.23 N·m at the capstan) it loses frames; holding against a
+    3 N press on its fingertip (≈ 0.48 N·m, the most loaded tendon) more."""
+    emu = Emulator("hand", seed=3, physics=True, can="none")
+    try:
+        emu.bring_up()
+        plant = emu.finger_plants[1]
+        fault = make_fault("burst_dropout", {"bus": "tendon1", "p_enter": 0.2, "p_leave": 0.3,
+                                             "tendon_torque_nm": 0.5})
+        emu.faults.inject(fault)
+
+        def loss_rate_over_500_ms() -> tuple[float, float]:
+            """Lost / seen frames, and the largest tendon load (N·m) sampled every 50 ms."""
+            frames, lost = fault.frames, fault.lost
+            loads = []
+            for _ in range(10):
+                emu.step(50 * MS)
+                loads.append(plant.tendon_load_nm())
+            assert fault.frames - frames > 100
+            return (fault.lost - lost) / (fault.frames - frames), max(loads)
+
+        slack, slack_load = loss_rate_over_500_ms()
+        Hand(HandSession(emu.transport("palm"), retries=1)).move_fingers(
+            {1: [0.0, 1.0, 0.5]}, effort=255, timeout=1.0, unhomed=True)
+        held, held_load = loss_rate_over_500_ms()
+        plant.press("F3", 3.0)
+        pressed, pressed_load = loss_rate_over_500_ms()
+    finally:
+        emu.close()
+    assert slack_load == 0.0 and slack == 0.0
+    assert 0.1 < held_load < pressed_load < 1.0
+    assert 0.1 < held < pressed
+
+
+def test_a_tendon_load_driven_burst_dropout_needs_a_tendon_bus_and_physics(hand: Emulator
+                                                                          ) -> None:
+    with pytest.raises(FaultPlanError, match="needs a tendon<k> bus"):
+        make_fault("burst_dropout", {"bus": "arm", "tendon_torque_nm": 0.5})
+    with pytest.raises(FaultPlanError, match="must be positive"):
+        make_fault("burst_dropout", {"bus": "tendon0", "tendon_torque_nm": 0.0})
+    with pytest.raises(EmulatorConfigError, match="no physics"):
+        hand.faults.inject("burst_dropout", {"bus": "tendon2", "tendon_torque_nm": 0.5})
+    assert hand.hand.fingers[2].tendon_bus.fault_filter is None  # type: ignore[union-attr]
 
 
 def test_tendon_chip_errors_garble_characters_until_cleared(hand: Emulator) -> None:

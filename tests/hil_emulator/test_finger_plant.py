@@ -36,8 +36,8 @@ from hil_emulator.hand_sensors import DEFAULT_TACTILE, STRAIN_COUNTS_PER_NM
 from hil_emulator.plant import Plant, new_spec
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
+from protocol.robot import FINGER_GEAR_RATIOS, motor_to_joint
 from protocol.robot import finger_coupling_matrix as coupling_matrix
-from protocol.robot import motor_to_joint
 from protocol.stream import decode_all
 from protocol.topology import ADDR_FMCB
 
@@ -205,6 +205,11 @@ def test_winding_temperature_rises_while_a_motor_stalls_at_the_joint_stop() -> N
     rig.run_ms(6000)
     assert rig.part.joint_angles()[0] == pytest.approx(1.6, abs=0.02)
     assert rig.part.motor_currents_a()[0] == pytest.approx(DEFAULT_MOTOR.current_limit_a)
+    # Motor 0 pulls its tendon with its torque at the current limit, geared to the capstan.
+    assert rig.part.capstan_torques_nm()[0] == pytest.approx(
+        FINGER_GEAR_RATIOS[0] * DEFAULT_MOTOR.torque_limit_nm, rel=0.01)
+    assert rig.part.tendon_load_nm() == pytest.approx(
+        float(np.max(np.abs(rig.part.capstan_torques_nm()))))
     after = [values[f"temperature{i}"] for i in range(3)]
     assert isinstance(after[0], int) and after[0] >= 252
     # Motors 1 and 2 brake the creep motor 0 forces on J2/J3 through the coupling: they

@@ -1,19 +1,126 @@
 """Reports of a bench run: a Markdown summary, one JSON result per run, PNG plots around
-each fault (matplotlib, Agg: no display needed)."""
+each fault (matplotlib, Agg: no display needed).
+
+A campaign's summary opens with its pass rates: per fault class (a run counts once for
+every fault class of its plan) and, for scenarios with ``campaign.vary`` overrides, per
+scenario, override key and value; :data:`FAULT_RATES_PNG` and :data:`PARAMETER_RATES_PNG`
+chart them.
+"""
 
 from __future__ import annotations
 
 import json
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 #: Seconds of trace before and after a fault's start in its plot.
 PLOT_BEFORE_S = 0.2
 PLOT_AFTER_S = 0.8
 #: Plots per run at most.
 MAX_PLOTS = 4
+#: The bar charts of the pass rates, per fault class and per parameter value.
+FAULT_RATES_PNG: Final = "pass_rates_by_fault.png"
+PARAMETER_RATES_PNG: Final = "pass_rates_by_parameter.png"
+#: The class a run with an empty fault plan counts under.
+NO_FAULT: Final = "(no fault)"
+
+
+@dataclass(frozen=True)
+class PassRate:
+    """How many of ``runs`` runs of one group passed.  ``scenario``, ``key`` and ``value``
+    name a parameter group (empty for a fault class, named by ``label``)."""
+
+    label: str
+    runs: int
+    passed: int
+    scenario: str = ""
+    key: str = ""
+    value: Any = None
+
+    @property
+    def rate(self) -> float:
+        """The fraction of runs that passed, 0..1."""
+        return self.passed / self.runs if self.runs else 0.0
+
+    def cells(self) -> str:
+        """``runs | passed | rate`` as Markdown table cells."""
+        return f"{self.runs} | {self.passed} | {100.0 * self.rate:.1f} %"
+
+
+def fault_classes(result: dict[str, Any]) -> list[str]:
+    """The fault classes of a run: its ``faults`` (its plan's), else the faults its timeline
+    shows (results written before ``faults`` was recorded); :data:`NO_FAULT` if none."""
+    names = result.get("faults")
+    if names is None:
+        names = list(dict.fromkeys(e["fault"] for e in result.get("timeline", [])))
+    return list(names) or [NO_FAULT]
+
+
+def pass_rates_by_fault(results: Sequence[dict[str, Any]]) -> list[PassRate]:
+    """One :class:`PassRate` per fault class, by name; a run counts for each of its classes."""
+    counts: dict[str, list[int]] = {}
+    for r in results:
+        for name in fault_classes(r):
+            runs_passed = counts.setdefault(name, [0, 0])
+            runs_passed[0] += 1
+            runs_passed[1] += bool(r["passed"])
+    return [PassRate(name, runs, passed) for name, (runs, passed) in sorted(counts.items())]
+
+
+def _value_text(value: Any) -> str:
+    return json.dumps(value)
+
+
+def _ordered(values: list[Any]) -> list[Any]:
+    """``values`` sorted when they compare (numbers, or text), else as first seen."""
+    try:
+        return sorted(values)
+    except TypeError:
+        return values
+
+
+def pass_rates_by_parameter(results: Sequence[dict[str, Any]]) -> list[PassRate]:
+    """One :class:`PassRate` per scenario, override key (``faults.0.params.rate``) and value,
+    for the runs with ``overrides``: by scenario, key, then value."""
+    groups: dict[tuple[str, str], dict[str, tuple[Any, list[int]]]] = {}
+    for r in results:
+        for key, value in r.get("overrides", {}).items():
+            by_value = groups.setdefault((r["scenario"], key), {})
+            _, runs_passed = by_value.setdefault(_value_text(value), (value, [0, 0]))
+            runs_passed[0] += 1
+            runs_passed[1] += bool(r["passed"])
+    rates = []
+    for (scenario, key), by_value in sorted(groups.items()):
+        values = _ordered([v for v, _ in by_value.values()])
+        for value in values:
+            runs, passed = by_value[_value_text(value)][1]
+            rates.append(PassRate(f"{key} = {_value_text(value)}", runs, passed, scenario,
+                                  key, value))
+    return rates
+
+
+def pass_rates_markdown(results: Sequence[dict[str, Any]], plots: bool = False
+                        ) -> list[str]:
+    """The pass-rate tables (Markdown lines); with ``plots``, the charts referenced."""
+    lines = ["## Pass rate by fault class", "",
+             "A run counts once for every fault class of its plan.", "",
+             "| fault | runs | passed | rate |", "|---|---|---|---|"]
+    lines += [f"| {p.label} | {p.cells()} |" for p in pass_rates_by_fault(results)]
+    if plots and results:
+        lines += ["", f"![pass rate by fault class]({FAULT_RATES_PNG})"]
+    by_parameter = pass_rates_by_parameter(results)
+    if by_parameter:
+        lines += ["", "## Pass rate by parameter", "",
+                  "| scenario | parameter | value | runs | passed | rate |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {p.scenario} | `{p.key}` | {_value_text(p.value)} | {p.cells()} |"
+                  for p in by_parameter]
+        if plots:
+            lines += ["", f"![pass rate by parameter]({PARAMETER_RATES_PNG})"]
+    return lines
 
 
 def run_name(result: dict[str, Any]) -> str:
@@ -23,12 +130,15 @@ def run_name(result: dict[str, Any]) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{result['scenario']}-seed{result['seed']}{extra}")
 
 
-def summary_markdown(results: Sequence[dict[str, Any]]) -> str:
-    """The Markdown summary: one row per run, then every failed assertion."""
+def summary_markdown(results: Sequence[dict[str, Any]], plots: bool = False) -> str:
+    """The Markdown summary: the pass rates (:func:`pass_rates_markdown`; ``plots``: with
+    the charts referenced), one row per run, then every failed assertion."""
     passed = sum(r["passed"] for r in results)
     lines = ["# HIL bench summary", "",
-             f"{passed} of {len(results)} runs passed.", "",
-             "| scenario | seed | result | assertions | simulated s | wall s |",
+             f"{passed} of {len(results)} runs passed.", ""]
+    lines += pass_rates_markdown(results, plots)
+    lines += ["", "## Runs", "",
+              "| scenario | seed | result | assertions | simulated s | wall s |",
              "|---|---|---|---|---|---|"]
     for r in results:
         ok = sum(a["passed"] for a in r["assertions"])
@@ -50,11 +160,14 @@ def summary_markdown(results: Sequence[dict[str, Any]]) -> str:
 
 
 def write_report(results: Sequence[dict[str, Any]], directory: str | Path) -> list[Path]:
-    """Write summary.md, ``<run>.json`` and ``<run>-fault<k>.png`` into ``directory``."""
+    """Write summary.md, the pass-rate charts (:data:`FAULT_RATES_PNG`, and
+    :data:`PARAMETER_RATES_PNG` when runs have overrides), ``<run>.json`` and
+    ``<run>-fault<k>.png`` into ``directory``."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / "summary.md"]
-    written[0].write_text(summary_markdown(results), encoding="utf-8")
+    written[0].write_text(summary_markdown(results, plots=True), encoding="utf-8")
+    written += plot_pass_rates(results, out)
     for r in results:
         name = run_name(r)
         path = out / f"{name}.json"
@@ -66,14 +179,67 @@ def write_report(results: Sequence[dict[str, Any]], directory: str | Path) -> li
     return written
 
 
-def plot_faults(result: dict[str, Any], out: Path, name: str) -> list[Path]:
-    """One PNG per applied fault (at most :data:`MAX_PLOTS`): plant truth and host view
-    from :data:`PLOT_BEFORE_S` before to :data:`PLOT_AFTER_S` after its start."""
+def _pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _bars(ax: Any, rates: Sequence[PassRate], labels: Sequence[str]) -> None:
+    """Horizontal bars of ``rates`` (0..1), each annotated ``passed/runs``."""
+    ys = range(len(rates))
+    ax.barh(ys, [p.rate for p in rates], color=["tab:green" if p.rate == 1.0 else "tab:red"
+                                                for p in rates])
+    ax.set_yticks(list(ys), list(labels), fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlim(0.0, 1.15)
+    for y, p in zip(ys, rates, strict=True):
+        ax.text(p.rate + 0.01, y, f"{p.passed}/{p.runs}", va="center", fontsize=7)
+
+
+def plot_pass_rates(results: Sequence[dict[str, Any]], out: Path) -> list[Path]:
+    """:data:`FAULT_RATES_PNG` (one bar per fault class) and, when runs have overrides,
+    :data:`PARAMETER_RATES_PNG` (one panel per scenario and override key, one bar per
+    value) in ``out``; the paths written."""
+    if not results:
+        return []
+    plt = _pyplot()
+    paths = []
+    by_fault = pass_rates_by_fault(results)
+    fig, ax = plt.subplots(figsize=(8, 1.0 + 0.25 * len(by_fault)))
+    _bars(ax, by_fault, [p.label for p in by_fault])
+    ax.set_xlabel("pass rate")
+    ax.set_title(f"Pass rate by fault class ({len(results)} runs)", fontsize=9)
+    fig.tight_layout()
+    paths.append(out / FAULT_RATES_PNG)
+    fig.savefig(paths[-1], dpi=80)
+    plt.close(fig)
+    by_parameter = pass_rates_by_parameter(results)
+    if by_parameter:
+        panels: dict[tuple[str, str], list[PassRate]] = {}
+        for p in by_parameter:
+            panels.setdefault((p.scenario, p.key), []).append(p)
+        heights = [1.0 + 0.25 * len(v) for v in panels.values()]
+        fig, axes = plt.subplots(len(panels), 1, figsize=(8, sum(heights)), squeeze=False,
+                                 gridspec_kw={"height_ratios": heights})
+        for ax, ((scenario, key), rates) in zip(axes[:, 0], panels.items(), strict=True):
+            _bars(ax, rates, [_value_text(p.value) for p in rates])
+            ax.set_title(f"{scenario}: {key}", fontsize=9)
+        axes[-1, 0].set_xlabel("pass rate")
+        fig.tight_layout()
+        paths.append(out / PARAMETER_RATES_PNG)
+        fig.savefig(paths[-1], dpi=80)
+        plt.close(fig)
+    return paths
+
+
+def plot_faults(result: dict[str, Any], out: Path, name: str) -> list[Path]:
+    """One PNG per applied fault (at most :data:`MAX_PLOTS`): plant truth and host view
+    from :data:`PLOT_BEFORE_S` before to :data:`PLOT_AFTER_S` after its start."""
+    plt = _pyplot()
     trace = result["trace"]
     applies = [e for e in result["timeline"] if e["action"] == "apply"][:MAX_PLOTS]
     paths = []

@@ -273,8 +273,9 @@ class Bench:
 def run_scenario(raw: dict[str, Any], source: str = "<scenario>",
                  keep_trace: bool = False) -> dict[str, Any]:
     """Run the scenario table ``raw``; its result as plain data: ``passed``, one entry per
-    assertion (``passed``, ``measured``, ``message``), the actions, the timeline (and, with
-    ``keep_trace``, the samples for plots).  ``wall_s`` is the only field that varies
+    assertion (``passed``, ``measured``, ``message``), the actions, the timeline, ``faults``
+    (the fault classes of the plan, each once, in plan order: what a campaign report counts
+    the run under) and, with ``keep_trace``, the samples for plots.  ``wall_s`` is the only field that varies
     between equal runs."""
     scenario = parse_scenario(raw, source)
     started = time.perf_counter()
@@ -287,6 +288,7 @@ def run_scenario(raw: dict[str, Any], source: str = "<scenario>",
     out: dict[str, Any] = {
         "scenario": scenario.name, "source": source, "seed": scenario.seed,
         "config": scenario.config,
+        "faults": list(dict.fromkeys(e.fault.name for e in scenario.faults)),
         "passed": all(r["passed"] for r in results),
         "assertions": results,
         "actions": record.actions,
