@@ -128,6 +128,9 @@ class DynamixelBus:
         self.stats = BusStats()
         self.on_bytes: Callable[[str, bytes, float], None] | None = None
         self._decoder = DynamixelStreamDecoder("status")
+        #: When (s, the transport's clock) what this client last sent has left the wire: a
+        #: write that expects no reply returns at once, and the next request queues behind it.
+        self._line_free_at = 0.0
 
     # ------------------------------------------------------------------ timing
 
@@ -186,11 +189,12 @@ class DynamixelBus:
         self.stats.requests += 1
         self.stats.bytes_sent += len(raw)
         self._emit("tx", raw)
-        start = transport.now()
+        start = max(transport.now(), self._line_free_at)  # behind what is still going out
         transport.send(raw)
+        self._line_free_at = start + self.wire_time(len(raw))
         if not expected:
             return []
-        deadline = start + self.wire_time(len(raw)) + self.reply_time(expected) + self.latency_s
+        deadline = self._line_free_at + self.reply_time(expected) + self.latency_s
         replies: list[StatusPacket] = []
         want = 0
         misfit: StatusPacket | None = None

@@ -107,6 +107,25 @@ def test_deadline_is_the_wire_time_plus_return_delay() -> None:
     assert late.transport.now() == pytest.approx(162e-6)
 
 
+def test_a_request_after_writes_still_on_the_wire_waits_for_them_too() -> None:
+    # Two SYNC_WRITEs of 26 bytes each expect no reply and return at once (t = 0); the READ
+    # behind them goes out only when they have left the wire, 2 × 26 bytes × 10 µs = 520 µs
+    # later, so its deadline is 520 + 162 µs: counted from the send it would be 162 µs.
+    data = {1: b"\x00" * 8, 2: b"\x00" * 8}
+    for delay, answers in ((561e-6, True), (683e-6, False)):
+        bus = bus_on([[], [], [(delay, STATUS_1_MODEL)]], retries=0)
+        bus.return_delay_us[1] = 0
+        bus.sync_write(30, 8, data)
+        bus.sync_write(30, 8, data)
+        assert [len(raw) for _, raw in bus.transport.sent] == [26, 26]  # type: ignore[attr-defined]
+        if answers:
+            assert bus.read(1, 0, 2) == b"\x40\x00"
+        else:
+            with pytest.raises(ReplyTimeout):
+                bus.read(1, 0, 2)
+            assert bus.transport.now() == pytest.approx(682e-6)
+
+
 def test_no_reply_times_out_after_the_retries_with_factory_delays() -> None:
     bus = bus_on([], retries=2)
     with pytest.raises(ReplyTimeout, match="node\\(s\\) 1"):
