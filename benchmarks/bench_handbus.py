@@ -30,8 +30,8 @@ from benchmarks.capture import make_capture
 from benchmarks.harness import Result
 from protocol.catalogue import REQUEST
 from protocol.errors import ProtocolError
-from protocol.framing import DEFAULT_MAX_PAYLOAD, encode_frame
-from protocol.interpret import Interpretation, candidate_nodes
+from protocol.framing import DEFAULT_MAX_PAYLOAD, Frame, encode_frame
+from protocol.interpret import Interpretation, candidate_nodes, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
 from protocol.topology import ADDR_HOST
@@ -63,8 +63,10 @@ def interpret_from_scratch(frame: Any, hint: str | None) -> Interpretation:
     return Interpretation(first[0], direction, None, first[1])
 
 
-def decode_per_frame_dumps(data: bytes, out: io.StringIO) -> None:
-    """The former writer: a dict per frame, ``jsonable`` copy, ``print(json.dumps(…))``."""
+def decode_per_frame_dumps(data: bytes, out: io.StringIO, node: str | None = None) -> None:
+    """The former writer: a dict per frame, ``jsonable`` copy, ``print(json.dumps(…))``
+    (``node``: as ``handbus decode --node``); the benchmark's baseline and the oracle of the
+    handbus tests."""
     decoder = StreamDecoder(gap_s=None, report_rejected=True)
     last: dict[int, str] = {}
     for frame in decoder.feed(data) + decoder.flush():
@@ -73,7 +75,7 @@ def decode_per_frame_dumps(data: bytes, out: io.StringIO) -> None:
                                   "length": len(frame.payload), "crc_ok": frame.crc_ok,
                                   "fields": None}
         if frame.crc_ok:
-            hint = last.get(frame.type) if frame.address == ADDR_HOST else None
+            hint = node or (last.get(frame.type) if frame.address == ADDR_HOST else None)
             meaning = interpret_from_scratch(frame, hint)
             record["name"] = meaning.name
             record["direction"] = meaning.direction
@@ -84,6 +86,11 @@ def decode_per_frame_dumps(data: bytes, out: io.StringIO) -> None:
                 last[frame.type] = meaning.message.node
             if meaning.message is None:
                 record["payload"] = frame.payload.hex()
+            layers = unwrap_envelopes(meaning, Frame(frame.address, frame.type, frame.payload))
+            if layers:
+                record["wrapped"] = [
+                    {"name": layer.name, "fields": jsonable(layer.fields),
+                     **({"error": layer.error} if layer.error else {})} for layer in layers]
         else:
             record["payload"] = frame.payload.hex()
         print(json.dumps(record, ensure_ascii=False), file=out)

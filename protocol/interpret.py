@@ -16,11 +16,11 @@ words, so its rejection is kept too; every other candidate is tried on each payl
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import PayloadError
-from protocol.framing import Frame
+from protocol.framing import Frame, FrameError, parse_frame
 from protocol.messages import CATALOGUE
 from protocol.topology import ADDR_BROADCAST, ADDR_HOST, NODE_ADDRESS, NodeKind
 
@@ -122,3 +122,61 @@ def interpret(frame: Frame, hint: str | None = None) -> Interpretation:
         if first_error is None:
             first_error, first_message = error, msg
     return Interpretation(first_message, direction, None, first_error)
+
+
+
+#: The node kind whose catalogue a ``txn`` reply's ``board`` names.
+_BOARD_NODE: dict[str, str] = {"PALM": "palm", "FMCB": "fmcb", "F2": "f2", "F3": "f3"}
+#: Envelopes inside envelopes a capture may show (txn, palm.route, txn, message): enough.
+MAX_WRAPPED: Final = 4
+
+
+def _name(value: Any) -> str:
+    return str(getattr(value, "name", value))
+
+
+def interpret_inner(outer: Interpretation, frame: Frame) -> tuple[Interpretation, Frame] | None:
+    """The message one envelope wraps, decoded as :func:`interpret` would a frame of its
+    own, with that frame; None when ``outer`` wraps nothing (not an envelope, or a reply
+    that carries no answer).  Never raises.
+
+    * ``txn``: ``inner_type`` and ``inner``, to the same address; a reply's ``board`` names
+      the node tried first.
+    * ``palm.route``: ``frame``, a complete hand frame for (or from) the node ``hop`` of a
+      finger; one that does not parse as a frame is an interpretation with its ``error``.
+    """
+    fields = outer.fields
+    if fields is None:
+        return None
+    if outer.name == "txn":
+        if outer.direction == REPLY and int(fields["status"]) != 0:  # TxnStatus.OK
+            return None
+        hint = _BOARD_NODE.get(_name(fields["board"])) if outer.direction == REPLY else None
+        inner = Frame(frame.address, int(fields["inner_type"]), bytes(fields["inner"]))
+        return interpret(inner, hint), inner
+    if outer.name == "palm.route":
+        raw = bytes(fields["frame"])
+        if not raw:
+            return None
+        try:
+            inner = parse_frame(raw)
+        except FrameError as exc:
+            return Interpretation(None, outer.direction, None, f"routed frame: {exc}"), frame
+        return interpret(inner, _name(fields["hop"]).lower()), inner
+    return None
+
+
+def unwrap_envelopes(outer: Interpretation, frame: Frame) -> list[Interpretation]:
+    """Every message inside ``outer``'s envelopes, outermost first (at most
+    :data:`MAX_WRAPPED`): a palm poll's ``txn`` reply gives ``palm.route``, the finger's
+    ``txn`` and its ``fmcb.status``.  Empty for a frame that is no envelope."""
+    layers: list[Interpretation] = []
+    while len(layers) < MAX_WRAPPED:
+        found = interpret_inner(outer, frame)
+        if found is None:
+            break
+        outer, frame = found
+        layers.append(outer)
+        if outer.message is None:
+            break
+    return layers

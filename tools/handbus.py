@@ -32,7 +32,7 @@ import construct as c
 from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import ProtocolError
 from protocol.framing import DEFAULT_MAX_PAYLOAD, Frame
-from protocol.interpret import interpret
+from protocol.interpret import interpret, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import FrameTuple, StreamDecoder
 from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
@@ -240,6 +240,16 @@ class HandRecords:
             text += f', "error": {_encode(meaning.error)}'
         if msg is None:
             text += f', "payload": "{frame.payload.hex()}"'
+        layers = unwrap_envelopes(meaning, frame)
+        if layers:  # what the envelopes (txn, palm.route) carry, decoded beside their bytes
+            wrapped = []
+            for layer in layers:
+                entry: dict[str, Any] = {"name": layer.name, "fields": (
+                    jsonable(layer.fields) if layer.fields is not None else None)}
+                if layer.error:
+                    entry["error"] = layer.error
+                wrapped.append(entry)
+            text += f', "wrapped": {_encode(wrapped)}'
         request_node = msg.node if msg is not None and meaning.direction == REQUEST else None
         return text + "}\n", request_node
 

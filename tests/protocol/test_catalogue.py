@@ -26,13 +26,15 @@ from protocol.catalogue import (
     static_size,
 )
 from protocol.errors import MessageError, PayloadError, ProtocolError, UnknownMessageError
-from protocol.framing import Frame
-from protocol.interpret import candidate_nodes, interpret
+from protocol.framing import Frame, encode_frame
+from protocol.interpret import candidate_nodes, interpret, unwrap_envelopes
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 from protocol.messages.fields import EMPTY
 from protocol.messages.fmcb import TUNNEL_MAX
+from protocol.messages.palm import RouteStatus
 from protocol.strategies import unwrap as _unwrap
 from protocol.strategies import values_for
+from protocol.topology import Hop
 
 # Field values come from the shared strategies of protocol.strategies (``values_for``).
 
@@ -335,6 +337,37 @@ def test_interpret_never_raises(address: int, msg_type: int, payload: bytes,
     if meaning.fields is not None:
         assert meaning.message is not None
         assert meaning.error is None
+    assert len(unwrap_envelopes(meaning, Frame(address, msg_type, payload))) <= 4
+
+
+@settings(max_examples=200)
+@given(st.binary(max_size=80), st.sampled_from([0x61, 0x62]))
+def test_unwrapping_any_envelope_never_raises(inner: bytes, inner_type: int) -> None:
+    # a txn reply from the palm (status OK) around arbitrary bytes, read as palm.route or not
+    payload = bytes([1, 1, 10, inner_type, 0]) + inner
+    for layer in unwrap_envelopes(interpret(Frame(0, 0x61, payload)), Frame(0, 0x61, payload)):
+        assert (layer.fields is None) == (layer.message is None or layer.error is not None)
+
+
+def test_a_palm_poll_reply_unwraps_to_the_finger_nodes_message() -> None:
+    """txn (palm) ⊃ palm.route (finger 2, f2) ⊃ the f2's hw_version reply, bytes by hand."""
+    # hw_version reply of the f2 to the host: 0xBEEF0041, little-endian
+    routed = encode_frame(0, 0xFA, bytes.fromhex("4100efbe"))
+    route = bytes([2, Hop.F2, RouteStatus.OK]) + routed  # finger, hop, status, frame
+    txn = bytes([7, 1, 10, 0x62, 0]) + route  # seq, board PALM, address, palm.route, OK
+    outer = interpret(Frame(0, 0x61, txn))
+    assert outer.name == "txn"
+    layers = unwrap_envelopes(outer, Frame(0, 0x61, txn))
+    assert [layer.name for layer in layers] == ["palm.route", "hw_version"]
+    assert layers[0].fields is not None and layers[0].fields["finger"] == 2
+    assert layers[1].fields == {"version": 0xBEEF0041}
+    # a refused txn carries nothing; a routed frame that is no frame says why
+    refused = bytes([7, 1, 10, 0x62, 4])  # status NO_REPLY, no inner
+    assert unwrap_envelopes(interpret(Frame(0, 0x61, refused)), Frame(0, 0x61, refused)) == []
+    broken = bytes([7, 1, 10, 0x62, 0, 2, Hop.F2, RouteStatus.OK]) + routed[:-1]
+    layers = unwrap_envelopes(interpret(Frame(0, 0x61, broken)), Frame(0, 0x61, broken))
+    assert [layer.name for layer in layers] == ["palm.route", None]
+    assert layers[1].error is not None and layers[1].error.startswith("routed frame:")
 
 
 # --- lookup ---------------------------------------------------------------------------------

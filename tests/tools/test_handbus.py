@@ -225,36 +225,14 @@ def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
 def reference_lines(data: bytes, node: str | None = None) -> str:
     """What ``handbus decode`` printed before it was made fast: a dict per frame, deep-copied
     by ``jsonable`` and printed by ``json.dumps`` (the oracle of the fast writer)."""
-    from benchmarks.bench_handbus import interpret_from_scratch as interpret_slowly
-    from protocol.catalogue import REQUEST
+    from benchmarks.bench_handbus import decode_per_frame_dumps
     from protocol.stream import StreamDecoder, decode_all
-    from protocol.topology import ADDR_HOST
     decoder = StreamDecoder(gap_s=None, report_rejected=True)
     frames = decoder.feed(data) + decoder.flush()
     assert [f for f in frames if f.crc_ok] == decode_all(data)
-    lines = []
-    last: dict[int, str] = {}
-    for frame in frames:
-        record: dict[str, Any] = {"offset": frame.offset, "addr": frame.address,
-                                  "type": frame.type, "name": None,
-                                  "length": len(frame.payload), "crc_ok": frame.crc_ok,
-                                  "fields": None}
-        if frame.crc_ok:
-            hint = node or (last.get(frame.type) if frame.address == ADDR_HOST else None)
-            meaning = interpret_slowly(frame, hint)
-            record["name"] = meaning.name
-            record["direction"] = meaning.direction
-            record["fields"] = handbus.jsonable(meaning.fields)
-            if meaning.error:
-                record["error"] = meaning.error
-            if meaning.message and meaning.direction == REQUEST:
-                last[frame.type] = meaning.message.node
-            if meaning.message is None:
-                record["payload"] = frame.payload.hex()
-        else:
-            record["payload"] = frame.payload.hex()
-        lines.append(json.dumps(record, ensure_ascii=False) + "\n")
-    return "".join(lines)
+    out = io.StringIO()
+    decode_per_frame_dumps(data, out, node)
+    return out.getvalue()
 
 
 def fast_lines(data: bytes, node: str | None = None) -> str:
