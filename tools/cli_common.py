@@ -23,6 +23,7 @@ wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 100 ms o
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import Final
@@ -43,6 +44,8 @@ EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
 EXIT_USAGE: Final = 2
 EXIT_INTERRUPTED: Final = 130
+#: Standard output closed by its reader (``… | head``): as a process killed by SIGPIPE.
+EXIT_BROKEN_PIPE: Final = 141
 
 
 def port_help(what: str) -> str:
@@ -104,9 +107,12 @@ def run(prog: str, port: str, body: Callable[[], int], *,
     """Run ``body`` and map what it raises to a message on stderr and an exit status:
     :class:`UsageError` (and ``usage``: a CLI's own "refused before anything was
     touched") → 2, other :class:`HostError` → 1 (``hint``, if given, ends its message),
-    ``OSError`` (a file) → 1, Ctrl-C → 130."""
+    ``OSError`` (a file) → 1, Ctrl-C → 130, standard output closed by its reader → 141,
+    quietly."""
     try:
-        return body()
+        status = body()
+        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+        return status
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -120,6 +126,9 @@ def run(prog: str, port: str, body: Callable[[], int], *,
         print(f"{prog}: {advice(exc, port, prog)}" + (f"\n{hint}." if hint else ""),
               file=sys.stderr)
         return EXIT_ROBOT
+    except BrokenPipeError:
+        _silence_stdout()  # nothing more reaches the reader, and no error at exit either
+        return EXIT_BROKEN_PIPE
     except OSError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_ROBOT
@@ -145,3 +154,15 @@ def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
     if isinstance(args, int):
         return args
     return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint)
+
+
+def _silence_stdout() -> None:
+    """Point standard output at /dev/null, so the interpreter's flush at exit does not
+    report the closed pipe again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return  # not a file descriptor (a test's capture): nothing will be flushed to it
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)

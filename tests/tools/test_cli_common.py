@@ -143,3 +143,25 @@ def test_a_request_a_bootloader_does_not_know_says_to_wait_for_the_application()
     assert "bootloader" in text and "handctl --port ./robot/palm ping" in text
     other = NodeError("palm refused palm.poll: bad_payload", status=TxnStatus.BAD_PAYLOAD)
     assert cli_common.advice(other, "./robot/palm", "handctl") == str(other)
+
+
+def test_output_cut_short_by_its_reader_ends_quietly() -> None:
+    """``handctl … | head -1``: the reader closes the pipe; the CLI stops without a word on
+    stderr (neither its own nor the interpreter's at exit), status 141 as after SIGPIPE."""
+    import subprocess
+    import sys
+
+    program = ("from tools import cli_common\n"
+               "def body():\n"
+               "    for k in range(200000):\n"
+               "        print('joint', k)\n"
+               "    return 0\n"
+               "raise SystemExit(cli_common.run('prog', 'P', body))\n")
+    proc = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    assert proc.stdout.readline() == b"joint 0\n"
+    proc.stdout.close()  # as head does after its line
+    err = proc.stderr.read()
+    assert proc.wait(timeout=60) == cli_common.EXIT_BROKEN_PIPE
+    assert err == b""
