@@ -87,3 +87,19 @@ class NotHomedError(UsageError):
     def __init__(self, message: str, *, fingers: list[int]) -> None:
         super().__init__(message)
         self.fingers = fingers
+
+
+def why_no_answer(exc: HostError) -> str:
+    """Why a node did not answer, in a word or two: a :class:`RouteError`'s status name
+    (``no_reply``, ``unpowered``, ``link_down`` …), ``no reply`` for a :class:`ReplyTimeout`,
+    ``refused: …`` for a :class:`NodeError`, else the error's type and message."""
+    if isinstance(exc, RouteError):
+        from host.code_names import code_name
+        from protocol.messages.palm import RouteStatus
+
+        return code_name(RouteStatus, exc.status, "status")
+    if isinstance(exc, ReplyTimeout):
+        return "no reply"
+    if isinstance(exc, NodeError):
+        return f"refused: {exc}"
+    return f"{type(exc).__name__}: {exc}"

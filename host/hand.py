@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 from host.code_names import code_name
-from host.errors import HostError, NotHomedError, RouteError, UsageError
+from host.errors import HostError, NotHomedError, UsageError, why_no_answer
 from host.finger_params import FingerParams
 from host.hand_bring_up import BOOT_TIMEOUT_S, FingerUp, bring_up
 from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
@@ -33,7 +33,7 @@ from host.transport import Transport, open_transport
 from protocol.messages import CATALOGUE_HASH
 from protocol.messages.common import Running
 from protocol.messages.fmcb import ControlMode
-from protocol.messages.palm import ALL_FINGERS, FingerPower, RouteStatus
+from protocol.messages.palm import ALL_FINGERS, FingerPower
 from protocol.robot import DEFAULT_HAND_LAYOUT
 from protocol.topology import FINGERS, HOP_NODE, Hop
 
@@ -282,7 +282,7 @@ class Hand:
             except HostError as exc:
                 hop = None if node is self.palm else node.target.hop
                 found.append(NodeInfo(node.where, node.target.finger, hop, False,
-                                      problem=_problem(exc)))
+                                      problem=why_no_answer(exc)))
         return found
 
     def power(self, finger: int | str, state: int | str,
@@ -517,9 +517,3 @@ def _joint_error(state: FingerState) -> tuple[float, float, float]:
     target = state.joint_targets or state.joints
     return (target[0] - state.joints[0], target[1] - state.joints[1],
             target[2] - state.joints[2])
-
-
-def _problem(exc: HostError) -> str:
-    if isinstance(exc, RouteError):
-        return code_name(RouteStatus, exc.status, "status")
-    return type(exc).__name__ + ": " + str(exc)

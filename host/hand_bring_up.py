@@ -24,11 +24,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
 from host.code_names import code_name
-from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
+from host.errors import HostError, NodeError, ReplyTimeout, UsageError, why_no_answer
 from host.hand_session import PendingReply
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.messages.common import Running
-from protocol.messages.palm import RouteStatus
 from protocol.topology import FINGERS
 
 if TYPE_CHECKING:
@@ -113,14 +112,6 @@ def _fingers(fingers: int | str | Sequence[int]) -> list[int]:
     return sorted(set(chosen))
 
 
-def _reason(exc: HostError) -> str:
-    if isinstance(exc, RouteError):
-        return code_name(RouteStatus, exc.status, "status")
-    if isinstance(exc, NodeError):
-        return f"refused: {exc}"
-    return "no reply"
-
-
 class _Waiter:
     """Asks boards ``identify`` every :data:`POLL_S` until each runs its application or
     its deadline (link clock) passes."""
@@ -149,7 +140,7 @@ class _Waiter:
                         raise pending
                     reply = session.wait(pending)
                 except HostError as exc:
-                    last[up.where] = _reason(exc)
+                    last[up.where] = why_no_answer(exc)
                     still.append((node, up))
                     continue
                 up.running = code_name(Running, reply["running"], "running")

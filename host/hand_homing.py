@@ -21,8 +21,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from host.code_names import code_name
-from host.errors import HostError, ReplyTimeout, RouteError, UsageError
+from host.errors import HostError, UsageError, why_no_answer
 from host.inertial_closed_form import (
     ACCEL_BOARDS,
     DEFAULT_MIN_AXIS_TILT_RAD,
@@ -31,7 +30,6 @@ from host.inertial_closed_form import (
     UnobservableJointError,
     estimate,
 )
-from protocol.messages.palm import RouteStatus
 from protocol.robot import joint_to_motor
 
 if TYPE_CHECKING:
@@ -168,7 +166,7 @@ def _silent_boards(finger: Finger, exc: NoAccelerationError) -> str:
             node.request("ping", retries=0)
             unpolled.append(f"the {name}")
         except HostError as exc_ping:
-            silent.append((f"the {name}", _why(exc_ping)))
+            silent.append((f"the {name}", why_no_answer(exc_ping)))
     parts = []
     if silent:
         parts.append(" and ".join(name for name, _ in silent)
@@ -184,12 +182,6 @@ def _silent_boards(finger: Finger, exc: NoAccelerationError) -> str:
     if broken:
         parts.append(" and ".join(broken) + ": its accelerometer gives no reading")
     return f"finger {finger.index}: " + "; ".join(parts)
-
-
-def _why(exc: HostError) -> str:
-    if isinstance(exc, RouteError):
-        return code_name(RouteStatus, exc.status, "status")
-    return "no reply" if isinstance(exc, ReplyTimeout) else type(exc).__name__
 
 
 def home(hand: Hand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
