@@ -107,18 +107,22 @@ def inertial_estimate(finger: Finger, samples: int = DEFAULT_SAMPLES,
 @dataclass
 class HomeResult:
     """One finger's homing: ``homed``, the pose it was homed at (``joints``, rad), the
-    offsets sent (raw hall counts), or ``problem`` (why not)."""
+    offsets sent (raw hall counts), or ``problem`` (why not); ``unobservable`` names the
+    joints (0..2) refused because their axes are too close to vertical (turning the hand
+    helps, nothing else does)."""
 
     finger: int
     homed: bool
     joints: tuple[float, float, float] | None = None
     offsets: list[int] = field(default_factory=list)
     problem: str | None = None
+    unobservable: tuple[int, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {"finger": self.finger, "homed": self.homed,
                 "joints": None if self.joints is None else [round(q, 6) for q in self.joints],
-                "offsets": list(self.offsets), "problem": self.problem}
+                "offsets": list(self.offsets), "problem": self.problem,
+                "unobservable": list(self.unobservable)}
 
 
 def home_finger(finger: Finger, samples: int = DEFAULT_SAMPLES,
@@ -196,6 +200,9 @@ def home(hand: Hand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
     for f in hand.fingers:
         try:
             results.append(home_finger(f, samples, min_tilt_rad))
+        except UnobservableJointError as exc:
+            results.append(HomeResult(f.index, False, problem=str(exc),
+                                      unobservable=tuple(p.joint for p in exc.problems)))
         except HostError as exc:
             results.append(HomeResult(f.index, False, problem=str(exc)))
     return results

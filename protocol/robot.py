@@ -371,6 +371,12 @@ ARM_FLANGE_OFFSET_M: Final[Vec3] = (0.0, 0.0, -0.04)
 #: width (palm ``x``) runs along the flange's ``−x``.
 HAND_ON_FLANGE_POSITION_M: Final[Vec3] = (0.0, 0.0, -PALM_HALF_EXTENTS_M[2])
 HAND_ON_FLANGE_QUAT: Final[tuple[float, float, float, float]] = (0.0, 0.0, 1.0, 0.0)
+#: Wrist tilts (J6, J7; rad, the other arm joints at 0) of the hanging ``full`` robot in which
+#: the hand's fingers can be homed from their accelerometers, each with the fingers it serves:
+#: hanging straight, every finger's J0 axis (and the thumb's) is near vertical, where gravity
+#: says nothing about the joint's angle.
+HOMING_WRIST_TILTS: Final[tuple[tuple[tuple[float, float], tuple[int, ...]], ...]] = (
+    ((0.4, 0.9), (0, 1, 2)), ((0.6, 0.5), (3,)))
 
 
 def hand_on_flange_rotation() -> np.ndarray:

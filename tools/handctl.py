@@ -33,13 +33,20 @@ from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.hand_homing import homed_on_robot
 from host.hand_state import FingerState, HandState, NodeInfo
-from host.inertial_closed_form import NoAccelerationError, estimate
+from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.joint_ekf import fuse_snapshot
-from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
+from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 
-__all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main"]
+__all__ = ["EXIT_ROBOT", "EXIT_USAGE", "TILT_HINT", "main"]
+
+#: What ``home`` adds when a finger was refused for a joint axis near vertical: on the arm,
+#: the first wrist tilt of :data:`~protocol.robot.HOMING_WRIST_TILTS` (J6, J7).
+TILT_HINT = ("hint: gravity says nothing about a joint whose axis is vertical; on the arm, "
+             "tilt the wrist first (`armctl --port ARM move --joints 0,0,0,0,0,"
+             f"{HOMING_WRIST_TILTS[0][0][0]:g},{HOMING_WRIST_TILTS[0][0][1]:g}`), then run "
+             "`handctl home` again for finger(s) {fingers}")
 
 
 def _floats(text: str) -> list[float]:
@@ -161,7 +168,10 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
 
 
 def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
-    results = hand.home(args.finger)
+    try:
+        results = hand.home(args.finger)
+    except UnobservableJointError as exc:  # one finger asked for: an error, with the way out
+        raise UsageError(f"{exc}\n{TILT_HINT.format(fingers=args.finger)}") from exc
     lines = []
     for r in results:
         if r.homed and r.joints is not None:
@@ -170,6 +180,9 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
         else:
             problem = str(r.problem).removeprefix(f"finger {r.finger}: ")
             lines.append(f"finger {r.finger}: not homed: {problem}")
+    tilted = [r.finger for r in results if r.unobservable]
+    if tilted:
+        lines.append(TILT_HINT.format(fingers=", ".join(map(str, tilted))))
     _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
     return 0 if all(r.homed for r in results) else EXIT_ROBOT
 

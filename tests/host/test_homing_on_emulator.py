@@ -104,3 +104,24 @@ def test_handctl_home_and_status_report_inertial_joints(
         assert max(abs(math.degrees(a - b)) for a, b in zip(thumb[key], truth,
                                                            strict=True)) < 1.0
     assert {"joints_hall", "tactile", "currents"} <= set(thumb)
+
+
+def test_handctl_home_of_every_finger_says_how_to_make_vertical_axes_observable(
+        hand: Hand, capsys: pytest.CaptureFixture[str]) -> None:
+    """Palm up, fingers 0-2 have J0 vertical: ``home`` refuses them, names J0 in JSON, and
+    says (text) to tilt the wrist with ``armctl`` first; one finger asked for: exit 2, the
+    same advice on stderr."""
+    assert main(["--port", URL, "--json", "home"]) == 1
+    fingers = json.loads(capsys.readouterr().out)["fingers"]
+    assert [f["unobservable"] for f in fingers[:3]] == [[0], [0], [0]]
+    assert not any(f["homed"] for f in fingers[:3])
+    main(["--port", URL, "home"])
+    out = capsys.readouterr().out
+    assert "finger 1: not homed: J0 (abduction) is unobservable" in out
+    hint = [line for line in out.splitlines() if line.startswith("hint:")]
+    assert len(hint) == 1 and "armctl --port ARM move --joints 0,0,0,0,0,0.4,0.9" in hint[0]
+    assert hint[0].endswith("for finger(s) 0, 1, 2")
+    assert main(["--port", URL, "home", "--finger", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "J0 (abduction) is unobservable" in err and "armctl --port ARM move" in err
+    assert "Traceback" not in err
