@@ -25,13 +25,17 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(VENV)/bin/mypy $(PACKAGES)
 
-## make test: lint, type check, then every test (slow ones included).
+## make test: lint, type check, then every test (slow ones included), on TEST_WORKERS
+## pytest-xdist workers: a test file runs whole on one worker, and the wall-clock tests
+## run one at a time on one of them (tests/conftest.py).  TEST_WORKERS=0: one process.
+TEST_WORKERS ?= 2
+PYTEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
 test: lint typecheck
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(PYTEST_PARALLEL)
 
 ## make test-fast: skip the tests marked slow.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q $(PYTEST_PARALLEL) -m "not slow"
 
 demo: $(STAMP)
 	$(PY) -m tools.demo

@@ -1,0 +1,64 @@
+"""How ``make test`` shares the machine between tests: two pytest-xdist workers.
+
+``make test`` runs the suite on two workers (``-n 2``), scheduled by :func:`scope_of`:
+
+* every test file runs whole on one worker, in its own order (a module's tests share
+  module-scoped fixtures, such as one emulator, and some build on the state the test before
+  left);
+* the files of :data:`WALL_CLOCK_FILES` (tests that hold wall-clock timing over real ptys,
+  start the emulator or other programs as processes, start CPU-bound helpers of their own —
+  a CPU hog, local worker processes, a compiler — or measure speed) form one unit,
+  :data:`WALL_CLOCK_GROUP`, run on one worker, one test at a time.  So each of them has at
+  most one other test beside it, an in-process simulation on the other worker: the "one
+  other CPU-bound process" every such test is written to stand (their timing bounds come
+  from what the emulator reports, not from an idle machine's margins).
+
+Without xdist (``pytest`` alone, ``TEST_WORKERS=0``) the hook is never called.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import pytest
+
+#: The one scheduling unit of the tests in :data:`WALL_CLOCK_FILES`.
+WALL_CLOCK_GROUP: Final = "wall-clock"
+
+#: Test files (relative to ``tests/``) whose tests run one at a time on one worker.
+WALL_CLOCK_FILES: Final = frozenset({
+    "hil_emulator/test_emulator_over_the_wire.py",
+    "hil_emulator/test_hil_emulator_command.py",
+    "hil_emulator/test_realtime_loop.py",
+    "hil_emulator/test_pty_port.py",
+    "hil_emulator/test_slcan_adapter.py",
+    "hil_emulator/test_faults.py",
+    "host/test_transports.py",
+    "tools/test_handctl.py",
+    "tools/test_handbus.py",
+    "tools/test_cli_common.py",
+    "tools/test_cli_help.py",
+    "tools/test_hil_bench.py",
+    "tools/test_hil_fuzz.py",
+    "tools/test_build_compiled.py",
+    "test_benchmarks.py",
+})
+
+
+def scope_of(nodeid: str) -> str:
+    """The scheduling unit of the test ``nodeid`` (``tests/<file>::<name>[params]``): its
+    file, or :data:`WALL_CLOCK_GROUP` for the files of :data:`WALL_CLOCK_FILES`."""
+    path = nodeid.split("::", 1)[0]
+    return WALL_CLOCK_GROUP if path.removeprefix("tests/") in WALL_CLOCK_FILES else path
+
+
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: unknown (and unused) without xdist
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """Whole units (:func:`scope_of`) to whichever worker is free, the largest first."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class UnitScheduling(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            return scope_of(nodeid)
+
+    return UnitScheduling(config, log)
