@@ -19,6 +19,7 @@ it is attached.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import IO, Any, Final
 
@@ -116,21 +117,24 @@ def record(arm: Arm, path: str | Path, *, seconds: float, rate_hz: float = 100.0
 
         previous = arm.bus.on_bytes
         arm.bus.on_bytes = on_bytes
-        cycles = 0
+        count = cycle_count(seconds, rate_hz)
         try:
             start = transport.now()
             period = 1.0 / rate_hz
-            while True:
-                due = start + cycles * period
-                if due - start >= seconds:
-                    break
-                transport.sleep(due - transport.now())
+            for k in range(count):
+                transport.sleep(start + k * period - transport.now())
                 state = arm.cycle()
                 ns = int(state.t * 1e9)
                 writer.add_message(state_ch, log_time=ns, publish_time=ns,
                                    data=json.dumps(state.as_dict()).encode())
-                cycles += 1
         finally:
             arm.bus.on_bytes = previous
             writer.finish()
-    return cycles
+    return count
+
+
+def cycle_count(seconds: float, rate_hz: float) -> int:
+    """Cycles at ``rate_hz`` that start within ``seconds`` (s) of the first: ⌈s·rate⌉, by the
+    count, not by comparing clock readings (``start + k·period − start`` can come out below
+    ``seconds`` when it should equal it, and add a cycle)."""
+    return max(0, math.ceil(seconds * rate_hz - 1e-9))

@@ -163,6 +163,17 @@ def test_armctl_says_what_to_do_when_the_port_is_missing(
     assert err.startswith("armctl: ") and "check the path" in err.lower() and "Traceback" not in err
 
 
+def test_a_recording_counts_its_cycles_rather_than_comparing_clock_readings() -> None:
+    """0.1 s at 100 Hz is 10 cycles whatever the clock reads at the start; comparing
+    ``start + 10 · 0.01 − start`` with 0.1 made it 11 for about a third of start times."""
+    from host.arm_recording import cycle_count
+
+    assert [cycle_count(s, r) for s, r in ((0.1, 100.0), (0.105, 100.0), (1.0, 3.0),
+                                            (0.0, 100.0), (5.0, 100.0))] == [10, 11, 3, 0, 500]
+    start = 0.030907  # such a start time (s): the old loop's bound let an 11th cycle in
+    assert (start + 10 * 0.01) - start < 0.1
+
+
 def test_armctl_record_writes_raw_bytes_and_states(arm: Arm, tmp_path: object) -> None:
     from pathlib import Path
 
