@@ -124,9 +124,6 @@ def interpret(frame: Frame, hint: str | None = None) -> Interpretation:
     return Interpretation(first_message, direction, None, first_error)
 
 
-
-#: The node kind whose catalogue a ``txn`` reply's ``board`` names.
-_BOARD_NODE: dict[str, str] = {"PALM": "palm", "FMCB": "fmcb", "F2": "f2", "F3": "f3"}
 #: Envelopes inside envelopes a capture may show (txn, palm.route, txn, message): enough.
 MAX_WRAPPED: Final = 4
 
@@ -151,7 +148,10 @@ def interpret_inner(outer: Interpretation, frame: Frame) -> tuple[Interpretation
     if outer.name == "txn":
         if outer.direction == REPLY and int(fields["status"]) != 0:  # TxnStatus.OK
             return None
-        hint = _BOARD_NODE.get(_name(fields["board"])) if outer.direction == REPLY else None
+        # a reply's board type (PALM, FMCB, F2, F3) bears the name of its node kind
+        kind = (NodeKind.__members__.get(_name(fields["board"]))
+                if outer.direction == REPLY else None)
+        hint = None if kind is None else kind.value
         inner = Frame(frame.address, int(fields["inner_type"]), bytes(fields["inner"]))
         return interpret(inner, hint), inner
     if outer.name == "palm.route":

@@ -12,7 +12,7 @@ would, with the host library and the command-line tools:
 2. **firmware**: builds demo images with ``fwimage build`` (version :data:`FW_VERSION`) and
    flashes all twelve finger MCUs with ``flash-all-fingers``;
 3. **homing**: the arm at its encoders' index marks (``Arm.home``), then the hand from its
-   accelerometers (``Hand.home``) in two wrist tilts (:data:`HOMING_TILTS`): the three
+   accelerometers (``Hand.home``) in two wrist tilts (:data:`protocol.robot.HOMING_WRIST_TILTS`): the three
    parallel fingers' axes are observable in one, the thumb's in the other;
 4. **reach**: the hanging arm turns its upper arm and wrist, raises the hand to a ready
    pose in front of the table's edge (joint moves), and brings it to the mug from the side
@@ -80,6 +80,7 @@ from host.hand_homing import FingerMovingError, HomeResult
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
 from protocol.control_tables import STEPPER_TABLE
+from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.demo_plan import (
     APPROACH_M,
@@ -92,7 +93,6 @@ from tools.demo_plan import (
     HOLD_S,
     HOMING_ATTEMPTS,
     HOMING_RETRY_S,
-    HOMING_TILTS,
     JOINT_SPEED_RAD_S,
     LIFT_M,
     MIN_LIFT_M,
@@ -253,7 +253,7 @@ class Demo:
         self.say("arm homed; index offsets (rad): "
                  + ", ".join(f"{o:+.3f}" for o in calibration.offsets[:4]))
         homed: dict[int, bool] = {}
-        for (j6, j7), fingers in HOMING_TILTS:
+        for (j6, j7), fingers in HOMING_WRIST_TILTS:
             self._move((0.0, 0.0, 0.0, 0.0, 0.0, j6, j7), 4.0)
             self.hand.session.sleep(2.0)  # the elastic arm and the fingers come to rest
             for k in fingers:

@@ -18,7 +18,6 @@ from hil_emulator.scene_model import MUG_XY_M, TABLE_TOP_Z_M
 from host.arm_kinematics import matrix_to_rpy
 from protocol.robot import (
     HAND_ON_FLANGE_POSITION_M,
-    HOMING_WRIST_TILTS,
     STEPPER_DEFAULT_CURRENT_MA,
     hand_on_flange_rotation,
 )
@@ -28,9 +27,6 @@ FW_VERSION: Final = "1.1.0"
 #: Run and holding current of the arm's steppers during the demo (mA): the nodes' power-up
 #: value, written again so the demo does not depend on what ran before it.
 STEPPER_CURRENT_MA: Final = STEPPER_DEFAULT_CURRENT_MA
-#: Wrist tilts (J6, J7; rad) of the hanging arm for homing the hand, and the fingers homed
-#: in each: gravity must not lie along any joint axis of a finger being homed.
-HOMING_TILTS: Final = HOMING_WRIST_TILTS
 #: Where the mug stands (m, base frame: the world's raised by the arm's mount height): its
 #: axis's x, y on the table top (the mug scene's placement).
 MUG_BASE_M: Final = (MUG_XY_M[0], MUG_XY_M[1], TABLE_TOP_Z_M - MOUNT_HEIGHT_M)

@@ -39,14 +39,22 @@ from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 
-__all__ = ["EXIT_ROBOT", "EXIT_USAGE", "TILT_HINT", "main"]
+__all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
 
-#: What ``home`` adds when a finger was refused for a joint axis near vertical: on the arm,
-#: the first wrist tilt of :data:`~protocol.robot.HOMING_WRIST_TILTS` (J6, J7).
-TILT_HINT = ("hint: gravity says nothing about a joint whose axis is vertical; on the arm, "
-             "tilt the wrist first (`armctl --port ARM move --joints 0,0,0,0,0,"
-             f"{HOMING_WRIST_TILTS[0][0][0]:g},{HOMING_WRIST_TILTS[0][0][1]:g}`), then run "
-             "`handctl home` again for finger(s) {fingers}")
+
+def tilt_hints(fingers: Sequence[int]) -> list[str]:
+    """What ``home`` adds for ``fingers`` refused for a joint axis near vertical: on the
+    arm, the wrist tilt of :data:`~protocol.robot.HOMING_WRIST_TILTS` (J6, J7) that serves
+    each, one line per tilt."""
+    lines = []
+    for (j6, j7), served in HOMING_WRIST_TILTS:
+        these = [f for f in fingers if f in served]
+        if these:
+            lines.append("hint: gravity says nothing about a joint whose axis is vertical; on "
+                         f"the arm, tilt the wrist first (`armctl --port ARM move --joints "
+                         f"0,0,0,0,0,{j6:g},{j7:g}`), then run `handctl home` again for "
+                         f"finger(s) {', '.join(map(str, these))}")
+    return lines
 
 
 def _floats(text: str) -> list[float]:
@@ -171,7 +179,7 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
     try:
         results = hand.home(args.finger)
     except UnobservableJointError as exc:  # one finger asked for: an error, with the way out
-        raise UsageError(f"{exc}\n{TILT_HINT.format(fingers=args.finger)}") from exc
+        raise UsageError("\n".join([str(exc), *tilt_hints([args.finger])])) from exc
     lines = []
     for r in results:
         if r.homed and r.joints is not None:
@@ -180,9 +188,7 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
         else:
             problem = str(r.problem).removeprefix(f"finger {r.finger}: ")
             lines.append(f"finger {r.finger}: not homed: {problem}")
-    tilted = [r.finger for r in results if r.unobservable]
-    if tilted:
-        lines.append(TILT_HINT.format(fingers=", ".join(map(str, tilted))))
+    lines += tilt_hints([r.finger for r in results if r.unobservable])
     _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
     return 0 if all(r.homed for r in results) else EXIT_ROBOT
 
