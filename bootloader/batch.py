@@ -174,14 +174,19 @@ def run_plan(session: HandSession, plan: FlashPlan,
     try:
         if plan.all_or_nothing:
             _run_phase(session, plan, reports, status, "stage", on_change)
-            staged = all(r.state == NodeState.STAGED for r in reports.values())
+            # An fmcb an earlier run left in its bootloader is finished while staging.
+            staged = all(r.state in (NodeState.STAGED, NodeState.DONE)
+                         for r in reports.values())
             if staged:
                 _run_phase(session, plan, reports, status, "activate", on_change)
             else:
+                failed = ", ".join(r.job.name for r in reports.values()
+                                   if r.state == NodeState.FAILED) or "another node"
                 for r in reports.values():
-                    if r.state != NodeState.FAILED:
+                    if r.state not in (NodeState.FAILED, NodeState.DONE):
                         r.result = "failed"
-                        r.error = "not activated: another node failed to stage (all-or-nothing)"
+                        waits = "; waits in its bootloader" if r.state == NodeState.STAGED else ""
+                        r.error = f"not activated: {failed} failed to stage (all-or-nothing){waits}"
         else:
             _run_phase(session, plan, reports, status, "all", on_change)
     finally:

@@ -214,15 +214,23 @@ class FingerChannel:
             yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
         elif self.phase == "stage":
             if phalanges:
-                yield from self.require_fmcb_application(phalanges)
+                if fmcb is not None and (yield from self.fmcb_in_bootloader()):
+                    # An earlier run stopped after overwriting this fmcb: its old
+                    # application is gone, and the phalanges are reached only through an
+                    # application, so the fmcb is finished first.
+                    yield from self.force_fmcb(fmcb)
+                    yield from self.stage(fmcb)
+                    yield from self.activate(fmcb)
+                else:
+                    yield from self.require_fmcb_application(phalanges)
                 yield from self.force_phalanges(phalanges, cut=True)
                 for job in phalanges:
                     yield from self.stage(job)
-            if fmcb is not None:
+            if fmcb is not None and self.reports[fmcb].state != NodeState.DONE:
                 yield from self.force_fmcb(fmcb)
                 yield from self.stage(fmcb)
         else:
-            if fmcb is not None:
+            if fmcb is not None and self.reports[fmcb].state != NodeState.DONE:
                 yield from self.activate(fmcb)
                 if phalanges:
                     yield from self.force_phalanges(phalanges, cut=False)
@@ -268,6 +276,11 @@ class FingerChannel:
                     raise StepFailed(f"{job.name} did not enter its bootloader within "
                                      f"{HALT_WITHIN_S} s of power-up: {out.error}")
                 yield Sleep(HALT_RETRY_S)
+
+    def fmcb_in_bootloader(self) -> Flow:
+        """True if the finger's fmcb answers from its bootloader."""
+        who = yield from self.call("identify", {}, Hop.FMCB)
+        return bool(who["running"] == Running.BOOTLOADER)
 
     def require_fmcb_application(self, jobs: list[NodeJob]) -> Flow:
         """The phalanges are reached through the fmcb's application: it must be running."""

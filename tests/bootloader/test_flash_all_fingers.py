@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bootloader.batch import RunReport, run_plan
+from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan
 from firmware_py.bootloader import inspect_image
 from firmware_py.mcu import Mcu
@@ -226,3 +227,23 @@ def test_interrupted_flashing_resumes_and_never_boots_an_unverified_image(
 @given(kind=KINDS, finger=st.integers(0, 3), after=st.integers(1, 320))
 def test_interrupted_flashing_resumes_many_cases(kind: str, finger: int, after: int) -> None:
     interrupt_and_resume(kind, finger, after)
+
+
+def test_all_or_nothing_rerun_finishes_after_a_finger_broke_away(hand: Hand) -> None:
+    # Finger 1 pops off while the nodes are being staged: nothing is activated, and every
+    # staged fmcb waits in its bootloader with its old application gone.
+    def on_change(report: NodeReport) -> None:
+        if report.job.name == "finger 0 f3" and report.state == NodeState.STAGED:
+            hand.emu.break_away(1)
+
+    with hand.session() as session:
+        first = run_plan(session, make_plan(NEW, all_or_nothing=True), on_change=on_change)
+    assert not first.ok
+    assert not any(r.state == NodeState.DONE for r in first.nodes)
+    hand.emu.reattach(1)
+    hand.emu.step(200_000)
+    # The same command again finishes the job: the phalanges behind an fmcb that waits in
+    # its bootloader are reached by finishing that fmcb first (its old image is gone).
+    report = run(hand, make_plan(NEW, all_or_nothing=True))
+    assert report.ok, [r.to_dict() for r in report.nodes if r.result == "failed"]
+    hand.assert_all_run("2.3.4")
