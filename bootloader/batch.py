@@ -30,9 +30,9 @@ from bootloader.node_session import (
     StepFailed,
 )
 from bootloader.plan import FlashPlan, NodeJob
-from host.errors import HostError
+from host.errors import HostError, NodeError
 from host.hand_session import LINK_NODE, HandSession, PendingReply, Target
-from protocol.messages.common import Running
+from protocol.messages.common import Running, TxnStatus
 from protocol.messages.palm import FingerPower
 from protocol.topology import Hop
 
@@ -82,22 +82,45 @@ def _identify_patiently(session: HandSession, finger: int, hop: Hop) -> dict[str
             session.transport.sleep(0.1)
 
 
+def _palm_status(session: HandSession) -> dict[str, Any]:
+    """``palm.hand_status``, asked again while the palm still runs its bootloader (a hand
+    just switched on starts its application after the autoboot window), at most
+    :data:`ANSWER_WAIT_S` on the link's clock.  Raises :class:`PlanError`."""
+    url = session.transport.url
+    deadline = session.transport.now() + ANSWER_WAIT_S
+    while True:
+        try:
+            return session.request("palm.hand_status", retries=2)
+        except NodeError as exc:
+            if exc.status != TxnStatus.UNKNOWN_TYPE:
+                raise PlanError(f"the palm on {url} refused palm.hand_status: {exc}") from exc
+            if session.transport.now() >= deadline:
+                raise PlanError(
+                    f"the palm on {url} runs its bootloader, not its application, "
+                    f"{ANSWER_WAIT_S:g} s on (halted there, or its image does not verify): "
+                    "switch the hand off and on, wait 5 s and run again; `handctl --port "
+                    f"{url} ping` shows what it runs; nothing was touched") from exc
+            session.transport.sleep(0.2)
+        except HostError as exc:
+            raise PlanError(f"the palm does not answer on {url}: {exc}") from exc
+
+
 def preflight(session: HandSession, plan: FlashPlan,
               reports: dict[NodeJob, NodeReport]) -> dict[str, Any]:
     """Check, touching nothing, that the palm and every planned finger answer; read the
     versions before.  Returns the hand status read.  Raises :class:`PlanError`."""
-    try:
-        status = session.request("palm.hand_status", retries=2)
-    except HostError as exc:
-        raise PlanError(f"the palm does not answer on {session.transport.url}: {exc}") from exc
+    status = _palm_status(session)
     for finger in plan.fingers:
         if status["fingers"][finger]["power"] == FingerPower.OFF:
             continue  # unpowered: the power cycle brings it up
         try:
             _identify_patiently(session, finger, Hop.FMCB)
         except HostError as exc:
+            others = ",".join(str(f) for f in plan.fingers if f != finger)
+            leave_out = f" or leave it out (--fingers {others})" if others else ""
             raise PlanError(f"finger {finger} is not answering (its fmcb got no identify "
-                            f"through the palm): {exc}; nothing was flashed") from exc
+                            f"through the palm): {exc}. Push the finger back on its pogo "
+                            f"pins{leave_out} and run again; nothing was flashed") from exc
     for job in plan.jobs:
         try:
             who = _identify(session, job.finger, job.hop)

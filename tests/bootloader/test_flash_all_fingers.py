@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bootloader.batch import RunReport, run_plan
+from bootloader.errors import PlanError
 from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan
 from firmware_py.bootloader import inspect_image
@@ -146,7 +147,8 @@ def test_cli_json_and_refusals_before_touching_anything(
     # A finger that does not answer: refused before anything is touched.
     hand.emu.break_away(3)
     assert flash_all_fingers.main(args) == 2
-    assert "finger 3 is not answering" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "finger 3 is not answering" in err and "--fingers 0,1,2" in err
     assert len(hand.boots) == boots
 
     # The rest, with --json; versions read back by identify match.
@@ -247,3 +249,23 @@ def test_all_or_nothing_rerun_finishes_after_a_finger_broke_away(hand: Hand) -> 
     report = run(hand, make_plan(NEW, all_or_nothing=True))
     assert report.ok, [r.to_dict() for r in report.nodes if r.result == "failed"]
     hand.assert_all_run("2.3.4")
+
+
+def test_a_hand_just_switched_on_is_waited_for_and_a_halted_palm_is_named() -> None:
+    # The palm starts its application 4.5 s after power-up: preflight waits for it.
+    emu = Emulator("hand", physics=False, can="none")
+    try:
+        with HandSession(emu.transport("palm")) as session:
+            report = run_plan(session, make_plan(NEW, [0]))
+        assert report.ok, [r.to_dict() for r in report.nodes]
+    finally:
+        emu.close()
+    # A palm that stays in its bootloader: refused before touching anything, saying so.
+    emu = Emulator("hand", physics=False, can="none")
+    try:
+        with HandSession(emu.transport("palm")) as session:
+            session.request("bl.halt")
+            with pytest.raises(PlanError, match="palm .* runs its bootloader"):
+                run_plan(session, make_plan(NEW, [0]))
+    finally:
+        emu.close()
