@@ -43,27 +43,72 @@ _EPSILON_S: Final = 1e-6
 
 @dataclass
 class RunReport:
-    """The outcome of a run: one report per node, the run's time (s, link clock)."""
+    """The outcome of a run: one report per node, the run's time (s, link clock), and why
+    it stopped early (``stopped``: ``"interrupted"``, the link's error) or None."""
 
     nodes: list[NodeReport]
     total_seconds: float
+    stopped: str | None = None
 
     @property
     def ok(self) -> bool:
         """Every node ends verified and running the requested version."""
-        return all(r.result in ("flashed", "skipped") and r.state == NodeState.DONE
-                   and r.version == r.job.version for r in self.nodes)
+        return self.stopped is None and all(
+            r.result in ("flashed", "skipped") and r.state == NodeState.DONE
+            and r.version == r.job.version for r in self.nodes)
+
+    @property
+    def next_step(self) -> str | None:
+        """What to do after a run that did not verify every node (None after one that did)."""
+        if self.ok:
+            return None
+        left: dict[int, list[str]] = {}
+        for r in self.nodes:
+            if not (r.state == NodeState.DONE and r.version == r.job.version):
+                left.setdefault(r.job.finger, []).append(r.job.board.name.lower())
+        which = ", ".join(f"finger {f} ({' '.join(b)})" for f, b in left.items())
+        return (f"not verified: {which}. A node stopped mid-flash waits in its bootloader "
+                "and never boots a partial image: fix the cause shown (a finger off its pogo "
+                "pins or unpowered, the link, an image the node refuses), then run the same "
+                "command again; it resumes, and blocks that already verify are not rewritten")
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` object."""
         return {"ok": self.ok, "nodes": [r.to_dict() for r in self.nodes],
-                "total_seconds": round(self.total_seconds, 3)}
+                "total_seconds": round(self.total_seconds, 3), "stopped": self.stopped,
+                "next_step": self.next_step}
+
+
+def new_reports(plan: FlashPlan) -> dict[NodeJob, NodeReport]:
+    """A pending report for every job of ``plan`` (for :func:`run_plan`'s ``reports``)."""
+    return {job: NodeReport(job) for job in plan.jobs}
+
+
+def settle(reports: dict[NodeJob, NodeReport], seconds: float,
+           stopped: str | None = None) -> RunReport:
+    """The run's report: every node not done marked failed, with the state it stopped in.
+    ``stopped`` says why the run ended early (a run that raised: Ctrl-C, the link lost)."""
+    for r in reports.values():
+        if r.state != NodeState.DONE and r.result != "failed":
+            r.result = "failed"
+            if r.state == NodeState.PENDING:
+                r.error = r.error or f"not started ({stopped or 'stopped'})"
+            else:
+                r.error = r.error or f"{stopped or 'stopped'} in state {r.state.value}"
+    return RunReport(list(reports.values()), seconds, stopped)
 
 
 #: How long preflight keeps asking a powered finger that does not answer (s, on the link's
 #: clock): a finger just pushed back on its pogo pins settles its contacts and sits in its
 #: bootloader for a few seconds; one that stays silent this long is reported.
 ANSWER_WAIT_S: Final = 6.0
+
+
+#: How long a request of an earlier, interrupted run may still be answered after it ended
+#: (s, beyond the link's budget): the palm's longest route, a hash behind the tendon tunnel.
+#: Preflight first lets such replies arrive and drops them, so none is taken for the answer
+#: to a new request that happens to reuse its sequence number.
+STALE_REPLY_S: Final = 0.05
 
 
 def _identify(session: HandSession, finger: int, hop: Hop) -> dict[str, Any]:
@@ -109,6 +154,7 @@ def preflight(session: HandSession, plan: FlashPlan,
               reports: dict[NodeJob, NodeReport]) -> dict[str, Any]:
     """Check, touching nothing, that the palm and every planned finger answer; read the
     versions before.  Returns the hand status read.  Raises :class:`PlanError`."""
+    session.sleep(session.timeouts.link_s + STALE_REPLY_S)
     status = _palm_status(session)
     for finger in plan.fingers:
         if status["fingers"][finger]["power"] == FingerPower.OFF:
@@ -186,9 +232,13 @@ class Driver:
 
 
 def run_plan(session: HandSession, plan: FlashPlan,
-             on_change: Callable[[NodeReport], None] | None = None) -> RunReport:
-    """Flash ``plan`` over ``session`` (see the module docs) and report every node."""
-    reports = {job: NodeReport(job) for job in plan.jobs}
+             on_change: Callable[[NodeReport], None] | None = None, *,
+             reports: dict[NodeJob, NodeReport] | None = None) -> RunReport:
+    """Flash ``plan`` over ``session`` (see the module docs) and report every node.
+
+    ``reports`` (from :func:`new_reports`) is filled in as the run goes, so a caller still
+    has every node's state when the run raises (Ctrl-C, the link lost): :func:`settle`."""
+    reports = new_reports(plan) if reports is None else reports
     started = session.now()
     status = preflight(session, plan, reports)
     poll_hz = int(status["poll_hz"])
@@ -218,11 +268,7 @@ def run_plan(session: HandSession, plan: FlashPlan,
                 session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
             except HostError:
                 pass
-    for r in reports.values():
-        if r.state != NodeState.DONE and r.result != "failed":
-            r.result = "failed"
-            r.error = r.error or f"stopped in state {r.state.value}"
-    return RunReport(list(reports.values()), session.now() - started)
+    return settle(reports, session.now() - started)
 
 
 def _run_phase(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],

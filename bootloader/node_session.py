@@ -311,9 +311,9 @@ class FingerChannel:
                 report.result = "skipped"
             self._set(job, NodeState.STAGED)
             return
-        self._set(job, NodeState.WRITING)
         blocks = job.blocks()
         report.blocks_total, report.blocks_done = len(blocks), 0
+        self._set(job, NodeState.WRITING)
         for block in blocks:
             yield from self.write_block(job, block)
             report.blocks_done += 1

@@ -9,10 +9,12 @@
 Every image is checked before anything is touched (exists, parses, right board, signed with
 ``--key`` when given), and the palm and every finger must answer.  A node already holding
 its image is skipped unless ``--force``; an interrupted run is resumed by running again.
-Progress goes to stderr; the table (or ``--json``) to stdout.  Exit 0 only if every node
-ends verified and running the requested version; 1 if not (or the link failed: run again to
-resume); 2 for a bad command line or a plan refused before touching anything (an image, a
-key, a finger not answering, a port that does not open); 130 when interrupted.
+Progress goes to stderr; the table (or ``--json``) to stdout, also when the run stops early
+(Ctrl-C, the link lost), ending with what to do next when not every node verified.  Exit 0
+only if every node ends verified and running the requested version; 1 if not (or the link
+failed: run again to resume); 2 for a bad command line or a plan refused before touching
+anything (an image, a key, a finger not answering, a port that does not open); 130 when
+interrupted.
 ``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
 """
 
@@ -25,12 +27,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from bootloader.batch import RunReport, run_plan
+from bootloader.batch import RunReport, new_reports, run_plan, settle
 from bootloader.errors import FlashError, PlanError
 from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan
 from bootloader.signing import load_public_key
-from host.errors import TransportError
+from host.errors import HostError, TransportError
 from host.hand_session import HandSession
 from host.transport import open_transport
 from protocol.image import BoardType
@@ -97,9 +99,16 @@ def table(report: RunReport) -> str:
     widths = [max(len(row[i]) for row in rows) for i in range(5)]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=False)) + "  " + row[5]
              for row in rows]
-    lines.append(f"total {report.total_seconds:.2f} s; "
+    stopped = f"{report.stopped}: " if report.stopped else ""
+    lines.append(f"total {report.total_seconds:.2f} s; {stopped}"
                  f"{'all nodes verified' if report.ok else 'NOT all nodes verified'}")
+    if report.next_step:
+        lines.append(f"next: {report.next_step}.")
     return "\n".join(lines)
+
+
+def _print_report(report: RunReport, as_json: bool) -> None:
+    print(json.dumps(report.to_dict()) if as_json else table(report), flush=True)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -111,13 +120,21 @@ def _run(args: argparse.Namespace) -> int:
     try:
         transport = open_transport(args.port)
     except TransportError as exc:
-        raise PlanError(f"cannot open {args.port}: {exc}; nothing was touched") from exc
+        raise PlanError(f"{exc}; nothing was touched") from exc
+    reports = new_reports(plan)
     with HandSession(transport, timeouts=hand_timeouts(args)) as session:
-        report = run_plan(session, plan, on_change=progress_printer(sys.stderr))  # type: ignore[arg-type]
-    if args.json:
-        print(json.dumps(report.to_dict()))
-    else:
-        print(table(report))
+        started = session.now()
+        try:
+            report = run_plan(session, plan, on_change=progress_printer(sys.stderr),  # type: ignore[arg-type]
+                              reports=reports)
+        except (KeyboardInterrupt, HostError) as exc:
+            # Ctrl-C or the link lost mid-run: what every node got to, then the message.
+            touched = any(r.state != NodeState.PENDING for r in reports.values())
+            if touched or args.json:
+                why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"link lost: {exc}"
+                _print_report(settle(reports, session.now() - started, why), args.json)
+            raise
+    _print_report(report, args.json)
     return 0 if report.ok else EXIT_FAILED
 
 

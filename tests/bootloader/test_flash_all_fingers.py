@@ -269,3 +269,43 @@ def test_a_hand_just_switched_on_is_waited_for_and_a_halted_palm_is_named() -> N
                 run_plan(session, make_plan(NEW, [0]))
     finally:
         emu.close()
+
+
+def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
+        hand: Hand, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    paths = []
+    for board, image in NEW.items():
+        path = tmp_path / f"{board.name.lower()}.img"
+        path.write_bytes(image.to_bytes())
+        paths += [f"--{board.name.lower()}", str(path)]
+    monkeypatch.setattr(flash_all_fingers, "open_transport",
+                        lambda url: hand.emu.transport("palm"))
+    printer = flash_all_fingers.progress_printer
+
+    def ctrl_c_while_writing(stream: Any) -> Any:
+        show = printer(stream)
+
+        def on_change(report: NodeReport) -> None:
+            show(report)  # type: ignore[operator]
+            if report.job.name == "finger 2 f2" and report.state == NodeState.WRITING:
+                raise KeyboardInterrupt
+
+        return on_change
+
+    monkeypatch.setattr(flash_all_fingers, "progress_printer", ctrl_c_while_writing)
+    args = ["--port", "emu://hand/palm", *paths]
+    assert flash_all_fingers.main([*args, "--json"]) == 130
+    captured = capsys.readouterr()
+    assert "writing (3 blocks)" in captured.err  # progress names the blocks to write
+    out = json.loads(captured.out)  # the report is still printed, as JSON
+    assert out["ok"] is False and out["stopped"] == "interrupted"
+    states = {(n["finger"], n["board"]): n for n in out["nodes"]}
+    assert states[(2, "f2")]["error"] == "interrupted in state writing"
+    assert "finger 2 (" in out["next_step"] and "run the same command again" in out["next_step"]
+
+    monkeypatch.setattr(flash_all_fingers, "progress_printer", printer)
+    assert flash_all_fingers.main(args) == 0
+    text = capsys.readouterr().out
+    assert "all nodes verified" in text and "next:" not in text
+    hand.assert_all_run("2.3.4")
