@@ -84,18 +84,21 @@ def new_reports(plan: FlashPlan) -> dict[NodeJob, NodeReport]:
     return {job: NodeReport(job) for job in plan.jobs}
 
 
-def settle(reports: dict[NodeJob, NodeReport], seconds: float,
+def settle(reports: dict[NodeJob, NodeReport], started: float, now: float,
            stopped: str | None = None) -> RunReport:
-    """The run's report: every node not done marked failed, with the state it stopped in.
-    ``stopped`` says why the run ended early (a run that raised: Ctrl-C, the link lost)."""
+    """The run's report (``started``, ``now``: the link's clock, s): every node not done
+    marked failed, with the state it stopped in.  ``stopped`` says why the run ended early
+    (a run that raised: Ctrl-C, the link lost)."""
     for r in reports.values():
+        if r.started is not None and r.finished is None:
+            r.finished = now
         if r.state != NodeState.DONE and r.result != "failed":
             r.result = "failed"
             if r.state == NodeState.PENDING:
                 r.error = r.error or f"not started ({stopped or 'stopped'})"
             else:
                 r.error = r.error or f"{stopped or 'stopped'} in state {r.state.value}"
-    return RunReport(list(reports.values()), seconds, stopped)
+    return RunReport(list(reports.values()), now - started, stopped)
 
 
 #: How long preflight keeps asking a powered finger that does not answer (s, on the link's
@@ -268,7 +271,7 @@ def run_plan(session: HandSession, plan: FlashPlan,
                 session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
             except HostError:
                 pass
-    return settle(reports, session.now() - started)
+    return settle(reports, started, session.now())
 
 
 def _run_phase(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],

@@ -132,7 +132,7 @@ def _run(args: argparse.Namespace) -> int:
             touched = any(r.state != NodeState.PENDING for r in reports.values())
             if touched or args.json:
                 why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"link lost: {exc}"
-                _print_report(settle(reports, session.now() - started, why), args.json)
+                _print_report(settle(reports, started, session.now(), why), args.json)
             raise
     _print_report(report, args.json)
     return 0 if report.ok else EXIT_FAILED

@@ -302,6 +302,7 @@ def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
     assert out["ok"] is False and out["stopped"] == "interrupted"
     states = {(n["finger"], n["board"]): n for n in out["nodes"]}
     assert states[(2, "f2")]["error"] == "interrupted in state writing"
+    assert states[(2, "f2")]["seconds"] > 0  # the time it spent until Ctrl-C
     assert "finger 2 (" in out["next_step"] and "run the same command again" in out["next_step"]
 
     monkeypatch.setattr(flash_all_fingers, "progress_printer", printer)
