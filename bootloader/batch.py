@@ -89,15 +89,16 @@ def settle(reports: dict[NodeJob, NodeReport], started: float, now: float,
     """The run's report (``started``, ``now``: the link's clock, s): every node not done
     marked failed, with the state it stopped in.  ``stopped`` says why the run ended early
     (a run that raised: Ctrl-C, the link lost)."""
+    why = (stopped or "stopped").split(":")[0]  # "link lost: <the error>": said once
     for r in reports.values():
         if r.started is not None and r.finished is None:
             r.finished = now
         if r.state != NodeState.DONE and r.result != "failed":
             r.result = "failed"
             if r.state == NodeState.PENDING:
-                r.error = r.error or f"not started ({stopped or 'stopped'})"
+                r.error = r.error or f"not started ({why})"
             else:
-                r.error = r.error or f"{stopped or 'stopped'} in state {r.state.value}"
+                r.error = r.error or f"{why} in state {r.state.value}"
     return RunReport(list(reports.values()), now - started, stopped)
 
 

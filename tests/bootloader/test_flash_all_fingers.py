@@ -310,3 +310,16 @@ def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
     text = capsys.readouterr().out
     assert "all nodes verified" in text and "next:" not in text
     hand.assert_all_run("2.3.4")
+
+
+def test_a_lost_link_is_said_once_and_each_node_names_where_it_stopped() -> None:
+    from bootloader.batch import new_reports, settle
+    reports = new_reports(make_plan(NEW, [1]))
+    fmcb, f2, _ = reports.values()
+    fmcb.state, fmcb.started = NodeState.WRITING, 1.0
+    report = settle(reports, 0.5, 2.0, "link lost: /dev/ttyACM0: the port is gone")
+    assert report.stopped == "link lost: /dev/ttyACM0: the port is gone" and not report.ok
+    assert fmcb.error == "link lost in state writing" and fmcb.seconds == 1.0
+    assert f2.error == "not started (link lost)"
+    assert report.total_seconds == 1.5
+    assert report.next_step is not None and "finger 1 (fmcb f2 f3)" in report.next_step
