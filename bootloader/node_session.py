@@ -30,7 +30,12 @@ from typing import Any, Final
 from bootloader.plan import Block, FlashPlan, NodeJob
 from protocol.errors import ImageError
 from protocol.image import FLASH, BoardType, parse_header
-from protocol.messages.bootloader import BootResult, ImageStatus, WriteStatus
+from protocol.messages.bootloader import (
+    AUTOBOOT_WINDOW_US,
+    BootResult,
+    ImageStatus,
+    WriteStatus,
+)
 from protocol.messages.common import Running
 from protocol.messages.palm import FingerPower
 from protocol.topology import Hop
@@ -53,6 +58,8 @@ WRITE_EXTRA_MS: Final = 12
 HASH_EXTRA_MS: Final = 20
 #: How long to wait for a booted application to answer identify (s).
 CONFIRM_WITHIN_S: Final = 1.0
+#: Pause between identify requests to an fmcb powered up to start its application (s).
+BOOT_POLL_S: Final = 0.25
 
 
 class NodeState(enum.Enum):
@@ -161,6 +168,9 @@ class FingerChannel:
         self.clock = clock
         self.phase = phase
         self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
+        #: The finger was unpowered when the run began (its fmcb must be powered and boot
+        #: before its phalanges can be reached).
+        self.unpowered = power_state == FingerPower.OFF
         self.on_change = on_change
         #: (node, block first page) written and verified in this run (force writes once).
         self.written: set[tuple[BoardType, int]] = set()
@@ -277,18 +287,37 @@ class FingerChannel:
                                      f"{HALT_WITHIN_S} s of power-up: {out.error}")
                 yield Sleep(HALT_RETRY_S)
 
+    def fmcb_running(self) -> Flow:
+        """What the finger's fmcb runs (:class:`Running`); a finger unpowered when the run
+        began is powered first, and its fmcb given its autoboot window to start."""
+        if self.unpowered:
+            self.unpowered = False
+            on = {"finger": self.finger, "state": self.power_state, "stagger_ms": 0}
+            yield from self.call("palm.finger_power", on)
+            yield from self.wait_for_fmcb_application()
+        who = yield from self.call("identify", {}, Hop.FMCB)
+        return Running(who["running"])
+
     def fmcb_in_bootloader(self) -> Flow:
         """True if the finger's fmcb answers from its bootloader."""
-        who = yield from self.call("identify", {}, Hop.FMCB)
-        return bool(who["running"] == Running.BOOTLOADER)
+        return (yield from self.fmcb_running()) == Running.BOOTLOADER
 
     def require_fmcb_application(self, jobs: list[NodeJob]) -> Flow:
         """The phalanges are reached through the fmcb's application: it must be running."""
-        who = yield from self.call("identify", {}, Hop.FMCB)
-        if who["running"] != Running.APPLICATION:
+        if (yield from self.fmcb_running()) != Running.APPLICATION:
             names = ", ".join(j.name for j in jobs)
             raise StepFailed(f"finger {self.finger} fmcb runs its bootloader, so {names} "
                              "cannot be reached: flash the fmcb too (--fmcb)")
+
+    def wait_for_fmcb_application(self) -> Flow:
+        """Ask the fmcb just powered until its application answers, at most its autoboot
+        window and :data:`CONFIRM_WITHIN_S` more."""
+        deadline = self.clock() + AUTOBOOT_WINDOW_US / 1e6 + CONFIRM_WITHIN_S
+        while self.clock() <= deadline:
+            yield Sleep(BOOT_POLL_S)
+            out = yield Send("identify", {}, Hop.FMCB)
+            if out.fields is not None and out.fields["running"] == Running.APPLICATION:
+                return
 
     # --- the node's image ---------------------------------------------------------------
     def stage(self, job: NodeJob) -> Flow:

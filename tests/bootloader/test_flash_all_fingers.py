@@ -323,3 +323,18 @@ def test_a_lost_link_is_said_once_and_each_node_names_where_it_stopped() -> None
     assert f2.error == "not started (link lost)"
     assert report.total_seconds == 1.5
     assert report.next_step is not None and "finger 1 (fmcb f2 f3)" in report.next_step
+
+
+@pytest.mark.parametrize("all_or_nothing", [False, True])
+def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
+        all_or_nothing: bool) -> None:
+    emu = Emulator("hand", physics=False, can="none")  # the palm up, every finger off
+    try:
+        plan = make_plan({BoardType.F2: NEW[BoardType.F2], BoardType.F3: NEW[BoardType.F3]},
+                         [1], all_or_nothing=all_or_nothing)
+        with HandSession(emu.transport("palm")) as session:
+            report = run_plan(session, plan)
+        assert report.ok, [r.to_dict() for r in report.nodes]
+        assert [r.result for r in report.nodes] == ["flashed", "flashed"]
+    finally:
+        emu.close()
