@@ -62,6 +62,29 @@ CONFIRM_WITHIN_S: Final = 1.0
 BOOT_POLL_S: Final = 0.25
 
 
+#: Why a node refuses to activate a staged image, in words, with what to do.
+REFUSALS: Final = {
+    ImageStatus.BAD_SIGNATURE: "the image is not signed with the key this node was "
+    "provisioned with: sign the images with that key (fwimage build --sign KEY) and check "
+    "them first (fwimage inspect IMAGE --key KEY.pub, flash-all-fingers --key KEY.pub)",
+    ImageStatus.UNSIGNED: "this node accepts signed images only: build them with "
+    "fwimage build --sign KEY",
+    ImageStatus.WRONG_BOARD: "the image is built for another board",
+    ImageStatus.TOO_LARGE: "the image does not fit this node's application area",
+    ImageStatus.HASH_MISMATCH: "the image on the node does not verify: run again (blocks "
+    "that verify are kept, the others rewritten)",
+}
+
+
+def refusal(image_status: int) -> str:
+    """``image_status`` (:class:`ImageStatus`) of a refused activation, in words."""
+    try:
+        status = ImageStatus(image_status)
+    except ValueError:
+        return f"image status {image_status}"
+    return REFUSALS.get(status, f"image {status.name.lower()}")
+
+
 class NodeState(enum.Enum):
     """Where a node is in its flashing."""
 
@@ -414,8 +437,8 @@ class FingerChannel:
         got = yield from self.call("bl.activate", {"sha256": sha}, job.hop,
                                    extra_ms=WRITE_EXTRA_MS, report=report)
         if got["status"] != BootResult.OK:
-            raise StepFailed(f"{job.name}: activation refused: {got['status']!r} "
-                             f"(image {got['image_status']!r})")
+            raise StepFailed(f"{job.name}: activation refused: {refusal(got['image_status'])}; "
+                             "it waits in its bootloader until it gets an image it accepts")
         self._set(job, NodeState.BOOTING)
         yield from self.call("bl.boot", {}, job.hop, report=report)
         self._set(job, NodeState.CONFIRMING)

@@ -338,3 +338,21 @@ def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
         assert [r.result for r in report.nodes] == ["flashed", "flashed"]
     finally:
         emu.close()
+
+
+def test_a_node_refusing_the_signature_says_which_key_to_sign_with(tmp_path: Path) -> None:
+    from bootloader.signing import generate_key_pair, load_private_key, sign_image
+    from firmware_py.sim.boards import provision_key
+    hand = Hand()
+    try:
+        node_key = generate_key_pair(tmp_path / "node", tmp_path / "node.pub")
+        generate_key_pair(tmp_path / "other", tmp_path / "other.pub")
+        provision_key(hand.rig.fingers[0].f2.hal, node_key)
+        image = sign_image(NEW[BoardType.F2], load_private_key(tmp_path / "other"))
+        report = run(hand, make_plan({BoardType.F2: image}, [0]))
+        (node,) = report.nodes
+        assert node.result == "failed" and node.error is not None
+        assert "not signed with the key this node was provisioned with" in node.error
+        assert "fwimage build --sign KEY" in node.error and "BootResult" not in node.error
+    finally:
+        hand.emu.close()
