@@ -123,10 +123,24 @@ def read_payload(path: Path) -> bytes:
         return read_hex(path)
     if not head:
         raise ImageFileError(f"{path}: is empty")
+    _refuse_an_image(path, head)
     if len(head) > MAX_PAYLOAD:
         raise ImageFileError(f"{path}: {len(head)} bytes do not fit the application area "
                              f"({MAX_PAYLOAD} bytes)")
     return head
+
+
+def _refuse_an_image(path: Path, data: bytes) -> None:
+    """An image file given where a payload belongs would be wrapped in a second header."""
+    try:
+        image = parse_image(data)
+    except ImageError:
+        return
+    h = image.header
+    raise ImageFileError(
+        f"{path}: already a firmware image ({h.board.name.lower()} {h.app_name} {h.version}); "
+        "build from the application's .bin, .hex or .elf, or sign this image with "
+        "fwimage sign")
 
 
 def read_image(path: Path, board: BoardType | None = None) -> FirmwareImage:

@@ -136,3 +136,67 @@ def test_keygen_sign_verify_and_refuse(tmp_path: Path) -> None:
     assert status(signed.to_bytes(), other_pub, True) == ImageStatus.BAD_SIGNATURE
     assert status(unsigned.to_bytes(), pub, True) == ImageStatus.UNSIGNED
     assert status(unsigned.to_bytes(), pub, False) == ImageStatus.VALID
+
+
+def test_bad_build_arguments_are_a_bad_command_line(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    base = ["build", "--board", "f2", "--input", str(src), "-o", str(tmp_path / "x.img")]
+    for bad, says in ((["--version", "1.2"], "major.minor.patch"),
+                      (["--version", "300.0.0"], "0..255"),
+                      (["--version", "1.2.3", "--app", "x" * 17], "1..16"),
+                      (["--version", "1.2.3", "--timestamp", "-5"], "u32")):
+        assert fwimage.main([*base, *bad]) == 2, bad
+        err = capsys.readouterr().err
+        assert says in err and "usage:" in err
+    assert not (tmp_path / "x.img").exists()
+
+
+def test_an_image_given_as_input_is_refused_not_wrapped_again(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    image = build(tmp_path, src)
+    out = tmp_path / "again.img"
+    assert fwimage.main(["build", "--board", "f2", "--version", "1.2.4", "--input",
+                         str(image), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "already a firmware image (f2 f2 1.2.3)" in err and "fwimage sign" in err
+    assert not out.exists()
+
+
+def test_sign_an_existing_image_and_inspect_says_why_a_key_does_not_verify(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    key, other = tmp_path / "k", tmp_path / "other"
+    assert fwimage.main(["keygen", "-o", str(key)]) == 0
+    assert fwimage.main(["keygen", "-o", str(other)]) == 0
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    unsigned = build(tmp_path, src)
+    capsys.readouterr()
+    assert fwimage.main(["inspect", str(unsigned), "--key", f"{key}.pub"]) == 1
+    assert f"{unsigned}: unsigned" in capsys.readouterr().err
+
+    signed = tmp_path / "signed.img"
+    assert fwimage.main(["sign", str(unsigned), "--key", str(key), "-o", str(signed)]) == 0
+    capsys.readouterr()
+    assert read_image(signed).header.version == read_image(unsigned).header.version
+    assert read_image(signed).header.sha256 == read_image(unsigned).header.sha256
+    assert fwimage.main(["inspect", str(signed), "--key", f"{key}.pub"]) == 0
+    assert fwimage.main(["inspect", str(signed), "--key", f"{other}.pub"]) == 1
+    assert "signature does not verify with" in capsys.readouterr().err
+    make_plan({BoardType.F2: signed}, public_key=load_public_key(Path(f"{key}.pub")))
+    # Re-signing with another key replaces the signature.
+    assert fwimage.main(["sign", str(signed), "--key", str(other), "-o", str(signed)]) == 0
+    assert fwimage.main(["inspect", str(signed), "--key", f"{other}.pub"]) == 0
+
+
+def test_an_output_that_cannot_be_written_says_so(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "fw.bin"
+    src.write_bytes(PAYLOAD)
+    out = tmp_path / "no-such-dir" / "x.img"
+    assert fwimage.main(["build", "--board", "f2", "--version", "1.0.0", "--input", str(src),
+                         "-o", str(out)]) == 1
+    assert f"cannot write {out}: No such file or directory" in capsys.readouterr().err
