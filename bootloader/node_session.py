@@ -306,8 +306,11 @@ class FingerChannel:
                 if out.error is None:
                     break
                 if self.clock() > deadline:
-                    raise StepFailed(f"{job.name} did not enter its bootloader within "
-                                     f"{HALT_WITHIN_S} s of power-up: {out.error}")
+                    check = ("is the finger on its pogo pins?" if job.board == BoardType.FMCB
+                             else "are the finger's tendons (its power and link) intact?")
+                    raise StepFailed(f"{job.name} did not answer within {HALT_WITHIN_S} s of "
+                                     f"its power-up to enter its bootloader ({check}): "
+                                     f"{out.error}")
                 yield Sleep(HALT_RETRY_S)
 
     def fmcb_running(self) -> Flow:

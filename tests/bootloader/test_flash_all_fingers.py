@@ -356,3 +356,16 @@ def test_a_node_refusing_the_signature_says_which_key_to_sign_with(tmp_path: Pat
         assert "fwimage build --sign KEY" in node.error and "BootResult" not in node.error
     finally:
         hand.emu.close()
+
+
+def test_a_finger_lost_during_its_power_cycle_is_named_with_what_to_check(hand: Hand) -> None:
+    def on_change(report: NodeReport) -> None:
+        if report.job.name == "finger 2 fmcb" and report.state == NodeState.FORCING:
+            hand.emu.break_away(2)
+
+    with hand.session() as session:
+        report = run_plan(session, make_plan(NEW, [2]), on_change=on_change)
+    fmcb = report.nodes[0]
+    assert fmcb.result == "failed" and fmcb.error is not None
+    assert "is the finger on its pogo pins?" in fmcb.error
+    assert report.next_step is not None and "finger 2 (fmcb f2 f3)" in report.next_step
