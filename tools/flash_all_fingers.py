@@ -120,7 +120,10 @@ def _run(args: argparse.Namespace) -> int:
     try:
         transport = open_transport(args.port)
     except TransportError as exc:
-        raise PlanError(f"{exc}; nothing was touched") from exc
+        raise PlanError(f"{exc}; nothing was touched.\nCheck the path (ls /dev/ttyACM* "
+                        "/dev/ttyUSB*), that nothing else holds the port (another "
+                        "flash-all-fingers, handctl, a terminal), or start the emulator "
+                        "(hil-emulator).") from exc
     reports = new_reports(plan)
     with HandSession(transport, timeouts=hand_timeouts(args)) as session:
         started = session.now()

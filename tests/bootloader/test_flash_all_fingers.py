@@ -166,7 +166,10 @@ def test_a_nonexistent_port_is_a_clear_error(capsys: pytest.CaptureFixture[str],
     img = tmp_path / "f2.img"
     img.write_bytes(NEW[BoardType.F2].to_bytes())
     assert flash_all_fingers.main(["--port", str(tmp_path / "ttyNONE"), "--f2", str(img)]) == 2
-    assert "cannot open" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "cannot open" in err and "nothing was touched" in err
+    assert err.count("cannot open") == 1  # said once, not "cannot open P: cannot open P"
+    assert "nothing else holds the port" in err
 
 
 class HostKilled(BaseException):
