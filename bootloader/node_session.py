@@ -313,11 +313,14 @@ class FingerChannel:
                                      f"{out.error}")
                 yield Sleep(HALT_RETRY_S)
 
-    def fmcb_running(self) -> Flow:
+    def fmcb_running(self, jobs: list[NodeJob]) -> Flow:
         """What the finger's fmcb runs (:class:`Running`); a finger unpowered when the run
-        began is powered first, and its fmcb given its autoboot window to start."""
+        began is powered first (``jobs`` FORCING meanwhile), and its fmcb given its autoboot
+        window to start."""
         if self.unpowered:
             self.unpowered = False
+            for job in jobs:
+                self._set(job, NodeState.FORCING)
             on = {"finger": self.finger, "state": self.power_state, "stagger_ms": 0}
             yield from self.call("palm.finger_power", on)
             yield from self.wait_for_fmcb_application()
@@ -326,11 +329,11 @@ class FingerChannel:
 
     def fmcb_in_bootloader(self) -> Flow:
         """True if the finger's fmcb answers from its bootloader."""
-        return (yield from self.fmcb_running()) == Running.BOOTLOADER
+        return (yield from self.fmcb_running(self.jobs)) == Running.BOOTLOADER
 
     def require_fmcb_application(self, jobs: list[NodeJob]) -> Flow:
         """The phalanges are reached through the fmcb's application: it must be running."""
-        if (yield from self.fmcb_running()) != Running.APPLICATION:
+        if (yield from self.fmcb_running(jobs)) != Running.APPLICATION:
             names = ", ".join(j.name for j in jobs)
             raise StepFailed(f"finger {self.finger} fmcb runs its bootloader, so {names} "
                              "cannot be reached: flash the fmcb too (--fmcb)")

@@ -127,6 +127,10 @@ def _run(args: argparse.Namespace) -> int:
     reports = new_reports(plan)
     with HandSession(transport, timeouts=hand_timeouts(args)) as session:
         started = session.now()
+        fingers = ",".join(str(f) for f in plan.fingers)
+        print(f"checking the palm and fingers {fingers} (nothing is touched until they "
+              "answer; a hand just switched on takes a few seconds)", file=sys.stderr,
+              flush=True)
         try:
             report = run_plan(session, plan, on_change=progress_printer(sys.stderr),  # type: ignore[arg-type]
                               reports=reports)

@@ -21,7 +21,7 @@ from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from host.hand_session import HandSession
 from protocol.image import BoardType, FirmwareImage, ImageHeader
-from protocol.messages.bootloader import ImageStatus
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus
 from tools import flash_all_fingers
 
 BOARDS = (BoardType.FMCB, BoardType.F2, BoardType.F3)
@@ -301,6 +301,7 @@ def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
     assert flash_all_fingers.main([*args, "--json"]) == 130
     captured = capsys.readouterr()
     assert "writing (3 blocks)" in captured.err  # progress names the blocks to write
+    assert captured.err.startswith("checking the palm and fingers 0,1,2,3")
     out = json.loads(captured.out)  # the report is still printed, as JSON
     assert out["ok"] is False and out["stopped"] == "interrupted"
     states = {(n["finger"], n["board"]): n for n in out["nodes"]}
@@ -339,6 +340,8 @@ def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
             report = run_plan(session, plan)
         assert report.ok, [r.to_dict() for r in report.nodes]
         assert [r.result for r in report.nodes] == ["flashed", "flashed"]
+        # Progress starts when the finger is powered, not after its fmcb's boot (4.5 s).
+        assert all(r.seconds > AUTOBOOT_WINDOW_US / 1e6 for r in report.nodes)
     finally:
         emu.close()
 
