@@ -174,10 +174,13 @@ class FingerChannel:
     """Flashes the jobs of one finger (see the module docs).
 
     ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
-    verify every node, leave them halted in their bootloaders, phalanges first), or
-    ``"activate"`` (activate, boot and confirm nodes staged by an earlier ``"stage"``).
-    ``power_state`` is the finger power to restore after a power cycle; ``clock`` the
-    link's clock (s); ``on_change`` is called with a report on every state change.
+    verify every node, leave them halted in their bootloaders, phalanges first; an fmcb an
+    earlier run left in its bootloader is finished first, as its phalanges are reached only
+    through its application), or ``"activate"`` (activate, boot and confirm nodes staged by
+    an earlier ``"stage"``).  ``power_state`` is the finger's power when the run began (off:
+    powered before its phalanges are reached) and the power to restore after a power cycle;
+    ``clock`` the link's clock (s); ``on_change`` is called with a report on every state
+    change.
     """
 
     def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
