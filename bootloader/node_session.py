@@ -76,6 +76,14 @@ REFUSALS: Final = {
 }
 
 
+#: Why a node refuses an image's header page before writing anything, with what to do.
+HEADER_REFUSALS: Final = {
+    WriteStatus.NOT_FOR_THIS_NODE: "the image is built for another board or load address, "
+    "or does not fit this node's application area",
+    WriteStatus.BAD_SIGNATURE: REFUSALS[ImageStatus.BAD_SIGNATURE],
+}
+
+
 def refusal(image_status: int) -> str:
     """``image_status`` (:class:`ImageStatus`) of a refused activation, in words."""
     try:
@@ -434,9 +442,24 @@ class FingerChannel:
             if status == WriteStatus.OK and out.fields["page"] == page:
                 return
             problem = f"status {status!r}"
+            if status in HEADER_REFUSALS:
+                booted = yield from self.boot_installed(job)
+                then = ("runs it again" if booted else
+                        "stays in its bootloader (that image does not verify either)")
+                raise StepFailed(f"{job.name}: image refused before anything was written: "
+                                 f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
+                                 f"the image it had and {then}")
             if status in (WriteStatus.PAGE_OUT_OF_RANGE, WriteStatus.PAGE_PROTECTED):
                 break
         raise StepFailed(f"{job.name}: page {page} not written: {problem}")
+
+    def boot_installed(self, job: NodeJob) -> Flow:
+        """Ask a node that refused the new image to start the one it has (``bl.boot``);
+        True if it did (a node whose image does not verify leaves ``bl.boot`` unanswered
+        and stays in its bootloader)."""
+        self._set(job, NodeState.BOOTING)
+        out = yield Send("bl.boot", {}, job.hop)
+        return out.error is None
 
     def activate(self, job: NodeJob) -> Flow:
         """ACTIVATING (the node verifies the staged image again), BOOTING, CONFIRMING."""

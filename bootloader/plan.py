@@ -65,14 +65,18 @@ class NodeJob:
         return str(self.image.header.version)
 
     def blocks(self) -> list[Block]:
-        """The payload's blocks (from page 33 up), then the header page on its own: the
-        header is written last, so an interrupted run leaves no header naming a payload
-        that is not all there."""
+        """The header page on its own, then the payload's blocks (from page 33 up).
+
+        The header goes first because the node checks it before it erases anything: an
+        image for another board, or one its key refuses, is refused while the installed
+        image and its activation are still whole, so the node keeps running it.  An
+        interrupted run is still safe: the first payload write erases the activation
+        record, and a header whose payload is not all there never verifies."""
         pages = self.image.pages()
         first = self.image.header.start_page(FLASH)
         payload = [Block(first + 1 + i, tuple(pages[1 + i : 1 + i + BLOCK_PAGES]))
                    for i in range(0, len(pages) - 1, BLOCK_PAGES)]
-        return [*payload, Block(first, (pages[0],))]
+        return [Block(first, (pages[0],)), *payload]
 
     def whole_hash(self) -> bytes:
         """What ``bl.hash`` over all the image's pages must answer."""

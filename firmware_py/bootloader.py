@@ -32,6 +32,11 @@ Choices beyond the original:
   failed gives ``0x80``.  Status 1: page < 32 or ≥ 1024 (as the original, so the identity
   page 31 is covered); 2: the boot-control page (activation only through ``bl.activate``);
   3: a write is already in progress.
+* A write of the header page (page 32) holding an image header this node would never
+  activate is refused before anything is erased, so the installed image keeps booting:
+  status 4 for another board or load address or a payload too large, 5 for a signature
+  this node's key refuses (or none where the key record requires one).  A page that is no
+  image header at all is written as before (the write-then-boot check refuses it later).
 * ``bl.activate`` and ``bl.boot`` arriving while a page write is in progress wait for it.
 * ``last_error`` in ``bl.status`` is the code of the last failed command: a write-page
   status (``WriteStatus``) for ``bl.write_page``, a ``BootResult`` for the others.
@@ -142,6 +147,31 @@ def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
     raw = flash.read_page(HEADER_PAGE)
     if raw == _ERASED_PAGE:
         return ImageCheck(ImageStatus.EMPTY, None, "no image: header page is erased")
+    checked = check_header(raw, board)
+    if isinstance(checked, ImageCheck):
+        return checked
+    header = checked
+    payload = flash.read(page_address(PAYLOAD_FIRST_PAGE), header.payload_size)
+    if hashlib.sha256(payload).digest() != header.sha256:
+        return ImageCheck(ImageStatus.HASH_MISMATCH, header,
+                          f"hash mismatch: payload pages do not hash to "
+                          f"{header.sha256.hex()[:16]}... (truncated or corrupt)")
+    refused = check_signature(header, flash)
+    if refused is not None:
+        return refused
+    record = ActivationRecord.from_page(flash.read_page(BOOT_CONTROL_PAGE))
+    if record is None or record.sha256 != header.sha256:
+        return ImageCheck(ImageStatus.NOT_ACTIVATED, header,
+                          f"not activated: {header.app_name} {header.version} verifies but "
+                          "has no activation record")
+    return ImageCheck(ImageStatus.VALID, header,
+                      f"valid: {header.app_name} {header.version} ({header.payload_size} B)")
+
+
+def check_header(raw: bytes, board: BoardType | None) -> ImageHeader | ImageCheck:
+    """The header in ``raw`` (a header page) if it parses, names the header page as its load
+    address and ``board``, and its payload fits; else the :class:`ImageCheck` saying why
+    (bad header, wrong board, too large)."""
     try:
         header = parse_header(raw, max_payload=0xFFFFFFFF)
     except ImageError as exc:
@@ -157,27 +187,25 @@ def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
     if header.payload_size > MAX_PAYLOAD:
         return ImageCheck(ImageStatus.TOO_LARGE, header,
                           f"too large: payload {header.payload_size} B > {MAX_PAYLOAD} B")
-    payload = flash.read(page_address(PAYLOAD_FIRST_PAGE), header.payload_size)
-    if hashlib.sha256(payload).digest() != header.sha256:
-        return ImageCheck(ImageStatus.HASH_MISMATCH, header,
-                          f"hash mismatch: payload pages do not hash to "
-                          f"{header.sha256.hex()[:16]}... (truncated or corrupt)")
+    return header
+
+
+def check_signature(header: ImageHeader, flash: Flash) -> ImageCheck | None:
+    """None if the node's key record (key page) accepts ``header``'s signature (or the node
+    has no key); else the :class:`ImageCheck` (bad signature, or unsigned where the record
+    requires a signature)."""
     key = KeyRecord.from_page(flash.read_page(KEY_PAGE))
-    if key is not None:
-        if not header.signed:
-            if key.required:
-                return ImageCheck(ImageStatus.UNSIGNED, header,
-                                  "unsigned: this node requires a signed image")
-        elif not ed25519.verify(key.public_key, header.signature, signing_bytes(header)):
-            return ImageCheck(ImageStatus.BAD_SIGNATURE, header,
-                              "bad signature: not signed by this node's key")
-    record = ActivationRecord.from_page(flash.read_page(BOOT_CONTROL_PAGE))
-    if record is None or record.sha256 != header.sha256:
-        return ImageCheck(ImageStatus.NOT_ACTIVATED, header,
-                          f"not activated: {header.app_name} {header.version} verifies but "
-                          "has no activation record")
-    return ImageCheck(ImageStatus.VALID, header,
-                      f"valid: {header.app_name} {header.version} ({header.payload_size} B)")
+    if key is None:
+        return None
+    if not header.signed:
+        if key.required:
+            return ImageCheck(ImageStatus.UNSIGNED, header,
+                              "unsigned: this node requires a signed image")
+        return None
+    if not ed25519.verify(key.public_key, header.signature, signing_bytes(header)):
+        return ImageCheck(ImageStatus.BAD_SIGNATURE, header,
+                          "bad signature: not signed by this node's key")
+    return None
 
 
 def _first_bad_word(expected: bytes, actual: bytes) -> int | None:
@@ -392,6 +420,10 @@ class Bootloader(HandNode):
             reply(WriteStatus.PAGE_PROTECTED)
         elif self.flash_busy:
             reply(WriteStatus.FLASH_BUSY)
+        elif page == HEADER_PAGE and (refused := self._header_refusal(data)) is not None:
+            status, why = refused
+            self._fail(status, f"write of page {page}: header refused: {why}")
+            req.respond({"page": page, "status": status})
         elif page in APP_PAGES and self.hal.flash.read_page(BOOT_CONTROL_PAGE) != _ERASED_PAGE:
             # Staging begins: forget the activation before the image changes.
             def cleared(status: int) -> None:
@@ -404,6 +436,22 @@ class Bootloader(HandNode):
         else:
             self._program(page, data, reply)
         return DEFERRED
+
+    def _header_refusal(self, data: bytes) -> tuple[WriteStatus, str] | None:
+        """Why a header page must not be written: its status and reason (None: write it).  An image header for
+        another board or load address, too large, or refused by this node's key would only
+        be found out at activation, after the installed image was overwritten: it is refused
+        before anything is erased.  A page that is no image header at all (erased, or what
+        an older tool writes) is written as before."""
+        checked = check_header(data, self.board)
+        if isinstance(checked, ImageCheck):
+            if checked.header is None:
+                return None
+            return WriteStatus.NOT_FOR_THIS_NODE, checked.reason
+        refused = check_signature(checked, self.hal.flash)
+        if refused is not None:
+            return WriteStatus.BAD_SIGNATURE, refused.reason
+        return None
 
     def _on_hash(self, req: Request) -> dict[str, Any]:
         start, count = req.fields["start_page"], req.fields["pages"]

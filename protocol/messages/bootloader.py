@@ -42,6 +42,13 @@ class WriteStatus(IntEnum):
     PAGE_OUT_OF_RANGE = 0x01
     PAGE_PROTECTED = 0x02
     FLASH_BUSY = 0x03
+    #: New: a header page (page 32) whose image header names another board or load address,
+    #: or a payload larger than the application area; nothing is written, the installed
+    #: image and its activation stay.
+    NOT_FOR_THIS_NODE = 0x04
+    #: New: a header page whose image is not signed with this node's key (or is unsigned
+    #: where the node requires a signature); nothing is written.
+    BAD_SIGNATURE = 0x05
 
 
 #: Base of the page-write codes "word i did not program" (0x80 + i), as on the original.

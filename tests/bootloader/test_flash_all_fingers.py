@@ -348,18 +348,29 @@ def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
 
 def test_a_node_refusing_the_signature_says_which_key_to_sign_with(tmp_path: Path) -> None:
     from bootloader.signing import generate_key_pair, load_private_key, sign_image
-    from firmware_py.sim.boards import provision_key
+    from firmware_py.sim.boards import install_image, provision_key
     hand = Hand()
     try:
         node_key = generate_key_pair(tmp_path / "node", tmp_path / "node.pub")
         generate_key_pair(tmp_path / "other", tmp_path / "other.pub")
-        provision_key(hand.rig.fingers[0].f2.hal, node_key)
+        f2 = hand.rig.fingers[0].f2
+        provision_key(f2.hal, node_key)
+        # It runs an image signed with its key (version 2.3.3) …
+        old = sign_image(images("2.3.3")[BoardType.F2], load_private_key(tmp_path / "node"))
+        install_image(f2.hal, old.to_bytes())
+        # … and is given one signed with another key.
         image = sign_image(NEW[BoardType.F2], load_private_key(tmp_path / "other"))
         report = run(hand, make_plan({BoardType.F2: image}, [0]))
         (node,) = report.nodes
         assert node.result == "failed" and node.error is not None
         assert "not signed with the key this node was provisioned with" in node.error
         assert "fwimage build --sign KEY" in node.error and "BootResult" not in node.error
+        # Refused at its header page, before anything was erased: it runs its old image.
+        assert "refused before anything was written" in node.error
+        assert "keeps the image it had and runs it again" in node.error
+        hand.emu.step(100_000)
+        assert f2.program_name == "f2" and getattr(f2.program, "fw_version", None) == (2, 3, 3)
+        assert inspect_image(f2.hal.flash, BoardType.F2).status == ImageStatus.VALID
     finally:
         hand.emu.close()
 

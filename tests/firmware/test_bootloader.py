@@ -7,7 +7,9 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
+from bootloader.signing import raw_public_key, sign_image
 from firmware_py.bootloader import AUTOBOOT_US, Bootloader, inspect_image
 from firmware_py.flash_layout import (
     BOOT_CONTROL_PAGE,
@@ -20,11 +22,19 @@ from firmware_py.hal import Hal
 from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from firmware_py.sim.boards import default_image, install_image, make_node
+from firmware_py.sim.boards import default_image, install_image, make_node, provision_key
 from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
-from protocol.image import MAX_PAYLOAD, BoardType, ImageHeader, Version, make_image, split_pages
+from protocol.image import (
+    MAX_PAYLOAD,
+    BoardType,
+    FirmwareImage,
+    ImageHeader,
+    Version,
+    make_image,
+    split_pages,
+)
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import BootState
+from protocol.messages.bootloader import BootState, WriteStatus
 from protocol.stream import decode_all
 from protocol.topology import ADDR_BROADCAST
 
@@ -550,7 +560,9 @@ def test_activate_refuses_a_bad_staged_image() -> None:
     new = make_image(b"\x42" * 1000, BoardType.FMCB, "2.0.0", "fmcb")
     _flash_pages(mcu, new[:512])  # truncated: header says 1000 bytes of payload
     assert ask(mcu, "bl.activate", sha256=new[40:72]) == {"status": 3, "image_status": 4}
-    ask(mcu, "bl.write_page", page=HEADER_PAGE, data=split_pages(F2_IMAGE)[0])
+    # A header for another board is refused when written; planted in flash another way
+    # (a debugger, a worn cell), activation still refuses it.
+    vflash(mcu).load(page_address(HEADER_PAGE), split_pages(F2_IMAGE)[0])
     assert ask(mcu, "bl.activate", sha256=F2_IMAGE[40:72]) == {"status": 4, "image_status": 3}
     ask(mcu, "bl.write_page", page=HEADER_PAGE, data=b"\x00" * 256)
     assert ask(mcu, "bl.activate", sha256=new[40:72]) == {"status": 2, "image_status": 2}
@@ -584,3 +596,73 @@ def test_a_board_knows_its_applications_before_it_has_booted_one() -> None:
     apps = _LazyApps({"fmcb": "firmware_py.fmcb:FmcbApp"})
     assert "fmcb" in apps and "palm" not in apps
     assert dict.__len__(apps) == 0  # nothing imported by asking
+
+
+# --- a header the node would never activate is refused before anything is erased ------------
+def _signed_fmcb_image(private_key: Ed25519PrivateKey) -> bytes:
+    """An fmcb image (3000 B of payload) signed with ``private_key``."""
+    image = FirmwareImage.build(b"\x42" * 3000, BoardType.FMCB, "3.0.0", "fmcb")
+    return sign_image(image, private_key).to_bytes()
+
+
+def _refusals() -> dict[str, tuple[bytes, Ed25519PrivateKey | None, int]]:
+    node_key, other_key = Ed25519PrivateKey.generate(), Ed25519PrivateKey.generate()
+    unsigned = make_image(b"\x42" * 3000, BoardType.FMCB, "3.0.0", "fmcb")
+    moved = make_image(b"\x42" * 300, BoardType.FMCB, "3.0.0", "fmcb",
+                       load_address=page_address(HEADER_PAGE + 1))
+    return {
+        # name: (header page written, the node's key or None, write status)
+        "another_board": (F2_IMAGE, None, WriteStatus.NOT_FOR_THIS_NODE),
+        "another_load_address": (moved, None, WriteStatus.NOT_FOR_THIS_NODE),
+        "too_large": (_too_large_header(), None, WriteStatus.NOT_FOR_THIS_NODE),
+        "signed_by_another_key": (_signed_fmcb_image(other_key), node_key,
+                                  WriteStatus.BAD_SIGNATURE),
+        "unsigned_where_a_signature_is_required": (unsigned, node_key,
+                                                   WriteStatus.BAD_SIGNATURE),
+    }
+
+
+@pytest.mark.parametrize("case", list(_refusals()))
+def test_a_header_the_node_would_never_activate_is_refused_and_the_old_image_boots(
+        case: str) -> None:
+    header, key, status = _refusals()[case]
+    if key is None:
+        mcu = new_node()
+    else:  # a provisioned node, running an image signed with its key
+        mcu = new_node(image=_signed_fmcb_image(key))
+        provision_key(vhal(mcu), raw_public_key(key.public_key()))
+    mcu.power_on()
+    run(mcu, 1_000)
+    ask(mcu, "bl.halt")
+    before = bytes(vflash(mcu).memory)
+    writes_before = list(vflash(mcu).writes)
+    reply = ask(mcu, "bl.write_page", page=HEADER_PAGE, data=split_pages(header)[0])
+    assert reply == {"page": HEADER_PAGE, "status": status}
+    assert bytes(vflash(mcu).memory) == before and vflash(mcu).writes == writes_before
+    got = ask(mcu, "bl.status")
+    assert got["last_error"] == status and got["last_page"] == HEADER_PAGE
+    assert "header refused" in got["text"]
+    # The installed image and its activation are untouched: the next power-up boots it.
+    mcu.power_off()
+    mcu.power_on()
+    run(mcu, WINDOW + 1_000)
+    assert mcu.program_name == "fmcb"
+
+
+def test_a_header_the_key_accepts_is_written_and_boots() -> None:
+    node_key = Ed25519PrivateKey.generate()
+    mcu = new_node(installed=False)
+    provision_key(vhal(mcu), raw_public_key(node_key.public_key()))
+    mcu.power_on()
+    run(mcu, 1_000)
+    ask(mcu, "bl.halt")
+    _flash_pages(mcu, _signed_fmcb_image(node_key))
+    ask(mcu, "bl.boot")
+    assert mcu.program_name == "fmcb"
+
+
+def test_a_page_that_is_no_image_header_is_still_written() -> None:
+    mcu = halted_node()
+    for data in (b"\x00" * 256, bytes(range(256))):  # zeros; an original raw binary
+        assert ask(mcu, "bl.write_page", page=HEADER_PAGE, data=data)["status"] == 0
+        assert vflash(mcu).read_page(HEADER_PAGE) == data
