@@ -57,6 +57,18 @@ class TargetKind:
         """The catalogue requests this node understands (common ones included)."""
         return [m for m in CATALOGUE if m.node in ("common", self.node) and m.request]
 
+    def wrap(self, frame: bytes) -> bytes:
+        """The bytes that carry ``frame`` to the node (inside a tunnel for f2/f3)."""
+        if not self.via_tunnel:
+            return frame
+        return CATALOGUE["fmcb.tunnel"].request_frame(ADDR_FMCB, max_ms=TUNNEL_LISTEN_MS,
+                                                      data=frame)
+
+    @property
+    def reply_wait_us(self) -> int:
+        """How long a step listens for its answer (µs): a tunnel waits on the tendon bus."""
+        return (TUNNEL_LISTEN_MS + 5) * 1000 if self.via_tunnel else 5_000
+
 
 TARGETS: Final = {
     "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2),
@@ -132,6 +144,10 @@ def _same_kind(answer: Any, request: bytes, link: TargetLink) -> bool:
     return len(inner) > 4 and answer.type == inner[4]
 
 
+class TargetSilent(TransportError):
+    """The target does not answer a ping before the campaign or replay sends anything."""
+
+
 class TargetLink:
     """One open link to a target, with what the oracles need: write steps, listen, ping,
     the protected state over the wire, and the introspection when emulated."""
@@ -149,15 +165,25 @@ class TargetLink:
     def open(cls, kind: TargetKind, port: str, seed: int = 0,
              shared: dict[str, Transport] | None = None) -> TargetLink:
         """A link to ``kind`` on ``port``: a fresh emulator for ``emu://`` URLs, else the
-        transport in ``shared`` (opened once)."""
+        transport in ``shared`` (opened once).  The target must answer a ping before
+        anything is sent to it: :class:`TargetSilent` if it does not (a wrong port or
+        ``--target``, a board unpowered), so a dead link is never taken for a finding."""
         if port.startswith("emu://"):
-            return cls._open_emulated(kind, port, seed)
-        cache = shared if shared is not None else {}
-        transport = cache.get(port)
-        if transport is None or transport.closed:
-            transport = cache[port] = open_transport(port)
-        link = cls(kind, transport)
-        link.prepare()
+            link = cls._open_emulated(kind, port, seed)
+        else:
+            cache = shared if shared is not None else {}
+            transport = cache.get(port)
+            if transport is None or transport.closed:
+                transport = cache[port] = open_transport(port)
+            link = cls(kind, transport)
+            link.prepare()
+        if not link.alive():
+            link.close()
+            raise TargetSilent(
+                f"no {kind.name} answers a ping on {port} within "
+                f"{kind.ping_deadline_s * 1e3:.0f} ms (one retry) before anything was sent: "
+                f"check the port and --target (a {kind.name} is reached on a port like "
+                f"{kind.url}), and that the board is powered and running")
         return link
 
     @classmethod
@@ -196,10 +222,7 @@ class TargetLink:
     # --- traffic ------------------------------------------------------------------------
     def wrap(self, frame: bytes) -> bytes:
         """The bytes that carry ``frame`` to the target (inside a tunnel for f2/f3)."""
-        if not self.kind.via_tunnel:
-            return frame
-        return CATALOGUE["fmcb.tunnel"].request_frame(ADDR_FMCB, max_ms=TUNNEL_LISTEN_MS,
-                                                      data=frame)
+        return self.kind.wrap(frame)
 
     def write(self, chunks: tuple[tuple[bytes, int], ...]) -> None:
         """Send each chunk after its gap (µs) on the link's clock."""
@@ -219,7 +242,7 @@ class TargetLink:
     @property
     def reply_wait_us(self) -> int:
         """How long a step listens for its answer (µs): a tunnel waits on the tendon bus."""
-        return (TUNNEL_LISTEN_MS + 5) * 1000 if self.kind.via_tunnel else 5_000
+        return self.kind.reply_wait_us
 
     def answers(self, data: bytes, like: bytes | None = None) -> list[Any]:
         """Replies in ``data``: hand frames to the host (for a tunnelled target, the frames
