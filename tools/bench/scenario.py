@@ -171,8 +171,23 @@ def _parse(raw: dict[str, Any], source: str) -> Scenario:
                     assertions=assertions, campaign=campaign, raw=raw, source=source)
 
 
+def find_scenario(name: str | Path) -> Path:
+    """The file of scenario ``name``: a path to a TOML file, or the name of a built-in
+    scenario (``break_away``, or ``break_away.toml``: :func:`standard_suite`) when no such
+    file exists here.  :class:`ScenarioError` if it is neither."""
+    path = Path(name)
+    if path.exists():
+        return path
+    builtin = scenario_dir() / f"{path.name.removesuffix('.toml')}.toml"
+    if path.parent == Path(".") and builtin.is_file():
+        return builtin
+    raise ScenarioError(f"{name}: no such file, nor a built-in scenario of that name "
+                        f"(hil-bench list-scenarios lists them)")
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """The scenario in TOML file ``path``."""
+    """The scenario in TOML file ``path`` (or the built-in scenario of that name)."""
+    path = find_scenario(path)
     try:
         with open(path, "rb") as f:
             raw = tomllib.load(f)
@@ -198,7 +213,8 @@ def with_overrides(raw: dict[str, Any], seed: int | None = None,
             try:
                 node = node[int(part)] if isinstance(node, list) else node[part]
             except (KeyError, IndexError, ValueError) as exc:
-                raise ScenarioError(f"campaign.vary: {path!r}: no {part!r} there") from exc
+                raise ScenarioError(f"{path!r} (campaign.vary or --set): no {part!r} "
+                                    f"there") from exc
         last = parts[-1]
         if isinstance(node, list):
             node[int(last)] = value
