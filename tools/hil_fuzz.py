@@ -70,6 +70,10 @@ def _fuzz(argv: Sequence[str]) -> int:
         print(f"hil-fuzz: {exc}", file=sys.stderr)
         return 2
     ran = f"{result.examples} examples ({result.steps_sent} steps, {result.seconds:.1f} s)"
+    if result.link_error is not None:
+        print(f"hil-fuzz: the link to the target failed after {ran}, nothing found before "
+              f"that: {result.link_error}", file=sys.stderr)
+        return 2
     if result.reproducer is None:
         if result.interrupted:
             print(f"interrupted: nothing found in {ran}")

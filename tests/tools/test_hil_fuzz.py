@@ -171,3 +171,27 @@ def test_replay_of_a_file_that_is_not_a_reproducer_names_it(
     err = capsys.readouterr().err
     assert err.startswith("hil-fuzz replay: ")
     assert "Traceback" not in err
+
+
+def test_a_link_that_fails_mid_campaign_ends_it_without_a_finding(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from host.errors import TransportError
+
+    writes = [0]
+    write = TargetLink.write
+
+    def failing_write(self: TargetLink, chunks: tuple[tuple[bytes, int], ...]) -> None:
+        writes[0] += 1
+        if writes[0] >= 8:  # the port gone (an emulator behind a pty stopped, unplugged)
+            raise TransportError("serial port closed")
+        write(self, chunks)
+
+    monkeypatch.setattr(TargetLink, "write", failing_write)
+    code = hil_fuzz.main(["--target", "fmcb", "--examples", "50", "--steps", "5",
+                          "--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 2, captured.out
+    assert "the link to the target failed after 2 examples (8 steps" in captured.err
+    assert "serial port closed" in captured.err
+    assert "FAILURE" not in captured.out and list(tmp_path.iterdir()) == []

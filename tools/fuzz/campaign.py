@@ -68,11 +68,20 @@ class CampaignResult:
     examples_to_failure: int | None = None
     #: True when Ctrl-C (KeyboardInterrupt) ended the campaign before its budget.
     interrupted: bool = False
+    #: Why the link to the target failed mid-campaign (the campaign ended there), or None.
+    link_error: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def found(self) -> bool:
         return self.reproducer is not None
+
+
+class LinkLost(BaseException):  # noqa: N818 - a signal through hypothesis, not an error
+    """The link to the target failed in the middle of an example (its ``__cause__``, a
+    :class:`~host.errors.HostError`: the port gone, the emulator behind it stopped).  A
+    ``BaseException`` so hypothesis passes it straight up instead of shrinking it as a
+    finding; :func:`run_campaign` ends the campaign with it."""
 
 
 class Checker:
@@ -121,6 +130,8 @@ class Checker:
                 raise FuzzFailure("; ".join(problems))
         try:
             alive = self.link.alive()
+        except HostError:
+            raise  # the link itself failed: not the target's doing
         except Exception as exc:  # noqa: BLE001 - a firmware exception during the ping
             raise FuzzFailure(f"exception inside the target during the liveness ping: "
                               f"{type(exc).__name__}: {exc}") from exc
@@ -187,6 +198,7 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
         def __init__(self) -> None:
             super().__init__()
             self._checker: Checker | None = None
+            self._lost = False  # the link failed: no end-of-sequence checks over it
 
         @property
         def checker(self) -> Checker:
@@ -199,7 +211,8 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
             if self._checker is None:
                 return
             try:
-                self._checker.finish()
+                if not self._lost:
+                    self._checker.finish()
             finally:
                 self._checker.link.close()
 
@@ -210,6 +223,9 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 if on_failure is not None:
                     on_failure()
                 raise
+            except HostError as exc:
+                self._lost = True
+                raise LinkLost(str(exc)) from exc
 
         @rule(data=st.data())
         def send_valid(self, data: Any) -> None:
@@ -341,6 +357,8 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
         # Ctrl-C: what ran so far is the result (a failure found keeps its sequence,
         # shrunk as far as it got).
         result.interrupted = True
+    except LinkLost as lost:
+        result.link_error = str(lost)
     finally:
         for link in first:
             link.close()

@@ -182,8 +182,8 @@ class TargetLink:
             raise TargetSilent(
                 f"no {kind.name} answers a ping on {port} within "
                 f"{kind.ping_deadline_s * 1e3:.0f} ms (one retry) before anything was sent: "
-                f"check the port and --target (a {kind.name} is reached on a port like "
-                f"{kind.url}), and that the board is powered and running")
+                f"check the port and --target (in the emulator in process the {kind.name} "
+                f"is on {kind.url}), and that the board is powered and running")
         return link
 
     @classmethod
@@ -286,11 +286,15 @@ class TargetLink:
         return any(f.type == ping.type_id for f in self.answers(got))
 
     def alive(self) -> bool:
-        """The liveness oracle: after the inter-frame gap, a ping answered (one retry)."""
+        """The liveness oracle: after the inter-frame gap, a ping answered (one retry).  On
+        a real port a :class:`TransportError` (the port gone: unplugged, the emulator
+        behind a pty stopped) is raised, not taken for a target that stopped answering."""
         try:
             self.transport.sleep(FRAME_GAP_US * 1.2 / 1e6)
             return self.ping_once() or self.ping_once()
         except TransportError:
+            if self.emulator is None:
+                raise
             return False
 
     def protected_over_wire(self) -> tuple[bytes, ...]:
