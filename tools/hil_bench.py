@@ -37,6 +37,8 @@ from hil_emulator.errors import EmulatorError
 
 #: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
 EXIT_INTERRUPTED = 130
+#: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
+SCHEDULER_TIMEOUT_S = 10.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -192,6 +194,20 @@ def _writable(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _connect(address: str) -> Any:
+    """A Dask client of the scheduler at ``address``; :class:`ConnectionError` saying what
+    to do when there is none (checked before anything runs)."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+    except (OSError, ValueError, TimeoutError) as exc:
+        raise ConnectionError(
+            f"--scheduler {address}: no Dask scheduler there ({exc}); start one "
+            f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
+            f"use --workers N for local processes") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from tools.bench.campaign import expand, iter_jobs
     from tools.bench.report import reproduce_command, write_report
@@ -214,10 +230,15 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, argparse.ArgumentTypeError, EmulatorError) as exc:
         print(f"hil-bench: {exc}", file=sys.stderr)
         return 2
+    try:
+        scheduler = _connect(args.scheduler) if args.scheduler else None
+    except ConnectionError as exc:
+        print(f"hil-bench: {exc}", file=sys.stderr)
+        return 2
     results: list[dict[str, Any]] = []
     interrupted = False
     try:
-        for r in iter_jobs(jobs, workers=args.workers, scheduler=args.scheduler):
+        for r in iter_jobs(jobs, workers=args.workers, scheduler=scheduler):
             results.append(r)
             print(run_line(r), flush=True)
             if not r["passed"]:
@@ -226,6 +247,9 @@ def run(args: argparse.Namespace) -> int:
         interrupted = True
         print(f"hil-bench: interrupted: {len(results)} of {len(jobs)} runs finished; "
               f"what they measured is kept", file=sys.stderr)
+    finally:
+        if scheduler is not None:
+            scheduler.close()
     if args.json:
         slim = [{k: v for k, v in r.items() if k != "trace"} for r in results]
         with open(args.json, "w", encoding="utf-8") as f:

@@ -303,3 +303,17 @@ def test_set_fixes_one_value_of_a_varied_key(tmp_path: Path) -> None:
                                               "physics": False}]
     assert jobs[0]["raw"]["faults"][0]["params"]["duration_us"] == 2500
     assert jobs[0]["raw"]["seed"] == 4
+
+
+@pytest.mark.parametrize("address", ["nonsense", "tcp://127.0.0.1:1"])
+def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
+        address: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.bench import campaign
+
+    monkeypatch.setattr(campaign, "run_job", _never)
+    monkeypatch.setattr(hil_bench, "SCHEDULER_TIMEOUT_S", 0.5)
+    assert hil_bench.main(["run", "link_loss", "--scheduler", address]) == 2
+    err = capsys.readouterr().err
+    assert f"--scheduler {address}: no Dask scheduler there" in err
+    assert "Traceback" not in err
