@@ -14,6 +14,7 @@ Ctrl-C (after saying what ran, and saving a failure found so far).  See docs/FUZ
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Callable, Sequence
 
@@ -81,13 +82,20 @@ def _fuzz(argv: Sequence[str]) -> int:
         print(f"nothing found in {ran}")
         return 0
     rep = result.reproducer
-    path = rep.save(args.out)
     print(f"FAILURE on {rep.target}: {rep.failure}")
     print(f"minimal sequence ({len(rep.steps)} steps):" if not result.interrupted else
           f"sequence ({len(rep.steps)} steps; interrupted before it was fully shrunk):")
     for i, step in enumerate(rep.steps, 1):
         print(f"  {i}. {step}")
-    print(f"reproducer saved to {path}")
+    try:
+        path = rep.save(args.out)
+    except OSError as exc:
+        # The finding is not lost: the reproducer goes to stdout, to be saved by hand.
+        print(f"hil-fuzz: cannot save the reproducer in {args.out}: {exc}; here it is (save "
+              f"it as {rep.target}-seed{rep.seed}.json for hil-fuzz replay):", file=sys.stderr)
+        print(json.dumps(rep.to_json(), indent=1))
+    else:
+        print(f"reproducer saved to {path}")
     return EXIT_INTERRUPTED if result.interrupted else 1
 
 

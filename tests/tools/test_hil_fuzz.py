@@ -195,3 +195,24 @@ def test_a_link_that_fails_mid_campaign_ends_it_without_a_finding(
     assert "the link to the target failed after 2 examples (8 steps" in captured.err
     assert "serial port closed" in captured.err
     assert "FAILURE" not in captured.out and list(tmp_path.iterdir()) == []
+
+
+def test_a_finding_that_cannot_be_saved_is_printed_whole(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.fuzz.campaign import CampaignResult
+
+    frame = CATALOGUE["ping"].request_frame(10)
+    found = Reproducer("fmcb", 4, [Step("ping", ((frame, 0),))], "the fmcb hangs",
+                       "emu://loose-finger/finger0")
+    monkeypatch.setattr(hil_fuzz, "run_campaign", lambda *a, **k: CampaignResult(
+        "fmcb", 4, 3, 1.0, reproducer=found))
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code = hil_fuzz.main(["--target", "fmcb", "--out", str(blocker / "findings")])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "cannot save the reproducer" in captured.err
+    printed = captured.out[captured.out.index("{"):]
+    (tmp_path / "saved.json").write_text(printed)
+    assert Reproducer.load(tmp_path / "saved.json") == found
