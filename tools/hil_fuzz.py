@@ -52,8 +52,8 @@ def _fuzz(argv: Sequence[str]) -> int:
     parser.add_argument("--target", required=True, choices=sorted(TARGETS))
     budget = parser.add_mutually_exclusive_group()
     budget.add_argument("--seconds", type=_positive(float),
-                        help="fuzz for about this long (wall clock; checked between rounds "
-                        "of 10 examples)")
+                        help="fuzz for this long (wall clock; checked before each example, "
+                        "so at most one example more)")
     budget.add_argument("--examples", type=_positive(int),
                         help="number of sequences sent (default 100)")
     parser.add_argument("--steps", type=_positive(int), default=12,

@@ -216,3 +216,12 @@ def test_a_finding_that_cannot_be_saved_is_printed_whole(
     printed = captured.out[captured.out.index("{"):]
     (tmp_path / "saved.json").write_text(printed)
     assert Reproducer.load(tmp_path / "saved.json") == found
+
+
+def test_a_time_budget_is_checked_before_every_example() -> None:
+    # It used to be checked between rounds of 10 examples: --seconds 5 with the MuJoCo
+    # plant ran 10 examples for about 30 s.  A budget spent by the first example's
+    # bring-up stops the campaign after that one example.
+    result = run_campaign("fmcb", seconds=1e-3, seed=1, steps=2)
+    assert result.examples == 1 and result.reproducer is None
+    assert 1 <= result.steps_sent <= 2

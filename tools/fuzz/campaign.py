@@ -40,8 +40,8 @@ from tools.fuzz.targets import (
 ARM_GUARDED_REGISTERS = ("id", "baud_rate")
 #: Largest gap between the writes of one split frame (µs): under the decoders' gap.
 MAX_SPLIT_GAP_US = FRAME_GAP_US // 2
-#: Examples per round of a campaign with a time budget (the budget is checked between
-#: rounds, so a campaign may overrun it by up to one round).
+#: Examples per round of a campaign with a time budget, each round with its own seed (the
+#: budget is checked before each example, so a campaign overruns it by at most one).
 SECONDS_ROUND: Final = 10
 #: Mutations after which the target must stay silent and unchanged.
 SILENT_MUTATIONS = ("bad_crc", "foreign_address")
@@ -82,6 +82,12 @@ class LinkLost(BaseException):  # noqa: N818 - a signal through hypothesis, not 
     :class:`~host.errors.HostError`: the port gone, the emulator behind it stopped).  A
     ``BaseException`` so hypothesis passes it straight up instead of shrinking it as a
     finding; :func:`run_campaign` ends the campaign with it."""
+
+
+class BudgetSpent(BaseException):  # noqa: N818 - a signal through hypothesis, not an error
+    """The campaign's ``seconds`` ran out before an example's first step; raised through
+    hypothesis (a ``BaseException``) so the campaign stops there, within one example of
+    its budget."""
 
 
 class Checker:
@@ -314,19 +320,22 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
     record: list[Checker] = []
     links: dict[str, Any] = shared if shared is not None else {}
     counter = [0]
+    started = time.monotonic()
+    result = CampaignResult(target, seed, 0, 0.0)
     # The first target is opened before hypothesis starts, so a port where nothing answers
     # is a TargetSilent here (a clear error), never a "finding" hypothesis shrinks.
     first = [TargetLink.open(kind, url, seed=seed, shared=links)]
 
     def opener() -> TargetLink:
+        if (seconds is not None and counter[0] and result.first_failure_s is None
+                and time.monotonic() - started >= seconds):
+            raise BudgetSpent  # at least one example; never while a failure is shrunk
         counter[0] += 1
         return first.pop() if first else TargetLink.open(kind, url, seed=seed, shared=links)
 
     base = settings(stateful_step_count=steps, deadline=None, database=None, print_blob=False,
                     phases=[Phase.generate, Phase.shrink] if shrink else [Phase.generate],
                     suppress_health_check=list(HealthCheck))
-    started = time.monotonic()
-    result = CampaignResult(target, seed, 0, 0.0)
 
     def noted() -> None:
         if result.first_failure_s is None:
@@ -359,6 +368,8 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
         result.interrupted = True
     except LinkLost as lost:
         result.link_error = str(lost)
+    except BudgetSpent:
+        pass  # --seconds: the time ran out before the next example
     finally:
         for link in first:
             link.close()
