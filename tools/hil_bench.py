@@ -126,6 +126,16 @@ def run_line(result: dict[str, Any]) -> str:
             f"[{result['sim_s']:.2f} s simulated, {result['wall_s']:.1f} s wall]")
 
 
+def unchecked_failures(result: dict[str, Any]) -> list[tuple[str, str]]:
+    """The actions of a run that failed while no assertion looks at them (``action_ok``,
+    ``action_fails``, ``flash_verified``, ``cleared_by``): (id, error).  They do not fail
+    the run, but a scenario whose actions all failed should not read as a plain pass."""
+    checked = {a["params"].get(key) for a in result["assertions"]
+               for key in ("action", "cleared_by")}
+    return [(name, str(a.get("error", ""))) for name, a in result["actions"].items()
+            if not a["ok"] and name not in checked]
+
+
 def _seeds(text: str | None) -> list[int] | None:
     if text is None:
         return None
@@ -241,6 +251,9 @@ def run(args: argparse.Namespace) -> int:
         for r in iter_jobs(jobs, workers=args.workers, scheduler=scheduler):
             results.append(r)
             print(run_line(r), flush=True)
+            for name, error in unchecked_failures(r):
+                print(f"    note: action {name} failed (no assertion checks it): {error}",
+                      flush=True)
             if not r["passed"]:
                 print(f"    reproduce: {reproduce_command(r)}", flush=True)
     except KeyboardInterrupt:

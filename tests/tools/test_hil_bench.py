@@ -41,6 +41,16 @@ def _raw(name: str) -> dict[str, Any]:
     ({"faults": [{"fault": "break_away", "params": {"finger": "x"}}]},
      r"faults\[0\]\.params\.finger"),
     ({"faults": [{"fault": "break_away", "at_s": -1}]}, r"faults\[0\]\.at_s"),
+    ({"actions": [{"do": "ping", "node": "finger9.fmcb"}]},
+     r"actions\[0\]\.node: 'finger9\.fmcb' is not palm, finger<0\.\.3>"),
+    ({"actions": [{"do": "ping", "node": "bogus"}]}, r"actions\[0\]\.node: 'bogus'"),
+    ({"actions": [{"do": "ping", "node": "arm.5"}]},
+     r"actions\[0\]: 'ping' needs a configuration with the arm \(full or arm\)"),
+    ({"actions": [{"do": "power", "finger": 2, "state": "on"}]},
+     r"actions\[0\]\.state: 'on' is not one of off, low, full"),
+    ({"actions": [{"do": "power", "finger": 7, "state": "off"}]},
+     r"actions\[0\]\.finger: 7 is not 0\.\.3 or 'all'"),
+    ({"config": "arm"}, r"actions\[0\]: 'poll' needs a configuration with the hand"),
 ])
 def test_scenario_errors_name_the_file_and_the_key(change: dict[str, Any], message: str
                                                    ) -> None:
@@ -317,3 +327,17 @@ def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
     err = capsys.readouterr().err
     assert f"--scheduler {address}: no Dask scheduler there" in err
     assert "Traceback" not in err
+
+
+def test_a_failed_action_no_assertion_checks_is_noted(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "quiet.toml"
+    path.write_text('config = "hand"\nphysics = false\n'
+                    '[[actions]]\ndo = "power"\nfinger = 2\nstate = "off"\n'
+                    '[[actions]]\ndo = "ping"\nid = "gone"\nnode = "finger2.fmcb"\n'
+                    '[[actions]]\ndo = "ping"\nid = "palm"\n')
+    assert hil_bench.main(["run", str(path)]) == 0  # no assertion: the run passes
+    out = capsys.readouterr().out
+    assert "quiet seed 0: pass" in out
+    assert "note: action gone failed (no assertion checks it): " in out
+    assert "action palm" not in out and "action power0" not in out
