@@ -182,7 +182,7 @@ class TargetLink:
             raise TargetSilent(
                 f"no {kind.name} answers a ping on {port} within "
                 f"{kind.ping_deadline_s * 1e3:.0f} ms (one retry) before anything was sent: "
-                f"check the port and --target (in the emulator in process the {kind.name} "
+                f"check the port and the target (in the emulator in process the {kind.name} "
                 f"is on {kind.url}), and that the board is powered and running")
         return link
 
