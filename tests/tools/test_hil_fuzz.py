@@ -225,3 +225,14 @@ def test_a_time_budget_is_checked_before_every_example() -> None:
     result = run_campaign("fmcb", seconds=1e-3, seed=1, steps=2)
     assert result.examples == 1 and result.reproducer is None
     assert 1 <= result.steps_sent <= 2
+
+
+def test_the_palm_port_fuzzed_as_an_fmcb_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # The palm and an fmcb share address 10: the palm answers the fmcb's ping, and the
+    # campaign used to fuzz the palm with fmcb messages and report "nothing found".
+    code = hil_fuzz.main(["--target", "fmcb", "--port", "emu://hand/palm", "--examples", "1",
+                          "--out", str(tmp_path)])
+    assert code == 2
+    assert ("identifies as PALM, not FMCB (the fmcb target)"
+            in capsys.readouterr().err)

@@ -15,7 +15,9 @@ from host.errors import TransportError
 from host.transport import Transport, open_transport, url_options
 from protocol import dynamixel as dx
 from protocol.catalogue import Message
+from protocol.errors import ProtocolError
 from protocol.framing import Frame, encode_frame
+from protocol.image import BoardType
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import ControlMode
 from protocol.stream import StreamDecoder
@@ -52,6 +54,8 @@ class TargetKind:
     ping_deadline_s: float = 0.05
     #: Addresses of the other nodes on the target's line (never a "foreign" address).
     neighbours: tuple[int, ...] = ()
+    #: The board ``identify`` must report (None: not a hand node, not checked).
+    board: BoardType | None = None
 
     def messages(self) -> list[Message]:
         """The catalogue requests this node understands (common ones included)."""
@@ -71,13 +75,15 @@ class TargetKind:
 
 
 TARGETS: Final = {
-    "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2),
-    "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb"),
+    "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2,
+                       board=BoardType.PALM),
+    "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb", board=BoardType.FMCB),
     "f2": TargetKind("f2", "emu://loose-finger/finger0", "f2", ADDR_F2, via_tunnel=True,
-                     neighbours=(ADDR_F3,)),
+                     neighbours=(ADDR_F3,), board=BoardType.F2),
     "f3": TargetKind("f3", "emu://loose-finger/finger0", "f3", ADDR_F3, via_tunnel=True,
-                     neighbours=(ADDR_F2,)),
-    "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader"),
+                     neighbours=(ADDR_F2,), board=BoardType.F3),
+    "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader",
+                             board=BoardType.FMCB),
     "arm": TargetKind("arm", "emu://arm/arm", "arm", dynamixel=True),
 }
 
@@ -148,6 +154,10 @@ class TargetSilent(TransportError):
     """The target does not answer a ping before the campaign or replay sends anything."""
 
 
+class WrongTarget(TransportError):
+    """The node answering on the port identifies as another board than the target's."""
+
+
 class TargetLink:
     """One open link to a target, with what the oracles need: write steps, listen, ping,
     the protected state over the wire, and the introspection when emulated."""
@@ -167,7 +177,9 @@ class TargetLink:
         """A link to ``kind`` on ``port``: a fresh emulator for ``emu://`` URLs, else the
         transport in ``shared`` (opened once).  The target must answer a ping before
         anything is sent to it: :class:`TargetSilent` if it does not (a wrong port or
-        ``--target``, a board unpowered), so a dead link is never taken for a finding."""
+        ``--target``, a board unpowered), so a dead link is never taken for a finding; and
+        a hand node must identify as the target's board (:class:`WrongTarget`: the palm's
+        port fuzzed as an fmcb, both at address 10)."""
         if port.startswith("emu://"):
             link = cls._open_emulated(kind, port, seed)
         else:
@@ -184,6 +196,14 @@ class TargetLink:
                 f"{kind.ping_deadline_s * 1e3:.0f} ms (one retry) before anything was sent: "
                 f"check the port and the target (in the emulator in process the {kind.name} "
                 f"is on {kind.url}), and that the board is powered and running")
+        board = link.identify_board()
+        if board is not None and kind.board is not None and board != kind.board:
+            link.close()
+            raise WrongTarget(
+                f"the node answering on {port} at address {kind.address} identifies as "
+                f"{board.name}, not {kind.board.name} (the {kind.name} target): check the "
+                f"port and the target (in the emulator in process the {kind.name} is on "
+                f"{kind.url})")
         return link
 
     @classmethod
@@ -284,6 +304,23 @@ class TargetLink:
         self.transport.send(self.wrap(encode_frame(self.kind.address, ping.type_id)))
         got = self.listen(self.kind.ping_deadline_s)
         return any(f.type == ping.type_id for f in self.answers(got))
+
+    def identify_board(self) -> BoardType | None:
+        """The board the target's node reports to ``identify`` (None: not a hand target,
+        or no answer: then it is not checked).  The palm and an fmcb share address 10, so
+        a ping alone does not tell an fmcb's port from the palm's."""
+        if self.kind.board is None:
+            return None
+        identify = CATALOGUE["identify"]
+        self.transport.sleep(FRAME_GAP_US * 1.2 / 1e6)
+        self.transport.send(self.wrap(identify.request_frame(self.kind.address)))
+        for f in self.answers(self.listen(self.kind.ping_deadline_s)):
+            if f.type == identify.type_id:
+                try:
+                    return BoardType(identify.parse_reply(f.payload)["board"])
+                except (ValueError, KeyError, ProtocolError):
+                    return None
+        return None
 
     def alive(self) -> bool:
         """The liveness oracle: after the inter-frame gap, a ping answered (one retry).  On
