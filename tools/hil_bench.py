@@ -230,15 +230,15 @@ def run(args: argparse.Namespace) -> int:
         print("hil-bench run: give scenario files or names (hil-bench list-scenarios), or "
               "--suite standard", file=sys.stderr)
         return 2
-    if problem := _writable(args):
-        print(f"hil-bench: {problem}", file=sys.stderr)
-        return 2
     try:
         seeds = [args.seed] if args.seed is not None else _seeds(args.seeds)
         jobs = expand(files, seeds, keep_trace=args.report is not None,
                       fixed=dict(args.set))
     except (ScenarioError, argparse.ArgumentTypeError, EmulatorError) as exc:
         print(f"hil-bench: {exc}", file=sys.stderr)
+        return 2
+    if problem := _writable(args):
+        print(f"hil-bench: {problem}", file=sys.stderr)
         return 2
     try:
         scheduler = _connect(args.scheduler) if args.scheduler else None
