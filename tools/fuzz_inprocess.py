@@ -16,7 +16,8 @@ With atheris (``pip install atheris``; libFuzzer's coverage feedback) the corpus
 (``--update-corpus`` writes them into the repository instead).  Without atheris the
 hypothesis engine runs instead: random inputs from the corpus and ``st.binary``, with
 ``hypothesis.target`` steering toward inputs that complete more frames, and its example
-database under the same corpus folder.
+database in the temporary directory; it ends with ``TARGET: N inputs, no failure``.
+``--runs`` must be >= 1 (libFuzzer would take 0 or less as "run forever").
 """
 
 from __future__ import annotations
@@ -209,6 +210,18 @@ def run_atheris(target: str, runs: int, update_corpus: bool) -> int:
     return 0
 
 
+def _runs(text: str) -> int:
+    """An argparse type: a number of inputs >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: at least 1 (libFuzzer takes 0 or less "
+                                         f"as run forever; stop such a run with Ctrl-C)")
+    return value
+
+
 def run_hypothesis(target: str, runs: int) -> int:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
@@ -221,13 +234,17 @@ def run_hypothesis(target: str, runs: int) -> int:
     database = DirectoryBasedExampleDatabase(
         str(Path(tempfile.gettempdir()) / "fuzz-hypothesis-db" / target))
 
+    tried = [0]
+
     @settings(max_examples=runs, deadline=None, database=database,
               suppress_health_check=list(HealthCheck))
     @given(inputs)
     def check(data: bytes) -> None:
+        tried[0] += 1
         steer(float(run_one(target, data)), label="items decoded")
 
     check()
+    print(f"{target}: {tried[0]} inputs, no failure (hypothesis engine)")
     return 0
 
 
@@ -244,7 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.fuzz_inprocess",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("target", nargs="?", choices=sorted(targets()))
-    parser.add_argument("--runs", type=int, default=10_000)
+    parser.add_argument("--runs", type=_runs, default=10_000,
+                        help="inputs to try (default 10000)")
     parser.add_argument("--engine", choices=("atheris", "hypothesis"))
     parser.add_argument("--update-corpus", action="store_true",
                         help="atheris: write new inputs into tests/fuzz_corpus/TARGET")

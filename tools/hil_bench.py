@@ -1,17 +1,22 @@
 """``hil-bench``: fault scenarios on the emulated robot, campaigns, reports.
 
-    hil-bench run FILE… [--suite standard] [--seeds N|A,B,…] [--json OUT] [--report DIR]
+    hil-bench run FILE|NAME… [--suite standard] [--seeds N|A,B,… | --seed N]
+                  [--set KEY=VALUE …] [--json OUT] [--report DIR]
                   [--workers N] [--scheduler tcp://HOST:8786]
+    hil-bench list-scenarios [--json]
     hil-bench list-faults [--json]
     hil-bench experiments ARGS…
 
 ``run`` runs each scenario (docs/HIL_BENCH.md) in fast mode on the in-process emulator: one
 run per file × seed × ``campaign.vary`` combination, on ``--workers`` local processes or a
 Dask scheduler (the same code path).  It prints one line per run and exits 0 only if every
-assertion of every run holds (1 otherwise; 2 for a usage or scenario-file error).
+assertion of every run holds (1 otherwise; 2 for a usage or scenario-file error; 130 after
+Ctrl-C, with the runs finished so far printed, written to ``--json`` and reported).  A
+failed run prints the command that runs it alone (``--seed``, ``--set``).
 ``--json`` writes every result; ``--report`` a Markdown summary (opening with the pass rates
 per fault class and per ``campaign.vary`` parameter value, and their bar charts), one JSON
-per run and PNG plots around each fault.  ``list-faults`` prints the fault catalogue with parameters,
+per run and PNG plots around each fault.  ``list-scenarios`` prints the built-in
+scenarios (a NAME ``run`` takes instead of a file).  ``list-faults`` prints the fault catalogue with parameters,
 including those not implemented yet.  ``experiments`` hands its arguments to
 ``tools.bench_experiments``.
 """
@@ -21,11 +26,19 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
+import tomllib
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from hil_emulator.errors import EmulatorError
+
+#: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
+EXIT_INTERRUPTED = 130
+#: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
+SCHEDULER_TIMEOUT_S = 10.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,18 +46,29 @@ def build_parser() -> argparse.ArgumentParser:
                                      "campaigns on the emulated hand and arm.")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run scenario files (or the standard suite)")
-    run.add_argument("files", nargs="*", metavar="FILE", help="scenario TOML files")
+    run.add_argument("files", nargs="*", metavar="FILE|NAME",
+                     help="scenario TOML files, or names of built-in scenarios "
+                     "(hil-bench list-scenarios)")
     run.add_argument("--suite", choices=("standard",), help="add the built-in suite")
-    run.add_argument("--seeds", metavar="N|A,B", help="N seeds 0..N-1, or a list of seeds "
-                     "(default: each file's campaign.seeds or seed)")
+    seeds = run.add_mutually_exclusive_group()
+    seeds.add_argument("--seeds", metavar="N|A,B", help="N seeds 0..N-1, or a list of seeds "
+                       "(default: each file's campaign.seeds or seed)")
+    seeds.add_argument("--seed", type=_seed, metavar="N",
+                       help="this one seed (what a failed run prints to reproduce it)")
+    run.add_argument("--set", action="append", type=_setting, default=[],
+                     metavar="KEY=VALUE", help="set a scenario key by its dotted path "
+                     "(faults.0.params.probability=0.2; VALUE as in TOML, else text); a key "
+                     "the file's campaign.vary varies takes only this value")
     run.add_argument("--json", metavar="OUT", help="write every result to OUT (JSON)")
     run.add_argument("--report", metavar="DIR", help="write summary.md (pass rates per fault "
                      "class and parameter value, with bar charts), one JSON per run and "
                      "PNG plots around each fault into DIR")
-    run.add_argument("--workers", type=int, default=1, metavar="N",
+    run.add_argument("--workers", type=_workers, default=1, metavar="N",
                      help="local processes (default 1: this process)")
     run.add_argument("--scheduler", metavar="ADDR",
                      help="a Dask distributed scheduler (tcp://127.0.0.1:8786) instead")
+    ls = sub.add_parser("list-scenarios", help="the built-in scenarios (--suite standard)")
+    ls.add_argument("--json", action="store_true", help="as JSON")
     lf = sub.add_parser("list-faults", help="the fault catalogue with parameters")
     lf.add_argument("--json", action="store_true", help="as JSON")
     # ``experiments`` takes its own options (--json, --report …), which argparse's REMAINDER
@@ -53,6 +77,63 @@ def build_parser() -> argparse.ArgumentParser:
                    "hil-bench experiments [--json] [--report DIR] [--only NAME …] [--seed N]",
                    add_help=False)
     return parser
+
+
+def _seed(text: str) -> int:
+    """An argparse type: one seed, an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a seed is >= 0")
+    return value
+
+
+def _workers(text: str) -> int:
+    """An argparse type: a number of processes >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: at least 1")
+    return value
+
+
+def _setting(text: str) -> tuple[str, Any]:
+    """An argparse type: ``KEY=VALUE``, VALUE read as a TOML value (``0.2``, ``true``,
+    ``[1, 2]``, ``"x"``), else kept as text."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: KEY=VALUE, e.g. "
+                                         f"faults.0.params.probability=0.2")
+    try:
+        parsed: Any = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return key.strip(), parsed
+
+
+def run_line(result: dict[str, Any]) -> str:
+    """The line ``run`` prints for one result (its overrides by their last key)."""
+    from tools.bench.report import override_texts
+
+    failed = [a["id"] for a in result["assertions"] if not a["passed"]]
+    verdict = "pass" if result["passed"] else f"FAIL ({', '.join(failed)})"
+    where = "".join(f" {k}" for k in override_texts(result))
+    return (f"{result['scenario']} seed {result['seed']}{where}: {verdict}  "
+            f"[{result['sim_s']:.2f} s simulated, {result['wall_s']:.1f} s wall]")
+
+
+def unchecked_failures(result: dict[str, Any]) -> list[tuple[str, str]]:
+    """The actions of a run that failed while no assertion looks at them (``action_ok``,
+    ``action_fails``, ``flash_verified``, ``cleared_by``): (id, error).  They do not fail
+    the run, but a scenario whose actions all failed should not read as a plain pass."""
+    checked = {a["params"].get(key) for a in result["assertions"]
+               for key in ("action", "cleared_by")}
+    return [(name, str(a.get("error", ""))) for name, a in result["actions"].items()
+            if not a["ok"] and name not in checked]
 
 
 def _seeds(text: str | None) -> list[int] | None:
@@ -85,35 +166,114 @@ def list_faults(as_json: bool) -> int:
     return 0
 
 
+def list_scenarios(as_json: bool) -> int:
+    from tools.bench.scenario import load_scenario, standard_suite
+
+    entries: list[dict[str, Any]] = []
+    for path in standard_suite():
+        sc = load_scenario(path)
+        entries.append({"name": path.stem, "config": sc.config, "physics": sc.physics,
+                        "faults": list(dict.fromkeys(e.fault.name for e in sc.faults)),
+                        "description": sc.description, "path": str(path)})
+    if as_json:
+        print(json.dumps(entries, indent=1))
+        return 0
+    for e in entries:
+        print(f"{e['name']}  ({e['config']}{'' if e['physics'] else ', no physics'}; "
+              f"faults: {', '.join(e['faults']) or '-'})")
+        print(f"    {e['description']}")
+    return 0
+
+
+def _writable(args: argparse.Namespace) -> str | None:
+    """Why ``--json`` or ``--report`` cannot be written (checked, and the report's
+    directory made, before anything runs, so a typo does not lose a campaign), or None."""
+    if args.json:
+        parent = Path(args.json).resolve().parent
+        if not parent.is_dir():
+            return f"--json {args.json}: the directory {parent} does not exist"
+        if Path(args.json).is_dir():
+            return f"--json {args.json}: is a directory; give a file name"
+        if not os.access(parent, os.W_OK):
+            return f"--json {args.json}: cannot write in {parent}"
+    if args.report:
+        try:
+            Path(args.report).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            return f"--report {args.report}: cannot make that directory: {exc.strerror}"
+    return None
+
+
+def _connect(address: str) -> Any:
+    """A Dask client of the scheduler at ``address``; :class:`ConnectionError` saying what
+    to do when there is none (checked before anything runs)."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+    except (OSError, ValueError, TimeoutError) as exc:
+        raise ConnectionError(
+            f"--scheduler {address}: no Dask scheduler there ({exc}); start one "
+            f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
+            f"use --workers N for local processes") from None
+
+
 def run(args: argparse.Namespace) -> int:
-    from tools.bench.campaign import expand, run_jobs
-    from tools.bench.report import write_report
+    from tools.bench.campaign import expand, iter_jobs
+    from tools.bench.report import reproduce_command, write_report
     from tools.bench.scenario import ScenarioError, standard_suite
 
     files = list(args.files)
     if args.suite == "standard":
         files += [str(p) for p in standard_suite()]
     if not files:
-        print("hil-bench run: give scenario files or --suite standard", file=sys.stderr)
+        print("hil-bench run: give scenario files or names (hil-bench list-scenarios), or "
+              "--suite standard", file=sys.stderr)
         return 2
     try:
-        jobs = expand(files, _seeds(args.seeds), keep_trace=args.report is not None)
+        seeds = [args.seed] if args.seed is not None else _seeds(args.seeds)
+        jobs = expand(files, seeds, keep_trace=args.report is not None,
+                      fixed=dict(args.set))
     except (ScenarioError, argparse.ArgumentTypeError, EmulatorError) as exc:
         print(f"hil-bench: {exc}", file=sys.stderr)
         return 2
-    results = run_jobs(jobs, workers=args.workers, scheduler=args.scheduler)
-    for r in results:
-        failed = [a["id"] for a in r["assertions"] if not a["passed"]]
-        verdict = "pass" if r["passed"] else f"FAIL ({', '.join(failed)})"
-        print(f"{r['scenario']} seed {r['seed']}: {verdict}  [{r['sim_s']:.2f} s simulated, "
-              f"{r['wall_s']:.1f} s wall]")
+    if problem := _writable(args):
+        print(f"hil-bench: {problem}", file=sys.stderr)
+        return 2
+    try:
+        scheduler = _connect(args.scheduler) if args.scheduler else None
+    except ConnectionError as exc:
+        print(f"hil-bench: {exc}", file=sys.stderr)
+        return 2
+    results: list[dict[str, Any]] = []
+    interrupted = False
+    try:
+        for r in iter_jobs(jobs, workers=args.workers, scheduler=scheduler):
+            results.append(r)
+            print(run_line(r), flush=True)
+            for name, error in unchecked_failures(r):
+                print(f"    note: action {name} failed (no assertion checks it): {error}",
+                      flush=True)
+            if not r["passed"]:
+                print(f"    reproduce: {reproduce_command(r)}", flush=True)
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"hil-bench: interrupted: {len(results)} of {len(jobs)} runs finished; "
+              f"what they measured is kept", file=sys.stderr)
+    finally:
+        if scheduler is not None:
+            scheduler.close()
     if args.json:
         slim = [{k: v for k, v in r.items() if k != "trace"} for r in results]
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(slim, f, indent=1)
     if args.report:
-        write_report(results, args.report)
+        write_report(results, args.report, planned=len(jobs))
     passed = sum(r["passed"] for r in results)
+    if interrupted:
+        print(f"{passed} of {len(results)} runs passed (interrupted: {len(jobs) - len(results)}"
+              f" of {len(jobs)} not run)")
+        return EXIT_INTERRUPTED
     print(f"{passed} of {len(results)} runs passed")
     return 0 if passed == len(results) else 1
 
@@ -137,6 +297,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "list-faults":
         return list_faults(args.json)
+    if args.command == "list-scenarios":
+        return list_scenarios(args.json)
     return run(args)
 
 

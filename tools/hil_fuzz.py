@@ -5,20 +5,41 @@
     hil-fuzz replay findings/fmcb-seed3.json --port /dev/ttyUSB0
 
 Prints "nothing found in N examples" (exit 0) or the minimal failing sequence, saved as a
-reproducer in --out (exit 1).  ``replay`` exits 1 if the failure reproduces, else 0.
-See docs/FUZZING.md.
+reproducer in --out (exit 1).  ``replay`` exits 1 if the failure reproduces, else 0.  Both
+exit 2 on a usage error, an unreadable reproducer, or a target that cannot be opened or
+does not answer a ping before anything is sent (never taken for a finding), and 130 on
+Ctrl-C (after saying what ran, and saving a failure found so far).  See docs/FUZZING.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from host.errors import HostError
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS
+
+#: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
+EXIT_INTERRUPTED = 130
+
+
+def _positive(kind: type[int] | type[float]) -> Callable[[str], int | float]:
+    """An argparse type: a number of ``kind`` > 0."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"{text!r}: must be > 0")
+        return value
+
+    return parse
 
 
 def _fuzz(argv: Sequence[str]) -> int:
@@ -30,9 +51,13 @@ def _fuzz(argv: Sequence[str]) -> int:
                         "emulator in process that has the target)")
     parser.add_argument("--target", required=True, choices=sorted(TARGETS))
     budget = parser.add_mutually_exclusive_group()
-    budget.add_argument("--seconds", type=float, help="fuzz for this long (wall clock)")
-    budget.add_argument("--examples", type=int, help="number of sequences (default 100)")
-    parser.add_argument("--steps", type=int, default=12, help="most steps per sequence")
+    budget.add_argument("--seconds", type=_positive(float),
+                        help="fuzz for this long (wall clock; checked before each example, "
+                        "so at most one example more)")
+    budget.add_argument("--examples", type=_positive(int),
+                        help="number of sequences sent (default 100)")
+    parser.add_argument("--steps", type=_positive(int), default=12,
+                        help="most steps per sequence")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--messages", nargs="+", metavar="GLOB",
                         help="focus on these messages (e.g. 'fmcb.param_*')")
@@ -42,24 +67,36 @@ def _fuzz(argv: Sequence[str]) -> int:
     try:
         result = run_campaign(args.target, args.port, examples=examples, seconds=args.seconds,
                               seed=args.seed, steps=args.steps, messages=args.messages)
-    except ValueError as exc:
+    except (ValueError, HostError) as exc:
         print(f"hil-fuzz: {exc}", file=sys.stderr)
         return 2
-    except HostError as exc:
-        print(f"hil-fuzz: {exc}", file=sys.stderr)
-        return 1
+    ran = f"{result.examples} examples ({result.steps_sent} steps, {result.seconds:.1f} s)"
+    if result.link_error is not None:
+        print(f"hil-fuzz: the link to the target failed after {ran}, nothing found before "
+              f"that: {result.link_error}", file=sys.stderr)
+        return 2
     if result.reproducer is None:
-        print(f"nothing found in {result.examples} examples ({result.steps_sent} steps, "
-              f"{result.seconds:.1f} s)")
+        if result.interrupted:
+            print(f"interrupted: nothing found in {ran}")
+            return EXIT_INTERRUPTED
+        print(f"nothing found in {ran}")
         return 0
     rep = result.reproducer
-    path = rep.save(args.out)
     print(f"FAILURE on {rep.target}: {rep.failure}")
-    print(f"minimal sequence ({len(rep.steps)} steps):")
+    print(f"minimal sequence ({len(rep.steps)} steps):" if not result.interrupted else
+          f"sequence ({len(rep.steps)} steps; interrupted before it was fully shrunk):")
     for i, step in enumerate(rep.steps, 1):
         print(f"  {i}. {step}")
-    print(f"reproducer saved to {path}")
-    return 1
+    try:
+        path = rep.save(args.out)
+    except OSError as exc:
+        # The finding is not lost: the reproducer goes to stdout, to be saved by hand.
+        print(f"hil-fuzz: cannot save the reproducer in {args.out}: {exc}; here it is (save "
+              f"it as {rep.target}-seed{rep.seed}.json for hil-fuzz replay):", file=sys.stderr)
+        print(json.dumps(rep.to_json(), indent=1))
+    else:
+        print(f"reproducer saved to {path}")
+    return EXIT_INTERRUPTED if result.interrupted else 1
 
 
 def _replay(argv: Sequence[str]) -> int:
@@ -70,13 +107,19 @@ def _replay(argv: Sequence[str]) -> int:
     args = parser.parse_args(argv)
     try:
         rep = Reproducer.load(args.file)
-        failure = replay(rep, args.port)
-    except (OSError, ValueError, KeyError) as exc:
-        print(f"hil-fuzz: {exc}", file=sys.stderr)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"hil-fuzz replay: {args.file}: not a readable reproducer ({exc}); give a file "
+              f"hil-fuzz saved (--out, default fuzz-findings/TARGET-seedN.json)",
+              file=sys.stderr)
         return 2
-    except HostError as exc:
-        print(f"hil-fuzz: {exc}", file=sys.stderr)
-        return 1
+    try:
+        failure = replay(rep, args.port)
+    except (ValueError, HostError) as exc:
+        print(f"hil-fuzz replay: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("hil-fuzz replay: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if failure is None:
         print(f"does not reproduce ({len(rep.steps)} steps on {rep.target})")
         return 0

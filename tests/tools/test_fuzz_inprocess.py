@@ -30,3 +30,18 @@ def test_hypothesis_engine_runs(target: str) -> None:
 def test_list(capsys: pytest.CaptureFixture[str]) -> None:
     assert fi.main(["--list"]) == 0
     assert "handler-palm" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("runs", ["0", "-5", "many"])
+def test_runs_below_one_are_refused(runs: str, capsys: pytest.CaptureFixture[str]) -> None:
+    # libFuzzer takes -runs=0 or less as "forever": the run would never end.
+    with pytest.raises(SystemExit) as exc:
+        fi.main(["stream", "--runs", runs, "--engine", "hypothesis"])
+    assert exc.value.code == 2
+    assert "--runs" in capsys.readouterr().err
+
+
+def test_the_hypothesis_engine_says_what_it_ran(capsys: pytest.CaptureFixture[str]) -> None:
+    assert fi.main(["stream", "--runs", "20", "--engine", "hypothesis"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("stream: ") and "inputs, no failure (hypothesis engine)" in out

@@ -41,6 +41,16 @@ def _raw(name: str) -> dict[str, Any]:
     ({"faults": [{"fault": "break_away", "params": {"finger": "x"}}]},
      r"faults\[0\]\.params\.finger"),
     ({"faults": [{"fault": "break_away", "at_s": -1}]}, r"faults\[0\]\.at_s"),
+    ({"actions": [{"do": "ping", "node": "finger9.fmcb"}]},
+     r"actions\[0\]\.node: 'finger9\.fmcb' is not palm, finger<0\.\.3>"),
+    ({"actions": [{"do": "ping", "node": "bogus"}]}, r"actions\[0\]\.node: 'bogus'"),
+    ({"actions": [{"do": "ping", "node": "arm.5"}]},
+     r"actions\[0\]: 'ping' needs a configuration with the arm \(full or arm\)"),
+    ({"actions": [{"do": "power", "finger": 2, "state": "on"}]},
+     r"actions\[0\]\.state: 'on' is not one of off, low, full"),
+    ({"actions": [{"do": "power", "finger": 7, "state": "off"}]},
+     r"actions\[0\]\.finger: 7 is not 0\.\.3 or 'all'"),
+    ({"config": "arm"}, r"actions\[0\]: 'poll' needs a configuration with the hand"),
 ])
 def test_scenario_errors_name_the_file_and_the_key(change: dict[str, Any], message: str
                                                    ) -> None:
@@ -188,3 +198,146 @@ def test_a_200_run_campaign_on_a_local_dask_cluster() -> None:
         results = run_jobs(jobs, scheduler=client)
     assert len(results) == 200 and all(r["passed"] for r in results)
     assert comparable(results[7]) == comparable(run_jobs([jobs[7]])[0])
+
+
+def _strict_glitch(tmp_path: Path) -> Path:
+    """tendon_glitch_long expecting f3 still running: fails once the glitch outlasts the
+    phalanges' 2 ms hold-up (2500 µs), passes below it (1500 µs)."""
+    path = tmp_path / "strict.toml"
+    text = (SUITE / "tendon_glitch_long.toml").read_text().replace(
+        'state = "bootloader"', 'state = "running"')
+    head, sep, rest = text.partition("[[faults]]")
+    path.write_text(head + '[campaign]\nseeds = [1]\n'
+                    'vary = { "faults.0.params.duration_us" = [1500, 2500] }\n' + sep + rest)
+    return path
+
+
+def test_a_failed_run_prints_the_command_that_runs_it_alone(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import shlex
+
+    path = _strict_glitch(tmp_path)
+    assert hil_bench.main(["run", str(path), "--report", str(tmp_path / "rep")]) == 1
+    out = capsys.readouterr().out
+    assert "tendon_glitch_long seed 1 duration_us=1500: pass" in out
+    assert "tendon_glitch_long seed 1 duration_us=2500: FAIL (node_state0)" in out
+    command = [line.split("reproduce: ", 1)[1] for line in out.splitlines()
+               if "reproduce: " in line]
+    assert command == [f"hil-bench run {shlex.quote(str(path))} --seed 1 "
+                       f"--set faults.0.params.duration_us=2500"]
+    assert f"`{command[0]}`" in (tmp_path / "rep" / "summary.md").read_text()
+    assert hil_bench.main(shlex.split(command[0])[1:]) == 1
+    again = capsys.readouterr().out
+    assert "seed 1 duration_us=2500: FAIL (node_state0)" in again
+    assert "0 of 1 runs passed" in again
+
+
+def test_ctrl_c_keeps_the_finished_runs_and_exits_130(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.bench import campaign
+
+    run_job = campaign.run_job
+    calls = [0]
+
+    def interrupted(job: dict[str, Any]) -> dict[str, Any]:
+        calls[0] += 1
+        if calls[0] == 2:
+            raise KeyboardInterrupt
+        return run_job(job)
+
+    monkeypatch.setattr(campaign, "run_job", interrupted)
+    out_json, report = tmp_path / "r.json", tmp_path / "rep"
+    code = hil_bench.main(["run", "tendon_glitch_short", "--seeds", "3",
+                           "--json", str(out_json), "--report", str(report)])
+    captured = capsys.readouterr()
+    assert code == hil_bench.EXIT_INTERRUPTED
+    assert "interrupted: 1 of 3 runs finished" in captured.err
+    assert "1 of 1 runs passed (interrupted: 2 of 3 not run)" in captured.out
+    assert [r["seed"] for r in json.loads(out_json.read_text())] == [0]
+    summary = (report / "summary.md").read_text()
+    assert "Interrupted: 1 of the campaign's 3 runs finished" in summary
+    assert (report / "tendon_glitch_short-seed0.json").exists()
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--json", "{tmp}/missing/r.json"], "--json {tmp}/missing/r.json: the directory"),
+    (["--json", "{tmp}"], "is a directory"),
+    (["--report", "{tmp}/file"], "--report {tmp}/file: cannot make that directory"),
+])
+def test_outputs_that_cannot_be_written_are_refused_before_anything_runs(
+        option: list[str], message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.bench import campaign
+
+    (tmp_path / "file").write_text("")
+    monkeypatch.setattr(campaign, "run_job", _never)
+    argv = ["run", "link_loss", *(o.format(tmp=tmp_path) for o in option)]
+    assert hil_bench.main(argv) == 2
+    assert message.format(tmp=tmp_path) in capsys.readouterr().err
+
+
+def _never(job: dict[str, Any]) -> dict[str, Any]:
+    raise AssertionError("ran a job")
+
+
+@pytest.mark.parametrize("option", [["--workers", "0"], ["--seed", "-1"], ["--seed", "x"],
+                                    ["--set", "nokey"], ["--seed", "1", "--seeds", "2"]])
+def test_bad_run_options_are_usage_errors(option: list[str],
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        hil_bench.main(["run", "link_loss", *option])
+    assert exc.value.code == 2
+    assert "error: argument" in capsys.readouterr().err
+
+
+def test_built_in_scenarios_are_listed_and_run_by_name(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert hil_bench.main(["list-scenarios"]) == 0
+    text = capsys.readouterr().out
+    for path in standard_suite():
+        assert f"\n{path.stem}  (" in f"\n{text}"
+    assert hil_bench.main(["list-scenarios", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [e["name"] for e in listed] == [p.stem for p in standard_suite()]
+    assert [j["source"] for j in expand(["link_loss", "break_away.toml"])] \
+        == [str(SUITE / "link_loss.toml"), str(SUITE / "break_away.toml")]
+    assert hil_bench.main(["run", "no_such_scenario"]) == 2
+    assert "hil-bench list-scenarios" in capsys.readouterr().err
+
+
+def test_set_fixes_one_value_of_a_varied_key(tmp_path: Path) -> None:
+    jobs = expand([_strict_glitch(tmp_path)], seeds=[4],
+                  fixed={"faults.0.params.duration_us": 2500, "physics": False})
+    assert [j["overrides"] for j in jobs] == [{"faults.0.params.duration_us": 2500,
+                                              "physics": False}]
+    assert jobs[0]["raw"]["faults"][0]["params"]["duration_us"] == 2500
+    assert jobs[0]["raw"]["seed"] == 4
+
+
+@pytest.mark.parametrize("address", ["nonsense", "tcp://127.0.0.1:1"])
+def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
+        address: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.bench import campaign
+
+    monkeypatch.setattr(campaign, "run_job", _never)
+    monkeypatch.setattr(hil_bench, "SCHEDULER_TIMEOUT_S", 0.5)
+    assert hil_bench.main(["run", "link_loss", "--scheduler", address]) == 2
+    err = capsys.readouterr().err
+    assert f"--scheduler {address}: no Dask scheduler there" in err
+    assert "Traceback" not in err
+
+
+def test_a_failed_action_no_assertion_checks_is_noted(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "quiet.toml"
+    path.write_text('config = "hand"\nphysics = false\n'
+                    '[[actions]]\ndo = "power"\nfinger = 2\nstate = "off"\n'
+                    '[[actions]]\ndo = "ping"\nid = "gone"\nnode = "finger2.fmcb"\n'
+                    '[[actions]]\ndo = "ping"\nid = "palm"\n')
+    assert hil_bench.main(["run", str(path)]) == 0  # no assertion: the run passes
+    out = capsys.readouterr().out
+    assert "quiet seed 0: pass" in out
+    assert "note: action gone failed (no assertion checks it): " in out
+    assert "action palm" not in out and "action power0" not in out

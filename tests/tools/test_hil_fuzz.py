@@ -100,3 +100,139 @@ def test_longer_campaign_finds_nothing_in_our_firmware(target: str) -> None:
     result = run_campaign(target, examples=40, seed=5, steps=15)
     assert result.reproducer is None, (result.reproducer.failure,
                                        [str(s) for s in result.reproducer.steps])
+
+
+def test_examples_option_is_the_number_of_examples_reported(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # With this seed hypothesis draws one example it rejects before its first step (the
+    # bootloader rule's precondition): it used to open a target for it and count it.
+    code = hil_fuzz.main(["--target", "fmcb", "--examples", "5", "--seed", "3",
+                          "--steps", "4"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "nothing found in 5 examples (20 steps" in out
+
+
+@pytest.mark.parametrize("option", [["--examples", "0"], ["--examples", "-3"],
+                                    ["--steps", "0"], ["--seconds", "-1"],
+                                    ["--seconds", "soon"]])
+def test_bad_budget_values_are_usage_errors(option: list[str],
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        hil_fuzz.main(["--target", "fmcb", *option])
+    assert exc.value.code == 2
+    assert option[0] in capsys.readouterr().err
+
+
+def test_a_port_where_the_target_does_not_answer_is_an_error_not_a_finding(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # A hand frame on the arm's Dynamixel line: nothing there answers an fmcb ping.
+    code = hil_fuzz.main(["--target", "fmcb", "--port", "emu://arm/arm", "--examples", "2",
+                          "--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 2, captured.out
+    assert "no fmcb answers a ping on emu://arm/arm" in captured.err
+    assert "FAILURE" not in captured.out
+    assert list(tmp_path.iterdir()) == []
+    # ... and a replay there does not "reproduce" anything
+    frame = CATALOGUE["ping"].request_frame(10)
+    path = Reproducer("fmcb", 0, [Step("ping", ((frame, 0),))], "hang",
+                      "emu://arm/arm").save(tmp_path)
+    assert hil_fuzz.main(["replay", str(path)]) == 2
+    assert "no fmcb answers" in capsys.readouterr().err
+
+
+def test_ctrl_c_says_what_ran_and_exits_130(monkeypatch: pytest.MonkeyPatch,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    writes = [0]
+    write = TargetLink.write
+
+    def interrupted_write(self: TargetLink, chunks: tuple[tuple[bytes, int], ...]) -> None:
+        writes[0] += 1
+        if writes[0] == 8:  # in the middle of the second example
+            raise KeyboardInterrupt
+        write(self, chunks)
+
+    monkeypatch.setattr(TargetLink, "write", interrupted_write)
+    code = hil_fuzz.main(["--target", "fmcb", "--examples", "50", "--steps", "5"])
+    out = capsys.readouterr().out
+    assert code == hil_fuzz.EXIT_INTERRUPTED
+    assert "interrupted: nothing found in 2 examples (8 steps" in out
+
+
+@pytest.mark.parametrize("content", ["root:x:0:0\n", "[1, 2]", '{"format": 1}',
+                                     '{"format": 1, "target": "toaster", "seed": 0, '
+                                     '"steps": []}'])
+def test_replay_of_a_file_that_is_not_a_reproducer_names_it(
+        content: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "x.json"
+    path.write_text(content)
+    assert hil_fuzz.main(["replay", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hil-fuzz replay: ")
+    assert "Traceback" not in err
+
+
+def test_a_link_that_fails_mid_campaign_ends_it_without_a_finding(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from host.errors import TransportError
+
+    writes = [0]
+    write = TargetLink.write
+
+    def failing_write(self: TargetLink, chunks: tuple[tuple[bytes, int], ...]) -> None:
+        writes[0] += 1
+        if writes[0] >= 8:  # the port gone (an emulator behind a pty stopped, unplugged)
+            raise TransportError("serial port closed")
+        write(self, chunks)
+
+    monkeypatch.setattr(TargetLink, "write", failing_write)
+    code = hil_fuzz.main(["--target", "fmcb", "--examples", "50", "--steps", "5",
+                          "--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 2, captured.out
+    assert "the link to the target failed after 2 examples (8 steps" in captured.err
+    assert "serial port closed" in captured.err
+    assert "FAILURE" not in captured.out and list(tmp_path.iterdir()) == []
+
+
+def test_a_finding_that_cannot_be_saved_is_printed_whole(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.fuzz.campaign import CampaignResult
+
+    frame = CATALOGUE["ping"].request_frame(10)
+    found = Reproducer("fmcb", 4, [Step("ping", ((frame, 0),))], "the fmcb hangs",
+                       "emu://loose-finger/finger0")
+    monkeypatch.setattr(hil_fuzz, "run_campaign", lambda *a, **k: CampaignResult(
+        "fmcb", 4, 3, 1.0, reproducer=found))
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code = hil_fuzz.main(["--target", "fmcb", "--out", str(blocker / "findings")])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "cannot save the reproducer" in captured.err
+    printed = captured.out[captured.out.index("{"):]
+    (tmp_path / "saved.json").write_text(printed)
+    assert Reproducer.load(tmp_path / "saved.json") == found
+
+
+def test_a_time_budget_is_checked_before_every_example() -> None:
+    # It used to be checked between rounds of 10 examples: --seconds 5 with the MuJoCo
+    # plant ran 10 examples for about 30 s.  A budget spent by the first example's
+    # bring-up stops the campaign after that one example.
+    result = run_campaign("fmcb", seconds=1e-3, seed=1, steps=2)
+    assert result.examples == 1 and result.reproducer is None
+    assert 1 <= result.steps_sent <= 2
+
+
+def test_the_palm_port_fuzzed_as_an_fmcb_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # The palm and an fmcb share address 10: the palm answers the fmcb's ping, and the
+    # campaign used to fuzz the palm with fmcb messages and report "nothing found".
+    code = hil_fuzz.main(["--target", "fmcb", "--port", "emu://hand/palm", "--examples", "1",
+                          "--out", str(tmp_path)])
+    assert code == 2
+    assert ("identifies as PALM, not FMCB (the fmcb target)"
+            in capsys.readouterr().err)

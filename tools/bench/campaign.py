@@ -12,27 +12,31 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from tools.bench.runner import run_scenario
-from tools.bench.scenario import load_scenario, parse_scenario, with_overrides
+from tools.bench.scenario import find_scenario, load_scenario, parse_scenario, with_overrides
 
 Job = dict[str, Any]
 
 
 def expand(paths: Sequence[str | Path], seeds: Sequence[int] | None = None,
-           keep_trace: bool = False) -> list[Job]:
+           keep_trace: bool = False, fixed: dict[str, Any] | None = None) -> list[Job]:
     """One job per scenario file × seed (``seeds``, else the file's ``campaign.seeds``,
-    else its ``seed``) × combination of its ``campaign.vary`` values."""
+    else its ``seed``) × combination of its ``campaign.vary`` values.  ``fixed`` (dotted
+    path → value, ``hil-bench run --set``) sets those keys in every job: a key the file
+    varies takes only that value."""
     jobs: list[Job] = []
-    for path in paths:
+    for name in paths:
+        path = find_scenario(name)
         scenario = load_scenario(path)  # checks the file before anything runs
         run_seeds = list(seeds) if seeds else list(scenario.campaign.get("seeds",
                                                                          [scenario.seed]))
-        vary: dict[str, list[Any]] = scenario.campaign.get("vary", {})
+        vary: dict[str, list[Any]] = {**scenario.campaign.get("vary", {}),
+                                      **{k: [v] for k, v in (fixed or {}).items()}}
         keys = sorted(vary)
         for seed in run_seeds:
             for values in itertools.product(*(vary[k] for k in keys)):
@@ -55,21 +59,39 @@ def run_jobs(jobs: Sequence[Job], workers: int = 1, scheduler: Any = None
              ) -> list[dict[str, Any]]:
     """Results of ``jobs`` in their order: in this process (``workers`` 1), on ``workers``
     local processes, or on a Dask scheduler (an address or a ``Client``)."""
+    return list(iter_jobs(jobs, workers, scheduler))
+
+
+def iter_jobs(jobs: Sequence[Job], workers: int = 1, scheduler: Any = None
+              ) -> Iterator[dict[str, Any]]:
+    """:func:`run_jobs` one result at a time, in the jobs' order, each as soon as it and
+    those before it are done (what ``hil-bench run`` prints as it goes).  Closing the
+    iterator early (Ctrl-C in the caller) cancels the jobs not started."""
     if scheduler is not None:
         from dask.distributed import Client
 
         client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+        futures = client.map(run_job, list(jobs), pure=False)
         try:
-            futures = client.map(run_job, list(jobs), pure=False)
-            return list(client.gather(futures))
+            for future in futures:
+                yield future.result()
         finally:
+            client.cancel(futures)
             if client is not scheduler:
                 client.close()
+        return
     if workers <= 1 or len(jobs) <= 1:
-        return [run_job(j) for j in jobs]
+        for job in jobs:
+            yield run_job(job)
+        return
     context = multiprocessing.get_context("spawn")  # MuJoCo and threads: no fork
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        return list(pool.map(run_job, jobs))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    finished = False
+    try:
+        yield from pool.map(run_job, jobs)
+        finished = True
+    finally:
+        pool.shutdown(wait=finished, cancel_futures=not finished)
 
 
 def comparable(result: dict[str, Any]) -> dict[str, Any]:

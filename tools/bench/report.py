@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,43 +131,78 @@ def run_name(result: dict[str, Any]) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{result['scenario']}-seed{result['seed']}{extra}")
 
 
-def summary_markdown(results: Sequence[dict[str, Any]], plots: bool = False) -> str:
+def setting_text(key: str, value: Any) -> str:
+    """``KEY=VALUE`` as ``--set`` reads it back (the value as TOML/JSON)."""
+    return f"{key}={json.dumps(value)}"
+
+
+def reproduce_command(result: dict[str, Any]) -> str:
+    """The command line that runs ``result``'s run alone: its file, seed and overrides."""
+    args = ["hil-bench", "run", result["source"], "--seed", str(result["seed"])]
+    for key, value in sorted(result.get("overrides", {}).items()):
+        args += ["--set", setting_text(key, value)]
+    return shlex.join(args)
+
+
+def override_texts(result: dict[str, Any]) -> list[str]:
+    """A run's overrides as ``key=value``, each key by its last part (``probability=0.2``)."""
+    return [setting_text(k.split(".")[-1], v)
+            for k, v in sorted(result.get("overrides", {}).items())]
+
+
+def run_label(result: dict[str, Any]) -> str:
+    """A run's scenario with its overrides (``link_loss probability=0.2``)."""
+    return " ".join([result["scenario"], *override_texts(result)])
+
+
+def summary_markdown(results: Sequence[dict[str, Any]], plots: bool = False,
+                     planned: int | None = None) -> str:
     """The Markdown summary: the pass rates (:func:`pass_rates_markdown`; ``plots``: with
-    the charts referenced), one row per run, then every failed assertion."""
+    the charts referenced), one row per run, then every failed assertion with the command
+    that reproduces its run.  ``planned``: the runs the campaign had (more than the results
+    when it was interrupted, which the summary then says)."""
     passed = sum(r["passed"] for r in results)
     lines = ["# HIL bench summary", "",
              f"{passed} of {len(results)} runs passed.", ""]
+    if planned is not None and planned > len(results):
+        lines[-1:-1] = [f"Interrupted: {len(results)} of the campaign's {planned} runs "
+                        f"finished; {planned - len(results)} were not run.", ""]
     lines += pass_rates_markdown(results, plots)
     lines += ["", "## Runs", "",
               "| scenario | seed | result | assertions | simulated s | wall s |",
              "|---|---|---|---|---|---|"]
     for r in results:
         ok = sum(a["passed"] for a in r["assertions"])
-        lines.append(f"| {r['scenario']} | {r['seed']} | {'pass' if r['passed'] else 'FAIL'} "
+        lines.append(f"| {run_label(r)} | {r['seed']} | {'pass' if r['passed'] else 'FAIL'} "
                      f"| {ok}/{len(r['assertions'])} | {r['sim_s']:.3f} | {r['wall_s']:.2f} |")
     failed = [(r, a) for r in results for a in r["assertions"] if not a["passed"]]
     if failed:
         lines += ["", "## Failed assertions", ""]
         for r, a in failed:
-            lines.append(f"- {r['scenario']} (seed {r['seed']}) `{a['id']}`: {a['message']} "
+            lines.append(f"- {run_label(r)} (seed {r['seed']}) `{a['id']}`: {a['message']} "
                          f"— measured {json.dumps(a['measured'])}")
+        lines += ["", "Each failed run alone:", ""]
+        lines += [f"- `{reproduce_command(r)}`" for r in results if not r["passed"]]
     lines += ["", "## Measured figures", ""]
     for r in results:
         for a in r["assertions"]:
             if a["measured"]:
-                lines.append(f"- {r['scenario']} (seed {r['seed']}) `{a['id']}`: "
+                lines.append(f"- {run_label(r)} (seed {r['seed']}) `{a['id']}`: "
                              f"{json.dumps(a['measured'])}")
     return "\n".join(lines) + "\n"
 
 
-def write_report(results: Sequence[dict[str, Any]], directory: str | Path) -> list[Path]:
+def write_report(results: Sequence[dict[str, Any]], directory: str | Path,
+                 planned: int | None = None) -> list[Path]:
     """Write summary.md, the pass-rate charts (:data:`FAULT_RATES_PNG`, and
     :data:`PARAMETER_RATES_PNG` when runs have overrides), ``<run>.json`` and
-    ``<run>-fault<k>.png`` into ``directory``."""
+    ``<run>-fault<k>.png`` into ``directory``; ``planned`` as for
+    :func:`summary_markdown`."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / "summary.md"]
-    written[0].write_text(summary_markdown(results, plots=True), encoding="utf-8")
+    written[0].write_text(summary_markdown(results, plots=True, planned=planned),
+                          encoding="utf-8")
     written += plot_pass_rates(results, out)
     for r in results:
         name = run_name(r)

@@ -8,6 +8,7 @@ and a mistake raises :class:`ScenarioError` naming the file and the key
 from __future__ import annotations
 
 import copy
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Any, Final
 from hil_emulator.emulator import CONFIGS
 from hil_emulator.errors import FaultPlanError
 from hil_emulator.faults import PlanEntry, parse_plan
+from protocol.messages.palm import FingerPower
+from protocol.topology import FINGERS, SERVO_IDS, STEPPER_IDS
 
 #: Each action's keys: required ones, then optional ones with defaults.
 ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
@@ -49,6 +52,14 @@ ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "arm_torque_drift": (("joint", "after"), {"min_ratio": 1.5, "window_ms": 500.0,
                                               "tolerance": 0.25}),
 }
+#: The actions that go through the palm (need a configuration with the hand) and those
+#: that go to the arm's line; the configurations that have each.
+HAND_ACTIONS: Final = ("power", "poll", "stream", "move", "grasp", "home", "flash")
+ARM_ACTIONS: Final = ("arm_open", "arm_torque", "arm_move", "arm_stream", "arm_clear_errors")
+HAND_CONFIGS: Final = ("full", "hand")
+ARM_CONFIGS: Final = ("full", "arm")
+#: The boards of a finger, as ``ping`` names them (``finger<k>.<board>``).
+FINGER_BOARDS: Final = ("fmcb", "f2", "f3")
 TOP_KEYS: Final = ("name", "description", "config", "seed", "physics", "ready", "faults",
                    "actions", "assertions", "campaign")
 
@@ -123,6 +134,43 @@ def _steps(raw: Any, where: str, table: dict[str, tuple[tuple[str, ...], dict[st
     return steps
 
 
+def _needs(config: str, kind: str, configs: tuple[str, ...], at: str) -> None:
+    if config not in configs:
+        raise ScenarioError(f"{at}: {kind!r} needs a configuration with the "
+                            f"{'arm' if configs == ARM_CONFIGS else 'hand'} "
+                            f"({' or '.join(configs)}); config is {config!r}")
+
+
+def _check_action(step: Step, config: str, at: str) -> None:
+    """What the host would refuse or the configuration lacks, found before the run: the
+    action's target exists in ``config``, ``ping.node`` and ``power`` values are valid."""
+    if step.kind in HAND_ACTIONS:
+        _needs(config, step.kind, HAND_CONFIGS, at)
+    if step.kind in ARM_ACTIONS:
+        _needs(config, step.kind, ARM_CONFIGS, at)
+    if step.kind == "ping":
+        node = step.params["node"]
+        finger = re.fullmatch(r"finger(\d+)\.(\w+)", str(node))
+        arm = re.fullmatch(r"arm\.(\d+)", str(node))
+        if node == "palm" or (finger and int(finger[1]) < FINGERS
+                              and finger[2] in FINGER_BOARDS):
+            _needs(config, "ping", HAND_CONFIGS, at)
+        elif arm and int(arm[1]) in (*STEPPER_IDS, *SERVO_IDS):
+            _needs(config, "ping", ARM_CONFIGS, at)
+        else:
+            raise ScenarioError(
+                f"{at}.node: {node!r} is not palm, finger<0..{FINGERS - 1}>."
+                f"<{'|'.join(FINGER_BOARDS)}> or arm.<{STEPPER_IDS[0]}..{SERVO_IDS[-1]}>")
+    if step.kind == "power":
+        finger, state = step.params["finger"], step.params["state"]
+        if finger != "all" and (isinstance(finger, bool) or not isinstance(finger, int)
+                                or not 0 <= finger < FINGERS):
+            raise ScenarioError(f"{at}.finger: {finger!r} is not 0..{FINGERS - 1} or 'all'")
+        states = [p.name.lower() for p in FingerPower]
+        if state not in states:
+            raise ScenarioError(f"{at}.state: {state!r} is not one of {', '.join(states)}")
+
+
 def parse_scenario(raw: dict[str, Any], source: str = "<scenario>") -> Scenario:
     """A scenario from its TOML table (errors name ``source`` and the key)."""
     try:
@@ -150,6 +198,8 @@ def _parse(raw: dict[str, Any], source: str) -> Scenario:
     if not isinstance(campaign, dict) or set(campaign) - {"seeds", "vary"}:
         raise ScenarioError("campaign: a table with seeds (a list) and vary (path → values)")
     actions = _steps(raw.get("actions", []), "actions", ACTIONS, "do")
+    for i, step in enumerate(actions):
+        _check_action(step, config, f"actions[{i}]")
     assertions = _steps(raw.get("assertions", []), "assertions", ASSERTIONS, "check")
     action_ids = {a.id for a in actions}
     plan = parse_plan(raw.get("faults", []))
@@ -171,8 +221,23 @@ def _parse(raw: dict[str, Any], source: str) -> Scenario:
                     assertions=assertions, campaign=campaign, raw=raw, source=source)
 
 
+def find_scenario(name: str | Path) -> Path:
+    """The file of scenario ``name``: a path to a TOML file, or the name of a built-in
+    scenario (``break_away``, or ``break_away.toml``: :func:`standard_suite`) when no such
+    file exists here.  :class:`ScenarioError` if it is neither."""
+    path = Path(name)
+    if path.exists():
+        return path
+    builtin = scenario_dir() / f"{path.name.removesuffix('.toml')}.toml"
+    if path.parent == Path(".") and builtin.is_file():
+        return builtin
+    raise ScenarioError(f"{name}: no such file, nor a built-in scenario of that name "
+                        f"(hil-bench list-scenarios lists them)")
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """The scenario in TOML file ``path``."""
+    """The scenario in TOML file ``path`` (or the built-in scenario of that name)."""
+    path = find_scenario(path)
     try:
         with open(path, "rb") as f:
             raw = tomllib.load(f)
@@ -198,7 +263,8 @@ def with_overrides(raw: dict[str, Any], seed: int | None = None,
             try:
                 node = node[int(part)] if isinstance(node, list) else node[part]
             except (KeyError, IndexError, ValueError) as exc:
-                raise ScenarioError(f"campaign.vary: {path!r}: no {part!r} there") from exc
+                raise ScenarioError(f"{path!r} (campaign.vary or --set): no {part!r} "
+                                    f"there") from exc
         last = parts[-1]
         if isinstance(node, list):
             node[int(last)] = value

@@ -16,7 +16,7 @@ import fnmatch
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 from host.errors import HostError
 from protocol import strategies as pst
@@ -40,13 +40,21 @@ from tools.fuzz.targets import (
 ARM_GUARDED_REGISTERS = ("id", "baud_rate")
 #: Largest gap between the writes of one split frame (µs): under the decoders' gap.
 MAX_SPLIT_GAP_US = FRAME_GAP_US // 2
+#: Examples per round of a campaign with a time budget, each round with its own seed (the
+#: budget is checked before each example, so a campaign overruns it by at most one).
+SECONDS_ROUND: Final = 10
 #: Mutations after which the target must stay silent and unchanged.
 SILENT_MUTATIONS = ("bad_crc", "foreign_address")
 
 
 @dataclass
 class CampaignResult:
-    """What a campaign found: ``examples`` run, and the minimal failing sequence if any."""
+    """What a campaign found: ``examples`` run, and the minimal failing sequence if any.
+
+    ``examples`` counts the sequences sent to the target (each on a target opened for it):
+    hypothesis runs examples until ``max_examples`` of them are valid, and an example it
+    draws and rejects before its first step opens no target and is not counted.  After a
+    failure it also counts the replays hypothesis made while shrinking."""
 
     target: str
     seed: int
@@ -58,11 +66,28 @@ class CampaignResult:
     #: any shrinking (None when nothing failed).
     first_failure_s: float | None = None
     examples_to_failure: int | None = None
+    #: True when Ctrl-C (KeyboardInterrupt) ended the campaign before its budget.
+    interrupted: bool = False
+    #: Why the link to the target failed mid-campaign (the campaign ended there), or None.
+    link_error: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def found(self) -> bool:
         return self.reproducer is not None
+
+
+class LinkLost(BaseException):  # noqa: N818 - a signal through hypothesis, not an error
+    """The link to the target failed in the middle of an example (its ``__cause__``, a
+    :class:`~host.errors.HostError`: the port gone, the emulator behind it stopped).  A
+    ``BaseException`` so hypothesis passes it straight up instead of shrinking it as a
+    finding; :func:`run_campaign` ends the campaign with it."""
+
+
+class BudgetSpent(BaseException):  # noqa: N818 - a signal through hypothesis, not an error
+    """The campaign's ``seconds`` ran out before an example's first step; raised through
+    hypothesis (a ``BaseException``) so the campaign stops there, within one example of
+    its budget."""
 
 
 class Checker:
@@ -111,6 +136,8 @@ class Checker:
                 raise FuzzFailure("; ".join(problems))
         try:
             alive = self.link.alive()
+        except HostError:
+            raise  # the link itself failed: not the target's doing
         except Exception as exc:  # noqa: BLE001 - a firmware exception during the ping
             raise FuzzFailure(f"exception inside the target during the liveness ping: "
                               f"{type(exc).__name__}: {exc}") from exc
@@ -171,17 +198,29 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
         frames = pst.request_frames(focus(kind, messages), kind.address)
 
     class Campaign(RuleBasedStateMachine):
+        # The target is opened on the first step: an example hypothesis draws and then
+        # rejects before any step (a rule whose precondition fails) costs no bring-up and
+        # is not counted as an example.
         def __init__(self) -> None:
             super().__init__()
-            self.link = opener()
-            self.checker = Checker(self.link)
-            record.append(self.checker)
+            self._checker: Checker | None = None
+            self._lost = False  # the link failed: no end-of-sequence checks over it
+
+        @property
+        def checker(self) -> Checker:
+            if self._checker is None:
+                self._checker = Checker(opener())
+                record.append(self._checker)
+            return self._checker
 
         def teardown(self) -> None:
+            if self._checker is None:
+                return
             try:
-                self.checker.finish()
+                if not self._lost:
+                    self._checker.finish()
             finally:
-                self.link.close()
+                self._checker.link.close()
 
         def _run(self, step: Step) -> None:
             try:
@@ -190,17 +229,20 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 if on_failure is not None:
                     on_failure()
                 raise
+            except HostError as exc:
+                self._lost = True
+                raise LinkLost(str(exc)) from exc
 
         @rule(data=st.data())
         def send_valid(self, data: Any) -> None:
             frame = data.draw(frames, label="frame")
-            wire = self.link.wrap(frame)
+            wire = kind.wrap(frame)
             split = data.draw(st.one_of(st.just([(wire, 0)]),
                                         pst.write_splits(wire, MAX_SPLIT_GAP_US)), label="split")
             motion = is_motion_packet(frame) if dynamixel else is_motion_frame(frame, kind.node)
             label = _dxl_label(frame) if dynamixel else _label(frame, kind)
             self._run(Step(label=label, chunks=tuple(split), motion=motion,
-                           wait_us=self.link.reply_wait_us))
+                           wait_us=kind.reply_wait_us))
 
         @rule(data=st.data())
         def send_broken(self, data: Any) -> None:
@@ -210,15 +252,15 @@ def machine_for(kind: TargetKind, opener: Callable[[], TargetLink],
                 broken = frame[:-1] + bytes([frame[-1] ^ (1 << flip)])
                 self._run(Step(label=f"bad checksum {_dxl_label(frame)}",
                                chunks=((broken, 0),), silent=True,
-                               wait_us=self.link.reply_wait_us))
+                               wait_us=kind.reply_wait_us))
                 return
             how = data.draw(st.sampled_from(pst.MUTATIONS), label="mutation")
             detail = data.draw(st.integers(0, 2**16), label="detail")
             broken = pst.mutate_frame(frame, how, detail, kind.neighbours)
             silent = how in SILENT_MUTATIONS
             self._run(Step(label=f"{how} {_label(frame, kind)}",
-                           chunks=((self.link.wrap(broken), 0),), silent=silent,
-                           wait_us=self.link.reply_wait_us))
+                           chunks=((kind.wrap(broken), 0),), silent=silent,
+                           wait_us=kind.reply_wait_us))
 
         @rule(ms=st.integers(1, 3500 if kind.name == "bootloader" else 100))
         def wait(self, ms: int) -> None:
@@ -278,16 +320,22 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
     record: list[Checker] = []
     links: dict[str, Any] = shared if shared is not None else {}
     counter = [0]
+    started = time.monotonic()
+    result = CampaignResult(target, seed, 0, 0.0)
+    # The first target is opened before hypothesis starts, so a port where nothing answers
+    # is a TargetSilent here (a clear error), never a "finding" hypothesis shrinks.
+    first = [TargetLink.open(kind, url, seed=seed, shared=links)]
 
     def opener() -> TargetLink:
+        if (seconds is not None and counter[0] and result.first_failure_s is None
+                and time.monotonic() - started >= seconds):
+            raise BudgetSpent  # at least one example; never while a failure is shrunk
         counter[0] += 1
-        return TargetLink.open(kind, url, seed=seed, shared=links)
+        return first.pop() if first else TargetLink.open(kind, url, seed=seed, shared=links)
 
     base = settings(stateful_step_count=steps, deadline=None, database=None, print_blob=False,
                     phases=[Phase.generate, Phase.shrink] if shrink else [Phase.generate],
                     suppress_health_check=list(HealthCheck))
-    started = time.monotonic()
-    result = CampaignResult(target, seed, 0, 0.0)
 
     def noted() -> None:
         if result.first_failure_s is None:
@@ -296,21 +344,35 @@ def run_campaign(target: str, port: str | None = None, *, examples: int | None =
 
     # A time budget runs in rounds of a few examples, each round with its own seed.
     rounds = [(seed, examples or 50)] if seconds is None else (
-        (seed * 100_003 + k, 10) for k in range(10**6))
-    for round_seed, batch in rounds:
-        machine = machine_for(kind, opener, record, messages, noted)
-        hypothesis_seed(round_seed)(machine)
-        try:
-            run_state_machine_as_test(machine, settings=settings(base, max_examples=batch))
-        except FuzzFailure as exc:
-            checker = record[-1]
-            found = Reproducer(target=target, seed=round_seed, steps=list(checker.steps),
-                               failure=str(exc), port=url)
-            result.reproducer = (minimise(found) if shrink and url.startswith("emu://")
-                                 else found)
-            break
-        if seconds is None or time.monotonic() - started >= seconds:
-            break
+        (seed * 100_003 + k, SECONDS_ROUND) for k in range(10**6))
+    found: Reproducer | None = None
+    try:
+        for round_seed, batch in rounds:
+            machine = machine_for(kind, opener, record, messages, noted)
+            hypothesis_seed(round_seed)(machine)
+            try:
+                run_state_machine_as_test(machine, settings=settings(base, max_examples=batch))
+            except FuzzFailure as exc:
+                checker = record[-1]
+                found = Reproducer(target=target, seed=round_seed, steps=list(checker.steps),
+                                   failure=str(exc), port=url)
+                result.reproducer = found
+                if shrink and url.startswith("emu://"):
+                    result.reproducer = minimise(found)
+                break
+            if seconds is None or time.monotonic() - started >= seconds:
+                break
+    except KeyboardInterrupt:
+        # Ctrl-C: what ran so far is the result (a failure found keeps its sequence,
+        # shrunk as far as it got).
+        result.interrupted = True
+    except LinkLost as lost:
+        result.link_error = str(lost)
+    except BudgetSpent:
+        pass  # --seconds: the time ran out before the next example
+    finally:
+        for link in first:
+            link.close()
     result.examples = counter[0]
     result.seconds = time.monotonic() - started
     result.steps_sent = sum(len(c.steps) for c in record)
@@ -336,7 +398,10 @@ def minimise(reproducer: Reproducer, port: str | None = None) -> Reproducer:
 def replay(reproducer: Reproducer, port: str | None = None) -> str | None:
     """Send the reproducer's steps to ``port`` (default: its own, else the target's
     emulator) checking every oracle; the failure message if it reproduces, else None."""
-    kind = TARGETS[reproducer.target]
+    kind = TARGETS.get(reproducer.target)
+    if kind is None:
+        raise ValueError(f"the reproducer's target {reproducer.target!r} is not one of "
+                         f"{', '.join(sorted(TARGETS))}")
     url = port or reproducer.port or kind.url
     link = TargetLink.open(kind, url, seed=reproducer.seed)
     checker = Checker(link)

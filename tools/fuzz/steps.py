@@ -78,9 +78,18 @@ class Reproducer:
 
     @classmethod
     def load(cls, path: str | Path) -> Reproducer:
-        data = json.loads(Path(path).read_text())
-        if data.get("format") != FORMAT:
-            raise ValueError(f"{path}: not a reproducer of format {FORMAT}")
-        return cls(target=data["target"], seed=int(data["seed"]),
-                   steps=[Step.from_json(s) for s in data["steps"]],
-                   failure=str(data.get("failure", "")), port=str(data.get("port", "")))
+        """The reproducer saved in ``path``; ``ValueError`` (saying what is wrong) if the
+        file is not JSON or not a reproducer (``OSError`` if it cannot be read)."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"not JSON: {exc}") from None
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ValueError(f"not a reproducer of format {FORMAT}")
+        try:
+            return cls(target=data["target"], seed=int(data["seed"]),
+                       steps=[Step.from_json(s) for s in data["steps"]],
+                       failure=str(data.get("failure", "")), port=str(data.get("port", "")))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"a reproducer with a missing or malformed key: "
+                             f"{type(exc).__name__}: {exc}") from None

@@ -15,7 +15,9 @@ from host.errors import TransportError
 from host.transport import Transport, open_transport, url_options
 from protocol import dynamixel as dx
 from protocol.catalogue import Message
+from protocol.errors import ProtocolError
 from protocol.framing import Frame, encode_frame
+from protocol.image import BoardType
 from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import ControlMode
 from protocol.stream import StreamDecoder
@@ -52,20 +54,36 @@ class TargetKind:
     ping_deadline_s: float = 0.05
     #: Addresses of the other nodes on the target's line (never a "foreign" address).
     neighbours: tuple[int, ...] = ()
+    #: The board ``identify`` must report (None: not a hand node, not checked).
+    board: BoardType | None = None
 
     def messages(self) -> list[Message]:
         """The catalogue requests this node understands (common ones included)."""
         return [m for m in CATALOGUE if m.node in ("common", self.node) and m.request]
 
+    def wrap(self, frame: bytes) -> bytes:
+        """The bytes that carry ``frame`` to the node (inside a tunnel for f2/f3)."""
+        if not self.via_tunnel:
+            return frame
+        return CATALOGUE["fmcb.tunnel"].request_frame(ADDR_FMCB, max_ms=TUNNEL_LISTEN_MS,
+                                                      data=frame)
+
+    @property
+    def reply_wait_us(self) -> int:
+        """How long a step listens for its answer (µs): a tunnel waits on the tendon bus."""
+        return (TUNNEL_LISTEN_MS + 5) * 1000 if self.via_tunnel else 5_000
+
 
 TARGETS: Final = {
-    "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2),
-    "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb"),
+    "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2,
+                       board=BoardType.PALM),
+    "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb", board=BoardType.FMCB),
     "f2": TargetKind("f2", "emu://loose-finger/finger0", "f2", ADDR_F2, via_tunnel=True,
-                     neighbours=(ADDR_F3,)),
+                     neighbours=(ADDR_F3,), board=BoardType.F2),
     "f3": TargetKind("f3", "emu://loose-finger/finger0", "f3", ADDR_F3, via_tunnel=True,
-                     neighbours=(ADDR_F2,)),
-    "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader"),
+                     neighbours=(ADDR_F2,), board=BoardType.F3),
+    "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader",
+                             board=BoardType.FMCB),
     "arm": TargetKind("arm", "emu://arm/arm", "arm", dynamixel=True),
 }
 
@@ -132,6 +150,14 @@ def _same_kind(answer: Any, request: bytes, link: TargetLink) -> bool:
     return len(inner) > 4 and answer.type == inner[4]
 
 
+class TargetSilent(TransportError):
+    """The target does not answer a ping before the campaign or replay sends anything."""
+
+
+class WrongTarget(TransportError):
+    """The node answering on the port identifies as another board than the target's."""
+
+
 class TargetLink:
     """One open link to a target, with what the oracles need: write steps, listen, ping,
     the protected state over the wire, and the introspection when emulated."""
@@ -149,15 +175,35 @@ class TargetLink:
     def open(cls, kind: TargetKind, port: str, seed: int = 0,
              shared: dict[str, Transport] | None = None) -> TargetLink:
         """A link to ``kind`` on ``port``: a fresh emulator for ``emu://`` URLs, else the
-        transport in ``shared`` (opened once)."""
+        transport in ``shared`` (opened once).  The target must answer a ping before
+        anything is sent to it: :class:`TargetSilent` if it does not (a wrong port or
+        ``--target``, a board unpowered), so a dead link is never taken for a finding; and
+        a hand node must identify as the target's board (:class:`WrongTarget`: the palm's
+        port fuzzed as an fmcb, both at address 10)."""
         if port.startswith("emu://"):
-            return cls._open_emulated(kind, port, seed)
-        cache = shared if shared is not None else {}
-        transport = cache.get(port)
-        if transport is None or transport.closed:
-            transport = cache[port] = open_transport(port)
-        link = cls(kind, transport)
-        link.prepare()
+            link = cls._open_emulated(kind, port, seed)
+        else:
+            cache = shared if shared is not None else {}
+            transport = cache.get(port)
+            if transport is None or transport.closed:
+                transport = cache[port] = open_transport(port)
+            link = cls(kind, transport)
+            link.prepare()
+        if not link.alive():
+            link.close()
+            raise TargetSilent(
+                f"no {kind.name} answers a ping on {port} within "
+                f"{kind.ping_deadline_s * 1e3:.0f} ms (one retry) before anything was sent: "
+                f"check the port and the target (in the emulator in process the {kind.name} "
+                f"is on {kind.url}), and that the board is powered and running")
+        board = link.identify_board()
+        if board is not None and kind.board is not None and board != kind.board:
+            link.close()
+            raise WrongTarget(
+                f"the node answering on {port} at address {kind.address} identifies as "
+                f"{board.name}, not {kind.board.name} (the {kind.name} target): check the "
+                f"port and the target (in the emulator in process the {kind.name} is on "
+                f"{kind.url})")
         return link
 
     @classmethod
@@ -196,10 +242,7 @@ class TargetLink:
     # --- traffic ------------------------------------------------------------------------
     def wrap(self, frame: bytes) -> bytes:
         """The bytes that carry ``frame`` to the target (inside a tunnel for f2/f3)."""
-        if not self.kind.via_tunnel:
-            return frame
-        return CATALOGUE["fmcb.tunnel"].request_frame(ADDR_FMCB, max_ms=TUNNEL_LISTEN_MS,
-                                                      data=frame)
+        return self.kind.wrap(frame)
 
     def write(self, chunks: tuple[tuple[bytes, int], ...]) -> None:
         """Send each chunk after its gap (µs) on the link's clock."""
@@ -219,7 +262,7 @@ class TargetLink:
     @property
     def reply_wait_us(self) -> int:
         """How long a step listens for its answer (µs): a tunnel waits on the tendon bus."""
-        return (TUNNEL_LISTEN_MS + 5) * 1000 if self.kind.via_tunnel else 5_000
+        return self.kind.reply_wait_us
 
     def answers(self, data: bytes, like: bytes | None = None) -> list[Any]:
         """Replies in ``data``: hand frames to the host (for a tunnelled target, the frames
@@ -262,12 +305,33 @@ class TargetLink:
         got = self.listen(self.kind.ping_deadline_s)
         return any(f.type == ping.type_id for f in self.answers(got))
 
+    def identify_board(self) -> BoardType | None:
+        """The board the target's node reports to ``identify`` (None: not a hand target,
+        or no answer: then it is not checked).  The palm and an fmcb share address 10, so
+        a ping alone does not tell an fmcb's port from the palm's."""
+        if self.kind.board is None:
+            return None
+        identify = CATALOGUE["identify"]
+        self.transport.sleep(FRAME_GAP_US * 1.2 / 1e6)
+        self.transport.send(self.wrap(identify.request_frame(self.kind.address)))
+        for f in self.answers(self.listen(self.kind.ping_deadline_s)):
+            if f.type == identify.type_id:
+                try:
+                    return BoardType(identify.parse_reply(f.payload)["board"])
+                except (ValueError, KeyError, ProtocolError):
+                    return None
+        return None
+
     def alive(self) -> bool:
-        """The liveness oracle: after the inter-frame gap, a ping answered (one retry)."""
+        """The liveness oracle: after the inter-frame gap, a ping answered (one retry).  On
+        a real port a :class:`TransportError` (the port gone: unplugged, the emulator
+        behind a pty stopped) is raised, not taken for a target that stopped answering."""
         try:
             self.transport.sleep(FRAME_GAP_US * 1.2 / 1e6)
             return self.ping_once() or self.ping_once()
         except TransportError:
+            if self.emulator is None:
+                raise
             return False
 
     def protected_over_wire(self) -> tuple[bytes, ...]:
