@@ -11,7 +11,14 @@
     armctl --port P moveto 0.3 0.0 -0.5 [--rpy R P Y]   # flange to x y z (m, base frame)
     armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
     armctl --port P waypoints play path.jsonl
+    armctl --port P clear                           # clear latched alarms (torque stays off)
 
+``torque on`` holds each joint whose torque was off where it is (not at a goal its node
+kept from before: one sent while the torque was off, the arm moved by hand since) and exits
+1 naming a joint whose node keeps its torque off (a latched alarm: ``armctl clear``).
+``move``, ``moveto`` and ``waypoints play`` refuse (exit 2) to start while a joint's torque
+is off, and ``move`` a goal outside a joint's range (the servos' always, the steppers' once
+homed).
 ``move`` and ``moveto`` need a homed arm (``armctl home``; the nodes keep the index latch until
 they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
 (angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
@@ -48,7 +55,8 @@ __all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "m
 
 def make_parser() -> argparse.ArgumentParser:
     """armctl's command line."""
-    parser = argparse.ArgumentParser(prog="armctl", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="armctl", description="armctl: the 7-DOF arm from a terminal (see docs/HOST.md)")
     add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
                          timeout_default="100 ms on a serial link, 0.2 ms in process")
     parser.add_argument("--keep-return-delay", action="store_true",
@@ -58,6 +66,11 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_parser("status", help="one cycle's state of all joints")
     torque = sub.add_parser("torque", help="enable or disable every joint's torque")
     torque.add_argument("state", choices=("on", "off"))
+    torque.add_argument("--keep-goals", action="store_true",
+                        help="on: let each joint head for the goal its node has instead of "
+                             "holding where it is")
+    sub.add_parser("clear", help="clear the joints' latched alarms (SLIP/STALLED, RX-64 "
+                                 "alarms); torque stays off: armctl torque on next")
     move = sub.add_parser("move", help="move all joints and wait until the move settles")
     move.add_argument("--joints", nargs="+", required=True, metavar="RAD",
                       help="seven joint angles J1..J7 (rad), as seven values or one "
@@ -133,9 +146,23 @@ def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     homed = restore(arm)
     state = arm.state()
-    _print(out, args.json, {**state.as_dict(), "homed": homed},
-           _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}")
+    enabled = arm.torque_enabled()
+    off = [JOINT_NAMES[i] for i, on in enumerate(enabled) if not on]
+    torque = "on" if not off else "off" if len(off) == N_JOINTS else f"off on {', '.join(off)}"
+    _print(out, args.json, {**state.as_dict(), "homed": homed, "torque": list(enabled)},
+           _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}"
+           f"\ntorque: {torque}")
     return EXIT_OK
+
+
+def _require_torque(arm: Arm, what: str) -> None:
+    """Refuse ``what`` while a joint's torque is off: its goal would wait in the node, and
+    the joint jump there whenever the torque came on."""
+    off = [JOINT_NAMES[i] for i, on in enumerate(arm.torque_enabled()) if not on]
+    if off:
+        raise UsageError(f"torque is off on {', '.join(off)}: turn it on first (armctl "
+                         f"torque on; armctl status shows a latched alarm, armctl clear "
+                         f"clears it) before {what}")
 
 
 def _require_homed(arm: Arm, args: argparse.Namespace, what: str) -> None:
@@ -157,6 +184,7 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _require_homed(arm, args, "moveto")
+    _require_torque(arm, "moveto")
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
                         settle_timeout=args.timeout, hand=not args.no_hand)
     data = {"reached": result.reached, "goals": list(result.goals),
@@ -187,6 +215,7 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
         return EXIT_OK
     points = load_waypoints(args.file)
     _require_homed(arm, args, "playing waypoints")
+    _require_torque(arm, "playing waypoints")
     state = play_waypoints(arm, points)
     _print(out, args.json, {"file": args.file, "waypoints": len(points), **state.as_dict()},
            f"played {len(points)} waypoints from {args.file}")
@@ -194,15 +223,43 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    state = arm.torque(args.state == "on")
-    _print(out, args.json, {"torque": args.state, **state.as_dict()}, f"torque {args.state}")
+    on = args.state == "on"
+    state = arm.torque(on, hold=on and not args.keep_goals)
+    enabled = arm.torque_enabled()
+    refused = [JOINT_NAMES[i] for i, e in enumerate(enabled) if e != on]
+    _print(out, args.json, {"torque": args.state, "enabled": list(enabled), **state.as_dict()},
+           f"torque {args.state}" + (f", except {', '.join(refused)}" if refused else ""))
+    if refused:
+        latched = "; ".join(f"{k}: {', '.join(v)}" for k, v in state.errors.items())
+        print(f"armctl: the torque of {', '.join(refused)} stayed "
+              f"{'off' if on else 'on'}" + (f" (latched: {latched})" if latched else "")
+              + ": the node turned it off after an alarm; check the joint moves freely, then "
+              "armctl clear and armctl torque on", file=sys.stderr)
+        return EXIT_ROBOT
+    return EXIT_OK
+
+
+def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    arm.clear_errors()
+    state = arm.state()
+    _print(out, args.json, {"cleared": not state.errors, **state.as_dict()},
+           "alarms cleared; torque is off where a node had turned it off (armctl torque on)"
+           if not state.errors else "still latched: " + "; ".join(
+               f"{k}: {', '.join(v)}" for k, v in state.errors.items()))
+    if state.errors:
+        print("armctl: an alarm is still there after clearing it: the fault is present now "
+              "(overheated, supply voltage, a joint still held); fix it and clear again",
+              file=sys.stderr)
+        return EXIT_ROBOT
     return EXIT_OK
 
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    goals = _joint_values(args.joints)
     _require_homed(arm, args, "move")
-    state, ok = arm.move(_joint_values(args.joints), duration=args.duration,
-                         timeout=args.timeout)
+    arm.check_limits(goals, arm.state().joints)
+    _require_torque(arm, "move")
+    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:
@@ -226,7 +283,7 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
             "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
-            "waypoints": cmd_waypoints}
+            "waypoints": cmd_waypoints, "clear": cmd_clear}
 
 
 def _joint_values(words: list[str]) -> list[float]:
