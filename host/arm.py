@@ -210,13 +210,7 @@ class Arm:
         :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
         :class:`~host.errors.NodeError` (a node that is not what the arm has there).
         """
-        if isinstance(url, Transport):
-            transport = url
-        else:
-            options: dict[str, Any] = {}
-            if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
-                options["baud"] = ARM_BUS_BAUD
-            transport = open_transport(url, **options)
+        transport = url if isinstance(url, Transport) else open_arm_transport(url)
         try:
             return cls.on(transport, return_delay=return_delay, retries=retries,
                           latency_s=latency_s, stiffness=stiffness)
@@ -609,6 +603,23 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
+def open_arm_transport(url: str) -> Transport:
+    """Open the arm bus's transport: a serial path at 1 Mbaud unless ``?baud=N``, or any
+    transport URL."""
+    options: dict[str, Any] = {}
+    if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
+        options["baud"] = ARM_BUS_BAUD
+    return open_transport(url, **options)
+
+
+def open_bus(url: str, *, latency_s: float | None = None, retries: int = 2) -> DynamixelBus:
+    """The arm's Dynamixel bus on ``url`` (:func:`open_arm_transport`) without discovering
+    the joints (to scan it, or reach a node at an unexpected ID); close its transport."""
+    transport = open_arm_transport(url)
+    return DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD), retries=retries,
+                        latency_s=latency_s)
+
+
 def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
     """The ``clear_flags`` values re-syncing the rotors of these stepper nodes (bus ID ->
     the SLIP/STALLED latches each had when its torque went off): RESYNC_ROTOR, and clear the
@@ -652,7 +663,7 @@ def discover(bus: DynamixelBus,
             bus.ping(dxl_id)
         except ReplyTimeout as exc:
             raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
-                               ) from exc
+                               f"; a scan lists the IDs that do (armctl scan)") from exc
         head = bus.read(dxl_id, 0, 3)
         model, firmware = int.from_bytes(head[:2], "little"), head[2]
         table = TABLES_BY_MODEL.get(model)

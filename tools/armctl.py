@@ -3,6 +3,7 @@
 ::
 
     armctl --port /dev/ttyUSB0 ping                 # discover the seven joints
+    armctl --port /dev/ttyUSB0 scan --ids 0-253     # every node that answers, at any ID
     armctl --port ./robot/arm --json status         # joints, motor angles, torques, slip
     armctl --port emu://arm/arm torque on
     armctl --port P move --joints 0 0.3 0 0.2 0 0 0 --duration 2
@@ -42,10 +43,12 @@ import sys
 from collections.abc import Sequence
 from typing import Any, TextIO
 
-from host.arm import Arm
+from host.arm import Arm, open_bus
 from host.arm_homing import restore
-from host.arm_state import JOINT_NAMES, N_JOINTS, ArmState
+from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import UsageError
+from protocol.control_tables import TABLES_BY_MODEL
+from protocol.dynamixel import MAX_ID
 from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
@@ -63,6 +66,11 @@ def make_parser() -> argparse.ArgumentParser:
                         help="leave the nodes' return delay (register 5) as it is")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("ping", help="discover the joints: ids, models, firmware")
+    scan = sub.add_parser("scan", help="ping every bus ID in a range and list the nodes that "
+                                       "answer (a node at an unexpected ID, a wrong baud)")
+    scan.add_argument("--ids", default="0-31", metavar="FIRST-LAST",
+                      help="the IDs to ping (default 0-31; 0-253 takes a while: each absent "
+                           "ID waits out the link budget)")
     sub.add_parser("status", help="one cycle's state of all joints")
     torque = sub.add_parser("torque", help="enable or disable every joint's torque")
     torque.add_argument("state", choices=("on", "off"))
@@ -141,6 +149,43 @@ def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
                      f"firmware {d['firmware']}" for d in joints)
     _print(out, args.json, {"joints": joints}, text)
     return EXIT_OK
+
+
+def _id_range(text: str) -> range:
+    first, _, last = text.partition("-")
+    try:
+        lo, hi = int(first), int(last or first)
+    except ValueError:
+        raise UsageError(f"--ids takes FIRST-LAST (e.g. 0-31), got {text!r}") from None
+    if not 0 <= lo <= hi <= MAX_ID:
+        raise UsageError(f"--ids {text}: IDs are 0..{MAX_ID}, first <= last")
+    return range(lo, hi + 1)
+
+
+def cmd_scan(args: argparse.Namespace, out: TextIO) -> int:
+    ids = _id_range(args.ids)
+    bus = open_bus(args.port, latency_s=args.link_timeout)
+    try:
+        nodes = []
+        for dxl_id in bus.scan(ids):
+            head = bus.read(dxl_id, 0, 3)
+            model = int.from_bytes(head[:2], "little")
+            table = TABLES_BY_MODEL.get(model)
+            joint = JOINT_NAMES[JOINT_IDS.index(dxl_id)] if dxl_id in JOINT_IDS else None
+            nodes.append({"id": dxl_id, "model": model, "firmware": head[2],
+                          "model_name": table.name if table else None, "joint": joint})
+    finally:
+        bus.transport.close()
+    missing = [f"{JOINT_NAMES[i]} (ID {d})" for i, d in enumerate(JOINT_IDS)
+               if d in ids and d not in [n["id"] for n in nodes]]
+    lines = [f"id {n['id']}: model {n['model']} ({n['model_name'] or 'unknown'}), firmware "
+             f"{n['firmware']}" + (f", {n['joint']}" if n["joint"] else ", not an arm ID")
+             for n in nodes] or [f"no node answers at IDs {ids.start}-{ids.stop - 1}"]
+    if missing:
+        lines.append("missing: " + ", ".join(missing))
+    _print(out, args.json, {"ids": [ids.start, ids.stop - 1], "nodes": nodes,
+                            "missing": missing}, "\n".join(lines))
+    return EXIT_OK if nodes else EXIT_ROBOT
 
 
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
@@ -303,6 +348,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     stream = out or sys.stdout
 
     def body(args: argparse.Namespace) -> int:
+        if args.command == "scan":
+            return cmd_scan(args, stream)
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
                        latency_s=args.link_timeout)
         with arm:

@@ -126,3 +126,20 @@ def test_a_joint_beyond_its_range_may_hold_there(arm: Arm) -> None:
     arm.check_limits([0.0] * 6 + [2.62], present)
     with pytest.raises(UsageError, match="J7 goal"):
         arm.check_limits([0.0] * 6 + [2.7], present)
+
+
+def test_scan_finds_a_node_at_an_unexpected_id_that_ping_misses(
+        arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
+    """A servo whose ID was changed: ``ping`` could only say J7 does not answer."""
+    arm.bus.write(7, 3, b"\x09")  # J7's RX-64 now at ID 9
+    code, _ = run("ping")
+    assert code == armctl.EXIT_ROBOT
+    err = capsys.readouterr().err
+    assert "J7 (bus ID 7) does not answer" in err and "(armctl scan)" in err
+    code, found = run("scan", "--ids", "0-12")
+    assert code == armctl.EXIT_OK and found["missing"] == ["J7 (ID 7)"]
+    nodes = found["nodes"]
+    assert isinstance(nodes, list) and [n["id"] for n in nodes] == [1, 2, 3, 4, 5, 6, 9]
+    assert nodes[-1]["model"] == 64 and nodes[-1]["joint"] is None
+    assert run("scan", "--ids", "20-30")[0] == armctl.EXIT_ROBOT
+    assert run("scan", "--ids", "9-x")[0] == armctl.EXIT_USAGE
