@@ -39,8 +39,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
 from host.arm import Arm, open_bus
@@ -245,12 +247,27 @@ def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
+def _check_writable(path: str, what: str) -> None:
+    """Refuse (before the arm does anything) an output file that cannot be written: a
+    recording made first would be lost."""
+    target = Path(path)
+    folder = target.parent
+    if target.is_dir():
+        raise UsageError(f"{path} is a directory: give a file name for the {what}")
+    if not folder.is_dir():
+        raise UsageError(f"cannot write the {what} to {path}: no directory {folder} (create "
+                         "it, or give another path)")
+    if not os.access(target if target.exists() else folder, os.W_OK):
+        raise UsageError(f"cannot write the {what} to {path}: permission denied")
+
+
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     from host.arm_control import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 
     if args.action == "record":
         if not args.seconds > 0:
             raise UsageError("--seconds must be > 0")
+        _check_writable(args.file, "waypoint file")
         restore(arm)
         points = record_waypoints(arm, args.seconds)
         save_waypoints(args.file, points)
@@ -258,6 +275,9 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
                                 "homed": arm.homed},
                f"{len(points)} waypoints recorded to {args.file} (torque is off)")
         return EXIT_OK
+    if not Path(args.file).is_file():
+        raise UsageError(f"no waypoint file {args.file} (armctl waypoints record "
+                         f"{args.file} makes one)")
     points = load_waypoints(args.file)
     _require_homed(arm, args, "playing waypoints")
     _require_torque(arm, "playing waypoints")
@@ -320,6 +340,7 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
     if not args.seconds > 0 or not args.rate > 0:
         raise UsageError("--seconds and --rate must be > 0")
+    _check_writable(args.file, "recording")
     cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
     _print(out, args.json, {"file": args.file, "cycles": cycles},
            f"{cycles} cycles recorded to {args.file}")

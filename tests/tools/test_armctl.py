@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -143,3 +144,19 @@ def test_scan_finds_a_node_at_an_unexpected_id_that_ping_misses(
     assert nodes[-1]["model"] == 64 and nodes[-1]["joint"] is None
     assert run("scan", "--ids", "20-30")[0] == armctl.EXIT_ROBOT
     assert run("scan", "--ids", "9-x")[0] == armctl.EXIT_USAGE
+
+
+def test_an_output_file_that_cannot_be_written_is_refused_before_the_arm_goes_limp(
+        arm: Arm, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``waypoints record`` turned the torque off, recorded, then failed to save (exit 1,
+    '[Errno 2] …'): the recording lost, the arm limp."""
+    arm.torque(True, hold=True)
+    t0 = arm.transport.now()
+    missing = tmp_path / "no-such-dir" / "path.jsonl"
+    assert run("waypoints", "record", str(missing), "--seconds", "2")[0] == armctl.EXIT_USAGE
+    assert f"no directory {missing.parent}" in capsys.readouterr().err
+    assert arm.transport.now() - t0 < 0.5 and run("status")[1]["torque"] == [True] * 7
+    assert run("record", str(tmp_path), "--seconds", "1")[0] == armctl.EXIT_USAGE
+    assert "is a directory" in capsys.readouterr().err
+    assert run("waypoints", "play", str(tmp_path / "none.jsonl"))[0] == armctl.EXIT_USAGE
+    assert "armctl waypoints record" in capsys.readouterr().err
