@@ -104,6 +104,9 @@ def make_parser() -> argparse.ArgumentParser:
                         help="move although the arm is not homed")
     moveto.add_argument("--timeout", type=float, default=8.0, metavar="S",
                         help="settle time allowed after the path (s, default 8)")
+    moveto.add_argument("--tolerance", type=float, default=2.0, metavar="MM",
+                        help="reached when the flange is this close to the target (mm, "
+                             "default 2)")
     moveto.add_argument("--no-hand", action="store_true",
                         help="no hand on the flange: leave its weight out of the check that "
                              "no stepper joint would hold near its stall torque")
@@ -230,10 +233,13 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    if not args.timeout > 0 or not args.tolerance > 0:
+        raise UsageError("moveto's --timeout (s) and --tolerance (mm) must be > 0")
     _require_homed(arm, args, "moveto")
     _require_torque(arm, "moveto")
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
-                        settle_timeout=args.timeout, hand=not args.no_hand)
+                        settle_timeout=args.timeout, hand=not args.no_hand,
+                        tolerance_m=args.tolerance / 1000)
     data = {"reached": result.reached, "goals": list(result.goals),
             "position_error_m": result.position_error, **result.state.as_dict()}
     _print(out, args.json, data, f"{'reached' if result.reached else 'not reached'}: "
@@ -241,7 +247,8 @@ def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
            + _state_text(result.state))
     if not result.reached:
         print(f"armctl: the flange is {result.position_error * 1000:.1f} mm from the target "
-              "after the timeout: is a joint blocked or slipping (armctl status)?",
+              f"after {args.timeout} s (--tolerance {args.tolerance} mm): is a joint blocked or "
+              "slipping (armctl status)?",
               file=sys.stderr)
         return EXIT_NOT_SETTLED
     return EXIT_OK
@@ -321,6 +328,8 @@ def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     goals = _joint_values(args.joints)
+    if not args.timeout > 0:
+        raise UsageError("move's --timeout (s) must be > 0")
     _require_homed(arm, args, "move")
     arm.check_limits(goals, arm.state().joints)
     _require_torque(arm, "move")

@@ -160,3 +160,19 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_arm_goes_li
     assert "is a directory" in capsys.readouterr().err
     assert run("waypoints", "play", str(tmp_path / "none.jsonl"))[0] == armctl.EXIT_USAGE
     assert "armctl waypoints record" in capsys.readouterr().err
+
+
+def test_moveto_takes_a_tolerance_and_refuses_a_timeout_that_is_not_positive(
+        arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
+    assert run("move", "--unhomed", "--joints", *["0"] * 7, "--timeout", "-1")[0] == \
+        armctl.EXIT_USAGE
+    assert run("torque", "on")[0] == armctl.EXIT_OK and run("home")[0] == armctl.EXIT_OK
+    assert run("moveto", "0.25", "-0.08", "-0.52", "--timeout", "0")[0] == armctl.EXIT_USAGE
+    capsys.readouterr()
+    code, result = run("moveto", "0.25", "-0.08", "-0.52", "--tolerance", "0.001",
+                       "--timeout", "0.1")
+    assert code == armctl.EXIT_NOT_SETTLED and result["reached"] is False
+    assert "(--tolerance 0.001 mm)" in capsys.readouterr().err
+    code, result = run("moveto", "0.25", "-0.08", "-0.52", "--tolerance", "50")
+    assert code == armctl.EXIT_OK and result["reached"] is True
+    assert isinstance(result["position_error_m"], float) and result["position_error_m"] < 0.05
