@@ -49,7 +49,7 @@ from host.arm import Arm, open_bus
 from host.arm_homing import restore
 from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import UsageError
-from protocol.control_tables import TABLES_BY_MODEL
+from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
 from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
 
@@ -312,11 +312,16 @@ def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    before = arm.state()
+    latched = sorted({*before.errors, *(JOINT_NAMES[s.joint] for s in before.steppers
+                                        if s.flags & (StepperFlag.SLIP | StepperFlag.STALLED))})
     arm.clear_errors()
     state = arm.state()
-    _print(out, args.json, {"cleared": not state.errors, **state.as_dict()},
-           "alarms cleared; torque is off where a node had turned it off (armctl torque on)"
-           if not state.errors else "still latched: " + "; ".join(
+    text = ("no alarm was latched" if not latched else
+            f"cleared {', '.join(latched)}; their torque is off (armctl torque on)")
+    _print(out, args.json, {"cleared": not state.errors, "latched": latched,
+                            **state.as_dict()},
+           text if not state.errors else "still latched: " + "; ".join(
                f"{k}: {', '.join(v)}" for k, v in state.errors.items()))
     if state.errors:
         print("armctl: an alarm is still there after clearing it: the fault is present now "

@@ -91,7 +91,10 @@ def test_a_joint_its_node_turned_off_is_named_by_torque_on_and_cleared_by_clear(
     err = capsys.readouterr().err
     assert "J4 stayed off" in err and "armctl clear" in err  # J2 too: the routes couple them
     code, status = run("clear")
-    assert code == armctl.EXIT_OK and status["cleared"] is True
+    assert code == armctl.EXIT_OK and status["cleared"] is True and "J4" in status["latched"]
+    out = io.StringIO()
+    assert armctl.main(["--port", URL, "clear"], out=out) == armctl.EXIT_OK
+    assert out.getvalue() == "no alarm was latched\n"
     code, status = run("torque", "on")
     assert code == armctl.EXIT_OK and status["enabled"] == [True] * 7
 
