@@ -269,14 +269,28 @@ def _check_writable(path: str, what: str) -> None:
 
 
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    from host.arm_control import load_waypoints, play_waypoints, record_waypoints, save_waypoints
+    from host.arm_control import (
+        Waypoint,
+        load_waypoints,
+        play_waypoints,
+        record_waypoints,
+        save_waypoints,
+    )
 
     if args.action == "record":
         if not args.seconds > 0:
             raise UsageError("--seconds must be > 0")
         _check_writable(args.file, "waypoint file")
         restore(arm)
-        points = record_waypoints(arm, args.seconds)
+        points: list[Waypoint] = []
+        try:
+            record_waypoints(arm, args.seconds, kept=points)
+        except BaseException:  # the link lost, Ctrl-C: keep what was recorded
+            if points:
+                save_waypoints(args.file, points)
+                print(f"armctl: the {len(points)} waypoints recorded before this were saved "
+                      f"to {args.file}", file=sys.stderr)
+            raise
         save_waypoints(args.file, points)
         _print(out, args.json, {"file": args.file, "waypoints": len(points),
                                 "homed": arm.homed},

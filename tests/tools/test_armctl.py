@@ -12,7 +12,7 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
-from host.errors import HomingError, UsageError
+from host.errors import HomingError, TransportError, UsageError
 from tools import armctl
 
 URL = "emu://arm/arm?name=test_armctl"
@@ -179,3 +179,32 @@ def test_moveto_takes_a_tolerance_and_refuses_a_timeout_that_is_not_positive(
     code, result = run("moveto", "0.25", "-0.08", "-0.52", "--tolerance", "50")
     assert code == armctl.EXIT_OK and result["reached"] is True
     assert isinstance(result["position_error_m"], float) and result["position_error_m"] < 0.05
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, TransportError])
+def test_waypoints_recorded_before_ctrl_c_or_a_lost_link_are_saved(
+        arm: Arm, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str], stop: type[BaseException]) -> None:
+    """They lived in memory until the end: Ctrl-C or the emulator killed mid-recording lost
+    them all."""
+    from host.arm_control import load_waypoints
+
+    opened = Arm.open
+
+    def open_failing_later(url: str, **options: object) -> Arm:
+        recording = opened(url, **options)  # type: ignore[arg-type]
+
+        def tap(state: object) -> None:
+            if recording.cycles > 60:
+                raise stop("the port is gone")
+
+        recording.state_taps.append(tap)
+        return recording
+
+    monkeypatch.setattr(armctl.Arm, "open", open_failing_later)
+    path = tmp_path / "path.jsonl"
+    code = armctl.main(["--port", URL, "waypoints", "record", str(path), "--seconds", "5"],
+                       out=io.StringIO())
+    assert code == (130 if stop is KeyboardInterrupt else armctl.EXIT_ROBOT)
+    assert "were saved to" in capsys.readouterr().err
+    assert load_waypoints(path)[0].t == 0.0
