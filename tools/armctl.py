@@ -369,7 +369,13 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     if not args.seconds > 0 or not args.rate > 0:
         raise UsageError("--seconds and --rate must be > 0")
     _check_writable(args.file, "recording")
-    cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
+    try:
+        cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
+    except BaseException:  # the link lost, Ctrl-C: the file is finished all the same
+        if Path(args.file).is_file():
+            print(f"armctl: what was recorded before this is in {args.file} (a finished "
+                  "MCAP file: handbus decode --dynamixel reads it)", file=sys.stderr)
+        raise
     _print(out, args.json, {"file": args.file, "cycles": cycles},
            f"{cycles} cycles recorded to {args.file}")
     return EXIT_OK

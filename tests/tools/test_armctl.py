@@ -208,3 +208,12 @@ def test_waypoints_recorded_before_ctrl_c_or_a_lost_link_are_saved(
     assert code == (130 if stop is KeyboardInterrupt else armctl.EXIT_ROBOT)
     assert "were saved to" in capsys.readouterr().err
     assert load_waypoints(path)[0].t == 0.0
+    # an MCAP recording cut short is a finished file, and armctl says where it is
+    mcap = tmp_path / "arm.mcap"
+    assert armctl.main(["--port", URL, "record", str(mcap), "--seconds", "5"],
+                       out=io.StringIO()) == code
+    assert f"what was recorded before this is in {mcap}" in capsys.readouterr().err
+    from mcap.reader import make_reader
+
+    with mcap.open("rb") as stream:
+        assert sum(1 for _ in make_reader(stream).iter_messages()) > 60
