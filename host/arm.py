@@ -30,7 +30,8 @@ node its command block (the goal it has, the coupling offset now) and ``clear_fl
 RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin to match
 (``step_count`` moves with it); latches the joint had when its torque went off stay (a node
 latches SLIP/STALLED while its coils hold, not once the host turned them off). The joint
-then heads for the goal it had. A stepper found unpowered and without a latch when the arm
+then heads for the goal it had, unless :meth:`Arm.torque` is told to ``hold`` it where it
+is. A stepper found unpowered and without a latch when the arm
 opens (power-up, or another program turned it off: ``armctl waypoints record`` then
 ``play``) is treated the same way. Torque the node turned off itself (an alarm, its latch
 set) is not re-synced.
@@ -113,7 +114,7 @@ from protocol.dynamixel import (
     rx64_position_to_radians,
     rx64_present_speed_to_rad_s,
 )
-from protocol.robot import arm_route_coupling_matrix
+from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
 
 if TYPE_CHECKING:
     from host.arm_control import CartesianMove
@@ -209,13 +210,7 @@ class Arm:
         :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
         :class:`~host.errors.NodeError` (a node that is not what the arm has there).
         """
-        if isinstance(url, Transport):
-            transport = url
-        else:
-            options: dict[str, Any] = {}
-            if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
-                options["baud"] = ARM_BUS_BAUD
-            transport = open_transport(url, **options)
+        transport = url if isinstance(url, Transport) else open_arm_transport(url)
         try:
             return cls.on(transport, return_delay=return_delay, retries=retries,
                           latency_s=latency_s, stiffness=stiffness)
@@ -507,10 +502,46 @@ class Arm:
         """Read the state of all seven joints (a cycle without commands)."""
         return self.cycle()
 
-    def torque(self, on: bool, joints: Iterable[int | str] | None = None) -> ArmState:
-        """Enable or disable the torque of ``joints`` (default: all)."""
-        chosen = range(N_JOINTS) if joints is None else joints
-        return self.cycle([self.make_torque(j, on) for j in chosen])
+    def torque(self, on: bool, joints: Iterable[int | str] | None = None, *,
+               hold: bool = False) -> ArmState:
+        """Enable or disable the torque of ``joints`` (default: all).
+
+        A joint whose torque comes on heads for the goal its node has, which may be far
+        from where the joint now is (a goal sent while its torque was off, the arm moved
+        by hand since).  ``hold=True`` (with ``on``) makes each of those joints whose
+        torque is off hold where it is instead: its goal becomes its present angle (rad;
+        a stepper's joint angle, its elastic element taken as relaxed) in the same cycle."""
+        chosen = [self._joint(j) for j in (range(N_JOINTS) if joints is None else joints)]
+        commands: list[Command] = []
+        if on and hold:
+            enabled = self.torque_enabled()
+            state = self.cycle()
+            commands = [self.make_position(j, state.joints[j]) for j in chosen
+                        if not enabled[j]]
+        return self.cycle([*commands, *(self.make_torque(j, on) for j in chosen)])
+
+    def torque_enabled(self) -> tuple[bool, ...]:
+        """Each joint's ``torque_enable`` register (J1..J7), read with one BULK_READ: False
+        where the host turned the torque off, or the node did (a latched alarm)."""
+        replies = self.bus.bulk_read([(_TORQUE.size, j.dxl_id, _TORQUE.address)
+                                      for j in self.joints])
+        return tuple(bool(_TORQUE.decode(replies[j.dxl_id].params)) for j in self.joints)
+
+    def check_limits(self, angles: Sequence[float], present: Sequence[float] | None = None,
+                     tolerance: float = 0.02) -> None:
+        """Raise :class:`~host.errors.UsageError` naming the first goal (rad, J1..J7)
+        outside its joint's range (:data:`protocol.robot.ARM_JOINT_LIMITS`): the servos'
+        always, the steppers' once homed (before, their angles count from power-up).  A
+        goal within ``tolerance`` (rad) of the joint's ``present`` angle (rad, 7) passes:
+        a joint already out there may hold where it is."""
+        for i, (angle, (lo, hi)) in enumerate(zip(angles, ARM_JOINT_LIMITS, strict=True)):
+            if i < N_STEPPERS and not self.homed:
+                continue
+            if present is not None and abs(angle - present[i]) <= tolerance:
+                continue
+            if not lo <= angle <= hi:
+                raise UsageError(f"{JOINT_NAMES[i]} goal {angle:+.3f} rad is outside the "
+                                 f"joint's range {lo:+.2f} … {hi:+.2f} rad")
 
     def set_position(self, joint: int | str, angle: float,
                      speed: float | None = None) -> ArmState:
@@ -534,8 +565,12 @@ class Arm:
         within ``tolerance`` of its goal.  ``duration`` (s) sets each joint's speed so all arrive
         together, none below :data:`MOVE_MIN_SPEED` (a joint that barely moves arrives early
         and keeps a speed limit it can hold with).  Returns the last state and whether the
-        move settled."""
+        move settled.  Raises :class:`~host.errors.UsageError` before anything moves for a
+        goal outside its joint's range (:meth:`check_limits`)."""
+        if len(angles) != N_JOINTS:
+            raise UsageError(f"give {N_JOINTS} joint angles, J1..J7")
         now = self.state()
+        self.check_limits(angles, now.joints)
         speeds: list[float | None] = [None] * N_JOINTS
         if duration is not None:
             if not duration > 0:
@@ -566,6 +601,23 @@ class Arm:
                 self.bus.exchange([make_reset(j.dxl_id)], [Expect(j.dxl_id)])
                 if self.return_delay is not None:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
+
+
+def open_arm_transport(url: str) -> Transport:
+    """Open the arm bus's transport: a serial path at 1 Mbaud unless ``?baud=N``, or any
+    transport URL."""
+    options: dict[str, Any] = {}
+    if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
+        options["baud"] = ARM_BUS_BAUD
+    return open_transport(url, **options)
+
+
+def open_bus(url: str, *, latency_s: float | None = None, retries: int = 2) -> DynamixelBus:
+    """The arm's Dynamixel bus on ``url`` (:func:`open_arm_transport`) without discovering
+    the joints (to scan it, or reach a node at an unexpected ID); close its transport."""
+    transport = open_arm_transport(url)
+    return DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD), retries=retries,
+                        latency_s=latency_s)
 
 
 def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
@@ -611,7 +663,7 @@ def discover(bus: DynamixelBus,
             bus.ping(dxl_id)
         except ReplyTimeout as exc:
             raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
-                               ) from exc
+                               f"; a scan lists the IDs that do (armctl scan)") from exc
         head = bus.read(dxl_id, 0, 3)
         model, firmware = int.from_bytes(head[:2], "little"), head[2]
         table = TABLES_BY_MODEL.get(model)

@@ -570,17 +570,21 @@ def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
 
 def record_waypoints(arm: Arm, seconds: float, *, rate_hz: float = 50.0,
                      min_change: float = 0.01,
-                     on_sample: Callable[[ArmState], None] | None = None) -> list[Waypoint]:
+                     on_sample: Callable[[ArmState], None] | None = None,
+                     kept: list[Waypoint] | None = None) -> list[Waypoint]:
     """Turn every joint's torque off and sample the joints at ``rate_hz`` for ``seconds``
     while someone moves the arm by hand; keep a waypoint whenever some joint moved more than
     ``min_change`` (rad) since the last one kept, and the last sample.  ``on_sample`` sees
-    every state.  The torque stays off."""
+    every state.  The torque stays off.  The waypoints go into ``kept`` (a new list if
+    None) as they come, so a caller keeps those recorded before an error or Ctrl-C."""
     if not seconds > 0 or not rate_hz > 0:
         raise UsageError("record for > 0 s at > 0 Hz")
     clock = arm.transport
     state = arm.torque(False)
     t0 = state.t
-    kept = [Waypoint(0.0, tuple(state.joints))]
+    if kept is None:
+        kept = []
+    kept.append(Waypoint(0.0, tuple(state.joints)))
     last = state
     period = 1.0 / rate_hz
     tick = 0

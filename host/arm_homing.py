@@ -146,6 +146,42 @@ def search_targets(width: float, step: float) -> list[float]:
         k += 1
 
 
+def search_time(plans: Sequence[Sequence[float]], speed: float) -> float:
+    """Time (s) allowed for the search: twice the longest joint's path through its
+    targets (offsets in rad, from the start) at ``speed`` (rad/s), plus 5 s."""
+    longest = max(sum(abs(b - a) for a, b in zip([0.0, *plan], plan, strict=False))
+                  for plan in plans)
+    return 2 * longest / speed + 5.0
+
+
+def _check_search(arm: Arm, state: ArmState, found: Sequence[bool], start: Sequence[float],
+                  speed: float, late: bool) -> None:
+    """Raise :class:`~host.errors.HomingError` for a joint still searching that its node
+    stopped (a latched STALLED or hardware error: its torque is off) or, once ``late``, that
+    has not found its index in the time the search takes; the others are sent back where
+    they started."""
+    stopped = [i for i, s in enumerate(state.steppers) if not found[i]
+               and s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)]
+    if not stopped and not late:
+        return
+    arm.cycle([arm.make_position(k, start[k], speed) for k in range(N_STEPPERS)
+               if k not in stopped])
+    if stopped:
+        names = [JOINT_NAMES[i] for i in stopped]
+        flags = {JOINT_NAMES[i]: ",".join(f.name or "" for f in StepperFlag
+                                          if state.steppers[i].flags & f) for i in stopped}
+        raise HomingError(
+            f"{', '.join(names)}: the node stopped the joint during the search "
+            f"({'; '.join(f'{k}: {v}' for k, v in flags.items())}: it was held or "
+            "over-deflected, and its torque is off); check that it moves freely, clear "
+            "the latch (Arm.clear_errors(), armctl clear) and home again", joint=names[0])
+    names = [JOINT_NAMES[i] for i, ok in enumerate(found) if not ok]
+    raise HomingError(
+        f"{', '.join(names)}: no index pulse before the search's time ran out (the joint "
+        "did not reach its search targets: blocked, or its torque off?); check it moves "
+        "freely (armctl status) and home again", joint=names[0])
+
+
 def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
          period: float = 0.01, tolerance: float = 0.01) -> JointCalibration:
     """Home the arm (see the module docs); returns the calibration, also set on ``arm``.
@@ -153,7 +189,8 @@ def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_ST
     ``speed`` (rad/s) and ``step`` (rad) shape the search; ``period`` (s) is the polling
     cycle; a search target counts as reached when the node stopped with its motor within
     ``tolerance`` (rad) of it.  Raises :class:`~host.errors.HomingError` naming the first
-    joint whose index was not found within its range."""
+    joint whose index was not found within its range, that its node stopped (a latched
+    STALLED: torque off) or that did not get through its search in :func:`search_time`."""
     if not speed > 0:
         raise UsageError(f"homing speed {speed} must be > 0 rad/s")
     arm.calibration = None
@@ -165,11 +202,13 @@ def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_ST
     leg = [0] * N_STEPPERS
     found = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
     clock = arm.transport
+    deadline = clock.now() + search_time(plans, speed)
     commands: list[Command] = [arm.make_position(i, start[i] + plans[i][0], speed)
                                for i in range(N_STEPPERS) if not found[i]]
     while not all(found):
         state = arm.cycle(commands)
         commands = []
+        _check_search(arm, state, found, start, speed, clock.now() >= deadline)
         for i, s in enumerate(state.steppers):
             if found[i]:
                 continue

@@ -177,7 +177,9 @@ class DynamixelBus:
         waiting = ", ".join(str(e.dxl_id) for e in expected)
         raise ReplyTimeout(f"{self.transport.url}: no reply from node(s) {waiting} after "
                            f"{attempts} attempt(s); check power, wiring, IDs and baud "
-                           f"({self.baud} bit/s)")
+                           f"({self.baud} bit/s), and that no other program has the port "
+                           f"open (one without a lock, such as the Dynamixel SDK's "
+                           f"PortHandler, takes replies meant for this one)")
 
     def _send_and_collect(self, raw: bytes, expected: Sequence[Expect]
                           ) -> list[StatusPacket] | None:

@@ -3,6 +3,7 @@
 ::
 
     armctl --port /dev/ttyUSB0 ping                 # discover the seven joints
+    armctl --port /dev/ttyUSB0 scan --ids 0-253     # every node that answers, at any ID
     armctl --port ./robot/arm --json status         # joints, motor angles, torques, slip
     armctl --port emu://arm/arm torque on
     armctl --port P move --joints 0 0.3 0 0.2 0 0 0 --duration 2
@@ -11,7 +12,14 @@
     armctl --port P moveto 0.3 0.0 -0.5 [--rpy R P Y]   # flange to x y z (m, base frame)
     armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
     armctl --port P waypoints play path.jsonl
+    armctl --port P clear                           # clear latched alarms (torque stays off)
 
+``torque on`` holds each joint whose torque was off where it is (not at a goal its node
+kept from before: one sent while the torque was off, the arm moved by hand since) and exits
+1 naming a joint whose node keeps its torque off (a latched alarm: ``armctl clear``).
+``move``, ``moveto`` and ``waypoints play`` refuse (exit 2) to start while a joint's torque
+is off, and ``move`` a goal outside a joint's range (the servos' always, the steppers' once
+homed).
 ``move`` and ``moveto`` need a homed arm (``armctl home``; the nodes keep the index latch until
 they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
 (angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
@@ -31,14 +39,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
-from host.arm import Arm
+from host.arm import Arm, open_bus
 from host.arm_homing import restore
-from host.arm_state import JOINT_NAMES, N_JOINTS, ArmState
+from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import UsageError
+from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
+from protocol.dynamixel import MAX_ID
 from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
@@ -48,16 +60,27 @@ __all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "m
 
 def make_parser() -> argparse.ArgumentParser:
     """armctl's command line."""
-    parser = argparse.ArgumentParser(prog="armctl", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="armctl", description="armctl: the 7-DOF arm from a terminal (see docs/HOST.md)")
     add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
                          timeout_default="100 ms on a serial link, 0.2 ms in process")
     parser.add_argument("--keep-return-delay", action="store_true",
                         help="leave the nodes' return delay (register 5) as it is")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("ping", help="discover the joints: ids, models, firmware")
+    scan = sub.add_parser("scan", help="ping every bus ID in a range and list the nodes that "
+                                       "answer (a node at an unexpected ID, a wrong baud)")
+    scan.add_argument("--ids", default="0-31", metavar="FIRST-LAST",
+                      help="the IDs to ping (default 0-31; 0-253 takes a while: each absent "
+                           "ID waits out the link budget)")
     sub.add_parser("status", help="one cycle's state of all joints")
     torque = sub.add_parser("torque", help="enable or disable every joint's torque")
     torque.add_argument("state", choices=("on", "off"))
+    torque.add_argument("--keep-goals", action="store_true",
+                        help="on: let each joint head for the goal its node has instead of "
+                             "holding where it is")
+    sub.add_parser("clear", help="clear the joints' latched alarms (SLIP/STALLED, RX-64 "
+                                 "alarms); torque stays off: armctl torque on next")
     move = sub.add_parser("move", help="move all joints and wait until the move settles")
     move.add_argument("--joints", nargs="+", required=True, metavar="RAD",
                       help="seven joint angles J1..J7 (rad), as seven values or one "
@@ -81,6 +104,9 @@ def make_parser() -> argparse.ArgumentParser:
                         help="move although the arm is not homed")
     moveto.add_argument("--timeout", type=float, default=8.0, metavar="S",
                         help="settle time allowed after the path (s, default 8)")
+    moveto.add_argument("--tolerance", type=float, default=2.0, metavar="MM",
+                        help="reached when the flange is this close to the target (mm, "
+                             "default 2)")
     moveto.add_argument("--no-hand", action="store_true",
                         help="no hand on the flange: leave its weight out of the check that "
                              "no stepper joint would hold near its stall torque")
@@ -130,12 +156,63 @@ def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
+def _id_range(text: str) -> range:
+    first, _, last = text.partition("-")
+    try:
+        lo, hi = int(first), int(last or first)
+    except ValueError:
+        raise UsageError(f"--ids takes FIRST-LAST (e.g. 0-31), got {text!r}") from None
+    if not 0 <= lo <= hi <= MAX_ID:
+        raise UsageError(f"--ids {text}: IDs are 0..{MAX_ID}, first <= last")
+    return range(lo, hi + 1)
+
+
+def cmd_scan(args: argparse.Namespace, out: TextIO) -> int:
+    ids = _id_range(args.ids)
+    bus = open_bus(args.port, latency_s=args.link_timeout)
+    try:
+        nodes = []
+        for dxl_id in bus.scan(ids):
+            head = bus.read(dxl_id, 0, 3)
+            model = int.from_bytes(head[:2], "little")
+            table = TABLES_BY_MODEL.get(model)
+            joint = JOINT_NAMES[JOINT_IDS.index(dxl_id)] if dxl_id in JOINT_IDS else None
+            nodes.append({"id": dxl_id, "model": model, "firmware": head[2],
+                          "model_name": table.name if table else None, "joint": joint})
+    finally:
+        bus.transport.close()
+    missing = [f"{JOINT_NAMES[i]} (ID {d})" for i, d in enumerate(JOINT_IDS)
+               if d in ids and d not in [n["id"] for n in nodes]]
+    lines = [f"id {n['id']}: model {n['model']} ({n['model_name'] or 'unknown'}), firmware "
+             f"{n['firmware']}" + (f", {n['joint']}" if n["joint"] else ", not an arm ID")
+             for n in nodes] or [f"no node answers at IDs {ids.start}-{ids.stop - 1}"]
+    if missing:
+        lines.append("missing: " + ", ".join(missing))
+    _print(out, args.json, {"ids": [ids.start, ids.stop - 1], "nodes": nodes,
+                            "missing": missing}, "\n".join(lines))
+    return EXIT_OK if nodes else EXIT_ROBOT
+
+
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     homed = restore(arm)
     state = arm.state()
-    _print(out, args.json, {**state.as_dict(), "homed": homed},
-           _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}")
+    enabled = arm.torque_enabled()
+    off = [JOINT_NAMES[i] for i, on in enumerate(enabled) if not on]
+    torque = "on" if not off else "off" if len(off) == N_JOINTS else f"off on {', '.join(off)}"
+    _print(out, args.json, {**state.as_dict(), "homed": homed, "torque": list(enabled)},
+           _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}"
+           f"\ntorque: {torque}")
     return EXIT_OK
+
+
+def _require_torque(arm: Arm, what: str) -> None:
+    """Refuse ``what`` while a joint's torque is off: its goal would wait in the node, and
+    the joint jump there whenever the torque came on."""
+    off = [JOINT_NAMES[i] for i, on in enumerate(arm.torque_enabled()) if not on]
+    if off:
+        raise UsageError(f"torque is off on {', '.join(off)}: turn it on first (armctl "
+                         f"torque on; armctl status shows a latched alarm, armctl clear "
+                         f"clears it) before {what}")
 
 
 def _require_homed(arm: Arm, args: argparse.Namespace, what: str) -> None:
@@ -156,9 +233,13 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    if not args.timeout > 0 or not args.tolerance > 0:
+        raise UsageError("moveto's --timeout (s) and --tolerance (mm) must be > 0")
     _require_homed(arm, args, "moveto")
+    _require_torque(arm, "moveto")
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
-                        settle_timeout=args.timeout, hand=not args.no_hand)
+                        settle_timeout=args.timeout, hand=not args.no_hand,
+                        tolerance_m=args.tolerance / 1000)
     data = {"reached": result.reached, "goals": list(result.goals),
             "position_error_m": result.position_error, **result.state.as_dict()}
     _print(out, args.json, data, f"{'reached' if result.reached else 'not reached'}: "
@@ -166,27 +247,61 @@ def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
            + _state_text(result.state))
     if not result.reached:
         print(f"armctl: the flange is {result.position_error * 1000:.1f} mm from the target "
-              "after the timeout: is a joint blocked or slipping (armctl status)?",
+              f"after {args.timeout} s (--tolerance {args.tolerance} mm): is a joint blocked or "
+              "slipping (armctl status)?",
               file=sys.stderr)
         return EXIT_NOT_SETTLED
     return EXIT_OK
 
 
+def _check_writable(path: str, what: str) -> None:
+    """Refuse (before the arm does anything) an output file that cannot be written: a
+    recording made first would be lost."""
+    target = Path(path)
+    folder = target.parent
+    if target.is_dir():
+        raise UsageError(f"{path} is a directory: give a file name for the {what}")
+    if not folder.is_dir():
+        raise UsageError(f"cannot write the {what} to {path}: no directory {folder} (create "
+                         "it, or give another path)")
+    if not os.access(target if target.exists() else folder, os.W_OK):
+        raise UsageError(f"cannot write the {what} to {path}: permission denied")
+
+
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    from host.arm_control import load_waypoints, play_waypoints, record_waypoints, save_waypoints
+    from host.arm_control import (
+        Waypoint,
+        load_waypoints,
+        play_waypoints,
+        record_waypoints,
+        save_waypoints,
+    )
 
     if args.action == "record":
         if not args.seconds > 0:
             raise UsageError("--seconds must be > 0")
+        _check_writable(args.file, "waypoint file")
         restore(arm)
-        points = record_waypoints(arm, args.seconds)
+        points: list[Waypoint] = []
+        try:
+            record_waypoints(arm, args.seconds, kept=points)
+        except BaseException:  # the link lost, Ctrl-C: keep what was recorded
+            if points:
+                save_waypoints(args.file, points)
+                print(f"armctl: the {len(points)} waypoints recorded before this were saved "
+                      f"to {args.file}", file=sys.stderr)
+            raise
         save_waypoints(args.file, points)
         _print(out, args.json, {"file": args.file, "waypoints": len(points),
                                 "homed": arm.homed},
                f"{len(points)} waypoints recorded to {args.file} (torque is off)")
         return EXIT_OK
+    if not Path(args.file).is_file():
+        raise UsageError(f"no waypoint file {args.file} (armctl waypoints record "
+                         f"{args.file} makes one)")
     points = load_waypoints(args.file)
     _require_homed(arm, args, "playing waypoints")
+    _require_torque(arm, "playing waypoints")
     state = play_waypoints(arm, points)
     _print(out, args.json, {"file": args.file, "waypoints": len(points), **state.as_dict()},
            f"played {len(points)} waypoints from {args.file}")
@@ -194,15 +309,50 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    state = arm.torque(args.state == "on")
-    _print(out, args.json, {"torque": args.state, **state.as_dict()}, f"torque {args.state}")
+    on = args.state == "on"
+    state = arm.torque(on, hold=on and not args.keep_goals)
+    enabled = arm.torque_enabled()
+    refused = [JOINT_NAMES[i] for i, e in enumerate(enabled) if e != on]
+    _print(out, args.json, {"torque": args.state, "enabled": list(enabled), **state.as_dict()},
+           f"torque {args.state}" + (f", except {', '.join(refused)}" if refused else ""))
+    if refused:
+        latched = "; ".join(f"{k}: {', '.join(v)}" for k, v in state.errors.items())
+        print(f"armctl: the torque of {', '.join(refused)} stayed "
+              f"{'off' if on else 'on'}" + (f" (latched: {latched})" if latched else "")
+              + ": the node turned it off after an alarm; check the joint moves freely, then "
+              "armctl clear and armctl torque on", file=sys.stderr)
+        return EXIT_ROBOT
+    return EXIT_OK
+
+
+def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    before = arm.state()
+    latched = sorted({*before.errors, *(JOINT_NAMES[s.joint] for s in before.steppers
+                                        if s.flags & (StepperFlag.SLIP | StepperFlag.STALLED))})
+    arm.clear_errors()
+    state = arm.state()
+    text = ("no alarm was latched" if not latched else
+            f"cleared {', '.join(latched)}; their torque is off (armctl torque on)")
+    _print(out, args.json, {"cleared": not state.errors, "latched": latched,
+                            **state.as_dict()},
+           text if not state.errors else "still latched: " + "; ".join(
+               f"{k}: {', '.join(v)}" for k, v in state.errors.items()))
+    if state.errors:
+        print("armctl: an alarm is still there after clearing it: the fault is present now "
+              "(overheated, supply voltage, a joint still held); fix it and clear again",
+              file=sys.stderr)
+        return EXIT_ROBOT
     return EXIT_OK
 
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    goals = _joint_values(args.joints)
+    if not args.timeout > 0:
+        raise UsageError("move's --timeout (s) must be > 0")
     _require_homed(arm, args, "move")
-    state, ok = arm.move(_joint_values(args.joints), duration=args.duration,
-                         timeout=args.timeout)
+    arm.check_limits(goals, arm.state().joints)
+    _require_torque(arm, "move")
+    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:
@@ -218,7 +368,14 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
     if not args.seconds > 0 or not args.rate > 0:
         raise UsageError("--seconds and --rate must be > 0")
-    cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
+    _check_writable(args.file, "recording")
+    try:
+        cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
+    except BaseException:  # the link lost, Ctrl-C: the file is finished all the same
+        if Path(args.file).is_file():
+            print(f"armctl: what was recorded before this is in {args.file} (a finished "
+                  "MCAP file: handbus decode --dynamixel reads it)", file=sys.stderr)
+        raise
     _print(out, args.json, {"file": args.file, "cycles": cycles},
            f"{cycles} cycles recorded to {args.file}")
     return EXIT_OK
@@ -226,7 +383,7 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
             "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
-            "waypoints": cmd_waypoints}
+            "waypoints": cmd_waypoints, "clear": cmd_clear}
 
 
 def _joint_values(words: list[str]) -> list[float]:
@@ -246,6 +403,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     stream = out or sys.stdout
 
     def body(args: argparse.Namespace) -> int:
+        if args.command == "scan":
+            return cmd_scan(args, stream)
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
                        latency_s=args.link_timeout)
         with arm:

@@ -151,6 +151,11 @@ def test_armctl_refuses_moves_before_homing_and_remembers_homing(
     # a later armctl picks the calibration up from the nodes' latches
     code, out = run("status")
     assert code == 0 and json.loads(out)["homed"] is True
+    # homing turned on the steppers only: the servos would not follow the path
+    code, _ = run("moveto", "0.1", "0.0", "-0.6")
+    assert code == armctl.EXIT_USAGE
+    assert "torque is off on J5, J6, J7" in capsys.readouterr().err
+    assert run("torque", "on")[0] == 0
     code, out = run("moveto", "0.1", "0.0", "-0.6")
     assert code == 0 and json.loads(out)["reached"] is True
     forget_shared_emulators()

@@ -128,8 +128,10 @@ def test_a_request_after_writes_still_on_the_wire_waits_for_them_too() -> None:
 
 def test_no_reply_times_out_after_the_retries_with_factory_delays() -> None:
     bus = bus_on([], retries=2)
-    with pytest.raises(ReplyTimeout, match="node\\(s\\) 1"):
+    with pytest.raises(ReplyTimeout, match="node\\(s\\) 1") as caught:
         bus.read(1, 0, 2)
+    # a second program on the port (a pty has no lock) also steals replies: say so
+    assert "no other program has the port open" in str(caught.value)
     sent = bus.transport.sent  # type: ignore[attr-defined]
     assert len(sent) == 3
     # each attempt waits 160 µs of wire time + 500 µs factory return delay + 2 µs
