@@ -132,6 +132,26 @@ class Timeouts:
 LINK_BUDGET_S: Final[dict[str, float]] = {
     "in-process": 0.030, "loop": 0.030, "serial": 0.100, "can": 0.100, "network": 0.250,
 }
+#: Kinds of link whose arrival times are the wire's own (:func:`frame_gap_s`).
+EXACT_TIMING_LINKS: Final = frozenset({"in-process", "loop"})
+
+
+def frame_gap_s(url: str, timeouts: Timeouts) -> float:
+    """The pause (s, link clock) after which the session's decoder drops a partial frame.
+
+    In process the bytes arrive at their wire times, so the decoder's own rule holds
+    (:class:`~protocol.stream.StreamDecoder`'s 10 ms).  Anywhere else the host sees the
+    bytes when its reads return, and one frame may arrive in pieces far apart: a USB
+    adapter hands over what it has every latency timer (16 ms), a USB-CAN adapter and the
+    host's CAN driver batch the frame's 8-byte pieces, and a busy machine may not schedule
+    the reader for tens of ms.  There a pause within a frame is allowed as long as the
+    link budget (``timeouts.link_s``); only a longer silence drops a partial frame (a reply
+    cut off by a reset, say), and by then its request has timed out anyway."""
+    default = StreamDecoder().gap_s
+    assert default is not None
+    if link_kind(url) in EXACT_TIMING_LINKS:
+        return default
+    return max(default, timeouts.link_s)
 
 
 @dataclass(frozen=True)
@@ -198,7 +218,7 @@ class HandSession:
         self.link = link
         self.timeouts = timeouts or Timeouts.for_url(transport.url)
         self.retries = retries
-        self.decoder = StreamDecoder()
+        self.decoder = StreamDecoder(gap_s=frame_gap_s(transport.url, self.timeouts))
         self.counters = SessionCounters()
         self.events: deque[FingerEvent] = deque(maxlen=EVENT_QUEUE)
         self.taps: list[Tap] = []
