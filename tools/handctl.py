@@ -76,7 +76,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="one finger, 0..3 (default: every finger)")
     up.add_argument("--boot-timeout", type=float, default=BOOT_TIMEOUT_S, metavar="S",
                     help=f"longest wait for a board to boot after its power is switched on "
-                         f"(s, default {BOOT_TIMEOUT_S:g})")
+                         f"(s, default {BOOT_TIMEOUT_S:g}; by the board's own clock while it "
+                         f"answers from its bootloader)")
     power = sub.add_parser("power", help="switch finger power")
     power.add_argument("finger", help="0..3 or all")
     power.add_argument("state", choices=("off", "low", "full"))
