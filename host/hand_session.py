@@ -551,10 +551,15 @@ def _retryable(error: Exception) -> bool:
 
 
 def _route_advice(name: str, to: Target, status: str) -> str:
+    up = "`handctl up`" if to.finger is None else f"`handctl up --finger {to.finger}`"
+    k = "N" if to.finger is None else to.finger
     advice = {
-        "unpowered": f"power it first (palm.finger_power, or `handctl power {to.finger} full`)",
+        "unpowered": f"power it first: {up} (Hand.bring_up) powers the finger, waits for "
+                     f"its boards and powers its phalanges; palm.finger_power, or `handctl "
+                     f"power {k} full`, switches only its supply",
         "link_down": "the finger has left the palm (broken away); push it back on",
-        "no_reply": "the node did not answer in time (booting, or phalanges unpowered?)",
+        "no_reply": "the node did not answer in time (booting, or phalanges unpowered? "
+                    f"{up} brings its boards up)",
         "busy": "the palm's queue for that finger is full; wait for earlier requests",
         "bad_destination": "no such finger or hop, or the frame is too long",
     }.get(status, "")

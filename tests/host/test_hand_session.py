@@ -165,6 +165,8 @@ def test_an_unpowered_finger_is_a_route_error_and_not_retried() -> None:
         session.request("fmcb.status", to=Target(3, 0))
     assert (caught.value.status, caught.value.finger, caught.value.hop) == (2, 3, 0)
     assert "power" in str(caught.value)
+    # Power alone leaves the phalanges off: the way out named first brings it all up.
+    assert "power it first: `handctl up --finger 3`" in str(caught.value)
     assert len(link.sent) == 1
 
 
