@@ -352,8 +352,8 @@ class Hand:
             finger.present = False
             try:
                 finger.update_from_status(self.session.wait(p))
-            except HostError:
-                pass  # unpowered, booting or gone: the palm's summary stands
+            except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
+                finger.problem = why_no_answer(exc)
         return state
 
     def set_poll_rate(self, rate_hz: int) -> None:

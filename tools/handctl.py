@@ -216,12 +216,23 @@ def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
     return 0 if move.settled or result.contacts else EXIT_ROBOT
 
 
+#: What ``status`` adds for a finger whose fmcb did not answer, by why (``{k}``: finger).
+_FINGER_ADVICE = {
+    "unpowered": ": bring it up with `handctl up --finger {k}`",
+    "link_down": ": it has left the palm (broken away); push it back on",
+    "no_reply": ": booting, or off its pogo pins? `handctl up --finger {k}` waits for it",
+    "no reply": ": the link was slower than its budget (a busy machine?); try --timeout 0.5",
+}
+
+
 def _status_text(state: HandState) -> str:
     lines = [f"palm: effort cap {state.effort_cap}/255, polling {state.poll_hz} Hz, "
              f"supply {state.bus_voltage_mv} mV"]
     for f in state.fingers:
         if not f.present:
-            lines.append(f"finger {f.index}: power {f.power}, not answering")
+            why = f" ({f.problem}{_FINGER_ADVICE.get(f.problem or '', '').format(k=f.index)})"
+            lines.append(f"finger {f.index}: power {f.power}, not answering"
+                         + (why if f.problem else ""))
             continue
         q = ", ".join(f"{v:+.3f}" for v in f.joints)
         taxels = sum(len(v) for v in f.tactile.values())

@@ -150,3 +150,21 @@ def test_up_reports_a_finger_that_cannot_boot_and_exits_non_zero(
     assert [r.up for r in results] == [True, True, False, True]
     assert results[2].down == ["finger 2 fmcb", "finger 2 f2", "finger 2 f3"]
     assert results[2].nodes[0].problem is not None and not results[2].autopoll
+
+
+def test_status_says_why_a_finger_does_not_answer_and_what_to_do(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    url = "emu://hand/palm?ready=0&physics=0&name=handctl-status-unpowered"
+    _emulator(url).step(PALM_BOOT_US)
+    assert main(["--port", url, "status"]) == 0
+    out = capsys.readouterr().out
+    assert ("finger 1: power off, not answering (unpowered: bring it up with "
+            "`handctl up --finger 1`)") in out
+    assert main(["--port", url, "--json", "status"]) == 0
+    fingers = json.loads(capsys.readouterr().out)["fingers"]
+    assert [f["problem"] for f in fingers] == ["unpowered"] * FINGERS
+    assert main(["--port", url, "up", "--finger", "1"]) == 0
+    capsys.readouterr()
+    assert main(["--port", url, "--json", "status"]) == 0
+    fingers = json.loads(capsys.readouterr().out)["fingers"]
+    assert [f["problem"] for f in fingers] == ["unpowered", None, "unpowered", "unpowered"]
