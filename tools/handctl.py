@@ -326,7 +326,13 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     from host.hand_recording import HandRecorder
 
     with HandRecorder(hand, args.file) as recorder:
-        recorder.record(args.seconds, args.rate)
+        try:
+            recorder.record(args.seconds, args.rate)
+        except (HostError, KeyboardInterrupt):
+            recorder.close()  # a whole, readable file of what came before
+            print(f"handctl: {args.file}: kept what was recorded before it stopped: "
+                  f"{recorder.frames} frames, {recorder.states} states", file=sys.stderr)
+            raise
     _emit(args, {"file": args.file, "frames": recorder.frames, "states": recorder.states},
           f"{args.file}: {recorder.frames} frames, {recorder.states} states")
     return 0

@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport
+from host.errors import TransportError
 from host.hand import Hand
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.transport import open_transport
@@ -168,3 +171,28 @@ def test_status_says_why_a_finger_does_not_answer_and_what_to_do(
     assert main(["--port", url, "--json", "status"]) == 0
     fingers = json.loads(capsys.readouterr().out)["fingers"]
     assert [f["problem"] for f in fingers] == ["unpowered", None, "unpowered", "unpowered"]
+
+
+def test_record_cut_short_by_a_lost_link_keeps_a_readable_file_and_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    url = "emu://hand/palm?physics=0&name=handctl-record-unplugged"
+    real_status = Hand.status
+    calls = []
+
+    def status(hand: Hand, fingers: bool = True) -> object:
+        calls.append(1)
+        if len(calls) > 3:  # the USB adapter is pulled after three states
+            raise TransportError(f"{url}: the port is gone")
+        return real_status(hand, fingers)
+
+    monkeypatch.setattr(Hand, "status", status)
+    path = tmp_path / "run.mcap"
+    assert main(["--port", url, "record", str(path), "--seconds", "5"]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}: kept what was recorded before it stopped:" in err
+    assert ", 3 states" in err and "the port is gone" in err
+    with path.open("rb") as stream:
+        states = [m for _s, c, m in make_reader(stream).iter_messages()
+                  if c.topic == "/hand/state"]
+    assert len(states) == 3
