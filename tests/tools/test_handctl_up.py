@@ -196,3 +196,16 @@ def test_record_cut_short_by_a_lost_link_keeps_a_readable_file_and_says_so(
         states = [m for _s, c, m in make_reader(stream).iter_messages()
                   if c.topic == "/hand/state"]
     assert len(states) == 3
+
+
+@pytest.mark.parametrize("argv", [
+    ["record", "RUN", "--seconds", "-1"], ["record", "RUN", "--seconds", "1", "--rate", "0"],
+    ["move", "--finger", "1", "--joints", "0,0.3,0.3", "--duration", "-1"],
+    ["grasp", "open", "1", "--duration", "0"], ["up", "--boot-timeout", "0"]])
+def test_a_time_or_rate_that_is_not_positive_is_refused_before_anything_is_opened(
+        argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.mcap"
+    argv = [str(path) if a == "RUN" else a for a in argv]
+    assert main(["--port", "/dev/no-such-hand", *argv]) == 2
+    assert "give a number > 0" in capsys.readouterr().err
+    assert not path.exists()
