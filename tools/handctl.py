@@ -142,6 +142,12 @@ def _emit(args: argparse.Namespace, data: Any, text: str) -> None:
 def _cmd_ping(hand: Hand, args: argparse.Namespace) -> int:
     found = hand.discover()
     lines = [_node_line(n) for n in found]
+    unpowered = sorted({n.finger for n in found
+                        if n.finger is not None and n.problem == "unpowered"})
+    if unpowered:
+        lines.append(f"hint: finger(s) {', '.join(map(str, unpowered))} unpowered: "
+                     f"`handctl up` powers them, boots their boards and powers their "
+                     f"phalanges")
     _emit(args, {"nodes": [n.to_dict() for n in found]}, "\n".join(lines))
     if not found[0].answered:
         raise ReplyTimeout(f"the palm does not answer on {args.port}: {found[0].problem}")

@@ -166,6 +166,9 @@ def test_status_says_why_a_finger_does_not_answer_and_what_to_do(
     assert main(["--port", url, "--json", "status"]) == 0
     fingers = json.loads(capsys.readouterr().out)["fingers"]
     assert [f["problem"] for f in fingers] == ["unpowered"] * FINGERS
+    assert main(["--port", url, "ping"]) == 0
+    assert ("hint: finger(s) 0, 1, 2, 3 unpowered: `handctl up` powers them"
+            in capsys.readouterr().out)
     assert main(["--port", url, "up", "--finger", "1"]) == 0
     capsys.readouterr()
     assert main(["--port", url, "--json", "status"]) == 0
