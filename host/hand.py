@@ -475,7 +475,7 @@ class Hand:
             raise NotHomedError(
                 f"finger(s) {missing} not homed: their joint angles are only hall counts "
                 f"since power-up. Home them (Hand.home, `handctl home`) or pass "
-                f"unhomed=True to move anyway", fingers=missing)
+                f"unhomed=True (handctl: --unhomed) to move anyway", fingers=missing)
 
     def wait_settled(self, fingers: Sequence[int], timeout: float = 3.0,
                      tolerance_hall: int | None = None) -> MoveResult:
