@@ -27,7 +27,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from host.errors import HostError, ReplyTimeout, UsageError
+from host.code_names import code_name
+from host.errors import HostError, NodeError, ReplyTimeout, UsageError
 from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
@@ -35,6 +36,8 @@ from host.hand_homing import homed_on_robot
 from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.joint_ekf import fuse_snapshot
+from protocol.image import BoardType
+from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
@@ -139,8 +142,21 @@ def _emit(args: argparse.Namespace, data: Any, text: str) -> None:
     print(json.dumps(data) if args.json else text)
 
 
+def _not_a_palm(board: int | None, port: str) -> str | None:
+    """What to say when the node on ``port`` is a ``board`` other than a palm, else None."""
+    if board is None or board == BoardType.PALM:
+        return None
+    name = code_name(BoardType, board, "board")
+    return (f"the node on {port} is a {name} board, not a palm: a loose finger's cable? "
+            f"handctl drives a whole hand through its palm; a loose finger is reached with "
+            f"HandSession(open_transport(P), link=\"finger\") (docs/HOST.md)")
+
+
 def _cmd_ping(hand: Hand, args: argparse.Namespace) -> int:
     found = hand.discover()
+    if (not_palm := _not_a_palm(found[0].board, args.port)) is not None:
+        _emit(args, {"nodes": [found[0].to_dict()]}, _node_line(found[0]))
+        raise NodeError(not_palm)
     lines = [_node_line(n) for n in found]
     unpowered = sorted({n.finger for n in found
                         if n.finger is not None and n.problem == "unpowered"})
@@ -366,7 +382,18 @@ COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
 
 def _run(args: argparse.Namespace) -> int:
     with Hand.open(args.port, timeouts=hand_timeouts(args)) as hand:
-        return COMMANDS[args.command](hand, args)
+        try:
+            return COMMANDS[args.command](hand, args)
+        except NodeError as exc:
+            # The link's node does not know a palm request: is it a palm at all?
+            if exc.status == TxnStatus.UNKNOWN_TYPE:
+                try:
+                    board = hand.palm.request("identify", retries=0)["board"]
+                except HostError:
+                    board = None
+                if (not_palm := _not_a_palm(board, args.port)) is not None:
+                    raise NodeError(not_palm) from exc
+            raise
 
 
 def main(argv: Sequence[str] | None = None) -> int:

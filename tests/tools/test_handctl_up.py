@@ -212,3 +212,13 @@ def test_a_time_or_rate_that_is_not_positive_is_refused_before_anything_is_opene
     assert main(["--port", "/dev/no-such-hand", *argv]) == 2
     assert "give a number > 0" in capsys.readouterr().err
     assert not path.exists()
+
+
+@pytest.mark.parametrize("command", [["ping"], ["status"]])
+def test_a_loose_fingers_cable_is_named_as_such_not_as_a_palm_in_its_bootloader(
+        command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    url = "emu://loose-finger/finger0?physics=0&name=handctl-loose-finger"
+    assert main(["--port", url, *command]) == 1
+    err = capsys.readouterr().err
+    assert f"the node on {url} is a fmcb board, not a palm: a loose finger's cable?" in err
+    assert 'link="finger"' in err and "bootloader" not in err
