@@ -29,3 +29,8 @@ def test_an_unknown_can_interface_is_a_usage_error_naming_the_known_ones() -> No
 def test_a_socketcan_interface_that_will_not_open_says_what_to_check() -> None:
     with pytest.raises(TransportError, match="ip link show nosuchcan9"):
         open_transport("can://socketcan/nosuchcan9")
+
+
+def test_a_url_option_its_backend_cannot_read_is_a_usage_error() -> None:
+    with pytest.raises(UsageError, match=r"emu://hand/palm\?seed=abc: invalid literal"):
+        open_transport("emu://hand/palm?seed=abc")
