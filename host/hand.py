@@ -116,13 +116,18 @@ class FingerCommand:
 class MoveResult:
     """How a move ended: ``settled`` when every finger's motors are within the deadband
     tolerance of their targets; ``stalled`` fingers stopped short (blocked, effort too
-    low); ``errors`` joint errors (rad, target − actual) per finger moved."""
+    low); ``errors`` joint errors (rad, target − actual) per finger moved.  ``robot_rate``
+    is how fast the robot's clock (the fmcbs' status timestamps) ran against the link's
+    while waiting: 1.0 on hardware and in process, less for an emulator a busy machine
+    slows below real time (then ``elapsed_s`` on the wall meant less robot time); None
+    when unknown."""
 
     settled: bool
     stalled: list[int]
     errors: dict[int, tuple[float, float, float]]
     states: dict[int, FingerState]
     elapsed_s: float
+    robot_rate: float | None = None
 
 
 class Finger:
@@ -488,12 +493,15 @@ class Hand:
         start = self.session.now()
         last_move = {k: start for k in fingers}
         last_pos: dict[int, list[int]] = {}
+        first: tuple[float, dict[int, FingerState]] | None = None
         while True:
             # First wait: the fmcb refreshes its status snapshot every 5 ms, so a status
             # read at once may still show the old target.
             self.session.sleep(SETTLE_POLL_S)
             states = self.finger_states(fingers)
             now = self.session.now()
+            if first is None:
+                first = (now, states)
             near, stalled = [], []
             for k, s in states.items():
                 tgt = s.targets_hall or s.joints_hall
@@ -510,7 +518,21 @@ class Hand:
             if settled or len(stalled) == len(states) or now - start >= timeout:
                 errors = {k: _joint_error(s) for k, s in states.items()}
                 return MoveResult(settled, [] if settled else stalled, errors, states,
-                                  now - start)
+                                  now - start, _robot_rate(first, now, states))
+
+
+def _robot_rate(first: tuple[float, dict[int, FingerState]], now: float,
+                states: dict[int, FingerState]) -> float | None:
+    """Robot seconds (an fmcb's status clock, µs, wrapping at 2³²) per link second between
+    the ``first`` status read and the last; None when no finger tells or no time passed."""
+    t0, before = first
+    if now - t0 <= 0:
+        return None
+    for k, s in states.items():
+        was = before[k].fmcb_time_us if k in before else None
+        if was is not None and s.fmcb_time_us is not None:
+            return ((s.fmcb_time_us - was) % (1 << 32)) / 1e6 / (now - t0)
+    return None
 
 
 def _joint_error(state: FingerState) -> tuple[float, float, float]:

@@ -248,7 +248,12 @@ def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
         why = f", contact: {result.contacts[k]}" if k in result.contacts else ""
         lines.append(f"finger {k}: joints [{q}] rad, target [{t}] rad{why}")
     _emit(args, data, "\n".join(lines))
-    return 0 if move.settled or result.contacts else EXIT_ROBOT
+    if move.settled or result.contacts:
+        return 0
+    if slow := _slow_robot(move):
+        print(f"handctl: {result.name} did not settle within {args.duration} s after the "
+              f"blend.{slow}", file=sys.stderr)
+    return EXIT_ROBOT
 
 
 #: What ``status`` adds for a finger whose fmcb did not answer, by why (``{k}``: finger).
@@ -338,12 +343,30 @@ def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
         return 0
     print(f"handctl: the move did not settle within {args.duration} s "
           f"(stalled fingers: {result.stalled or 'none'}); an obstacle, too little "
-          f"--effort, or a longer --duration?", file=sys.stderr)
+          f"--effort, or a longer --duration?{_slow_robot(result)}", file=sys.stderr)
     return EXIT_ROBOT
+
+
+#: Below this :attr:`MoveResult.robot_rate` a move that did not settle says the robot's
+#: clock ran slow.
+SLOW_ROBOT_RATE = 0.8
+
+
+def _slow_robot(result: MoveResult) -> str:
+    """What a move that did not settle adds when the robot's clock ran slower than the
+    link's: the emulator on a busy machine."""
+    rate = result.robot_rate
+    if rate is None or rate >= SLOW_ROBOT_RATE:
+        return ""
+    return (f"\nThe robot's clock ran at {rate:.0%} of this link's meanwhile (the emulator on "
+            f"a busy machine runs slower than real time), so the move had only about "
+            f"{result.elapsed_s * rate:.1f} s of robot time: give --duration "
+            f"{result.elapsed_s / max(rate, 0.05):.0f} or more")
 
 
 def _move_dict(r: MoveResult) -> dict[str, Any]:
     return {"settled": r.settled, "stalled": r.stalled, "elapsed_s": round(r.elapsed_s, 4),
+            "robot_rate": None if r.robot_rate is None else round(r.robot_rate, 3),
             "fingers": {str(k): {"joints": list(s.joints), "error": list(r.errors[k])}
                         for k, s in r.states.items()}}
 

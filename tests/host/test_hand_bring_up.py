@@ -13,32 +13,11 @@ from host.hand_bring_up import BOOT_TIMEOUT_S, BOOT_WAIT_LIMIT
 from host.hand_session import HandSession, Target
 from host.transport import Transport
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from tests.host.slow_link import FastLinkClock
 
 #: Simulation time for the palm to leave its bootloader after power-on (µs).
 PALM_BOOT_US = AUTOBOOT_WINDOW_US + 500_000
 AUTOBOOT_S = AUTOBOOT_WINDOW_US / 1e6
-
-
-class FastLinkClock(Transport):
-    """``inner`` with a clock running ``factor`` times faster than the simulation's: what a
-    host sees of an emulator that keeps up with only 1/``factor`` of real time."""
-
-    def __init__(self, inner: Transport, factor: float) -> None:
-        super().__init__(inner.url)
-        self.inner = inner
-        self.factor = factor
-
-    def now(self) -> float:
-        return self.inner.now() * self.factor
-
-    def _send(self, data: bytes) -> None:
-        self.inner.send(data)
-
-    def _recv(self, timeout: float | None) -> bytes:
-        return self.inner.recv(None if timeout is None else timeout / self.factor)
-
-    def _close(self) -> None:
-        self.inner.close()
 
 
 def _hand(factor: float = 1.0) -> tuple[Emulator, Hand]:

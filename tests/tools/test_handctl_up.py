@@ -6,6 +6,7 @@ what is missing instead of failing.  In process (``emu://``), on the simulation 
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,9 +18,11 @@ from hil_emulator.inprocess import EmulatorTransport
 from host.errors import TransportError
 from host.hand import Hand
 from host.hand_bring_up import BOOT_TIMEOUT_S
+from host.transport import _registered as transport_registry
 from host.transport import open_transport
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.topology import FINGERS
+from tests.host.slow_link import FastLinkClock
 from tools.handctl import main
 
 #: Simulation time for the palm to leave its bootloader after power-on (µs).
@@ -222,3 +225,24 @@ def test_a_loose_fingers_cable_is_named_as_such_not_as_a_palm_in_its_bootloader(
     err = capsys.readouterr().err
     assert f"the node on {url} is a fmcb board, not a palm: a loose finger's cable?" in err
     assert 'link="finger"' in err and "bootloader" not in err
+
+
+@pytest.mark.parametrize("factor", [1.0, 3.0])
+def test_a_move_that_did_not_settle_says_when_the_robot_ran_slower_than_the_link(
+        factor: float, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The emulator on a busy machine: its clock (the fmcbs' status timestamps) ran at a
+    third of the link's, so --duration on the wall gave the move a third of it."""
+    url = f"emu://hand/palm?physics=0&name=handctl-slow-robot-{factor:g}"
+    monkeypatch.setitem(transport_registry, "slowemu",
+                        lambda _url, **_options: FastLinkClock(open_transport(url), factor))
+    argv = ["--port", "slowemu://palm", "--json", "move", "--finger", "1", "--joints",
+            "0,0.5,0.5", "--unhomed", "--duration", "0.3"]
+    assert main(argv) == 1  # no physics: the fingers never get there
+    captured = capsys.readouterr()
+    # Within the fmcb's 5 ms status refresh over the 0.3 s the move was watched.
+    assert json.loads(captured.out)["robot_rate"] == pytest.approx(1 / factor, abs=0.03)
+    slow = re.search(r"The robot's clock ran at 3\d% of this link's meanwhile", captured.err)
+    assert (slow is not None) == (factor == 3.0)
+    if factor == 3.0:
+        assert "give --duration 1 or more" in captured.err
