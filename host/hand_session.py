@@ -244,9 +244,10 @@ class HandSession:
 
     # --- requests --------------------------------------------------------------------------
     def request(self, name: str, fields: Mapping[str, Any] | None = None, *,
-                to: Target = LINK_NODE, retries: int | None = None,
+                to: Target | None = LINK_NODE, retries: int | None = None,
                 extra_ms: int = 0, txn: bool = True) -> dict[str, Any]:
-        """Send request ``name`` with ``fields`` to ``to`` and return the reply's fields.
+        """Send request ``name`` with ``fields`` to ``to`` (None: the link's own node) and
+        return the reply's fields.
 
         ``retries`` (default: the session's, but 0 for requests that are not idempotent)
         repeats the request after a timeout, a busy node or a route that got no reply;
@@ -258,7 +259,7 @@ class HandSession:
                                     txn=txn))
 
     def start(self, name: str, fields: Mapping[str, Any] | None = None, *,
-              to: Target = LINK_NODE, retries: int | None = None,
+              to: Target | None = LINK_NODE, retries: int | None = None,
               extra_ms: int = 0, txn: bool = True) -> PendingReply:
         """Send request ``name`` now and return it pending: several may be in flight, and
         :meth:`wait` takes them in any order.
@@ -277,6 +278,11 @@ class HandSession:
             raise UsageError(f"no message called {name!r} in the catalogue") from exc
         if message.request is None:
             raise UsageError(f"{name} is not a request (nothing sends it to a node)")
+        if to is None:
+            to = LINK_NODE
+        if not isinstance(to, Target):
+            raise UsageError(f"to={to!r}: give a Target(finger, hop), or None for the "
+                             f"link's own node")
         self._check_target(to)
         plain = dict(fields or {})
         try:

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from host.errors import NodeError, ReplyTimeout, RouteError
+from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
 from host.hand_session import HandSession, Target, Timeouts, frame_gap_s, is_idempotent
 from host.transport import Transport, open_transport
 from protocol.framing import encode_frame, parse_frame
@@ -285,3 +285,11 @@ def test_the_frame_gap_is_the_wire_s_in_process_and_the_link_budget_elsewhere(
         url: str, gap_s: float) -> None:
     assert frame_gap_s(url, Timeouts.for_url(url)) == pytest.approx(gap_s)
     assert frame_gap_s(url, Timeouts(link_s=0.5)) == (0.010 if gap_s == 0.010 else 0.5)
+
+
+def test_to_none_is_the_links_own_node_and_a_wrong_target_a_usage_error() -> None:
+    link = ScriptedTransport(lambda f: link.deliver(answer(f, "identify", IDENTIFY)))
+    session = HandSession(link)
+    assert session.request("identify", to=None)["uid"] == 77
+    with pytest.raises(UsageError, match=r"to=2: give a Target\(finger, hop\)"):
+        session.request("identify", to=2)  # type: ignore[arg-type]
