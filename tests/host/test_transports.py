@@ -125,8 +125,8 @@ def test_pty_recv_timeout_on_the_wall_clock(pty: Pty) -> None:
         assert time.monotonic() - start < 0.05
         # recv(None) waits for the first bytes however long that takes.
         timer = threading.Timer(0.05, os.write, (pty.master, b"\x5a"))
+        start = time.monotonic()  # before the timer starts: its 50 ms cannot begin earlier
         timer.start()
-        start = time.monotonic()
         assert t.recv(None) == b"\x5a"
         assert time.monotonic() - start >= 0.04
         timer.join()
