@@ -156,8 +156,10 @@ def test_unknown_serial_option_is_a_usage_error(pty: Pty) -> None:
 
 
 def test_exclusive_port_refuses_a_second_client(pty: Pty) -> None:
-    with SerialTransport(pty.path), pytest.raises(TransportError, match=pty.path):
+    with SerialTransport(pty.path), pytest.raises(TransportError, match=pty.path) as info:
         SerialTransport(pty.path)
+    assert "another program has it open" in str(info.value)
+    assert "?exclusive=0" in str(info.value)
 
 
 def test_missing_port_names_the_path(tmp_path: Path) -> None:
