@@ -369,20 +369,30 @@ class Hand:
                fingers: bool = True) -> Iterator[HandState]:
         """Yield the hand's state ``rate_hz`` times a second (the link's clock) for
         ``seconds`` (None: forever).  ``fingers`` False reads only the palm's summary (the
-        palm polls the fingers at that rate; cheapest); events arrive meanwhile."""
+        palm polls the fingers at that rate, and goes back to the rate it had when the
+        stream ends or is closed; cheapest); events arrive meanwhile."""
         if rate_hz <= 0:
             raise UsageError(f"rate {rate_hz} Hz: give a positive rate")
+        restore: int | None = None
         if not fingers:
+            restore = self.status(fingers=False).poll_hz
             self.set_poll_rate(int(min(MAX_POLL_HZ, max(1, round(rate_hz)))))
-        start = self.session.now()
-        tick = 0
-        while seconds is None or tick / rate_hz <= seconds:
-            due = start + tick / rate_hz
-            wait = due - self.session.now()
-            if wait > 0:
-                self.session.sleep(wait)
-            yield self.status(fingers=fingers)
-            tick += 1
+        try:
+            start = self.session.now()
+            tick = 0
+            while seconds is None or tick / rate_hz <= seconds:
+                due = start + tick / rate_hz
+                wait = due - self.session.now()
+                if wait > 0:
+                    self.session.sleep(wait)
+                yield self.status(fingers=fingers)
+                tick += 1
+        finally:
+            if restore is not None and not self.session.transport.closed:
+                try:
+                    self.set_poll_rate(restore)
+                except HostError:
+                    pass  # the link is gone: what raised in the loop says so
 
     def stream(self, rate_hz: float, on_state: Callable[[HandState], None],
                seconds: float | None = None, *, fingers: bool = True) -> None:
