@@ -11,6 +11,7 @@
     handctl --port P record run.mcap --seconds 5 [--rate 50]
     handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
     handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
+    handctl --port P grasp pinch 1.0 --fingers 0,3        # only some fingers
     handctl --port P grasp open 1.0                       # poses: open, relax, point
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from host.code_names import code_name
-from host.errors import HostError, NodeError, ReplyTimeout, UsageError
+from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
 from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
@@ -78,6 +79,18 @@ def _positive(text: str) -> float:
     return value
 
 
+def _finger_list(text: str) -> list[int]:
+    """Comma-separated finger indices, each 0..3."""
+    try:
+        chosen = [int(v) for v in text.split(",") if v.strip() != ""]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated finger "
+                                         f"indices") from None
+    if not chosen or any(not 0 <= k < FINGERS for k in chosen):
+        raise argparse.ArgumentTypeError(f"{text}: give fingers 0..{FINGERS - 1}, e.g. 0,1,3")
+    return chosen
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
     add_common_arguments(p, what="the palm's port")
@@ -119,6 +132,8 @@ def _parser() -> argparse.ArgumentParser:
     grasp.add_argument("--speed", type=_positive, default=DEFAULT_SPEED_RAD_S,
                        help=f"blend speed of the joint moving most, rad/s "
                             f"(default {DEFAULT_SPEED_RAD_S})")
+    grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",
+                       help="only these fingers, e.g. 0,1,3 (default: all four)")
     grasp.add_argument("--until-contact", action="store_true",
                        help="stop closing a finger when its taxels or effort say contact")
     grasp.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
@@ -231,9 +246,18 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
 
 def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
     hand.layout = args.layout
-    result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
-                        until_contact=args.until_contact, timeout=args.duration,
-                        unhomed=args.unhomed)
+    try:
+        result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
+                            until_contact=args.until_contact, timeout=args.duration,
+                            unhomed=args.unhomed, fingers=args.fingers)
+    except RouteError as exc:  # one finger unreachable: the others could still grasp
+        chosen = args.fingers or list(range(FINGERS))
+        others = [k for k in chosen if k != exc.finger]
+        if exc.finger is None or not others:
+            raise
+        raise RouteError(f"{exc}\nTo grasp with the others: --fingers "
+                         f"{','.join(map(str, others))}", status=exc.status,
+                         finger=exc.finger, hop=exc.hop) from exc
     move = result.move
     assert move is not None
     data = {"grasp": result.name, "amount": result.amount,

@@ -246,3 +246,18 @@ def test_a_move_that_did_not_settle_says_when_the_robot_ran_slower_than_the_link
     assert (slow is not None) == (factor == 3.0)
     if factor == 3.0:
         assert "give --duration 1 or more" in captured.err
+
+
+def test_grasp_with_a_finger_broken_away_names_the_others_and_grasps_with_them(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    url = "emu://hand/palm?physics=0&name=handctl-grasp-broken-away"
+    _emulator(url).break_away(2)
+    assert main(["--port", url, "grasp", "open", "0.5", "--unhomed"]) == 1
+    err = capsys.readouterr().err
+    assert "finger 2 fmcb: route no_reply" in err
+    assert "To grasp with the others: --fingers 0,1,3" in err
+    assert main(["--port", url, "--json", "grasp", "open", "0.5", "--unhomed",
+                 "--fingers", "0,1,3", "--duration", "0.3"]) in (0, 1)  # no physics
+    assert sorted(json.loads(capsys.readouterr().out)["targets"]) == ["0", "1", "3"]
+    assert main(["--port", url, "grasp", "open", "0.5", "--fingers", "0,7"]) == 2
+    assert "give fingers 0..3" in capsys.readouterr().err
