@@ -116,13 +116,18 @@ class FingerCommand:
 class MoveResult:
     """How a move ended: ``settled`` when every finger's motors are within the deadband
     tolerance of their targets; ``stalled`` fingers stopped short (blocked, effort too
-    low); ``errors`` joint errors (rad, target − actual) per finger moved."""
+    low); ``errors`` joint errors (rad, target − actual) per finger moved.  ``robot_rate``
+    is how fast the robot's clock (the fmcbs' status timestamps) ran against the link's
+    while waiting: 1.0 on hardware and in process, less for an emulator a busy machine
+    slows below real time (then ``elapsed_s`` on the wall meant less robot time); None
+    when unknown."""
 
     settled: bool
     stalled: list[int]
     errors: dict[int, tuple[float, float, float]]
     states: dict[int, FingerState]
     elapsed_s: float
+    robot_rate: float | None = None
 
 
 class Finger:
@@ -352,8 +357,8 @@ class Hand:
             finger.present = False
             try:
                 finger.update_from_status(self.session.wait(p))
-            except HostError:
-                pass  # unpowered, booting or gone: the palm's summary stands
+            except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
+                finger.problem = why_no_answer(exc)
         return state
 
     def set_poll_rate(self, rate_hz: int) -> None:
@@ -364,20 +369,30 @@ class Hand:
                fingers: bool = True) -> Iterator[HandState]:
         """Yield the hand's state ``rate_hz`` times a second (the link's clock) for
         ``seconds`` (None: forever).  ``fingers`` False reads only the palm's summary (the
-        palm polls the fingers at that rate; cheapest); events arrive meanwhile."""
+        palm polls the fingers at that rate, and goes back to the rate it had when the
+        stream ends or is closed; cheapest); events arrive meanwhile."""
         if rate_hz <= 0:
             raise UsageError(f"rate {rate_hz} Hz: give a positive rate")
+        restore: int | None = None
         if not fingers:
+            restore = self.status(fingers=False).poll_hz
             self.set_poll_rate(int(min(MAX_POLL_HZ, max(1, round(rate_hz)))))
-        start = self.session.now()
-        tick = 0
-        while seconds is None or tick / rate_hz <= seconds:
-            due = start + tick / rate_hz
-            wait = due - self.session.now()
-            if wait > 0:
-                self.session.sleep(wait)
-            yield self.status(fingers=fingers)
-            tick += 1
+        try:
+            start = self.session.now()
+            tick = 0
+            while seconds is None or tick / rate_hz <= seconds:
+                due = start + tick / rate_hz
+                wait = due - self.session.now()
+                if wait > 0:
+                    self.session.sleep(wait)
+                yield self.status(fingers=fingers)
+                tick += 1
+        finally:
+            if restore is not None and not self.session.transport.closed:
+                try:
+                    self.set_poll_rate(restore)
+                except HostError:
+                    pass  # the link is gone: what raised in the loop says so
 
     def stream(self, rate_hz: float, on_state: Callable[[HandState], None],
                seconds: float | None = None, *, fingers: bool = True) -> None:
@@ -475,7 +490,7 @@ class Hand:
             raise NotHomedError(
                 f"finger(s) {missing} not homed: their joint angles are only hall counts "
                 f"since power-up. Home them (Hand.home, `handctl home`) or pass "
-                f"unhomed=True to move anyway", fingers=missing)
+                f"unhomed=True (handctl: --unhomed) to move anyway", fingers=missing)
 
     def wait_settled(self, fingers: Sequence[int], timeout: float = 3.0,
                      tolerance_hall: int | None = None) -> MoveResult:
@@ -488,12 +503,15 @@ class Hand:
         start = self.session.now()
         last_move = {k: start for k in fingers}
         last_pos: dict[int, list[int]] = {}
+        first: tuple[float, dict[int, FingerState]] | None = None
         while True:
             # First wait: the fmcb refreshes its status snapshot every 5 ms, so a status
             # read at once may still show the old target.
             self.session.sleep(SETTLE_POLL_S)
             states = self.finger_states(fingers)
             now = self.session.now()
+            if first is None:
+                first = (now, states)
             near, stalled = [], []
             for k, s in states.items():
                 tgt = s.targets_hall or s.joints_hall
@@ -510,7 +528,21 @@ class Hand:
             if settled or len(stalled) == len(states) or now - start >= timeout:
                 errors = {k: _joint_error(s) for k, s in states.items()}
                 return MoveResult(settled, [] if settled else stalled, errors, states,
-                                  now - start)
+                                  now - start, _robot_rate(first, now, states))
+
+
+def _robot_rate(first: tuple[float, dict[int, FingerState]], now: float,
+                states: dict[int, FingerState]) -> float | None:
+    """Robot seconds (an fmcb's status clock, µs, wrapping at 2³²) per link second between
+    the ``first`` status read and the last; None when no finger tells or no time passed."""
+    t0, before = first
+    if now - t0 <= 0:
+        return None
+    for k, s in states.items():
+        was = before[k].fmcb_time_us if k in before else None
+        if was is not None and s.fmcb_time_us is not None:
+            return ((s.fmcb_time_us - was) % (1 << 32)) / 1e6 / (now - t0)
+    return None
 
 
 def _joint_error(state: FingerState) -> tuple[float, float, float]:

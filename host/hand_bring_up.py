@@ -13,8 +13,13 @@ A hand just switched on runs its palm only.  Each finger's boards then need, in 
 
 :func:`bring_up` does this on the link's clock (about 10 s of robot time), waiting for each
 board by asking it ``identify`` every :data:`POLL_S` until it says it runs its application,
-at most ``timeout`` s after its power was switched on.  A board that does not come up is
-reported with a reason (:class:`NodeUp`); the others carry on.
+at most ``timeout`` s after its power was switched on.  That time is the board's own when it
+answers (``identify``'s ``uptime_us`` counts from its power-up), so a robot whose clock runs
+slower than the link's (the emulator on a busy machine) is waited for, up to
+:data:`BOOT_WAIT_LIMIT` times ``timeout`` on the link's clock.  A board that does not come up
+is reported with a reason (:class:`NodeUp`): one still in its bootloader after its autoboot
+window is asked ``bl.status`` why (no bootable image, or halted by a flashing tool); the
+others carry on.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Final
 from host.code_names import code_name
 from host.errors import HostError, NodeError, ReplyTimeout, UsageError, why_no_answer
 from host.hand_session import PendingReply
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, BootState, ImageStatus
 from protocol.messages.common import Running
 from protocol.topology import FINGERS
 
@@ -36,6 +41,11 @@ if TYPE_CHECKING:
 #: Longest wait for a board to run its application after its power is switched on (s):
 #: the autoboot window (4.5 s), the application's start and a margin for a slow link.
 BOOT_TIMEOUT_S: Final = AUTOBOOT_WINDOW_US / 1e6 + 3.5
+#: The autoboot window (s).
+AUTOBOOT_WINDOW_S: Final = AUTOBOOT_WINDOW_US / 1e6
+#: How much longer than its ``timeout`` (a multiple of it, on the link's clock) a wait goes
+#: on for a board whose own clock says it has not been powered ``timeout`` s yet.
+BOOT_WAIT_LIMIT: Final = 3.0
 #: How often a booting board is asked whether it runs its application yet (s).
 POLL_S: Final = 0.25
 #: Longest wait, once autopoll is on, for ``fmcb.status`` to carry the phalanges' first
@@ -114,7 +124,7 @@ def _fingers(fingers: int | str | Sequence[int]) -> list[int]:
 
 class _Waiter:
     """Asks boards ``identify`` every :data:`POLL_S` until each runs its application or
-    its deadline (link clock) passes."""
+    its time is up (see :func:`bring_up`'s ``timeout``)."""
 
     def __init__(self, hand: Hand, start_s: float, say: Callable[[str], None]) -> None:
         self.hand = hand
@@ -123,9 +133,13 @@ class _Waiter:
 
     def wait(self, nodes: Sequence[tuple[Node, NodeUp]], timeout: float) -> None:
         session = self.hand.session
-        deadline = session.now() + timeout
+        begun = session.now()
+        deadline = begun + timeout
+        limit = begun + BOOT_WAIT_LIMIT * timeout
         waiting = list(nodes)
         last: dict[str, str] = {}
+        uptime: dict[str, float] = {}  # s since power-up by the board's clock, last seen
+        given_up: list[tuple[Node, NodeUp]] = []
         while waiting:
             asked: list[tuple[Node, NodeUp, PendingReply | HostError]] = []
             for node, up in waiting:
@@ -141,6 +155,7 @@ class _Waiter:
                     reply = session.wait(pending)
                 except HostError as exc:
                     last[up.where] = why_no_answer(exc)
+                    uptime.pop(up.where, None)
                     still.append((node, up))
                     continue
                 up.running = code_name(Running, reply["running"], "running")
@@ -148,35 +163,72 @@ class _Waiter:
                     up.up = True
                     up.after_s = session.now() - self.start_s
                     self.say(f"{up.where}: up after {up.after_s:.2f} s")
+                    continue
+                last[up.where] = f"still in its {up.running}"
+                uptime[up.where] = reply["uptime_us"] / 1e6
+                if uptime[up.where] >= timeout:  # its own clock: powered that long already
+                    given_up.append((node, up))
                 else:
-                    last[up.where] = f"still in its {up.running}"
                     still.append((node, up))
             waiting = still
-            if waiting and session.now() >= deadline:
-                for _node, up in waiting:
-                    up.problem = _timeout_problem(last.get(up.where, "no reply"), timeout)
-                    self.say(f"{up.where}: NOT UP: {up.problem}")
-                return
+            now = session.now()
+            if waiting and now >= deadline:
+                # A board whose own clock says it has not been powered ``timeout`` s yet is
+                # booting on a robot slower than this link's clock: wait on, up to the limit.
+                booting = [(n, u) for n, u in waiting if u.where in uptime and now < limit]
+                given_up += [(n, u) for n, u in waiting if (n, u) not in booting]
+                waiting = booting
             if waiting:
-                session.sleep(min(POLL_S, max(0.0, deadline - session.now())))
+                next_check = deadline if now < deadline else limit
+                session.sleep(min(POLL_S, max(0.0, next_check - now)))
+        waited_s = session.now() - begun
+        for node, up in given_up:
+            up.problem = self._problem(node, last.get(up.where, "no reply"),
+                                       uptime.get(up.where), timeout, waited_s)
+            self.say(f"{up.where}: NOT UP: {up.problem}")
 
-
-def _timeout_problem(last: str, timeout: float) -> str:
-    if last.startswith("still in its bootloader"):
-        return (f"still in its bootloader {timeout:g} s after power-up: no valid, activated "
-                f"image? (flash it: flash-all-fingers)")
-    advice = _ADVICE.get(last)
-    return f"{last} {timeout:g} s after power-up" + (f": {advice}" if advice else "")
+    def _problem(self, node: Node, last: str, uptime_s: float | None, timeout: float,
+                 waited_s: float) -> str:
+        """Why a board did not come up, and what to do: a board still in its bootloader
+        is asked (``bl.status``, only once its autoboot window is over: the request would
+        halt the countdown) why it stays there."""
+        if uptime_s is None or not last.startswith("still in its bootloader"):
+            advice = _ADVICE.get(last)
+            return f"{last} {timeout:g} s after power-up" + (f": {advice}" if advice else "")
+        if uptime_s < AUTOBOOT_WINDOW_S:
+            return (f"still counting down its bootloader's {AUTOBOOT_WINDOW_S:g} s autoboot "
+                    f"window, {uptime_s:.1f} s after its power-up by its own clock, when "
+                    f"{waited_s:.1f} s had passed on this link: the robot runs slower than "
+                    f"the link's clock (a busy machine running the emulator?); run "
+                    f"`handctl up` again")
+        try:
+            status = node.request("bl.status", retries=0)
+        except HostError:
+            return (f"still in its bootloader {uptime_s:.1f} s after power-up: no valid, "
+                    f"activated image? (flash it: flash-all-fingers)")
+        state = code_name(BootState, status["state"], "state")
+        image = code_name(ImageStatus, status["image_status"], "image_status")
+        why = f"{status['text']}" if status["text"] else f"image {image}"
+        if status["state"] == BootState.HALTED:
+            return (f"its bootloader was halted (bl.halt: a flashing tool?) and waits, "
+                    f"{uptime_s:.1f} s after power-up ({why}): finish the flashing, or "
+                    f"switch the finger off and run `handctl up` again")
+        if status["state"] == BootState.NO_VALID_IMAGE:
+            return (f"stayed in its bootloader after its {AUTOBOOT_WINDOW_S:g} s autoboot "
+                    f"window: no bootable image ({why}); flash it: flash-all-fingers")
+        return f"still in its bootloader {uptime_s:.1f} s after power-up ({state}: {why})"
 
 
 def bring_up(hand: Hand, fingers: int | str | Sequence[int] = "all",
              timeout: float = BOOT_TIMEOUT_S,
              on_progress: Callable[[str], None] | None = None) -> list[FingerUp]:
     """Bring ``fingers`` (``"all"``, an index or indices) up from power-on, as the module
-    describes: one :class:`FingerUp` each, in finger order.  ``timeout`` (s, link clock)
-    bounds each wait for a board to boot after its power is switched on; ``on_progress``
-    gets one line per step as it happens.  Raises only when the palm itself does not run
-    its application (nothing behind it can come up) or the link fails."""
+    describes: one :class:`FingerUp` each, in finger order.  ``timeout`` (s) bounds each
+    wait for a board to boot after its power is switched on: on the board's own clock while
+    it answers from its bootloader (up to :data:`BOOT_WAIT_LIMIT` × ``timeout`` on the
+    link's clock), on the link's clock otherwise; ``on_progress`` gets one line per step as
+    it happens.  Raises only when the palm itself does not run its application (nothing
+    behind it can come up) or the link fails."""
     chosen = _fingers(fingers)
     if not timeout > 0:
         raise UsageError(f"bring-up timeout {timeout} s: it must be > 0")
@@ -270,4 +322,5 @@ def _check_polled(hand: Hand, fingers: Sequence[FingerUp]) -> None:
             session.sleep(AUTOPOLL_READ_S)
 
 
-__all__ = ["AUTOPOLL_CHECK_S", "BOOT_TIMEOUT_S", "POLL_S", "FingerUp", "NodeUp", "bring_up"]
+__all__ = ["AUTOBOOT_WINDOW_S", "AUTOPOLL_CHECK_S", "BOOT_TIMEOUT_S", "BOOT_WAIT_LIMIT", "POLL_S",
+           "FingerUp", "NodeUp", "bring_up"]

@@ -132,6 +132,26 @@ class Timeouts:
 LINK_BUDGET_S: Final[dict[str, float]] = {
     "in-process": 0.030, "loop": 0.030, "serial": 0.100, "can": 0.100, "network": 0.250,
 }
+#: Kinds of link whose arrival times are the wire's own (:func:`frame_gap_s`).
+EXACT_TIMING_LINKS: Final = frozenset({"in-process", "loop"})
+
+
+def frame_gap_s(url: str, timeouts: Timeouts) -> float:
+    """The pause (s, link clock) after which the session's decoder drops a partial frame.
+
+    In process the bytes arrive at their wire times, so the decoder's own rule holds
+    (:class:`~protocol.stream.StreamDecoder`'s 10 ms).  Anywhere else the host sees the
+    bytes when its reads return, and one frame may arrive in pieces far apart: a USB
+    adapter hands over what it has every latency timer (16 ms), a USB-CAN adapter and the
+    host's CAN driver batch the frame's 8-byte pieces, and a busy machine may not schedule
+    the reader for tens of ms.  There a pause within a frame is allowed as long as the
+    link budget (``timeouts.link_s``); only a longer silence drops a partial frame (a reply
+    cut off by a reset, say), and by then its request has timed out anyway."""
+    default = StreamDecoder().gap_s
+    assert default is not None
+    if link_kind(url) in EXACT_TIMING_LINKS:
+        return default
+    return max(default, timeouts.link_s)
 
 
 @dataclass(frozen=True)
@@ -198,7 +218,7 @@ class HandSession:
         self.link = link
         self.timeouts = timeouts or Timeouts.for_url(transport.url)
         self.retries = retries
-        self.decoder = StreamDecoder()
+        self.decoder = StreamDecoder(gap_s=frame_gap_s(transport.url, self.timeouts))
         self.counters = SessionCounters()
         self.events: deque[FingerEvent] = deque(maxlen=EVENT_QUEUE)
         self.taps: list[Tap] = []
@@ -224,9 +244,10 @@ class HandSession:
 
     # --- requests --------------------------------------------------------------------------
     def request(self, name: str, fields: Mapping[str, Any] | None = None, *,
-                to: Target = LINK_NODE, retries: int | None = None,
+                to: Target | None = LINK_NODE, retries: int | None = None,
                 extra_ms: int = 0, txn: bool = True) -> dict[str, Any]:
-        """Send request ``name`` with ``fields`` to ``to`` and return the reply's fields.
+        """Send request ``name`` with ``fields`` to ``to`` (None: the link's own node) and
+        return the reply's fields.
 
         ``retries`` (default: the session's, but 0 for requests that are not idempotent)
         repeats the request after a timeout, a busy node or a route that got no reply;
@@ -238,7 +259,7 @@ class HandSession:
                                     txn=txn))
 
     def start(self, name: str, fields: Mapping[str, Any] | None = None, *,
-              to: Target = LINK_NODE, retries: int | None = None,
+              to: Target | None = LINK_NODE, retries: int | None = None,
               extra_ms: int = 0, txn: bool = True) -> PendingReply:
         """Send request ``name`` now and return it pending: several may be in flight, and
         :meth:`wait` takes them in any order.
@@ -257,6 +278,11 @@ class HandSession:
             raise UsageError(f"no message called {name!r} in the catalogue") from exc
         if message.request is None:
             raise UsageError(f"{name} is not a request (nothing sends it to a node)")
+        if to is None:
+            to = LINK_NODE
+        if not isinstance(to, Target):
+            raise UsageError(f"to={to!r}: give a Target(finger, hop), or None for the "
+                             f"link's own node")
         self._check_target(to)
         plain = dict(fields or {})
         try:
@@ -531,10 +557,15 @@ def _retryable(error: Exception) -> bool:
 
 
 def _route_advice(name: str, to: Target, status: str) -> str:
+    up = "`handctl up`" if to.finger is None else f"`handctl up --finger {to.finger}`"
+    k = "N" if to.finger is None else to.finger
     advice = {
-        "unpowered": f"power it first (palm.finger_power, or `handctl power {to.finger} full`)",
+        "unpowered": f"power it first: {up} (Hand.bring_up) powers the finger, waits for "
+                     f"its boards and powers its phalanges; palm.finger_power, or `handctl "
+                     f"power {k} full`, switches only its supply",
         "link_down": "the finger has left the palm (broken away); push it back on",
-        "no_reply": "the node did not answer in time (booting, or phalanges unpowered?)",
+        "no_reply": "the node did not answer in time (booting, or phalanges unpowered? "
+                    f"{up} brings its boards up)",
         "busy": "the palm's queue for that finger is full; wait for earlier requests",
         "bad_destination": "no such finger or hop, or the frame is too long",
     }.get(status, "")

@@ -53,6 +53,9 @@ class FingerState:
     fmcb_time_us: int | None = None
     #: Accelerometers (counts, mg; board axes) ``fmcb``, ``f2``, ``f3`` from the status.
     accels: dict[str, list[int]] = field(default_factory=dict)
+    #: Why the fmcb's status did not come (:func:`host.errors.why_no_answer`: ``unpowered``,
+    #: ``link_down``, ``no_reply``, ``no reply`` …), None when it did.
+    problem: str | None = None
 
     @property
     def joints(self) -> Vec3:
@@ -107,6 +110,7 @@ class FingerState:
             "supply_v": None if self.supply_v is None else round(self.supply_v, 3),
             "temperatures_c": (None if self.temperatures_c is None
                                else [round(t, 1) for t in self.temperatures_c]),
+            "problem": self.problem,
         }
 
 

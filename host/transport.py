@@ -200,8 +200,9 @@ def schemes() -> list[str]:
 def open_transport(url: str, **options: Any) -> Transport:
     """Open the link ``url`` names (see the module docs); ``options`` go to the backend.
 
-    Raises :class:`UsageError` for an unknown scheme and :class:`TransportError` when the
-    link cannot be opened (no such port, permission, in use).
+    Raises :class:`UsageError` for an unknown scheme or a URL its backend cannot read (a
+    ``ValueError`` it raises: ``?seed=abc``) and :class:`TransportError` when the link
+    cannot be opened (no such port, permission, in use).
     """
     if not url:
         raise UsageError("no port given: a path such as /dev/ttyUSB0 or a transport URL")
@@ -212,4 +213,10 @@ def open_transport(url: str, **options: Any) -> Transport:
     if target is None:
         raise UsageError(f"unknown transport scheme {scheme!r} in {url!r}; "
                          f"known: {', '.join(schemes())}")
-    return _resolve(target)(url, **options)
+    factory = _resolve(target)
+    try:
+        return factory(url, **options)
+    except UsageError:
+        raise
+    except ValueError as exc:  # a backend's own parsing of the URL's options
+        raise UsageError(f"{url}: {exc}") from exc

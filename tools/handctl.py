@@ -11,6 +11,7 @@
     handctl --port P record run.mcap --seconds 5 [--rate 50]
     handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
     handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
+    handctl --port P grasp pinch 1.0 --fingers 0,3        # only some fingers
     handctl --port P grasp open 1.0                       # poses: open, relax, point
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
@@ -27,7 +28,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from host.errors import HostError, ReplyTimeout, UsageError
+from host.code_names import code_name
+from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
 from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
@@ -35,6 +37,8 @@ from host.hand_homing import homed_on_robot
 from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.joint_ekf import fuse_snapshot
+from protocol.image import BoardType
+from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
@@ -64,6 +68,29 @@ def _floats(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated numbers") from None
 
 
+def _positive(text: str) -> float:
+    """A number > 0 (seconds, Hz) on the command line."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text}: give a number > 0")
+    return value
+
+
+def _finger_list(text: str) -> list[int]:
+    """Comma-separated finger indices, each 0..3."""
+    try:
+        chosen = [int(v) for v in text.split(",") if v.strip() != ""]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated finger "
+                                         f"indices") from None
+    if not chosen or any(not 0 <= k < FINGERS for k in chosen):
+        raise argparse.ArgumentTypeError(f"{text}: give fingers 0..{FINGERS - 1}, e.g. 0,1,3")
+    return chosen
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
     add_common_arguments(p, what="the palm's port")
@@ -74,9 +101,10 @@ def _parser() -> argparse.ArgumentParser:
                                    "phalange power, autopoll (about 10 s)")
     up.add_argument("--finger", type=int, choices=range(FINGERS), metavar="N",
                     help="one finger, 0..3 (default: every finger)")
-    up.add_argument("--boot-timeout", type=float, default=BOOT_TIMEOUT_S, metavar="S",
+    up.add_argument("--boot-timeout", type=_positive, default=BOOT_TIMEOUT_S, metavar="S",
                     help=f"longest wait for a board to boot after its power is switched on "
-                         f"(s, default {BOOT_TIMEOUT_S:g})")
+                         f"(s, default {BOOT_TIMEOUT_S:g}; by the board's own clock while it "
+                         f"answers from its bootloader)")
     power = sub.add_parser("power", help="switch finger power")
     power.add_argument("finger", help="0..3 or all")
     power.add_argument("state", choices=("off", "low", "full"))
@@ -87,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="3 joint targets of --finger")
     move.add_argument("--finger", type=int, help="finger index for --joints")
     move.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
-    move.add_argument("--duration", type=float, default=3.0,
+    move.add_argument("--duration", type=_positive, default=3.0,
                       help="seconds to wait for the move to settle (default 3)")
     move.add_argument("--clamp", action="store_true",
                       help="clamp targets beyond the joint limits instead of refusing")
@@ -101,23 +129,27 @@ def _parser() -> argparse.ArgumentParser:
                                          + ", ".join(sorted(SYNERGIES)))
     grasp.add_argument("name", help="grasp or pose name")
     grasp.add_argument("amount", type=float, help="0 (open / relaxed) .. 1 (closed / pose)")
-    grasp.add_argument("--speed", type=float, default=DEFAULT_SPEED_RAD_S,
+    grasp.add_argument("--speed", type=_positive, default=DEFAULT_SPEED_RAD_S,
                        help=f"blend speed of the joint moving most, rad/s "
                             f"(default {DEFAULT_SPEED_RAD_S})")
+    grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",
+                       help="only these fingers, e.g. 0,1,3 (default: all four)")
     grasp.add_argument("--until-contact", action="store_true",
                        help="stop closing a finger when its taxels or effort say contact")
     grasp.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
     grasp.add_argument("--layout", choices=sorted(HAND_LAYOUTS), default=DEFAULT_HAND_LAYOUT,
                        help=f"the hand frame (default {DEFAULT_HAND_LAYOUT})")
-    grasp.add_argument("--duration", type=float, default=3.0,
+    grasp.add_argument("--duration", type=_positive, default=3.0,
                        help="seconds to wait for the fingers to settle after the blend")
     grasp.add_argument("--unhomed", action="store_true",
                        help="move fingers that were never homed (joint angles then mean "
                             "nothing)")
     record = sub.add_parser("record", help="record frames and states to an MCAP file")
     record.add_argument("file")
-    record.add_argument("--seconds", type=float, required=True)
-    record.add_argument("--rate", type=float, default=50.0, help="state rate (Hz)")
+    record.add_argument("--seconds", type=_positive, required=True,
+                        help="how long to record (s)")
+    record.add_argument("--rate", type=_positive, default=50.0,
+                        help="state rate (Hz, default 50)")
     return p
 
 
@@ -125,9 +157,28 @@ def _emit(args: argparse.Namespace, data: Any, text: str) -> None:
     print(json.dumps(data) if args.json else text)
 
 
+def _not_a_palm(board: int | None, port: str) -> str | None:
+    """What to say when the node on ``port`` is a ``board`` other than a palm, else None."""
+    if board is None or board == BoardType.PALM:
+        return None
+    name = code_name(BoardType, board, "board")
+    return (f"the node on {port} is a {name} board, not a palm: a loose finger's cable? "
+            f"handctl drives a whole hand through its palm; a loose finger is reached with "
+            f"HandSession(open_transport(P), link=\"finger\") (docs/HOST.md)")
+
+
 def _cmd_ping(hand: Hand, args: argparse.Namespace) -> int:
     found = hand.discover()
+    if (not_palm := _not_a_palm(found[0].board, args.port)) is not None:
+        _emit(args, {"nodes": [found[0].to_dict()]}, _node_line(found[0]))
+        raise NodeError(not_palm)
     lines = [_node_line(n) for n in found]
+    unpowered = sorted({n.finger for n in found
+                        if n.finger is not None and n.problem == "unpowered"})
+    if unpowered:
+        lines.append(f"hint: finger(s) {', '.join(map(str, unpowered))} unpowered: "
+                     f"`handctl up` powers them, boots their boards and powers their "
+                     f"phalanges")
     _emit(args, {"nodes": [n.to_dict() for n in found]}, "\n".join(lines))
     if not found[0].answered:
         raise ReplyTimeout(f"the palm does not answer on {args.port}: {found[0].problem}")
@@ -195,9 +246,18 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
 
 def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
     hand.layout = args.layout
-    result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
-                        until_contact=args.until_contact, timeout=args.duration,
-                        unhomed=args.unhomed)
+    try:
+        result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
+                            until_contact=args.until_contact, timeout=args.duration,
+                            unhomed=args.unhomed, fingers=args.fingers)
+    except RouteError as exc:  # one finger unreachable: the others could still grasp
+        chosen = args.fingers or list(range(FINGERS))
+        others = [k for k in chosen if k != exc.finger]
+        if exc.finger is None or not others:
+            raise
+        raise RouteError(f"{exc}\nTo grasp with the others: --fingers "
+                         f"{','.join(map(str, others))}", status=exc.status,
+                         finger=exc.finger, hop=exc.hop) from exc
     move = result.move
     assert move is not None
     data = {"grasp": result.name, "amount": result.amount,
@@ -212,7 +272,21 @@ def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
         why = f", contact: {result.contacts[k]}" if k in result.contacts else ""
         lines.append(f"finger {k}: joints [{q}] rad, target [{t}] rad{why}")
     _emit(args, data, "\n".join(lines))
-    return 0 if move.settled or result.contacts else EXIT_ROBOT
+    if move.settled or result.contacts:
+        return 0
+    if slow := _slow_robot(move):
+        print(f"handctl: {result.name} did not settle within {args.duration} s after the "
+              f"blend.{slow}", file=sys.stderr)
+    return EXIT_ROBOT
+
+
+#: What ``status`` adds for a finger whose fmcb did not answer, by why (``{k}``: finger).
+_FINGER_ADVICE = {
+    "unpowered": ": bring it up with `handctl up --finger {k}`",
+    "link_down": ": it has left the palm (broken away); push it back on",
+    "no_reply": ": booting, or off its pogo pins? `handctl up --finger {k}` waits for it",
+    "no reply": ": the link was slower than its budget (a busy machine?); try --timeout 0.5",
+}
 
 
 def _status_text(state: HandState) -> str:
@@ -220,7 +294,9 @@ def _status_text(state: HandState) -> str:
              f"supply {state.bus_voltage_mv} mV"]
     for f in state.fingers:
         if not f.present:
-            lines.append(f"finger {f.index}: power {f.power}, not answering")
+            why = f" ({f.problem}{_FINGER_ADVICE.get(f.problem or '', '').format(k=f.index)})"
+            lines.append(f"finger {f.index}: power {f.power}, not answering"
+                         + (why if f.problem else ""))
             continue
         q = ", ".join(f"{v:+.3f}" for v in f.joints)
         taxels = sum(len(v) for v in f.tactile.values())
@@ -291,12 +367,30 @@ def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
         return 0
     print(f"handctl: the move did not settle within {args.duration} s "
           f"(stalled fingers: {result.stalled or 'none'}); an obstacle, too little "
-          f"--effort, or a longer --duration?", file=sys.stderr)
+          f"--effort, or a longer --duration?{_slow_robot(result)}", file=sys.stderr)
     return EXIT_ROBOT
+
+
+#: Below this :attr:`MoveResult.robot_rate` a move that did not settle says the robot's
+#: clock ran slow.
+SLOW_ROBOT_RATE = 0.8
+
+
+def _slow_robot(result: MoveResult) -> str:
+    """What a move that did not settle adds when the robot's clock ran slower than the
+    link's: the emulator on a busy machine."""
+    rate = result.robot_rate
+    if rate is None or rate >= SLOW_ROBOT_RATE:
+        return ""
+    return (f"\nThe robot's clock ran at {rate:.0%} of this link's meanwhile (the emulator on "
+            f"a busy machine runs slower than real time), so the move had only about "
+            f"{result.elapsed_s * rate:.1f} s of robot time: give --duration "
+            f"{result.elapsed_s / max(rate, 0.05):.0f} or more")
 
 
 def _move_dict(r: MoveResult) -> dict[str, Any]:
     return {"settled": r.settled, "stalled": r.stalled, "elapsed_s": round(r.elapsed_s, 4),
+            "robot_rate": None if r.robot_rate is None else round(r.robot_rate, 3),
             "fingers": {str(k): {"joints": list(s.joints), "error": list(r.errors[k])}
                         for k, s in r.states.items()}}
 
@@ -314,7 +408,15 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     from host.hand_recording import HandRecorder
 
     with HandRecorder(hand, args.file) as recorder:
-        recorder.record(args.seconds, args.rate)
+        try:
+            recorder.record(args.seconds, args.rate)
+        except UsageError:
+            raise
+        except (HostError, KeyboardInterrupt):
+            recorder.close()  # a whole, readable file of what came before
+            print(f"handctl: {args.file}: kept what was recorded before it stopped: "
+                  f"{recorder.frames} frames, {recorder.states} states", file=sys.stderr)
+            raise
     _emit(args, {"file": args.file, "frames": recorder.frames, "states": recorder.states},
           f"{args.file}: {recorder.frames} frames, {recorder.states} states")
     return 0
@@ -327,7 +429,18 @@ COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
 
 def _run(args: argparse.Namespace) -> int:
     with Hand.open(args.port, timeouts=hand_timeouts(args)) as hand:
-        return COMMANDS[args.command](hand, args)
+        try:
+            return COMMANDS[args.command](hand, args)
+        except NodeError as exc:
+            # The link's node does not know a palm request: is it a palm at all?
+            if exc.status == TxnStatus.UNKNOWN_TYPE:
+                try:
+                    board = hand.palm.request("identify", retries=0)["board"]
+                except HostError:
+                    board = None
+                if (not_palm := _not_a_palm(board, args.port)) is not None:
+                    raise NodeError(not_palm) from exc
+            raise
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -24,6 +24,16 @@ _GONE = ("the CAN adapter is gone or the bus is off (adapter unplugged, cable, "
 DEFAULT_BITRATE = 1_000_000
 
 
+def _hint(interface: str, channel: str) -> str:
+    """What to check when ``interface`` will not open ``channel``."""
+    if interface == "socketcan":
+        return (f" (is {channel} a CAN network interface, and up? `ip link show {channel}`; "
+                f"`sudo ip link set {channel} up type can bitrate {DEFAULT_BITRATE}`)")
+    if interface == "slcan":
+        return f" (is {channel} the USB-CAN adapter's serial port?)"
+    return ""
+
+
 class CanTransport(Transport):
     """One palm on a CAN bus: ``interface`` and ``channel`` as python-can names them."""
 
@@ -63,9 +73,16 @@ class CanTransport(Transport):
             options.setdefault("bitrate", self.bitrate)
         try:
             return can.Bus(interface=self.interface, channel=self.channel, **options)
+        except can.CanInterfaceNotImplementedError as exc:
+            if self.interface not in can.VALID_INTERFACES:
+                raise UsageError(
+                    f"{self.url}: no CAN interface {self.interface!r}; python-can knows "
+                    f"{', '.join(sorted(can.VALID_INTERFACES))}") from exc
+            raise TransportError(f"cannot open CAN {self.interface} {self.channel}: {exc}"
+                                 f"{_hint(self.interface, self.channel)}") from exc
         except (can.CanError, OSError, ValueError, ImportError) as exc:
             raise TransportError(f"cannot open CAN {self.interface} {self.channel}: {exc}"
-                                 ) from exc
+                                 f"{_hint(self.interface, self.channel)}") from exc
 
     def _send(self, data: bytes) -> None:
         try:

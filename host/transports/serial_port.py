@@ -66,7 +66,12 @@ class SerialTransport(Transport):
         try:
             port = serial.serial_for_url(self.port, **kwargs)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise TransportError(f"cannot open {self.port}: {exc}") from exc
+            held = ""
+            if "exclusive" in kwargs and "exclusively lock" in str(exc):
+                held = ("; another program has it open (handctl, armctl, a recorder, a "
+                        "terminal): close that one first, or share the port knowingly with "
+                        "?exclusive=0")
+            raise TransportError(f"cannot open {self.port}: {exc}{held}") from exc
         self._timeout = 0.0
         return port
 

@@ -63,7 +63,8 @@ def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
 def test_handctl_grasp_refuses_unhomed_and_names_unknown_grasps(
         capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--port", URL, "grasp", "pinch", "0.5"]) == 2  # NotHomedError is usage
-    assert "not homed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "not homed" in err and "(handctl: --unhomed)" in err
     assert main(["--port", URL, "grasp", "fist", "0.5", "--unhomed"]) == 2
     err = capsys.readouterr().err
     assert "unknown grasp 'fist'" in err and "cylindrical" in err and "point" in err

@@ -58,6 +58,19 @@ def test_the_settle_tolerance_is_the_fmcbs_deadband_read_once(hand: Hand) -> Non
     assert finger.deadband() == 2
 
 
+def test_a_palm_polled_stream_gives_the_palm_back_its_poll_rate(hand: Hand) -> None:
+    """``fingers=False`` has the palm poll the fingers at the stream's rate while it runs;
+    when it ends (or is closed early) the palm polls as before."""
+    before = hand.status(fingers=False).poll_hz
+    rates = [s.poll_hz for s in hand.states(25.0, seconds=0.1, fingers=False)]
+    assert rates and all(r == 25 for r in rates)
+    assert hand.status(fingers=False).poll_hz == before
+    stream = hand.states(30.0, fingers=False)  # forever, closed after one state
+    assert next(stream).poll_hz == 30
+    stream.close()
+    assert hand.status(fingers=False).poll_hz == before
+
+
 def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand) -> None:
     assert hand.power(2, "off")[2] == "off"
     event = hand.next_event(timeout=0.1)

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from host.errors import NodeError, ReplyTimeout, RouteError
-from host.hand_session import HandSession, Target, Timeouts, is_idempotent
+from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
+from host.hand_session import HandSession, Target, Timeouts, frame_gap_s, is_idempotent
 from host.transport import Transport, open_transport
 from protocol.framing import encode_frame, parse_frame
 from protocol.messages import CATALOGUE
@@ -165,6 +165,8 @@ def test_an_unpowered_finger_is_a_route_error_and_not_retried() -> None:
         session.request("fmcb.status", to=Target(3, 0))
     assert (caught.value.status, caught.value.finger, caught.value.hop) == (2, 3, 0)
     assert "power" in str(caught.value)
+    # Power alone leaves the phalanges off: the way out named first brings it all up.
+    assert "power it first: `handctl up --finger 3`" in str(caught.value)
     assert len(link.sent) == 1
 
 
@@ -242,3 +244,52 @@ def test_an_unenveloped_request_sends_the_plain_frames_and_matches_its_reply_by_
         finger=1, hop=0, status=1, frame=b"")))
     with pytest.raises(RouteError, match="no_reply"):
         session.wait(pending)
+
+
+class UsbLikeTransport(ScriptedTransport):
+    """A serial port as a host sees it through a USB adapter: what the adapter holds is
+    handed over every :attr:`latency_s` (its latency timer), so a reply longer than one
+    USB packet arrives in pieces that far apart."""
+
+    def __init__(self, latency_s: float) -> None:
+        super().__init__()
+        self.url = "/dev/ttyUSB0"
+        self.latency_s = latency_s
+
+    def _recv(self, timeout: float | None) -> bytes:
+        if self.inbox and self.clock > 0.0:
+            self.clock += self.latency_s
+        return super()._recv(timeout)
+
+
+def test_a_reply_in_pieces_a_usb_latency_timer_apart_is_still_decoded() -> None:
+    """On a serial port a pause within a frame is the adapter's latency timer (16 ms) or a
+    busy host, not the end of a frame: the partial frame is kept up to the link budget."""
+    link = UsbLikeTransport(latency_s=0.016)
+
+    def respond(frame: bytes) -> None:
+        reply = answer(frame, "fmcb.status", CATALOGUE["fmcb.status"].parse_reply(bytes(148)))
+        link.deliver(reply[:62])  # one full-speed USB packet of an FTDI adapter
+        link.deliver(reply[62:])
+
+    link.responder = respond
+    session = HandSession(link)
+    assert session.request("fmcb.status", to=Target(0, 0), retries=0)["hall_pos"] == [0, 0, 0]
+    assert session.decoder.counters.gap_discards == 0
+
+
+@pytest.mark.parametrize(("url", "gap_s"), [
+    ("emu://hand/palm", 0.010), ("loop://", 0.010), ("/dev/ttyUSB0", 0.100),
+    ("can://slcan//dev/ttyACM0", 0.100), ("socket://robot:5000", 0.250)])
+def test_the_frame_gap_is_the_wire_s_in_process_and_the_link_budget_elsewhere(
+        url: str, gap_s: float) -> None:
+    assert frame_gap_s(url, Timeouts.for_url(url)) == pytest.approx(gap_s)
+    assert frame_gap_s(url, Timeouts(link_s=0.5)) == (0.010 if gap_s == 0.010 else 0.5)
+
+
+def test_to_none_is_the_links_own_node_and_a_wrong_target_a_usage_error() -> None:
+    link = ScriptedTransport(lambda f: link.deliver(answer(f, "identify", IDENTIFY)))
+    session = HandSession(link)
+    assert session.request("identify", to=None)["uid"] == 77
+    with pytest.raises(UsageError, match=r"to=2: give a Target\(finger, hop\)"):
+        session.request("identify", to=2)  # type: ignore[arg-type]

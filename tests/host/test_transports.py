@@ -125,8 +125,8 @@ def test_pty_recv_timeout_on_the_wall_clock(pty: Pty) -> None:
         assert time.monotonic() - start < 0.05
         # recv(None) waits for the first bytes however long that takes.
         timer = threading.Timer(0.05, os.write, (pty.master, b"\x5a"))
+        start = time.monotonic()  # before the timer starts: its 50 ms cannot begin earlier
         timer.start()
-        start = time.monotonic()
         assert t.recv(None) == b"\x5a"
         assert time.monotonic() - start >= 0.04
         timer.join()
@@ -156,8 +156,10 @@ def test_unknown_serial_option_is_a_usage_error(pty: Pty) -> None:
 
 
 def test_exclusive_port_refuses_a_second_client(pty: Pty) -> None:
-    with SerialTransport(pty.path), pytest.raises(TransportError, match=pty.path):
+    with SerialTransport(pty.path), pytest.raises(TransportError, match=pty.path) as info:
         SerialTransport(pty.path)
+    assert "another program has it open" in str(info.value)
+    assert "?exclusive=0" in str(info.value)
 
 
 def test_missing_port_names_the_path(tmp_path: Path) -> None:
