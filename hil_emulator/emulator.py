@@ -420,7 +420,10 @@ class Emulator:
             self.late_episodes += 1
             if self.on_late is not None:
                 self.on_late(f"cannot keep up with the wall clock: {late_ms:.1f} ms late "
-                             "(is the machine busy?); replies arrive late")
+                             "(is the machine busy?); replies arrive late, and beyond "
+                             f"{MAX_BEHIND_S * 1e3:g} ms the robot runs slower than the wall "
+                             "clock, which a host's closed loop (armctl moveto) may not "
+                             "settle under: `make compiled` or a smaller --config helps")
         elif self._in_episode:
             self._episode_worst_ms = max(self._episode_worst_ms, late_ms)
             if now - self._episode_last_late > LATE_EPISODE_END_S:
