@@ -26,6 +26,7 @@ the session is waiting for.
 from __future__ import annotations
 
 import logging
+import secrets
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -154,6 +155,17 @@ def frame_gap_s(url: str, timeouts: Timeouts) -> float:
     return max(default, timeouts.link_s)
 
 
+def first_seq(url: str) -> int:
+    """Where a session's sequence numbers start (they count up from the one after it,
+    modulo 256).  In process, 0, so a run is repeatable.  On a real link a random number:
+    a program stopped mid-request (Ctrl-C) leaves replies on their way, and a session
+    opened right after it, counting from 0 too, would take the one to its own first
+    request's number as the answer."""
+    if link_kind(url) in EXACT_TIMING_LINKS:
+        return 0
+    return secrets.randbelow(256)
+
+
 @dataclass(frozen=True)
 class FingerEvent:
     """An unsolicited ``palm.finger_event``: ``event`` is its name (``"lost"``,
@@ -225,7 +237,7 @@ class HandSession:
         self._subscribers: list[Callable[[FingerEvent], None]] = []
         self._pending: dict[int, PendingReply] = {}
         self._untagged: list[PendingReply] = []
-        self._seq = 0
+        self._seq = first_seq(transport.url)
 
     # --- lifetime --------------------------------------------------------------------------
     def close(self) -> None:

@@ -12,8 +12,16 @@ from typing import Any
 
 import pytest
 
+from host import hand_session
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
-from host.hand_session import HandSession, Target, Timeouts, frame_gap_s, is_idempotent
+from host.hand_session import (
+    HandSession,
+    Target,
+    Timeouts,
+    first_seq,
+    frame_gap_s,
+    is_idempotent,
+)
 from host.transport import Transport, open_transport
 from protocol.framing import encode_frame, parse_frame
 from protocol.messages import CATALOGUE
@@ -129,6 +137,31 @@ def test_a_late_reply_to_an_expired_request_is_dropped_and_the_retry_answered() 
     assert session.request("identify", to=Target(0, 0))["uid"] == 2
     assert session.counters.stale_replies == 1
     assert session.counters.retries == 1
+
+
+def test_a_session_right_after_another_does_not_take_its_late_reply(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A program stopped mid-request leaves its reply on the way; the next program's session
+    on the same serial port numbers its requests from elsewhere, so that reply is stale."""
+    earlier = ScriptedTransport()
+    HandSession(earlier).start("identify", to=Target(0, 0))  # stopped before the answer
+    late = answer(earlier.sent[0], "identify", {**IDENTIFY, "uid": 1})
+    monkeypatch.setattr(hand_session.secrets, "randbelow", lambda n: 41)
+    link = UsbLikeTransport(latency_s=0.0)
+
+    def respond(frame: bytes) -> None:
+        link.deliver(late)
+        link.deliver(answer(frame, "identify", {**IDENTIFY, "uid": 2}))
+
+    link.responder = respond
+    session = HandSession(link)
+    assert session.request("identify", to=Target(0, 0))["uid"] == 2
+    assert session.counters.stale_replies == 1
+
+
+@pytest.mark.parametrize("url", ["emu://hand/palm", "loop://"])
+def test_in_process_sequence_numbers_start_at_zero_so_a_run_repeats(url: str) -> None:
+    assert first_seq(url) == 0
 
 
 @pytest.mark.parametrize(("target", "route_ms"), [
