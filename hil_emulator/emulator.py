@@ -511,16 +511,17 @@ class Emulator:
         it is not (or there is none)."""
         return now_us - due_us if due_us is not None and due_us < now_us else 0
 
-    def lateness_stats(self) -> dict[str, float | None]:
+    def lateness_stats(self) -> dict[str, int | float | None]:
         """Real-time delivery lateness (ms): count, median, p99, max (None before any
-        delivery), with the episodes of lateness and the wall time the clock gave up."""
-        out: dict[str, float | None] = {"count": float(len(self.lateness_s)), "p50_ms": None,
-                                        "p99_ms": None, "max_ms": None}
+        delivery), with the episodes of lateness and the wall time the clock gave up
+        (``count`` and ``late_episodes`` are integers)."""
+        out: dict[str, int | float | None] = {"count": len(self.lateness_s), "p50_ms": None,
+                                              "p99_ms": None, "max_ms": None}
         if self.lateness_s:
             values = np.asarray(self.lateness_s) * 1e3
             out.update(p50_ms=float(np.percentile(values, 50)),
                        p99_ms=float(np.percentile(values, 99)), max_ms=float(values.max()))
-        out["late_episodes"] = float(self.late_episodes)
+        out["late_episodes"] = self.late_episodes
         out["slipped_s"] = self.slipped_s
         return out
 

@@ -24,7 +24,7 @@ from typing import Any, Final
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
-from host.errors import TransportError
+from host.errors import TransportError, UsageError
 from host.transport import Transport, register_transport, url_options
 
 #: The link names each configuration offers.
@@ -47,7 +47,7 @@ class EmulatorTransport(Transport):
         super().__init__(url or f"emu://{emulator.config}/{link}")
         rig = {"palm": emulator.hand, "arm": emulator.arm, "finger0": emulator.loose}.get(link)
         if rig is None:
-            raise TransportError(f"the {emulator.config!r} emulator has no {link!r} link; "
+            raise UsageError(f"the {emulator.config!r} emulator has no {link!r} link; "
                                  f"it has {', '.join(LINKS[emulator.config])}")
         self.emulator = emulator
         self.link = link
@@ -63,17 +63,22 @@ class EmulatorTransport(Transport):
         rest = url.split("://", 1)[1].split("?", 1)[0]
         config, _, link = rest.partition("/")
         if config not in LINKS:
-            raise TransportError(f"{url}: unknown emulator configuration {config!r}; "
+            raise UsageError(f"{url}: unknown emulator configuration {config!r}; "
                                  f"choose one of {', '.join(LINKS)}")
         link = link or LINKS[config][0]
         merged = {**url_options(url), **{k: str(v) for k, v in options.items()}}
-        seed = int(merged.pop("seed", "0"))
+        seed_text = merged.pop("seed", "0")
+        try:
+            seed = int(seed_text)
+        except ValueError:
+            raise UsageError(f"{url}: seed={seed_text!r} is not an integer") from None
         ready = merged.pop("ready", "1") not in ("0", "false", "no")
         physics = merged.pop("physics", "1") not in ("0", "false", "no")
         scene = merged.pop("scene", "none")
         name = merged.pop("name", "")
         if merged:
-            raise TransportError(f"{url}: unknown emulator options {sorted(merged)}")
+            raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
+                             "seed, ready, physics, scene and name")
         key = (config, str(seed), str(ready), str(physics), scene, name)
         emulator = _shared.get(key)
         if emulator is None:
@@ -81,7 +86,7 @@ class EmulatorTransport(Transport):
                 emulator = Emulator(config, seed=seed, physics=physics, can="none",
                                     scene=scene)
             except EmulatorConfigError as exc:
-                raise TransportError(f"{url}: {exc}") from exc
+                raise UsageError(f"{url}: {exc}") from exc
             if ready:
                 emulator.bring_up()
             _shared[key] = emulator

@@ -371,6 +371,8 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
     if speed <= 0:
         raise UsageError(f"speed {speed} rad/s: give a positive speed")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
+    if any(not 0 <= k < FINGERS for k in chosen):
+        raise UsageError(f"fingers {chosen}: a hand has fingers 0..{FINGERS - 1}")
     all_targets = synergy_targets(name, amount, layout or hand.layout)
     targets = {k: hand.limits.apply(k, all_targets[k]) for k in chosen}
     if not unhomed:

@@ -37,7 +37,7 @@ from host.errors import (
     UsageError,
 )
 from host.hand_session import Timeouts
-from host.transport import schemes
+from host.transport import link_kind, schemes
 from protocol.messages.common import TxnStatus
 
 EXIT_OK: Final = 0
@@ -89,8 +89,9 @@ def advice(exc: HostError, port: str, prog: str) -> str:
                 "the permissions (dialout group), that nothing else holds the port, or "
                 "start the emulator (hil-emulator).")
     if isinstance(exc, ReplyTimeout):
+        baud = " (and ?baud=N)" if link_kind(port) == "serial" else ""
         return (f"{exc}\nNothing answered in time: check the robot's power and cabling, "
-                f"that {port} is its port (and ?baud=N), try `{prog} --port {port} ping`, "
+                f"that {port} is its port{baud}, try `{prog} --port {port} ping`, "
                 "or give a slow adapter more time with --timeout S.")
     if isinstance(exc, HomingError):
         return f"homing failed: {exc}"

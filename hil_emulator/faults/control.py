@@ -102,8 +102,12 @@ class ControlChannel:
         """The answer to one request line."""
         try:
             request = json.loads(line)
+        except ValueError as exc:  # JSONDecodeError and undecodable UTF-8
+            return {"ok": False, "error": f"not a JSON line ({exc}): each request is one "
+                    'JSON object on a line, e.g. {"op": "status"}'}
+        try:
             if not isinstance(request, dict):
-                raise ValueError("a request is a JSON object")
+                raise ValueError('a request is a JSON object, e.g. {"op": "status"}')
             return {"ok": True, **self.handle(request)}
         except (ValueError, KeyError, TypeError, EmulatorError) as exc:
             return {"ok": False, "error": str(exc)}

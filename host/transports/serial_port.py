@@ -13,7 +13,7 @@ from host.transport import HAND_SERIAL_BAUD, Transport, url_options
 
 #: What a user reads when a port stops working under an open transport.
 _GONE = ("the port is gone (USB adapter unplugged, robot switched off, or the emulator "
-         "stopped); plug it back in and call reopen(), or open it again")
+         "stopped); plug it back in and run the command again (a program calls reopen())")
 
 
 class SerialTransport(Transport):

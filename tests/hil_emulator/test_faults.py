@@ -673,6 +673,14 @@ def test_the_control_channel_injects_into_a_running_emulator(tmp_path: Path) -> 
         status = json.loads(client.recv(65536))
         assert status["ok"] and status["t_us"] == t_us  # the simulation clock when read
         assert status["max_ms"] is None and status["slipped_s"] == 0.0  # never paced
+        assert status["count"] == 0 and type(status["count"]) is int
+        assert type(status["late_episodes"]) is int
+        client.sendall(b"status\n[1, 2]\n\xff\xfe\n")  # not JSON objects
+        emu.step(1 * MS)
+        errors = [json.loads(line) for line in client.recv(65536).splitlines()]
+        assert [e["ok"] for e in errors] == [False, False, False]
+        assert all('{"op": "status"}' in e["error"] for e in errors)
+        assert errors[0]["error"].startswith("not a JSON line")
     finally:
         client.close()
         emu.close()

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from hil_emulator.emulator import Emulator
-from host.errors import NotHomedError
+from host.errors import NotHomedError, UsageError
 from host.grasp import SQUEEZE_ROUNDS, squeeze, synergy_targets
 from host.hand import Hand
 from tools.handctl import main
@@ -39,6 +39,13 @@ def test_a_grasp_is_refused_before_homing(hand: Hand) -> None:
         hand.grasp("cylindrical", 0.8)
     hand.session.sleep(0.1)
     assert np.allclose(_truth(hand), before, atol=0.01)  # nothing moved
+
+
+@pytest.mark.parametrize("fingers", [[7], [0, -1]])
+def test_a_finger_the_hand_does_not_have_is_a_usage_error(hand: Hand,
+                                                          fingers: list[int]) -> None:
+    with pytest.raises(UsageError, match=r"a hand has fingers 0\.\.3"):
+        hand.grasp("cylindrical", 0.8, fingers=fingers, unhomed=True)
 
 
 def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:

@@ -32,5 +32,5 @@ def test_a_socketcan_interface_that_will_not_open_says_what_to_check() -> None:
 
 
 def test_a_url_option_its_backend_cannot_read_is_a_usage_error() -> None:
-    with pytest.raises(UsageError, match=r"emu://hand/palm\?seed=abc: invalid literal"):
+    with pytest.raises(UsageError, match=r"emu://hand/palm\?seed=abc: seed=.abc. is not an integer"):
         open_transport("emu://hand/palm?seed=abc")

@@ -415,8 +415,13 @@ def test_emu_entry_point_opens_the_emulator_in_process() -> None:
         start = t.now()
         assert t.recv(0.01) == b""
         assert t.now() - start == pytest.approx(0.01, abs=1e-4)  # simulation seconds
-    with pytest.raises(TransportError, match="has no 'palm' link"):
+    with pytest.raises(UsageError, match="has no 'palm' link"):
         open_transport("emu://arm/palm?ready=0&physics=0&name=test_transports")
+    for url, says in (("emu://nosuch/palm", "unknown emulator configuration 'nosuch'"),
+                      ("emu://arm/arm?bogus=1", "unknown emulator options"),
+                      ("emu://arm/arm?seed=abc", "seed='abc' is not an integer")):
+        with pytest.raises(UsageError, match=says):  # a bad URL: exit 2 in the CLIs
+            open_transport(url)
 
 
 def test_transport_errors_are_host_errors() -> None:

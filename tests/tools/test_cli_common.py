@@ -165,3 +165,13 @@ def test_output_cut_short_by_its_reader_ends_quietly() -> None:
     err = proc.stderr.read()
     assert proc.wait(timeout=60) == cli_common.EXIT_BROKEN_PIPE
     assert err == b""
+
+
+@pytest.mark.parametrize(("port", "says_baud"), [
+    ("/dev/ttyUSB0", True), ("./robot/arm", True), ("can://slcan//dev/ttyACM0", False),
+    ("emu://hand/palm", False), ("socket://robot:5000", False)])
+def test_a_timeout_names_the_baud_rate_only_where_the_port_has_one(port: str,
+                                                                   says_baud: bool) -> None:
+    text = cli_common.advice(ReplyTimeout("no reply to identify"), port, "handctl")
+    assert ("?baud=N" in text) == says_baud
+    assert f"handctl --port {port} ping" in text and "--timeout S" in text
