@@ -82,16 +82,18 @@ def hand_timeouts(args: argparse.Namespace) -> Timeouts:
     return Timeouts.for_url(args.port, args.link_timeout)
 
 
-def advice(exc: HostError, port: str, prog: str) -> str:
-    """The message for ``exc``: what went wrong and what to do next."""
+def advice(exc: HostError, port: str, prog: str, command: str | None = None) -> str:
+    """The message for ``exc`` raised by ``prog``'s ``command``: what went wrong and what
+    to do next."""
     if isinstance(exc, TransportError):
         return (f"cannot use {port}: {exc}\nCheck the path (ls /dev/ttyACM* /dev/ttyUSB*), "
                 "the permissions (dialout group), that nothing else holds the port, or "
                 "start the emulator (hil-emulator).")
     if isinstance(exc, ReplyTimeout):
         baud = " (and ?baud=N)" if link_kind(port) == "serial" else ""
+        ping = "" if command == "ping" else f", try `{prog} --port {port} ping`"
         return (f"{exc}\nNothing answered in time: check the robot's power and cabling, "
-                f"that {port} is its port{baud}, try `{prog} --port {port} ping`, "
+                f"that {port} is its port{baud}{ping}, "
                 "or give a slow adapter more time with --timeout S.")
     if isinstance(exc, HomingError):
         return f"homing failed: {exc}"
@@ -104,7 +106,8 @@ def advice(exc: HostError, port: str, prog: str) -> str:
 
 
 def run(prog: str, port: str, body: Callable[[], int], *,
-        usage: tuple[type[BaseException], ...] = (), hint: str = "") -> int:
+        usage: tuple[type[BaseException], ...] = (), hint: str = "",
+        command: str | None = None) -> int:
     """Run ``body`` and map what it raises to a message on stderr and an exit status:
     :class:`UsageError` (and ``usage``: a CLI's own "refused before anything was
     touched") → 2, other :class:`HostError` → 1 (``hint``, if given, ends its message),
@@ -124,7 +127,7 @@ def run(prog: str, port: str, body: Callable[[], int], *,
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except HostError as exc:
-        print(f"{prog}: {advice(exc, port, prog)}" + (f"\n{hint}." if hint else ""),
+        print(f"{prog}: {advice(exc, port, prog, command)}" + (f"\n{hint}." if hint else ""),
               file=sys.stderr)
         return EXIT_ROBOT
     except BrokenPipeError:
@@ -154,7 +157,8 @@ def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
     args = parse(parser, argv)
     if isinstance(args, int):
         return args
-    return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint)
+    return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint,
+               command=getattr(args, "command", None))
 
 
 def _silence_stdout() -> None:

@@ -175,3 +175,11 @@ def test_a_timeout_names_the_baud_rate_only_where_the_port_has_one(port: str,
     text = cli_common.advice(ReplyTimeout("no reply to identify"), port, "handctl")
     assert ("?baud=N" in text) == says_baud
     assert f"handctl --port {port} ping" in text and "--timeout S" in text
+
+
+def test_a_timeout_of_ping_itself_does_not_say_try_ping() -> None:
+    exc = ReplyTimeout("no reply to identify")
+    assert "armctl --port ./robot/arm ping" in cli_common.advice(exc, "./robot/arm", "armctl",
+                                                                  "status")
+    text = cli_common.advice(exc, "./robot/arm", "armctl", "ping")
+    assert "ping`" not in text and "power and cabling" in text
