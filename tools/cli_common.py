@@ -39,6 +39,7 @@ from host.errors import (
 from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
 from protocol.messages.common import TxnStatus
+from tools.cli_numbers import number_above
 
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
@@ -55,23 +56,13 @@ def port_help(what: str) -> str:
             "can://slcan//dev/ttyACM0, socket://host:port)")
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text} s: give a time > 0")
-    return value
-
-
 def add_common_arguments(parser: argparse.ArgumentParser, *, what: str,
                          timeout_default: str = "by link kind") -> None:
     """``--port`` (required), ``--json`` and ``--timeout`` (dest ``link_timeout``, so a
     sub-command may have its own ``--timeout``)."""
     parser.add_argument("--port", required=True, metavar="P", help=port_help(what))
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
-    parser.add_argument("--timeout", dest="link_timeout", type=_positive_seconds,
+    parser.add_argument("--timeout", dest="link_timeout", type=number_above(0, what="a time"),
                         default=None, metavar="S",
                         help="link budget (s) on top of wire times; raise it for slow USB "
                              f"adapters or a busy machine (default: {timeout_default})")

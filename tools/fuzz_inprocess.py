@@ -30,6 +30,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
+from tools.cli_numbers import number_above
+
+#: ``--runs``: a number of inputs >= 1.
+_RUNS = number_above(1, int, inclusive=True, what="a number of runs",
+                     note=" (libFuzzer takes 0 or less as run forever; stop such a run "
+                     "with Ctrl-C)")
+
 #: The repository's small seed corpus, one folder per target.
 CORPUS_ROOT: Final = Path(__file__).resolve().parent.parent / "tests" / "fuzz_corpus"
 HANDLER_BOARDS: Final = ("palm", "fmcb", "f2", "f3", "bootloader")
@@ -210,18 +217,6 @@ def run_atheris(target: str, runs: int, update_corpus: bool) -> int:
     return 0
 
 
-def _runs(text: str) -> int:
-    """An argparse type: a number of inputs >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: at least 1 (libFuzzer takes 0 or less "
-                                         f"as run forever; stop such a run with Ctrl-C)")
-    return value
-
-
 def run_hypothesis(target: str, runs: int) -> int:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
@@ -261,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.fuzz_inprocess",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("target", nargs="?", choices=sorted(targets()))
-    parser.add_argument("--runs", type=_runs, default=10_000,
+    parser.add_argument("--runs", type=_RUNS, default=10_000,
                         help="inputs to try (default 10000)")
     parser.add_argument("--engine", choices=("atheris", "hypothesis"))
     parser.add_argument("--update-corpus", action="store_true",

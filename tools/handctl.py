@@ -42,6 +42,7 @@ from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
+from tools.cli_numbers import number_above
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
 
@@ -68,17 +69,6 @@ def _floats(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated numbers") from None
 
 
-def _positive(text: str) -> float:
-    """A number > 0 (seconds, Hz) on the command line."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text}: give a number > 0")
-    return value
-
-
 def _finger_list(text: str) -> list[int]:
     """Comma-separated finger indices, each 0..3."""
     try:
@@ -101,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "phalange power, autopoll (about 10 s)")
     up.add_argument("--finger", type=int, choices=range(FINGERS), metavar="N",
                     help="one finger, 0..3 (default: every finger)")
-    up.add_argument("--boot-timeout", type=_positive, default=BOOT_TIMEOUT_S, metavar="S",
+    up.add_argument("--boot-timeout", type=number_above(0), default=BOOT_TIMEOUT_S, metavar="S",
                     help=f"longest wait for a board to boot after its power is switched on "
                          f"(s, default {BOOT_TIMEOUT_S:g}; by the board's own clock while it "
                          f"answers from its bootloader)")
@@ -115,7 +105,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="3 joint targets of --finger")
     move.add_argument("--finger", type=int, help="finger index for --joints")
     move.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
-    move.add_argument("--duration", type=_positive, default=3.0,
+    move.add_argument("--duration", type=number_above(0), default=3.0,
                       help="seconds to wait for the move to settle (default 3)")
     move.add_argument("--clamp", action="store_true",
                       help="clamp targets beyond the joint limits instead of refusing")
@@ -129,7 +119,7 @@ def _parser() -> argparse.ArgumentParser:
                                          + ", ".join(sorted(SYNERGIES)))
     grasp.add_argument("name", help="grasp or pose name")
     grasp.add_argument("amount", type=float, help="0 (open / relaxed) .. 1 (closed / pose)")
-    grasp.add_argument("--speed", type=_positive, default=DEFAULT_SPEED_RAD_S,
+    grasp.add_argument("--speed", type=number_above(0), default=DEFAULT_SPEED_RAD_S,
                        help=f"blend speed of the joint moving most, rad/s "
                             f"(default {DEFAULT_SPEED_RAD_S})")
     grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",
@@ -139,16 +129,16 @@ def _parser() -> argparse.ArgumentParser:
     grasp.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
     grasp.add_argument("--layout", choices=sorted(HAND_LAYOUTS), default=DEFAULT_HAND_LAYOUT,
                        help=f"the hand frame (default {DEFAULT_HAND_LAYOUT})")
-    grasp.add_argument("--duration", type=_positive, default=3.0,
+    grasp.add_argument("--duration", type=number_above(0), default=3.0,
                        help="seconds to wait for the fingers to settle after the blend")
     grasp.add_argument("--unhomed", action="store_true",
                        help="move fingers that were never homed (joint angles then mean "
                             "nothing)")
     record = sub.add_parser("record", help="record frames and states to an MCAP file")
     record.add_argument("file")
-    record.add_argument("--seconds", type=_positive, required=True,
+    record.add_argument("--seconds", type=number_above(0), required=True,
                         help="how long to record (s)")
-    record.add_argument("--rate", type=_positive, default=50.0,
+    record.add_argument("--rate", type=number_above(0), default=50.0,
                         help="state rate (Hz, default 50)")
     return p
 

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from hil_emulator.errors import EmulatorError
+from tools.cli_numbers import number_above
 
 #: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
 EXIT_INTERRUPTED = 130
@@ -53,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     seeds = run.add_mutually_exclusive_group()
     seeds.add_argument("--seeds", metavar="N|A,B", help="N seeds 0..N-1, or a list of seeds "
                        "(default: each file's campaign.seeds or seed)")
-    seeds.add_argument("--seed", type=_seed, metavar="N",
+    seeds.add_argument("--seed", type=_SEED, metavar="N",
                        help="this one seed (what a failed run prints to reproduce it)")
     run.add_argument("--set", action="append", type=_setting, default=[],
                      metavar="KEY=VALUE", help="set a scenario key by its dotted path "
@@ -63,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--report", metavar="DIR", help="write summary.md (pass rates per fault "
                      "class and parameter value, with bar charts), one JSON per run and "
                      "PNG plots around each fault into DIR")
-    run.add_argument("--workers", type=_workers, default=1, metavar="N",
+    run.add_argument("--workers", type=_WORKERS, default=1, metavar="N",
                      help="local processes (default 1: this process)")
     run.add_argument("--scheduler", metavar="ADDR",
                      help="a Dask distributed scheduler (tcp://127.0.0.1:8786) instead")
@@ -79,26 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _seed(text: str) -> int:
-    """An argparse type: one seed, an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a seed is >= 0")
-    return value
-
-
-def _workers(text: str) -> int:
-    """An argparse type: a number of processes >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: at least 1")
-    return value
+#: ``--seed``: one seed, an integer >= 0; ``--workers``: a number of processes >= 1.
+_SEED = number_above(0, int, inclusive=True, what="a seed")
+_WORKERS = number_above(1, int, inclusive=True, what="a number of processes")
 
 
 def _setting(text: str) -> tuple[str, Any]:

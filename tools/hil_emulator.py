@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import sys
@@ -46,6 +45,7 @@ from hil_emulator.emulator import CONFIGS, Emulator, has_display
 from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import load_plan
 from hil_emulator.scene_model import SCENES
+from tools.cli_numbers import number_above
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "on it, within the hand's reach (full and arm configurations)")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
-    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
+    parser.add_argument("--duration", type=number_above(0, what="a time in seconds"),
+                        default=None, metavar="S",
                         help="stop by itself after S seconds of wall time")
     parser.add_argument("--faults", metavar="FILE",
                         help="load a fault plan (TOML [[faults]]) when the ports are ready")
@@ -92,18 +93,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help="on exit, print delivery lateness, simulated time and port "
                              "counters (overruns) to stderr as JSON")
     return parser
-
-
-def _positive_seconds(text: str) -> float:
-    """``--duration``: a positive, finite number of seconds."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
-    if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(
-            f"must be a positive, finite number of seconds, got {text!r}")
-    return value
 
 
 def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:

@@ -16,30 +16,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 from host.errors import HostError
+from tools.cli_numbers import number_above
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS
 
 #: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
 EXIT_INTERRUPTED = 130
-
-
-def _positive(kind: type[int] | type[float]) -> Callable[[str], int | float]:
-    """An argparse type: a number of ``kind`` > 0."""
-
-    def parse(text: str) -> int | float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"{text!r}: must be > 0")
-        return value
-
-    return parse
 
 
 def _fuzz(argv: Sequence[str]) -> int:
@@ -51,12 +37,12 @@ def _fuzz(argv: Sequence[str]) -> int:
                         "emulator in process that has the target)")
     parser.add_argument("--target", required=True, choices=sorted(TARGETS))
     budget = parser.add_mutually_exclusive_group()
-    budget.add_argument("--seconds", type=_positive(float),
+    budget.add_argument("--seconds", type=number_above(0),
                         help="fuzz for this long (wall clock; checked before each example, "
                         "so at most one example more)")
-    budget.add_argument("--examples", type=_positive(int),
+    budget.add_argument("--examples", type=number_above(0, int),
                         help="number of sequences sent (default 100)")
-    parser.add_argument("--steps", type=_positive(int), default=12,
+    parser.add_argument("--steps", type=number_above(0, int), default=12,
                         help="most steps per sequence")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--messages", nargs="+", metavar="GLOB",
