@@ -52,10 +52,15 @@ from host.errors import UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
 from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
+from tools.cli_numbers import number_above
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
 EXIT_NOT_SETTLED = 3
 __all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "make_parser"]
+
+
+#: A time on the command line (s): a number > 0.
+_TIME = number_above(0, what="a time (s)")
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -87,7 +92,7 @@ def make_parser() -> argparse.ArgumentParser:
                            "comma-separated list")
     move.add_argument("--duration", type=float, default=None, metavar="S",
                       help="take this long (s): speeds set so every joint arrives together")
-    move.add_argument("--timeout", type=float, default=10.0, metavar="S",
+    move.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
                       help="give up waiting after this long (s, default 10)")
     move.add_argument("--unhomed", action="store_true",
                       help="move although the arm is not homed (angles from power-up)")
@@ -102,9 +107,10 @@ def make_parser() -> argparse.ArgumentParser:
                         help="flange orientation: roll pitch yaw (rad, fixed base axes)")
     moveto.add_argument("--unhomed", action="store_true",
                         help="move although the arm is not homed")
-    moveto.add_argument("--timeout", type=float, default=8.0, metavar="S",
+    moveto.add_argument("--timeout", type=_TIME, default=8.0, metavar="S",
                         help="settle time allowed after the path (s, default 8)")
-    moveto.add_argument("--tolerance", type=float, default=2.0, metavar="MM",
+    moveto.add_argument("--tolerance", type=number_above(0, what="a distance (mm)"),
+                        default=2.0, metavar="MM",
                         help="reached when the flange is this close to the target (mm, "
                              "default 2)")
     moveto.add_argument("--no-hand", action="store_true",
@@ -113,14 +119,15 @@ def make_parser() -> argparse.ArgumentParser:
     waypoints = sub.add_parser("waypoints", help="record waypoints by hand, or play them")
     waypoints.add_argument("action", choices=("record", "play"))
     waypoints.add_argument("file", help="waypoint file (JSON lines)")
-    waypoints.add_argument("--seconds", type=float, default=10.0, metavar="S",
+    waypoints.add_argument("--seconds", type=_TIME, default=10.0, metavar="S",
                            help="how long to record (s, default 10)")
     waypoints.add_argument("--unhomed", action="store_true",
                            help="play although the arm is not homed")
     record = sub.add_parser("record", help="record raw bus bytes and decoded states (MCAP)")
     record.add_argument("file", help="output .mcap file")
-    record.add_argument("--seconds", type=float, required=True, metavar="S")
-    record.add_argument("--rate", type=float, default=100.0, metavar="HZ",
+    record.add_argument("--seconds", type=_TIME, required=True, metavar="S")
+    record.add_argument("--rate", type=number_above(0, what="a rate (Hz)"), default=100.0,
+                        metavar="HZ",
                         help="cycles per second (default 100)")
     return parser
 
@@ -233,8 +240,6 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    if not args.timeout > 0 or not args.tolerance > 0:
-        raise UsageError("moveto's --timeout (s) and --tolerance (mm) must be > 0")
     _require_homed(arm, args, "moveto")
     _require_torque(arm, "moveto")
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
@@ -347,10 +352,7 @@ def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     goals = _joint_values(args.joints)
-    if not args.timeout > 0:
-        raise UsageError("move's --timeout (s) must be > 0")
     _require_homed(arm, args, "move")
-    arm.check_limits(goals, arm.state().joints)
     _require_torque(arm, "move")
     state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
