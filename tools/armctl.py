@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -51,7 +50,14 @@ from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
-from tools.cli_common import EXIT_OK, EXIT_ROBOT, EXIT_USAGE, add_common_arguments, run_cli
+from tools.cli_common import (
+    EXIT_OK,
+    EXIT_ROBOT,
+    EXIT_USAGE,
+    add_common_arguments,
+    run_cli,
+    unwritable,
+)
 from tools.cli_numbers import number_above
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
@@ -262,15 +268,8 @@ def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 def _check_writable(path: str, what: str) -> None:
     """Refuse (before the arm does anything) an output file that cannot be written: a
     recording made first would be lost."""
-    target = Path(path)
-    folder = target.parent
-    if target.is_dir():
-        raise UsageError(f"{path} is a directory: give a file name for the {what}")
-    if not folder.is_dir():
-        raise UsageError(f"cannot write the {what} to {path}: no directory {folder} (create "
-                         "it, or give another path)")
-    if not os.access(target if target.exists() else folder, os.W_OK):
-        raise UsageError(f"cannot write the {what} to {path}: permission denied")
+    if problem := unwritable(path):
+        raise UsageError(f"cannot write the {what} to {path}: {problem}")
 
 
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:

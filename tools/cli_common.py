@@ -26,6 +26,7 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Final
 
 from host.errors import (
@@ -54,6 +55,22 @@ def port_help(what: str) -> str:
     return (f"{what}: a serial path (/dev/ttyACM0, a pty, ./robot/palm; ?baud=N) or a "
             f"transport URL; schemes: {', '.join(schemes())} (e.g. emu://hand/palm, "
             "can://slcan//dev/ttyACM0, socket://host:port)")
+
+
+def unwritable(path: str) -> str | None:
+    """Why an output file at ``path`` cannot be written (a directory, a folder that does
+    not exist, no permission), or None; checked before a tool does anything, so a typo does
+    not lose a recording or a campaign."""
+    target = Path(path)
+    folder = target.resolve().parent
+    if target.is_dir():
+        return "it is a directory: give a file name"
+    if not folder.is_dir():
+        return f"the directory for it is missing (no directory {folder}): create it, or " \
+            "give another path"
+    if not os.access(target if target.exists() else folder, os.W_OK):
+        return "permission denied"
+    return None
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, *, what: str,

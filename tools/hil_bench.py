@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
 import sys
 import tomllib
 from collections.abc import Sequence
@@ -34,10 +33,9 @@ from pathlib import Path
 from typing import Any
 
 from hil_emulator.errors import EmulatorError
+from tools.cli_common import EXIT_INTERRUPTED, unwritable
 from tools.cli_numbers import number_above
 
-#: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
-EXIT_INTERRUPTED = 130
 #: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
 SCHEDULER_TIMEOUT_S = 10.0
 
@@ -172,14 +170,8 @@ def list_scenarios(as_json: bool) -> int:
 def _writable(args: argparse.Namespace) -> str | None:
     """Why ``--json`` or ``--report`` cannot be written (checked, and the report's
     directory made, before anything runs, so a typo does not lose a campaign), or None."""
-    if args.json:
-        parent = Path(args.json).resolve().parent
-        if not parent.is_dir():
-            return f"--json {args.json}: the directory {parent} does not exist"
-        if Path(args.json).is_dir():
-            return f"--json {args.json}: is a directory; give a file name"
-        if not os.access(parent, os.W_OK):
-            return f"--json {args.json}: cannot write in {parent}"
+    if args.json and (problem := unwritable(args.json)):
+        return f"--json {args.json}: {problem}"
     if args.report:
         try:
             Path(args.report).mkdir(parents=True, exist_ok=True)

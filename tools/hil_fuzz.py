@@ -19,13 +19,11 @@ import sys
 from collections.abc import Sequence
 
 from host.errors import HostError
+from tools.cli_common import EXIT_INTERRUPTED
 from tools.cli_numbers import number_above
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS
-
-#: Exit status after Ctrl-C (128 + SIGINT), as a shell reports it.
-EXIT_INTERRUPTED = 130
 
 
 def _fuzz(argv: Sequence[str]) -> int:
