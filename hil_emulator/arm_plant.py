@@ -287,6 +287,11 @@ class ArmPlant:
         self._check_bound()
         return self._qpos.copy()
 
+    def joint_velocities(self) -> np.ndarray:
+        """Joint velocities J1..J7 (rad/s, model coordinates)."""
+        self._check_bound()
+        return self._qvel.copy()
+
     def capstan_angles(self) -> np.ndarray:
         """Capstan angles φ of J1..J4 now (rad, joint coordinates)."""
         self._check_bound()

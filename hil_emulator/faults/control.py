@@ -15,12 +15,20 @@ request                                                            answer
 ``{"op": "list"}``                                                  ``{"ok": true, "faults": [...]}``
 ``{"op": "status"}``                                                ``{"ok": true, "t_us": ...,``
                                                                    ``"max_ms": ..., ...}``
+``{"op": "truth"}``                                                 ``{"ok": true, "t_us": ...,``
+                                                                   ``"arm": {...} or null}``
 =================================================================  ==========================
 
 ``status`` is the simulation clock (``t_us``) with the real-time loop's lateness figures
 (:meth:`~hil_emulator.emulator.Emulator.lateness_stats`: delivery lateness in ms,
 ``late_episodes``, ``slipped_s``): a test over the wire waits on the simulation clock and
 takes its wall-clock margins from what the emulator reports, not from an idle machine.
+
+``truth`` is what the wire cannot tell a bench over the ports: the arm plant's ground truth
+(``joints`` J1..J7 and ``velocities`` in rad and rad/s, model coordinates; ``deflections`` of
+the J1..J4 elastic elements in rad) and each arm node's ``torque_enable``,
+``status_flags`` (stepper nodes; 0 on the RX-64s) and ``alarms`` (the Dynamixel error bits
+it would report), keyed by bus ID; ``arm`` is null without an arm or a plant.
 
 A request that fails answers ``{"ok": false, "error": "..."}`` (an unknown fault or
 parameter names the key).  Requests act at the simulation time of the moment they are read,
@@ -136,8 +144,26 @@ class ControlChannel:
             return {"faults": sorted(FAULTS)}
         if op == "status":
             return {"t_us": self.emulator.scheduler.now_us(), **self.emulator.lateness_stats()}
+        if op == "truth":
+            return {"t_us": self.emulator.scheduler.now_us(), "arm": self._arm_truth()}
         raise ValueError(f"unknown op {op!r}: inject, clear, clear_all, active, timeline, list, "
-                         "status")
+                         "status, truth")
+
+    def _arm_truth(self) -> dict[str, Any] | None:
+        """The arm plant's joints and its nodes' torque and alarm state (see the module)."""
+        rig, plant = self.emulator.arm, self.emulator.arm_plant
+        if rig is None or plant is None:
+            return None
+        nodes: dict[str, dict[str, int]] = {}
+        for dxl_id in sorted(rig.nodes):
+            app = rig.app(dxl_id)
+            flags = app.get("status_flags") if "status_flags" in app.table else 0
+            nodes[str(dxl_id)] = {"torque_enable": app.get("torque_enable"),
+                                  "status_flags": flags, "alarms": app.alarm_bits()}
+        return {"joints": [float(v) for v in plant.joint_angles()],
+                "velocities": [float(v) for v in plant.joint_velocities()],
+                "deflections": [float(v) for v in plant.deflections()],
+                "nodes": nodes}
 
     def _answer(self, client: socket.socket, answer: dict[str, Any]) -> None:
         try:

@@ -687,6 +687,47 @@ def test_the_control_channel_injects_into_a_running_emulator(tmp_path: Path) -> 
     assert not os.path.exists(path)
 
 
+def _ask(client: socket.socket, emu: Emulator, request: bytes) -> dict[str, object]:
+    """One control-channel request answered while ``emu`` steps 1 ms."""
+    client.sendall(request + b"\n")
+    emu.step(1 * MS)
+    answer: dict[str, object] = json.loads(client.recv(65536))
+    return answer
+
+
+def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -> None:
+    emu = Emulator("arm", seed=1)
+    path = emu.open_control(str(tmp_path / "control"))
+    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        client.connect(path)
+        emu.step(20 * MS)
+        truth = _ask(client, emu, b'{"op": "truth"}')
+        assert truth["ok"] and truth["t_us"] == 20 * MS
+        arm = truth["arm"]
+        assert isinstance(arm, dict)
+        assert arm["joints"] == pytest.approx(list(emu.arm_plant.joint_angles()), abs=1e-3)
+        assert len(arm["velocities"]) == 7 and len(arm["deflections"]) == 4
+        assert sorted(arm["nodes"], key=int) == [str(i) for i in range(1, 8)]
+        assert all(n["torque_enable"] == 0 for n in arm["nodes"].values())  # comes up off
+        assert emu.arm is not None
+        emu.arm.app(2).set("torque_enable", 1)
+        arm = _ask(client, emu, b'{"op": "truth"}')["arm"]
+        assert isinstance(arm, dict)
+        assert [n["torque_enable"] for n in arm["nodes"].values()] == [0, 1, 0, 0, 0, 0, 0]
+    finally:
+        client.close()
+        emu.close()
+    hand = Emulator("hand", physics=False)
+    try:
+        client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        client.connect(hand.open_control(str(tmp_path / "hand-control")))
+        assert _ask(client, hand, b'{"op": "truth"}')["arm"] is None
+        client.close()
+    finally:
+        hand.close()
+
+
 def test_rngs_differ_by_entry_and_occurrence() -> None:
     emu = Emulator("arm", seed=3, physics=False)
     draws = {(e, k): emu.faults._rng(e, k).random() for e in range(2) for k in range(2)}
