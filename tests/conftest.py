@@ -43,6 +43,8 @@ WALL_CLOCK_FILES: Final = frozenset({
     "hil_emulator/test_hil_emulator_command.py",
     "hil_emulator/test_realtime_loop.py",
     "hil_emulator/test_pty_port.py",
+    "hil_emulator/test_port_reader.py",
+    "hil_emulator/test_scheduling.py",
     "hil_emulator/test_slcan_adapter.py",
     "hil_emulator/test_faults.py",
     "host/test_transports.py",
