@@ -82,6 +82,22 @@ def rtprio_limit() -> int:
     return int(soft) if soft != resource.RLIM_INFINITY else 99
 
 
+_CAP_SYS_NICE: Final = 23
+
+
+def has_cap_sys_nice() -> bool:
+    """True when this process holds ``CAP_SYS_NICE`` in its effective set
+    (``/proc/self/status``)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("CapEff:"):
+                    return bool(int(line.split()[1], 16) >> _CAP_SYS_NICE & 1)
+    except (OSError, ValueError):
+        pass
+    return False
+
+
 def request_priority(priority: str = "realtime", rt_priority: int = RT_PRIORITY
                      ) -> Scheduling:
     """Ask for real-time scheduling of the calling thread (``priority`` ``"realtime"``) or
@@ -103,6 +119,9 @@ def request_priority(priority: str = "realtime", rt_priority: int = RT_PRIORITY
     try:
         os.sched_setscheduler(0, policy, os.sched_param(wanted))
     except PermissionError:
+        if has_cap_sys_nice():
+            return Scheduling("SCHED_OTHER", 0, "refused although CAP_SYS_NICE is held: a "
+                                                "control group without real-time budget?")
         return Scheduling("SCHED_OTHER", 0, "not allowed: needs CAP_SYS_NICE or an rtprio "
                                             "limit")
     except OSError as exc:

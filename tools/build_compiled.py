@@ -4,11 +4,12 @@
 
 mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
 its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
-Python imports instead of the source.  The set-up (``make install``, so every ``make``
-target) runs ``--setup``: it builds the core where a C compiler exists, saying so in one
-line, and falls back to pure Python with one line where it cannot; with
-``LOWCOST_PURE_PYTHON=1`` it removes any build and stays pure Python, and the same variable
-makes a process import the sources although a build exists
+Python imports instead of the source.  ``make compiled`` builds it; with
+``COMPILED_CORE=yes`` the set-up (``make install``, so every ``make`` target) runs
+``--setup``: it builds the core where a C compiler exists, saying so in one line, and falls
+back to pure Python with one line where it cannot; with ``LOWCOST_PURE_PYTHON=1`` it removes
+any build and stays pure Python, and the same variable makes a process import the sources
+although a build exists
 (:mod:`protocol.compiled_guard`, which also ignores a build older than its sources).
 ``--clean`` (``make clean-compiled``) removes every extension.  Behaviour is the same either
 way (the traffic digest of ``python -m tools.traffic_record`` is identical); only the speed

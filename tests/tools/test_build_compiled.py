@@ -62,7 +62,7 @@ def _loaded(**env: str) -> int:
     return int(out)
 
 
-def test_the_default_is_the_compiled_core_where_it_is_built_and_fresh() -> None:
+def test_a_fresh_build_is_imported_and_without_one_the_sources_are() -> None:
     fresh = is_built(ROOT) and not compiled_guard.stale(ROOT)
     assert _loaded(**{PURE_PYTHON_ENV: "0"}) == (len(COMPILED_MODULES) if fresh else 0)
 
