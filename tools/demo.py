@@ -564,7 +564,7 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
         models = []
         for joint in ARM_JOINTS:
             model, result = 0, -1
-            for _ in range(3):  # the SDK's own timeout is tight for a pty on a busy machine
+            for _ in range(6):  # the SDK's own timeout is tight for a pty on a busy machine
                 try:
                     model, result, _ = sdk.ping(port, joint.dxl_id)
                 except IndexError:  # the SDK indexes a reply it did not get
