@@ -25,7 +25,8 @@ In real time the thread that paces the simulation asks for real-time scheduling
 does not ask.  Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
 exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
-lateness (``null`` when nothing was delivered), episodes of lateness, ``stop_ms`` (wall
+lateness (``null`` when nothing was delivered), episodes of lateness, ``scheduling`` (the
+pacing thread's policy in real time: ``SCHED_RR`` or ``SCHED_OTHER``), ``stop_ms`` (wall
 time from SIGINT/SIGTERM or the end of ``--duration`` to the loop's end), per port the
 bytes in and out, host input lost to overrun and the longest input queue, and with a
 ``--scene`` its objects' ground truth (``scene``: the mug's start and present height,
