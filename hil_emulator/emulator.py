@@ -35,8 +35,9 @@ from hil_emulator.arm_rig import ArmRig
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.faults.host_link import LinkTap
 from hil_emulator.hand_rig import HandRig, LooseFinger
-from hil_emulator.host_links import SerialLink, SlcanLink, VirtualCanLink
+from hil_emulator.host_links import PtyBacked, SerialLink, SlcanLink, VirtualCanLink
 from hil_emulator.plant import Plant, PlantPart, new_spec
+from hil_emulator.scheduling import RT_BUSY_LIMIT_S, RT_YIELD_S, Scheduling, request_priority
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
 
 #: The configurations :class:`Emulator` can build.
@@ -153,6 +154,11 @@ class Emulator:
         #: Told (one line of text) when the real-time loop starts to fall behind and when
         #: it has caught up; the ``hil-emulator`` command prints it on standard error.
         self.on_late: Callable[[str], None] | None = None
+        #: Told (one line of text) when the real-time loop starts: the scheduling it got
+        #: (:mod:`hil_emulator.scheduling`); the ``hil-emulator`` command prints it.
+        self.on_notice: Callable[[str], None] | None = None
+        #: The pacing thread's scheduling during the last real-time :meth:`run`.
+        self.scheduling: Scheduling | None = None
         self.late_episodes = 0  #: episodes of lateness beyond :data:`LATE_WARN_MS`
         self.slipped_s = 0.0  #: wall time (s) the simulation clock gave up to keep up
         self._episode_worst_ms = 0.0
@@ -248,7 +254,7 @@ class Emulator:
         for link in self.links.values():
             link.on_emit = self._record_lateness
             link.schedule_input = self._schedule_input
-            if isinstance(link, SerialLink | SlcanLink):
+            if isinstance(link, SerialLink | SlcanLink | VirtualCanLink):
                 link.input_clock = self._input_time_us
         self.link_paths: dict[str, str] = {}
         if link_dir is not None:
@@ -371,9 +377,10 @@ class Emulator:
         """The simulation time (µs) matching monotonic wall time ``wall_s`` (real time)."""
         return self._sim0 + int((wall_s - self._wall0) * 1e6)
 
-    def _input_time_us(self) -> int:
-        """When host input read now enters the simulation (µs): the time matching the wall
-        clock (real time, never before earlier input), or the current time (fast).
+    def _input_time_us(self, arrived: float | None = None) -> int:
+        """When host input that arrived at ``arrived`` (monotonic s; None: now) enters the
+        simulation (µs): the time matching the wall clock then (real time, never before
+        earlier input nor the simulation's present), or the current time (fast).
 
         Real time and behind (events due before the wall clock's time have not run): the
         input does not queue behind that backlog.  The simulation clock slips to its
@@ -383,7 +390,7 @@ class Emulator:
         if not self._realtime:
             return self.scheduler.now_us()
         scheduler = self.scheduler
-        wall_us = self._wall_us(time.monotonic())
+        wall_us = self._wall_us(time.monotonic() if arrived is None else arrived)
         due = scheduler.next_due_us()
         if due is not None and due < wall_us:
             present = max(scheduler.now_us(), self._last_input_us)
@@ -395,11 +402,11 @@ class Emulator:
         self._last_input_us = t
         return t
 
-    def _schedule_input(self, apply: Callable[[], None]) -> None:
-        """Host input enters the simulation at :meth:`_input_time_us` (in fast mode and
-        in-process: at once)."""
+    def _schedule_input(self, apply: Callable[[], None], t_us: int) -> None:
+        """Host input enters the simulation at ``t_us`` (from :meth:`_input_time_us`; in
+        fast mode and in-process: at once)."""
         if self._realtime:
-            self.scheduler.call_at(self._input_time_us(), apply)
+            self.scheduler.call_at(t_us, apply)
         else:
             apply()
 
@@ -433,7 +440,8 @@ class Emulator:
                                  f"late, {self.slipped_s:.3f} s given up in all")
 
     def run(self, stop: threading.Event, realtime: bool = True,
-            on_idle: Callable[[], None] | None = None, fast_chunk_us: int = 1_000) -> None:
+            on_idle: Callable[[], None] | None = None, fast_chunk_us: int = 1_000,
+            priority: str = "normal") -> None:
         """Serve the ports until ``stop`` is set.
 
         Real time: simulation time follows the wall clock.  Between events the loop sleeps
@@ -446,13 +454,41 @@ class Emulator:
         and resumed, then told to stop, may never have run an event in between).
         Fast: the simulation runs ``fast_chunk_us`` at a time as fast as it can, polling the
         ports between chunks.  ``on_idle`` is called about every 16 ms of wall time (the
-        viewer's sync)."""
+        viewer's sync).  ``priority`` ``"realtime"`` asks for real-time scheduling of the
+        calling thread for the run (:func:`~hil_emulator.scheduling.request_priority`; real
+        time only), told to :attr:`on_notice` and kept in :attr:`scheduling`; the thread
+        gets its own scheduling back when the run ends."""
         self._realtime = realtime
+        if not realtime:
+            self._run_loop(stop, False, on_idle, fast_chunk_us)
+            return
+        tighten_timer_slack()
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
+        self.scheduling = got = request_priority(priority)
+        if self.on_notice is not None:
+            self.on_notice(got.describe())
+        ported = [link for link in self.links.values() if isinstance(link, PtyBacked)]
+        try:
+            for link in ported:  # on this thread: the readers share its scheduling
+                link.start_reader()
+            self._run_loop(stop, True, on_idle, fast_chunk_us)
+        finally:
+            for link in ported:
+                link.stop_reader()
+            if (os.sched_getscheduler(0), os.sched_getparam(0)) != before:
+                try:
+                    os.sched_setscheduler(0, *before)
+                except OSError:
+                    pass
+
+    def _run_loop(self, stop: threading.Event, realtime: bool,
+                  on_idle: Callable[[], None] | None, fast_chunk_us: int) -> None:
+        """The loop of :meth:`run`."""
         self._wall0 = time.monotonic()
         self._sim0 = self.scheduler.now_us()
         self._last_input_us = self._sim0
-        if realtime:
-            tighten_timer_slack()
+        rt_policy = self.scheduling is not None and self.scheduling.realtime and realtime
+        slept_at = self._wall0  # when the loop last gave the CPU away
         next_idle = self._wall0
         next_poll = 0.0
         readable = True  # look at the ports first
@@ -485,6 +521,11 @@ class Emulator:
             now_us = self._wall_us(now)
             due = scheduler.next_due_us()
             behind_us = self._behind_us(due, now_us)
+            if rt_policy and now - slept_at > RT_BUSY_LIMIT_S:
+                time.sleep(RT_YIELD_S)  # real-time and busy for long: leave the CPU a while
+                slept_at = now = time.monotonic()
+                now_us = self._wall_us(now)
+                behind_us = self._behind_us(due, now_us)
             if behind_us:  # behind: serve the ports, then go on
                 self._note_lateness(behind_us / 1e3, now)
                 if behind_us > MAX_BEHIND_S * 1e6:
@@ -499,6 +540,7 @@ class Emulator:
                 readable = bool(select.select(fds, [], [], wait - self.spin_s)[0])
             else:
                 time.sleep(wait - self.spin_s)
+            slept_at = time.monotonic()
         if realtime:  # how far behind it was when told to stop counts too
             now = time.monotonic()
             behind_us = self._behind_us(scheduler.next_due_us(), self._wall_us(now))

@@ -13,40 +13,59 @@
 Each link reports, through ``on_emit``, the simulation time (µs) of every chunk it writes,
 so the real-time runner can measure how late delivery was.
 
-Host input is bounded like a real adapter's: a link takes from its pty only what its wire
-carries within :data:`INPUT_FIFO_US` of now (an :class:`InputFifo`); what a host writes
-beyond that is lost as a UART overrun would lose it, and counted (:attr:`InputFifo.overrun`,
-``--stats``).  However fast a host writes, memory stays flat and a request written after the
-flood is on the wire within :data:`INPUT_FIFO_US`.
+Host input is bounded like a real adapter's: a serial link holds at most
+:data:`ADAPTER_BUFFER_BYTES` of host bytes not yet on its wire (a USB-serial adapter's
+buffer; the SLCAN link :data:`INPUT_FIFO_US` of CAN frames), tracked by an
+:class:`InputFifo`; what a host writes beyond that is lost as a UART overrun would lose it,
+and counted (:attr:`InputFifo.overrun`, ``--stats``).  However fast a host writes, memory
+stays flat.  In real time each pty is read by a :class:`~hil_emulator.port_reader.PortReader`
+thread the moment bytes arrive (:meth:`PtyBacked.start_reader`), and each chunk enters the
+wire model at the simulation time of its arrival; in fast mode and in process the
+simulation thread reads the ptys itself when it polls (deterministic).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, Final
 
 from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
+from hil_emulator.port_reader import PortReader
 from hil_emulator.pty_port import PtyPort, make_link, remove_links
 from hil_emulator.slcan_adapter import SlcanAdapter
 from protocol.topology import wire_time_us
 
 EmitObserver = Callable[[int], None]
-#: How a link hands host input to the simulation: called with a thunk that applies it.  The
-#: real-time runner schedules the thunk at the simulation time matching the wall clock when
-#: the input was read; by default it is applied at once.
-InputScheduler = Callable[[Callable[[], None]], None]
+#: How a link hands host input to the simulation: called with a thunk that applies it and
+#: the simulation time (µs) it enters at (the link's ``input_clock``).  The real-time runner
+#: schedules the thunk then; by default it is applied at once.
+InputScheduler = Callable[[Callable[[], None], int], None]
 
 
-#: Wire time of host input a link accepts ahead of its line (µs): a USB-serial adapter's
-#: small FIFO.  More is an overrun: those bytes (or SLCAN frames) are dropped and counted.
+#: Host bytes a serial link holds ahead of its wire: a USB-serial adapter's buffer (the
+#: Linux usb-serial driver's 4 KiB write FIFO).  More is an overrun: dropped and counted.
+ADAPTER_BUFFER_BYTES: Final = 4096
+#: Wire time of CAN frames the SLCAN link accepts ahead of the bus (µs).  More is an
+#: overrun: those frames are dropped and counted.
 INPUT_FIFO_US: Final = 5_000
 
 Clock = Callable[[], int]
+#: The simulation time (µs) at which host input enters, given its arrival on the wall clock
+#: (``time.monotonic()`` s) or None for "now".
+InputClock = Callable[[float | None], int]
 
 
-def _apply_now(apply: Callable[[], None]) -> None:
+def _apply_now(apply: Callable[[], None], t_us: int) -> None:
     apply()
+
+
+def _clock_input(clock: Clock) -> InputClock:
+    """An :data:`InputClock` that ignores the arrival time: the simulation's now."""
+    def input_clock(arrived: float | None = None) -> int:
+        return clock()
+    return input_clock
 
 
 class InputFifo:
@@ -77,15 +96,19 @@ class InputFifo:
         return {"overrun": self.overrun, "queue_peak_us": self.peak_us}
 
 
-class _PtyBacked:
+class PtyBacked:
     """Common life cycle of a link that owns a pty: open, symlink, close."""
 
-    def __init__(self, name: str, baud: int, clock: Clock) -> None:
+    def __init__(self, name: str, baud: int, clock: Clock,
+                 fifo_us: int = INPUT_FIFO_US) -> None:
         self.name = name
-        #: Simulation time (µs) at which host input read now enters the line; the
-        #: real-time runner replaces it with its wall-clock mapping.
-        self.input_clock = clock
-        self.fifo = InputFifo()
+        #: Simulation time (µs) at which host input enters the line, from its arrival time
+        #: (or None: now); the real-time runner replaces it with its wall-clock mapping.
+        self.input_clock: InputClock = _clock_input(clock)
+        self.fifo = InputFifo(fifo_us)
+        #: The thread reading the pty as bytes arrive (real time), or None.
+        self.reader: PortReader | None = None
+        self._reading = False
         self.port = PtyPort(baud)
         try:
             self.port.open()
@@ -93,6 +116,8 @@ class _PtyBacked:
             raise PortError(f"cannot create a pty for {name}: {exc}") from exc
         self.on_emit: EmitObserver | None = None
         self.schedule_input: InputScheduler = _apply_now
+        self._leftover: list[tuple[float, bytes]] = []
+        self.reader_overrun = 0  #: bytes earlier readers could not hold
         self._link_dir: str | None = None
         self._link_name: str | None = None
         #: The link's fault stages (:mod:`hil_emulator.faults.host_link`), or None.
@@ -104,8 +129,51 @@ class _PtyBacked:
         return self.port.path
 
     def fileno(self) -> int:
-        """The master descriptor, for ``select`` (-1 while the port has vanished)."""
+        """What the runner waits on for host input (``select``): the reader's wake-up pipe
+        while one runs, else the master descriptor (-1 while the port has vanished)."""
+        if self.reader is not None:
+            return self.reader.fileno()
         return self.port.fileno() if self.port.is_open else -1
+
+    def room(self) -> int:
+        """Host bytes the link accepts now (its reader's bound)."""
+        return 1 << 30
+
+    def start_reader(self) -> None:
+        """Read the pty on a :class:`PortReader` thread from now on (real time)."""
+        self._reading = True
+        if self.reader is None and self.port.is_open:
+            self.reader = PortReader(self.port.fileno(), self.room, self.name)
+
+    def stop_reader(self) -> None:
+        """Back to reading the pty when polled (idempotent); what the reader queued is
+        taken first by :meth:`take_input`."""
+        self._reading = False
+        self._end_reader()
+
+    def _end_reader(self) -> None:
+        reader, self.reader = self.reader, None
+        if reader is not None:
+            reader.stop()
+            self._leftover = reader.take()
+            self.reader_overrun += reader.overrun
+
+    def take_input(self) -> list[tuple[float | None, bytes]]:
+        """What the host wrote since the last call, as (arrival time s or None, bytes)."""
+        chunks: list[tuple[float | None, bytes]] = list(self._leftover)
+        self._leftover = []
+        if self.reader is not None:
+            chunks.extend(self.reader.take())
+        elif self.port.is_open:
+            data = self.port.read_available()
+            if data:
+                chunks.append((None, data))
+        return chunks
+
+    def input_overrun(self) -> int:
+        """Host bytes its reader could not hold (with the FIFO's :attr:`InputFifo.overrun`)."""
+        reader = self.reader.overrun if self.reader is not None else 0
+        return self.reader_overrun + reader
 
     def link(self, link_dir: str, name: str | None = None) -> str:
         """Make ``link_dir/name`` (default: the link's name) point at the pty."""
@@ -122,6 +190,7 @@ class _PtyBacked:
     def vanish(self) -> None:
         """The port disappears (a USB adapter unplugged): the pty is closed and the
         symlink removed; output meanwhile is lost."""
+        self._end_reader()
         if self._link_dir is not None and self.port.is_open:
             remove_links(self._link_dir, self.port)
         self.port.close()
@@ -137,16 +206,19 @@ class _PtyBacked:
                 make_link(self._link_dir, self._link_name, self.port)
         except OSError as exc:
             raise PortError(f"cannot re-create the pty for {self.name}: {exc}") from exc
+        if self._reading:
+            self.start_reader()
 
     def close(self) -> None:
         """Remove the symlinks this link made and close the pty (idempotent)."""
+        self._end_reader()
         if self._link_dir is not None and self.port.is_open:
             remove_links(self._link_dir, self.port)
             self._link_dir = None
         self.port.close()
 
 
-class SerialLink(_PtyBacked):
+class SerialLink(PtyBacked):
     """A pty bridged to a device UART.
 
     ``to_device`` puts host bytes into the simulation (called at the simulation's current
@@ -155,23 +227,30 @@ class SerialLink(_PtyBacked):
 
     def __init__(self, name: str, baud: int, to_device: Callable[[bytes], None],
                  clock: Clock) -> None:
-        super().__init__(name, baud, clock)
+        super().__init__(name, baud, clock, wire_time_us(ADAPTER_BUFFER_BYTES, baud))
         self._to_device = to_device
         self._us_per_byte = wire_time_us(1_000_000, baud) / 1_000_000
+        self._backlog = 0  # bytes ahead of the wire at the last admission
         self.bytes_in = 0
         self.bytes_out = 0
 
+    def room(self) -> int:
+        """Host bytes the adapter buffer takes now: :data:`ADAPTER_BUFFER_BYTES` less what
+        waited for the wire at the last admission (called on the reader's thread)."""
+        return ADAPTER_BUFFER_BYTES - self._backlog
+
     def poll(self) -> int:
-        """Move what the host wrote into the simulation, up to the FIFO's room (the rest is
-        an overrun); returns the byte count admitted."""
-        if not self.port.is_open:
-            return 0
-        data = self.port.read_available()
-        if data and self.tap is not None:
+        """Move what the host wrote into the simulation, each chunk at the simulation time
+        of its arrival, up to the adapter buffer's room (the rest is an overrun); returns
+        the byte count admitted."""
+        return sum(self._admit(data, arrived) for arrived, data in self.take_input())
+
+    def _admit(self, data: bytes, arrived: float | None) -> int:
+        if self.tap is not None:
             data = self.tap.down(data)
         if not data:
             return 0
-        now = self.input_clock()
+        now = self.input_clock(arrived)
         fit = max(0, int(self.fifo.room_us(now) / self._us_per_byte))
         if len(data) > fit:
             self.fifo.overrun += len(data) - fit
@@ -179,13 +258,16 @@ class SerialLink(_PtyBacked):
         if data:
             self.fifo.claim(now, wire_time_us(len(data), self.port.baud))
             self.bytes_in += len(data)
-            self.schedule_input(lambda: self._to_device(data))
+            self.schedule_input(partial(self._to_device, data), now)
+        self._backlog = int(max(0, self.fifo.free_us - now) / self._us_per_byte)
         return len(data)
 
     def stats(self) -> dict[str, int]:
-        """Byte counts and FIFO figures, for ``--stats``."""
+        """Byte counts and FIFO figures, for ``--stats`` (``overrun``: bytes)."""
+        fifo = self.fifo.stats()
+        fifo["overrun"] += self.input_overrun()
         return {"bytes_in": self.bytes_in, "bytes_out": self.bytes_out,
-                "dropped_out": self.port.dropped, **self.fifo.stats()}
+                "dropped_out": self.port.dropped, **fifo}
 
     def emit(self, data: bytes, t_us: int) -> None:
         """A device's bytes, complete at simulation time ``t_us``, go to the host."""
@@ -208,7 +290,7 @@ class SerialLink(_PtyBacked):
         return link
 
 
-class SlcanLink(_PtyBacked):
+class SlcanLink(PtyBacked):
     """The palm's CAN controller behind an emulated SLCAN adapter on a pty."""
 
     def __init__(self, name: str, can: VirtualCan) -> None:
@@ -222,26 +304,35 @@ class SlcanLink(_PtyBacked):
         if self.on_emit is not None:
             self.on_emit(t_us)
 
+    def room(self) -> int:
+        """SLCAN text the reader holds for the adapter (a USB adapter's buffer)."""
+        return ADAPTER_BUFFER_BYTES
+
     def poll(self) -> int:
-        """Handle the host's SLCAN commands; frames it transmits reach the bus now, as
-        many as the adapter's FIFO holds (the rest are an overrun)."""
-        frames = self.adapter.poll()
-        if not frames:
-            return 0
-        now = self.input_clock()
-        fit = max(0, self.fifo.room_us(now) // VirtualCan.FRAME_US)
-        if len(frames) > fit:
-            self.fifo.overrun += len(frames) - fit
-            frames = frames[:fit]
-        if frames:
-            self.fifo.claim(now, len(frames) * VirtualCan.FRAME_US)
-            self.schedule_input(lambda: self._deliver(frames))
-        return len(frames)
+        """Handle the host's SLCAN commands; frames it transmits reach the bus at their
+        arrival, as many as the adapter's FIFO holds (the rest are an overrun)."""
+        count = 0
+        for arrived, data in self.take_input():
+            frames = self.adapter.poll(data)
+            if not frames:
+                continue
+            now = self.input_clock(arrived)
+            fit = max(0, self.fifo.room_us(now) // VirtualCan.FRAME_US)
+            if len(frames) > fit:
+                self.fifo.overrun += len(frames) - fit
+                frames = frames[:fit]
+            if frames:
+                self.fifo.claim(now, len(frames) * VirtualCan.FRAME_US)
+                self.schedule_input(partial(self._deliver, frames), now)
+                count += len(frames)
+        return count
 
     def stats(self) -> dict[str, int]:
-        """Adapter errors, bytes the host did not read, FIFO figures, for ``--stats``."""
+        """Adapter errors, bytes the host did not read, FIFO figures (``overrun``: frames
+        the FIFO refused; ``overrun_bytes``: SLCAN text the reader could not hold), for
+        ``--stats``."""
         return {"errors": self.adapter.errors, "dropped_out": self.port.dropped,
-                **self.fifo.stats()}
+                **self.fifo.stats(), "overrun_bytes": self.input_overrun()}
 
     def _deliver(self, frames: list[tuple[int, bytes]]) -> None:
         for arbitration_id, data in frames:
@@ -262,6 +353,7 @@ class VirtualCanLink:
         self._can = can
         self.on_emit: EmitObserver | None = None
         self.schedule_input: InputScheduler = _apply_now
+        self.input_clock: InputClock = _clock_input(can.scheduler.now_us)
         can.sink = self._from_bus
 
     @property
@@ -282,7 +374,7 @@ class VirtualCanLink:
         while (message := self.bus.recv(0.0)) is not None:
             frames.append((message.arbitration_id, bytes(message.data)))
         if frames:
-            self.schedule_input(lambda: self._deliver(frames))
+            self.schedule_input(partial(self._deliver, frames), self.input_clock(None))
         return len(frames)
 
     def _deliver(self, frames: list[tuple[int, bytes]]) -> None:

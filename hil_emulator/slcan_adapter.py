@@ -65,10 +65,10 @@ class SlcanAdapter:
         self._write_lock = threading.Lock()
 
     # -- towards the emulator ---------------------------------------------------------------
-    def poll(self) -> list[tuple[int, bytes]]:
-        """Handle everything the host sent; return the frames ``(id, data)`` it transmitted
-        while the channel was open."""
-        self._buffer += self.port.read_available()
+    def poll(self, data: bytes | None = None) -> list[tuple[int, bytes]]:
+        """Handle everything the host sent (``data``, or what waits on the pty when None);
+        return the frames ``(id, data)`` it transmitted while the channel was open."""
+        self._buffer += self.port.read_available() if data is None else data
         frames: list[tuple[int, bytes]] = []
         while True:
             idx = self._buffer.find(b"\r")

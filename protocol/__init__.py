@@ -8,8 +8,14 @@
 - :mod:`protocol.image`: firmware images and the flash geometry
 - :mod:`protocol.robot`: the robot's mechanical facts (gearing, coupling, limits, layouts)
 - :mod:`protocol.errors`: the one exception tree (:class:`ProtocolError`)
+
+Importing it decides first whether the compiled core is used (:mod:`protocol.compiled_guard`).
 """
 
-from protocol.errors import ProtocolError
+from protocol import compiled_guard as _compiled_guard
+
+_compiled_guard.install()
+
+from protocol.errors import ProtocolError  # noqa: E402 - after the guard, deliberately
 
 __all__ = ["ProtocolError"]

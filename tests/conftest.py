@@ -14,6 +14,11 @@
   from what the emulator reports, not from an idle machine's margins).
 
 Without xdist (``pytest`` alone, ``TEST_WORKERS=0``) the hook is never called.
+
+Hypothesis runs under the profile :data:`HYPOTHESIS_PROFILE`: no per-example deadline and no
+"too slow" health check, which measure the machine (a loaded two-core machine takes
+seconds where an idle one takes milliseconds), not the code under test.  A ``@settings``
+without its own ``deadline`` inherits it.
 """
 
 from __future__ import annotations
@@ -21,6 +26,13 @@ from __future__ import annotations
 from typing import Any, Final
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+#: The hypothesis settings profile every test runs under (registered and loaded here).
+HYPOTHESIS_PROFILE: Final = "any-machine"
+settings.register_profile(HYPOTHESIS_PROFILE, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(HYPOTHESIS_PROFILE)
 
 #: The one scheduling unit of the tests in :data:`WALL_CLOCK_FILES`.
 WALL_CLOCK_GROUP: Final = "wall-clock"
@@ -31,6 +43,8 @@ WALL_CLOCK_FILES: Final = frozenset({
     "hil_emulator/test_hil_emulator_command.py",
     "hil_emulator/test_realtime_loop.py",
     "hil_emulator/test_pty_port.py",
+    "hil_emulator/test_port_reader.py",
+    "hil_emulator/test_scheduling.py",
     "hil_emulator/test_slcan_adapter.py",
     "hil_emulator/test_faults.py",
     "host/test_transports.py",
@@ -41,6 +55,7 @@ WALL_CLOCK_FILES: Final = frozenset({
     "tools/test_hil_bench.py",
     "tools/test_hil_fuzz.py",
     "tools/test_build_compiled.py",
+    "tools/test_demo_realtime.py",
     "test_benchmarks.py",
 })
 

@@ -1,23 +1,30 @@
-"""Optional compiled core: build (or remove) mypyc C extensions of the emulator's hot modules.
+"""The compiled core: build (or remove) mypyc C extensions of the emulator's hot modules.
 
-``python -m tools.build_compiled [--clean] [--list] [--build-dir DIR] [--root DIR]``
+``python -m tools.build_compiled [--setup] [--clean] [--list] [--build-dir DIR] [--root DIR]``
 
 mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
 its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
-Python imports instead of the source.  The pure-Python modules stay the default: nothing
-imports this, ``make test`` never builds it, and ``--clean`` (``make clean-compiled``)
-removes every extension again.  Behaviour is the same either way (the traffic digest of
-``python -m tools.traffic_record`` is identical); only the speed differs.  See the
-performance section of docs/EMULATOR.md.
+Python imports instead of the source.  ``make compiled`` builds it; with
+``COMPILED_CORE=yes`` the set-up (``make install``, so every ``make`` target) runs
+``--setup``: it builds the core where a C compiler exists, saying so in one line, and falls
+back to pure Python with one line where it cannot; with ``LOWCOST_PURE_PYTHON=1`` it removes
+any build and stays pure Python, and the same variable makes a process import the sources
+although a build exists
+(:mod:`protocol.compiled_guard`, which also ignores a build older than its sources).
+``--clean`` (``make clean-compiled``) removes every extension.  Behaviour is the same either
+way (the traffic digest of ``python -m tools.traffic_record`` is identical); only the speed
+differs.  See the performance section of docs/EMULATOR.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Final
 
@@ -145,9 +152,73 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     return compiled_files(root)
 
 
+def is_built(root: Path = ROOT) -> bool:
+    """True when every module of :data:`COMPILED_MODULES` has its extension."""
+    for module in COMPILED_MODULES:
+        source = root / module
+        if not any(source.parent.glob(f"{source.stem}.*.so")):
+            return False
+    return True
+
+
+@contextlib.contextmanager
+def _output_to(log: Path) -> Iterator[None]:
+    """Standard output and error of this process and its children (the C compiler) go to
+    ``log`` for the duration."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(log, "wb") as out:
+        os.dup2(out.fileno(), 1)
+        os.dup2(out.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+
+def setup(root: Path = ROOT, build_dir: Path | None = None) -> str:
+    """The set-up's step: build the compiled core unless pure Python is asked for or it is
+    built and fresh already; never fails.  Returns the one line it printed."""
+    from protocol.compiled_guard import PURE_PYTHON_ENV, pure_python_requested, stale
+
+    if pure_python_requested():
+        clean(root, build_dir)
+        line = f"compiled core: not built ({PURE_PYTHON_ENV} is set): the emulator runs pure Python"
+    elif is_built(root) and not stale(root):
+        line = "compiled core: built already and up to date"
+    else:
+        print("compiled core: building it with mypyc (once; a few minutes on 2 cores; "
+              f"{PURE_PYTHON_ENV}=1 skips it) ...", flush=True)
+        started = time.monotonic()
+        log = (build_dir if build_dir is not None else root / "build") / "compiled-core.log"
+        try:
+            with _output_to(log):
+                build(root, build_dir)
+        except BuildError as exc:
+            clean(root, build_dir)
+            reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+            line = (f"compiled core: cannot be built here ({reason}; see {log}): the emulator "
+                    "runs pure Python")
+        else:
+            line = (f"compiled core: built in {time.monotonic() - started:.0f} s; the emulator "
+                    "uses it")
+    print(line, flush=True)
+    return line
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.build_compiled")
     parser.add_argument("--clean", action="store_true", help="remove the extensions")
+    parser.add_argument("--setup", action="store_true",
+                        help="as the set-up does: build where possible, else say so and "
+                             "go on (exit 0)")
     parser.add_argument("--list", action="store_true", help="print the compiled modules")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root")
     parser.add_argument("--build-dir", type=Path, default=None,
@@ -163,6 +234,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.list:
         print("\n".join(COMPILED_MODULES))
+        return 0
+    if args.setup:
+        setup(args.root, args.build_dir)
         return 0
     if args.clean:
         for path in clean(args.root, args.build_dir):

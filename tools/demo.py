@@ -150,8 +150,12 @@ class Demo:
     """One run: the robot's links, the log, the step printer."""
 
     def __init__(self, hand: Hand, arm: Arm, out: Path, *, truth: Any = None,
-                 palm_port: str = "") -> None:
+                 palm_port: str = "", reopen_hand: Callable[[], Hand] | None = None) -> None:
         self.hand = hand
+        #: Through a pty the palm port is the demo's own (an exclusive lock): it closes its
+        #: hand while ``flash-all-fingers`` has the port, as a user would, and opens it again
+        #: with this.  None: the port can be shared (the in-process emulator).
+        self.reopen_hand = reopen_hand
         self.arm = arm
         self.out = out
         self.truth = truth  # a MugTracker (in process) or None (ground truth at the end)
@@ -218,8 +222,14 @@ class Demo:
                 raise DemoFailed("firmware", f"fwimage build --board {board} failed")
             args += [f"--{board}", str(image)]
         self.say("flashing all twelve finger MCUs (flash-all-fingers)")
-        status, text = _quiet(flash_all_fingers.main, ["--port", self.palm_port, "--json",
-                                                       *args])
+        if self.reopen_hand is not None:
+            self.hand.close()  # flash-all-fingers takes the port for itself
+        try:
+            status, text = _quiet(flash_all_fingers.main, ["--port", self.palm_port, "--json",
+                                                           *args])
+        finally:
+            if self.reopen_hand is not None:
+                self.hand = self.reopen_hand()
         try:
             report = json.loads(text.strip().splitlines()[-1])
         except (ValueError, IndexError):
@@ -554,7 +564,7 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
         models = []
         for joint in ARM_JOINTS:
             model, result = 0, -1
-            for _ in range(3):  # the SDK's own timeout is tight for a pty on a busy machine
+            for _ in range(6):  # the SDK's own timeout is tight for a pty on a busy machine
                 try:
                     model, result, _ = sdk.ping(port, joint.dxl_id)
                 except IndexError:  # the SDK indexes a reply it did not get
@@ -585,12 +595,13 @@ def run_realtime(out: Path, seed: int) -> tuple[bool, str]:
             over_the_wire(ports, say)
             hand = Hand.open(ports["palm"])
             arm = Arm.open(ports["arm"])
-            demo = Demo(hand, arm, out, palm_port=ports["palm"])
+            demo = Demo(hand, arm, out, palm_port=ports["palm"],
+                        reopen_hand=lambda: Hand.open(ports["palm"]))
             demo.wall0 = wall0
             try:
                 run_session(demo, out)
             finally:
-                hand.close()
+                demo.hand.close()
                 arm.close()
                 proc.send_signal(signal.SIGINT)
                 proc.wait(timeout=20)

@@ -4,6 +4,7 @@
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
                  [--faults FILE] [--control PATH] [--scene none|mug]
+                 [--priority realtime|normal]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
@@ -18,10 +19,14 @@ times count from the moment the ports are ready) and prints the timeline on exit
 (JSON lines, :mod:`hil_emulator.faults.control`): ``DIR/control`` with ``--link-dir DIR``,
 or ``--control PATH``; its path is the ``control`` key of the JSON line.
 
-Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
+In real time the thread that paces the simulation asks for real-time scheduling
+(``SCHED_RR`` at a modest priority) where it is allowed (root, ``CAP_SYS_NICE``, an
+``rtprio`` limit) and says on standard error which scheduling it got; ``--priority normal``
+does not ask.  Real time sleeps between events (it used to keep a core busy polling unless ``--sleep``
 was given); ``--sleep`` is still accepted and changes nothing.  ``--stats`` prints, on
 exit, one line ``hil-emulator stats: {JSON}`` to standard error: simulated time, delivery
-lateness (``null`` when nothing was delivered), episodes of lateness, ``stop_ms`` (wall
+lateness (``null`` when nothing was delivered), episodes of lateness, ``scheduling`` (the
+pacing thread's policy in real time: ``SCHED_RR`` or ``SCHED_OTHER``), ``stop_ms`` (wall
 time from SIGINT/SIGTERM or the end of ``--duration`` to the loop's end), per port the
 bytes in and out, host input lost to overrun and the longest input queue, and with a
 ``--scene`` its objects' ground truth (``scene``: the mug's start and present height,
@@ -45,6 +50,7 @@ from hil_emulator.emulator import CONFIGS, Emulator, has_display
 from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import load_plan
 from hil_emulator.scene_model import SCENES
+from hil_emulator.scheduling import PRIORITIES
 from tools.cli_numbers import number_above
 
 
@@ -66,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="before naming the ports, bring the hand up as a host would "
                              "(fingers and phalanges powered and booted, autopoll on), in "
                              "simulated time; the arm stays torque-off")
+    parser.add_argument("--priority", choices=PRIORITIES, default="realtime",
+                        help="real time: ask for real-time scheduling of the simulation "
+                             "thread where allowed (default), or run normally")
     parser.add_argument("--sleep", action="store_true",
                         help="accepted for compatibility; real time always sleeps between "
                              "events now")
@@ -144,6 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 1
         emulator.on_late = lambda text: print(f"hil-emulator: {text}", file=sys.stderr,
                                               flush=True)
+        emulator.on_notice = emulator.on_late
         on_idle: Callable[[], None] | None = None
         handle: Any = None
         if args.viewer:
@@ -160,7 +170,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             timer.daemon = True
             timer.start()
         try:
-            emulator.run(stop, realtime=args.realtime, on_idle=on_idle)
+            emulator.run(stop, realtime=args.realtime, on_idle=on_idle,
+                         priority=args.priority)
         finally:
             stop_ms = (time.monotonic() - stop_asked[0]) * 1e3 if stop_asked else None
             if handle is not None:
@@ -169,6 +180,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 stats: dict[str, Any] = {
                     "sim_s": emulator.scheduler.now_us() / 1e6, **emulator.lateness_stats(),
                     "stop_ms": stop_ms,
+                    "scheduling": (emulator.scheduling.policy if emulator.scheduling
+                                   else None),
                     "ports": emulator.link_stats(),
                     "fault_timeline": emulator.faults.timeline_dicts()}
                 if emulator.scene_parts:

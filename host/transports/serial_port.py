@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import select
 from typing import Any
 from urllib.parse import urlencode
@@ -14,6 +15,43 @@ from host.transport import HAND_SERIAL_BAUD, Transport, url_options
 #: What a user reads when a port stops working under an open transport.
 _GONE = ("the port is gone (USB adapter unplugged, robot switched off, or the emulator "
          "stopped); plug it back in and run the command again (a program calls reopen())")
+
+
+def lock_holder(path: str) -> int | None:
+    """The process id holding the advisory ``flock`` of the device ``path`` (what
+    ``exclusive`` takes), from ``/proc/locks``; None where it cannot be told."""
+    try:
+        st = os.stat(path)
+        with open("/proc/locks", encoding="ascii") as locks:
+            lines = locks.read().splitlines()
+    except OSError:
+        return None
+    where = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 6 and fields[1] == "FLOCK" and fields[5] == where:
+            try:
+                return int(fields[4])
+            except ValueError:
+                return None
+    return None
+
+
+def _who_holds(path: str) -> str:
+    """Why an exclusive open of ``path`` failed, as the end of a sentence."""
+    pid = lock_holder(path)
+    if pid == os.getpid():
+        return ("; this program holds it already (a link it opened earlier): close that "
+                "link first")
+    who = "another program"
+    if pid is not None:
+        try:
+            with open(f"/proc/{pid}/comm", encoding="utf-8") as comm:
+                who = f"another program ({comm.read().strip()}, pid {pid})"
+        except OSError:
+            who = f"another program (pid {pid})"
+    return (f"; {who} has it open (handctl, armctl, a recorder, a terminal): close that "
+            "one first, or share the port knowingly with ?exclusive=0")
 
 
 class SerialTransport(Transport):
@@ -68,9 +106,7 @@ class SerialTransport(Transport):
         except (serial.SerialException, OSError, ValueError) as exc:
             held = ""
             if "exclusive" in kwargs and "exclusively lock" in str(exc):
-                held = ("; another program has it open (handctl, armctl, a recorder, a "
-                        "terminal): close that one first, or share the port knowingly with "
-                        "?exclusive=0")
+                held = _who_holds(self.port)
             raise TransportError(f"cannot open {self.port}: {exc}{held}") from exc
         self._timeout = 0.0
         return port

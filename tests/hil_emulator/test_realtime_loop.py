@@ -63,9 +63,9 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
     entered: list[tuple[int, int]] = []  # (input time, simulation time when read), µs
     clock = link.input_clock
 
-    def recording_clock() -> int:
+    def recording_clock(arrived: float | None = None) -> int:
         now_us = emulator.scheduler.now_us()
-        t_us = clock()
+        t_us = clock(arrived)
         entered.append((t_us, now_us))
         return t_us
 

@@ -4,6 +4,8 @@ the URL registry, closing, and a USB adapter unplugged and plugged back in."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
 import tty
@@ -155,11 +157,28 @@ def test_unknown_serial_option_is_a_usage_error(pty: Pty) -> None:
         open_transport(f"{pty.path}?bauds=9600")
 
 
-def test_exclusive_port_refuses_a_second_client(pty: Pty) -> None:
+def test_exclusive_port_refused_to_this_process_says_it_holds_it(pty: Pty) -> None:
     with SerialTransport(pty.path), pytest.raises(TransportError, match=pty.path) as info:
         SerialTransport(pty.path)
-    assert "another program has it open" in str(info.value)
-    assert "?exclusive=0" in str(info.value)
+    assert "this program holds it already" in str(info.value)
+    assert "another program" not in str(info.value)
+
+
+def test_exclusive_port_refuses_a_second_program_and_names_it(pty: Pty) -> None:
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import serial, sys; s = serial.Serial(sys.argv[1], "
+         "exclusive=True); print('held', flush=True); sys.stdin.read()", pty.path],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(TransportError, match=pty.path) as info:
+            SerialTransport(pty.path)
+        assert "another program (python" in str(info.value)
+        assert f"pid {holder.pid})" in str(info.value)
+        assert "?exclusive=0" in str(info.value)
+    finally:
+        holder.kill()
+        holder.wait()
 
 
 def test_missing_port_names_the_path(tmp_path: Path) -> None:

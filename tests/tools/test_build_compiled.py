@@ -1,5 +1,6 @@
-"""The optional compiled core: its module list, its clean-up, and (slow) that a compiled
-build sends the host exactly the bytes the pure-Python modules send."""
+"""The compiled core: its module list, its clean-up, the set-up's choice (compiled where
+built and fresh, pure Python on request or when stale), and that a compiled build sends the
+host exactly the bytes the pure-Python modules send."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ from pathlib import Path
 
 import pytest
 
+from protocol import compiled_guard
+from protocol.compiled_guard import PURE_PYTHON_ENV
 from tools import build_compiled
-from tools.build_compiled import COMPILED_MODULES, ROOT, clean, compiled_files
+from tools.build_compiled import COMPILED_MODULES, ROOT, clean, compiled_files, is_built
 
 #: What the slow test compiles: the scheduler, the CRCs and the frame codec (every frame and tick).
 SMOKE_MODULES = COMPILED_MODULES[:3]
@@ -49,11 +52,64 @@ def test_clean_removes_the_extensions_and_the_build_directory(tmp_path: Path) ->
     assert all((tmp_path / module).is_file() for module in COMPILED_MODULES)
 
 
-def test_the_pure_python_modules_are_the_default() -> None:
-    """Nothing in the test run builds the extensions (``make test`` stays pure Python)."""
-    if compiled_files(ROOT):
-        pytest.skip("a compiled build is present in this checkout (make clean-compiled)")
-    assert build_compiled.loaded_compiled() == []
+def _loaded(**env: str) -> int:
+    """How many compiled modules a fresh process imports as extensions."""
+    out = subprocess.run(
+        [sys.executable, "-c",
+         "from tools.build_compiled import loaded_compiled; print(len(loaded_compiled()))"],
+        cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT), **env}, capture_output=True,
+        text=True, check=True).stdout.strip()
+    return int(out)
+
+
+def test_a_fresh_build_is_imported_and_without_one_the_sources_are() -> None:
+    fresh = is_built(ROOT) and not compiled_guard.stale(ROOT)
+    assert _loaded(**{PURE_PYTHON_ENV: "0"}) == (len(COMPILED_MODULES) if fresh else 0)
+
+
+def test_the_environment_variable_forces_pure_python() -> None:
+    assert _loaded(**{PURE_PYTHON_ENV: "1"}) == 0
+
+
+def test_a_build_older_than_its_source_is_ignored(tmp_path: Path) -> None:
+    source = tmp_path / "firmware_py" / "scheduler.py"
+    source.parent.mkdir()
+    source.write_text("")
+    extension = source.with_name("scheduler.cpython-311-x86_64-linux-gnu.so")
+    extension.write_bytes(b"")
+    os.utime(source, (1_000_000, 1_000_000))
+    os.utime(extension, (2_000_000, 2_000_000))
+    assert compiled_guard.extensions(tmp_path) == [(extension, source)]
+    assert compiled_guard.stale(tmp_path) == []
+    os.utime(source, (3_000_000, 3_000_000))  # edited after the build
+    assert compiled_guard.stale(tmp_path) == [source]
+
+
+def test_setup_with_pure_python_requested_removes_the_build_and_says_so(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    module = tmp_path / COMPILED_MODULES[0]
+    module.parent.mkdir(parents=True)
+    module.write_text("")
+    extension = module.with_name(f"{module.stem}.cpython-311-x86_64-linux-gnu.so")
+    extension.write_bytes(b"")
+    monkeypatch.setenv(PURE_PYTHON_ENV, "1")
+    line = build_compiled.setup(tmp_path)
+    assert line == (f"compiled core: not built ({PURE_PYTHON_ENV} is set): the emulator "
+                    "runs pure Python")
+    assert not extension.exists()
+
+
+def test_setup_without_a_compiler_falls_back_in_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.delenv(PURE_PYTHON_ENV, raising=False)
+    monkeypatch.setenv("CC", "no-such-compiler")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no cc, no gcc
+    line = build_compiled.setup(tmp_path, tmp_path / "build")
+    assert line.startswith("compiled core: cannot be built here (no C compiler")
+    assert line.endswith("the emulator runs pure Python")
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed[-1] == line and len(printed) == 2  # "building ..." then the outcome
 
 
 def test_the_whole_compile_set_type_checks_as_mypyc_sees_it() -> None:
@@ -67,11 +123,18 @@ def test_the_whole_compile_set_type_checks_as_mypyc_sees_it() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def _digest_of(root: Path) -> str:
-    env = {**os.environ, "PYTHONPATH": str(root)}
+def _digest_of(root: Path, **extra: str) -> str:
+    env = {**os.environ, "PYTHONPATH": str(root), **extra}
     out = subprocess.run([sys.executable, "-m", "tools.traffic_record", "--seed", "7"],
                          cwd=root, env=env, capture_output=True, text=True, check=True).stdout
     return str(json.loads(out)["digest"])
+
+
+def test_the_default_build_and_pure_python_send_the_same_traffic() -> None:
+    """The checkout as the set-up left it (the compiled core where it could be built) and
+    the same checkout forced to pure Python: the same traffic digest."""
+    default = _digest_of(ROOT, **{PURE_PYTHON_ENV: "0"})
+    assert default == _digest_of(ROOT, **{PURE_PYTHON_ENV: "1"})
 
 
 @pytest.mark.slow

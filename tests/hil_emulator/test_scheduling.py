@@ -1,0 +1,100 @@
+"""Real-time scheduling of the thread that paces the simulation: asked for where allowed,
+said once on standard error, normal where not (or with ``--priority normal``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from hil_emulator.emulator import Emulator
+from hil_emulator.scheduling import RT_PRIORITY, current, request_priority, rtprio_limit
+from tests.hil_emulator.emulator_process import ROOT
+
+ALLOWED = os.geteuid() == 0 or rtprio_limit() > 0
+SETPRIV = shutil.which("setpriv")
+
+
+def _in_thread(fn: object) -> object:
+    out: list[object] = []
+    thread = threading.Thread(target=lambda: out.append(fn()))  # type: ignore[operator]
+    thread.start()
+    thread.join()
+    return out[0]
+
+
+def test_normal_leaves_the_thread_as_it_is() -> None:
+    got = _in_thread(lambda: request_priority("normal"))
+    assert got == current() and not got.realtime  # type: ignore[attr-defined]
+    assert got.describe() == "normal scheduling (--priority normal)"  # type: ignore[attr-defined]
+    with pytest.raises(ValueError, match="realtime, normal"):
+        request_priority("urgent")
+
+
+@pytest.mark.skipif(not ALLOWED, reason="real-time scheduling is not allowed here")
+def test_realtime_where_allowed_is_round_robin_for_that_thread_only() -> None:
+    got = _in_thread(lambda: (request_priority("realtime"), current()))
+    asked, seen = got  # type: ignore[misc]
+    assert (asked.policy, asked.priority) == ("SCHED_RR", RT_PRIORITY)
+    assert seen == asked and asked.describe().startswith("real-time scheduling: SCHED_RR")
+    assert not current().realtime  # this thread never asked
+    assert os.sched_getscheduler(0) & os.SCHED_RESET_ON_FORK == 0
+
+
+@pytest.mark.skipif(not ALLOWED, reason="real-time scheduling is not allowed here")
+def test_a_run_gives_the_thread_its_scheduling_back_and_says_which_it_had() -> None:
+    emulator = Emulator("arm", physics=False)
+    said: list[str] = []
+    emulator.on_notice = said.append
+    stop = threading.Event()
+    threading.Timer(0.3, stop.set).start()
+
+    def run() -> tuple[str, bool]:
+        emulator.run(stop, priority="realtime")
+        return current().policy, bool(emulator.scheduling and emulator.scheduling.realtime)
+
+    after, had = _in_thread(run)  # type: ignore[misc]
+    assert had and after == "SCHED_OTHER"
+    assert said == [f"real-time scheduling: SCHED_RR priority {RT_PRIORITY} for the "
+                    "simulation thread"]
+
+
+def _command(*args: str, prefix: tuple[str, ...] = ()) -> tuple[list[str], dict[str, object]]:
+    proc = subprocess.run([*prefix, sys.executable, "-m", "tools.hil_emulator", "--config",
+                           "arm", "--no-physics", "--duration", "0.5", "--stats", *args],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    stats = json.loads(lines[-1].split("stats: ", 1)[1])
+    return lines[:-1], stats
+
+
+@pytest.mark.skipif(not ALLOWED, reason="real-time scheduling is not allowed here")
+def test_the_command_says_once_which_scheduling_it_got() -> None:
+    lines, stats = _command()
+    assert [line for line in lines if "scheduling" in line] == [
+        f"hil-emulator: real-time scheduling: SCHED_RR priority {RT_PRIORITY} for the "
+        "simulation thread"]
+    assert stats["scheduling"] == "SCHED_RR"
+    lines, stats = _command("--priority", "normal")
+    assert "hil-emulator: normal scheduling (--priority normal)" in lines
+    assert stats["scheduling"] == "SCHED_OTHER"
+
+
+@pytest.mark.skipif(SETPRIV is None or os.geteuid() != 0 or rtprio_limit() > 0,
+                    reason="needs setpriv and root to take CAP_SYS_NICE away")
+def test_without_the_right_it_says_why_and_runs_on_normally() -> None:
+    assert SETPRIV is not None
+    lines, stats = _command(prefix=(SETPRIV, "--bounding-set=-sys_nice", "--"))
+    told = [line for line in lines if "scheduling" in line]
+    assert len(told) == 1 and told[0].startswith(
+        "hil-emulator: normal scheduling (not allowed: needs CAP_SYS_NICE or an rtprio "
+        "limit)"), told
+    assert "docs/EMULATOR.md" in told[0]
+    assert stats["scheduling"] == "SCHED_OTHER" and stats["sim_s"] > 0
