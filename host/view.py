@@ -48,7 +48,7 @@ ARM_BUS_STATS: Final = "/arm/bus/stats"
 HAND_LINK_STATS: Final = "/hand/link/stats"
 #: Default port of the web page; the data it reads is served on the next port up.
 WEB_PORT: Final = 9090
-DEFAULT_RATE_HZ: Final = 30.0
+DEFAULT_RATE_HZ: Final = 10.0
 DEFAULT_QUEUE: Final = 64
 INSTALL_HINT: Final = "pip install 'lowcost-hand-stack[view]' (or: pip install rerun-sdk)"
 
@@ -216,6 +216,12 @@ class RobotView:
                 self.drawn += 1
             except Exception as exc:  # a view never takes the robot's session down
                 print(f"view: could not draw {topic}: {exc}", file=sys.stderr)
+            finally:
+                self._queue.task_done()
+
+    def drain(self) -> None:
+        """Wait until every message queued so far is drawn."""
+        self._queue.join()
 
     def close(self) -> None:
         """Detach, draw what is queued, stop the thread and flush (idempotent)."""
