@@ -90,6 +90,7 @@ from host.arm_state import (
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
+from host.view import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
     GOAL_FINE_PER_COUNT,
     RX64_TABLE,
@@ -116,7 +117,6 @@ from protocol.dynamixel import (
 )
 from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
 
-from host.view import RobotView, ViewSpec, open_view
 if TYPE_CHECKING:
     from host.arm_control import CartesianMove
     from host.arm_homing import JointCalibration

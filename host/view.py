@@ -95,6 +95,11 @@ def _port_free(port: int) -> bool:
     return True
 
 
+def _remove(taps: list[Any], tap: Any) -> None:
+    if tap in taps:
+        taps.remove(tap)
+
+
 def page_address(web_port: int, grpc_url: str, host: str = "127.0.0.1") -> str:
     """The address of the web page that shows the data served at ``grpc_url``."""
     return f"http://{host}:{web_port}/?url={urllib.parse.quote(grpc_url, safe='')}"
@@ -187,7 +192,7 @@ class RobotView:
                                                       "timeouts": stats.timeouts})
 
         arm.state_taps.append(tap)
-        self._detach.append(lambda: tap in arm.state_taps and arm.state_taps.remove(tap))
+        self._detach.append(lambda: _remove(arm.state_taps, tap))
 
     def attach_hand(self, hand: Hand) -> None:
         """Draw every state ``hand`` reads (its link counters) and every finger event."""
@@ -201,7 +206,7 @@ class RobotView:
 
         hand.state_taps.append(tap)
         unsubscribe = hand.subscribe(lambda event: self.message(HAND_EVENTS, event.t, event))
-        self._detach.append(lambda: tap in hand.state_taps and hand.state_taps.remove(tap))
+        self._detach.append(lambda: _remove(hand.state_taps, tap))
         self._detach.append(unsubscribe)
 
     # --- drawing ---------------------------------------------------------------------------

@@ -16,7 +16,18 @@ from typing import Any
 from host.view import WEB_PORT, RobotView
 from tools.cli_numbers import number_above
 
-__all__ = ["add_view_arguments", "add_watch_command", "view_spec", "watch"]
+__all__ = ["add_view_arguments", "add_watch_command", "port_number", "view_spec", "watch"]
+
+
+def port_number(text: str) -> int:
+    """A TCP port for the page, 0..65534 (its data goes on the next; 0: any free ports)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= port <= 65534:
+        raise argparse.ArgumentTypeError(f"port {port}: give 0..65534 (0: any free port)")
+    return port
 
 
 def add_view_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +35,7 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view", action="store_true",
                         help="serve a live view of the robot in a browser while this runs "
                              "(prints its address; needs rerun-sdk, the 'view' extra)")
-    parser.add_argument("--view-port", type=int, default=WEB_PORT, metavar="N",
+    parser.add_argument("--view-port", type=port_number, default=WEB_PORT, metavar="N",
                         help=f"the view's web page port (default {WEB_PORT}; its data on N+1)")
 
 

@@ -27,6 +27,7 @@ from host.errors import HostError
 from host.view import WEB_PORT, RobotView, ViewUnavailable
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
 from tools.cli_numbers import number_above
+from tools.cli_view import port_number
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -74,7 +75,7 @@ def make_parser() -> argparse.ArgumentParser:
                      help="the hand's layout (default %(default)s)")
     rep.add_argument("--save", type=Path, default=None, metavar="FILE.rrd",
                      help="write a rerun file instead of serving a page")
-    rep.add_argument("--view-port", type=int, default=WEB_PORT, metavar="N",
+    rep.add_argument("--view-port", type=port_number, default=WEB_PORT, metavar="N",
                      help=f"the page's port (default {WEB_PORT}; its data on N+1)")
     rep.add_argument("--seconds", type=number_above(0, what="a time (s)"), default=None,
                      metavar="S", help="stop serving after this long (default: Ctrl-C)")
