@@ -184,3 +184,14 @@ def test_plain_host_use_never_imports_rerun() -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_the_view_tour_draws_the_arm_and_the_hand_in_one_view() -> None:
+    from tools.examples import view_tour
+
+    try:
+        seen = view_tour.main(web_port=0)
+    finally:
+        forget_shared_emulators()
+    assert str(seen["address"]).startswith("http://127.0.0.1:")
+    assert seen["drawn"] and seen["dropped"] == 0
