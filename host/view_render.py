@@ -106,6 +106,7 @@ class Renderer:
         self.rec = recording
         self.layout = layout
         self._flange: Pose | None = None
+        self._hand_seen = False
         self._alarms: dict[str, str] = {}
         for path, names in SERIES.items():
             colors = (*JOINT_RGB, *JOINT_RGB[:4], *JOINT_RGB[:4]) if path == "arm/joints" else None
@@ -160,6 +161,8 @@ class Renderer:
         joints = p["joints"]
         points, flange = arm_skeleton(joints)
         self._flange = flange
+        if self._hand_seen:
+            self._place_hand()
         self.rec.log("world/arm", rr.LineStrips3D.from_fields(strips=[points]))
         self.rec.log("world/arm/joints", rr.Points3D.from_fields(positions=points[1:-1]))
         goals = p.get("goals") or [None] * len(_STEPPERS)
@@ -175,8 +178,17 @@ class Renderer:
             bits = [*errors.get(name, ()), *flags.get(name, ())]
             self._alarm(name, ", ".join(bits) if bits else None)
 
+    def _place_hand(self) -> None:
+        """The palm frame (entity ``world/hand``) on the flange's last pose."""
+        assert self._flange is not None
+        position, rotation = palm_on_flange(self._flange)
+        self.rec.log("world/hand", rr.Transform3D(translation=position, mat3x3=rotation))
+
     def _hand(self, p: Mapping[str, Any]) -> None:
-        palm = IDENTITY if self._flange is None else palm_on_flange(self._flange)
+        if not self._hand_seen and self._flange is not None:
+            self._place_hand()
+        self._hand_seen = True
+        palm = IDENTITY  # drawn in the palm frame; world/hand is placed on the flange
         strips = []
         joints: list[Any] = []
         targets: list[Any] = []

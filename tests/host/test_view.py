@@ -195,3 +195,29 @@ def test_the_view_tour_draws_the_arm_and_the_hand_in_one_view() -> None:
         forget_shared_emulators()
     assert str(seen["address"]).startswith("http://127.0.0.1:")
     assert seen["drawn"] and seen["dropped"] == 0
+
+
+def test_the_hand_is_drawn_on_the_flange_where_the_arm_moves(arm: Arm, tmp_path: Path
+                                                              ) -> None:
+    from host.hand_state import FingerState, HandState
+
+    rrd = tmp_path / "hand.rrd"
+    hand = HandState(0.5, [FingerState(k) for k in range(4)])
+    hand.fingers[2].joints_hall = [0, 300, 200]
+    with RobotView(serve=False, save=rrd) as view:
+        first = arm.cycle()
+        view.renderer.message("/arm/state", 0.4, first.as_dict())
+        view.renderer.message("/hand/state", 0.5, hand.to_dict())
+        moved = [0.5, 0.2, 0.1, 0.3, 0.0, 0.4, 0.2]
+        view.renderer.message("/arm/state", 0.6, {**first.as_dict(), "joints": moved})
+    places = []
+    for chunk in rr.chunk.RrdReader(str(rrd)).stream():
+        if chunk.entity_path == "/world/hand":
+            batch = chunk.to_record_batch()
+            places += [row[0] for row in batch.column("Transform3D:translation").to_pylist()]
+    expected = [palm_on_flange(arm_skeleton(q)[1])[0] for q in (first.joints, moved)]
+    assert np.allclose(places, expected, atol=1e-5)  # placed when drawn, moved with the arm
+    fingers = rows(rrd, "/world/hand/fingers")
+    assert len(fingers) == 1 and len(fingers[0][1]) == 4  # four fingers, in the palm frame
+    bent = finger_skeleton("four-finger-thumb", 2, hand.fingers[2].joints)
+    assert np.allclose(fingers[0][1][2], bent, atol=1e-5)  # float32 in rerun

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)")
+pytest.importorskip("websockets", reason="the browser is driven with websockets (the test extra)")
 
 from host.arm import Arm  # noqa: E402
 from host.view import RobotView  # noqa: E402
