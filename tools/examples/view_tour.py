@@ -35,4 +35,4 @@ def main(arm_url: str = FULL.format("arm"), hand_url: str = FULL.format("palm"),
 
 
 if __name__ == "__main__":
-    print(main(*sys.argv[1:3]))
+    print(main(sys.argv[1], sys.argv[2]) if len(sys.argv) > 2 else main())
