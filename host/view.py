@@ -50,6 +50,8 @@ HAND_LINK_STATS: Final = "/hand/link/stats"
 WEB_PORT: Final = 9090
 DEFAULT_RATE_HZ: Final = 10.0
 DEFAULT_QUEUE: Final = 64
+#: The bus and link counters are drawn once a second (s, the link's clock).
+STATS_INTERVAL_S: Final = 1.0
 INSTALL_HINT: Final = "pip install 'lowcost-hand-stack[view]' (or: pip install rerun-sdk)"
 
 
@@ -171,11 +173,12 @@ class RobotView:
         except queue.Full:
             self.dropped += 1
 
-    def sample(self, topic: str, t: float, payload: Any) -> bool:
-        """Queue a state at most ``max_rate_hz`` times a second per topic (by ``t``);
-        True if it was offered."""
+    def sample(self, topic: str, t: float, payload: Any, interval: float | None = None
+               ) -> bool:
+        """Queue a state at most ``max_rate_hz`` times a second per topic (or one every
+        ``interval`` s; by ``t``); True if it was offered."""
         last = self._last.get(topic)
-        if last is not None and last <= t < last + self.min_interval:
+        if last is not None and last <= t < last + (interval or self.min_interval):
             return False
         self._last[topic] = t
         self.message(topic, t, payload)
@@ -187,9 +190,10 @@ class RobotView:
 
         def tap(state: Any) -> None:
             if self.sample(ARM_STATE, state.t, state):
-                self.message(ARM_BUS_STATS, state.t, {"requests": stats.requests,
-                                                      "retries": stats.retries,
-                                                      "timeouts": stats.timeouts})
+                self.sample(ARM_BUS_STATS, state.t, {"requests": stats.requests,
+                                                     "retries": stats.retries,
+                                                     "timeouts": stats.timeouts},
+                            STATS_INTERVAL_S)
 
         arm.state_taps.append(tap)
         self._detach.append(lambda: _remove(arm.state_taps, tap))
@@ -200,9 +204,10 @@ class RobotView:
 
         def tap(state: Any) -> None:
             if self.sample(HAND_STATE, state.t, state):
-                self.message(HAND_LINK_STATS, state.t, {"requests": counters.requests,
-                                                        "retries": counters.retries,
-                                                        "timeouts": counters.timeouts})
+                self.sample(HAND_LINK_STATS, state.t, {"requests": counters.requests,
+                                                       "retries": counters.retries,
+                                                       "timeouts": counters.timeouts},
+                            STATS_INTERVAL_S)
 
         hand.state_taps.append(tap)
         unsubscribe = hand.subscribe(lambda event: self.message(HAND_EVENTS, event.t, event))

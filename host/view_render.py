@@ -107,6 +107,7 @@ class Renderer:
         self.layout = layout
         self._flange: Pose | None = None
         self._hand_seen = False
+        self._last_values: dict[str, list[Any]] = {}
         self._alarms: dict[str, str] = {}
         for path, names in SERIES.items():
             colors = (*JOINT_RGB, *JOINT_RGB[:4], *JOINT_RGB[:4]) if path == "arm/joints" else None
@@ -115,8 +116,6 @@ class Renderer:
         recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         # Colours and sizes once, static: converting them costs more than the geometry.
         recording.log("world/arm", rr.LineStrips3D.from_fields(colors=[ARM_RGB], radii=0.012),
-                      static=True)
-        recording.log("world/arm/joints",
                       rr.Points3D.from_fields(colors=[ARM_RGB], radii=0.02), static=True)
         recording.log("world/hand/fingers",
                       rr.LineStrips3D.from_fields(colors=[FINGER_RGB], radii=0.005),
@@ -141,7 +140,13 @@ class Renderer:
             path = "arm/bus" if topic == ARM_BUS_STATS else "hand/link"
             self._scalars(path, [payload.get(k, 0) for k in _STATS])
 
-    def _scalars(self, path: str, values: Sequence[Any]) -> None:
+    def _scalars(self, path: str, values: Sequence[Any], changes_only: bool = False) -> None:
+        """Log ``values`` on ``path`` (``changes_only``: unless they are the last ones: the
+        servos' temperatures, read one cycle in ten, change over seconds)."""
+        if changes_only:
+            if self._last_values.get(path) == list(values):
+                return
+            self._last_values[path] = list(values)
         self.rec.log(path, rr.Scalars(np.array([np.nan if v is None else float(v)
                                                 for v in values])))
 
@@ -163,14 +168,14 @@ class Renderer:
         self._flange = flange
         if self._hand_seen:
             self._place_hand()
-        self.rec.log("world/arm", rr.LineStrips3D.from_fields(strips=[points]))
-        self.rec.log("world/arm/joints", rr.Points3D.from_fields(positions=points[1:-1]))
+        self.rec.log("world/arm", rr.LineStrips3D.from_fields(strips=[points]),
+                     rr.Points3D.from_fields(positions=points[1:-1]))
         goals = p.get("goals") or [None] * len(_STEPPERS)
         self._scalars("arm/joints", [*joints, *goals, *p["motor_joints"]])
         self._scalars("arm/torque_nm", p["torques"])
         self._scalars("arm/deflection_counts", p["deflection_counts"])
         self._scalars("arm/servo_load", p["servo_load"])
-        self._scalars("arm/servo_temperature_c", p["servo_temperature_c"])
+        self._scalars("arm/servo_temperature_c", p["servo_temperature_c"], changes_only=True)
         errors: Mapping[str, Sequence[str]] = p.get("errors") or {}
         flags = {name: ["SLIP"] for name, slip in zip(_STEPPERS, p.get("slip", ()),
                                                        strict=False) if slip}

@@ -98,7 +98,10 @@ def test_the_view_draws_the_arm_on_the_links_clock_at_its_rate(arm: Arm, tmp_pat
         arm.watch(view)
         states = [arm.cycle() for _ in range(300)]
     drawn = rows(rrd, "/arm/joints")
-    assert view.dropped == 0 and view.offered == len(drawn) * 2  # each with its bus counters
+    counters = rows(rrd, "/arm/bus")
+    assert view.dropped == 0 and view.offered == len(drawn) + len(counters)
+    assert [t for t, _ in counters] == [states[0].t, *(t for t, _ in counters[1:])]
+    assert all(b - a >= 1.0 for (a, _), (b, _) in zip(counters, counters[1:], strict=False))
     span = states[-1].t - states[0].t
     assert abs(len(drawn) - span * 20.0) <= 2  # 20 a second of simulated time, not 300
     by_t = {s.t: s for s in states}
