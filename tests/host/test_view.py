@@ -224,3 +224,33 @@ def test_the_hand_is_drawn_on_the_flange_where_the_arm_moves(arm: Arm, tmp_path:
     assert len(fingers) == 1 and len(fingers[0][1]) == 4  # four fingers, in the palm frame
     bent = finger_skeleton("four-finger-thumb", 2, hand.fingers[2].joints)
     assert np.allclose(fingers[0][1][2], bent, atol=1e-5)  # float32 in rerun
+
+
+def test_a_breakaway_injected_on_the_control_channel_shows_as_the_fingers_alarm(
+        tmp_path: Path) -> None:
+    """The palm's finger event comes over the wire and is drawn at its time; the finger's
+    next status says why it is gone, as an alarm, until it is back."""
+    from host.hand import Hand
+
+    rrd = tmp_path / "hand.rrd"
+    try:
+        with RobotView(serve=False, save=rrd, max_rate_hz=1000.0) as view, \
+                Hand.open("emu://hand/palm?name=test_view_hand", view=view) as hand:
+            emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
+            control = ControlChannel(emulator, str(tmp_path / "control"))
+            hand.set_poll_rate(100)
+            hand.session.sleep(0.05)
+            answer = control.handle_line(json.dumps({
+                "op": "inject", "fault": "break_away", "params": {"finger": 3}}).encode())
+            assert answer["ok"], answer
+            hand.session.sleep(0.1)
+            gone = hand.status()
+            control.close()
+    finally:
+        forget_shared_emulators()
+    alarms = rows(rrd, "/alarms")
+    texts = [text for _, text in alarms]
+    assert texts[0] == "finger 3: lost"
+    assert alarms[0][0] >= answer["t_us"] / 1e6
+    problem = gone.fingers[3].problem
+    assert problem and f"finger 3: {problem}" in texts
