@@ -53,6 +53,7 @@ from protocol.robot import (
     DEFAULT_HAND_LAYOUT,
     FINGER_JOINT_AXES,
     FINGER_JOINT_STOPS,
+    FINGER_LINK_LENGTHS_M,
     HAND_LAYOUTS,
     PALM_HALF_EXTENTS_M,
     accel_mount_rotation,
@@ -78,13 +79,13 @@ PALM_PAD_Z: Final = PALM_HALF[2] + PAD_HALF_THICKNESS
 # --- finger geometry (m, kg), in each body's frame -----------------------------------------------
 F0_HALF: Final = (0.020, 0.012, 0.012)   # motor module, centred at x = −20 mm
 F0_MASS_KG: Final = 0.085
-F1_LENGTH: Final = 0.018                 # J1 → J2
+F1_LENGTH: Final = FINGER_LINK_LENGTHS_M[0]  # J1 → J2
 F1_MASS_KG: Final = 0.010
-F2_LENGTH: Final = 0.045                 # J2 → J3
+F2_LENGTH: Final = FINGER_LINK_LENGTHS_M[1]  # J2 → J3
 F2_HALF_WIDTH: Final = 0.010
 F2_HALF_THICK: Final = 0.008
 F2_MASS_KG: Final = 0.018
-F3_LENGTH: Final = 0.040
+F3_LENGTH: Final = FINGER_LINK_LENGTHS_M[2]  # J3 → tip
 F3_HALF_WIDTH: Final = 0.009
 F3_HALF_THICK: Final = 0.007
 F3_MASS_KG: Final = 0.012

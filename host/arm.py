@@ -90,6 +90,7 @@ from host.arm_state import (
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
+from host.view import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
     GOAL_FINE_PER_COUNT,
     RX64_TABLE,
@@ -184,6 +185,9 @@ class Arm:
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
+        #: The browser view drawing this arm (:meth:`watch`), if any.
+        self.view: RobotView | None = None
+        self._owns_view = False
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
         #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
@@ -201,10 +205,14 @@ class Arm:
     @classmethod
     def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
              latency_s: float | None = None,
-             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
+             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
+             view: ViewSpec = None) -> Arm:
         """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, any
         transport URL, or an open :class:`~host.transport.Transport`), discover the seven joints, set every node's return delay to
         ``return_delay`` (2 µs units; None: leave it) and read the stepper nodes' goals.
+        ``view`` (True, a port, or a :class:`~host.view.RobotView` to share): draw every
+        cycle in a browser view (:mod:`host.view`; its address on stderr), closed with the
+        arm unless it was given.
 
         Raises :class:`~host.errors.TransportError` (no such port),
         :class:`~host.errors.ReplyTimeout` (a joint does not answer) or
@@ -212,8 +220,10 @@ class Arm:
         """
         transport = url if isinstance(url, Transport) else open_arm_transport(url)
         try:
-            return cls.on(transport, return_delay=return_delay, retries=retries,
-                          latency_s=latency_s, stiffness=stiffness)
+            arm = cls.on(transport, return_delay=return_delay, retries=retries,
+                         latency_s=latency_s, stiffness=stiffness)
+            arm.watch(view)
+            return arm
         except BaseException:
             transport.close()
             raise
@@ -237,9 +247,19 @@ class Arm:
         """The bus's transport."""
         return self.bus.transport
 
+    def watch(self, view: ViewSpec) -> RobotView | None:
+        """Draw this arm's cycles in ``view`` (see :meth:`open`); the view, or None."""
+        self.view = open_view(view)
+        if self.view is not None:
+            self._owns_view = not isinstance(view, RobotView)
+            self.view.attach_arm(self)
+        return self.view
+
     def close(self) -> None:
-        """Close the transport (torque is left as it is)."""
+        """Close the transport (torque is left as it is) and a view this arm opened."""
         self.bus.transport.close()
+        if self.view is not None and self._owns_view:
+            self.view.close()
 
     def __enter__(self) -> Arm:
         return self

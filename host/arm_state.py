@@ -227,6 +227,7 @@ class ArmState:
             "t": self.t,
             "joints": self.joints,
             "motor_joints": self.motor_joints,
+            "goals": [s.goal for s in self.steppers],
             "torques": self.torques,
             "slip": self.slip,
             "stalled": [s.stalled for s in self.steppers],

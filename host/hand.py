@@ -30,6 +30,7 @@ from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply,
 from host.hand_state import FingerState, HandState, NodeInfo
 from host.joint_limits import JOINTS_PER_FINGER, JointLimits
 from host.transport import Transport, open_transport
+from host.view import RobotView, ViewSpec, open_view
 from protocol.messages import CATALOGUE_HASH
 from protocol.messages.common import Running
 from protocol.messages.fmcb import ControlMode
@@ -246,20 +247,46 @@ class Hand:
         self.layout = layout
         self.palm = Node(session, LINK_NODE, "palm")
         self.fingers = [Finger(self, k) for k in range(FINGERS)]
+        #: Called with every :class:`HandState` read (:meth:`status`, streams): a view, a
+        #: plot; whoever reads the hand need not know it is watched.
+        self.state_taps: list[Callable[[HandState], None]] = []
+        #: The browser view drawing this hand (:meth:`watch`), if any.
+        self.view: RobotView | None = None
+        self._owns_view = False
 
     @classmethod
     def open(cls, url: str | Transport, *, limits: JointLimits | None = None,
              timeouts: Timeouts | None = None, retries: int = 2,
-             layout: str = DEFAULT_HAND_LAYOUT) -> Hand:
+             layout: str = DEFAULT_HAND_LAYOUT, view: ViewSpec = None) -> Hand:
         """Open the palm link ``url`` (a path, any transport URL, or an open Transport) of
-        a hand built as ``layout``."""
+        a hand built as ``layout``.  ``view`` (True, a port, or a
+        :class:`~host.view.RobotView` to share): draw every state read and every finger
+        event in a browser view (:mod:`host.view`; its address on stderr), closed with the
+        hand unless it was given."""
         transport = open_transport(url) if isinstance(url, str) else url
-        return cls(HandSession(transport, timeouts=timeouts, retries=retries), limits,
+        hand = cls(HandSession(transport, timeouts=timeouts, retries=retries), limits,
                    layout)
+        try:
+            hand.watch(view)
+        except BaseException:
+            hand.close()
+            raise
+        return hand
+
+    def watch(self, view: ViewSpec) -> RobotView | None:
+        """Draw this hand's states and events in ``view`` (see :meth:`open`); the view, or
+        None."""
+        self.view = open_view(view, layout=self.layout)
+        if self.view is not None:
+            self._owns_view = not isinstance(view, RobotView)
+            self.view.attach_hand(self)
+        return self.view
 
     def close(self) -> None:
-        """Close the link (idempotent)."""
+        """Close the link (idempotent) and a view this hand opened."""
         self.session.close()
+        if self.view is not None and self._owns_view:
+            self.view.close()
 
     def __enter__(self) -> Hand:
         return self
@@ -359,6 +386,8 @@ class Hand:
                 finger.update_from_status(self.session.wait(p))
             except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
                 finger.problem = why_no_answer(exc)
+        for tap in self.state_taps:
+            tap(state)
         return state
 
     def set_poll_rate(self, rate_hz: int) -> None:

@@ -59,6 +59,10 @@ TENDON_COUPLING: Final = 0.89
 #: ``z`` the pads' side): a positive angle turns about ``+z`` (J0) or flexes towards ``+z``.
 FINGER_JOINT_AXES: Final[tuple[Vec3, Vec3, Vec3]] = (
     (0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (0.0, -1.0, 0.0))
+#: Lengths of the finger's links along their ``x`` axes (m): J0 → J1 (the abduction link,
+#: F1), J1 → J2 (the proximal phalange, F2) and J2 → the fingertip (the distal phalange,
+#: F3).  J0's axis passes through the module frame's origin.
+FINGER_LINK_LENGTHS_M: Final[Vec3] = (0.018, 0.045, 0.040)
 #: Default joint limits of J0, J1, J2 (rad, lower, upper): the fmcb's parameter defaults.
 FINGER_JOINT_LIMITS: Final[tuple[Range, Range, Range]] = (
     (-1.57, 1.57), (-1.57, 1.57), (-1.57, 1.57))

@@ -34,6 +34,7 @@ PROMISED = {
     "bench_arm_tracking": ["100 Hz: flange error RMS", "wire bound: flange error RMS",
                            "wire bound: cycle rate"],
     "bench_estimation": ["static, closed form", "moving, EKF fused with halls", "homing: "],
+    "bench_view": ["arm cycles, view off", "arm cycles, view on (10 Hz)"],
 }
 
 

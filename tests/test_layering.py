@@ -31,8 +31,9 @@ class Rule:
 RULES: dict[str, Rule] = {
     "protocol": Rule(("protocol",), ("construct", "crcmod", "numpy", "hypothesis")),
     "firmware_py": Rule(("firmware_py", "protocol"), ("numpy",)),
+    # rerun: the live browser view (host.view), imported only when a view is asked for
     "host": Rule(("host", "protocol"),
-                 ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf")),
+                 ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun")),
     "bootloader": Rule(("bootloader", "host", "protocol"),
                        ("serial", "can", "numpy", "cryptography", "intelhex", "elftools",
                         "nacl")),

@@ -13,6 +13,8 @@
     armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
     armctl --port P waypoints play path.jsonl
     armctl --port P clear                           # clear latched alarms (torque stays off)
+    armctl --port P watch                           # only read the arm: a browser view
+    armctl --port P move --joints … --view          # any command: draw it in a browser view
 
 ``torque on`` holds each joint whose torque was off where it is (not at a goal its node
 kept from before: one sent while the torque was off, the arm moved by hand since) and exits
@@ -59,6 +61,7 @@ from tools.cli_common import (
     unwritable,
 )
 from tools.cli_numbers import number_above
+from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
 EXIT_NOT_SETTLED = 3
@@ -77,7 +80,9 @@ def make_parser() -> argparse.ArgumentParser:
                          timeout_default="100 ms on a serial link, 0.2 ms in process")
     parser.add_argument("--keep-return-delay", action="store_true",
                         help="leave the nodes' return delay (register 5) as it is")
+    add_view_arguments(parser)
     sub = parser.add_subparsers(dest="command", required=True)
+    add_watch_command(sub, default_rate=50.0)
     sub.add_parser("ping", help="discover the joints: ids, models, firmware")
     scan = sub.add_parser("scan", help="ping every bus ID in a range and list the nodes that "
                                        "answer (a node at an unexpected ID, a wrong baud)")
@@ -382,7 +387,15 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
+def cmd_watch(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    """Read the arm's state (no commands) ``--rate`` times a second; the view draws it."""
+    t = arm.transport
+    cycles = watch(arm.state, t.now, t.sleep, args.rate, args.seconds)
+    _print(out, args.json, {"cycles": cycles}, f"{cycles} states read")
+    return EXIT_OK
+
+
+COMMANDS = {"watch": cmd_watch, "ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
             "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
             "waypoints": cmd_waypoints, "clear": cmd_clear}
 
@@ -407,7 +420,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         if args.command == "scan":
             return cmd_scan(args, stream)
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
-                       latency_s=args.link_timeout)
+                       latency_s=args.link_timeout, view=view_spec(args))
         with arm:
             return COMMANDS[args.command](arm, args, stream)
 

@@ -2,7 +2,7 @@
 
 ::
 
-    python -m tools.demo [--out DIR] [--seed N] [--realtime]
+    python -m tools.demo [--out DIR] [--seed N] [--realtime] [--view [--view-port N]]
 
 On the emulator's ``full`` configuration (the hand on the arm's wrist) with the ``mug``
 scene (a table in front of the arm, a 0.3 kg coffee mug on it), the demo does what a user
@@ -33,6 +33,8 @@ runs in this process on the simulation clock (``emu://…``: deterministic, and 
 on a busy machine as on an idle one); ``--realtime`` runs the same script against a
 ``hil-emulator`` subprocess through its ptys, paced to the wall clock, after identifying
 the thirteen hand MCUs and pinging the arm with the stock dynamixel-sdk over the wire.
+``--view`` serves a live view of the robot (the hand on the arm) in a browser while the
+demo runs and prints its address (:mod:`host.view`).
 
 Success is judged on the plant's ground truth (the mug's height in the physics, not what
 the robot's sensors say): the mug rose at least :data:`MIN_LIFT_M` and stands on the table
@@ -79,9 +81,11 @@ from host.hand import Hand
 from host.hand_homing import FingerMovingError, HomeResult
 from host.hand_recording import HandRecorder
 from host.hand_state import FingerState, HandState
+from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
+from tools.cli_view import add_view_arguments
 from tools.demo_plan import (
     APPROACH_M,
     FW_VERSION,
@@ -478,7 +482,16 @@ def judge(summary: Mapping[str, float]) -> tuple[bool, str]:
 # ---------------------------------------------------------------------------- in process
 
 
-def run_inprocess(out: Path, seed: int) -> tuple[bool, str]:
+def _watch(hand: Hand, arm: Arm, view_port: int | None) -> RobotView | None:
+    """One browser view of both (the hand drawn on the arm's flange) if asked for."""
+    view = open_view(view_port)
+    if view is not None:
+        arm.watch(view)
+        hand.watch(view)
+    return view
+
+
+def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
     from hil_emulator.inprocess import EmulatorTransport
 
     wall0 = time.monotonic()
@@ -487,6 +500,7 @@ def run_inprocess(out: Path, seed: int) -> tuple[bool, str]:
           f"process on the simulation clock ({url.format('palm')})", flush=True)
     hand = Hand.open(url.format("palm"))
     arm = Arm.open(url.format("arm"))
+    view = _watch(hand, arm, view_port)
     transport = hand.session.transport
     assert isinstance(transport, EmulatorTransport)
     emulator = transport.emulator
@@ -503,6 +517,8 @@ def run_inprocess(out: Path, seed: int) -> tuple[bool, str]:
         demo.log.result["mug"] = summary
         hand.close()
         arm.close()
+        if view is not None:
+            view.close()
         _write_report(demo, out)
     return judge(summary)
 
@@ -581,7 +597,7 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
         port.closePort()
 
 
-def run_realtime(out: Path, seed: int) -> tuple[bool, str]:
+def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
     wall0 = time.monotonic()
     link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
     try:
@@ -595,14 +611,22 @@ def run_realtime(out: Path, seed: int) -> tuple[bool, str]:
             over_the_wire(ports, say)
             hand = Hand.open(ports["palm"])
             arm = Arm.open(ports["arm"])
-            demo = Demo(hand, arm, out, palm_port=ports["palm"],
-                        reopen_hand=lambda: Hand.open(ports["palm"]))
+            view = _watch(hand, arm, view_port)
+
+            def reopen_hand() -> Hand:  # the view follows the hand opened again
+                reopened = Hand.open(ports["palm"])
+                reopened.watch(view)
+                return reopened
+
+            demo = Demo(hand, arm, out, palm_port=ports["palm"], reopen_hand=reopen_hand)
             demo.wall0 = wall0
             try:
                 run_session(demo, out)
             finally:
                 demo.hand.close()
                 arm.close()
+                if view is not None:
+                    view.close()
                 proc.send_signal(signal.SIGINT)
                 proc.wait(timeout=20)
                 stats = _final_stats(proc)
@@ -638,10 +662,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")
+    add_view_arguments(parser)
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     try:
-        ok, text = (run_realtime if args.realtime else run_inprocess)(args.out, args.seed)
+        ok, text = (run_realtime if args.realtime else run_inprocess)(
+            args.out, args.seed, args.view_port if args.view else None)
     except DemoFailed as exc:
         ok, text = False, f"{exc.step}: {exc}"
     except KeyboardInterrupt:

@@ -13,6 +13,8 @@
     handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
     handctl --port P grasp pinch 1.0 --fingers 0,3        # only some fingers
     handctl --port P grasp open 1.0                       # poses: open, relax, point
+    handctl --port P watch                                # only read the hand: a browser view
+    handctl --port P move … --view                        # any command: a browser view too
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
 ``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
@@ -43,6 +45,7 @@ from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 from tools.cli_numbers import number_above
+from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
 
@@ -84,7 +87,9 @@ def _finger_list(text: str) -> list[int]:
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
     add_common_arguments(p, what="the palm's port")
+    add_view_arguments(p)
     sub = p.add_subparsers(dest="command", required=True)
+    add_watch_command(sub, default_rate=20.0)
     sub.add_parser("ping", help="discover every node: program, versions")
     sub.add_parser("status", help="joints, taxels, currents, power of every finger")
     up = sub.add_parser("up", help="bring the fingers up after power-on: power, boot, "
@@ -412,13 +417,21 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
+def _cmd_watch(hand: Hand, args: argparse.Namespace) -> int:
+    """Read the hand's state ``--rate`` times a second; the view draws it and its events."""
+    s = hand.session
+    reads = watch(hand.status, s.now, s.sleep, args.rate, args.seconds)
+    _emit(args, {"states": reads}, f"{reads} states read")
+    return 0
+
+
+COMMANDS = {"watch": _cmd_watch, "ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
             "move": _cmd_move, "record": _cmd_record, "home": _cmd_home,
             "grasp": _cmd_grasp, "up": _cmd_up}
 
 
 def _run(args: argparse.Namespace) -> int:
-    with Hand.open(args.port, timeouts=hand_timeouts(args)) as hand:
+    with Hand.open(args.port, timeouts=hand_timeouts(args), view=view_spec(args)) as hand:
         try:
             return COMMANDS[args.command](hand, args)
         except NodeError as exc:

@@ -1,0 +1,223 @@
+"""Draw the robot's messages in a rerun recording: one function for live and replayed data.
+
+The messages are the JSON-ready dicts the MCAP recorders write (:mod:`host.hand_recording`,
+:mod:`host.arm_recording`), by topic:
+
+======================  ==============================================================
+topic                   payload
+======================  ==============================================================
+``/arm/state``          :meth:`host.arm_state.ArmState.as_dict`
+``/hand/state``         :meth:`host.hand_state.HandState.to_dict`
+``/hand/events``        a :class:`host.hand_session.FingerEvent` as a dict
+``/arm/bus/stats``      :class:`host.dynamixel_bus.BusStats` as a dict (counts)
+``/hand/link/stats``    :class:`host.hand_session.SessionCounters` as a dict (counts)
+======================  ==============================================================
+
+so a recording replays (:func:`tools.robot_view`) exactly as it was drawn live.  The time
+line ``time`` is each message's ``t`` (s on the link's clock: the simulation's on an
+in-process emulator).  Entities: ``world/arm`` and ``world/hand/*`` (3D, metres, the arm's
+base frame, or the palm frame for a hand on its own), ``arm/*`` and ``hand/finger{k}/*``
+time series, ``alarms`` (a text log of alarm bits, finger problems and events as they
+appear and clear).  This module imports rerun; :mod:`host.view` imports it only when a view
+is asked for.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from host.robot_geometry import (
+    IDENTITY,
+    Pose,
+    arm_skeleton,
+    finger_skeleton,
+    palm_on_flange,
+    palm_outline,
+)
+from host.view import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
+from protocol.robot import ARM_JOINT_NAMES, FINGER_JOINT_NAMES, motor_to_joint
+
+#: Every topic :meth:`Renderer.message` draws.
+TOPICS: Final = (ARM_STATE, HAND_STATE, HAND_EVENTS, ARM_BUS_STATS, HAND_LINK_STATS)
+TIMELINE: Final = "time"
+FINGERS: Final = 4
+#: Colours (RGB): the arm, the fingers, the palm, alarms raised and cleared.
+ARM_RGB: Final = (255, 140, 0)
+FINGER_RGB: Final = (40, 160, 255)
+PALM_RGB: Final = (120, 220, 120)
+#: Colours of the arm's seven joint-angle series (RGB), J1..J7.
+JOINT_RGB: Final = ((230, 25, 75), (60, 180, 75), (255, 225, 25), (0, 130, 200),
+                    (145, 30, 180), (70, 240, 240), (240, 50, 230))
+_STEPPERS: Final = ARM_JOINT_NAMES[:4]
+_SERVOS: Final = ARM_JOINT_NAMES[4:]
+_STATS: Final = ("requests", "retries", "timeouts")
+
+_HAND_JOINTS: Final = tuple(f"f{k} {name}" for k in range(FINGERS)
+                             for name in FINGER_JOINT_NAMES)
+#: Time-series entities and their series' names (logged once, static).  Few entities with
+#: several series each: every logging call costs about 0.1 ms of CPU, whatever it carries.
+SERIES: Final[dict[str, Sequence[str]]] = {
+    "arm/joints": (*ARM_JOINT_NAMES, *(f"{j} goal" for j in _STEPPERS),
+                   *(f"{j} motor" for j in _STEPPERS)),
+    "arm/torque_nm": _STEPPERS,
+    "arm/deflection_counts": _STEPPERS,
+    "arm/servo_load": _SERVOS,
+    "arm/servo_temperature_c": _SERVOS,
+    "arm/bus": _STATS,
+    "hand/link": _STATS,
+    "hand/joints": (*_HAND_JOINTS, *(f"{name} target" for name in _HAND_JOINTS)),
+    "hand/tactile": tuple(f"f{k} {pad}" for k in range(FINGERS)
+                          for pad in ("proximal", "distal")),
+    "hand/current_ma": tuple(f"f{k} {what}" for k in range(FINGERS)
+                             for what in ("supply", "phalange_bus")),
+    "hand/temperature_c": tuple(f"f{k} motor{m}" for k in range(FINGERS) for m in range(3)),
+}
+
+
+def blueprint() -> rrb.Blueprint:
+    """The page's layout: the robot in 3D beside its time series and the alarms."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(rrb.Spatial3DView(name="robot", origin="world"),
+                         rrb.TextLogView(name="alarms", origin="alarms"), row_shares=[3, 1]),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="arm joints (rad)", origin="arm/joints"),
+                rrb.TimeSeriesView(name="arm torques (N·m)", origin="arm/torque_nm"),
+                rrb.TimeSeriesView(name="hand joints (rad)", origin="hand/joints"),
+                rrb.TimeSeriesView(name="tactile (ADC counts)", origin="hand/tactile"),
+                rrb.TimeSeriesView(name="bus (counts)", origin="/",
+                                   contents=["arm/bus", "hand/link"]),
+            ),
+            column_shares=[3, 2]),
+        collapse_panels=True)
+
+
+class Renderer:
+    """Logs messages to ``recording``; ``layout`` is the hand's
+    (:data:`protocol.robot.HAND_LAYOUTS`).  Keeps what it needs between messages: the
+    flange's last pose (a hand on the arm is drawn on it) and the alarms standing."""
+
+    def __init__(self, recording: rr.RecordingStream, layout: str) -> None:
+        self.rec = recording
+        self.layout = layout
+        self._flange: Pose | None = None
+        self._hand_seen = False
+        self._last_values: dict[str, list[Any]] = {}
+        self._alarms: dict[str, str] = {}
+        for path, names in SERIES.items():
+            colors = (*JOINT_RGB, *JOINT_RGB[:4], *JOINT_RGB[:4]) if path == "arm/joints" else None
+            recording.log(path, rr.SeriesLines(names=list(names), colors=colors, widths=2.0),
+                          static=True)
+        recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        # Colours and sizes once, static: converting them costs more than the geometry.
+        recording.log("world/arm", rr.LineStrips3D.from_fields(colors=[ARM_RGB], radii=0.012),
+                      rr.Points3D.from_fields(colors=[ARM_RGB], radii=0.02), static=True)
+        recording.log("world/hand/fingers",
+                      rr.LineStrips3D.from_fields(colors=[FINGER_RGB], radii=0.005),
+                      static=True)
+        recording.log("world/hand/palm",
+                      rr.LineStrips3D.from_fields(colors=[PALM_RGB], radii=0.004), static=True)
+
+    def message(self, topic: str, t: float, payload: Mapping[str, Any]) -> None:
+        """Draw one message at time ``t`` (s); an unknown topic is ignored."""
+        # to the µs: the simulation clock's step, and what survives an MCAP round trip
+        self.rec.set_time(TIMELINE, duration=round(max(0.0, float(t)), 6))
+        if topic == ARM_STATE:
+            self._arm(payload)
+        elif topic == HAND_STATE:
+            self._hand(payload)
+        elif topic == HAND_EVENTS:
+            self.rec.log("alarms", rr.TextLog(
+                f"finger {payload['finger']}: {payload['event']}",
+                level=rr.TextLogLevel.WARN if payload["event"] in ("lost", "breaker_trip")
+                else rr.TextLogLevel.INFO))
+        elif topic in (ARM_BUS_STATS, HAND_LINK_STATS):
+            path = "arm/bus" if topic == ARM_BUS_STATS else "hand/link"
+            self._scalars(path, [payload.get(k, 0) for k in _STATS])
+
+    def _scalars(self, path: str, values: Sequence[Any], changes_only: bool = False) -> None:
+        """Log ``values`` on ``path`` (``changes_only``: unless they are the last ones: the
+        servos' temperatures, read one cycle in ten, change over seconds)."""
+        if changes_only:
+            if self._last_values.get(path) == list(values):
+                return
+            self._last_values[path] = list(values)
+        self.rec.log(path, rr.Scalars(np.array([np.nan if v is None else float(v)
+                                                for v in values])))
+
+    def _alarm(self, source: str, text: str | None) -> None:
+        """Log ``source``'s alarm when it appears, changes or clears."""
+        if self._alarms.get(source) == text:
+            return
+        if text is None:
+            self._alarms.pop(source, None)
+            self.rec.log("alarms", rr.TextLog(f"{source}: cleared", level=rr.TextLogLevel.INFO))
+        else:
+            self._alarms[source] = text
+            self.rec.log("alarms", rr.TextLog(f"{source}: {text}",
+                                              level=rr.TextLogLevel.ERROR))
+
+    def _arm(self, p: Mapping[str, Any]) -> None:
+        joints = p["joints"]
+        points, flange = arm_skeleton(joints)
+        self._flange = flange
+        if self._hand_seen:
+            self._place_hand()
+        self.rec.log("world/arm", rr.LineStrips3D.from_fields(strips=[points]),
+                     rr.Points3D.from_fields(positions=points[1:-1]))
+        goals = p.get("goals") or [None] * len(_STEPPERS)
+        self._scalars("arm/joints", [*joints, *goals, *p["motor_joints"]])
+        self._scalars("arm/torque_nm", p["torques"])
+        self._scalars("arm/deflection_counts", p["deflection_counts"])
+        self._scalars("arm/servo_load", p["servo_load"])
+        self._scalars("arm/servo_temperature_c", p["servo_temperature_c"], changes_only=True)
+        errors: Mapping[str, Sequence[str]] = p.get("errors") or {}
+        flags = {name: ["SLIP"] for name, slip in zip(_STEPPERS, p.get("slip", ()),
+                                                       strict=False) if slip}
+        for name in ARM_JOINT_NAMES:
+            bits = [*errors.get(name, ()), *flags.get(name, ())]
+            self._alarm(name, ", ".join(bits) if bits else None)
+
+    def _place_hand(self) -> None:
+        """The palm frame (entity ``world/hand``) on the flange's last pose."""
+        assert self._flange is not None
+        position, rotation = palm_on_flange(self._flange)
+        self.rec.log("world/hand", rr.Transform3D(translation=position, mat3x3=rotation))
+
+    def _hand(self, p: Mapping[str, Any]) -> None:
+        if not self._hand_seen and self._flange is not None:
+            self._place_hand()
+        self._hand_seen = True
+        palm = IDENTITY  # drawn in the palm frame; world/hand is placed on the flange
+        strips = []
+        joints: list[Any] = []
+        targets: list[Any] = []
+        tactile: list[Any] = []
+        currents: list[Any] = []
+        temperatures: list[Any] = []
+        for f in sorted(p["fingers"], key=lambda f: int(f["index"])):
+            k = int(f["index"])
+            strips.append(finger_skeleton(self.layout, k, f["joints"], palm))
+            joints += f["joints"]
+            hall = f.get("targets_hall")
+            targets += [None] * 3 if hall is None else motor_to_joint(hall)
+            pads = f.get("tactile") or {}
+            tactile += ([sum(pads.get("proximal", ())), sum(pads.get("distal", ()))] if pads
+                        else [None, None])
+            amps = f.get("currents") or {}
+            currents += [amps.get("supply"), amps.get("phalange_bus")]
+            temperatures += f.get("temperatures_c") or [None] * 3
+            problem = "breaker tripped" if f.get("breaker_tripped") else f.get("problem")
+            self._alarm(f"finger {k}", problem if f.get("power") != "off" else None)
+        self._scalars("hand/joints", [*joints, *targets])
+        self._scalars("hand/tactile", tactile)
+        self._scalars("hand/current_ma", currents)
+        self._scalars("hand/temperature_c", temperatures)
+        self.rec.log("world/hand/fingers", rr.LineStrips3D.from_fields(strips=strips))
+        self.rec.log("world/hand/palm",
+                     rr.LineStrips3D.from_fields(strips=[palm_outline(palm)]))

@@ -1,0 +1,91 @@
+"""``watch`` and ``--view`` on handctl and armctl, ``--view`` on the demo's parser: each
+serves the page on this machine and prints its address; without rerun-sdk a clear error."""
+
+from __future__ import annotations
+
+import io
+import re
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)")
+
+from hil_emulator.inprocess import forget_shared_emulators  # noqa: E402
+from tools import armctl, handctl  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+ADDRESS = re.compile(r"view: (http://127\.0\.0\.1:\d+/\?url=\S+)")
+
+
+@pytest.fixture(autouse=True)
+def _fresh_emulators():
+    yield
+    forget_shared_emulators()
+
+
+def test_armctl_watch_serves_the_page_and_prints_its_address(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    out = io.StringIO()
+    status = armctl.main(["--port", "emu://arm/arm?name=view_cli", "--view-port", "0",
+                          "watch", "--seconds", "0.3", "--rate", "20"], out)
+    assert status == 0
+    assert out.getvalue().strip() == "7 states read"  # 0, 0.05, … 0.30 s
+    match = ADDRESS.search(capsys.readouterr().err)
+    assert match, "no address printed"
+
+
+def test_armctl_status_with_view_keeps_its_output_and_serves_a_page(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    out = io.StringIO()
+    status = armctl.main(["--port", "emu://arm/arm?name=view_cli", "--json", "--view",
+                          "--view-port", "0", "status"], out)
+    assert status == 0 and '"joints"' in out.getvalue()
+    assert ADDRESS.search(capsys.readouterr().err)
+
+
+def test_handctl_watch_reads_the_hand(capsys: pytest.CaptureFixture[str]) -> None:
+    status = handctl.main(["--port", "emu://hand/palm?name=view_cli", "--view-port", "0",
+                           "watch", "--seconds", "0.1", "--rate", "20"])
+    captured = capsys.readouterr()
+    assert status == 0 and captured.out.strip() == "3 states read"
+    assert ADDRESS.search(captured.err)
+
+
+def test_the_printed_address_is_the_viewer_page_served_from_the_package() -> None:
+    from host.view import RobotView
+
+    with RobotView(web_port=0) as view:
+        assert view.address is not None
+        page = urllib.request.urlopen(view.address, timeout=30).read().decode()
+    assert "Rerun" in page and "<canvas" in page
+
+
+def test_a_taken_port_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        status = armctl.main(["--port", "emu://arm/arm?name=view_cli", "--view",
+                              "--view-port", str(port), "status"], io.StringIO())
+    assert status == 1
+    assert f"port {port} is taken" in capsys.readouterr().err
+
+
+def test_a_bad_view_port_is_a_usage_error() -> None:
+    assert armctl.main(["--port", "emu://arm/arm", "--view-port", "70000", "status"]) == 2
+
+
+def test_without_rerun_the_view_says_how_to_install_it() -> None:
+    code = ("import sys; sys.modules['rerun'] = None; from tools.armctl import main; "
+            "sys.exit(main(['--port', 'emu://arm/arm', '--view', '--view-port', '0', "
+            "'status']))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 1, proc.stderr
+    assert "needs rerun-sdk" in proc.stderr and "pip install" in proc.stderr
+    assert "Traceback" not in proc.stderr
