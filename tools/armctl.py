@@ -61,6 +61,7 @@ from tools.cli_common import (
     unwritable,
 )
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
@@ -412,6 +413,7 @@ def _joint_values(words: list[str]) -> list[float]:
     return values
 
 
+@guard_output("armctl")
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     """Run armctl, printing results to ``out`` (default stdout); returns the exit status."""
     stream = out or sys.stdout

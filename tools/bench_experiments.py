@@ -40,6 +40,7 @@ from protocol.robot import (
     max_velocity_counts_per_s,
     microsteps_to_rad,
 )
+from tools.cli_output import guard_output
 
 #: Seed of every experiment's emulator unless given.
 DEFAULT_SEED: Final = 1
@@ -660,6 +661,7 @@ def report(outcomes: Sequence[Outcome], out: Path) -> Path:
     return path
 
 
+@guard_output("hil-bench experiments")
 def main(argv: Sequence[str] | None = None) -> int:
     """``hil-bench experiments [--json] [--report DIR] [--only NAME …] [--seed N]``."""
     parser = argparse.ArgumentParser(prog="hil-bench experiments", description=__doc__.split(

@@ -74,6 +74,8 @@ def checked_stdout() -> Iterator[None]:
 
 def output_failed(prog: str, exc: OSError) -> int:
     """Say on stderr, in one line, that ``exc`` stopped the output; the exit status."""
+    if isinstance(sys.stdout, _CheckedStdout):
+        sys.stdout.failed = None  # told once: an outer guard does not tell it again
     if isinstance(exc, BrokenPipeError):
         silence_stdout()
         return EXIT_BROKEN_PIPE

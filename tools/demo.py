@@ -85,6 +85,7 @@ from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments
 from tools.demo_plan import (
     APPROACH_M,
@@ -654,6 +655,7 @@ def _write_report(demo: Demo, out: Path) -> None:
           f"(decode: handbus decode {out / 'hand.mcap'})", flush=True)
 
 
+@guard_output("demo")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("demo-output"),

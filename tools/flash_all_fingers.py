@@ -37,6 +37,7 @@ from host.hand_session import HandSession
 from host.transport import open_transport
 from protocol.image import BoardType
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
+from tools.cli_output import guard_output
 
 #: Not every node ended verified (or the link failed mid-run).
 EXIT_FAILED = EXIT_ROBOT
@@ -145,6 +146,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0 if report.ok else EXIT_FAILED
 
 
+@guard_output("flash-all-fingers")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``flash-all-fingers``; returns the exit status."""
     return run_cli(_parser(), argv, _run, usage=(FlashError,),

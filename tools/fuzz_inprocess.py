@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 
 #: ``--runs``: a number of inputs >= 1.
 _RUNS = number_above(1, int, inclusive=True, what="a number of runs",
@@ -252,6 +253,7 @@ def engine_available() -> str:
     return "atheris"
 
 
+@guard_output("fuzz_inprocess")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.fuzz_inprocess",
                                      description=__doc__.split("\n")[0])

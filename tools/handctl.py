@@ -45,6 +45,7 @@ from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
@@ -446,6 +447,7 @@ def _run(args: argparse.Namespace) -> int:
             raise
 
 
+@guard_output("handctl")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run handctl; returns the exit status."""
     return run_cli(_parser(), argv, _run)

@@ -35,6 +35,7 @@ from typing import Any
 from hil_emulator.errors import EmulatorError
 from tools.cli_common import EXIT_INTERRUPTED, unwritable
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 
 #: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
 SCHEDULER_TIMEOUT_S = 10.0
@@ -266,6 +267,7 @@ def experiments(argv: Sequence[str]) -> int:
     return int(module.main(list(argv)) or 0)
 
 
+@guard_output("hil-bench")
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "experiments":

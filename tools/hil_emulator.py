@@ -52,6 +52,7 @@ from hil_emulator.faults import load_plan
 from hil_emulator.scene_model import SCENES
 from hil_emulator.scheduling import PRIORITIES
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,6 +115,7 @@ def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:
     return handle.sync, handle
 
 
+@guard_output("hil-emulator")
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     stop = threading.Event()

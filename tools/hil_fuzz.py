@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from host.errors import HostError
 from tools.cli_common import EXIT_INTERRUPTED
 from tools.cli_numbers import number_above
+from tools.cli_output import guard_output
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS
@@ -111,6 +112,7 @@ def _replay(argv: Sequence[str]) -> int:
     return 1
 
 
+@guard_output("hil-fuzz")
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] == "replay":

@@ -40,6 +40,7 @@ from protocol.topology import (
     STEPPER_IDS,
     Hop,
 )
+from tools.cli_output import guard_output
 
 Record = dict[str, Any]
 #: The ``palm.route`` timeout of the script's routed requests (ms).
@@ -165,6 +166,7 @@ def _lines(records: list[Record]) -> Iterator[str]:
         yield json.dumps(rec, sort_keys=True) + "\n"
 
 
+@guard_output("traffic_record")
 def main(argv: list[str] | None = None) -> int:
     """``python -m tools.traffic_record [--seed N] [--out FILE]``: print the run's digest."""
     parser = argparse.ArgumentParser(prog="traffic_record", description=__doc__.split("\n")[0])
