@@ -189,14 +189,44 @@ def _node_line(n: NodeInfo) -> str:
 
 
 def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
+    """Exit 1 when a finger that is powered does not answer (the advice fits what the link
+    carried meanwhile: garbage, late replies, or nothing)."""
+    before = _link_seen(hand)
     state = hand.status()
+    seen = {k: v - before[k] for k, v in _link_seen(hand).items()}
     data = state.to_dict()
+    data["link"] = seen
     for f, d in zip(state.fingers, data["fingers"], strict=True):
         d.update(_inertial(hand, f))
     problems = [f"finger {d['index']}: {d['accel_problem']}" for d in data["fingers"]
                 if d.get("accel_problem")]
-    _emit(args, data, "\n".join([_status_text(state), *problems]))
+    _emit(args, data, "\n".join([_status_text(state, _no_reply_advice(seen)), *problems]))
+    silent = [f.index for f in state.fingers if not f.present and f.problem != "unpowered"]
+    if silent:
+        print(f"handctl: finger(s) {', '.join(map(str, silent))} powered but not answering",
+              file=sys.stderr)
+        return EXIT_ROBOT
     return 0
+
+
+def _link_seen(hand: Hand) -> dict[str, int]:
+    """What the host's link has carried so far that a silent node can be blamed on."""
+    decoder = hand.session.decoder.counters
+    return {"bytes_discarded": decoder.bytes_discarded, "crc_failures": decoder.crc_failures,
+            "stale_replies": hand.session.counters.stale_replies}
+
+
+def _no_reply_advice(seen: dict[str, int]) -> str:
+    """What to say of a finger whose status got no reply in time, given what the link
+    carried meanwhile (``{k}``: the finger)."""
+    if seen["bytes_discarded"] or seen["crc_failures"]:
+        return (f": garbage on the line ({seen['bytes_discarded']} bytes discarded, "
+                f"{seen['crc_failures']} bad CRCs): is another program writing to the port, "
+                "or is its baud rate wrong?")
+    if seen["stale_replies"]:
+        return (f": {seen['stale_replies']} replies came after the link budget (a slow or "
+                "busy machine): try --timeout 0.5")
+    return ": nothing came back: booting, or off its pogo pins? `handctl up --finger {k}`"
 
 
 def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
@@ -281,16 +311,17 @@ _FINGER_ADVICE = {
     "unpowered": ": bring it up with `handctl up --finger {k}`",
     "link_down": ": it has left the palm (broken away); push it back on",
     "no_reply": ": booting, or off its pogo pins? `handctl up --finger {k}` waits for it",
-    "no reply": ": the link was slower than its budget (a busy machine?); try --timeout 0.5",
 }
 
 
-def _status_text(state: HandState) -> str:
+def _status_text(state: HandState, no_reply: str = "") -> str:
+    """``no_reply``: the advice for a finger whose status got no reply (``{k}``: finger)."""
+    advice = {**_FINGER_ADVICE, "no reply": no_reply}
     lines = [f"palm: effort cap {state.effort_cap}/255, polling {state.poll_hz} Hz, "
              f"supply {state.bus_voltage_mv} mV"]
     for f in state.fingers:
         if not f.present:
-            why = f" ({f.problem}{_FINGER_ADVICE.get(f.problem or '', '').format(k=f.index)})"
+            why = f" ({f.problem}{advice.get(f.problem or '', '').format(k=f.index)})"
             lines.append(f"finger {f.index}: power {f.power}, not answering"
                          + (why if f.problem else ""))
             continue
