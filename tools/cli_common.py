@@ -40,7 +40,7 @@ from host.errors import (
 from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
 from protocol.messages.common import TxnStatus
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
 from tools.cli_output import EXIT_BROKEN_PIPE, OutputError, checked_stdout, output_failed
 
 EXIT_OK: Final = 0
@@ -152,6 +152,7 @@ def parse(parser: argparse.ArgumentParser,
           argv: Sequence[str] | None) -> argparse.Namespace | int:
     """The parsed arguments, or the exit status argparse chose (0 for --help, 2 for a bad
     command line; its message is already on stderr)."""
+    read_negative_numbers(parser)  # -1e-3 is a number, not an option
     try:
         return parser.parse_args(argv)
     except SystemExit as exc:

@@ -94,7 +94,9 @@ def table(report: RunReport) -> str:
     """The end-of-run table: node, before → after, bytes, retries, time, result."""
     rows = [("node", "version", "bytes", "retries", "time", "result")]
     for r in report.nodes:
-        rows.append((r.job.name, f"{r.version_before or '?'} → {r.version or '?'}",
+        before = r.version_before or (f"{r.partly_written} partly written"
+                                      if r.partly_written else "?")
+        rows.append((r.job.name, f"{before} → {r.version or '?'}",
                      str(r.bytes_written), str(r.retries), f"{r.seconds:.2f} s",
                      r.result + (f": {r.error}" if r.error and r.result == "failed" else "")))
     widths = [max(len(row[i]) for row in rows) for i in range(5)]

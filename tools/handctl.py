@@ -32,7 +32,7 @@ from typing import Any
 
 from host.code_names import code_name
 from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
-from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
+from host.grasp import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.hand_homing import homed_on_robot
@@ -44,7 +44,7 @@ from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
-from tools.cli_numbers import number_above
+from tools.cli_numbers import finite, number_above, number_in
 from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
@@ -124,8 +124,10 @@ def _parser() -> argparse.ArgumentParser:
     grasp = sub.add_parser("grasp", help="blend towards a grasp or pose (host.grasp): "
                                          + ", ".join(sorted(SYNERGIES)))
     grasp.add_argument("name", help="grasp or pose name")
-    grasp.add_argument("amount", type=float, help="0 (open / relaxed) .. 1 (closed / pose)")
-    grasp.add_argument("--speed", type=number_above(0), default=DEFAULT_SPEED_RAD_S,
+    grasp.add_argument("amount", type=finite("a number 0..1"),
+                       help="0 (open / relaxed) .. 1 (closed / pose)")
+    grasp.add_argument("--speed", type=number_in(0, MAX_SPEED_RAD_S, what="a speed (rad/s)"),
+                       default=DEFAULT_SPEED_RAD_S,
                        help=f"blend speed of the joint moving most, rad/s "
                             f"(default {DEFAULT_SPEED_RAD_S})")
     grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",

@@ -77,6 +77,20 @@ def test_handctl_grasp_refuses_unhomed_and_names_unknown_grasps(
     assert "unknown grasp 'fist'" in err and "cylindrical" in err and "point" in err
 
 
+@pytest.mark.parametrize("speed", ["1e6", "nan", "inf", "0", "-1e-3"])
+def test_a_grasp_speed_that_is_absurd_or_not_finite_is_a_usage_error(
+        speed: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "grasp", "open", "1", "--speed", speed, "--unhomed"]) == 2
+    assert f"argument --speed: {speed}: give a speed (rad/s) > 0 and <= 170" in \
+        capsys.readouterr().err
+
+
+def test_the_library_refuses_an_absurd_grasp_speed_too(hand: Hand) -> None:
+    for speed in (1e6, float("nan")):
+        with pytest.raises(UsageError, match="give a speed > 0 and <= 170"):
+            hand.grasp("open", 1.0, speed=speed, unhomed=True)
+
+
 def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--port", URL, "--json", "grasp", "pinch", "1.0", "--speed", "2",
                  "--unhomed"]) == 0
