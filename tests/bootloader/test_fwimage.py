@@ -135,6 +135,9 @@ def test_keygen_sign_verify_and_refuse(tmp_path: Path) -> None:
 
     assert status(signed.to_bytes(), pub, True) == ImageStatus.VALID
     assert status(signed.to_bytes(), other_pub, True) == ImageStatus.BAD_SIGNATURE
+    # A key that is not "required" lets unsigned images through, never another key's.
+    assert status(signed.to_bytes(), other_pub, False) == ImageStatus.BAD_SIGNATURE
+    assert status(signed.to_bytes(), pub, False) == ImageStatus.VALID
     assert status(unsigned.to_bytes(), pub, True) == ImageStatus.UNSIGNED
     assert status(unsigned.to_bytes(), pub, False) == ImageStatus.VALID
 
