@@ -48,6 +48,7 @@ def test_a_finger_the_hand_does_not_have_is_a_usage_error(hand: Hand,
         hand.grasp("cylindrical", 0.8, fingers=fingers, unhomed=True)
 
 
+@pytest.mark.slow
 def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
     before = _truth(hand)
     result = hand.grasp("cylindrical", 0.8, speed=1.5, unhomed=True)
@@ -91,6 +92,7 @@ def test_the_library_refuses_an_absurd_grasp_speed_too(hand: Hand) -> None:
             hand.grasp("open", 1.0, speed=speed, unhomed=True)
 
 
+@pytest.mark.slow
 def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--port", URL, "--json", "grasp", "pinch", "1.0", "--speed", "2",
                  "--unhomed"]) == 0
@@ -101,6 +103,7 @@ def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]
     assert abs(out["fingers"]["0"]["joints"][1]) < 0.1  # the others stay open
 
 
+@pytest.mark.slow
 def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> None:
     # Something meets finger 1's proximal pad as the grasp starts (the plant pushes the pad,
     # as an object would): a cylindrical grasp until contact stops that finger at once and
@@ -134,6 +137,7 @@ def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> No
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)
 
 
+@pytest.mark.slow
 def test_a_squeeze_closes_j1_and_keeps_the_spread(hand: Hand) -> None:
     # Nothing stops finger 0: each round closes J1 by the squeeze (motor 1 alone), which
     # turns J0 with it while motor 0 holds; the next round turns J0 back.  At the end J1 is

@@ -165,6 +165,7 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_arm_goes_li
     assert "armctl waypoints record" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_moveto_takes_a_tolerance_and_refuses_a_timeout_that_is_not_positive(
         arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
     assert run("move", "--unhomed", "--joints", *["0"] * 7, "--timeout", "-1")[0] == \

@@ -86,6 +86,7 @@ def test_decode_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     check_capture_output(out)
 
 
+@pytest.mark.slow
 def test_decode_capture_as_a_console_script(tmp_path: Path) -> None:
     path = tmp_path / "capture.bin"
     path.write_bytes(capture())
