@@ -119,6 +119,8 @@ class NodeReport:
     state: NodeState = NodeState.PENDING
     result: str = "pending"
     version_before: str | None = None
+    #: The version of an incomplete image the node held when found (an interrupted flash).
+    partly_written: str | None = None
     version: str | None = None
     bytes_written: int = 0
     retries: int = 0
@@ -140,6 +142,7 @@ class NodeReport:
         """The report as plain data (the ``--json`` node object)."""
         return {"finger": self.job.finger, "board": self.job.board.name.lower(),
                 "result": self.result, "version_before": self.version_before,
+                "partly_written": self.partly_written,
                 "version": self.version, "requested": self.job.version,
                 "bytes_written": self.bytes_written, "retries": self.retries,
                 "seconds": round(self.seconds, 3), "error": self.error}
@@ -370,8 +373,11 @@ class FingerChannel:
             raise StepFailed(f"{job.name}: the node says it is a {BoardType(info['board']).name}")
         try:
             installed = parse_header(info["header"])
-            if report.version_before is None:
-                report.version_before = str(installed.version)
+            if report.version_before is None and report.partly_written is None:
+                if info["image_status"] == ImageStatus.VALID:
+                    report.version_before = str(installed.version)
+                else:  # an interrupted flash's header: that version never ran
+                    report.partly_written = str(installed.version)
         except ImageError:
             installed = None
         holds = installed is not None and info["header"] == job.image.header.to_bytes()

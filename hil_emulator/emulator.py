@@ -36,6 +36,7 @@ from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.faults.host_link import LinkTap
 from hil_emulator.hand_rig import HandRig, LooseFinger
 from hil_emulator.host_links import PtyBacked, SerialLink, SlcanLink, VirtualCanLink
+from hil_emulator.link_dir import LinkDirLock
 from hil_emulator.plant import Plant, PlantPart, new_spec
 from hil_emulator.scheduling import RT_BUSY_LIMIT_S, RT_YIELD_S, Scheduling, request_priority
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
@@ -149,6 +150,8 @@ class Emulator:
         self._last_input_us = 0
         self._realtime = False
         self._closed = False
+        #: The hold on ``--link-dir`` while the links are there (:mod:`.link_dir`).
+        self._link_dir_lock: LinkDirLock | None = None
         #: Real time: how long before an event the loop stops sleeping and polls (s).
         self.spin_s = SPIN_S
         #: Told (one line of text) when the real-time loop starts to fall behind and when
@@ -258,6 +261,8 @@ class Emulator:
                 link.input_clock = self._input_time_us
         self.link_paths: dict[str, str] = {}
         if link_dir is not None:
+            self._link_dir_lock = LinkDirLock(link_dir)
+            self._link_dir_lock.acquire()  # another live emulator's directory is refused
             for name, link in self.links.items():
                 if isinstance(link, SerialLink | SlcanLink):
                     self.link_paths[name] = link.link(link_dir)
@@ -585,6 +590,8 @@ class Emulator:
         self._closed = True
         for link in self.links.values():
             link.close()
+        if self._link_dir_lock is not None:
+            self._link_dir_lock.release()
 
     def __enter__(self) -> Emulator:
         return self

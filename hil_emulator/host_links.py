@@ -33,7 +33,7 @@ from typing import Any, Final
 from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
 from hil_emulator.port_reader import PortReader
-from hil_emulator.pty_port import PtyPort, make_link, remove_links
+from hil_emulator.pty_port import PtyPort, make_link, remove_link
 from hil_emulator.slcan_adapter import SlcanAdapter
 from protocol.topology import wire_time_us
 
@@ -191,9 +191,14 @@ class PtyBacked:
         """The port disappears (a USB adapter unplugged): the pty is closed and the
         symlink removed; output meanwhile is lost."""
         self._end_reader()
-        if self._link_dir is not None and self.port.is_open:
-            remove_links(self._link_dir, self.port)
+        self._unlink()
         self.port.close()
+
+    def _unlink(self) -> None:
+        """Remove the one symlink this link made, if it still points at its pty (a link
+        the user or another program made, or re-pointed, is left alone)."""
+        if self._link_dir is not None and self._link_name is not None and self.port.is_open:
+            remove_link(self._link_dir, self._link_name, self.port)
 
     def reappear(self) -> None:
         """The port comes back: a new pty, linked at the same ``--link-dir`` path."""
@@ -212,9 +217,8 @@ class PtyBacked:
     def close(self) -> None:
         """Remove the symlinks this link made and close the pty (idempotent)."""
         self._end_reader()
-        if self._link_dir is not None and self.port.is_open:
-            remove_links(self._link_dir, self.port)
-            self._link_dir = None
+        self._unlink()
+        self._link_dir = None
         self.port.close()
 
 

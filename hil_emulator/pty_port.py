@@ -227,6 +227,19 @@ def make_link(link_dir: str | os.PathLike[str], name: str, port: PtyPort) -> Pat
     return link
 
 
+def remove_link(link_dir: str | os.PathLike[str], name: str, port: PtyPort) -> bool:
+    """Remove the symlink ``link_dir/name`` if it still points to ``port``'s pty; True if
+    it did.  A link re-pointed elsewhere (another emulator's) is left alone."""
+    link = Path(link_dir) / name
+    try:
+        if not link.is_symlink() or os.readlink(link) != port.path:
+            return False
+        link.unlink()
+    except FileNotFoundError:
+        return False
+    return True
+
+
 def remove_links(link_dir: str | os.PathLike[str], port: PtyPort) -> list[Path]:
     """Remove the symlinks in ``link_dir`` that still point to ``port``'s pty.
 

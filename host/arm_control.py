@@ -658,5 +658,5 @@ def load_waypoints(path: str | Path) -> list[Waypoint]:
                 raise UsageError(f"{path}:{number}: bad waypoint line: {exc}") from exc
             out.append(Waypoint(t, joints))
     if not out:
-        raise UsageError(f"{path}: no waypoints")
+        raise UsageError(f"{path} holds no waypoints")
     return out

@@ -263,17 +263,29 @@ def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
             e = e_pos
         if pos_err <= tolerance_m and rot_err <= tolerance_rad:
             return IkResult(q, pos_err, rot_err, iterations - 1, True)
-        j = jacobian(q)[rows]
-        sigma_min = float(np.linalg.svd(j, compute_uv=False)[-1])
-        lam2 = damping ** 2 * (1.0 - (sigma_min / singular_threshold) ** 2) \
-            if sigma_min < singular_threshold else 0.0
-        jjt = j @ j.T
-        dq = j.T @ np.linalg.solve(jjt + (lam2 + 1e-9) * np.eye(jjt.shape[0]), e)
+        full = jacobian(q)[rows]
         z = -k_limits * _limit_gradient(q)
+        sigma_min = float(np.linalg.svd(full, compute_uv=False)[-1])
         if k_singular and sigma_min < 2.0 * singular_threshold:
             z += k_singular * _log_manipulability_gradient(q, rows)
-        null = np.eye(N_JOINTS) - np.linalg.pinv(j, rcond=1e-6) @ j
-        dq = dq + null @ z
+        # A joint held at its limit that the step would push further is left out and the
+        # step recomputed with the others (else the clamp undoes part of every step and the
+        # solver stalls short of a target whose answer lies on that limit).
+        free = np.ones(N_JOINTS, dtype=bool)
+        for _ in range(N_JOINTS):
+            j = full * free
+            sigma_min = float(np.linalg.svd(j, compute_uv=False)[-1])
+            lam2 = damping ** 2 * (1.0 - (sigma_min / singular_threshold) ** 2) \
+                if sigma_min < singular_threshold else 0.0
+            jjt = j @ j.T
+            dq = j.T @ np.linalg.solve(jjt + (lam2 + 1e-9) * np.eye(jjt.shape[0]), e)
+            null = np.eye(N_JOINTS) - np.linalg.pinv(j, rcond=1e-6) @ j
+            dq = dq + null @ (z * free)
+            pushed = free & (((q <= LOWER + LIMIT_MARGIN_RAD + 1e-9) & (dq < 0))
+                             | ((q >= UPPER - LIMIT_MARGIN_RAD - 1e-9) & (dq > 0)))
+            if not pushed.any():
+                break
+            free &= ~pushed
         biggest = float(np.max(np.abs(dq)))
         if biggest > max_step_rad:
             dq *= max_step_rad / biggest

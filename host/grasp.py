@@ -52,6 +52,7 @@ from host.hand_state import FingerState
 from protocol.robot import (
     DEFAULT_HAND_LAYOUT,
     FINGER_GEAR_RATIOS,
+    FINGER_JOINT_STOPS,
     HALL_STATES_PER_RAD,
     HAND_LAYOUTS,
     HandLayout,
@@ -71,6 +72,9 @@ KINDS: Final = ("grasp", "pose")
 DEFAULT_SPEED_RAD_S: Final = 1.0
 #: Period (s) between intermediate targets of a blend (the link's clock).
 BLEND_PERIOD_S: Final = 0.02
+#: Fastest blend speed taken (rad/s): the widest joint travel (between its stops) in one
+#: blend period.  Faster, a blend is a single step, so a larger value is a typo (170 rad/s).
+MAX_SPEED_RAD_S: Final = max(hi - lo for lo, hi in FINGER_JOINT_STOPS) / BLEND_PERIOD_S
 #: A taxel this many ADC counts above its value at the start of a grasp means contact.
 TACTILE_CONTACT_COUNTS: Final = 150
 #: A motor effort (1/255 of full PWM) at least this large ...
@@ -368,8 +372,8 @@ def grasp(hand: Hand, name: str, amount: float, *, speed: float = DEFAULT_SPEED_
     status the grasp makes (the link's clock, s; finger → :class:`FingerState`).
     ``squeeze_rad`` > 0: once settled, :func:`squeeze` the fingers by that much (rad of J1)
     with ``effort``; ``targets`` then holds the squeeze's targets."""
-    if speed <= 0:
-        raise UsageError(f"speed {speed} rad/s: give a positive speed")
+    if not 0 < speed <= MAX_SPEED_RAD_S:  # NaN too
+        raise UsageError(f"speed {speed} rad/s: give a speed > 0 and <= {MAX_SPEED_RAD_S:g}")
     chosen = list(range(FINGERS)) if fingers is None else sorted(set(fingers))
     if any(not 0 <= k < FINGERS for k in chosen):
         raise UsageError(f"fingers {chosen}: a hand has fingers 0..{FINGERS - 1}")

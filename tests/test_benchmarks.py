@@ -20,7 +20,8 @@ from benchmarks.__main__ import report
 from benchmarks.harness import Result, Table
 
 #: Modules that take more than 30 s in quick mode on a 2-core machine.
-SLOW = frozenset({"bench_arm_tracking", "bench_emulator", "bench_estimation", "bench_flashing",
+SLOW = frozenset({"bench_arm_cycle", "bench_arm_tracking", "bench_backpressure", "bench_emulator",
+                  "bench_estimation", "bench_flashing", "bench_hand_cycle", "bench_handbus",
                   "bench_fuzz"})
 MODULES = sorted(m.name for m in pkgutil.iter_modules(benchmarks.__path__)
                  if m.name.startswith("bench_"))

@@ -60,7 +60,8 @@ from tools.cli_common import (
     run_cli,
     unwritable,
 )
-from tools.cli_numbers import number_above
+from tools.cli_numbers import finite, number_above
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
@@ -101,7 +102,7 @@ def make_parser() -> argparse.ArgumentParser:
     move.add_argument("--joints", nargs="+", required=True, metavar="RAD",
                       help="seven joint angles J1..J7 (rad), as seven values or one "
                            "comma-separated list")
-    move.add_argument("--duration", type=float, default=None, metavar="S",
+    move.add_argument("--duration", type=_TIME, default=None, metavar="S",
                       help="take this long (s): speeds set so every joint arrives together")
     move.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
                       help="give up waiting after this long (s, default 10)")
@@ -112,9 +113,10 @@ def make_parser() -> argparse.ArgumentParser:
     moveto = sub.add_parser("moveto", help="move the flange to X Y Z (m, base frame)")
     # three positionals, not nargs=3 with a tuple metavar: argparse's help crashes on that
     for axis in "xyz":
-        moveto.add_argument(axis, type=float, metavar=axis.upper(),
+        moveto.add_argument(axis, type=finite("a position (m)"), metavar=axis.upper(),
                             help=f"flange {axis} (m, base frame)")
-    moveto.add_argument("--rpy", nargs=3, type=float, default=None, metavar="ANGLE",
+    moveto.add_argument("--rpy", nargs=3, type=finite("an angle (rad)"), default=None,
+                        metavar="ANGLE",
                         help="flange orientation: roll pitch yaw (rad, fixed base axes)")
     moveto.add_argument("--unhomed", action="store_true",
                         help="move although the arm is not homed")
@@ -305,9 +307,11 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
                                 "homed": arm.homed},
                f"{len(points)} waypoints recorded to {args.file} (torque is off)")
         return EXIT_OK
-    if not Path(args.file).is_file():
+    if not Path(args.file).exists():  # a device (/dev/null) is read like a file
         raise UsageError(f"no waypoint file {args.file} (armctl waypoints record "
                          f"{args.file} makes one)")
+    if Path(args.file).is_dir():
+        raise UsageError(f"{args.file} is a directory, not a waypoint file")
     points = load_waypoints(args.file)
     _require_homed(arm, args, "playing waypoints")
     _require_torque(arm, "playing waypoints")
@@ -412,6 +416,7 @@ def _joint_values(words: list[str]) -> list[float]:
     return values
 
 
+@guard_output("armctl")
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     """Run armctl, printing results to ``out`` (default stdout); returns the exit status."""
     stream = out or sys.stdout

@@ -40,6 +40,8 @@ from protocol.robot import (
     max_velocity_counts_per_s,
     microsteps_to_rad,
 )
+from tools.cli_numbers import read_negative_numbers
+from tools.cli_output import guard_output
 
 #: Seed of every experiment's emulator unless given.
 DEFAULT_SEED: Final = 1
@@ -660,6 +662,7 @@ def report(outcomes: Sequence[Outcome], out: Path) -> Path:
     return path
 
 
+@guard_output("hil-bench experiments")
 def main(argv: Sequence[str] | None = None) -> int:
     """``hil-bench experiments [--json] [--report DIR] [--only NAME …] [--seed N]``."""
     parser = argparse.ArgumentParser(prog="hil-bench experiments", description=__doc__.split(
@@ -668,7 +671,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--report", metavar="DIR", help="write DIR/experiments.md and plots")
     parser.add_argument("--only", nargs="+", choices=sorted(EXPERIMENTS), help="run these")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     outcomes = [EXPERIMENTS[name](args.seed) for name in (args.only or EXPERIMENTS)]
     rows = [r for o in outcomes for r in o.rows]
     if args.json:

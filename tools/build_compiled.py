@@ -28,6 +28,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Final
 
+from tools.cli_output import guard_output
+
 #: The modules compiled, as paths relative to the repository root; declared once here.
 COMPILED_MODULES: Final[tuple[str, ...]] = (
     # the clock and the wire formats
@@ -213,6 +215,7 @@ def setup(root: Path = ROOT, build_dir: Path | None = None) -> str:
     return line
 
 
+@guard_output("build_compiled")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.build_compiled")
     parser.add_argument("--clean", action="store_true", help="remove the extensions")

@@ -40,14 +40,16 @@ from host.errors import (
 from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
 from protocol.messages.common import TxnStatus
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import EXIT_BROKEN_PIPE, OutputError, checked_stdout, output_failed
 
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
 EXIT_USAGE: Final = 2
 EXIT_INTERRUPTED: Final = 130
-#: Standard output closed by its reader (``… | head``): as a process killed by SIGPIPE.
-EXIT_BROKEN_PIPE: Final = 141
+__all__ = ["EXIT_BROKEN_PIPE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE",
+           "add_common_arguments", "advice", "hand_timeouts", "parse", "port_help", "run",
+           "run_cli", "unwritable"]
 
 
 def port_help(what: str) -> str:
@@ -119,37 +121,38 @@ def run(prog: str, port: str, body: Callable[[], int], *,
     """Run ``body`` and map what it raises to a message on stderr and an exit status:
     :class:`UsageError` (and ``usage``: a CLI's own "refused before anything was
     touched") → 2, other :class:`HostError` → 1 (``hint``, if given, ends its message),
-    ``OSError`` (a file) → 1, Ctrl-C → 130, standard output closed by its reader → 141,
-    quietly."""
-    try:
-        status = body()
-        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
-        return status
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except UsageError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except usage as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except HostError as exc:
-        print(f"{prog}: {advice(exc, port, prog, command)}" + (f"\n{hint}." if hint else ""),
-              file=sys.stderr)
-        return EXIT_ROBOT
-    except BrokenPipeError:
-        _silence_stdout()  # nothing more reaches the reader, and no error at exit either
-        return EXIT_BROKEN_PIPE
-    except OSError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return EXIT_ROBOT
+    ``OSError`` (a file, or standard output that cannot be written: one line) → 1, Ctrl-C
+    → 130, standard output closed by its reader → 141, quietly."""
+    with checked_stdout():
+        try:
+            status = body()
+            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+            return status
+        except KeyboardInterrupt:
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except UsageError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        except usage as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        except HostError as exc:
+            print(f"{prog}: {advice(exc, port, prog, command)}"
+                  + (f"\n{hint}." if hint else ""), file=sys.stderr)
+            return EXIT_ROBOT
+        except (BrokenPipeError, OutputError) as exc:
+            return output_failed(prog, exc)  # closed pipe: quietly; else one line
+        except OSError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_ROBOT
 
 
 def parse(parser: argparse.ArgumentParser,
           argv: Sequence[str] | None) -> argparse.Namespace | int:
     """The parsed arguments, or the exit status argparse chose (0 for --help, 2 for a bad
     command line; its message is already on stderr)."""
+    read_negative_numbers(parser)  # -1e-3 is a number, not an option
     try:
         return parser.parse_args(argv)
     except SystemExit as exc:
@@ -167,15 +170,3 @@ def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
         return args
     return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint,
                command=getattr(args, "command", None))
-
-
-def _silence_stdout() -> None:
-    """Point standard output at /dev/null, so the interpreter's flush at exit does not
-    report the closed pipe again."""
-    try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, OSError, ValueError):
-        return  # not a file descriptor (a test's capture): nothing will be flushed to it
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, fd)
-    os.close(devnull)

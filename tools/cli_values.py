@@ -7,6 +7,7 @@ Values: integers (``10``, ``0x2a``), floats, comma lists (``1,2,3``), hex for by
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -128,11 +129,20 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+#: The largest finite float32 (a field declared ``f``).
+_FLOAT32_MAX = struct.unpack("<f", b"\xff\xff\x7f\x7f")[0]
+
+
 def _check_number(con: c.FormatField, value: Any, path: str) -> None:
     bounds = _int_range(con.fmtstr)
     if bounds is None:
         if not _is_number(value):
             raise FieldValueError(f"{path}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise FieldValueError(f"{path}: {value!r} is not a finite number")
+        if con.fmtstr[-1] == "f" and abs(value) > _FLOAT32_MAX:
+            raise FieldValueError(f"{path}: {value!r} is outside the float32 range "
+                                  f"(±{_FLOAT32_MAX:.4g})")
         return
     if not isinstance(value, int) or isinstance(value, bool):
         raise FieldValueError(f"{path}: expected an integer, got {value!r}")

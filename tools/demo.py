@@ -85,6 +85,8 @@ from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
+from tools.cli_numbers import read_negative_numbers
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments
 from tools.demo_plan import (
     APPROACH_M,
@@ -654,6 +656,7 @@ def _write_report(demo: Demo, out: Path) -> None:
           f"(decode: handbus decode {out / 'hand.mcap'})", flush=True)
 
 
+@guard_output("demo")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("demo-output"),
@@ -663,7 +666,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")
     add_view_arguments(parser)
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         ok, text = (run_realtime if args.realtime else run_inprocess)(

@@ -37,6 +37,7 @@ from host.hand_session import HandSession
 from host.transport import open_transport
 from protocol.image import BoardType
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
+from tools.cli_output import guard_output
 
 #: Not every node ended verified (or the link failed mid-run).
 EXIT_FAILED = EXIT_ROBOT
@@ -93,7 +94,9 @@ def table(report: RunReport) -> str:
     """The end-of-run table: node, before → after, bytes, retries, time, result."""
     rows = [("node", "version", "bytes", "retries", "time", "result")]
     for r in report.nodes:
-        rows.append((r.job.name, f"{r.version_before or '?'} → {r.version or '?'}",
+        before = r.version_before or (f"{r.partly_written} partly written"
+                                      if r.partly_written else "?")
+        rows.append((r.job.name, f"{before} → {r.version or '?'}",
                      str(r.bytes_written), str(r.retries), f"{r.seconds:.2f} s",
                      r.result + (f": {r.error}" if r.error and r.result == "failed" else "")))
     widths = [max(len(row[i]) for row in rows) for i in range(5)]
@@ -145,6 +148,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0 if report.ok else EXIT_FAILED
 
 
+@guard_output("flash-all-fingers")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``flash-all-fingers``; returns the exit status."""
     return run_cli(_parser(), argv, _run, usage=(FlashError,),

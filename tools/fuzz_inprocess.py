@@ -30,7 +30,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import guard_output
 
 #: ``--runs``: a number of inputs >= 1.
 _RUNS = number_above(1, int, inclusive=True, what="a number of runs",
@@ -252,6 +253,7 @@ def engine_available() -> str:
     return "atheris"
 
 
+@guard_output("fuzz_inprocess")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.fuzz_inprocess",
                                      description=__doc__.split("\n")[0])
@@ -262,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--update-corpus", action="store_true",
                         help="atheris: write new inputs into tests/fuzz_corpus/TARGET")
     parser.add_argument("--list", action="store_true", help="list the targets")
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     if args.list or args.target is None:
         print("\n".join(sorted(targets())))
         return 0

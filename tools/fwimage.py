@@ -8,10 +8,14 @@
     fwimage keygen -o signing          # signing (private, PEM) and signing.pub (public, PEM)
 
 ``build`` takes a raw .bin (the payload as is), an Intel HEX (.hex) or an ELF file linked at
-the payload address (0x402100); an image file is refused there (``sign`` signs one).
-``inspect`` shows the header and checks CRC, size and SHA-256 (and the signature against
-``--key``: exit 1, saying why, when it does not verify).  Exit 0 on success, 1 when a file
-or image is bad, 2 for a bad command line (a bad ``--version``, ``--app``, ``--timestamp``).
+the payload address (0x402100); it refuses, before anything is signed or written, an input
+it cannot trust whole: a HEX file without its end-of-file record, with a bad checksum or
+overlapping records; an ELF that is not 32-bit little-endian ARM or loads bytes outside the
+application area; an image file (``sign`` signs one).  ``inspect`` shows the header and
+checks CRC, size and SHA-256 (and the signature against ``--key``: exit 1, saying why, when
+it does not verify).  Exit 0 on success, 1 when an image, a key or an output is bad, 2 for a
+bad command line (a bad ``--version``, ``--app``, ``--timestamp``, or an ``--input`` that
+``build`` refuses).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from bootloader.signing import (
 from protocol.errors import ImageError
 from protocol.image import BoardType, FirmwareImage, Version
 from tools.cli_common import parse
+from tools.cli_output import guard_output
 
 EXIT_BAD = 1
 EXIT_USAGE = 2
@@ -113,7 +118,11 @@ def describe(image: FirmwareImage, key: bytes | None = None) -> dict[str, Any]:
 
 def _build(args: argparse.Namespace) -> int:
     board = board_of(args.board)
-    payload = read_payload(args.input)
+    try:
+        payload = read_payload(args.input)
+    except ImageFileError as exc:
+        print(f"fwimage: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     stamp = int(time.time()) if args.timestamp is None else args.timestamp
     image = FirmwareImage.build(payload, board, args.version,
                                 args.app or default_app(board), stamp)
@@ -169,6 +178,7 @@ def _keygen(args: argparse.Namespace) -> int:
     return 0
 
 
+@guard_output("fwimage")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``fwimage``; returns the exit status."""
     args = parse(_parser(), argv)

@@ -36,6 +36,8 @@ from protocol.interpret import interpret, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import FrameTuple, StreamDecoder
 from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
+from tools.cli_numbers import read_negative_numbers
+from tools.cli_output import guard_output
 from tools.cli_values import FieldValueError, build_fields, check_fields
 
 
@@ -443,10 +445,11 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@guard_output("handbus")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``handbus`` console script."""
     parser = make_parser()
-    args, extra = parser.parse_known_args(argv)
+    args, extra = read_negative_numbers(parser).parse_known_args(argv)
     if extra:
         # argparse stops collecting the positional field=value words at the first option
         # (``encode NAME --addr 10 mode=2``): take the rest of them too.
@@ -462,8 +465,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ProtocolError as exc:
         print(f"handbus: error: {exc}", file=sys.stderr)
         return 2
-    except BrokenPipeError:
-        return 0
 
 
 if __name__ == "__main__":

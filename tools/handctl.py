@@ -32,7 +32,7 @@ from typing import Any
 
 from host.code_names import code_name
 from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
-from host.grasp import DEFAULT_SPEED_RAD_S, SYNERGIES
+from host.grasp import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.hand_homing import homed_on_robot
@@ -44,7 +44,8 @@ from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
 from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
-from tools.cli_numbers import number_above
+from tools.cli_numbers import finite, number_above, number_in
+from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
@@ -123,8 +124,10 @@ def _parser() -> argparse.ArgumentParser:
     grasp = sub.add_parser("grasp", help="blend towards a grasp or pose (host.grasp): "
                                          + ", ".join(sorted(SYNERGIES)))
     grasp.add_argument("name", help="grasp or pose name")
-    grasp.add_argument("amount", type=float, help="0 (open / relaxed) .. 1 (closed / pose)")
-    grasp.add_argument("--speed", type=number_above(0), default=DEFAULT_SPEED_RAD_S,
+    grasp.add_argument("amount", type=finite("a number 0..1"),
+                       help="0 (open / relaxed) .. 1 (closed / pose)")
+    grasp.add_argument("--speed", type=number_in(0, MAX_SPEED_RAD_S, what="a speed (rad/s)"),
+                       default=DEFAULT_SPEED_RAD_S,
                        help=f"blend speed of the joint moving most, rad/s "
                             f"(default {DEFAULT_SPEED_RAD_S})")
     grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",
@@ -188,14 +191,44 @@ def _node_line(n: NodeInfo) -> str:
 
 
 def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
+    """Exit 1 when a finger that is powered does not answer (the advice fits what the link
+    carried meanwhile: garbage, late replies, or nothing)."""
+    before = _link_seen(hand)
     state = hand.status()
+    seen = {k: v - before[k] for k, v in _link_seen(hand).items()}
     data = state.to_dict()
+    data["link"] = seen
     for f, d in zip(state.fingers, data["fingers"], strict=True):
         d.update(_inertial(hand, f))
     problems = [f"finger {d['index']}: {d['accel_problem']}" for d in data["fingers"]
                 if d.get("accel_problem")]
-    _emit(args, data, "\n".join([_status_text(state), *problems]))
+    _emit(args, data, "\n".join([_status_text(state, _no_reply_advice(seen)), *problems]))
+    silent = [f.index for f in state.fingers if not f.present and f.problem != "unpowered"]
+    if silent:
+        print(f"handctl: finger(s) {', '.join(map(str, silent))} powered but not answering",
+              file=sys.stderr)
+        return EXIT_ROBOT
     return 0
+
+
+def _link_seen(hand: Hand) -> dict[str, int]:
+    """What the host's link has carried so far that a silent node can be blamed on."""
+    decoder = hand.session.decoder.counters
+    return {"bytes_discarded": decoder.bytes_discarded, "crc_failures": decoder.crc_failures,
+            "stale_replies": hand.session.counters.stale_replies}
+
+
+def _no_reply_advice(seen: dict[str, int]) -> str:
+    """What to say of a finger whose status got no reply in time, given what the link
+    carried meanwhile (``{k}``: the finger)."""
+    if seen["bytes_discarded"] or seen["crc_failures"]:
+        return (f": garbage on the line ({seen['bytes_discarded']} bytes discarded, "
+                f"{seen['crc_failures']} bad CRCs): is another program writing to the port, "
+                "or is its baud rate wrong?")
+    if seen["stale_replies"]:
+        return (f": {seen['stale_replies']} replies came after the link budget (a slow or "
+                "busy machine): try --timeout 0.5")
+    return ": nothing came back: booting, or off its pogo pins? `handctl up --finger {k}`"
 
 
 def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
@@ -280,16 +313,17 @@ _FINGER_ADVICE = {
     "unpowered": ": bring it up with `handctl up --finger {k}`",
     "link_down": ": it has left the palm (broken away); push it back on",
     "no_reply": ": booting, or off its pogo pins? `handctl up --finger {k}` waits for it",
-    "no reply": ": the link was slower than its budget (a busy machine?); try --timeout 0.5",
 }
 
 
-def _status_text(state: HandState) -> str:
+def _status_text(state: HandState, no_reply: str = "") -> str:
+    """``no_reply``: the advice for a finger whose status got no reply (``{k}``: finger)."""
+    advice = {**_FINGER_ADVICE, "no reply": no_reply}
     lines = [f"palm: effort cap {state.effort_cap}/255, polling {state.poll_hz} Hz, "
              f"supply {state.bus_voltage_mv} mV"]
     for f in state.fingers:
         if not f.present:
-            why = f" ({f.problem}{_FINGER_ADVICE.get(f.problem or '', '').format(k=f.index)})"
+            why = f" ({f.problem}{advice.get(f.problem or '', '').format(k=f.index)})"
             lines.append(f"finger {f.index}: power {f.power}, not answering"
                          + (why if f.problem else ""))
             continue
@@ -446,6 +480,7 @@ def _run(args: argparse.Namespace) -> int:
             raise
 
 
+@guard_output("handctl")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run handctl; returns the exit status."""
     return run_cli(_parser(), argv, _run)

@@ -34,7 +34,8 @@ from typing import Any
 
 from hil_emulator.errors import EmulatorError
 from tools.cli_common import EXIT_INTERRUPTED, unwritable
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import guard_output
 
 #: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
 SCHEDULER_TIMEOUT_S = 10.0
@@ -266,11 +267,12 @@ def experiments(argv: Sequence[str]) -> int:
     return int(module.main(list(argv)) or 0)
 
 
+@guard_output("hil-bench")
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "experiments":
         return experiments(argv[1:])
-    args = build_parser().parse_args(argv)
+    args = read_negative_numbers(build_parser()).parse_args(argv)
     if args.command == "list-faults":
         return list_faults(args.json)
     if args.command == "list-scenarios":

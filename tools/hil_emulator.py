@@ -51,7 +51,8 @@ from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import load_plan
 from hil_emulator.scene_model import SCENES
 from hil_emulator.scheduling import PRIORITIES
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import guard_output
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,8 +115,9 @@ def _viewer(emulator: Emulator) -> tuple[Callable[[], None] | None, Any]:
     return handle.sync, handle
 
 
+@guard_output("hil-emulator")
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = read_negative_numbers(build_parser()).parse_args(argv)
     stop = threading.Event()
     stop_asked: list[float] = []  # monotonic time (s) of the first stop request
 

@@ -20,7 +20,8 @@ from collections.abc import Sequence
 
 from host.errors import HostError
 from tools.cli_common import EXIT_INTERRUPTED
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import guard_output
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS
@@ -46,7 +47,7 @@ def _fuzz(argv: Sequence[str]) -> int:
     parser.add_argument("--messages", nargs="+", metavar="GLOB",
                         help="focus on these messages (e.g. 'fmcb.param_*')")
     parser.add_argument("--out", default="fuzz-findings", help="where reproducers go")
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     examples = None if args.seconds is not None else (args.examples or 100)
     try:
         result = run_campaign(args.target, args.port, examples=examples, seconds=args.seconds,
@@ -88,7 +89,7 @@ def _replay(argv: Sequence[str]) -> int:
                                      description="replay a reproducer against a target")
     parser.add_argument("file")
     parser.add_argument("--port", help="transport URL or serial port (default: the file's)")
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     try:
         rep = Reproducer.load(args.file)
     except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -111,6 +112,7 @@ def _replay(argv: Sequence[str]) -> int:
     return 1
 
 
+@guard_output("hil-fuzz")
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] == "replay":

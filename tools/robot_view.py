@@ -26,7 +26,8 @@ from typing import Any
 from host.errors import HostError
 from host.view import WEB_PORT, RobotView, ViewUnavailable
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
-from tools.cli_numbers import number_above
+from tools.cli_numbers import number_above, read_negative_numbers
+from tools.cli_output import guard_output
 from tools.cli_view import port_number
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -82,9 +83,10 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@guard_output("robot-view")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run robot-view; returns the exit status."""
-    args = make_parser().parse_args(argv)
+    args = read_negative_numbers(make_parser()).parse_args(argv)
     for path in args.files:
         if not path.is_file():
             print(f"robot-view: {path}: no such file", file=sys.stderr)

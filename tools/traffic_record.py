@@ -40,6 +40,8 @@ from protocol.topology import (
     STEPPER_IDS,
     Hop,
 )
+from tools.cli_numbers import read_negative_numbers
+from tools.cli_output import guard_output
 
 Record = dict[str, Any]
 #: The ``palm.route`` timeout of the script's routed requests (ms).
@@ -165,12 +167,13 @@ def _lines(records: list[Record]) -> Iterator[str]:
         yield json.dumps(rec, sort_keys=True) + "\n"
 
 
+@guard_output("traffic_record")
 def main(argv: list[str] | None = None) -> int:
     """``python -m tools.traffic_record [--seed N] [--out FILE]``: print the run's digest."""
     parser = argparse.ArgumentParser(prog="traffic_record", description=__doc__.split("\n")[0])
     parser.add_argument("--seed", type=int, default=7, help="emulator seed (default 7)")
     parser.add_argument("--out", help="write the records as JSON lines to this file")
-    args = parser.parse_args(argv)
+    args = read_negative_numbers(parser).parse_args(argv)
     records = record(args.seed)
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:

@@ -40,6 +40,7 @@ from __future__ import annotations
 import json
 import os
 import socket
+import stat
 from typing import TYPE_CHECKING, Any
 
 from hil_emulator.errors import EmulatorError, PortError
@@ -47,6 +48,24 @@ from hil_emulator.faults.base import FAULTS
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
+
+
+def _clear_stale(path: str) -> None:
+    """Remove a control socket left by an emulator that has gone; refuse one an emulator
+    still listens on, and anything that is not a socket."""
+    if not os.path.lexists(path):
+        return
+    if not stat.S_ISSOCK(os.lstat(path).st_mode):
+        raise PortError(f"cannot listen on the control socket {path}: it exists and is not "
+                        "a socket (remove it, or give another path)")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        try:
+            probe.connect(path)
+        except OSError:
+            os.unlink(path)  # nobody listens: a stale socket
+            return
+    raise PortError(f"cannot listen on the control socket {path}: a running emulator "
+                    "listens there (stop it first, or give another path)")
 
 
 class ControlChannel:
@@ -57,11 +76,11 @@ class ControlChannel:
     def __init__(self, emulator: Emulator, path: str) -> None:
         self.emulator = emulator
         self.path = path
-        if os.path.exists(path):
-            os.unlink(path)
+        _clear_stale(path)
         self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             self._server.bind(path)
+            self._inode: int | None = os.stat(path).st_ino  # removed on close only if ours
         except OSError as exc:
             self._server.close()
             raise PortError(f"cannot listen on the control socket {path}: {exc}") from exc
@@ -185,5 +204,8 @@ class ControlChannel:
             self._drop(client)
         if self._server.fileno() >= 0:
             self._server.close()
-            if os.path.exists(self.path):
-                os.unlink(self.path)
+            try:
+                if os.stat(self.path).st_ino == self._inode:
+                    os.unlink(self.path)
+            except FileNotFoundError:
+                pass

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import os
 import select
-from typing import Any
+from typing import Any, Final
 from urllib.parse import urlencode
 
 import serial
 
 from host.errors import TransportError, UsageError
 from host.transport import HAND_SERIAL_BAUD, Transport, url_options
+
+#: Highest ``?baud=`` taken (bit/s): the fastest USB-serial adapters (FT232H, 12 Mbaud).
+MAX_BAUD: Final = 12_000_000
 
 #: What a user reads when a port stops working under an open transport.
 _GONE = ("the port is gone (USB adapter unplugged, robot switched off, or the emulator "
@@ -89,6 +92,9 @@ class SerialTransport(Transport):
             baud = int(merged.pop("baud", HAND_SERIAL_BAUD))
         except ValueError:
             raise UsageError(f"{url}: baud must be a number of bit/s") from None
+        if not 0 < baud <= MAX_BAUD:
+            raise UsageError(f"{url}: baud {baud} is not a rate a serial port runs at: give "
+                             f"1..{MAX_BAUD} bit/s")
         exclusive = str(merged.pop("exclusive", "1")).lower() not in ("0", "false", "no")
         if merged:
             if "://" not in port:

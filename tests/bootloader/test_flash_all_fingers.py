@@ -234,6 +234,37 @@ def test_interrupted_flashing_resumes_many_cases(kind: str, finger: int, after: 
     interrupt_and_resume(kind, finger, after)
 
 
+def test_a_resumed_node_is_shown_with_the_partial_image_it_held(hand: Hand) -> None:
+    """Killed mid-write, a node holds only the start of the new image (its header goes
+    first): the re-run's table says so, never "2.3.4 → 2.3.4" as if it had run 2.3.4."""
+    session = hand.session()
+    writing: list[int] = []
+
+    def on_change(report: NodeReport) -> None:
+        if report.job.name == "finger 0 fmcb" and report.state == NodeState.WRITING:
+            writing.append(0)
+
+    def kill_mid_write(direction: str, t: float, frame: bytes) -> None:
+        if direction == "tx" and writing:
+            writing[0] += 1
+            if writing[0] == 12:  # the header page and some of the payload are written
+                raise HostKilled()
+
+    session.taps.append(kill_mid_write)
+    with pytest.raises(HostKilled):
+        run_plan(session, make_plan(NEW, [0]), on_change=on_change)
+    session.close()
+    hand.emu.step(200_000)
+    report = run(hand, make_plan(NEW, [0]))
+    assert report.ok
+    fmcb = next(r for r in report.nodes if r.job.name == "finger 0 fmcb")
+    assert fmcb.result == "flashed" and fmcb.version_before is None
+    assert fmcb.partly_written == "2.3.4" and fmcb.to_dict()["partly_written"] == "2.3.4"
+    row = next(line for line in flash_all_fingers.table(report).splitlines()
+               if line.startswith("finger 0 fmcb"))
+    assert "2.3.4 partly written → 2.3.4" in row and row.endswith("flashed")
+
+
 def test_all_or_nothing_rerun_finishes_after_a_finger_broke_away(hand: Hand) -> None:
     # Finger 1 pops off while the nodes are being staged: nothing is activated, and every
     # staged fmcb waits in its bootloader with its old application gone.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 from pathlib import Path
@@ -134,6 +135,9 @@ def test_keygen_sign_verify_and_refuse(tmp_path: Path) -> None:
 
     assert status(signed.to_bytes(), pub, True) == ImageStatus.VALID
     assert status(signed.to_bytes(), other_pub, True) == ImageStatus.BAD_SIGNATURE
+    # A key that is not "required" lets unsigned images through, never another key's.
+    assert status(signed.to_bytes(), other_pub, False) == ImageStatus.BAD_SIGNATURE
+    assert status(signed.to_bytes(), pub, False) == ImageStatus.VALID
     assert status(unsigned.to_bytes(), pub, True) == ImageStatus.UNSIGNED
     assert status(unsigned.to_bytes(), pub, False) == ImageStatus.VALID
 
@@ -160,7 +164,7 @@ def test_an_image_given_as_input_is_refused_not_wrapped_again(
     image = build(tmp_path, src)
     out = tmp_path / "again.img"
     assert fwimage.main(["build", "--board", "f2", "--version", "1.2.4", "--input",
-                         str(image), "-o", str(out)]) == 1
+                         str(image), "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "already a firmware image (f2 f2 1.2.3)" in err and "fwimage sign" in err
     assert not out.exists()
@@ -200,3 +204,117 @@ def test_an_output_that_cannot_be_written_says_so(tmp_path: Path,
     assert fwimage.main(["build", "--board", "f2", "--version", "1.0.0", "--input", str(src),
                          "-o", str(out)]) == 1
     assert f"cannot write {out}: No such file or directory" in capsys.readouterr().err
+
+
+# Strict inputs: a file cut short, corrupted or built for another machine is refused before
+# anything is signed or written (exit 2, the reason on stderr).
+
+PROGRAM = bytes((i * 13 + 5) & 0xFF for i in range(1472))
+
+
+def hex_lines(program: bytes = PROGRAM) -> list[str]:
+    """The Intel HEX text of ``program`` at the payload address, as lines (EOF last)."""
+    ih = IntelHex()
+    ih.puts(PAYLOAD_ADDRESS, program)
+    buffer = io.StringIO()
+    ih.write_hex_file(buffer)
+    text = buffer.getvalue().splitlines()
+    assert text[-1] == ":00000001FF"
+    return text
+
+
+def refused(tmp_path: Path, source: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """Build ``source`` signed; assert exit 2 and no output; return stderr."""
+    key = tmp_path / "key"
+    if not key.exists():
+        assert fwimage.main(["keygen", "-o", str(key)]) == 0
+    out = tmp_path / "out.img"
+    capsys.readouterr()
+    assert fwimage.main(["build", "--board", "f2", "--version", "1.0.0", "--input", str(source),
+                         "-o", str(out), "--sign", str(key)]) == 2
+    assert not out.exists()
+    err = capsys.readouterr().err
+    assert err.startswith("fwimage: ") and err.count("\n") == 1, err
+    return err
+
+
+def test_a_whole_intel_hex_file_builds(tmp_path: Path) -> None:
+    src = tmp_path / "fw.hex"
+    src.write_text("\n".join(hex_lines()) + "\n")
+    assert read_image(build(tmp_path, src)).payload == PROGRAM
+
+
+def test_an_intel_hex_file_cut_at_a_line_boundary_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    lines = hex_lines()
+    src = tmp_path / "cut.hex"
+    src.write_text("\n".join(lines[: len(lines) // 3]) + "\n")  # whole records, no EOF
+    assert "no end-of-file record" in refused(tmp_path, src, capsys)
+
+
+def test_an_intel_hex_record_with_a_bad_checksum_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    lines = hex_lines()
+    lines[3] = lines[3][:-2] + f"{(int(lines[3][-2:], 16) + 1) & 0xFF:02X}"
+    src = tmp_path / "bad.hex"
+    src.write_text("\n".join(lines) + "\n")
+    assert "line 4: checksum" in refused(tmp_path, src, capsys)
+
+
+def test_overlapping_intel_hex_records_are_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    lines = hex_lines()
+    src = tmp_path / "twice.hex"
+    src.write_text("\n".join([*lines[:-1], lines[2], lines[-1]]) + "\n")  # a record again
+    assert f"line {len(lines)}: overlaps line 3" in refused(tmp_path, src, capsys)
+
+
+def test_a_record_after_the_intel_hex_end_of_file_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    lines = hex_lines()
+    src = tmp_path / "after.hex"
+    src.write_text("\n".join([*lines[:-1], lines[-1], lines[-2], ""]) + "\n")
+    assert "after the end-of-file record" in refused(tmp_path, src, capsys)
+
+
+def elf64_x86(address: int, data: bytes) -> bytes:
+    """An ELF64 little-endian x86-64 executable with one PT_LOAD at ``address``, by hand."""
+    ehsize, phentsize = 64, 56
+    ident = b"\x7fELF" + bytes([2, 1, 1, 0]) + bytes(8)
+    header = ident + struct.pack("<HHIQQQIHHHHHH", 2, 62, 1, address, ehsize, 0, 0,
+                                 ehsize, phentsize, 1, 64, 0, 0)
+    phdr = struct.pack("<IIQQQQQQ", 1, 5, ehsize + phentsize, address, address,
+                       len(data), len(data), 4096)
+    return header + phdr + data
+
+
+def test_an_x86_64_elf_linked_at_the_payload_address_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "x86.elf"
+    src.write_bytes(elf64_x86(PAYLOAD_ADDRESS, PROGRAM))
+    err = refused(tmp_path, src, capsys)
+    assert "64-bit little-endian EM_X86_64" in err and "EM_ARM" in err
+
+
+def test_a_big_endian_or_non_arm_elf32_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = tiny_elf([(PAYLOAD_ADDRESS, PROGRAM)])
+    other_machine = good[:18] + struct.pack("<H", 3) + good[20:]  # EM_386
+    src = tmp_path / "i386.elf"
+    src.write_bytes(other_machine)
+    assert "32-bit little-endian EM_386" in refused(tmp_path, src, capsys)
+    big = bytearray(good)
+    big[5] = 2  # ELFDATA2MSB: every field is now read big-endian
+    src.write_bytes(bytes(big))
+    assert "EM_ARM" in refused(tmp_path, src, capsys)
+
+
+def test_an_elf_loading_bytes_outside_the_application_area_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bootloader.image_files import APP_END_ADDRESS
+
+    src = tmp_path / "far.elf"
+    src.write_bytes(tiny_elf([(PAYLOAD_ADDRESS, PROGRAM), (APP_END_ADDRESS - 4, PROGRAM[:8])]))
+    assert "outside the application area" in refused(tmp_path, src, capsys)
+    src.write_bytes(tiny_elf([(PAYLOAD_ADDRESS, PROGRAM), (PAYLOAD_ADDRESS + 100, b"\0" * 8)]))
+    assert "overlap" in refused(tmp_path, src, capsys)

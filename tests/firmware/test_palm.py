@@ -195,6 +195,29 @@ def test_two_routes_to_one_finger_are_both_answered_in_order(palm: Palm) -> None
     assert palm.fakes[1].types() == [0x01, 0xFA]
 
 
+def test_a_late_reply_of_another_type_is_not_taken_for_the_next_routes_answer(
+        palm: Palm) -> None:
+    """A routed reply is matched by address and type: the fmcb's late answer to a route that
+    timed out (a ping), and an echo of the request (addressed to the fmcb), both arriving
+    while the next route (hw_version) waits, are stray; that route gets its own answer."""
+    palm.power(1)
+    palm.fakes[1].delay_us = 8 * MS  # slower than the first route's 5 ms
+    palm.route(1, 0, PING_TO_FMCB, timeout_ms=5)
+    palm.route(1, 0, encode_frame(10, 0xFA), timeout_ms=10)
+    palm.run(6 * MS)  # the ping timed out; hw_version is in flight
+    assert [r["status"] for r in palm.replies("palm.route")] == [1]
+    stray = palm.app.links[1].stray_frames
+    palm.hal.uart("finger1").deliver(encode_frame(10, 0xFA))  # to the fmcb, not the host
+    palm.run(4 * MS)  # the late ping reply arrives at 8 ms
+    assert len(palm.replies("palm.route")) == 1  # neither was taken for hw_version's answer
+    assert palm.app.links[1].stray_frames == stray + 2
+    palm.run(10 * MS)
+    replies = palm.replies("palm.route")
+    assert [r["status"] for r in replies] == [1, 0]
+    answer = parse_frame(replies[1]["frame"])
+    assert (answer.address, answer.type) == (0, 0xFA)
+
+
 def test_full_queue_refuses_with_busy(palm: Palm) -> None:
     palm.power(3)
     palm.fakes[3].alive = False

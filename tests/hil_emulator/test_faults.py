@@ -780,3 +780,25 @@ def test_the_command_loads_a_plan_and_takes_faults_from_another_process(tmp_path
     assert sorted((e["label"], e["action"]) for e in timeline) == [
         ("line_cut", "apply"), ("line_cut", "clear"), ("sag", "apply"), ("sag", "clear")]
     assert not (links / "control").exists()
+
+
+def test_overlapping_repeats_of_a_fault_are_cleared_before_applied_again() -> None:
+    """A repeat that starts while the last one is still applied (a fault that stays until
+    cleared, repeated) clears it first: each apply has its clear, and clearing the fault
+    once leaves nothing of it (two stacked applies would leave frames lost for good)."""
+    emu = Emulator("arm", seed=3, physics=False)
+    try:
+        emu.faults.load(parse_plan([
+            {"fault": "bus_frame_loss", "params": {"bus": "arm", "probability": 1.0},
+             "at_s": 0.01, "every_s": 0.02, "count": 2}]))
+        emu.step(50 * MS)
+        timeline = [(e["action"], e["occurrence"], e["t_us"])
+                    for e in emu.faults.timeline_dicts()]
+        assert timeline == [("apply", 0, 10_000), ("clear", 0, 30_000),
+                            ("apply", 1, 30_000)]
+        assert not _arm_ping_answered(emu)  # the repeat is applied
+        emu.faults.clear_all()
+        assert emu.faults.active == []
+        assert _arm_ping_answered(emu)  # and nothing of the fault is left
+    finally:
+        emu.close()

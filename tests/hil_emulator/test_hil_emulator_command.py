@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.hil_emulator.emulator_process import ROOT, emulator_stats, running_emulator
+from hil_emulator.link_dir import LOCK_NAME
+from tests.hil_emulator.emulator_process import ROOT, emulator_stats, running_emulator, status
 
 EXPECTED = {
     "full": {"palm", "arm", "can"},
@@ -44,7 +45,8 @@ def test_every_configuration_starts_names_its_ports_and_cleans_up(config: str,
             assert info["fingers"] == []
         ports = [info[k] for k in ("palm", "arm", "can") if info.get(k)] + info["fingers"]
         assert ports and all(_is_tty(p) for p in ports)
-        made = sorted(p.name for p in links.iterdir() if p.name != "control")
+        made = sorted(p.name for p in links.iterdir()
+                      if p.name not in ("control", LOCK_NAME))
         expected_links = sorted({"loose-finger": ["finger0"]}.get(
             config, [k for k in ("palm", "arm", "can") if k in EXPECTED[config]]))
         assert made == expected_links
@@ -185,3 +187,37 @@ def test_a_link_dir_that_cannot_be_made_is_named(tmp_path: Path) -> None:
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert str(bad) in result.stderr and "Not a directory" in result.stderr
+
+
+def test_a_link_dir_a_running_emulator_holds_is_refused_and_left_alone(tmp_path: Path) -> None:
+    """A second emulator on the same --link-dir neither replaces the first one's links and
+    control socket nor removes them when it exits: it refuses, naming the first's pid."""
+    links = tmp_path / "robot"
+    with running_emulator("--config", "arm", "--no-physics", "--link-dir", str(links)) as info:
+        before = {name: os.readlink(links / name) for name in ("arm",)}
+        second = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                                 "--no-physics", "--link-dir", str(links)],
+                                cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert second.returncode == 1 and second.stdout == ""
+        assert "belongs to a running emulator" in second.stderr
+        assert f"pid {info['process'].pid}" in second.stderr
+        assert second.stderr.count("\n") == 1
+        assert {name: os.readlink(links / name) for name in ("arm",)} == before
+        assert status(info)["ok"]  # the first one's control socket still answers
+    assert list(links.iterdir()) == []  # and the first cleans up after itself
+
+
+def test_links_the_emulator_did_not_make_are_never_removed(tmp_path: Path) -> None:
+    links = tmp_path / "robot"
+    with running_emulator("--config", "arm", "--no-physics", "--link-dir", str(links)) as info:
+        (links / "mine").symlink_to(info["arm"])  # the user's own link to the same pty
+    assert (links / "mine").is_symlink()
+
+
+def test_a_link_dir_naming_a_file_says_so(tmp_path: Path) -> None:
+    (tmp_path / "robot").write_text("")
+    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+                             "--no-physics", "--link-dir", str(tmp_path / "robot")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1 and result.stdout == ""
+    assert "is a file, not a directory" in result.stderr and "File exists" not in result.stderr

@@ -137,6 +137,7 @@ def run(*argv: str) -> tuple[int, str]:
     return armctl.main(["--port", CLI_URL, "--json", *argv], out), out.getvalue()
 
 
+@pytest.mark.slow
 def test_armctl_refuses_moves_before_homing_and_remembers_homing(
         capsys: pytest.CaptureFixture[str]) -> None:
     code, out = run("status")

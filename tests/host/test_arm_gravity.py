@@ -118,6 +118,7 @@ def test_choose_ik_keeps_every_stepper_under_the_load_limit() -> None:
         choose_ik(TOO_FAR, None, home, hand=True)
 
 
+@pytest.mark.slow
 def test_moveto_with_the_hand_reaches_without_stalling(full_arm: Arm) -> None:
     log = TrackingLog()
     result = full_arm.moveto(TARGET, log=log)

@@ -72,11 +72,20 @@ def test_jacobian_matches_finite_differences(q: tuple[float, ...]) -> None:
 
 
 @settings(max_examples=15, deadline=None, phases=[Phase.explicit, Phase.generate])
-@given(st.tuples(*[st.floats(0.6 * lo, 0.6 * hi) for lo, hi in ARM_JOINT_LIMITS]))
-def test_ik_finds_a_reachable_position_within_limits(q: tuple[float, ...]) -> None:
-    # IK is local (damped least squares): start it near the answer, as a move does
-    target = K.forward(q).position
-    result = K.solve_ik(target, q0=np.multiply(q, 0.8))
+@given(st.tuples(*[st.floats(0.6 * lo, 0.6 * hi) for lo, hi in ARM_JOINT_LIMITS]),
+       st.integers(0, 6), st.booleans())
+def test_ik_finds_a_reachable_position_within_limits(q: tuple[float, ...], joint: int,
+                                                     upper: bool) -> None:
+    # One joint at its limit (less the IK's margin): the answer lies on the boundary, and
+    # the start, near it as a move's would be, has that joint 0.1 rad beyond the limit.
+    at_limit = np.array(q)
+    at_limit[joint] = K.UPPER[joint] - K.LIMIT_MARGIN_RAD if upper else \
+        K.LOWER[joint] + K.LIMIT_MARGIN_RAD
+    start = at_limit + 0.02
+    start[joint] = at_limit[joint] + (0.1 if upper else -0.1)
+    assert not K.within_limits(start)
+    target = K.forward(at_limit).position
+    result = K.solve_ik(target, q0=start)
     # (near the straight-arm singularity damping slows the last tenth of a millimetre)
     assert np.linalg.norm(K.forward(result.q).position - target) < 1e-3, result
     assert K.within_limits(result.q)
@@ -92,10 +101,19 @@ def test_ik_reaches_a_full_pose_from_nearby() -> None:
 
 
 def test_ik_stays_within_limits_for_an_unreachable_target() -> None:
+    # The flange at the shoulder: only an arm folded past its stops would get there (the
+    # elbow folded to its stop leaves the wrist 0.29 m from the shoulder axis).  IK goes
+    # as far as the limits allow, the elbow at its stop, and no further.
+    result = K.solve_ik((0.0, 0.0, SHOULDER_Z))
+    assert not result.converged and result.position_error > 0.1
+    assert K.within_limits(result.q)
+    assert result.q[3] == pytest.approx(K.UPPER[3] - K.LIMIT_MARGIN_RAD)
+
+
+def test_ik_says_a_target_out_of_reach_is_not_reached() -> None:
     result = K.solve_ik((2.0, 0.0, 0.0), max_iterations=60)
     assert not result.converged
     assert result.position_error > 0.9
-    assert K.within_limits(result.q)
 
 
 def test_null_space_term_moves_joints_away_from_limits_without_moving_the_flange() -> None:

@@ -48,6 +48,7 @@ def test_a_finger_the_hand_does_not_have_is_a_usage_error(hand: Hand,
         hand.grasp("cylindrical", 0.8, fingers=fingers, unhomed=True)
 
 
+@pytest.mark.slow
 def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
     before = _truth(hand)
     result = hand.grasp("cylindrical", 0.8, speed=1.5, unhomed=True)
@@ -77,6 +78,21 @@ def test_handctl_grasp_refuses_unhomed_and_names_unknown_grasps(
     assert "unknown grasp 'fist'" in err and "cylindrical" in err and "point" in err
 
 
+@pytest.mark.parametrize("speed", ["1e6", "nan", "inf", "0", "-1e-3"])
+def test_a_grasp_speed_that_is_absurd_or_not_finite_is_a_usage_error(
+        speed: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--port", URL, "grasp", "open", "1", "--speed", speed, "--unhomed"]) == 2
+    assert f"argument --speed: {speed}: give a speed (rad/s) > 0 and <= 170" in \
+        capsys.readouterr().err
+
+
+def test_the_library_refuses_an_absurd_grasp_speed_too(hand: Hand) -> None:
+    for speed in (1e6, float("nan")):
+        with pytest.raises(UsageError, match="give a speed > 0 and <= 170"):
+            hand.grasp("open", 1.0, speed=speed, unhomed=True)
+
+
+@pytest.mark.slow
 def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--port", URL, "--json", "grasp", "pinch", "1.0", "--speed", "2",
                  "--unhomed"]) == 0
@@ -87,6 +103,7 @@ def test_handctl_grasp_moves_and_reports_json(capsys: pytest.CaptureFixture[str]
     assert abs(out["fingers"]["0"]["joints"][1]) < 0.1  # the others stay open
 
 
+@pytest.mark.slow
 def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> None:
     # Something meets finger 1's proximal pad as the grasp starts (the plant pushes the pad,
     # as an object would): a cylindrical grasp until contact stops that finger at once and
@@ -120,6 +137,7 @@ def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> No
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)
 
 
+@pytest.mark.slow
 def test_a_squeeze_closes_j1_and_keeps_the_spread(hand: Hand) -> None:
     # Nothing stops finger 0: each round closes J1 by the squeeze (motor 1 alone), which
     # turns J0 with it while motor 0 holds; the next round turns J0 back.  At the end J1 is

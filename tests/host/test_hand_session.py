@@ -139,6 +139,43 @@ def test_a_late_reply_to_an_expired_request_is_dropped_and_the_retry_answered() 
     assert session.counters.retries == 1
 
 
+def inner_seq(frame: bytes) -> int:
+    """The sequence number of the routed txn inside a ``palm.route`` the session sent."""
+    route = ROUTE.parse_request(unwrap(frame)["inner"])
+    return int(TXN.parse_request(parse_frame(route["frame"]).payload)["seq"])
+
+
+def routed_reply(frame: bytes, inner: int, fields: dict[str, Any]) -> bytes:
+    """The palm's route reply to ``frame``, carrying the fmcb's identify reply numbered
+    ``inner`` (a late reply of an earlier try: the palm cannot tell them apart)."""
+    outer = unwrap(frame)
+    route = ROUTE.parse_request(outer["inner"])
+    body = CATALOGUE["identify"].build_reply(fields)
+    routed = txn_reply(inner, CATALOGUE["identify"].type_id, body, board=2)
+    return txn_reply(outer["seq"], ROUTE.type_id, ROUTE.build_reply(
+        finger=route["finger"], hop=route["hop"], status=0, frame=routed))
+
+
+def test_a_late_routed_reply_carried_by_the_retrys_route_reply_is_stale() -> None:
+    """Try 1 got no answer in time; the fmcb's late answer to it reaches the palm while the
+    retry waits there, and the palm (matching by address and type) passes it up in the
+    retry's route reply.  Its inner sequence number is try 1's: counted stale, never
+    returned; the next try's own answer is."""
+    link = ScriptedTransport()
+
+    def respond(frame: bytes) -> None:
+        if len(link.sent) == 2:
+            link.deliver(routed_reply(frame, inner_seq(link.sent[0]), {**IDENTIFY, "uid": 1}))
+        elif len(link.sent) == 3:
+            link.deliver(routed_reply(frame, inner_seq(frame), {**IDENTIFY, "uid": 3}))
+
+    link.responder = respond
+    session = HandSession(link, retries=2)
+    assert session.request("identify", to=Target(0, 0))["uid"] == 3
+    assert session.counters.stale_replies == 1
+    assert len({inner_seq(f) for f in link.sent}) == 3  # each try numbered anew
+
+
 def test_a_session_right_after_another_does_not_take_its_late_reply(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A program stopped mid-request leaves its reply on the way; the next program's session

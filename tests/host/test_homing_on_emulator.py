@@ -48,6 +48,7 @@ def test_moves_are_refused_until_the_finger_is_homed(hand: Hand) -> None:
     hand.fingers[1].idle()  # idling is always allowed
 
 
+@pytest.mark.slow
 def test_inertial_estimate_matches_the_plant_at_random_poses(hand: Hand) -> None:
     rng = np.random.default_rng(11)
     thumb = hand.fingers[THUMB]
@@ -69,6 +70,7 @@ def test_homing_a_finger_with_a_vertical_axis_is_refused_naming_the_joint(hand: 
     assert not hand.fingers[0].homed
 
 
+@pytest.mark.slow
 def test_homing_from_a_random_pose_makes_the_joints_read_true(hand: Hand) -> None:
     thumb = hand.fingers[THUMB]
     thumb.move((0.45, 0.8, 0.35), effort=200, timeout=2.0, unhomed=True)

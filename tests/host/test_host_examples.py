@@ -61,6 +61,7 @@ def test_the_guide_names_commands_that_exist() -> None:
     assert "docs/HOST.md" in readme and "Driving the robot from Python" in readme
 
 
+@pytest.mark.slow
 def test_session_tour(capsys: pytest.CaptureFixture[str]) -> None:
     seen = session_tour.main(SESSION_URL)
     assert seen["palm"]["board"].name == "PALM"
@@ -70,6 +71,7 @@ def test_session_tour(capsys: pytest.CaptureFixture[str]) -> None:
     assert "route unpowered" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_hand_tour(tmp_path: Path) -> None:
     from mcap.reader import make_reader
 
@@ -89,6 +91,7 @@ def test_hand_tour(tmp_path: Path) -> None:
     assert seen["frames"] > 0 and seen["states"] >= 5
 
 
+@pytest.mark.slow
 def test_arm_tour() -> None:
     seen = arm_tour.main("emu://arm/arm?name=host-examples")
     assert seen["joints"] == ["J1", "J2", "J3", "J4", "J5", "J6", "J7"]

@@ -127,6 +127,7 @@ def _trajectory(t: np.ndarray) -> np.ndarray:
                      0.5 + 0.6 * np.sin(1.7 * t + 1.0)], axis=1)
 
 
+@pytest.mark.slow
 def test_ekf_tracks_a_synthetic_trajectory_from_accelerometers_alone() -> None:
     rng = np.random.default_rng(4)
     t = np.arange(0.0, 4.0, 0.01)
@@ -189,6 +190,7 @@ def test_calibration_refuses_coplanar_poses() -> None:
         calibrate(ups * 1000, ups)
 
 
+@pytest.mark.slow
 def test_ekf_with_halls_learns_a_homing_offset_from_the_accelerometers() -> None:
     # The halls read 0.9° high on J1 and low on J2 (an imperfect homing); while the finger
     # moves, the halls carry the motion and the accelerometers find the offset.

@@ -101,6 +101,13 @@ def test_loop_url_takes_baud_and_keeps_pyserial_options() -> None:
         assert _recv_until(t, 1) == b"\x01"
 
 
+@pytest.mark.parametrize("baud", ["-1", "0", "99999999999", "abc", "1e400"])
+def test_a_baud_rate_no_serial_port_runs_at_is_a_usage_error(baud: str) -> None:
+    """``?baud=-1`` reached pyserial and came back as "check the path" (exit 1)."""
+    with pytest.raises(UsageError, match="baud"):
+        open_transport(f"/dev/no-such-port?baud={baud}")
+
+
 # --- a real pty ---------------------------------------------------------------------------
 
 def test_pty_bytes_both_ways(pty: Pty) -> None:

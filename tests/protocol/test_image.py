@@ -354,6 +354,7 @@ def test_every_single_bit_flip_of_golden_image() -> None:
             parse_image(bytes(flipped))
 
 
+@pytest.mark.slow
 @settings(max_examples=300)
 @given(st.binary(max_size=1024))
 def test_arbitrary_bytes_raise_only_image_error(data: bytes) -> None:
@@ -361,6 +362,7 @@ def test_arbitrary_bytes_raise_only_image_error(data: bytes) -> None:
         parse_image(data)
 
 
+@pytest.mark.slow
 @given(body=st.binary(min_size=248, max_size=248), tail=st.binary(max_size=64))
 def test_arbitrary_header_with_good_magic_and_crc(body: bytes, tail: bytes) -> None:
     """Past the magic, version and CRC checks, random fields still fail only with ImageError."""

@@ -494,6 +494,7 @@ near_frame_bytes = st.one_of(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=300)
 @given(st.lists(near_frame_bytes, max_size=8), cuts_st, st.booleans(),
        st.sampled_from([DEFAULT_MAX_PAYLOAD, 20, 0]), st.booleans())
@@ -528,6 +529,7 @@ def test_frame_size_property() -> None:
     assert frames[0].size == len(HW_REPLY) == 4 + OVERHEAD
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.one_of(st.binary(max_size=30), st.sampled_from(
     [PING, POWER_ON, HW_REPLY, POWER_ON_BAD_CRC, LONG_PROMISE])), max_size=12),

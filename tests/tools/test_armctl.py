@@ -165,6 +165,7 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_arm_goes_li
     assert "armctl waypoints record" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_moveto_takes_a_tolerance_and_refuses_a_timeout_that_is_not_positive(
         arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
     assert run("move", "--unhomed", "--joints", *["0"] * 7, "--timeout", "-1")[0] == \
@@ -217,3 +218,33 @@ def test_waypoints_recorded_before_ctrl_c_or_a_lost_link_are_saved(
 
     with mcap.open("rb") as stream:
         assert sum(1 for _ in make_reader(stream).iter_messages()) > 60
+
+
+def test_joint_angles_take_every_form_python_reads(arm: Arm) -> None:
+    """``--joints 0 -1e-3 …`` was "unrecognized arguments": argparse took -1e-3 for an
+    option."""
+    assert run("torque", "on")[0] == armctl.EXIT_OK
+    code, state = run("move", "--unhomed", "--timeout", "20", "--joints",
+                      "0", "-1e-3", "0", "-2E-2", "0", "-.05", "0")
+    assert code == armctl.EXIT_OK, state
+
+
+@pytest.mark.parametrize("argv", [
+    ("moveto", "nan", "0", "-0.5"), ("moveto", "0.2", "0", "-0.5", "--rpy", "0", "-inf", "0"),
+    ("move", "--joints", "0,0,0,0,0,0,0", "--duration", "-1e-3"),
+    ("move", "--joints", "0,0,0,0,0,0,0", "--duration", "nan")])
+def test_non_finite_or_negative_numbers_are_a_bad_command_line(
+        arm: Arm, capsys: pytest.CaptureFixture[str], argv: tuple[str, ...]) -> None:
+    assert run(*argv)[0] == armctl.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "error: argument" in err
+
+
+def test_a_file_that_holds_no_waypoints_says_so(arm: Arm, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    assert run("torque", "on")[0] == armctl.EXIT_OK
+    capsys.readouterr()
+    assert run("waypoints", "play", "/dev/null", "--unhomed")[0] == armctl.EXIT_USAGE
+    assert capsys.readouterr().err.strip() == "armctl: error: /dev/null holds no waypoints"
+    assert run("waypoints", "play", str(tmp_path), "--unhomed")[0] == armctl.EXIT_USAGE
+    assert "is a directory, not a waypoint file" in capsys.readouterr().err

@@ -55,6 +55,7 @@ def test_table_names_not_comparable_rows_and_their_reason() -> None:
     assert "coupled mode: single-joint model" in text
 
 
+@pytest.mark.slow
 def test_main_exits_0_only_when_every_row_passes_or_is_not_comparable(
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
         tmp_path: Path) -> None:

@@ -6,7 +6,13 @@ import argparse
 
 import pytest
 
-from tools.cli_numbers import number_above
+from tools.cli_numbers import (
+    NEGATIVE_NUMBER,
+    finite,
+    number_above,
+    number_in,
+    read_negative_numbers,
+)
 
 
 @pytest.mark.parametrize(("text", "value"), [("0.5", 0.5), ("3", 3.0), ("1e-3", 0.001)])
@@ -31,3 +37,34 @@ def test_an_inclusive_integer_bound_and_its_note() -> None:
     with pytest.raises(argparse.ArgumentTypeError, match=r"^0: give a number of runs >= 1 "
                                                          r"\(forever\)$"):
         runs("0")
+
+
+@pytest.mark.parametrize("word", ["-1e-3", "-1E+2", "-.5", "-1_000", "-2.", "-inf", "-nan",
+                                  "-0.1,0.2,0", "-1e-3,-2,3e4"])
+def test_every_negative_number_python_reads_is_a_value_not_an_option(word: str) -> None:
+    parser = argparse.ArgumentParser(prog="t")
+    sub = parser.add_subparsers(dest="command", required=True)
+    move = sub.add_parser("move")
+    move.add_argument("--joints", nargs="+")
+    move.add_argument("--duration")
+    read_negative_numbers(parser)
+    args = parser.parse_args(["move", "--joints", "0", word, "--duration", word])
+    assert args.joints == ["0", word] and args.duration == word
+
+
+@pytest.mark.parametrize("word", ["-x", "--joints", "-1e", "-e3", "-1,x"])
+def test_an_option_is_still_an_option(word: str) -> None:
+    assert not NEGATIVE_NUMBER.match(word)
+
+
+def test_a_bounded_number_refuses_what_is_absurd_or_not_finite() -> None:
+    speed = number_in(0, 170, what="a speed (rad/s)")
+    assert speed("170") == 170 and speed("1e-3") == 0.001
+    for text in ("1e6", "0", "-1", "nan", "inf", "1e400"):
+        with pytest.raises(argparse.ArgumentTypeError, match="give a speed"):
+            speed(text)
+    position = finite("a position (m)")
+    assert position("-1e-3") == -0.001
+    for text in ("nan", "-inf", "1e400"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"^{text}: give a position"):
+            position(text)

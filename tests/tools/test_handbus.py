@@ -86,6 +86,7 @@ def test_decode_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     check_capture_output(out)
 
 
+@pytest.mark.slow
 def test_decode_capture_as_a_console_script(tmp_path: Path) -> None:
     path = tmp_path / "capture.bin"
     path.write_bytes(capture())
@@ -362,6 +363,17 @@ def test_encode_field_and_reply(capsys: pytest.CaptureFixture[str]) -> None:
 def test_encode_fields_after_options(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run_main(["encode", "fmcb.phalange_power", "--addr", "10", "on=1"], capsys)
     assert (code, out.strip(), err) == (0, POWER_ON.hex(), "")
+
+
+@pytest.mark.parametrize(("value", "says"), [
+    ("nan", "args.target[0]: nan is not a finite number"),
+    ("1e400", "args.target[0]: inf is not a finite number"),
+    ("-1e39", "args.target[0]: -1e+39 is outside the float32 range")])
+def test_encode_refuses_a_float_field_that_is_not_finite_or_does_not_fit(
+        value: str, says: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(["encode", "fmcb.control", "mode=2",
+                               f"args.target={value},0.5,0.3", "--addr", "10"], capsys)
+    assert (code, out) == (2, "") and says in err
 
 
 def test_encode_control_with_nested_args(capsys: pytest.CaptureFixture[str]) -> None:

@@ -106,3 +106,31 @@ def test_power_and_status_through_the_emulators_pty(
     assert main(["--port", palm_pty, "--json", "status"]) == 0
     fingers = _json(capsys)["fingers"]
     assert [f["present"] for f in fingers] == [True, True, False, True]
+
+
+def test_status_exits_1_naming_a_powered_finger_that_does_not_answer(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from hil_emulator.inprocess import EmulatorTransport
+
+    url = "emu://hand/palm?physics=0&name=status-silent"
+    probe = EmulatorTransport.from_url(url)
+    probe.emulator.break_away(1)  # off its pogo pins: the palm still powers its slot
+    probe.close()
+    assert main(["--port", url, "status"]) == 1
+    captured = capsys.readouterr()
+    assert "finger 1: power full, not answering (no_reply" in captured.out
+    assert captured.err == "handctl: finger(s) 1 powered but not answering\n"
+
+
+@pytest.mark.parametrize(("seen", "says"), [
+    ({"bytes_discarded": 4096, "crc_failures": 3, "stale_replies": 0}, "garbage on the line"),
+    ({"bytes_discarded": 0, "crc_failures": 0, "stale_replies": 2}, "try --timeout 0.5"),
+    ({"bytes_discarded": 0, "crc_failures": 0, "stale_replies": 0}, "nothing came back"),
+])
+def test_the_advice_for_a_finger_that_did_not_reply_fits_what_the_link_carried(
+        seen: dict[str, int], says: str) -> None:
+    from tools.handctl import _no_reply_advice
+
+    advice = _no_reply_advice(seen)
+    assert says in advice
+    assert ("--timeout" in advice) == (says == "try --timeout 0.5")  # never a guess

@@ -69,6 +69,7 @@ def test_every_implemented_fault_has_a_standard_scenario() -> None:
         parse_scenario(tomllib.loads(path.read_text()), str(path))
 
 
+@pytest.mark.slow
 def test_a_subset_of_the_standard_suite_passes_with_reports(tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]
                                                             ) -> None:
@@ -149,6 +150,7 @@ def _campaign(n_seeds: int) -> list[dict[str, Any]]:
                   seeds=list(range(n_seeds)))
 
 
+@pytest.mark.slow
 def test_a_campaign_on_a_local_dask_cluster_equals_the_in_process_run() -> None:
     from dask.distributed import Client, LocalCluster
 
@@ -165,6 +167,7 @@ def test_a_campaign_on_a_local_dask_cluster_equals_the_in_process_run() -> None:
     assert [r["seed"] for r in here] == [0, 1, 0, 1] and all(r["passed"] for r in here)
 
 
+@pytest.mark.slow
 def test_campaign_vary_runs_every_combination_and_local_workers_agree(tmp_path: Path
                                                                       ) -> None:
     path = tmp_path / "vary.toml"
@@ -212,6 +215,7 @@ def _strict_glitch(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_failed_run_prints_the_command_that_runs_it_alone(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import shlex

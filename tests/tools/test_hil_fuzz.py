@@ -24,6 +24,7 @@ def planted_fmcb(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(boards.APP_PROGRAMS, "fmcb", PROGRAM)
 
 
+@pytest.mark.slow
 def test_planted_hang_is_found_shrunk_saved_and_replayed(
         planted_fmcb: None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # Focused on the parameter messages so the default run stays short; bench_fuzz.py
@@ -86,7 +87,9 @@ def test_motion_commands_are_recognised() -> None:
     assert not is_motion_frame(mutate_frame(inner, "bad_crc", 0), "fmcb")
 
 
-@pytest.mark.parametrize("target", ["fmcb", "f2", "f3", "bootloader", "arm"])
+@pytest.mark.parametrize("target", [  # the finger boards' campaigns take longest
+    *(pytest.param(t, marks=pytest.mark.slow) for t in ("fmcb", "f2", "f3")),
+    "bootloader", "arm"])
 def test_short_campaign_finds_nothing_in_our_firmware(target: str) -> None:
     result = run_campaign(target, examples=4, seed=2, steps=6)
     assert result.reproducer is None, (result.reproducer.failure,
