@@ -99,6 +99,12 @@ class PowerSwitch(ABC):
     def current_ma(self) -> int:
         """Measured load current (mA)."""
 
+    def set_current_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the measured load current changes (the current
+        sense's window comparator; None: off).  False on a board without one (the
+        callback is never called: the firmware must poll :meth:`current_ma`)."""
+        return False
+
 
 class Flash(ABC):
     """Flash with SAM3S rules: 256-byte pages, erase before write, lockable regions.
@@ -156,6 +162,12 @@ class MotorDriver(ABC):
     @abstractmethod
     def current_ma(self) -> int:
         """Measured motor current (mA)."""
+
+    def set_hall_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the hall state changes (a pin-change interrupt on the
+        three hall inputs; None: off).  False on a board without one (the callback is
+        never called: the firmware must poll :meth:`hall_state`)."""
+        return False
 
 
 class Stepper(ABC):

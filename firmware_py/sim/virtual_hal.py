@@ -207,7 +207,8 @@ class VirtualPowerSwitch(hal.PowerSwitch):
 
     def __init__(self, load_ma: int = 0) -> None:
         self._state = 0
-        self.load_ma = load_ma
+        self._load_ma = load_ma
+        self._on_current: Callable[[], None] | None = None
         self.on_change: list[Callable[[int], None]] = []
         self.history: list[int] = []
 
@@ -225,13 +226,32 @@ class VirtualPowerSwitch(hal.PowerSwitch):
         return self._state
 
     def current_ma(self) -> int:
-        return self.load_ma if self._state else 0
+        return self._load_ma if self._state else 0
+
+    def set_current_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_current = callback
+        return True
+
+    @property
+    def load_ma(self) -> int:
+        """What the downstream load draws whenever the switch is on (mA); setting it is
+        :meth:`set_load_ma`."""
+        return self._load_ma
+
+    @load_ma.setter
+    def load_ma(self, milliamps: int) -> None:
+        self.set_load_ma(milliamps)
 
     # --- plant side
 
     def set_load_ma(self, milliamps: int) -> None:
-        """The downstream load draws ``milliamps`` (mA) whenever the switch is on."""
-        self.load_ma = int(milliamps)
+        """The downstream load draws ``milliamps`` (mA) whenever the switch is on; a change
+        raises the current interrupt (switching state changes are the firmware's own)."""
+        milliamps = int(milliamps)
+        if milliamps != self._load_ma:
+            self._load_ma = milliamps
+            if self._on_current is not None:
+                self._on_current()
 
 
 class VirtualFlash(hal.Flash):
@@ -314,7 +334,8 @@ class VirtualMotor(hal.MotorDriver):
         self.duty = 0.0
         self.enabled = False
         self.brake = False
-        self.hall = 0
+        self._hall = 0
+        self._on_hall: Callable[[], None] | None = None
         self.current = 0
 
     def set_duty(self, duty: float) -> None:
@@ -331,10 +352,24 @@ class VirtualMotor(hal.MotorDriver):
         self.brake = bool(brake)
 
     def hall_state(self) -> int:
-        return self.hall
+        return self._hall
 
     def current_ma(self) -> int:
         return self.current
+
+    def set_hall_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_hall = callback
+        return True
+
+    @property
+    def hall(self) -> int:
+        """The hall state the sensors give now (0..7); setting it is :meth:`set_hall_state`
+        (a test's way of turning the rotor)."""
+        return self._hall
+
+    @hall.setter
+    def hall(self, state: int) -> None:
+        self.set_hall_state(state)
 
     # --- plant side
 
@@ -356,8 +391,12 @@ class VirtualMotor(hal.MotorDriver):
         return self.brake, self.enabled, self.duty
 
     def set_hall_state(self, state: int) -> None:
-        """The three hall sensor bits the rotor angle gives now, 0..7."""
-        self.hall = state
+        """The three hall sensor bits the rotor angle gives now, 0..7; a change raises the
+        hall interrupt."""
+        if state != self._hall:
+            self._hall = state
+            if self._on_hall is not None:
+                self._on_hall()
 
     def set_current_ma(self, milliamps: int) -> None:
         """The winding current the current sense measures (mA, signed)."""
@@ -366,7 +405,10 @@ class VirtualMotor(hal.MotorDriver):
     def set_hall_and_current(self, state: int, milliamps: int) -> None:
         """:meth:`set_hall_state` and :meth:`set_current_ma` in one call (the finger plant
         writes twelve motors every tick)."""
-        self.hall = state
+        if state != self._hall:
+            self._hall = state
+            if self._on_hall is not None:
+                self._on_hall()
         self.current = milliamps
 
 
@@ -669,6 +711,9 @@ class VirtualHal(hal.Hal):
             motor.set_duty(0.0)
             motor.set_enabled(False)
             motor.set_brake(False)
+            motor.set_hall_interrupt(None)
+        for switch in self.power_switches.values():
+            switch.set_current_interrupt(None)
         if self._stepper is not None:
             self._stepper.set_step_rate(0.0)
             self._stepper.set_current(0)
