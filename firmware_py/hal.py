@@ -238,6 +238,17 @@ class Sensors(ABC):
             total += value
         return total
 
+    def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
+        """Call ``before_change`` just before the numbered series ``prefix`` (``"taxel"``:
+        ``taxel0`` …) takes new values, while it still reads the old ones (None: stop).
+
+        An emulation aid, not a peripheral: a program that reads such inputs at fixed
+        instants may then read them late, exactly as they were at those instants, instead
+        of waking at each one.  False where the inputs change unannounced (real hardware):
+        the program must read them when due.
+        """
+        return False
+
 
 class Watchdog(ABC):
     """Resets the node when not kicked in time."""

@@ -498,6 +498,9 @@ class VirtualSensors(hal.Sensors):
     """
 
     values: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
+    #: Per series prefix, what to call before the plant side sets the series
+    #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
+    watchers: dict[str, Callable[[], None]] = field(default_factory=dict)
 
     def read(self, channel: str) -> int | tuple[int, ...]:
         try:
@@ -528,10 +531,29 @@ class VirtualSensors(hal.Sensors):
             _no_channel(channel)
         values[channel] = value
 
+    def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
+        if before_change is None:
+            self.watchers.pop(prefix, None)
+        else:
+            self.watchers[prefix] = before_change
+        return True
+
+    def announce_change(self, channel: str) -> None:
+        """``channel`` is about to read differently (a fault switched on or off): whoever
+        watches its series (:meth:`watch_series`) reads what is due first."""
+        if self.watchers:
+            before_change = self.watchers.get(channel.rstrip("0123456789"))
+            if before_change is not None:
+                before_change()
+
     def _set_series(self, keys: tuple[str, ...], counts: Sequence[int]) -> None:
         values, n = self.values, len(counts)
         if n > _SERIES_LENGTH or (n and keys[n - 1] not in values) or keys[n] in values:
             raise HalError(f"this board has no series of {n} {keys[0][:-1]!r} channels")
+        if self.watchers:
+            before_change = self.watchers.get(keys[0][:-1])
+            if before_change is not None:
+                before_change()
         values.update(zip(keys, counts, strict=False))  # keys run past the series
 
     def set_accel(self, x: int, y: int, z: int) -> None:
@@ -714,6 +736,7 @@ class VirtualHal(hal.Hal):
             motor.set_hall_interrupt(None)
         for switch in self.power_switches.values():
             switch.set_current_interrupt(None)
+        self.sensors.watchers.clear()
         if self._stepper is not None:
             self._stepper.set_step_rate(0.0)
             self._stepper.set_current(0)
