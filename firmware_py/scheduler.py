@@ -73,7 +73,8 @@ class _TickGroup:
     works as on a timer of its own.
     """
 
-    __slots__ = ("ahead", "members", "next_index", "next_t", "period_us", "scheduler")
+    __slots__ = ("ahead", "entry", "members", "next_index", "next_t", "period_us",
+                 "scheduler")
 
     def __init__(self, scheduler: Scheduler, period_us: int, members: list[TimerHandle],
                  next_t: int, ahead: int) -> None:
@@ -86,6 +87,8 @@ class _TickGroup:
         self.next_t = next_t
         #: Members in front that sit out the pending firing.
         self.ahead = ahead
+        #: The group's queue entry, reused: it is out of the queue whenever it is pushed.
+        self.entry = TimerHandle(next_t, 0, self.run)
 
     def run(self) -> None:
         """One firing (or the rest of one the group gave way in): each due member in turn."""
@@ -128,7 +131,10 @@ class _TickGroup:
             sched._forget_group(self)
 
     def _push(self, t_us: int, seq: int) -> None:
-        heapq.heappush(self.scheduler._queue, (t_us, seq, TimerHandle(t_us, seq, self.run)))
+        """Queue the group's entry (popped, so out of the queue: :meth:`run` is running)."""
+        entry = self.entry
+        entry.t_us, entry.seq, entry.callback = t_us, seq, self.run
+        heapq.heappush(self.scheduler._queue, (t_us, seq, entry))
 
     def join(self, timer: TimerHandle) -> bool:
         """Add ``timer`` (its sequence number the newest) if the group can take it where
@@ -213,10 +219,12 @@ class Scheduler:
         else:
             return False
         queue = self._queue
-        for i, entry in enumerate(queue):
-            if entry[2] is lone:
+        for i, queued in enumerate(queue):
+            if queued[2] is lone:
                 # Same (t, seq) key: the heap stays ordered.
-                queue[i] = (lone.t_us, lone.seq, TimerHandle(lone.t_us, lone.seq, group.run))
+                entry = group.entry
+                entry.t_us, entry.seq = lone.t_us, lone.seq
+                queue[i] = (lone.t_us, lone.seq, entry)
                 self._ticks[key] = group
                 return True
         return False
