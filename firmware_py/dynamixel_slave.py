@@ -233,6 +233,20 @@ class DynamixelSlave:
 
     # ------------------------------------------------------------------ receiving
 
+    def acts_on(self, data: bytes) -> bool:
+        """Whether bytes arriving now would make this node do anything: False exactly for a
+        whole packet that :meth:`_on_bytes` lets pass untouched (for another node, nothing
+        half-received, and not the status packet a BULK_READ turn waits for).  A bus model
+        may leave such a packet undelivered (:meth:`hil_emulator.rs485_bus.Rs485Bus.attach`).
+        """
+        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
+                and data[3] + 4 == len(data) and data[2] != self.bus_id
+                and data[2] != BROADCAST_ID and not self._decoder.pending):
+            wait = self._bulk_wait
+            return (wait is not None and wait[0] == data[2]
+                    and ~sum(data[2:-1]) & 0xFF == data[-1])
+        return True
+
     def _on_bytes(self, data: bytes, t_us: int) -> None:
         # One whole packet for another node and nothing half-received: like the real
         # firmware, look at the ID byte and let the packet pass (a BULK_READ in progress

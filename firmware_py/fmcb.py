@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -46,7 +46,7 @@ from firmware_py.fmcb_control import (
     pd_effort,
 )
 from firmware_py.fmcb_params import ParamTable
-from firmware_py.hal import Hal, Timer
+from firmware_py.hal import Hal, Timer, Uart
 from firmware_py.hand_node import (
     DEFERRED,
     FRAME_GAP_US,
@@ -73,6 +73,8 @@ AUTOPOLL_PERIOD_US: Final = 10_000
 SLOW_POLL_CYCLES: Final = 100
 #: Control ticks over which velocities are measured (10 ms).
 VELOCITY_WINDOW: Final = 10
+#: Tick counts kept for the velocity window (a full history).
+_HISTORY_FULL: Final = VELOCITY_WINDOW + 1
 #: Velocity span (s) over a history of n tick counts, by n (n - 1 control periods).
 _VELOCITY_SPAN_S: Final = tuple((n - 1) * CONTROL_PERIOD_US / 1e6
                                 for n in range(VELOCITY_WINDOW + 2))
@@ -166,7 +168,7 @@ class FmcbApp(HandNode):
         self.hall = [HallCounter() for _ in range(3)]
         self.offsets = [0, 0, 0]
         self.velocity = [0.0, 0.0, 0.0]
-        self._history: deque[tuple[int, int, int]] = deque(maxlen=VELOCITY_WINDOW + 1)
+        self._history: deque[tuple[int, int, int]] = deque(maxlen=_HISTORY_FULL)
         self.mode: int = ControlMode.IDLE  # a ControlMode, or MODE_OPEN_LOOP
         self.hall_target = [0, 0, 0]
         self.joint_caps = [EFFORT_FULL] * 3
@@ -200,6 +202,12 @@ class FmcbApp(HandNode):
         self._snapshot_taken: tuple[Any, ...] | None = None
         self._snapshot: dict[str, Any] | None = None
         self._timers: list[Timer] = []
+        #: The control law sleeps (see :meth:`_control_tick`) only on a board whose hall
+        #: inputs and phalange-bus current sense interrupt on a change.
+        self._can_sleep = False
+        #: True while the control tick has nothing to do: it returns at once until a hall
+        #: change, a current change or a frame for this node wakes it.
+        self.asleep = False
         self._register()
 
     # --- lifecycle ------------------------------------------------------------------------
@@ -231,6 +239,10 @@ class FmcbApp(HandNode):
         """Begin: listen on pogo, master the tendon bus, start the timers."""
         self.listen(self.pogo)
         self.tendon.set_receiver(self._on_tendon_bytes)
+        wake = self._wake
+        interrupts = [m.set_hall_interrupt(wake) for m in self.motors]
+        interrupts.append(self.phalange.set_current_interrupt(wake))
+        self._can_sleep = all(interrupts)
         for m in self.motors:
             m.set_duty(0.0)
             m.set_enabled(False)
@@ -318,8 +330,28 @@ class FmcbApp(HandNode):
         return self._snapshot
 
     # --- control --------------------------------------------------------------------------
+    def _wake(self) -> None:
+        """A hall or current interrupt, or a frame for this node: the next tick runs."""
+        self.asleep = False
+
+    def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
+                 send: Callable[[bytes | None, int], None]) -> None:
+        """Any command may change what the control tick reads: wake it, then dispatch."""
+        self.asleep = False
+        super().dispatch(msg_type, payload, frame, uart, send)
+
     def _control_tick(self) -> None:
-        """The 1 kHz tick: halls, velocities, breaker, control law."""
+        """The 1 kHz tick: halls, velocities, breaker, control law.
+
+        It goes to sleep (returns at once from the next tick on) when a tick would change
+        nothing: every hall state valid and counted, the velocity window full of the same
+        counts (velocities 0), the breaker not timing an overcurrent; then the next ticks
+        would read the same inputs and write the same outputs, until a hall edge, a change
+        of the phalange-bus current or a command, each of which wakes it.  The tick timer
+        keeps its phase meanwhile, so a woken tick runs exactly when it would have.
+        """
+        if self.asleep:
+            return
         h, m = self.hall, self.motors
         c0, c1, c2 = (h[0].update(m[0].hall_state()), h[1].update(m[1].hall_state()),
                       h[2].update(m[2].hall_state()))
@@ -331,6 +363,12 @@ class FmcbApp(HandNode):
             f0, f1, f2 = hist[0]
             self.velocity = [(c0 - f0) / span_s, (c1 - f1) / span_s, (c2 - f2) / span_s]
         self._check_breaker()
+        if (self._can_sleep and n == _HISTORY_FULL and hist.count(hist[-1]) == _HISTORY_FULL
+                and self._over_since is None and h[0].holds() and h[1].holds()
+                and h[2].holds()):
+            # This tick's outputs (below) are computed from settled inputs: the same ones
+            # would follow every tick, so sleep after it.
+            self.asleep = True
         mode = self.mode
         if mode == _IDLE:
             self.hall_target = self.hall_pos  # targets follow the pose: no jump on resume

@@ -33,21 +33,29 @@ class HallCounter:
     kept, so counting resumes from the next valid neighbour).
     """
 
-    __slots__ = ("count", "invalid", "_index")
+    __slots__ = ("count", "invalid", "_index", "_valid")
 
     def __init__(self) -> None:
         self.count = 0
         self.invalid = 0
         self._index: int | None = None
+        self._valid = False
+
+    def holds(self) -> bool:
+        """True when the last state read was valid and counted (a reference is set): reading
+        the same state again changes nothing."""
+        return self._index is not None and self._valid
 
     def update(self, state: int) -> int:
         """Account for the hall ``state`` read now; returns the count (hall counts)."""
         idx = _HALL_INDEX.get(state & 7)
         if idx is None:
             self.invalid += 1
+            self._valid = False
             return self.count
         if self._index is None:
             self._index = idx
+            self._valid = True
             return self.count
         step = (idx - self._index) % 6
         if step == 1:
@@ -56,8 +64,10 @@ class HallCounter:
             self.count -= 1
         elif step != 0:
             self.invalid += 1
+            self._valid = False
             return self.count
         self._index = idx
+        self._valid = True
         return self.count
 
 

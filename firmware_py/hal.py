@@ -99,6 +99,12 @@ class PowerSwitch(ABC):
     def current_ma(self) -> int:
         """Measured load current (mA)."""
 
+    def set_current_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the measured load current changes (the current
+        sense's window comparator; None: off).  False on a board without one (the
+        callback is never called: the firmware must poll :meth:`current_ma`)."""
+        return False
+
 
 class Flash(ABC):
     """Flash with SAM3S rules: 256-byte pages, erase before write, lockable regions.
@@ -156,6 +162,12 @@ class MotorDriver(ABC):
     @abstractmethod
     def current_ma(self) -> int:
         """Measured motor current (mA)."""
+
+    def set_hall_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the hall state changes (a pin-change interrupt on the
+        three hall inputs; None: off).  False on a board without one (the callback is
+        never called: the firmware must poll :meth:`hall_state`)."""
+        return False
 
 
 class Stepper(ABC):
@@ -225,6 +237,17 @@ class Sensors(ABC):
                 raise HalError(f"sensor {channel!r} is not a scalar")
             total += value
         return total
+
+    def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
+        """Call ``before_change`` just before the numbered series ``prefix`` (``"taxel"``:
+        ``taxel0`` …) takes new values, while it still reads the old ones (None: stop).
+
+        An emulation aid, not a peripheral: a program that reads such inputs at fixed
+        instants may then read them late, exactly as they were at those instants, instead
+        of waking at each one.  False where the inputs change unannounced (real hardware):
+        the program must read them when due.
+        """
+        return False
 
 
 class Watchdog(ABC):

@@ -10,6 +10,10 @@ What a phalange measures, and when:
   averaged; a full scan takes 6 ms on f2 (6 taxels) and 12 ms on f3 (12 taxels).  The scan
   fills a working array and *publishes* it as a whole when its last taxel is read, so a reply
   never mixes taxels of two scans.  Until the first scan completes the published taxels are 0.
+  Where the HAL announces changes of the taxel inputs (``Sensors.watch_series``: the
+  emulator's plant does), the scan is one timer per scan: the taxels due before a change
+  are read when it is announced, the rest when the scan ends, each as it was in its own
+  millisecond (a taxel due at the very microsecond of a change reads the value before it).
 - **IMU** (LSM303: accelerometer ±2 g at ≈1 mg/count, magnetometer in its own counts),
   sampled at 100 Hz (:data:`IMU_PERIOD_US`) while powered.  Its power is switched by
   ``f*.imu_power`` and is **on at boot** (the host gets useful data without a set-up step).
@@ -83,6 +87,8 @@ class _PhalangeApp(HandNode):
         self._scan_buffer = [0] * self.n_taxels
         self._taxel_channels = tuple(f"taxel{i}" for i in range(self.n_taxels))
         self._next_taxel = 0
+        #: When the present scan started (µs, node clock; one timer per scan only).
+        self._scan_start_us = 0
         #: IMU supply state (on at boot).
         self.imu_powered = True
         self._accel: tuple[int, int, int] = (0, 0, 0)
@@ -99,10 +105,13 @@ class _PhalangeApp(HandNode):
         """Listen on the tendon bus; start the taxel scan and the IMU sampling."""
         self.listen(self.uart)
         clock = self.hal.clock
-        self._timers = [
-            clock.call_every(TAXEL_PERIOD_US, self._scan_step),
-            clock.call_every(IMU_PERIOD_US, self._sample_imu),
-        ]
+        if self.hal.sensors.watch_series("taxel", self._read_due_taxels):
+            # One timer per scan; taxel i of the scan is due (i + 1) ms after it starts.
+            self._scan_start_us = clock.now_us()
+            scan = clock.call_every(self.n_taxels * TAXEL_PERIOD_US, self._end_scan)
+        else:
+            scan = clock.call_every(TAXEL_PERIOD_US, self._scan_step)
+        self._timers = [scan, clock.call_every(IMU_PERIOD_US, self._sample_imu)]
         self._sample_imu()
 
     def send_reply(self, uart: Uart, msg_type: int, payload: bytes) -> None:
@@ -145,6 +154,31 @@ class _PhalangeApp(HandNode):
             self.scans += 1
             i = 0
         self._next_taxel = i
+
+    def _read_due_taxels(self) -> None:
+        """The taxel inputs are about to change: read, as they are, the taxels of this
+        scan due by now (those read in their own millisecond would have seen this)."""
+        due = (self.hal.clock.now_us() - self._scan_start_us) // TAXEL_PERIOD_US
+        self._read_taxels(min(due, self.n_taxels))
+
+    def _end_scan(self) -> None:
+        """The last taxel's millisecond: read the taxels not read yet, publish the scan."""
+        self._read_taxels(self.n_taxels)
+        self.taxels = tuple(self._scan_buffer)
+        self.scans += 1
+        self._next_taxel = 0
+        self._scan_start_us += self.n_taxels * TAXEL_PERIOD_US
+
+    def _read_taxels(self, end: int) -> None:
+        """Read taxels ``_next_taxel`` … ``end - 1`` into the scan buffer (as
+        :meth:`read_taxel`)."""
+        burst, channels, buffer = self.hal.sensors.read_burst, self._taxel_channels, \
+            self._scan_buffer
+        for i in range(self._next_taxel, end):
+            value = (burst(channels[i], ADC_SAMPLES) + ADC_SAMPLES // 2) // ADC_SAMPLES
+            buffer[i] = 0 if value < 0 else _U16_MAX if value > _U16_MAX else value
+        if end > self._next_taxel:
+            self._next_taxel = end
 
     def _sample_imu(self) -> None:
         if not self.imu_powered:

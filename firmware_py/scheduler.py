@@ -3,6 +3,13 @@
 Time is an integer number of microseconds.  Events at the same time run in the order they
 were scheduled, so a run is repeatable.  The emulator owns one scheduler for the whole
 robot; tests make one per firmware under test.
+
+Periodic timers of the same period and phase (the robot's 1 kHz ticks: each node's control
+loop and the plant's exchange, all started on whole milliseconds) share one entry in the
+event queue, a :class:`_TickGroup` that runs them in turn.  Each still takes its own place
+in the order of events: before running a member the group gives way to any event due at
+the same time that was scheduled before that member's turn, exactly as if every member had
+its own entry.
 """
 
 from __future__ import annotations
@@ -51,6 +58,105 @@ class TimerHandle:
 _UNBOUNDED: Final = sys.maxsize
 
 
+class _TickGroup:
+    """Periodic timers of one period and phase behind one queue entry.
+
+    ``members`` are in the order they run, which is the order of their sequence numbers:
+    a member's ``t_us`` and ``seq`` are what its own entry would hold.  During a firing at
+    time t, the members before ``next_index`` have run (they are due at t + period) and
+    the rest have not; a timer joining then for t + period goes in at ``next_index``, which
+    is where its fresh sequence number puts it, and ``next_index`` moves past it.  Between
+    firings (``next_index`` at the end) a timer due at the pending firing ``next_t`` goes
+    last; one due a period after it goes before every member (they take fresh sequence
+    numbers when they run at ``next_t``), after the others that joined so, and sits out the
+    pending firing.  A member's callback is read at its turn, so replacing or cancelling it
+    works as on a timer of its own.
+    """
+
+    __slots__ = ("ahead", "entry", "members", "next_index", "next_t", "period_us",
+                 "scheduler")
+
+    def __init__(self, scheduler: Scheduler, period_us: int, members: list[TimerHandle],
+                 next_t: int, ahead: int) -> None:
+        self.scheduler = scheduler
+        self.period_us = period_us
+        self.members = members
+        #: Where a joining timer goes during a firing (between firings: the end).
+        self.next_index = len(members)
+        #: The pending firing (between firings) or the next one (during one) (µs).
+        self.next_t = next_t
+        #: Members in front that sit out the pending firing.
+        self.ahead = ahead
+        #: The group's queue entry, reused: it is out of the queue whenever it is pushed.
+        self.entry = TimerHandle(next_t, 0, self.run)
+
+    def run(self) -> None:
+        """One firing (or the rest of one the group gave way in): each due member in turn."""
+        sched = self.scheduler
+        queue, seq = sched._queue, sched._seq
+        t = sched._now
+        period = self.period_us
+        members = self.members
+        if self.next_index >= len(members):  # a new firing (not the rest of one)
+            self.next_index = 0
+            self.ahead = 0
+            self.next_t = t + period
+        while self.next_index < len(members):
+            i = self.next_index
+            m = members[i]
+            cb = m.callback
+            if cb is None:  # cancelled: leaves the group
+                del members[i]
+                continue
+            if m.t_us != t:  # joined for the next firing
+                self.next_index = i + 1
+                continue
+            if queue:
+                head = queue[0]
+                if head[0] == t and head[1] < m.seq:
+                    # An event scheduled before this member's turn comes first.
+                    self._push(t, m.seq)
+                    return
+            m.t_us = t + period
+            m.seq = next(seq)
+            self.next_index = i + 1
+            cb()
+        self.next_index = len(members)
+        if members:
+            # The entry's key: the first member due at the next firing (those ahead, which
+            # joined during this one, sit it out), or, if none is, the first of them.
+            first = members[self.ahead] if self.ahead < len(members) else members[0]
+            self._push(first.t_us, first.seq)
+        else:
+            sched._forget_group(self)
+
+    def _push(self, t_us: int, seq: int) -> None:
+        """Queue the group's entry (popped, so out of the queue: :meth:`run` is running)."""
+        entry = self.entry
+        entry.t_us, entry.seq, entry.callback = t_us, seq, self.run
+        heapq.heappush(self.scheduler._queue, (t_us, seq, entry))
+
+    def join(self, timer: TimerHandle) -> bool:
+        """Add ``timer`` (its sequence number the newest) if the group can take it where
+        its own entry would run; False if not (it then needs an entry of its own)."""
+        members = self.members
+        if self.next_index < len(members):  # during a firing
+            if timer.t_us != self.next_t:
+                return False
+            members.insert(self.next_index, timer)
+            self.next_index += 1
+        elif timer.t_us == self.next_t:
+            members.append(timer)
+            self.next_index = len(members)
+        elif timer.t_us == self.next_t + self.period_us:
+            members.insert(self.ahead, timer)
+            self.ahead += 1
+            self.next_index = len(members)
+        else:
+            return False
+        return True
+
+
 class Scheduler:
     """Discrete-event scheduler with integer-microsecond time."""
 
@@ -58,6 +164,8 @@ class Scheduler:
         self._now = start_us
         self._queue: list[tuple[int, int, TimerHandle]] = []
         self._seq = itertools.count()
+        #: Per (period, phase): the tick group, or the one periodic timer with its own entry.
+        self._ticks: dict[tuple[int, int], _TickGroup | TimerHandle] = {}
 
     def now_us(self) -> int:
         """Current simulation time (µs)."""
@@ -84,10 +192,48 @@ class Scheduler:
         if period_us <= 0:
             raise ValueError("period must be positive")
         delay = period_us if first_us is None else first_us
-        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback,
-                         int(period_us))
+        period = int(period_us)
+        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback, period)
+        key = (period, ev.t_us % period)
+        shared = self._ticks.get(key)
+        if isinstance(shared, _TickGroup):
+            if shared.join(ev):
+                return ev
+        elif shared is not None and shared.callback is not None and self._group(key, shared, ev):
+            return ev
+        else:
+            self._ticks[key] = ev
         heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
         return ev
+
+    def _group(self, key: tuple[int, int], lone: TimerHandle, ev: TimerHandle) -> bool:
+        """Put ``lone`` (a periodic timer with its own queue entry) and ``ev`` behind one
+        group entry, which takes ``lone``'s place in the queue, if ``ev`` is due when
+        ``lone`` is (it runs after it) or a period later (before it: ``lone`` takes a
+        fresh sequence number when it runs first)."""
+        period = lone.period_us
+        if ev.t_us == lone.t_us:
+            group = _TickGroup(self, period, [lone, ev], lone.t_us, 0)
+        elif ev.t_us == lone.t_us + period:
+            group = _TickGroup(self, period, [ev, lone], lone.t_us, 1)
+        else:
+            return False
+        queue = self._queue
+        for i, queued in enumerate(queue):
+            if queued[2] is lone:
+                # Same (t, seq) key: the heap stays ordered.
+                entry = group.entry
+                entry.t_us, entry.seq = lone.t_us, lone.seq
+                queue[i] = (lone.t_us, lone.seq, entry)
+                self._ticks[key] = group
+                return True
+        return False
+
+    def _forget_group(self, group: _TickGroup) -> None:
+        """``group`` has no members left."""
+        for key, shared in list(self._ticks.items()):
+            if shared is group:
+                del self._ticks[key]
 
     def next_due_us(self) -> int | None:
         """Time of the next pending event, or None."""

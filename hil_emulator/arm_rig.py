@@ -57,7 +57,8 @@ class ArmRig(HostSide):
     def _attach(self, dxl_id: int, hal: VirtualHal, app: DynamixelSlave) -> None:
         uart = hal.uart("bus")
         uart.keep_sent = False
-        self.bus.attach(uart, f"id{dxl_id}")
+        # A status packet reaches only the host and the node whose BULK_READ turn it ends.
+        self.bus.attach(uart, f"id{dxl_id}", hears=app.acts_on)
         self.nodes[dxl_id] = (hal, app)
 
     @property

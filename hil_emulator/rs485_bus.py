@@ -68,12 +68,17 @@ class Transmission:
     received: bytes | None = None
 
 
-class _Node:
-    __slots__ = ("free_us", "name", "uart")
+#: Whether a receiver acts on a frame (see :meth:`Rs485Bus.attach`).
+Hears = Callable[[bytes], bool]
 
-    def __init__(self, uart: VirtualUart, name: str) -> None:
+
+class _Node:
+    __slots__ = ("free_us", "hears", "name", "uart")
+
+    def __init__(self, uart: VirtualUart, name: str, hears: Hears | None) -> None:
         self.uart = uart
         self.name = name
+        self.hears = hears
         self.free_us = 0  # when this node's transmitter is done with the line
 
 
@@ -122,11 +127,17 @@ class Rs485Bus:
 
     # ---------------------------------------------------------------------------- set-up
 
-    def attach(self, uart: VirtualUart, name: str) -> None:
-        """Put ``uart`` on the line: its output goes to the bus, and it hears the others."""
+    def attach(self, uart: VirtualUart, name: str, hears: Hears | None = None) -> None:
+        """Put ``uart`` on the line: its output goes to the bus, and it hears the others.
+
+        ``hears``, if given, tells from a frame's bytes whether the node behind ``uart``
+        would act on it; a frame it would let pass untouched (a whole packet for another
+        node, say) is then not delivered to it at all, which saves the emulator the call.
+        It must answer exactly as the node would, from the node's present state.
+        """
         if any(n.uart is uart for n in self._nodes):
             raise ValueError(f"UART {name!r} is already on this bus")
-        node = _Node(uart, name)
+        node = _Node(uart, name, hears)
         self._nodes.append(node)
         uart.peer = None
         uart.sink = line_delivers  # the bus delivers the frame, not the UART
@@ -229,7 +240,7 @@ class Rs485Bus:
         if not received:
             return
         for node in self._nodes:
-            if node is not sender:
+            if node is not sender and (node.hears is None or node.hears(received)):
                 node.uart.deliver(received)
 
     def _error_mask(self, n_bits: int, rate: float) -> npt.NDArray[np.uint8]:

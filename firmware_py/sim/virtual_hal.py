@@ -207,7 +207,8 @@ class VirtualPowerSwitch(hal.PowerSwitch):
 
     def __init__(self, load_ma: int = 0) -> None:
         self._state = 0
-        self.load_ma = load_ma
+        self._load_ma = load_ma
+        self._on_current: Callable[[], None] | None = None
         self.on_change: list[Callable[[int], None]] = []
         self.history: list[int] = []
 
@@ -225,13 +226,32 @@ class VirtualPowerSwitch(hal.PowerSwitch):
         return self._state
 
     def current_ma(self) -> int:
-        return self.load_ma if self._state else 0
+        return self._load_ma if self._state else 0
+
+    def set_current_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_current = callback
+        return True
+
+    @property
+    def load_ma(self) -> int:
+        """What the downstream load draws whenever the switch is on (mA); setting it is
+        :meth:`set_load_ma`."""
+        return self._load_ma
+
+    @load_ma.setter
+    def load_ma(self, milliamps: int) -> None:
+        self.set_load_ma(milliamps)
 
     # --- plant side
 
     def set_load_ma(self, milliamps: int) -> None:
-        """The downstream load draws ``milliamps`` (mA) whenever the switch is on."""
-        self.load_ma = int(milliamps)
+        """The downstream load draws ``milliamps`` (mA) whenever the switch is on; a change
+        raises the current interrupt (switching state changes are the firmware's own)."""
+        milliamps = int(milliamps)
+        if milliamps != self._load_ma:
+            self._load_ma = milliamps
+            if self._on_current is not None:
+                self._on_current()
 
 
 class VirtualFlash(hal.Flash):
@@ -314,7 +334,8 @@ class VirtualMotor(hal.MotorDriver):
         self.duty = 0.0
         self.enabled = False
         self.brake = False
-        self.hall = 0
+        self._hall = 0
+        self._on_hall: Callable[[], None] | None = None
         self.current = 0
 
     def set_duty(self, duty: float) -> None:
@@ -331,10 +352,24 @@ class VirtualMotor(hal.MotorDriver):
         self.brake = bool(brake)
 
     def hall_state(self) -> int:
-        return self.hall
+        return self._hall
 
     def current_ma(self) -> int:
         return self.current
+
+    def set_hall_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_hall = callback
+        return True
+
+    @property
+    def hall(self) -> int:
+        """The hall state the sensors give now (0..7); setting it is :meth:`set_hall_state`
+        (a test's way of turning the rotor)."""
+        return self._hall
+
+    @hall.setter
+    def hall(self, state: int) -> None:
+        self.set_hall_state(state)
 
     # --- plant side
 
@@ -356,8 +391,12 @@ class VirtualMotor(hal.MotorDriver):
         return self.brake, self.enabled, self.duty
 
     def set_hall_state(self, state: int) -> None:
-        """The three hall sensor bits the rotor angle gives now, 0..7."""
-        self.hall = state
+        """The three hall sensor bits the rotor angle gives now, 0..7; a change raises the
+        hall interrupt."""
+        if state != self._hall:
+            self._hall = state
+            if self._on_hall is not None:
+                self._on_hall()
 
     def set_current_ma(self, milliamps: int) -> None:
         """The winding current the current sense measures (mA, signed)."""
@@ -366,7 +405,10 @@ class VirtualMotor(hal.MotorDriver):
     def set_hall_and_current(self, state: int, milliamps: int) -> None:
         """:meth:`set_hall_state` and :meth:`set_current_ma` in one call (the finger plant
         writes twelve motors every tick)."""
-        self.hall = state
+        if state != self._hall:
+            self._hall = state
+            if self._on_hall is not None:
+                self._on_hall()
         self.current = milliamps
 
 
@@ -456,6 +498,9 @@ class VirtualSensors(hal.Sensors):
     """
 
     values: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
+    #: Per series prefix, what to call before the plant side sets the series
+    #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
+    watchers: dict[str, Callable[[], None]] = field(default_factory=dict)
 
     def read(self, channel: str) -> int | tuple[int, ...]:
         try:
@@ -486,10 +531,29 @@ class VirtualSensors(hal.Sensors):
             _no_channel(channel)
         values[channel] = value
 
+    def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
+        if before_change is None:
+            self.watchers.pop(prefix, None)
+        else:
+            self.watchers[prefix] = before_change
+        return True
+
+    def announce_change(self, channel: str) -> None:
+        """``channel`` is about to read differently (a fault switched on or off): whoever
+        watches its series (:meth:`watch_series`) reads what is due first."""
+        if self.watchers:
+            before_change = self.watchers.get(channel.rstrip("0123456789"))
+            if before_change is not None:
+                before_change()
+
     def _set_series(self, keys: tuple[str, ...], counts: Sequence[int]) -> None:
         values, n = self.values, len(counts)
         if n > _SERIES_LENGTH or (n and keys[n - 1] not in values) or keys[n] in values:
             raise HalError(f"this board has no series of {n} {keys[0][:-1]!r} channels")
+        if self.watchers:
+            before_change = self.watchers.get(keys[0][:-1])
+            if before_change is not None:
+                before_change()
         values.update(zip(keys, counts, strict=False))  # keys run past the series
 
     def set_accel(self, x: int, y: int, z: int) -> None:
@@ -669,6 +733,10 @@ class VirtualHal(hal.Hal):
             motor.set_duty(0.0)
             motor.set_enabled(False)
             motor.set_brake(False)
+            motor.set_hall_interrupt(None)
+        for switch in self.power_switches.values():
+            switch.set_current_interrupt(None)
+        self.sensors.watchers.clear()
         if self._stepper is not None:
             self._stepper.set_step_rate(0.0)
             self._stepper.set_current(0)

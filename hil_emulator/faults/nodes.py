@@ -140,6 +140,7 @@ class SensorFault(Fault):
                 return tuple(int(round(r[0] * x + r[1] * y + r[2] * z)) for r in rotation)
             return shift(value, lambda: int(round(rng.normal(0.0, self.sigma))))
 
+        sensors.announce_change(self.channel)  # a program reading it late reads it as it was
         if type(sensors) is VirtualSensors:
             sensors.__class__ = FaultySensors
             assert isinstance(sensors, FaultySensors)
@@ -150,6 +151,7 @@ class SensorFault(Fault):
     def clear(self, emulator: Emulator) -> None:
         sensors: VirtualSensors = targets.node(emulator, self.node).hal.sensors
         if isinstance(sensors, FaultySensors):
+            sensors.announce_change(self.channel)
             sensors.sensor_faults.pop(self.channel, None)
             if not sensors.sensor_faults:
                 del sensors.sensor_faults

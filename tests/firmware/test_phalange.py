@@ -5,6 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_py.hal import Hal
 from firmware_py.mcu import Mcu
@@ -161,17 +163,35 @@ def test_f3_tactile_after_twelve_ms() -> None:
     assert reply["imu"] == {"accel": [0, 0, 1000], "mag": [0, 0, 0]}
 
 
-def test_published_taxels_change_only_when_a_scan_completes() -> None:
-    scheduler, hal, app = make_app("f2")
-    values = sensors(hal).values
-    for i in range(6):
-        values[f"taxel{i}"] = 1000
-    scheduler.run_until(6_000)
+class UnannouncedSensors(VirtualSensors):
+    """Sensors that do not announce changes (real hardware): the scan reads each taxel in
+    its own millisecond, one timer per taxel."""
+
+    def watch_series(self, prefix: str, before_change: Any) -> bool:
+        return False
+
+
+def make_app_on(kind: str, announced: bool) -> tuple[Scheduler, VirtualHal, F2App | F3App]:
+    board, cls, _addr, _n = BOARDS[kind]
+    scheduler = Scheduler()
+    hal = make_hal(scheduler, board)
+    if not announced:
+        hal.sensors = UnannouncedSensors(dict(hal.sensors.values))
+    app = cls(hal, None)
+    app.start()
+    return scheduler, hal, app
+
+
+@pytest.mark.parametrize("announced", [True, False], ids=["one timer a scan", "a taxel a ms"])
+def test_published_taxels_change_only_when_a_scan_completes(announced: bool) -> None:
+    scheduler, hal, app = make_app_on("f2", announced)
+    pad = sensors(hal)
+    pad.set_taxels([1000] * 6)
+    assert scheduler.run_until(6_000) == (1 if announced else 6)  # callbacks run
     assert app.scans == 1
     # Second scan reads taxel0 at 7 ms and taxel1 at 8 ms; the pad changes in between.
     scheduler.run_until(8_500)
-    for i in range(6):
-        values[f"taxel{i}"] = 3000
+    pad.set_taxels([3000] * 6)
     scheduler.run_until(11_900)
     assert ask(scheduler, hal, F2_ADDR, "f2.tactile")["taxels"] == [1000] * 6
     scheduler.run_until(12_000)
@@ -356,3 +376,27 @@ def test_boots_from_its_image_through_the_bootloader(kind: str) -> None:
     hal.uart("tendon").take_sent()
     scheduler.run_for(n * 1_000)
     assert ask(scheduler, hal, addr, f"{kind}.tactile")["taxels"] == [2000] * n
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["f2", "f3"]),
+       st.lists(st.tuples(st.one_of(st.integers(1, 4_000),  # on, or just off, a taxel's µs
+                                    st.integers(1, 4).map(lambda ms: 1_000 * ms - 1),
+                                    st.integers(1, 4).map(lambda ms: 1_000 * ms + 1)),
+                          st.integers(0, 70_000)), max_size=30))
+def test_one_timer_a_scan_reads_what_a_taxel_a_ms_reads(
+        kind: str, changes: list[tuple[int, int]]) -> None:
+    """The pad changes at random instants (often mid-scan, sometimes on a taxel's very
+    microsecond): both scans publish the same taxels at the same times."""
+    runs = [make_app_on(kind, announced) for announced in (True, False)]
+    published: list[list[tuple[int, tuple[int, ...]]]] = [[], []]
+    n = BOARDS[kind][3]
+    for k, (gap_us, base) in enumerate(changes):
+        for (scheduler, hal, app), seen in zip(runs, published, strict=True):
+            scheduler.run_for(gap_us)
+            sensors(hal).set_taxels([(base + 97 * i * k) % 70_000 for i in range(n)])
+            seen.append((app.scans, app.taxels))
+    for (scheduler, _hal, app), seen in zip(runs, published, strict=True):
+        scheduler.run_for(30_000)
+        seen.append((app.scans, app.taxels))
+    assert published[0] == published[1]
