@@ -248,8 +248,11 @@ class Hand:
         self.palm = Node(session, LINK_NODE, "palm")
         self.fingers = [Finger(self, k) for k in range(FINGERS)]
         #: Called with every :class:`HandState` read (:meth:`status`, streams): a view, a
-        #: plot; whoever reads the hand need not know it is watched.
+        #: plot, a recorder; whoever reads the hand need not know it is watched.
         self.state_taps: list[Callable[[HandState], None]] = []
+        #: Called with ``(t, states)`` for every :meth:`finger_states` read (``t``: the
+        #: link's clock after it, s; finger index → :class:`FingerState`).
+        self.finger_taps: list[Callable[[float, dict[int, FingerState]], None]] = []
         #: The browser view drawing this hand (:meth:`watch`), if any.
         self.view: RobotView | None = None
         self._owns_view = False
@@ -371,6 +374,10 @@ class Hand:
             state = FingerState(k)
             state.update_from_status(self.session.wait(p))
             states[k] = state
+        if self.finger_taps:
+            now = self.session.now()
+            for tap in list(self.finger_taps):
+                tap(now, states)
         return states
 
     def status(self, fingers: bool = True) -> HandState:
@@ -386,7 +393,7 @@ class Hand:
                 finger.update_from_status(self.session.wait(p))
             except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
                 finger.problem = why_no_answer(exc)
-        for tap in self.state_taps:
+        for tap in list(self.state_taps):
             tap(state)
         return state
 
