@@ -25,8 +25,12 @@ would, with the host library and the command-line tools:
    the lift and the hold);
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
-7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
-   and a Markdown report with plots (:mod:`tools.demo_report`).
+7. **report**: the session's MCAP recordings (hand frames, states, finger readings and
+   events, arm bus and states; from the firmware step on, the hand's state read at
+   :data:`tools.demo_watch.HAND_STATE_HZ` while the arm moves) and a Markdown report with
+   plots over the whole session (:mod:`tools.demo_report`).  In process, the mug's slip in
+   the hand is watched on the physics (:class:`tools.demo_watch.MugInHand`): more than
+   :data:`tools.demo_watch.SLIP_M` fails the demo.
 
 Every step prints one line with the simulated and the wall time.  By default the emulator
 runs in this process on the simulation clock (``emu://…``: deterministic, and as reliable

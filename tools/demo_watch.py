@@ -26,7 +26,7 @@ from host.hand import Hand, StatusRead
 from host.hand_state import FingerState
 
 #: Rate of the hand-state reads while the arm moves or holds (Hz, the link's clock).
-HAND_STATE_HZ: Final = 20.0
+HAND_STATE_HZ: Final = 10.0
 #: A read whose replies are not all in after this long (s) is finished anyway (the
 #: missing fingers then say why).
 READ_GIVE_UP_S: Final = 0.3

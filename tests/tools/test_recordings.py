@@ -81,6 +81,22 @@ def test_the_hand_tour_example_recording_is_valid(tmp_path: Path) -> None:
     assert check_recording(path)["/hand/state"] >= 5
 
 
+def test_finger_events_and_finger_readings_are_recorded_as_they_come(tmp_path: Path) -> None:
+    path = tmp_path / "events.mcap"
+    with Hand.open(HAND_URL) as hand, HandRecorder(hand, path):
+        hand.power(3, "off")
+        hand.power(3, "full")
+        hand.session.sleep(0.2)
+        hand.finger_states([0, 1])
+    forget_shared_emulators()
+    counts = check_recording(path)
+    assert counts["/hand/events"] >= 2 and counts["/hand/fingers"] == 1
+    with path.open("rb") as stream:
+        events = [json.loads(m.data)["event"] for _s, _c, m
+                  in make_reader(stream).iter_messages(topics=["/hand/events"])]
+    assert "unpowered" in events and "powered" in events
+
+
 # ---------------------------------------------------------------- written as it goes
 
 
