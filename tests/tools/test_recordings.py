@@ -149,6 +149,20 @@ def test_a_full_disk_stops_the_recording_with_one_line() -> None:
         "stopped there, keeping the 0 messages written before"]
 
 
+def test_a_full_disk_stops_an_arm_recording_with_one_line(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = armctl.main(["--port", ARM_URL, "record", "/dev/full", "--seconds", "6"],
+                           out=io.StringIO())
+    finally:
+        forget_shared_emulators()
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert err.strip().splitlines() == [
+        "armctl: cannot write the recording to /dev/full: No space left on device; it "
+        "stopped there, keeping the 0 messages written before"]
+
+
 def _limit_file_size(limit: int) -> None:
     import resource
 
