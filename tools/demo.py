@@ -148,12 +148,12 @@ class DemoFailed(Exception):
 @dataclass
 class Log:
     """What the demo saw, for the report: arm states, finger readings (t, finger, state),
-    hand states, the mug's true height (t, z) and the steps (name, sim s, wall s, text)."""
+    hand states, the steps (name, sim s, wall s, text) and, in process, the physics' ground
+    truth of the mug and the palm (``truth``)."""
 
     arm: list[ArmState] = field(default_factory=list)
     fingers: list[tuple[float, int, FingerState]] = field(default_factory=list)
     hands: list[HandState] = field(default_factory=list)
-    mug_z: list[tuple[float, float]] = field(default_factory=list)
     steps: list[tuple[str, float, float, str]] = field(default_factory=list)
     phases: list[tuple[str, float]] = field(default_factory=list)
     result: dict[str, Any] = field(default_factory=dict)
@@ -207,8 +207,6 @@ class Demo:
         self.sampler.poll()  # the hand's state while the arm moves (never waited for)
 
     def _sample_truth(self, t: float) -> None:
-        if self.truth is not None:
-            self.log.mug_z.append((t, float(self.truth.position[2])))
         if self.mug_in_hand is not None:
             self.mug_in_hand.sample(t)
 
