@@ -130,14 +130,32 @@ class HandRecorder(Recording):
                  ) -> None:
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand_recording",
                          sinks=sinks)
-        self.hand = hand
         self.frames = 0
         self.states = 0
+        self._attached = False
+        self.hand = hand
+        self.attach(hand)
+
+    def attach(self, hand: Hand) -> None:
+        """Record ``hand`` from now on (detached from the one before: a link closed and
+        opened again goes on in the same file)."""
+        self._detach()
+        self.hand = hand
         hand.session.taps.append(self._on_frame)
         hand.state_taps.append(self.add_state)
         hand.finger_taps.append(self._on_fingers)
         self._unsubscribe = hand.subscribe(self._on_event)
         self._attached = True
+
+    def _detach(self) -> None:
+        if self._attached:
+            self._attached = False
+            for taps, tap in ((self.hand.session.taps, self._on_frame),
+                              (self.hand.state_taps, self.add_state),
+                              (self.hand.finger_taps, self._on_fingers)):
+                if tap in taps:
+                    taps.remove(tap)  # type: ignore[arg-type]
+            self._unsubscribe()
 
     def _on_frame(self, direction: str, t: float, frame: bytes) -> None:
         self.frames += 1
@@ -165,14 +183,7 @@ class HandRecorder(Recording):
 
     def close(self) -> None:
         """Detach from the link and finish the file (idempotent)."""
-        if self._attached:
-            self._attached = False
-            for taps, tap in ((self.hand.session.taps, self._on_frame),
-                              (self.hand.state_taps, self.add_state),
-                              (self.hand.finger_taps, self._on_fingers)):
-                if tap in taps:
-                    taps.remove(tap)  # type: ignore[arg-type]
-            self._unsubscribe()
+        self._detach()
         self.close_sinks()
 
     def __enter__(self) -> HandRecorder:

@@ -182,9 +182,19 @@ class Demo:
         self.step = "start"
         self.sampler = HandSampler(hand)
         self.mug_in_hand: MugInHand | None = None
+        #: The session's hand recording (:func:`run_session`), kept on the hand when its
+        #: link is opened again.
+        self.hand_recorder: HandRecorder | None = None
         arm.state_taps.append(self._on_arm)
-        hand.state_taps.append(self._on_hand)
-        hand.finger_taps.append(self._on_fingers)
+        self._watch_hand()
+
+    def _watch_hand(self) -> None:
+        """Take every reading of :attr:`hand` (again, after its link was opened again)."""
+        self.sampler = HandSampler(self.hand)
+        self.hand.state_taps.append(self._on_hand)
+        self.hand.finger_taps.append(self._on_fingers)
+        if self.hand_recorder is not None and self.hand_recorder.hand is not self.hand:
+            self.hand_recorder.attach(self.hand)
 
     # ------------------------------------------------------------------ printing, logging
     def now(self) -> float:
@@ -260,6 +270,7 @@ class Demo:
             args += [f"--{board}", str(image)]
         self.say("flashing all twelve finger MCUs (flash-all-fingers)")
         if self.reopen_hand is not None:
+            self.sampler.finish()
             self.hand.close()  # flash-all-fingers takes the port for itself
         try:
             status, text = _quiet(flash_all_fingers.main, ["--port", self.palm_port, "--json",
@@ -267,6 +278,7 @@ class Demo:
         finally:
             if self.reopen_hand is not None:
                 self.hand = self.reopen_hand()
+                self._watch_hand()
         try:
             report = json.loads(text.strip().splitlines()[-1])
         except (ValueError, IndexError):
@@ -512,6 +524,7 @@ def run_session(demo: Demo, out: Path) -> None:
     try:
         with HandRecorder(demo.hand, out / "hand.mcap") as hand_rec, \
                 ArmRecorder(demo.arm, out / "arm.mcap") as arm_rec:
+            demo.hand_recorder = hand_rec
             recorders = (hand_rec, arm_rec)
             for step in (demo.firmware, demo.home, demo.reach, demo.grasp, demo.lift,
                          demo.park):

@@ -97,6 +97,21 @@ def test_finger_events_and_finger_readings_are_recorded_as_they_come(tmp_path: P
     assert "unpowered" in events and "powered" in events
 
 
+def test_a_recorder_follows_a_link_opened_again_in_the_same_file(tmp_path: Path) -> None:
+    path = tmp_path / "reopened.mcap"
+    first = Hand.open(HAND_URL)
+    with HandRecorder(first, path) as recorder:
+        first.status()
+        first.close()
+        with Hand.open(HAND_URL) as second:
+            recorder.attach(second)
+            second.status()
+            second.status()
+            assert not first.state_taps and recorder.states == 3
+    forget_shared_emulators()
+    assert check_recording(path)["/hand/state"] == 3
+
+
 # ---------------------------------------------------------------- written as it goes
 
 
