@@ -53,6 +53,8 @@ STATE_SCHEMA: Final = {
                          "number", 7),
         "motor_joints": _array("stepper J1..J4 motor angles at the joint (rad, from the step "
                                "counts)", "number", 4),
+        "goals": _array("stepper J1..J4 goals for the motor as the host last set them (rad)",
+                        "number", 4),
         "torques": _array("stepper J1..J4 series-elastic torques (N·m)", "number", 4),
         "slip": _array("stepper J1..J4 SLIP latched (steps lost)", "boolean", 4),
         "stalled": _array("stepper J1..J4 STALLED latched (over-deflection)", "boolean", 4),
@@ -66,7 +68,7 @@ STATE_SCHEMA: Final = {
                                                     "the joints reporting any",
                    "additionalProperties": {"type": "array", "items": {"type": "string"}}},
     },
-    "required": ["t", "joints", "motor_joints", "torques", "slip", "stalled",
+    "required": ["t", "joints", "motor_joints", "goals", "torques", "slip", "stalled",
                  "deflection_counts", "step_counts", "servo_load", "servo_temperature_c",
                  "errors"],
     "additionalProperties": False,
