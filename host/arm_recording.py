@@ -1,95 +1,119 @@
 """Record the arm's bus to MCAP: every raw byte chunk and every decoded cycle state.
 
-Channels (log times in ns on the transport's clock: monotonic time, or the simulation's):
+Channels:
 
-=================  ==========================  ===========================================
-topic              message encoding            payload
-=================  ==========================  ===========================================
+=================  ============================  =========================================
+topic              message encoding              payload
+=================  ============================  =========================================
 ``/arm/bus/tx``    ``application/octet-stream``  bytes the host sent (whole packets)
 ``/arm/bus/rx``    ``application/octet-stream``  bytes received, as they arrived
-``/arm/state``     ``json`` (JSON Schema)       :meth:`~host.arm_state.ArmState.as_dict`
-=================  ==========================  ===========================================
+``/arm/state``     ``json`` (:data:`STATE_SCHEMA`)  every cycle's
+                                                 :meth:`~host.arm_state.ArmState.as_dict`
+=================  ============================  =========================================
 
-Replay the raw channels through :class:`~protocol.dynamixel.DynamixelStreamDecoder` to get
-the packets back.  :func:`record` cycles the arm itself for a while; :class:`ArmRecorder`
+Log times are the wall clock; the link's clock (the simulation's with the in-process
+emulator, a monotonic clock on a serial port) is each message's publish time and, in the
+state, its field ``t`` (s) (:mod:`host.recording`).  Replay the raw channels through
+:class:`~protocol.dynamixel.DynamixelStreamDecoder` (or ``handbus decode --dynamixel``) to
+get the packets back.  :func:`record` cycles the arm itself for a while; :class:`ArmRecorder`
 writes whatever another program does with the arm (every cycle's state, every byte) while
-it is attached.
+it is attached.  The file is written as it goes (at least every
+:data:`host.recording.FLUSH_INTERVAL_S`).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
-from typing import IO, Any, Final
-
-from mcap.writer import Writer
+from typing import Any, Final
 
 from host.arm import Arm
 from host.arm_state import ArmState
+from host.recording import JSON_ENCODING, Recording, Sink, Topic
 
 RAW_ENCODING: Final = "application/octet-stream"
 STATE_TOPIC: Final = "/arm/state"
 TX_TOPIC: Final = "/arm/bus/tx"
 RX_TOPIC: Final = "/arm/bus/rx"
 
-_NUMBERS = {"type": "array", "items": {"type": "number"}}
-#: JSON Schema of the state messages.
+
+def _array(description: str, kind: str, n: int) -> dict[str, Any]:
+    return {"type": "array", "items": {"type": kind}, "minItems": n, "maxItems": n,
+            "description": description}
+
+
+#: JSON Schema of the state messages (:meth:`host.arm_state.ArmState.as_dict`).
 STATE_SCHEMA: Final = {
     "type": "object",
+    "description": "the arm at one cycle",
     "properties": {
-        "t": {"type": "number"}, "joints": _NUMBERS, "motor_joints": _NUMBERS,
-        "torques": _NUMBERS, "slip": {"type": "array", "items": {"type": "boolean"}},
-        "errors": {"type": "object"},
+        "t": {"type": "number", "description": "the link's clock when the replies were in "
+                                               "(s): simulation time in process"},
+        "joints": _array("joint angles J1..J7 (rad; steppers from their joint encoders)",
+                         "number", 7),
+        "motor_joints": _array("stepper J1..J4 motor angles at the joint (rad, from the step "
+                               "counts)", "number", 4),
+        "goals": _array("stepper J1..J4 goals for the motor as the host last set them (rad)",
+                        "number", 4),
+        "torques": _array("stepper J1..J4 series-elastic torques (N·m)", "number", 4),
+        "slip": _array("stepper J1..J4 SLIP latched (steps lost)", "boolean", 4),
+        "stalled": _array("stepper J1..J4 STALLED latched (over-deflection)", "boolean", 4),
+        "deflection_counts": _array("stepper J1..J4 elastic deflection (joint encoder counts)",
+                                    "integer", 4),
+        "step_counts": _array("stepper J1..J4 motor positions (microsteps)", "integer", 4),
+        "servo_load": _array("servo J5..J7 load (fraction of maximum torque, "
+                             "counter-clockwise > 0)", "number", 3),
+        "servo_temperature_c": _array("servo J5..J7 temperatures (°C)", "number", 3),
+        "errors": {"type": "object", "description": "alarm bits by joint name (J1..J7), for "
+                                                    "the joints reporting any",
+                   "additionalProperties": {"type": "array", "items": {"type": "string"}}},
     },
+    "required": ["t", "joints", "motor_joints", "goals", "torques", "slip", "stalled",
+                 "deflection_counts", "step_counts", "servo_load", "servo_temperature_c",
+                 "errors"],
+    "additionalProperties": False,
 }
 
+TX: Final = Topic(TX_TOPIC, RAW_ENCODING)
+RX: Final = Topic(RX_TOPIC, RAW_ENCODING)
+STATE: Final = Topic(STATE_TOPIC, JSON_ENCODING, "ArmState", STATE_SCHEMA)
+TOPICS: Final = (TX, RX, STATE)
 
-class ArmRecorder:
-    """Writes ``arm``'s bus bytes and every cycle's state to the MCAP file ``path`` while
-    attached (a context manager; :meth:`close` detaches and finishes the file)."""
 
-    def __init__(self, arm: Arm, path: str | Path) -> None:
+class ArmRecorder(Recording):
+    """Writes ``arm``'s bus bytes and every cycle's state to the MCAP file ``path`` (None:
+    only to ``sinks``) while attached (a context manager; :meth:`close` detaches and
+    finishes the file).  :class:`~host.errors.RecordingError` if ``path`` cannot be
+    created."""
+
+    def __init__(self, arm: Arm, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
+                 ) -> None:
+        super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm_recording",
+                         sinks=sinks)
         self.arm = arm
-        self.path = Path(path)
-        self._stream: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(self._stream)
-        self._writer.start(profile="", library="lowcost-hand-stack host.arm_recording")
-        schema = self._writer.register_schema(name="ArmState", encoding="jsonschema",
-                                              data=json.dumps(STATE_SCHEMA).encode())
-        self._state_ch = self._writer.register_channel(STATE_TOPIC, "json", schema)
-        self._raw_ch = {"tx": self._writer.register_channel(TX_TOPIC, RAW_ENCODING, 0),
-                        "rx": self._writer.register_channel(RX_TOPIC, RAW_ENCODING, 0)}
         self.states = 0
         self._previous = arm.bus.on_bytes
         arm.bus.on_bytes = self._on_bytes
         arm.state_taps.append(self._on_state)
-        self._open = True
+        self._attached = True
 
     def _on_bytes(self, direction: str, data: bytes, t: float) -> None:
-        ns = max(0, int(t * 1e9))
-        self._writer.add_message(self._raw_ch[direction], log_time=ns, data=data,
-                                 publish_time=ns)
+        self.log(TX if direction == "tx" else RX, t, data)
         if self._previous is not None:
             self._previous(direction, data, t)
 
     def _on_state(self, state: ArmState) -> None:
-        ns = max(0, int(state.t * 1e9))
-        self._writer.add_message(self._state_ch, log_time=ns, publish_time=ns,
-                                 sequence=self.states,
-                                 data=json.dumps(state.as_dict()).encode())
         self.states += 1
+        self.log_json(STATE, state.t, state.as_dict())
 
     def close(self) -> None:
         """Detach from the arm and finish the file (idempotent)."""
-        if not self._open:
-            return
-        self._open = False
-        if self._on_state in self.arm.state_taps:
-            self.arm.state_taps.remove(self._on_state)
-        self.arm.bus.on_bytes = self._previous
-        self._writer.finish()
-        self._stream.close()
+        if self._attached:
+            self._attached = False
+            if self._on_state in self.arm.state_taps:
+                self.arm.state_taps.remove(self._on_state)
+            self.arm.bus.on_bytes = self._previous
+        self.close_sinks()
 
     def __enter__(self) -> ArmRecorder:
         return self
@@ -100,36 +124,19 @@ class ArmRecorder:
 
 def record(arm: Arm, path: str | Path, *, seconds: float, rate_hz: float = 100.0) -> int:
     """Cycle ``arm`` at ``rate_hz`` for ``seconds`` (its transport's clock), writing raw
-    bytes and states to the MCAP file ``path``; returns the number of cycles."""
+    bytes and states to the MCAP file ``path``; returns the number of cycles.
+    :class:`~host.errors.RecordingError` stops it when the file cannot be written (what was
+    written stays)."""
     transport = arm.transport
-    with open(path, "wb") as stream:
-        writer = Writer(stream)
-        writer.start(profile="", library="lowcost-hand-stack host.arm_recording")
-        schema = writer.register_schema(name="ArmState", encoding="jsonschema",
-                                        data=json.dumps(STATE_SCHEMA).encode())
-        state_ch = writer.register_channel(STATE_TOPIC, "json", schema)
-        raw_ch = {"tx": writer.register_channel(TX_TOPIC, RAW_ENCODING, 0),
-                  "rx": writer.register_channel(RX_TOPIC, RAW_ENCODING, 0)}
-
-        def on_bytes(direction: str, data: bytes, t: float) -> None:
-            ns = int(t * 1e9)
-            writer.add_message(raw_ch[direction], log_time=ns, data=data, publish_time=ns)
-
-        previous = arm.bus.on_bytes
-        arm.bus.on_bytes = on_bytes
-        count = cycle_count(seconds, rate_hz)
-        try:
-            start = transport.now()
-            period = 1.0 / rate_hz
-            for k in range(count):
-                transport.sleep(start + k * period - transport.now())
-                state = arm.cycle()
-                ns = int(state.t * 1e9)
-                writer.add_message(state_ch, log_time=ns, publish_time=ns,
-                                   data=json.dumps(state.as_dict()).encode())
-        finally:
-            arm.bus.on_bytes = previous
-            writer.finish()
+    count = cycle_count(seconds, rate_hz)
+    with ArmRecorder(arm, path) as recorder:
+        recorder.check()
+        start = transport.now()
+        period = 1.0 / rate_hz
+        for k in range(count):
+            transport.sleep(start + k * period - transport.now())
+            arm.cycle()
+            recorder.check()
     return count
 
 

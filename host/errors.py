@@ -10,7 +10,8 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── NodeError                         a node answered, but with a refusal or a bad reply
     ├── UsageError(ValueError)            the caller asked for something impossible
     │   └── NotHomedError                 a motion command for a finger not yet homed
-    └── HomingError                       an arm joint's index mark was not found
+    ├── HomingError                       an arm joint's index mark was not found
+    └── RecordingError(OSError)           a recording's file could not be written
 """
 
 from __future__ import annotations
@@ -68,6 +69,11 @@ class HomingError(HostError):
     def __init__(self, message: str, *, joint: str | None = None) -> None:
         super().__init__(message)
         self.joint = joint
+
+
+class RecordingError(HostError, OSError):
+    """A recording's file could not be created or written (no such directory, no
+    permission, a full disk); what was written before stays in the file."""
 
 
 class StallError(HostError):

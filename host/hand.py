@@ -232,6 +232,38 @@ def _efforts(effort: Sequence[int] | int) -> list[int]:
     return caps
 
 
+@dataclass
+class StatusRead:
+    """A :meth:`Hand.status` read in flight (:meth:`Hand.start_status`), started at ``t``
+    (s, the link's clock)."""
+
+    hand: Hand
+    t: float
+    summary: PendingReply
+    polls: list[PendingReply]
+
+    @property
+    def ready(self) -> bool:
+        """Every reply is in (or refused): :meth:`finish` will not wait."""
+        return self.summary.done and all(p.done for p in self.polls)
+
+    def finish(self) -> HandState:
+        """Wait for what has not come yet and return the state (the hand's state taps see
+        it); a finger that did not answer keeps the palm's summary, with its problem."""
+        hand = self.hand
+        state = HandState(self.t, [FingerState(k) for k in range(FINGERS)])
+        state.update_from_hand_status(hand.session.wait(self.summary))
+        for finger, p in zip(state.fingers, self.polls, strict=False):
+            finger.present = False
+            try:
+                finger.update_from_status(hand.session.wait(p))
+            except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
+                finger.problem = why_no_answer(exc)
+        for tap in list(hand.state_taps):
+            tap(state)
+        return state
+
+
 class Hand:
     """A hand behind its palm link.  A context manager; :meth:`close` closes the link."""
 
@@ -248,8 +280,11 @@ class Hand:
         self.palm = Node(session, LINK_NODE, "palm")
         self.fingers = [Finger(self, k) for k in range(FINGERS)]
         #: Called with every :class:`HandState` read (:meth:`status`, streams): a view, a
-        #: plot; whoever reads the hand need not know it is watched.
+        #: plot, a recorder; whoever reads the hand need not know it is watched.
         self.state_taps: list[Callable[[HandState], None]] = []
+        #: Called with ``(t, states)`` for every :meth:`finger_states` read (``t``: the
+        #: link's clock after it, s; finger index → :class:`FingerState`).
+        self.finger_taps: list[Callable[[float, dict[int, FingerState]], None]] = []
         #: The browser view drawing this hand (:meth:`watch`), if any.
         self.view: RobotView | None = None
         self._owns_view = False
@@ -371,24 +406,24 @@ class Hand:
             state = FingerState(k)
             state.update_from_status(self.session.wait(p))
             states[k] = state
+        if self.finger_taps:
+            now = self.session.now()
+            for tap in list(self.finger_taps):
+                tap(now, states)
         return states
 
     def status(self, fingers: bool = True) -> HandState:
         """The hand now: the palm's summary and (``fingers``) each answering finger's fmcb
         status; requests go out together, so this costs about one finger round trip."""
+        return self.start_status(fingers).finish()
+
+    def start_status(self, fingers: bool = True) -> StatusRead:
+        """Send :meth:`status`'s requests and return without waiting: the
+        :class:`StatusRead` is ``ready`` once the link has brought every reply in (after
+        ``session.pump``), and ``finish()`` gives the :class:`HandState`."""
         summary = self.palm.start("palm.hand_status")
         polls = [f.motor.start("fmcb.status", retries=0) for f in self.fingers] if fingers else []
-        state = HandState(self.session.now(), [FingerState(k) for k in range(FINGERS)])
-        state.update_from_hand_status(self.session.wait(summary))
-        for finger, p in zip(state.fingers, polls, strict=False):
-            finger.present = False
-            try:
-                finger.update_from_status(self.session.wait(p))
-            except HostError as exc:  # unpowered, booting or gone: the palm's summary stands
-                finger.problem = why_no_answer(exc)
-        for tap in self.state_taps:
-            tap(state)
-        return state
+        return StatusRead(self, self.session.now(), summary, polls)
 
     def set_poll_rate(self, rate_hz: int) -> None:
         """Have the palm poll every powered finger's status at ``rate_hz`` (0: off)."""

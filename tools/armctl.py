@@ -49,7 +49,7 @@ from typing import Any, TextIO
 from host.arm import Arm, open_bus
 from host.arm_homing import restore
 from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
-from host.errors import UsageError
+from host.errors import RecordingError, UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
 from tools.cli_common import (
@@ -378,9 +378,10 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
     if not args.seconds > 0 or not args.rate > 0:
         raise UsageError("--seconds and --rate must be > 0")
-    _check_writable(args.file, "recording")
     try:
         cycles = record(arm, args.file, seconds=args.seconds, rate_hz=args.rate)
+    except RecordingError:
+        raise  # the file itself failed: its message says what was kept
     except BaseException:  # the link lost, Ctrl-C: the file is finished all the same
         if Path(args.file).is_file():
             print(f"armctl: what was recorded before this is in {args.file} (a finished "
@@ -424,6 +425,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     def body(args: argparse.Namespace) -> int:
         if args.command == "scan":
             return cmd_scan(args, stream)
+        if args.command == "record":  # before the arm is opened (and its delay set)
+            _check_writable(args.file, "recording")
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
                        latency_s=args.link_timeout, view=view_spec(args))
         with arm:

@@ -25,8 +25,12 @@ would, with the host library and the command-line tools:
    the lift and the hold);
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
-7. **report**: the session's MCAP recordings (hand frames and states, arm bus and states)
-   and a Markdown report with plots (:mod:`tools.demo_report`).
+7. **report**: the session's MCAP recordings (hand frames, states, finger readings and
+   events, arm bus and states; from the firmware step on, the hand's state read at
+   :data:`tools.demo_watch.HAND_STATE_HZ` while the arm moves) and a Markdown report with
+   plots over the whole session (:mod:`tools.demo_report`).  In process, the mug's slip in
+   the hand is watched on the physics (:class:`tools.demo_watch.MugInHand`): more than
+   :data:`tools.demo_watch.SLIP_M` fails the demo.
 
 Every step prints one line with the simulated and the wall time.  By default the emulator
 runs in this process on the simulation clock (``emu://…``: deterministic, and as reliable
@@ -113,8 +117,11 @@ from tools.demo_plan import (
     FlangePose,
     flange_pose,
 )
+from tools.demo_watch import SLIP_M, HandSampler, MugInHand, felt
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The hand's fall reported for the put-down: the most it fell in this long (s).
+FALL_WINDOW_S = 0.3
 
 def ready_joints() -> tuple[float, ...]:
     """Joint angles (rad) of the ready pose (:data:`READY_BACK_M`, :data:`READY_UP_M`), in
@@ -141,15 +148,19 @@ class DemoFailed(Exception):
 @dataclass
 class Log:
     """What the demo saw, for the report: arm states, finger readings (t, finger, state),
-    hand states, the mug's true height (t, z) and the steps (name, sim s, wall s, text)."""
+    hand states, the steps (name, sim s, wall s, text) and, in process, the physics' ground
+    truth of the mug and the palm (``truth``)."""
 
     arm: list[ArmState] = field(default_factory=list)
     fingers: list[tuple[float, int, FingerState]] = field(default_factory=list)
     hands: list[HandState] = field(default_factory=list)
-    mug_z: list[tuple[float, float]] = field(default_factory=list)
     steps: list[tuple[str, float, float, str]] = field(default_factory=list)
     phases: list[tuple[str, float]] = field(default_factory=list)
     result: dict[str, Any] = field(default_factory=dict)
+    #: In process: the mug and the palm (t, mug z, palm z, slip; s, m) from the physics.
+    truth: list[tuple[float, float, float, float]] = field(default_factory=list)
+    #: Each finger's reading when the grasp began: the tactile plot's baseline.
+    touch_baseline: dict[int, FingerState] = field(default_factory=dict)
 
 
 class Demo:
@@ -169,7 +180,21 @@ class Demo:
         self.log = Log()
         self.wall0 = time.monotonic()
         self.step = "start"
+        self.sampler = HandSampler(hand)
+        self.mug_in_hand: MugInHand | None = None
+        #: The session's hand recording (:func:`run_session`), kept on the hand when its
+        #: link is opened again.
+        self.hand_recorder: HandRecorder | None = None
         arm.state_taps.append(self._on_arm)
+        self._watch_hand()
+
+    def _watch_hand(self) -> None:
+        """Take every reading of :attr:`hand` (again, after its link was opened again)."""
+        self.sampler = HandSampler(self.hand)
+        self.hand.state_taps.append(self._on_hand)
+        self.hand.finger_taps.append(self._on_fingers)
+        if self.hand_recorder is not None and self.hand_recorder.hand is not self.hand:
+            self.hand_recorder.attach(self.hand)
 
     # ------------------------------------------------------------------ printing, logging
     def now(self) -> float:
@@ -188,24 +213,40 @@ class Demo:
 
     def _on_arm(self, state: ArmState) -> None:
         self.log.arm.append(state)
-        if self.truth is not None:
-            self.log.mug_z.append((state.t, float(self.truth.position[2])))
+        self._sample_truth(state.t)
+        self.sampler.poll()  # the hand's state while the arm moves (never waited for)
+
+    def _sample_truth(self, t: float) -> None:
+        if self.mug_in_hand is not None:
+            self.mug_in_hand.sample(t)
+
+    def _on_hand(self, state: HandState) -> None:
+        self.log.hands.append(state)
+        for f in state.fingers:
+            if f.present:
+                self.log.fingers.append((state.t, f.index, f))
+        self._sample_truth(state.t)
 
     def _on_fingers(self, t: float, states: Mapping[int, FingerState]) -> None:
         for k, s in states.items():
             self.log.fingers.append((t, k, s))
+        self._sample_truth(t)
 
-    def sample_hand(self, seconds: float, recorder: HandRecorder, rate_hz: float = 20.0
-                    ) -> None:
-        """Read the hand's state at ``rate_hz`` for ``seconds``, keep and record it; the arm
-        keeps holding (one cycle per reading)."""
+    def rest(self, seconds: float, rate_hz: float = 100.0) -> None:
+        """Let ``seconds`` pass (the link's clock) with the arm cycling at ``rate_hz``:
+        it holds (or hangs), and its state and the hand's are recorded meanwhile."""
+        t_end = self.now() + seconds
+        while (left := t_end - self.now()) > 1e-6:
+            self.arm.cycle()
+            self.hand.session.sleep(min(left, 1.0 / rate_hz))
+
+    def sample_hand(self, seconds: float, rate_hz: float = 20.0) -> None:
+        """Read the hand's state at ``rate_hz`` for ``seconds`` (the recording and the log
+        take each read); the arm keeps holding (one cycle per reading)."""
+        self.sampler.finish()
         t_end = self.now() + seconds
         while self.now() < t_end:
-            state = self.hand.status()
-            recorder.add_state(state)
-            self.log.hands.append(state)
-            for f in state.fingers:
-                self.log.fingers.append((state.t, f.index, f))
+            self.hand.status()
             self.arm.cycle()
             self.hand.session.sleep(max(0.0, 1.0 / rate_hz - 0.01))
 
@@ -229,6 +270,7 @@ class Demo:
             args += [f"--{board}", str(image)]
         self.say("flashing all twelve finger MCUs (flash-all-fingers)")
         if self.reopen_hand is not None:
+            self.sampler.finish()
             self.hand.close()  # flash-all-fingers takes the port for itself
         try:
             status, text = _quiet(flash_all_fingers.main, ["--port", self.palm_port, "--json",
@@ -236,6 +278,7 @@ class Demo:
         finally:
             if self.reopen_hand is not None:
                 self.hand = self.reopen_hand()
+                self._watch_hand()
         try:
             report = json.loads(text.strip().splitlines()[-1])
         except (ValueError, IndexError):
@@ -252,7 +295,7 @@ class Demo:
         # fmcbs' polling of them again, as after power-up.
         for finger in self.hand.fingers:
             finger.motor.request("fmcb.phalange_power", {"on": 1})
-        self.hand.session.sleep(3.5)
+        self.rest(3.5)
         for finger in self.hand.fingers:
             finger.motor.request("fmcb.autopoll", {"on": 1})
 
@@ -271,7 +314,7 @@ class Demo:
         homed: dict[int, bool] = {}
         for (j6, j7), fingers in HOMING_WRIST_TILTS:
             self._move((0.0, 0.0, 0.0, 0.0, 0.0, j6, j7), 4.0)
-            self.hand.session.sleep(2.0)  # the elastic arm and the fingers come to rest
+            self.rest(2.0)  # the elastic arm and the fingers come to rest
             for k in fingers:
                 result = self._home_finger(k)
                 homed[k] = result.homed
@@ -294,7 +337,7 @@ class Demo:
                     raise
                 self.say(f"hand: finger {k} still moving ({exc}); "
                          f"waiting {HOMING_RETRY_S:.0f} s")
-                self.hand.session.sleep(HOMING_RETRY_S)
+                self.rest(HOMING_RETRY_S)
         raise AssertionError("unreachable")
 
     def _move(self, pose: tuple[float, ...], timeout: float) -> None:
@@ -383,13 +426,15 @@ class Demo:
         fingers = [k for k, role in enumerate(roles) if role != "opposing"]
         thumbs = [k for k, role in enumerate(roles) if role == "opposing"]
         contacts: dict[int, str] = {}
+        self.sampler.finish()
+        self.log.touch_baseline = self.hand.finger_states(range(FINGERS))
         for group in (fingers, thumbs):
             result = self.hand.grasp(GRASP_SYNERGY, GRASP_AMOUNT, speed=GRASP_SPEED_RAD_S,
-                                     fingers=group, until_contact=True, effort=GRASP_EFFORT,
-                                     on_states=self._on_fingers)
+                                     fingers=group, until_contact=True, effort=GRASP_EFFORT)
             contacts.update(result.contacts)
         for k in range(FINGERS):
-            self.say(f"finger {k}: {contacts.get(k, 'closed without contact')}")
+            self.say(f"finger {k} closing: "
+                     f"{contacts.get(k, 'reached its target without feeling contact')}")
         if not contacts:
             raise DemoFailed("grasp", "no finger felt the mug")
         self.log.result["contacts"] = dict(contacts)
@@ -398,15 +443,18 @@ class Demo:
         # mug stops it), so it presses with its effort cap through the lift and the hold.
         self.say(f"squeezing ({SQUEEZE_RAD:g} rad of J1 past the contact, effort "
                  f"{GRASP_EFFORT}/255)")
-        squeeze(self.hand, None, SQUEEZE_RAD, effort=GRASP_EFFORT,
-                on_states=self._on_fingers)
+        squeeze(self.hand, None, SQUEEZE_RAD, effort=GRASP_EFFORT)
+        held = felt(self.hand.finger_states(range(FINGERS)), self.log.touch_baseline)
+        for k, text in held.items():
+            self.say(f"finger {k} holding: {text} (against its reading before the grasp)")
+        self.log.result["holding"] = {str(k): text for k, text in held.items()}
         self._truth()
 
-    def lift(self, recorder: HandRecorder) -> None:
+    def lift(self) -> None:
         self.begin("lift", f"up {LIFT_M * 100:.0f} cm")
         self._moveto(flange_pose(up_m=LIFT_M), "lifted")
         self.say(f"holding {HOLD_S:g} s")
-        self.sample_hand(HOLD_S, recorder)
+        self.sample_hand(HOLD_S)
         if self.truth is not None:
             lift = float(self.truth.position[2] - self.truth.start[2])
             self.log.result["held_lift_m"] = lift
@@ -418,11 +466,33 @@ class Demo:
                                          f"(ground truth)")
         self.begin("put down", "lowering the mug onto the table")
         self._moveto(flange_pose(), "set down")
-        self.hand.grasp("open", 1.0, speed=1.5, on_states=self._on_fingers)
+        self._slip()
+        self.sampler.finish()
+        self.hand.grasp("open", 1.0, speed=1.5)
         self._thumb_clear()
         self.say("hand opened")
         self._moveto(flange_pose(APPROACH_M), "hand withdrawn from the mug")
         self._truth()
+
+    def _slip(self) -> None:
+        """In process: how far the mug moved in the hand while off the table, and how the
+        hand itself fell (the physics' ground truth); :class:`DemoFailed` for a slip."""
+        watch = self.mug_in_hand
+        if watch is None:
+            return
+        slip = watch.slip_m
+        self.log.result["slip_m"] = slip
+        lifted = next((t for name, t in self.log.phases if name == "lift"), 0.0)
+        fall, at = fastest_fall([row for row in watch.samples if row[0] >= lifted],
+                                FALL_WINDOW_S)
+        self.log.result["palm_fastest_fall_m"] = {"window_s": FALL_WINDOW_S, "fall_m": fall,
+                                                  "at_s": at}
+        self.say(f"the mug moved {slip * 100:.1f} cm in the hand while off the table; the "
+                 f"hand fell at most {fall * 100:.1f} cm in {FALL_WINDOW_S:g} s (at sim "
+                 f"{at:.1f} s) (ground truth)")
+        if slip > SLIP_M:
+            raise DemoFailed(self.step, f"the mug slipped {slip * 100:.1f} cm in the hand "
+                                        f"(at sim {watch.slip_t:.1f} s; ground truth)")
 
     def park(self) -> None:
         ready = ready_joints()
@@ -452,18 +522,38 @@ def run_session(demo: Demo, out: Path) -> None:
     """Steps 2-6 with the hand and arm recorded to MCAP under ``out``; any error is a
     :class:`DemoFailed` naming the step it happened in."""
     try:
-        demo.firmware()
         with HandRecorder(demo.hand, out / "hand.mcap") as hand_rec, \
-                ArmRecorder(demo.arm, out / "arm.mcap"):
-            demo.home()
-            demo.reach()
-            demo.grasp()
-            demo.lift(hand_rec)
-            demo.park()
+                ArmRecorder(demo.arm, out / "arm.mcap") as arm_rec:
+            demo.hand_recorder = hand_rec
+            recorders = (hand_rec, arm_rec)
+            for step in (demo.firmware, demo.home, demo.reach, demo.grasp, demo.lift,
+                         demo.park):
+                step()
+                for recorder in recorders:
+                    recorder.check()  # a full disk stops the demo, saying so
+            demo.sampler.finish()
+        for recorder in recorders:
+            recorder.check()
     except DemoFailed:
         raise
     except Exception as exc:  # noqa: BLE001 - said as the step's failure, not a traceback
         raise DemoFailed(demo.step, f"{type(exc).__name__}: {exc}") from exc
+
+
+def fastest_fall(samples: list[tuple[float, float, float, float]], window_s: float
+                 ) -> tuple[float, float]:
+    """The most the palm fell (m) within ``window_s`` in ``samples`` (t, mug z, palm z,
+    slip), and when it began (s)."""
+    best, at = 0.0, samples[0][0] if samples else 0.0
+    j = 0
+    for i, (t, _mz, z, _s) in enumerate(samples):
+        j = max(j, i)
+        while j + 1 < len(samples) and samples[j + 1][0] - t <= window_s:
+            j += 1
+        low = min(row[2] for row in samples[i:j + 1])
+        if z - low > best:
+            best, at = z - low, t
+    return best, at
 
 
 def judge(summary: Mapping[str, float]) -> tuple[bool, str]:
@@ -508,6 +598,9 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[b
     emulator = transport.emulator
     truth = emulator.scene_parts[0]
     demo = Demo(hand, arm, out, truth=truth, palm_port=url.format("palm"))
+    demo.mug_in_hand = MugInHand.from_emulator(emulator, truth)
+    if demo.mug_in_hand is not None:
+        demo.log.truth = demo.mug_in_hand.samples
     demo.wall0 = wall0
     demo.step = "emulator"
     demo.say("hand up (13 MCUs running), arm powered, torque off; mug on the table at "

@@ -7,8 +7,11 @@
     handbus encode NAME [field=value …] --addr A [--reply]        the frame as hex
     handbus list                                                  the message catalogue
 
-Like a logic-analyser decoder: it never crashes on garbage; bad input files or bad
-arguments give a clear message on standard error and exit status 2.
+Like a logic-analyser decoder: it never crashes on garbage; bad input files (an empty
+one, a ``.mcap`` that is not a recording) or bad arguments give a clear message on standard
+error and exit status 2.  A recording cut short (a killed recorder, a full disk) decodes up
+to its cut, then a warning on standard error says how many bytes at the end could not be
+read, and the exit status is 3.
 
 A coded field (an ``EnumField`` of the catalogue) decodes to its member's name, e.g.
 ``"status": "NO_REPLY"``, and an unknown code to its number; ``encode`` accepts either
@@ -331,6 +334,11 @@ def decode_dynamixel(data: bytes, direction: str, out: Any) -> dict[str, int]:
     return counters
 
 
+#: ``decode`` of an MCAP recording cut short (or damaged) before its end: every message
+#: before the cut was decoded, and standard error says how many bytes at the end were not.
+EXIT_CUT = 3
+
+
 def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     if args.file != "-" and not args.hex:
         from tools import mcap_capture
@@ -338,6 +346,14 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
         if mcap_capture.is_mcap(args.file):
             return _decode_mcap(args, out)
     data = read_input(args.file, args.hex, sys.stdin.buffer)
+    name = "standard input" if args.file == "-" else args.file
+    if not data:
+        raise UsageError(f"{name} is empty (0 bytes): nothing to decode")
+    if args.file.lower().endswith(".mcap") and not args.hex:
+        from tools import mcap_capture
+
+        raise UsageError(f"{name} is not an MCAP recording: "
+                         f"{mcap_capture.describe_start(data)}")
     if args.dynamixel:
         counters = decode_dynamixel(data, args.direction, out)
     else:
@@ -348,7 +364,8 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
 
 
 def _decode_mcap(args: argparse.Namespace, out: Any) -> int:
-    """``decode FILE.mcap``: the raw-frame channels of a recording (:mod:`tools.mcap_capture`)."""
+    """``decode FILE.mcap``: the raw-frame channels of a recording (:mod:`tools.mcap_capture`),
+    up to where it is cut short (exit :data:`EXIT_CUT`, with a warning)."""
     from tools import mcap_capture
 
     def decoder(topic: str) -> mcap_capture.Decoder:
@@ -362,12 +379,24 @@ def _decode_mcap(args: argparse.Namespace, out: Any) -> int:
     encoding = (mcap_capture.ARM_BYTES_ENCODING if args.dynamixel
                 else mcap_capture.HAND_FRAME_ENCODING)
     try:
-        counters = mcap_capture.decode_mcap(args.file, encoding, decoder, out)
+        contents = mcap_capture.read_recording(args.file)
+        counters = mcap_capture.decode_mcap(args.file, encoding, decoder, out, contents)
     except mcap_capture.McapCaptureError as exc:
-        raise UsageError(f"{exc}{'' if args.dynamixel else ' (arm recordings: --dynamixel)'}"
-                         ) from exc
+        raise UsageError(str(exc)) from exc
     print(json.dumps({"summary": counters}), file=out)
+    if contents.stopped:
+        out.flush()
+        print(f"handbus: warning: {args.file} is {contents.stopped}: the last "
+              f"{contents.unread} of its {contents.size} bytes (from byte {contents.end}) "
+              f"could not be read whole; the {len(contents.messages)} messages before the "
+              f"cut are decoded above{_salvaged(contents.salvaged)}",
+              file=sys.stderr)
+        return EXIT_CUT
     return 0
+
+
+def _salvaged(n: int) -> str:
+    return f" ({n} of them from the start of the chunk it cuts)" if n else ""
 
 
 def cmd_encode(args: argparse.Namespace, out: Any) -> int:

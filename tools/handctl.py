@@ -31,7 +31,14 @@ from collections.abc import Sequence
 from typing import Any
 
 from host.code_names import code_name
-from host.errors import HostError, NodeError, ReplyTimeout, RouteError, UsageError
+from host.errors import (
+    HostError,
+    NodeError,
+    RecordingError,
+    ReplyTimeout,
+    RouteError,
+    UsageError,
+)
 from host.grasp import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
@@ -43,7 +50,14 @@ from protocol.image import BoardType
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
-from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
+from tools.cli_common import (
+    EXIT_ROBOT,
+    EXIT_USAGE,
+    add_common_arguments,
+    hand_timeouts,
+    run_cli,
+    unwritable,
+)
 from tools.cli_numbers import finite, number_above, number_in
 from tools.cli_output import guard_output
 from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
@@ -439,13 +453,14 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     with HandRecorder(hand, args.file) as recorder:
         try:
             recorder.record(args.seconds, args.rate)
-        except UsageError:
-            raise
+        except (UsageError, RecordingError):
+            raise  # refused before it began; or the file itself failed: its message says so
         except (HostError, KeyboardInterrupt):
             recorder.close()  # a whole, readable file of what came before
             print(f"handctl: {args.file}: kept what was recorded before it stopped: "
                   f"{recorder.frames} frames, {recorder.states} states", file=sys.stderr)
             raise
+    recorder.check()  # finishing the file (its summary) can fail too
     _emit(args, {"file": args.file, "frames": recorder.frames, "states": recorder.states},
           f"{args.file}: {recorder.frames} frames, {recorder.states} states")
     return 0
@@ -465,6 +480,8 @@ COMMANDS = {"watch": _cmd_watch, "ping": _cmd_ping, "status": _cmd_status, "powe
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.command == "record" and (problem := unwritable(args.file)):
+        raise UsageError(f"cannot write the recording to {args.file}: {problem}")
     with Hand.open(args.port, timeouts=hand_timeouts(args), view=view_spec(args)) as hand:
         try:
             return COMMANDS[args.command](hand, args)

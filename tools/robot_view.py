@@ -39,7 +39,9 @@ class NotARecording(HostError):
 
 def messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[float, str, dict[str, Any]]]:
     """``(t, topic, payload)`` of every JSON message on ``topics`` in the MCAP file
-    ``path``, in log-time order (t in s)."""
+    ``path``, in the order they were logged; ``t`` is the link's clock (s: the message's
+    publish time, the simulation's in process), as the live view drew it (log times are
+    the wall clock)."""
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
@@ -49,7 +51,7 @@ def messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[float, str, di
             for _schema, channel, message in reader.iter_messages(topics=list(topics),
                                                                    log_time_order=True):
                 if channel.message_encoding == "json":
-                    yield message.log_time / 1e9, channel.topic, json.loads(message.data)
+                    yield message.publish_time / 1e9, channel.topic, json.loads(message.data)
     except (McapError, ValueError, EOFError) as exc:
         raise NotARecording(f"{path}: not an MCAP recording of this project ({exc})") from exc
 

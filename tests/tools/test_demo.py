@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -13,7 +14,9 @@ from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.inprocess import forget_shared_emulators
 from hil_emulator.scene_model import MUG_HEIGHT_M, MUG_MASS_KG, MUG_RADIUS_M, TABLE_TOP_Z_M
+from tests.tools.mcap_check import check_recording
 from tools import demo
+from tools.demo_watch import SLIP_M
 
 
 def test_the_mug_scene_stands_a_real_mug_on_the_table_within_reach() -> None:
@@ -48,7 +51,7 @@ def test_judge_needs_a_lift_and_a_set_down() -> None:
 def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str],
                                           tmp_path: Path) -> None:
-    def broken(out: Path, seed: int) -> tuple[bool, str]:
+    def broken(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
         raise demo.DemoFailed("grasp", "no finger felt the mug")
 
     monkeypatch.setattr(demo, "run_inprocess", broken)
@@ -88,3 +91,63 @@ def test_demo_lifts_the_mug_and_writes_report_and_recordings(
         with open(tmp_path / name, "rb") as stream:
             topics = {channel.topic for _, channel, _ in make_reader(stream).iter_messages()}
         assert topic in topics
+    # What a viewer reads: valid files, schemas with units, the wall clock; the whole
+    # session (from the firmware step, about 65 s simulated), the hand's state at 10 Hz
+    # while the arm moves and every finger reading of the hand's own moves.
+    hand, arm = check_recording(tmp_path / "hand.mcap"), check_recording(tmp_path / "arm.mcap")
+    assert hand["/hand/state"] >= 300 and hand["/hand/fingers"] >= 300
+    assert arm["/arm/state"] >= 3000
+    # The log agrees with the tactile plot: every finger holds the mug, none slipped
+    assert "closed without contact" not in out
+    assert set(result["holding"]) == {"0", "1", "2", "3"}
+    assert all(text.startswith("contact:") for text in result["holding"].values())
+    assert result["slip_m"] < SLIP_M
+
+
+def test_fastest_fall_finds_the_hands_drop() -> None:
+    samples = [(t / 100, 0.0, 1.0 - (0.2 * (t - 50) / 30 if 50 <= t <= 80 else
+                                     (0.2 if t > 80 else 0.0)), 0.0) for t in range(200)]
+    fall, at = demo.fastest_fall(samples, 0.3)
+    assert fall == pytest.approx(0.2, abs=0.01) and at == pytest.approx(0.5)
+    assert demo.fastest_fall([], 0.3) == (0.0, 0.0)
+
+
+class _Body:
+    """A rigid body's pose, as MuJoCo's data arrays give it (position, row-major rotation)."""
+
+    def __init__(self) -> None:
+        self.xpos = np.zeros((2, 3))
+        self.xmat = np.tile(np.eye(3).ravel(), (2, 1))
+
+
+def test_the_mug_moving_in_the_hand_while_off_the_table_is_a_slip() -> None:
+    from types import SimpleNamespace
+
+    from tools.demo_watch import SLIP_M, MugInHand
+
+    data = _Body()
+    mug = SimpleNamespace(start=np.array([0.0, 0.0, 0.05]), position=np.array([0.0, 0.0, 0.05]))
+    watch = MugInHand(mug, data, palm_id=1)
+    data.xpos[1] = [0.0, 0.03, 0.05]
+    watch.sample(0.0)  # on the table: no hold yet
+    for k, (palm_z, mug_z) in enumerate([(0.10, 0.10), (0.15, 0.15), (0.09, 0.09)]):
+        data.xpos[1][2], mug.position[2] = palm_z, mug_z  # the hand and the mug together
+        watch.sample(1.0 + k)
+    assert watch.slip_m == pytest.approx(0.0)  # the hand fell 6 cm: no slip
+    data.xpos[1][2], mug.position[2] = 0.12, 0.09  # the hand rose, the mug stayed
+    watch.sample(5.0)
+    assert watch.slip_m == pytest.approx(0.03) and watch.slip_m > SLIP_M
+    assert watch.slip_t == 5.0
+
+
+def test_what_a_finger_felt_is_its_taxels_rise_since_the_baseline() -> None:
+    from host.hand_state import FingerState
+    from tools.demo_watch import felt
+
+    base = FingerState(0, tactile={"proximal": [100] * 6, "distal": [100] * 12})
+    pressed = FingerState(0, tactile={"proximal": [100, 400, 100, 100, 90, 100],
+                                      "distal": [150] * 12})
+    light = FingerState(1, tactile={"proximal": [120] * 6, "distal": [100] * 12})
+    text = felt({0: pressed, 1: light}, {0: base, 1: FingerState(1, tactile=base.tactile)})
+    assert text == {0: "contact: taxels +900 counts in all (+300 the most)",
+                    1: "no contact (taxels +20 counts at most)"}

@@ -192,19 +192,20 @@ def test_missing_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert "Traceback" not in err
 
 
-def test_empty_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_empty_capture_is_an_error_not_an_empty_success(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "empty.bin"
     path.write_bytes(b"")
-    code, out, _ = run_main(["decode", str(path)], capsys)
-    assert code == 0
-    assert json_lines(out) == [{"summary": json_lines(out)[0]["summary"]}]
-    assert all(v == 0 for v in json_lines(out)[0]["summary"].values())
+    code, out, err = run_main(["decode", str(path)], capsys)
+    assert code == 2 and out == ""
+    assert err == f"handbus: error: {path} is empty (0 bytes): nothing to decode\n"
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.binary(max_size=400), st.booleans())
 def test_garbage_never_crashes(data: bytes, sprinkle_frames: bool) -> None:
     assume(not data.startswith(MCAP_MAGIC))  # read as a recording (test_handbus_mcap.py)
+    assume(data or sprinkle_frames)  # an empty file is an error (test_an_empty_capture_…)
     if sprinkle_frames:
         data = data[: len(data) // 2] + PING + data[len(data) // 2 :]
     with tempfile.TemporaryDirectory() as tmp:
