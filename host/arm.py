@@ -99,6 +99,7 @@ from protocol.control_tables import (
     STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
+    STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     StepperClear,
     StepperFlag,
@@ -154,6 +155,10 @@ RESYNC_MIN_COUNTS: Final = 2
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
+#: The stepper nodes' command watchdog this library sets at open (ms; see
+#: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
+#: after this long, the arm at rest within 0.5 s; ten of the 10 ms cycles a move runs.
+HOST_WATCHDOG_MS: Final = 100
 _LATCHES = StepperFlag.SLIP | StepperFlag.STALLED
 
 
@@ -206,10 +211,12 @@ class Arm:
     def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
              latency_s: float | None = None,
              stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
-             view: ViewSpec = None) -> Arm:
+             view: ViewSpec = None,
+             watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, any
         transport URL, or an open :class:`~host.transport.Transport`), discover the seven joints, set every node's return delay to
-        ``return_delay`` (2 µs units; None: leave it) and read the stepper nodes' goals.
+        ``return_delay`` (2 µs units; None: leave it), the stepper nodes' command watchdog
+        to ``watchdog_ms`` (:meth:`set_watchdog`; None: leave it) and read their goals.
         ``view`` (True, a port, or a :class:`~host.view.RobotView` to share): draw every
         cycle in a browser view (:mod:`host.view`; its address on stderr), closed with the
         arm unless it was given.
@@ -221,7 +228,7 @@ class Arm:
         transport = url if isinstance(url, Transport) else open_arm_transport(url)
         try:
             arm = cls.on(transport, return_delay=return_delay, retries=retries,
-                         latency_s=latency_s, stiffness=stiffness)
+                         latency_s=latency_s, stiffness=stiffness, watchdog_ms=watchdog_ms)
             arm.watch(view)
             return arm
         except BaseException:
@@ -231,7 +238,8 @@ class Arm:
     @classmethod
     def on(cls, transport: Transport, *, return_delay: int | None = FAST_RETURN_DELAY,
            retries: int = 2, latency_s: float | None = None,
-           stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
+           stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
+           watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """As :meth:`open`, on a transport already open (e.g. an in-process emulator's
         ``Emulator.transport("arm")``); closing the arm closes it."""
         bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
@@ -239,6 +247,8 @@ class Arm:
         arm = cls(bus, discover(bus, stiffness))
         if return_delay is not None:
             arm.set_return_delay(return_delay)
+        if watchdog_ms is not None:
+            arm.set_watchdog(watchdog_ms)
         arm.read_goals()
         return arm
 
@@ -284,6 +294,22 @@ class Arm:
         for j in self.joints:
             self.bus.set_return_delay(j.dxl_id, units)
         self.return_delay = units
+
+    def set_watchdog(self, timeout_ms: int) -> None:
+        """Set the stepper nodes' command watchdog (``watchdog_timeout``, ms, 0 = off; RAM,
+        back to its default at power-up) on those whose firmware has it (the RX-64s have
+        none).  A node that hears nothing from the host for that long while it moves stops
+        and holds (StepperFlag.WATCHDOG; nothing latched); every :meth:`cycle` feeds it, so
+        a host that cycles (a move, a controller, a recording) is never stopped, and a
+        joint at rest is left alone however long the host is idle."""
+        reg = _S["watchdog_timeout"]
+        low, high = reg.minimum or 0, reg.maximum or 0
+        if not low <= timeout_ms <= high:
+            raise UsageError(f"watchdog timeout {timeout_ms} outside {low}..{high} ms")
+        nodes = {j.dxl_id: reg.encode(timeout_ms) for j in self.steppers
+                 if j.firmware_version >= STEPPER_WATCHDOG_FIRMWARE}
+        if nodes:
+            self.bus.sync_write(reg.address, reg.size, nodes)
 
     def read_goals(self) -> None:
         """Learn each stepper node's goal (``command_goal``, 1/16 counts) with one
