@@ -285,8 +285,10 @@ class StepperNodeApp(DynamixelSlave):
     def _clear(self, bits: int) -> None:
         if bits & _CLEAR_SLIP:
             self._flags &= ~_SLIP
-        if bits & _CLEAR_STALL:
+        if bits & _CLEAR_STALL and self._flags & _STALLED:
             self._flags &= ~_STALLED
+            if self._torque_enable:  # hold where the motor stands: clearing starts no move
+                self._hold_at(self.motor_position())
         if bits & _CLEAR_ZERO:
             self._step_offset = self.stepper.step_count()
         if bits & _CLEAR_REARM:
@@ -331,8 +333,11 @@ class StepperNodeApp(DynamixelSlave):
                 size = -size
             if size > self._slip_threshold:
                 self._flags |= _SLIP
-            if size > self._deflection_limit:
+            if size > self._deflection_limit and not self._flags & _STALLED:
                 self._flags |= _STALLED
+                if self._torque_enable:  # stop stepping: hold the motor where it is
+                    self._velocity = 0.0
+                    self._hold_at(self._enc0 + (hw_steps - self._hw_steps0) / mpc)
         # live alarms; a shutdown one turns the torque off
         read = self.hal.sensors.read
         temperature = read("temperature")
@@ -351,7 +356,10 @@ class StepperNodeApp(DynamixelSlave):
             if (timeout and quiet > timeout and self._velocity != 0.0
                     and not self._flags & _WATCHDOG):
                 self._watchdog_stop(hw_steps, mpc)
-            velocity = self._velocity = self._next_velocity_at(hw_steps, mpc)
+            if self._flags & _STALLED:  # held until the host clears the latch
+                velocity = self._velocity = 0.0
+            else:
+                velocity = self._velocity = self._next_velocity_at(hw_steps, mpc)
             stepper.set_step_rate(velocity * mpc)
             current = self._run_current if velocity != 0.0 else self._holding_current
             cap = self._max_current
@@ -369,13 +377,17 @@ class StepperNodeApp(DynamixelSlave):
         velocity = self._velocity
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         accel = float(self._acceleration_limit)
-        stop = motor + math.copysign(velocity * velocity / (2.0 * accel), velocity)
+        self._hold_at(motor + math.copysign(velocity * velocity / (2.0 * accel), velocity))
+        self._flags |= _WATCHDOG
+
+    def _hold_at(self, counts: float) -> None:
+        """The goal (``command_goal``, ``goal_position`` and the step generator's) becomes
+        ``counts`` (joint counts in the motor's frame, to 1/16)."""
         low, high = STEPPER_TABLE["command_goal"].encodable
-        fine = max(low, min(high, _round_half_away(stop * GOAL_FINE_PER_COUNT)))
+        fine = max(low, min(high, _round_half_away(counts * GOAL_FINE_PER_COUNT)))
         self.set("command_goal", fine)
         self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
         self._goal = fine / GOAL_FINE_PER_COUNT
-        self._flags |= _WATCHDOG
 
     def _next_velocity_at(self, hw_steps: int, mpc: float) -> float:
         """The commanded joint velocity (counts/s) for the next tick, with the step counter

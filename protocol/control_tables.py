@@ -340,6 +340,12 @@ STEPPER_ROTOR_RESYNC_FIRMWARE = 3
 STEPPER_WATCHDOG_FIRMWARE = 4
 #: The stepper node's firmware version.
 STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_FIRMWARE
+#: The stepper node's factory ``alarm_shutdown``: OVERHEATING only.  A STALLED latch (the
+#: OVERLOAD bit) stops the node's stepping and holds its motor, torque on, instead of cutting
+#: the coils: a gravity-loaded joint that lost its torque falls, and its swing overloads the
+#: joints it hangs from, which then latch and fall too (one latch dropped the whole arm).
+#: A host that wants the coils cut on OVERLOAD writes 0x24 (as the RX-64's default).
+STEPPER_ALARM_SHUTDOWN_DEFAULT: Final = int(ErrorBit.OVERHEATING)
 #: ``watchdog_timeout`` at power-up (ms): on, so a node stops a move by itself whatever host
 #: started it; long enough for a stock dynamixel-sdk program that polls while it waits
 #: (docs/decisions/watchdog-default.md).
@@ -371,6 +377,11 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: element's by (the routes' coupling, −C·Δq in counts): SLIP and STALLED compare
 #: |deflection − deflection_offset| with their thresholds; ``deflection`` itself stays raw.  The goal is not in it: the host knows what it wrote.  Nodes report
 #: firmware_version >= :data:`STEPPER_CYCLE_BLOCK_FIRMWARE` when they have it.
+#: A STALLED latch (|deflection − deflection_offset| > ``deflection_limit``) stops the step
+#: generator at once and holds the motor where it stands (the goal registers say where),
+#: torque on at ``holding_current``; the node does not step again until the host clears STALL
+#: (``clear_flags``), which leaves it holding there until the next goal.  Its neighbours are
+#: not affected.
 #: Address 98 is the *command watchdog*: ``watchdog_timeout`` (ms, 0 = off).  When no
 #: instruction addressed to the node (PING, READ, WRITE, REG_WRITE, ACTION, a SYNC_WRITE
 #: with an entry for it, a BULK_READ naming it; broadcasts included) has arrived within it
@@ -401,7 +412,9 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(14, 2, "RW", 2000, "max_current", "mA, cap on run/holding current", 0, 3000),
     _eeprom(16, 1, "RW", 2, "status_return_level", "0 ping only, 1 reads, 2 all", 0, 2),
     _eeprom(17, 1, "RW", 36, "alarm_led", _ALARM, 0, 127),
-    _eeprom(18, 1, "RW", 36, "alarm_shutdown", _ALARM + "; torque off on these", 0, 127),
+    _eeprom(18, 1, "RW", STEPPER_ALARM_SHUTDOWN_DEFAULT, "alarm_shutdown",
+            _ALARM + "; torque off on these (OVERLOAD: STALLED holds instead, see above)",
+            0, 127),
     _eeprom(20, 2, "R", ARM_ENCODER_COUNTS_PER_REV, "encoder_resolution",
             "joint encoder counts per joint rev"),
     _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
