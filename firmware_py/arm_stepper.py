@@ -29,6 +29,14 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   writes ``−C·Δq`` every cycle with the goal, in the command block; 0 = none).  Over-temperature (sensor ``temperature``, 0.1 °C) and supply (``supply_mv``) outside
   the voltage limits are live alarm bits.  An alarm in ``alarm_shutdown`` turns the torque
   off (``torque_enable`` := 0); the host clears the cause and enables it again.
+* A STALLED latch with torque on (``alarm_shutdown`` without OVERLOAD, the factory setting)
+  stops the step generator at once and holds the motor where it stands (the goal registers
+  say where); goals do not move it until the host clears STALL, and the clear holds it there.
+  A clear made while the deflection is still over ``deflection_limit`` (a joint against a
+  stop, a rotor that slipped) does not latch again at once: from then on SLIP and STALLED
+  latch only beyond the least deviation seen since the clear plus a quarter of
+  ``deflection_limit``, until the deviation is back within the limit, so the host can
+  unwind the spring with a goal back.
 * ``clear_flags`` RESYNC_ROTOR, with torque off only (a powered rotor does not turn with
   the joint, and a stall must stay one): the rotor turned with the joint while unpowered,
   so the step counter no longer says where it is; the node takes the elastic element as
@@ -161,6 +169,9 @@ class StepperNodeApp(DynamixelSlave):
         self._run_current = self._holding_current = 0
         self._watchdog_timeout = 0  # ms (ticks); 0 = off
         self._quiet_ticks = 0  # ticks since the last instruction addressed to the node
+        #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
+        #: the least since; 0 once back within it (see the module docs)
+        self._allowance = 0
 
     # ------------------------------------------------------------------ hooks
 
@@ -193,6 +204,7 @@ class StepperNodeApp(DynamixelSlave):
         self._velocity = 0.0
         self._flags = 0
         self._quiet_ticks = 0
+        self._allowance = 0
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
         self._set_goal_counts(self._enc0)
         self.stepper.set_step_rate(0.0)
@@ -283,6 +295,10 @@ class StepperNodeApp(DynamixelSlave):
         self._refresh()
 
     def _clear(self, bits: int) -> None:
+        if bits & (_CLEAR_SLIP | _CLEAR_STALL) and self._torque_enable:
+            size = abs(self.deflection() - self._deflection_offset)
+            if size > self._deflection_limit:
+                self._allowance = size
         if bits & _CLEAR_SLIP:
             self._flags &= ~_SLIP
         if bits & _CLEAR_STALL and self._flags & _STALLED:
@@ -331,9 +347,17 @@ class StepperNodeApp(DynamixelSlave):
             size = deflection - self._deflection_offset
             if size < 0:
                 size = -size
-            if size > self._slip_threshold:
+            allowance = self._allowance
+            if allowance:  # cleared while over: only a deflection growing again latches
+                if size <= self._deflection_limit:
+                    allowance = self._allowance = 0
+                elif size < allowance:
+                    allowance = self._allowance = size
+                allowance += self._deflection_limit >> 2
+            if size > self._slip_threshold and size > allowance:
                 self._flags |= _SLIP
-            if size > self._deflection_limit and not self._flags & _STALLED:
+            if (size > self._deflection_limit and size > allowance
+                    and not self._flags & _STALLED):
                 self._flags |= _STALLED
                 if self._torque_enable:  # stop stepping: hold the motor where it is
                     self._velocity = 0.0

@@ -391,3 +391,33 @@ def test_overload_in_alarm_shutdown_cuts_the_coils_as_before(node):
     sched.run_for(2_000)
     assert read(sched, hal, "torque_enable") == 0
     assert hal.stepper().current == 0
+
+
+def test_cleared_against_a_stop_it_backs_off_and_relatches_only_if_pushed_further(node):
+    """A joint against its stop: STALLED holds the spring wound; a clear does not latch
+    again at once, a goal back unwinds it, and winding further than a quarter of the limit
+    past where it was latches again."""
+    sched, hal, app = node
+    write(sched, hal, "slip_threshold", 65535)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 400)  # the encoder stays at 0: the joint is blocked
+    sched.run_for(600_000)
+    stepper = hal.stepper()
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    wound = round(stepper.step_count() / K)
+    assert 150 < wound < 160 and stepper.rate == 0.0
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    sched.run_for(100_000)
+    assert not read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "goal_position", 0)  # back off: unwinds the spring
+    sched.run_for(600_000)
+    assert round(stepper.step_count() / K) == 0
+    assert not read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "goal_position", 400)  # into the stop again: latches at the limit
+    sched.run_for(600_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    write(sched, hal, "goal_position", 400)  # further in: latches past wound + 150 // 4
+    sched.run_for(600_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    assert wound < round(stepper.step_count() / K) <= wound + 150 // 4 + 2
