@@ -81,3 +81,19 @@ def test_without_the_watchdog_the_arm_drives_on():
     run = vanish_mid_move(0, 1.5)
     assert (run["q"][-1, 1] - run["q0"][1]) > DRIVE_ON_LIMIT
     assert run["rates"][-1, 1] != 0.0
+
+
+def test_an_idle_host_with_torque_on_is_not_disturbed():
+    """Torque on, then nothing for 3 s (a program waiting for its user): a joint at rest is
+    left alone - no WATCHDOG, no motion - and a move afterwards runs as usual."""
+    with Arm.open("emu://arm/arm?name=watchdog-idle") as arm:
+        emu = arm.transport.emulator
+        before = arm.torque(True, hold=True)
+        emu.step(3_000_000)
+        state = arm.state()
+        assert not any(s.watchdog for s in state.steppers)
+        assert np.allclose(state.joints, before.joints, atol=math.radians(0.2))
+        goals = list(state.joints)
+        goals[1] += 0.3
+        state, settled = arm.move(goals, duration=1.5)
+        assert settled and not any(s.watchdog for s in state.steppers)
