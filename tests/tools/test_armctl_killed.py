@@ -8,6 +8,7 @@ import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -15,9 +16,31 @@ from typing import Any
 
 import pytest
 
-from tests.hil_emulator.emulator_process import ROOT, running_emulator, wait_simulated
+from protocol.control_tables import StepperFlag
+from tests.hil_emulator.emulator_process import (
+    HANG_GUARD_S,
+    ROOT,
+    running_emulator,
+    wait_simulated,
+)
 
 GOAL = ["0", "1.5", "0", "1.5", "0", "0.2", "0"]
+
+
+def truth(info: dict[str, Any]) -> dict[str, Any]:
+    """The emulator's ground truth of the arm (control channel ``truth``)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
+        client.settimeout(HANG_GUARD_S)
+        client.connect(info["control"])
+        client.sendall(b'{"op": "truth"}\n')
+        answer = b""
+        while not answer.endswith(b"\n"):
+            chunk = client.recv(65536)
+            assert chunk, "the control channel closed without an answer"
+            answer += chunk
+    reply = json.loads(answer)
+    assert reply["ok"], reply
+    return dict(reply["arm"])
 
 
 def armctl(port: str, *args: str) -> tuple[int, dict[str, Any]]:
@@ -55,11 +78,14 @@ def test_armctl_killed_mid_move_leaves_the_arm_held() -> None:
                           "4")[0] in (0, 3)
         else:
             pytest.fail("no kill landed mid-move")
+        before = truth(info)  # the plant itself, as held
         wait_simulated(info, 1.0)
-        code, second = armctl(port, "status")
-        assert code == 0
-        assert second["torque"] == [True] * 7
-        for a, b in zip(first["joints"], second["joints"], strict=True):
+        after = truth(info)
+        for a, b in zip(before["joints"], after["joints"], strict=True):
             assert abs(b - a) <= math.radians(2.0)  # held: not falling, not driving on
-        assert not any(second["slip"]) and not any(second["stalled"])
-        assert not any(second["moving"]) and second["watchdog"][1]
+        latches = int(StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.MOVING)
+        for dxl_id, node in after["nodes"].items():
+            assert node["torque_enable"] == 1, dxl_id
+            assert not node["status_flags"] & latches and not node["alarms"], dxl_id
+        code, second = armctl(port, "status")
+        assert code == 0 and second["torque"] == [True] * 7 and second["watchdog"][1]
