@@ -60,6 +60,11 @@ writes register 5 of every node to the value given (2 µs units; 0-2 is fine on 
 RS-485 bus; the emulator honours it); ``return_delay=None`` leaves the nodes as they are.
 The register is in EEPROM: it persists.
 
+**The command watchdog.**  :meth:`open` sets the stepper nodes' ``watchdog_timeout``
+(:data:`HOST_WATCHDOG_MS`): a node that hears nothing from this host for that long while it
+moves stops and holds (:meth:`set_watchdog`); a cycle that finds one stopped so while this
+arm is still cycling sends it its goal again with the next cycle.
+
 **Errors.**  Alarms (overheating, input voltage, overload) are reported by name in
 :attr:`ArmState.errors` and cleared with :meth:`Arm.clear_errors`: a stepper node's
 SLIP/STALLED latch through its ``clear_flags`` register, an RX-64's latched alarms only by
@@ -195,6 +200,9 @@ class Arm:
         self._owns_view = False
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
+        #: Stepper joints the last state found stopped by their node's command watchdog
+        #: (this host was late): the next cycle sends them this arm's goal again.
+        self._watchdog_stopped: set[int] = set()
         #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
         self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
@@ -301,7 +309,11 @@ class Arm:
         none).  A node that hears nothing from the host for that long while it moves stops
         and holds (StepperFlag.WATCHDOG; nothing latched); every :meth:`cycle` feeds it, so
         a host that cycles (a move, a controller, a recording) is never stopped, and a
-        joint at rest is left alone however long the host is idle."""
+        joint at rest is left alone however long the host is idle.  A host that was late
+        (a cycle more than the timeout after the last) finds the node stopped
+        (``StepperState.watchdog``); the cycle after the one that saw it sends that joint the
+        goal this arm last sent it again, so a loop that sends a goal once and then only reads
+        (homing's search) goes on."""
         reg = _S["watchdog_timeout"]
         low, high = reg.minimum or 0, reg.maximum or 0
         if not low <= timeout_ms <= high:
@@ -396,6 +408,12 @@ class Arm:
                     stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
             else:
                 servo[j.dxl_id] = c
+        for joint in self._watchdog_stopped:
+            j = self.joints[joint]
+            if j.dxl_id not in stepper_goal and torque.get(j.dxl_id) != b"\x00":
+                if offsets is None:
+                    offsets = self.deflection_offsets()
+                stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
         packets = []
         resync = self._resyncs(torque)
         if resync:  # the command block (offsets), then the re-sync, then the torque
@@ -404,9 +422,7 @@ class Arm:
             for joint in resync:
                 j = self.joints[joint]
                 if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
-                    stepper_goal[j.dxl_id] = (
-                        _GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
-                        + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
+                    stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
             packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
             stepper_goal = {}
             packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
@@ -420,6 +436,12 @@ class Arm:
         if servo:
             packets.append(self._servo_goals(servo))
         return packets
+
+    def _goal_entry(self, joint: int, offsets: list[int]) -> bytes:
+        """A stepper's command block holding the goal this arm last sent it and the
+        coupling offset now."""
+        return (_GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
+                + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
 
     def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
         """The stepper joints that ``torque`` turns on after this arm turned them off and
@@ -516,6 +538,8 @@ class Arm:
                 velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
                 temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
         self.stepper_counts = counts
+        self._watchdog_stopped = {i for i, s in enumerate(steppers)
+                                  if s.flags & StepperFlag.WATCHDOG}
         raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
         return ArmState(t, tuple(steppers), tuple(servos), raw)
 

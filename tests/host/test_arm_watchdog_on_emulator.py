@@ -97,3 +97,27 @@ def test_an_idle_host_with_torque_on_is_not_disturbed():
         goals[1] += 0.3
         state, settled = arm.move(goals, duration=1.5)
         assert settled and not any(s.watchdog for s in state.steppers)
+
+
+def test_a_late_host_that_sent_its_goal_once_is_resumed_by_the_next_cycle():
+    """A host that sends a goal once and then only reads (homing's search does) and is late
+    once by more than the watchdog's timeout: the node stops and holds, and the cycle after
+    the one that saw WATCHDOG sends this arm's goal again, so the move goes on."""
+    with Arm.open("emu://arm/arm?name=watchdog-late") as arm:
+        emu = arm.transport.emulator
+        state = arm.torque(True, hold=True)
+        goal = state.joints[1] + 0.4
+        arm.cycle([arm.make_position(1, goal, 0.2)])  # 2 s at 0.2 rad/s
+        for _ in range(50):
+            arm.transport.sleep(0.01)
+            state = arm.cycle()
+        emu.step(300_000)  # the host late by 0.3 s: the node stops
+        state = arm.cycle()
+        assert state.steppers[1].watchdog and not state.steppers[1].moving
+        stopped_at = state.steppers[1].motor_angle
+        for _ in range(300):
+            arm.transport.sleep(0.01)
+            state = arm.cycle()
+        assert not state.steppers[1].watchdog
+        assert state.steppers[1].motor_angle == pytest.approx(goal, abs=0.01)
+        assert state.steppers[1].motor_angle > stopped_at + 0.1
