@@ -406,9 +406,13 @@ class StepperNodeApp(DynamixelSlave):
 
     def _hold_at(self, counts: float) -> None:
         """The goal (``command_goal``, ``goal_position`` and the step generator's) becomes
-        ``counts`` (joint counts in the motor's frame, to 1/16)."""
+        ``counts`` (joint counts in the motor's frame) moved to the nearest whole microstep,
+        to 1/16 count: a goal half a microstep from two could not be reached within the
+        step generator's resolution, which would then dither about it for ever."""
+        mpc = self._mpc
+        on_step = self._enc0 + round((counts - self._enc0) * mpc) / mpc
         low, high = STEPPER_TABLE["command_goal"].encodable
-        fine = max(low, min(high, _round_half_away(counts * GOAL_FINE_PER_COUNT)))
+        fine = max(low, min(high, _round_half_away(on_step * GOAL_FINE_PER_COUNT)))
         self.set("command_goal", fine)
         self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
         self._goal = fine / GOAL_FINE_PER_COUNT

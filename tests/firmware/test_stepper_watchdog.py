@@ -164,3 +164,22 @@ def test_the_default_stops_a_move_after_half_a_second():
     assert not flags(app) & StepperFlag.WATCHDOG
     sched.run_for(10_000)
     assert flags(app) & StepperFlag.WATCHDOG
+
+
+@pytest.mark.parametrize("timeout_ms", range(90, 111))
+def test_once_stopped_the_motor_stays_still(timeout_ms):
+    """The stop point goes to a whole microstep: one half a microstep from two left the step
+    generator dithering about it (J2's 2 microsteps per count)."""
+    sched, hal, app = fresh()
+    write(sched, hal, "gear_reduction_x100", 1000)
+    write(sched, hal, "velocity_limit", 397)
+    write(sched, hal, "watchdog_timeout", timeout_ms)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 4000)
+    sched.run_for(timeout_ms * 1000 + 200_000)  # the timeout, then braking at 5000 counts/s²
+    assert flags(app) & StepperFlag.WATCHDOG
+    rates = []
+    for _ in range(300):
+        sched.run_for(1_000)
+        rates.append(hal.stepper().rate)
+    assert not any(rates)
