@@ -16,7 +16,7 @@ GOALS = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]  # the 6 s move of armctl's example
 DURATION_S = 6.0
 FALL_LIMIT = math.radians(2.0)
 #: Driving on: the watchdog's time at the move's speed, the braking, the elastic overshoot.
-DRIVE_ON_LIMIT = math.radians(5.0)
+DRIVE_ON_LIMIT = math.radians(8.0)
 
 
 def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.ndarray]:
