@@ -203,6 +203,9 @@ class Arm:
         #: Stepper joints the last state found stopped by their node's command watchdog
         #: (this host was late): the next cycle sends them this arm's goal again.
         self._watchdog_stopped: set[int] = set()
+        #: Stepper joints this arm has sent a goal (not just learnt one at open): only those
+        #: are resumed, so a program that only reads (armctl status) changes nothing.
+        self._goals_sent: set[int] = set()
         #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
         self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
@@ -312,7 +315,8 @@ class Arm:
         joint at rest is left alone however long the host is idle.  A host that was late
         (a cycle more than the timeout after the last) finds the node stopped
         (``StepperState.watchdog``); the cycle after the one that saw it sends that joint the
-        goal this arm last sent it again, so a loop that sends a goal once and then only reads
+        goal this arm last sent it again (a joint it has sent a goal: a program that only
+        reads changes nothing), so a loop that sends a goal once and then only reads
         (homing's search) goes on."""
         reg = _S["watchdog_timeout"]
         low, high = reg.minimum or 0, reg.maximum or 0
@@ -408,7 +412,7 @@ class Arm:
                     stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
             else:
                 servo[j.dxl_id] = c
-        for joint in self._watchdog_stopped:
+        for joint in self._watchdog_stopped & self._goals_sent:
             j = self.joints[joint]
             if j.dxl_id not in stepper_goal and torque.get(j.dxl_id) != b"\x00":
                 if offsets is None:
@@ -488,6 +492,7 @@ class Arm:
         self.cycles += 1
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
+                self._goals_sent.add(c.joint)
                 self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
                                                / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)

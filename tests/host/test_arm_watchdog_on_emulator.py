@@ -121,3 +121,17 @@ def test_a_late_host_that_sent_its_goal_once_is_resumed_by_the_next_cycle():
         assert not state.steppers[1].watchdog
         assert state.steppers[1].motor_angle == pytest.approx(goal, abs=0.01)
         assert state.steppers[1].motor_angle > stopped_at + 0.1
+
+
+def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
+    """After the host vanished, another program that only reads (armctl status) sees
+    WATCHDOG and changes nothing: only goals this arm sent are sent again."""
+    with Arm.open("emu://arm/arm?name=watchdog-reader") as arm:
+        emu = arm.transport.emulator
+        state = arm.torque(True, hold=True)
+        arm.cycle([arm.make_position(1, state.joints[1] + 0.4, 0.2)])
+        emu.step(500_000)  # gone mid-move
+    with Arm.on(emu.transport("arm")) as reader:
+        for _ in range(5):
+            state = reader.state()
+            assert state.steppers[1].watchdog
