@@ -29,6 +29,14 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   writes ``−C·Δq`` every cycle with the goal, in the command block; 0 = none).  Over-temperature (sensor ``temperature``, 0.1 °C) and supply (``supply_mv``) outside
   the voltage limits are live alarm bits.  An alarm in ``alarm_shutdown`` turns the torque
   off (``torque_enable`` := 0); the host clears the cause and enables it again.
+* A STALLED latch with torque on (``alarm_shutdown`` without OVERLOAD, the factory setting)
+  stops the step generator at once and holds the motor where it stands (the goal registers
+  say where); goals do not move it until the host clears STALL, and the clear holds it there.
+  A clear made while the deflection is still over ``deflection_limit`` (a joint against a
+  stop, a rotor that slipped) does not latch again at once: from then on SLIP and STALLED
+  latch only beyond the least deviation seen since the clear plus a quarter of
+  ``deflection_limit``, until the deviation is back within the limit, so the host can
+  unwind the spring with a goal back.
 * ``clear_flags`` RESYNC_ROTOR, with torque off only (a powered rotor does not turn with
   the joint, and a stall must stay one): the rotor turned with the joint while unpowered,
   so the step counter no longer says where it is; the node takes the elastic element as
@@ -43,6 +51,15 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   gets a cycle's state.
 * Torque off: current 0 and no steps; on: ``run_current`` while moving, ``holding_current``
   at standstill, both capped by ``max_current``.
+* Command watchdog: every instruction addressed to the node (:meth:`host_heard`: PING, READ,
+  WRITE, a SYNC_WRITE entry, a BULK_READ naming it, ...) restarts a count of ticks (ms).
+  When the count passes ``watchdog_timeout`` (0 = off) while the step generator moves, the
+  node stops the move: its goal becomes the point where braking at ``acceleration_limit``
+  from the present motor speed ends (``goal_position`` and ``command_goal`` say so), and it
+  sets StepperFlag.WATCHDOG.  It holds the *motor* there, not the joint angle: the elastic
+  element keeps the deflection that carries the load, and the route coupling is not taken for
+  deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
+  on.  A node at rest is left alone whatever the count.
 
 Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
 the step counter and the sensors once and derives everything from those readings; the
@@ -87,6 +104,7 @@ _SLIP = int(StepperFlag.SLIP)
 _INDEX_SEEN = int(StepperFlag.INDEX_SEEN)
 _STALLED = int(StepperFlag.STALLED)
 _HARDWARE_ERROR = int(StepperFlag.HARDWARE_ERROR)
+_WATCHDOG = int(StepperFlag.WATCHDOG)
 _OVERHEATING = int(ErrorBit.OVERHEATING)
 _INPUT_VOLTAGE = int(ErrorBit.INPUT_VOLTAGE)
 _OVERLOAD = int(ErrorBit.OVERLOAD)
@@ -128,7 +146,7 @@ class StepperNodeApp(DynamixelSlave):
         "min_voltage_limit", "max_voltage_limit", "max_current", "alarm_shutdown",
         "torque_enable", "goal_position", "velocity_limit", "acceleration_limit",
         "slip_threshold", "deflection_limit", "run_current", "holding_current",
-        "command_goal", "deflection_offset",
+        "command_goal", "deflection_offset", "watchdog_timeout",
     })
 
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
@@ -149,6 +167,11 @@ class StepperNodeApp(DynamixelSlave):
         self._velocity_limit = self._acceleration_limit = 0
         self._slip_threshold = self._deflection_limit = self._deflection_offset = 0
         self._run_current = self._holding_current = 0
+        self._watchdog_timeout = 0  # ms (ticks); 0 = off
+        self._quiet_ticks = 0  # ticks since the last instruction addressed to the node
+        #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
+        #: the least since; 0 once back within it (see the module docs)
+        self._allowance = 0
 
     # ------------------------------------------------------------------ hooks
 
@@ -173,12 +196,15 @@ class StepperNodeApp(DynamixelSlave):
         self._deflection_limit = get("deflection_limit")
         self._run_current = get("run_current")
         self._holding_current = get("holding_current")
+        self._watchdog_timeout = get("watchdog_timeout")
 
     def power_up(self) -> None:
         self._hw_steps0 = self._step_offset = self.stepper.step_count()
         self._enc0 = self.encoder.count()
         self._velocity = 0.0
         self._flags = 0
+        self._quiet_ticks = 0
+        self._allowance = 0
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
         self._set_goal_counts(self._enc0)
         self.stepper.set_step_rate(0.0)
@@ -190,8 +216,13 @@ class StepperNodeApp(DynamixelSlave):
     def before_read(self) -> None:
         self._refresh()
 
+    def host_heard(self) -> None:
+        self._quiet_ticks = 0
+
     def after_write(self, touched: list[Register]) -> None:
         names = {r.name for r in touched}
+        if "command_goal" in names or "goal_position" in names:
+            self._flags &= ~_WATCHDOG  # a new goal: the host is back in charge
         if "command_goal" in names:
             fine = self.get("command_goal")
             self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
@@ -264,10 +295,16 @@ class StepperNodeApp(DynamixelSlave):
         self._refresh()
 
     def _clear(self, bits: int) -> None:
+        if bits & (_CLEAR_SLIP | _CLEAR_STALL) and self._torque_enable:
+            size = abs(self.deflection() - self._deflection_offset)
+            if size > self._deflection_limit:
+                self._allowance = size
         if bits & _CLEAR_SLIP:
             self._flags &= ~_SLIP
-        if bits & _CLEAR_STALL:
+        if bits & _CLEAR_STALL and self._flags & _STALLED:
             self._flags &= ~_STALLED
+            if self._torque_enable:  # hold where the motor stands: clearing starts no move
+                self._hold_at(self.motor_position())
         if bits & _CLEAR_ZERO:
             self._step_offset = self.stepper.step_count()
         if bits & _CLEAR_REARM:
@@ -310,10 +347,21 @@ class StepperNodeApp(DynamixelSlave):
             size = deflection - self._deflection_offset
             if size < 0:
                 size = -size
-            if size > self._slip_threshold:
+            allowance = self._allowance
+            if allowance:  # cleared while over: only a deflection growing again latches
+                if size <= self._deflection_limit:
+                    allowance = self._allowance = 0
+                elif size < allowance:
+                    allowance = self._allowance = size
+                allowance += self._deflection_limit >> 2
+            if size > self._slip_threshold and size > allowance:
                 self._flags |= _SLIP
-            if size > self._deflection_limit:
+            if (size > self._deflection_limit and size > allowance
+                    and not self._flags & _STALLED):
                 self._flags |= _STALLED
+                if self._torque_enable:  # stop stepping: hold the motor where it is
+                    self._velocity = 0.0
+                    self._hold_at(self._enc0 + (hw_steps - self._hw_steps0) / mpc)
         # live alarms; a shutdown one turns the torque off
         read = self.hal.sensors.read
         temperature = read("temperature")
@@ -325,8 +373,17 @@ class StepperNodeApp(DynamixelSlave):
         errors = self._errors(temperature, supply_mv)
         if errors & self._alarm_shutdown and self._torque_enable:
             self.set("torque_enable", 0)
+        quiet = self._quiet_ticks + 1
+        self._quiet_ticks = quiet
         if self._torque_enable:
-            velocity = self._velocity = self._next_velocity_at(hw_steps, mpc)
+            timeout = self._watchdog_timeout
+            if (timeout and quiet > timeout and self._velocity != 0.0
+                    and not self._flags & _WATCHDOG):
+                self._watchdog_stop(hw_steps, mpc)
+            if self._flags & _STALLED:  # held until the host clears the latch
+                velocity = self._velocity = 0.0
+            else:
+                velocity = self._velocity = self._next_velocity_at(hw_steps, mpc)
             stepper.set_step_rate(velocity * mpc)
             current = self._run_current if velocity != 0.0 else self._holding_current
             cap = self._max_current
@@ -336,6 +393,29 @@ class StepperNodeApp(DynamixelSlave):
             stepper.set_step_rate(0.0)
             stepper.set_current(0)
         self._publish(enc, hw_steps, deflection, errors, velocity, temperature, supply_mv)
+
+    def _watchdog_stop(self, hw_steps: int, mpc: float) -> None:
+        """No instruction within ``watchdog_timeout`` while moving: the goal becomes where
+        the motor stops braking at ``acceleration_limit`` (the motor's frame, so the load's
+        deflection stays in the element), and the WATCHDOG flag is set."""
+        velocity = self._velocity
+        motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
+        accel = float(self._acceleration_limit)
+        self._hold_at(motor + math.copysign(velocity * velocity / (2.0 * accel), velocity))
+        self._flags |= _WATCHDOG
+
+    def _hold_at(self, counts: float) -> None:
+        """The goal (``command_goal``, ``goal_position`` and the step generator's) becomes
+        ``counts`` (joint counts in the motor's frame) moved to the nearest whole microstep,
+        to 1/16 count: a goal half a microstep from two could not be reached within the
+        step generator's resolution, which would then dither about it for ever."""
+        mpc = self._mpc
+        on_step = self._enc0 + round((counts - self._enc0) * mpc) / mpc
+        low, high = STEPPER_TABLE["command_goal"].encodable
+        fine = max(low, min(high, _round_half_away(on_step * GOAL_FINE_PER_COUNT)))
+        self.set("command_goal", fine)
+        self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
+        self._goal = fine / GOAL_FINE_PER_COUNT
 
     def _next_velocity_at(self, hw_steps: int, mpc: float) -> float:
         """The commanded joint velocity (counts/s) for the next tick, with the step counter

@@ -7,7 +7,8 @@ node's application (:class:`~firmware_py.arm_stepper.StepperNodeApp`,
 :class:`~firmware_py.rx64.Rx64ServoApp`) subclasses :class:`DynamixelSlave` and fills in the
 hooks (:meth:`~DynamixelSlave.power_up`, :meth:`~DynamixelSlave.before_read`,
 :meth:`~DynamixelSlave.validate_write`, :meth:`~DynamixelSlave.after_write`,
-:meth:`~DynamixelSlave.alarm_bits`, :meth:`~DynamixelSlave.reload_registers`).
+:meth:`~DynamixelSlave.alarm_bits`, :meth:`~DynamixelSlave.reload_registers`,
+:meth:`~DynamixelSlave.host_heard`).
 
 Speed (the emulator runs seven nodes at 1 kHz): an application may keep the registers its
 control tick reads in attributes, named in :attr:`~DynamixelSlave.CACHED_REGISTERS`; the
@@ -176,6 +177,11 @@ class DynamixelSlave:
         """Latched alarm bits (ErrorBit) reported in every status packet."""
         return 0
 
+    def host_heard(self) -> None:
+        """An instruction addressed to this node arrived (its ID or broadcast; a SYNC_WRITE
+        with an entry for it, a BULK_READ naming it), before it is executed: a host is
+        there (the stepper node's command watchdog)."""
+
     # ------------------------------------------------------------------ register access
 
     def get(self, name: str) -> int:
@@ -267,6 +273,8 @@ class DynamixelSlave:
     def handle(self, packet: InstructionPacket) -> None:
         """Execute one instruction addressed to this node (or broadcast)."""
         code, params, broadcast = int(packet.instruction), packet.params, packet.is_broadcast
+        if code != _SYNC_WRITE and code != _BULK_READ:
+            self.host_heard()
         try:
             if code == _PING:
                 self._reply(0, b"", level=0, broadcast=broadcast)
@@ -293,6 +301,7 @@ class DynamixelSlave:
             elif code == _SYNC_WRITE:
                 address, _, entries = parse_sync_write(params)
                 if self.bus_id in entries:
+                    self.host_heard()
                     self._written(self._write(address, entries[self.bus_id]))
             elif code == _BULK_READ:
                 self._bulk_read(parse_bulk_read(params))
@@ -378,6 +387,7 @@ class DynamixelSlave:
         k = next((i for i, entry in enumerate(entries) if entry[1] == bus_id), -1)
         if k < 0:
             return
+        self.host_heard()
         length, _, address = entries[k]
         self.before_read()
         try:

@@ -60,6 +60,11 @@ writes register 5 of every node to the value given (2 µs units; 0-2 is fine on 
 RS-485 bus; the emulator honours it); ``return_delay=None`` leaves the nodes as they are.
 The register is in EEPROM: it persists.
 
+**The command watchdog.**  :meth:`open` sets the stepper nodes' ``watchdog_timeout``
+(:data:`HOST_WATCHDOG_MS`): a node that hears nothing from this host for that long while it
+moves stops and holds (:meth:`set_watchdog`); a cycle that finds one stopped so while this
+arm is still cycling sends it its goal again with the next cycle.
+
 **Errors.**  Alarms (overheating, input voltage, overload) are reported by name in
 :attr:`ArmState.errors` and cleared with :meth:`Arm.clear_errors`: a stepper node's
 SLIP/STALLED latch through its ``clear_flags`` register, an RX-64's latched alarms only by
@@ -99,6 +104,7 @@ from protocol.control_tables import (
     STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
+    STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     StepperClear,
     StepperFlag,
@@ -154,6 +160,10 @@ RESYNC_MIN_COUNTS: Final = 2
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
+#: The stepper nodes' command watchdog this library sets at open (ms; see
+#: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
+#: after this long, the arm at rest within 0.5 s; ten of the 10 ms cycles a move runs.
+HOST_WATCHDOG_MS: Final = 100
 _LATCHES = StepperFlag.SLIP | StepperFlag.STALLED
 
 
@@ -190,6 +200,12 @@ class Arm:
         self._owns_view = False
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
+        #: Stepper joints the last state found stopped by their node's command watchdog
+        #: (this host was late): the next cycle sends them this arm's goal again.
+        self._watchdog_stopped: set[int] = set()
+        #: Stepper joints this arm has sent a goal (not just learnt one at open): only those
+        #: are resumed, so a program that only reads (armctl status) changes nothing.
+        self._goals_sent: set[int] = set()
         #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
         self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
@@ -206,10 +222,12 @@ class Arm:
     def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
              latency_s: float | None = None,
              stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
-             view: ViewSpec = None) -> Arm:
+             view: ViewSpec = None,
+             watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """Open the arm's bus ``url`` (a serial path, by default at 1 Mbaud, any
         transport URL, or an open :class:`~host.transport.Transport`), discover the seven joints, set every node's return delay to
-        ``return_delay`` (2 µs units; None: leave it) and read the stepper nodes' goals.
+        ``return_delay`` (2 µs units; None: leave it), the stepper nodes' command watchdog
+        to ``watchdog_ms`` (:meth:`set_watchdog`; None: leave it) and read their goals.
         ``view`` (True, a port, or a :class:`~host.view.RobotView` to share): draw every
         cycle in a browser view (:mod:`host.view`; its address on stderr), closed with the
         arm unless it was given.
@@ -221,7 +239,7 @@ class Arm:
         transport = url if isinstance(url, Transport) else open_arm_transport(url)
         try:
             arm = cls.on(transport, return_delay=return_delay, retries=retries,
-                         latency_s=latency_s, stiffness=stiffness)
+                         latency_s=latency_s, stiffness=stiffness, watchdog_ms=watchdog_ms)
             arm.watch(view)
             return arm
         except BaseException:
@@ -231,7 +249,8 @@ class Arm:
     @classmethod
     def on(cls, transport: Transport, *, return_delay: int | None = FAST_RETURN_DELAY,
            retries: int = 2, latency_s: float | None = None,
-           stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> Arm:
+           stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
+           watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """As :meth:`open`, on a transport already open (e.g. an in-process emulator's
         ``Emulator.transport("arm")``); closing the arm closes it."""
         bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
@@ -239,6 +258,8 @@ class Arm:
         arm = cls(bus, discover(bus, stiffness))
         if return_delay is not None:
             arm.set_return_delay(return_delay)
+        if watchdog_ms is not None:
+            arm.set_watchdog(watchdog_ms)
         arm.read_goals()
         return arm
 
@@ -284,6 +305,27 @@ class Arm:
         for j in self.joints:
             self.bus.set_return_delay(j.dxl_id, units)
         self.return_delay = units
+
+    def set_watchdog(self, timeout_ms: int) -> None:
+        """Set the stepper nodes' command watchdog (``watchdog_timeout``, ms, 0 = off; RAM,
+        back to its default at power-up) on those whose firmware has it (the RX-64s have
+        none).  A node that hears nothing from the host for that long while it moves stops
+        and holds (StepperFlag.WATCHDOG; nothing latched); every :meth:`cycle` feeds it, so
+        a host that cycles (a move, a controller, a recording) is never stopped, and a
+        joint at rest is left alone however long the host is idle.  A host that was late
+        (a cycle more than the timeout after the last) finds the node stopped
+        (``StepperState.watchdog``); the cycle after the one that saw it sends that joint the
+        goal this arm last sent it again (a joint it has sent a goal: a program that only
+        reads changes nothing), so a loop that sends a goal once and then only reads
+        (homing's search) goes on."""
+        reg = _S["watchdog_timeout"]
+        low, high = reg.minimum or 0, reg.maximum or 0
+        if not low <= timeout_ms <= high:
+            raise UsageError(f"watchdog timeout {timeout_ms} outside {low}..{high} ms")
+        nodes = {j.dxl_id: reg.encode(timeout_ms) for j in self.steppers
+                 if j.firmware_version >= STEPPER_WATCHDOG_FIRMWARE}
+        if nodes:
+            self.bus.sync_write(reg.address, reg.size, nodes)
 
     def read_goals(self) -> None:
         """Learn each stepper node's goal (``command_goal``, 1/16 counts) with one
@@ -370,6 +412,12 @@ class Arm:
                     stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
             else:
                 servo[j.dxl_id] = c
+        for joint in self._watchdog_stopped & self._goals_sent:
+            j = self.joints[joint]
+            if j.dxl_id not in stepper_goal and torque.get(j.dxl_id) != b"\x00":
+                if offsets is None:
+                    offsets = self.deflection_offsets()
+                stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
         packets = []
         resync = self._resyncs(torque)
         if resync:  # the command block (offsets), then the re-sync, then the torque
@@ -378,9 +426,7 @@ class Arm:
             for joint in resync:
                 j = self.joints[joint]
                 if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
-                    stepper_goal[j.dxl_id] = (
-                        _GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
-                        + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
+                    stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
             packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
             stepper_goal = {}
             packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
@@ -394,6 +440,12 @@ class Arm:
         if servo:
             packets.append(self._servo_goals(servo))
         return packets
+
+    def _goal_entry(self, joint: int, offsets: list[int]) -> bytes:
+        """A stepper's command block holding the goal this arm last sent it and the
+        coupling offset now."""
+        return (_GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
+                + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
 
     def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
         """The stepper joints that ``torque`` turns on after this arm turned them off and
@@ -440,6 +492,7 @@ class Arm:
         self.cycles += 1
         for c in commands:  # the nodes took the goals: the state reports them
             if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
+                self._goals_sent.add(c.joint)
                 self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
                                                / GOAL_FINE_PER_COUNT)
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
@@ -490,6 +543,8 @@ class Arm:
                 velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
                 temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
         self.stepper_counts = counts
+        self._watchdog_stopped = {i for i, s in enumerate(steppers)
+                                  if s.flags & StepperFlag.WATCHDOG}
         raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
         return ArmState(t, tuple(steppers), tuple(servos), raw)
 

@@ -360,7 +360,7 @@ class JointController:
 
     def _count_stalls(self, joints: list[int], t: float) -> None:
         """Note a STALLED latch of each of ``joints`` at ``t`` (s); raise
-        :class:`~host.errors.StallError` (torque left off) for a joint that latched more
+        :class:`~host.errors.StallError` (the node holds it, latched) for a joint that latched more
         than :data:`STALL_RETRIES` times within :data:`STALL_WINDOW_S`."""
         for joint in joints:
             recent = [u for u in self._stalls.get(joint, []) if t - u < STALL_WINDOW_S] + [t]
@@ -370,8 +370,9 @@ class JointController:
                 raise StallError(
                     f"{name} latched STALLED {len(recent)} times within {STALL_WINDOW_S:g} s "
                     f"although the controller re-enabled it: something holds the joint or its "
-                    f"load is more than its stepper holds; its torque is left off (clear the "
-                    f"obstruction or lighten the load, then Arm.clear_errors() and torque on)",
+                    f"load is more than its stepper holds; its node holds it where it "
+                    f"stopped (clear the obstruction or lighten the load, then "
+                    f"Arm.clear_errors())",
                     joint=name)
 
     def start(self) -> ArmState:

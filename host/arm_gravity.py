@@ -24,7 +24,7 @@ feels ``τ_j − Σ_i C[i][j]·τ_i``.  At rest that balances gravity, ``(I − 
 springs carry more than the holding torques, the shoulder J2 most (+0.18 × the elbow's
 spring torque).  This is what the nodes' stall latch sees.
 
-**Stall limit** (:func:`stall_torques`): the node latches STALLED (torque off) when
+**Stall limit** (:func:`stall_torques`): the node latches STALLED (and stops, holding its motor) when
 ``|deflection|`` exceeds its ``deflection_limit`` register (150 counts by default,
 :data:`protocol.control_tables.STEPPER_TABLE`): ``k · 150 · 2π/10000`` N·m, 8.1 N·m at the
 elbow.  A static torque near it leaves no room for the motion's own dynamics.

@@ -157,7 +157,7 @@ def search_time(plans: Sequence[Sequence[float]], speed: float) -> float:
 def _check_search(arm: Arm, state: ArmState, found: Sequence[bool], start: Sequence[float],
                   speed: float, late: bool) -> None:
     """Raise :class:`~host.errors.HomingError` for a joint still searching that its node
-    stopped (a latched STALLED or hardware error: its torque is off) or, once ``late``, that
+    stopped (a latched STALLED, held where it stopped, or a hardware error) or, once ``late``, that
     has not found its index in the time the search takes; the others are sent back where
     they started."""
     stopped = [i for i, s in enumerate(state.steppers) if not found[i]
@@ -173,7 +173,7 @@ def _check_search(arm: Arm, state: ArmState, found: Sequence[bool], start: Seque
         raise HomingError(
             f"{', '.join(names)}: the node stopped the joint during the search "
             f"({'; '.join(f'{k}: {v}' for k, v in flags.items())}: it was held or "
-            "over-deflected, and its torque is off); check that it moves freely, clear "
+            "over-deflected, and it holds where it stopped); check that it moves freely, clear "
             "the latch (Arm.clear_errors(), armctl clear) and home again", joint=names[0])
     names = [JOINT_NAMES[i] for i, ok in enumerate(found) if not ok]
     raise HomingError(
@@ -190,7 +190,7 @@ def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_ST
     cycle; a search target counts as reached when the node stopped with its motor within
     ``tolerance`` (rad) of it.  Raises :class:`~host.errors.HomingError` naming the first
     joint whose index was not found within its range, that its node stopped (a latched
-    STALLED: torque off) or that did not get through its search in :func:`search_time`."""
+    STALLED: held) or that did not get through its search in :func:`search_time`."""
     if not speed > 0:
         raise UsageError(f"homing speed {speed} must be > 0 rad/s")
     arm.calibration = None

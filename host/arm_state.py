@@ -164,6 +164,12 @@ class StepperState:
         """A move towards the goal is in progress."""
         return bool(self.flags & StepperFlag.MOVING)
 
+    @property
+    def watchdog(self) -> bool:
+        """The node's command watchdog stopped its move (no instruction from the host
+        within ``watchdog_timeout``); it holds there until the next goal."""
+        return bool(self.flags & StepperFlag.WATCHDOG)
+
 
 @dataclass(frozen=True)
 class ServoState:
@@ -231,6 +237,8 @@ class ArmState:
             "torques": self.torques,
             "slip": self.slip,
             "stalled": [s.stalled for s in self.steppers],
+            "moving": [s.moving for s in self.steppers],
+            "watchdog": [s.watchdog for s in self.steppers],
             "deflection_counts": [s.deflection for s in self.steppers],
             "step_counts": [s.step_count for s in self.steppers],
             "servo_load": [s.load for s in self.servos],

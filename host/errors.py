@@ -78,8 +78,8 @@ class RecordingError(HostError, OSError):
 
 class StallError(HostError):
     """A stepper joint kept latching STALLED however often the controller re-enabled it:
-    something holds it, or its load is more than its stepper holds.  Its torque is left off
-    (the node turned it off).  ``joint`` names it (``"J1"`` … ``"J4"``)."""
+    something holds it, or its load is more than its stepper holds.  The node holds it where
+    it stopped (torque on, latched).  ``joint`` names it (``"J1"`` … ``"J4"``)."""
 
     def __init__(self, message: str, *, joint: str) -> None:
         super().__init__(message)

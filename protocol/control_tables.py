@@ -312,6 +312,7 @@ class StepperFlag(IntFlag):
     INDEX_SEEN = 0x04  # the joint encoder's index pulse has been latched
     STALLED = 0x08  # |deflection| exceeded deflection_limit: over-deflection/stall (latched; not while the host has the coils off)
     HARDWARE_ERROR = 0x10  # hardware_error_status is not 0
+    WATCHDOG = 0x20  # the command watchdog stopped a move: no instruction within watchdog_timeout (until the next goal; not an alarm)
 
 
 class StepperClear(IntFlag):
@@ -334,8 +335,21 @@ STEPPER_MODEL_NUMBER = 0x5E50
 STEPPER_CYCLE_BLOCK_FIRMWARE = 2
 #: The first stepper node firmware version that honours ``clear_flags`` RESYNC_ROTOR.
 STEPPER_ROTOR_RESYNC_FIRMWARE = 3
+#: The first stepper node firmware version with the command watchdog (``watchdog_timeout``,
+#: StepperFlag.WATCHDOG).
+STEPPER_WATCHDOG_FIRMWARE = 4
 #: The stepper node's firmware version.
-STEPPER_FIRMWARE_VERSION = STEPPER_ROTOR_RESYNC_FIRMWARE
+STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_FIRMWARE
+#: The stepper node's factory ``alarm_shutdown``: OVERHEATING only.  A STALLED latch (the
+#: OVERLOAD bit) stops the node's stepping and holds its motor, torque on, instead of cutting
+#: the coils: a gravity-loaded joint that lost its torque falls, and its swing overloads the
+#: joints it hangs from, which then latch and fall too (one latch dropped the whole arm).
+#: A host that wants the coils cut on OVERLOAD writes 0x24 (as the RX-64's default).
+STEPPER_ALARM_SHUTDOWN_DEFAULT: Final = int(ErrorBit.OVERHEATING)
+#: ``watchdog_timeout`` at power-up (ms): on, so a node stops a move by itself whatever host
+#: started it; long enough for a stock dynamixel-sdk program that polls while it waits
+#: (docs/decisions/watchdog-default.md).
+STEPPER_WATCHDOG_DEFAULT_MS: Final = 500
 _COUNTS = "joint encoder counts (0.036 deg)"
 #: ``command_goal`` units per joint encoder count: a goal finer than a count, so a host can
 #: command single microsteps (J1: 1.2 microsteps per count at 1/10 stepping).
@@ -363,6 +377,19 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: element's by (the routes' coupling, −C·Δq in counts): SLIP and STALLED compare
 #: |deflection − deflection_offset| with their thresholds; ``deflection`` itself stays raw.  The goal is not in it: the host knows what it wrote.  Nodes report
 #: firmware_version >= :data:`STEPPER_CYCLE_BLOCK_FIRMWARE` when they have it.
+#: A STALLED latch (|deflection − deflection_offset| > ``deflection_limit``) stops the step
+#: generator at once and holds the motor where it stands (the goal registers say where),
+#: torque on at ``holding_current``; the node does not step again until the host clears STALL
+#: (``clear_flags``), which leaves it holding there until the next goal.  Its neighbours are
+#: not affected.
+#: Address 98 is the *command watchdog*: ``watchdog_timeout`` (ms, 0 = off).  When no
+#: instruction addressed to the node (PING, READ, WRITE, REG_WRITE, ACTION, a SYNC_WRITE
+#: with an entry for it, a BULK_READ naming it; broadcasts included) has arrived within it
+#: while the node is stepping, the node stops: it brakes at ``acceleration_limit`` and holds
+#: its motor where it stopped (the goal registers say where), torque on, nothing latched, and
+#: sets StepperFlag.WATCHDOG until the next goal (``goal_position`` or ``command_goal``) moves
+#: it again.  Nodes report firmware_version >= :data:`STEPPER_WATCHDOG_FIRMWARE` when they
+#: have it.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
 #: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
@@ -385,7 +412,9 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(14, 2, "RW", 2000, "max_current", "mA, cap on run/holding current", 0, 3000),
     _eeprom(16, 1, "RW", 2, "status_return_level", "0 ping only, 1 reads, 2 all", 0, 2),
     _eeprom(17, 1, "RW", 36, "alarm_led", _ALARM, 0, 127),
-    _eeprom(18, 1, "RW", 36, "alarm_shutdown", _ALARM + "; torque off on these", 0, 127),
+    _eeprom(18, 1, "RW", STEPPER_ALARM_SHUTDOWN_DEFAULT, "alarm_shutdown",
+            _ALARM + "; torque off on these (OVERLOAD: STALLED holds instead, see above)",
+            0, 127),
     _eeprom(20, 2, "R", ARM_ENCODER_COUNTS_PER_REV, "encoder_resolution",
             "joint encoder counts per joint rev"),
     _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
@@ -431,6 +460,10 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _ram(96, 2, "RW", 0, "deflection_offset",
          "counts the deflection is expected off the elastic element's (host: -C*dq)",
          signed=True),
+    # the command watchdog (see above)
+    _ram(98, 2, "RW", STEPPER_WATCHDOG_DEFAULT_MS, "watchdog_timeout",
+         "ms without an instruction to the node after which a move stops and holds; 0 = off",
+         0, 60_000),
 ])
 
 #: The stepper node's command block: its first and last register (see :data:`STEPPER_TABLE`).

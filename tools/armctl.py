@@ -345,7 +345,8 @@ def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     arm.clear_errors()
     state = arm.state()
     text = ("no alarm was latched" if not latched else
-            f"cleared {', '.join(latched)}; their torque is off (armctl torque on)")
+            f"cleared {', '.join(latched)}; a stepper holds where it stopped, an RX-64's "
+            "torque is off (armctl torque on)")
     _print(out, args.json, {"cleared": not state.errors, "latched": latched,
                             **state.as_dict()},
            text if not state.errors else "still latched: " + "; ".join(

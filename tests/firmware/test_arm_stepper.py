@@ -171,7 +171,9 @@ def test_slip_and_stall_latch_until_cleared(node):
     flags = read(sched, hal, "status_flags")
     assert flags & StepperFlag.SLIP and flags & StepperFlag.STALLED
     assert status_error(sched, hal) & ErrorBit.OVERLOAD
-    assert read(sched, hal, "torque_enable") == 0  # overload is in alarm_shutdown (36)
+    # STALLED holds (not in the factory alarm_shutdown): torque on, holding current, no steps
+    assert read(sched, hal, "torque_enable") == 1
+    assert hal.stepper().current == 2000 and hal.stepper().rate == 0.0
     hal.encoder().value = 0
     sched.run_for(5_000)
     assert read(sched, hal, "status_flags") & StepperFlag.SLIP  # latched
@@ -348,3 +350,74 @@ def test_step_rate_never_exceeds_the_controllers_maximum(node):
         rates.append(hal.stepper().rate)
     assert max(rates) == pytest.approx(STEPPER_MAX_STEP_RATE)
     assert write(sched, hal, "velocity_limit", STEPPER_VELOCITY_LIMIT_MAX + 1) != 0
+
+
+def test_a_stall_mid_move_stops_and_holds_the_motor_until_cleared(node):
+    """A STALLED latch stops the step generator at once and holds the motor where it stands
+    (torque on); goals do not move it until the host clears STALL, and the clear itself
+    starts no move."""
+    sched, hal, app = node
+    write(sched, hal, "slip_threshold", 65535)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 3000)
+    sched.run_for(150_000)  # about 56 counts on, the encoder left behind (deflection < 150)
+    stepper = hal.stepper()
+    assert stepper.rate > 0
+    hal.encoder().value = round(stepper.step_count() / K) - 200  # 200 > deflection_limit 150
+    sched.run_for(2_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    held = stepper.step_count()
+    assert stepper.rate == 0.0 and stepper.current == 2000
+    assert read(sched, hal, "torque_enable") == 1
+    assert read(sched, hal, "goal_position") == round(held / K)
+    write(sched, hal, "goal_position", 3000)  # ignored while latched
+    sched.run_for(200_000)
+    assert stepper.step_count() == held
+    hal.encoder().value = round(held / K)
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    sched.run_for(200_000)
+    assert stepper.step_count() == held  # cleared: still held
+    assert not read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "goal_position", 3000)
+    sched.run_for(50_000)
+    assert stepper.rate > 0  # the next goal moves it
+
+
+def test_overload_in_alarm_shutdown_cuts_the_coils_as_before(node):
+    sched, hal, _ = node
+    write(sched, hal, "alarm_shutdown", int(ErrorBit.OVERLOAD | ErrorBit.OVERHEATING))
+    write(sched, hal, "torque_enable", 1)
+    hal.encoder().value = 200
+    sched.run_for(2_000)
+    assert read(sched, hal, "torque_enable") == 0
+    assert hal.stepper().current == 0
+
+
+def test_cleared_against_a_stop_it_backs_off_and_relatches_only_if_pushed_further(node):
+    """A joint against its stop: STALLED holds the spring wound; a clear does not latch
+    again at once, a goal back unwinds it, and winding further than a quarter of the limit
+    past where it was latches again."""
+    sched, hal, app = node
+    write(sched, hal, "slip_threshold", 65535)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 400)  # the encoder stays at 0: the joint is blocked
+    sched.run_for(600_000)
+    stepper = hal.stepper()
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    wound = round(stepper.step_count() / K)
+    assert 150 < wound < 160 and stepper.rate == 0.0
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    sched.run_for(100_000)
+    assert not read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "goal_position", 0)  # back off: unwinds the spring
+    sched.run_for(600_000)
+    assert round(stepper.step_count() / K) == 0
+    assert not read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "goal_position", 400)  # into the stop again: latches at the limit
+    sched.run_for(600_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    write(sched, hal, "clear_flags", StepperClear.STALL)
+    write(sched, hal, "goal_position", 400)  # further in: latches past wound + 150 // 4
+    sched.run_for(600_000)
+    assert read(sched, hal, "status_flags") & StepperFlag.STALLED
+    assert wound < round(stepper.step_count() / K) <= wound + 150 // 4 + 2

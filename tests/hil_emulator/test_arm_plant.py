@@ -86,6 +86,7 @@ def make_bench(seed: int = 0, params: ArmParams | None = None,
         hal, app = make_arm_node(scheduler, BoardType.ARM_STEPPER, i + 1)
         assert isinstance(app, StepperNodeApp)
         app.set("gear_reduction_x100", round(reduction * 100))
+        app.set("watchdog_timeout", 0)  # no host here: the tests set the registers
         stepper_hals.append(hal)
         steppers.append(app)
     servo_hals: list[VirtualHal] = []

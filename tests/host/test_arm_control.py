@@ -242,7 +242,8 @@ def test_the_controller_settles_within_its_deadband(arm: Arm) -> None:
 def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
     """A hand holding the forearm while the elbow is driven: the node latches STALLED, the
     controller clears and re-enables it a few times, then raises StallError naming J4 and
-    leaves its torque off instead of driving it again and again."""
+    leaves it held (the node stops and holds a STALLED joint) instead of driving it again
+    and again."""
     with Arm.open("emu://arm/arm?name=test_stall_gives_up") as held:
         plant = held.transport.emulator.arm_plant  # type: ignore[attr-defined]
         try:
@@ -259,7 +260,7 @@ def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
             assert log.stall_events.count("J4") == STALL_RETRIES + 1
             assert held.transport.now() - t0 < 10.0  # gave up long before the run's end
             held.transport.sleep(0.1)
-            assert held.state().steppers[3].stalled  # latched, and left so: torque off
+            assert held.state().steppers[3].stalled  # latched, and left so: held
         finally:
             plant.push(3, 0.0)
             forget_shared_emulators()

@@ -19,6 +19,7 @@ from protocol.control_tables import (
     STEPPER_MODEL_NUMBER,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
+    STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     ControlTable,
     Register,
@@ -273,7 +274,8 @@ def test_stepper_mirrors_the_dynamixel_layout() -> None:
 
 
 def test_stepper_flag_bits() -> None:
-    assert [int(f) for f in StepperFlag] == [0x01, 0x02, 0x04, 0x08, 0x10]
+    assert [int(f) for f in StepperFlag] == [0x01, 0x02, 0x04, 0x08, 0x10, 0x20]
+    assert StepperFlag.WATCHDOG == 0x20
     assert StepperFlag.MOVING == 1 and StepperFlag.SLIP == 2
     assert StepperFlag.INDEX_SEEN == 4 and StepperFlag.STALLED == 8
     image = STEPPER_TABLE.defaults()
@@ -329,8 +331,10 @@ def test_stepper_cycle_block_addresses() -> None:
         ("cycle_status_flags", 88, 1, "R", False),
         ("command_goal", 92, 4, "RW", True),
         ("deflection_offset", 96, 2, "RW", True),
+        ("watchdog_timeout", 98, 2, "RW", False),
     ]
-    assert STEPPER_TABLE.size == 98
+    assert STEPPER_TABLE.size == 100
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_ROTOR_RESYNC_FIRMWARE == 3
+    assert STEPPER_ROTOR_RESYNC_FIRMWARE == 3
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_FIRMWARE == 4

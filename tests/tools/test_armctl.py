@@ -13,6 +13,8 @@ import pytest
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
 from host.errors import HomingError, TransportError, UsageError
+from protocol.control_tables import STEPPER_TABLE
+from protocol.dynamixel import ErrorBit
 from tools import armctl
 
 URL = "emu://arm/arm?name=test_armctl"
@@ -80,6 +82,9 @@ def test_a_goal_outside_a_joints_range_is_refused_naming_it(
 def test_a_joint_its_node_turned_off_is_named_by_torque_on_and_cleared_by_clear(
         arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
     plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    shutdown = STEPPER_TABLE["alarm_shutdown"]
+    # a node told to cut its coils on OVERLOAD (the factory setting holds a STALLED joint)
+    arm.bus.write(4, shutdown.address, bytes([int(ErrorBit.OVERLOAD | ErrorBit.OVERHEATING)]))
     arm.torque(True, hold=True)
     plant.push(3, -25.0)  # a hand holding the forearm against the elbow's drive
     arm.cycle([arm.make_position(3, arm.state().joints[3] + 0.6)])
@@ -97,6 +102,7 @@ def test_a_joint_its_node_turned_off_is_named_by_torque_on_and_cleared_by_clear(
     assert out.getvalue() == "no alarm was latched\n"
     code, status = run("torque", "on")
     assert code == armctl.EXIT_OK and status["enabled"] == [True] * 7
+    arm.bus.write(4, shutdown.address, bytes([shutdown.default]))
 
 
 def test_homing_stops_with_the_joint_named_when_its_node_stops_it(
@@ -248,3 +254,22 @@ def test_a_file_that_holds_no_waypoints_says_so(arm: Arm, tmp_path: Path,
     assert capsys.readouterr().err.strip() == "armctl: error: /dev/null holds no waypoints"
     assert run("waypoints", "play", str(tmp_path), "--unhomed")[0] == armctl.EXIT_USAGE
     assert "is a directory, not a waypoint file" in capsys.readouterr().err
+
+
+def test_a_stalled_joint_is_held_and_clear_says_so(arm: Arm) -> None:
+    """With the factory alarm_shutdown a STALLED node stops and holds its joint, torque on:
+    the forearm does not fall, and clear leaves it held."""
+    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    arm.torque(True, hold=True)
+    plant.push(3, -25.0)
+    arm.cycle([arm.make_position(3, arm.state().joints[3] + 0.6)])
+    arm.transport.sleep(2.0)
+    state = arm.state()
+    assert state.steppers[3].stalled and arm.torque_enabled() == (True,) * 7
+    plant.push(3, 0.0)
+    arm.transport.sleep(0.5)
+    held = arm.state().joints[3]
+    code, status = run("clear")
+    assert code == armctl.EXIT_OK and "J4" in status["latched"]
+    arm.transport.sleep(1.0)
+    assert abs(arm.state().joints[3] - held) < 0.03  # cleared: still where it stopped

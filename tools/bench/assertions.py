@@ -6,6 +6,7 @@ measured (latencies in ms, counts) whether it passed or not.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -220,10 +221,63 @@ def node_state(record: RunRecord, node: str, state: str) -> Verdict:
     return actual == state, {"state": actual}, f"{node} is {actual}"
 
 
+def arm_held(record: RunRecord, action: str, within_ms: float, max_fall_deg: float,
+             max_drive_on_deg: float) -> Verdict:
+    """After the host of ``action`` (``arm_move_vanish``) went silent, on the plant's truth:
+    every stepper motor stopped within ``within_ms`` and stayed so, no joint went back from
+    where it was (or, not moving, strayed either way) more than ``max_fall_deg``, no stepper
+    joint drove on more than ``max_drive_on_deg`` (a servo: its goal), nothing latched
+    (SLIP/STALLED, a plant slip) and every stepper's torque stayed on, to the run's end."""
+    a = record.actions.get(action)
+    if a is None or not a.get("ok"):
+        return False, {}, f"action {action!r} {'failed' if a else 'did not run'}"
+    t0, goals = a["result"]["vanished_s"], a["result"]["goals"]
+    rows = [r for r in record.truth if r["t"] >= t0 and "arm_step_rates" in r]
+    if len(rows) < 2:
+        return False, {"samples": len(rows)}, "no plant samples after the host vanished"
+    q0 = rows[0]["arm_q"]
+    moving = [0 if abs(g - q) < 0.01 else (1 if g > q else -1) for g, q in zip(goals, q0, strict=True)]
+    still = [r["t"] for r in rows if any(r["arm_step_rates"])]
+    rest_ms = round(((still[-1] if still else t0) - t0) * 1e3, 1)
+    fall = [0.0] * len(q0)
+    on = [0.0] * len(q0)
+    for r in rows:
+        for j, (q, q_0) in enumerate(zip(r["arm_q"], q0, strict=True)):
+            d = math.degrees(q - q_0) * (moving[j] or 1)
+            fall[j] = max(fall[j], -d if moving[j] else abs(d))
+            on[j] = max(on[j], d if moving[j] else 0.0)
+    drive_limits = [max_drive_on_deg if j < len(rows[0]["arm_step_rates"])
+                    else math.degrees(abs(goals[j] - q0[j])) + max_fall_deg
+                    for j in range(len(q0))]
+    slips = [b - a_ for a_, b in zip(rows[0]["arm_slips"], rows[-1]["arm_slips"], strict=True)]
+    latched = [j for j in range(len(rows[-1]["arm_latched"]))
+               if any(r["arm_latched"][j] for r in rows)]
+    torque_off = [j for j in range(len(rows[-1]["arm_torque_on"]))
+                  if not all(r["arm_torque_on"][j] for r in rows)]
+    measured = {"rest_ms": rest_ms, "fall_deg": [round(x, 2) for x in fall],
+                "drive_on_deg": [round(x, 2) for x in on], "plant_slips": slips,
+                "latched": [f"J{j + 1}" for j in latched],
+                "torque_off": [f"J{j + 1}" for j in torque_off]}
+    problems = []
+    if rest_ms > within_ms:
+        problems.append(f"motors still stepping {rest_ms} ms after the host vanished")
+    problems += [f"J{j + 1} fell {fall[j]:.2f}°" for j in range(len(q0))
+                 if fall[j] > max_fall_deg]
+    problems += [f"J{j + 1} drove on {on[j]:.2f}°" for j in range(len(q0))
+                 if on[j] > drive_limits[j]]
+    problems += [f"J{j + 1} latched" for j in latched]
+    problems += [f"J{j + 1} torque off" for j in torque_off]
+    problems += [f"J{j + 1} slipped" for j, n in enumerate(slips) if n]
+    if problems:
+        return False, measured, "; ".join(problems)
+    return True, measured, (f"held: motors still {rest_ms} ms after the host vanished, "
+                            f"worst fall {max(fall):.2f}°, nothing latched")
+
+
 CHECKS: dict[str, Callable[..., Verdict]] = {
     "action_ok": action_ok, "action_fails": action_fails, "finger_event": finger_event,
     "fingers_present": fingers_present, "no_unsent_frames": no_unsent_frames,
     "flash_verified": flash_verified, "arm_flag": arm_flag, "servo_error": servo_error,
     "fault_applied": fault_applied, "node_state": node_state,
-    "arm_torque_drift": arm_torque_drift,
+    "arm_torque_drift": arm_torque_drift, "arm_held": arm_held,
 }

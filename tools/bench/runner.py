@@ -22,7 +22,8 @@ from typing import Any, Final
 from hil_emulator.emulator import Emulator
 from hil_emulator.faults import targets
 from host.errors import HostError
-from protocol.topology import FINGERS
+from protocol.control_tables import StepperFlag
+from protocol.topology import FINGERS, STEPPER_IDS
 from tools.bench.assertions import judge
 from tools.bench.scenario import Scenario, Step, parse_scenario
 
@@ -75,7 +76,20 @@ class Bench:
         if emu.arm_plant is not None:
             row["arm_q"] = [round(float(q), 5) for q in emu.arm_plant.joint_angles()]
             row["arm_slips"] = [int(n) for n in emu.arm_plant.slips()]
+            row.update(self._stepper_truth())
         self.record.truth.append(row)
+
+    def _stepper_truth(self) -> dict[str, Any]:
+        """The stepper nodes as they are: each motor's step rate (microsteps/s), its
+        SLIP/STALLED latches and its torque enable (``arm_held`` judges them)."""
+        arm = self.emu.arm
+        if arm is None:
+            return {}
+        apps = [arm.app(dxl_id) for dxl_id in STEPPER_IDS]
+        latches = int(StepperFlag.SLIP | StepperFlag.STALLED)
+        return {"arm_step_rates": [round(h.stepper().rate, 3) for h in arm.stepper_hals],
+                "arm_latched": [int(a.get("status_flags") & latches) for a in apps],
+                "arm_torque_on": [a.get("torque_enable") for a in apps]}
 
     # ------------------------------------------------------------------ host objects
     @property
@@ -268,6 +282,24 @@ class Bench:
 
     def _do_arm_clear_errors(self) -> None:
         self.arm.clear_errors()
+
+    def _do_arm_move_vanish(self, angles: list[float], duration: float, after_s: float
+                            ) -> dict[str, Any]:
+        """Start the move :meth:`host.arm.Arm.move` makes (speeds for ``duration``, goals
+        every 10 ms), then stop sending anything ``after_s`` into it, as a host killed
+        mid-move does; the result says when (``vanished_s``, from the plan's start)."""
+        from host.arm import MOVE_MIN_SPEED
+
+        arm, clock = self.arm, self.arm.transport
+        now = arm.state().joints
+        speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
+                  for a, b in zip(angles, now, strict=True)]
+        arm.set_positions(angles, speeds)
+        end = clock.now() + after_s
+        while clock.now() < end:
+            clock.sleep(0.01)
+            arm.set_positions(angles)
+        return {"vanished_s": round(self.now_s(), 6), "goals": list(angles)}
 
 
 def run_scenario(raw: dict[str, Any], source: str = "<scenario>",

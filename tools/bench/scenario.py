@@ -36,6 +36,7 @@ ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "arm_move": (("angles",), {"duration": 1.0, "timeout": 3.0}),
     "arm_stream": (("seconds",), {"rate_hz": 100.0}),
     "arm_clear_errors": ((), {}),
+    "arm_move_vanish": (("angles",), {"duration": 6.0, "after_s": 1.5}),
 }
 #: Each assertion's keys: required ones, then optional ones with defaults.
 ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
@@ -51,11 +52,14 @@ ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "node_state": (("node", "state"), {}),
     "arm_torque_drift": (("joint", "after"), {"min_ratio": 1.5, "window_ms": 500.0,
                                               "tolerance": 0.25}),
+    "arm_held": (("action",), {"within_ms": 500.0, "max_fall_deg": 2.0,
+                               "max_drive_on_deg": 8.0}),
 }
 #: The actions that go through the palm (need a configuration with the hand) and those
 #: that go to the arm's line; the configurations that have each.
 HAND_ACTIONS: Final = ("power", "poll", "stream", "move", "grasp", "home", "flash")
-ARM_ACTIONS: Final = ("arm_open", "arm_torque", "arm_move", "arm_stream", "arm_clear_errors")
+ARM_ACTIONS: Final = ("arm_open", "arm_torque", "arm_move", "arm_stream", "arm_clear_errors",
+                      "arm_move_vanish")
 HAND_CONFIGS: Final = ("full", "hand")
 ARM_CONFIGS: Final = ("full", "arm")
 #: The boards of a finger, as ``ping`` names them (``finger<k>.<board>``).

@@ -1,0 +1,137 @@
+"""A host that vanishes mid-move leaves a held arm: the stepper nodes' command watchdog, as
+the host library sets it, on the full configuration in process (simulation clock), judged
+on the plant's ground truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from host.arm import HOST_WATCHDOG_MS, MOVE_MIN_SPEED, Arm
+from protocol.control_tables import StepperFlag
+
+GOALS = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]  # the 6 s move of armctl's example
+DURATION_S = 6.0
+FALL_LIMIT = math.radians(2.0)
+#: Driving on: the watchdog's time at the move's speed, the braking, the elastic overshoot.
+DRIVE_ON_LIMIT = math.radians(8.0)
+
+
+def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.ndarray]:
+    """Open the arm (torque on, held), start the 6 s move as :meth:`Arm.move` runs it,
+    stop cycling after ``after_s`` (the host killed), then watch the plant for 2 s."""
+    with Arm.open(f"emu://full/arm?ready=0&name=watchdog-{watchdog_ms}-{after_s}",
+                  watchdog_ms=watchdog_ms) as arm:
+        emu = arm.transport.emulator
+        state = arm.torque(True, hold=True)
+        speeds = [max(abs(a - b) / DURATION_S, MOVE_MIN_SPEED)
+                  for a, b in zip(GOALS, state.joints, strict=True)]
+        arm.set_positions(GOALS, speeds)
+        clock = arm.transport
+        end = clock.now() + after_s
+        while clock.now() < end:
+            clock.sleep(0.01)
+            arm.set_positions(GOALS)
+        plant = emu.arm_plant
+        apps = [emu.arm.app(i) for i in range(1, 5)]
+        steppers = [hal.stepper() for hal in emu.arm.stepper_hals]
+        q0 = plant.joint_angles().copy()
+        q, rates = [], []
+        for _ in range(2000):  # 2 s, one sample a millisecond
+            emu.step(1_000)
+            q.append(plant.joint_angles().copy())
+            rates.append([s.rate for s in steppers])
+        return {"q0": q0, "q": np.array(q), "rates": np.array(rates),
+                "flags": np.array([a.get("status_flags") for a in apps]),
+                "torque": np.array([a.get("torque_enable") for a in apps]),
+                "slips": plant.slips().copy(), "goal_flags": state.steppers[1].flags}
+
+
+@pytest.mark.parametrize("after_s", [0.7, 1.5])
+def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
+    run = vanish_mid_move(HOST_WATCHDOG_MS, after_s)
+    q0, q = run["q0"], run["q"]
+    moving = np.sign(np.round(np.array(GOALS) - q0, 2))  # J2, J4 rise, J6 turns; the rest stay
+    along = (q - q0) * np.where(moving == 0, 1, moving)
+    # the motors stop within 0.5 s of the host's last cycle and stay stopped
+    still = ~np.any(run["rates"] != 0.0, axis=1)
+    assert still[500:].all()
+    # no joint falls back more than 2° (nor, not moving, strays 2°); a stepper's driving on
+    # is bounded; the RX-64s (no watchdog, as their real firmware) go on to their goals
+    for j in range(7):
+        if moving[j] == 0:
+            assert np.abs(q[:, j] - q0[j]).max() <= FALL_LIMIT, f"J{j + 1}"
+            continue
+        assert along[:, j].min() >= -FALL_LIMIT, f"J{j + 1}"
+        limit = DRIVE_ON_LIMIT if j < 4 else abs(GOALS[j] - q0[j]) + FALL_LIMIT
+        assert along[:, j].max() <= limit, f"J{j + 1}"
+    # nothing latched, torque on; J2 and J4 (moving) say the watchdog stopped them
+    latches = int(StepperFlag.SLIP | StepperFlag.STALLED)
+    assert not any(int(f) & latches for f in run["flags"])
+    assert run["torque"].all()
+    assert not run["slips"].any()
+    assert run["flags"][1] & StepperFlag.WATCHDOG and run["flags"][3] & StepperFlag.WATCHDOG
+
+
+def test_without_the_watchdog_the_arm_drives_on():
+    """The same with the watchdog off (a host that sets 0): the arm drives on towards the
+    goal with the route-coupling offsets stale - what the watchdog is for."""
+    run = vanish_mid_move(0, 1.5)
+    assert (run["q"][-1, 1] - run["q0"][1]) > DRIVE_ON_LIMIT
+    assert run["rates"][-1, 1] != 0.0
+
+
+def test_an_idle_host_with_torque_on_is_not_disturbed():
+    """Torque on, then nothing for 3 s (a program waiting for its user): a joint at rest is
+    left alone - no WATCHDOG, no motion - and a move afterwards runs as usual."""
+    with Arm.open("emu://arm/arm?name=watchdog-idle") as arm:
+        emu = arm.transport.emulator
+        before = arm.torque(True, hold=True)
+        emu.step(3_000_000)
+        state = arm.state()
+        assert not any(s.watchdog for s in state.steppers)
+        assert np.allclose(state.joints, before.joints, atol=math.radians(0.2))
+        goals = list(state.joints)
+        goals[1] += 0.3
+        state, settled = arm.move(goals, duration=1.5)
+        assert settled and not any(s.watchdog for s in state.steppers)
+
+
+def test_a_late_host_that_sent_its_goal_once_is_resumed_by_the_next_cycle():
+    """A host that sends a goal once and then only reads (homing's search does) and is late
+    once by more than the watchdog's timeout: the node stops and holds, and the cycle after
+    the one that saw WATCHDOG sends this arm's goal again, so the move goes on."""
+    with Arm.open("emu://arm/arm?name=watchdog-late") as arm:
+        emu = arm.transport.emulator
+        state = arm.torque(True, hold=True)
+        goal = state.joints[1] + 0.4
+        arm.cycle([arm.make_position(1, goal, 0.2)])  # 2 s at 0.2 rad/s
+        for _ in range(50):
+            arm.transport.sleep(0.01)
+            state = arm.cycle()
+        emu.step(300_000)  # the host late by 0.3 s: the node stops
+        state = arm.cycle()
+        assert state.steppers[1].watchdog and not state.steppers[1].moving
+        stopped_at = state.steppers[1].motor_angle
+        for _ in range(300):
+            arm.transport.sleep(0.01)
+            state = arm.cycle()
+        assert not state.steppers[1].watchdog
+        assert state.steppers[1].motor_angle == pytest.approx(goal, abs=0.01)
+        assert state.steppers[1].motor_angle > stopped_at + 0.1
+
+
+def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
+    """After the host vanished, another program that only reads (armctl status) sees
+    WATCHDOG and changes nothing: only goals this arm sent are sent again."""
+    with Arm.open("emu://arm/arm?name=watchdog-reader") as arm:
+        emu = arm.transport.emulator
+        state = arm.torque(True, hold=True)
+        arm.cycle([arm.make_position(1, state.joints[1] + 0.4, 0.2)])
+        emu.step(500_000)  # gone mid-move
+    with Arm.on(emu.transport("arm")) as reader:
+        for _ in range(5):
+            state = reader.state()
+            assert state.steppers[1].watchdog
