@@ -1,0 +1,100 @@
+"""Stopping the arm where it is: what an interrupted, failed or alarmed motion leaves.
+
+:func:`hold` (``Arm.hold()``; ``with Arm.open(...) as arm:`` calls it when the block raises,
+Ctrl-C included) reads the arm and, in the next cycle, sets every joint whose torque is on
+to hold where it is:
+
+* a stepper node's goal := its motor's present angle (the node plans every goal as a stop:
+  a motor still turning brakes at its ``acceleration_limit`` and comes back to it).  Its
+  motor, not its joint: under load the joint sags off the motor by the spring's deflection,
+  and a goal at the joint angle would let the arm drop by that much.  The goal goes with
+  the coupling offset of the joints as they are now (``deflection_offset``, see
+  :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
+  not the belt and cable routes' coupling, with no host feeding goals any longer;
+* a servo's goal := its present angle.
+
+Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
+or the host did) is left alone and named.  Nothing is latched by holding.
+:func:`stop_for_alarms` is what a motion does when a node latches an alarm on the way: hold
+the rest, then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from host.arm_gate import describe_latches, latches
+from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
+from host.errors import JointAlarmError
+
+if TYPE_CHECKING:
+    from host.arm import Arm
+
+
+@dataclass(frozen=True)
+class Held:
+    """What :func:`hold` did: the ``state`` read before (the angles held), the ``joints``
+    set to hold there (names), and the joints left alone with why (``skipped``)."""
+
+    state: ArmState
+    joints: tuple[str, ...]
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        """One line: ``J1-J7 held where they were (torque on)``, naming the ones left out."""
+        if not self.joints:
+            text = "nothing held"
+        else:
+            angles = ", ".join(f"{n} {self.state.joints[JOINT_NAMES.index(n)]:+.3f}"
+                               for n in self.joints)
+            text = f"held where they were, torque on: {angles} rad"
+        if self.skipped:
+            text += "; " + "; ".join(f"{n}: {why}" for n, why in self.skipped.items())
+        return text
+
+
+def hold(arm: Arm) -> Held:
+    """Hold every joint whose torque is on where it is (see the module docs)."""
+    enabled = arm.torque_enabled()
+    state = arm.cycle()
+    found = latches(state)
+    commands: list[Command] = []
+    held: list[str] = []
+    skipped: dict[str, str] = {}
+    for i, name in enumerate(JOINT_NAMES):
+        if not enabled[i]:
+            why = describe_latches({name: found[name]}) if name in found else ""
+            skipped[name] = "torque off" + (f" ({why.removeprefix(name + ' ')})" if why else "")
+            continue
+        angle = state.motor_joints[i] if i < N_STEPPERS else state.joints[i]
+        commands.append(arm.make_position(i, angle))
+        held.append(name)
+    if commands:
+        arm.cycle(commands)
+    return Held(state, tuple(held), skipped)
+
+
+def new_latches(state: ArmState, before: Mapping[str, tuple[str, ...]]
+                ) -> dict[str, tuple[str, ...]]:
+    """The joints of ``state`` with latches or alarm bits they had not in ``before``
+    (:func:`~host.arm_gate.latches` of an earlier state)."""
+    return {k: v for k, v in latches(state).items() if not set(v) <= set(before.get(k, ()))}
+
+
+def stop_for_alarms(arm: Arm, state: ArmState, before: Mapping[str, tuple[str, ...]],
+                    what: str = "the move", ignore: Collection[str] = ()) -> None:
+    """If ``state`` shows a latch or alarm that ``before`` did not (on a joint not in
+    ``ignore``), hold the arm where it is and raise :class:`~host.errors.JointAlarmError`
+    naming the joint and the latch."""
+    found = {k: v for k, v in new_latches(state, before).items() if k not in ignore}
+    if not found:
+        return
+    held = hold(arm)
+    name = next(iter(found))
+    raise JointAlarmError(
+        f"{describe_latches(found)} during {what}; the motion stopped ({held.describe()}). "
+        f"A latched joint's node may have turned its torque off: check that {name} moves "
+        f"freely and nothing holds it (armctl status), then armctl clear and armctl "
+        f"torque on", joint=name, latches=found[name])
