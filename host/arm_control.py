@@ -677,7 +677,7 @@ def play_waypoints(arm: Arm, waypoints: Sequence[Waypoint], *, approach_speed: f
     control = controller or JointController(arm)
     state = control.state or control.start()
     first = np.asarray(waypoints[0].joints, dtype=float)
-    check_goals(first, state.joints, homed=arm.homed, what="at waypoint 1")
+    check_goals(first, state.joints, homed=arm.homed, what="goal (waypoint 1)")
     approach = timed_path([state.joints, first], approach_speed)
     lead = approach[-1].t
     t_first = waypoints[0].t
@@ -689,7 +689,8 @@ def play_waypoints(arm: Arm, waypoints: Sequence[Waypoint], *, approach_speed: f
         return "where the arm is" if k < extra else f"waypoint {k - extra + 1}"
 
     check_path([w.t for w in path], np.array([w.joints for w in path]), state.joints,
-               homed=arm.homed, label=label, slower="time_scale")
+               homed=arm.homed, label=label,
+               slower="a time scale (time_scale=, armctl waypoints play --time-scale) of")
     trajectory = Trajectory(path)
     return control.run(trajectory, trajectory.duration + settle_s, log)
 

@@ -26,7 +26,8 @@ naming the joint, raised before a single goal is sent:
   joint whose torque is off waits in its node, and the joint jumps there when the torque
   comes on; a joint its node turned off after an alarm is named with its latch;
 * **Cartesian targets** finite, orientations within ±2π (:func:`check_cartesian`); reach is
-  the IK's to judge (:func:`host.arm_control.choose_ik`).
+  the IK's to judge (:func:`host.arm_control.choose_ik`), but a target further than
+  :data:`REACH_M` from the base is refused at once.
 """
 
 from __future__ import annotations
@@ -42,8 +43,10 @@ from host.errors import LimitError
 from protocol.control_tables import StepperFlag
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
+    ARM_FLANGE_OFFSET_M,
     ARM_JOINT_ACCEL_LIMITS,
     ARM_JOINT_LIMITS,
+    ARM_JOINT_OFFSETS_M,
     ARM_JOINT_SPEED_LIMITS,
     RX64_RAD_PER_UNIT,
 )
@@ -57,6 +60,9 @@ HOLD_TOLERANCE_RAD: Final = 0.02
 START_TOLERANCE_RAD: Final = 0.05
 #: Largest orientation angle (rad) a Cartesian goal may give.
 MAX_RPY_RAD: Final = 2 * math.pi
+#: Farthest the flange can be from the arm's base frame origin (m): every link stretched.
+REACH_M: Final = float(sum(np.linalg.norm(o) for o in (*ARM_JOINT_OFFSETS_M,
+                                                      ARM_FLANGE_OFFSET_M)))
 #: The latches a stepper node reports in its flags (besides the status packet's alarm bits).
 STEPPER_LATCHES: Final = StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR
 _SPEED = np.array(ARM_JOINT_SPEED_LIMITS)
@@ -64,6 +70,9 @@ _SPEED = np.array(ARM_JOINT_SPEED_LIMITS)
 _RESOLUTION = np.array([2 * math.pi / ARM_ENCODER_COUNTS_PER_REV] * N_STEPPERS
                        + [RX64_RAD_PER_UNIT] * (N_JOINTS - N_STEPPERS))
 _ACCEL = np.array(ARM_JOINT_ACCEL_LIMITS)
+#: Up to this many times slower, a refused path's message says how much slower would do
+#: (beyond, the path has a jump in it, not a pace too fast).
+MAX_SLOWDOWN_HINT: Final = 20.0
 #: Slack (relative) on the speed and acceleration limits, for rounding in the caller's times.
 _SLACK: Final = 1e-6
 
@@ -182,7 +191,7 @@ def check_path(times: Sequence[float] | np.ndarray, points: Sequence[Sequence[fl
     """Refuse a timed joint path (``times`` s, ``points`` rad, n × 7) that any check of the
     module docs fails: every point finite and in range, the path starting at ``present``
     (rad) and no segment faster, no corner sharper than the joints' limits.  ``label(k)``
-    names point ``k`` in messages; ``slower`` (e.g. ``"--time-scale"``) names what the
+    names point ``k`` in messages; ``slower`` (e.g. ``"a time scale of"``) names what the
     caller offers to slow a path down, and the message says by how much."""
     t = np.asarray(times, dtype=float)
     q = np.asarray(points, dtype=float)
@@ -192,7 +201,7 @@ def check_path(times: Sequence[float] | np.ndarray, points: Sequence[Sequence[fl
     if np.any(np.diff(t) < 0):
         raise LimitError("path times must not decrease")
     for k, point in enumerate(q):
-        check_goals(point, present, homed=homed, what=f"at {label(k)}")
+        check_goals(point, present, homed=homed, what=f"goal ({label(k)})")
     off = np.abs(q[0] - np.asarray(present, dtype=float))
     j = int(np.argmax(off))
     if off[j] > START_TOLERANCE_RAD:
@@ -201,8 +210,8 @@ def check_path(times: Sequence[float] | np.ndarray, points: Sequence[Sequence[fl
     speeds, accels = path_rates(t, q, smooth=smooth)
     scale = slowdown(t, q, smooth=smooth)
     hint = ""
-    if slower and math.isfinite(scale):
-        hint = f"; play it at least {math.ceil(scale * 10) / 10:g} times slower ({slower})"
+    if slower and scale <= MAX_SLOWDOWN_HINT:
+        hint = f"; {slower} {math.ceil(scale * 10) / 10:g} or more plays it slowly enough"
     over = speeds / _SPEED
     if over.size and float(over.max()) > 1 + _SLACK:
         k, w = (int(x) for x in np.unravel_index(int(np.argmax(over)), over.shape))
@@ -272,12 +281,16 @@ def check_cartesian(xyz: Sequence[float] | np.ndarray,
     orientation angle beyond ±2π (a number that large means nothing as an angle)."""
     if len(xyz) != 3:
         raise LimitError("a flange target is x y z (m, base frame)")
-    check_finite(xyz, "(m)", ("x", "y", "z"))
+    check_finite(xyz, "coordinate", ("x", "y", "z"))
+    distance = math.hypot(*(float(v) for v in xyz))
+    if distance > REACH_M:
+        raise LimitError(f"{tuple(float(v) for v in xyz)} m is out of reach: {distance:.3g} m "
+                         f"from the arm's base, which no pose reaches beyond {REACH_M:.2f} m")
     if rpy is None:
         return
     if len(rpy) != 3:
         raise LimitError("an orientation is roll pitch yaw (rad)")
-    check_finite(rpy, "(rad)", ("roll", "pitch", "yaw"))
+    check_finite(rpy, "angle", ("roll", "pitch", "yaw"))
     for name, angle in zip(("roll", "pitch", "yaw"), rpy, strict=True):
         if abs(angle) > MAX_RPY_RAD:
             raise LimitError(f"{name} {angle:g} rad is not an orientation angle: give roll "

@@ -16,21 +16,26 @@ to hold where it is:
 Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
 or the host did) is left alone and named.  Nothing is latched by holding.
 :func:`stop_for_alarms` is what a motion does when a node latches an alarm on the way: hold
-the rest, then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
+the rest (re-sending the hold while the arm comes to rest, at most :data:`ALARM_SETTLE_S`),
+then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from host.arm_gate import describe_latches, latches
+from host.arm_rest import RestWatch
 from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
 from host.errors import JointAlarmError
 
 if TYPE_CHECKING:
     from host.arm import Arm
+
+#: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
+ALARM_SETTLE_S: Final = 3.0
 
 
 @dataclass(frozen=True)
@@ -55,8 +60,13 @@ class Held:
         return text
 
 
-def hold(arm: Arm) -> Held:
-    """Hold every joint whose torque is on where it is (see the module docs)."""
+def hold(arm: Arm, settle_s: float = 0.0, period: float = 0.01) -> Held:
+    """Hold every joint whose torque is on where it is (see the module docs).  With
+    ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
+    at rest (:class:`~host.arm_rest.RestWatch`) or that time has passed, each time with the
+    coupling offsets of the joints as they are by then: after an alarm a joint whose torque
+    is off may fall to its stop, turning the capstans of the joints after it through the
+    routes, which a goal sent only once would let the nodes read as deflection."""
     enabled = arm.torque_enabled()
     state = arm.cycle()
     found = latches(state)
@@ -72,7 +82,13 @@ def hold(arm: Arm) -> Held:
         commands.append(arm.make_position(i, angle))
         held.append(name)
     if commands:
-        arm.cycle(commands)
+        now = arm.cycle(commands)
+        clock = arm.transport
+        end = clock.now() + settle_s
+        rest = RestWatch()
+        while clock.now() < end and not rest.update(now):
+            clock.sleep(period)
+            now = arm.cycle(commands)
     return Held(state, tuple(held), skipped)
 
 
@@ -91,7 +107,7 @@ def stop_for_alarms(arm: Arm, state: ArmState, before: Mapping[str, tuple[str, .
     found = {k: v for k, v in new_latches(state, before).items() if k not in ignore}
     if not found:
         return
-    held = hold(arm)
+    held = hold(arm, settle_s=ALARM_SETTLE_S)
     name = next(iter(found))
     raise JointAlarmError(
         f"{describe_latches(found)} during {what}; the motion stopped ({held.describe()}). "

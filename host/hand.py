@@ -334,8 +334,8 @@ class Hand:
             if exc is not None and not self.session.transport.closed:
                 try:
                     held = self.hold()
-                    note = (f"fingers {', '.join(map(str, held))} held where they were, motors "
-                            "on" if held else "no finger answered to be held")
+                    note = (f"finger(s) {', '.join(map(str, held))} held where they were, "
+                            "motors on" if held else "no finger was moving")
                 except HostError as failed:
                     note = f"could not hold the fingers: {failed}"
                 exc.add_note(f"the hand: {note}")
@@ -346,8 +346,9 @@ class Hand:
         """Stop ``fingers`` (default: every finger) where they are: each one's motor targets
         := its present motor positions (hall counts, :attr:`ControlMode.MOTOR`: the same
         joint angles, with no limit or homing to refuse them), the motors left on.  A finger
-        that does not answer (unpowered, booting, gone) is left out; returns the fingers
-        held."""
+        whose targets already are where it is (idle: its fmcb keeps them there; or holding)
+        is left as it is, and so is one that does not answer (unpowered, booting, gone);
+        returns the fingers held."""
         chosen = list(range(FINGERS)) if fingers is None else list(fingers)
         pending = []
         for k in chosen:
@@ -360,13 +361,19 @@ class Hand:
             try:
                 state = FingerState(k)
                 state.update_from_status(self.session.wait(p))
-                present[k] = list(state.joints_hall)
             except HostError:
                 continue
+            if state.targets_hall != state.joints_hall:
+                present[k] = list(state.joints_hall)
         commands = [self.fingers[k].make_command(hall=hall) for k, hall in present.items()]
         held = []
-        replies = [(c.finger, self.fingers[c.finger].motor.start("fmcb.control", c.fields))
-                   for c in commands]
+        replies = []
+        for c in commands:
+            try:
+                replies.append((c.finger, self.fingers[c.finger].motor.start("fmcb.control",
+                                                                             c.fields)))
+            except HostError:
+                continue
         for k, p in replies:
             try:
                 self.session.wait(p)
