@@ -55,8 +55,11 @@ class Held:
             angles = ", ".join(f"{n} {self.state.joints[JOINT_NAMES.index(n)]:+.3f}"
                                for n in self.joints)
             text = f"held where they were, torque on: {angles} rad"
-        if self.skipped:
-            text += "; " + "; ".join(f"{n}: {why}" for n, why in self.skipped.items())
+        reasons: dict[str, list[str]] = {}
+        for name, why in self.skipped.items():
+            reasons.setdefault(why, []).append(name)
+        for why, names in reasons.items():
+            text += f"; {', '.join(names)}: {why}"
         return text
 
 
