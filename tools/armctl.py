@@ -26,7 +26,11 @@ homed).
 they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
 (angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
 would have a stepper joint hold more than 70 % of its stall torque against gravity, naming
-the joint (the hand's weight counted unless ``--no-hand``).
+the joint (the hand's weight counted unless ``--no-hand``).  Every motion passes the arm's
+gate first (:mod:`host.arm_gate`: finite numbers, ranges, speeds and accelerations, torque);
+Ctrl-C or SIGTERM mid-motion holds the arm where it is (:meth:`host.arm.Arm.hold`) and says
+so on one line; a joint whose node latches an alarm on the way is named with its latch
+(exit 1), the rest of the arm held.
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
 (``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
