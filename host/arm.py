@@ -208,6 +208,8 @@ class Arm:
         #: The browser view drawing this arm (:meth:`watch`), if any.
         self.view: RobotView | None = None
         self._owns_view = False
+        #: The last state a cycle read (None before any): what a hold starts from.
+        self.last_state: ArmState | None = None
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
         #: Stepper joints the last state found stopped by their node's command watchdog
@@ -537,9 +539,29 @@ class Arm:
                                                 state.steppers[c.joint].flags & _LATCHES)
         if calibration is not None:
             state = calibration.state_from_node(state)
+        self.last_state = state
         for tap in self.state_taps:
             tap(state)
         return state
+
+    @property
+    def unpowered_steppers(self) -> frozenset[int]:
+        """The stepper joints (0..3) whose torque this arm turned off, or found off."""
+        return frozenset(self._unpowered)
+
+    def send(self, commands: Iterable[Command]) -> None:
+        """Send position ``commands`` without reading anything back (no reply is waited
+        for): what a hold does first, while the line may still carry the replies of an
+        exchange cut short.  The stepper goals go with the coupling offsets of the last
+        state read."""
+        commands = list(commands)
+        if self.calibration is not None:
+            commands = self.calibration.commands_to_node(commands)
+        self.bus.exchange(self.packets_for(commands))
+        for c in commands:
+            if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
+                self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
+                                               / GOAL_FINE_PER_COUNT)
 
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""

@@ -29,13 +29,16 @@ from typing import TYPE_CHECKING, Final
 from host.arm_gate import describe_latches, latches
 from host.arm_rest import RestWatch
 from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
-from host.errors import JointAlarmError
+from host.errors import JointAlarmError, NodeError, ReplyTimeout
+from protocol.control_tables import StepperFlag
 
 if TYPE_CHECKING:
     from host.arm import Arm
 
 #: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
 ALARM_SETTLE_S: Final = 3.0
+#: Tries of a hold whose exchange failed (a late reply of an interrupted one in the way).
+HOLD_ATTEMPTS: Final = 3
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,44 @@ class Held:
 
 
 def hold(arm: Arm, settle_s: float = 0.0, period: float = 0.01) -> Held:
+    """:func:`hold_once`, tried up to :data:`HOLD_ATTEMPTS` times: an interrupted program's
+    last exchange may still be answering (its replies, late, do not fit the hold's reads),
+    so what is on the line is let through and dropped before each attempt."""
+    goals: dict[int, float] = {}
+    last = arm.last_state
+    if last is not None:  # at once, from the last state read: nothing to read first
+        goals = {i: q for i, q in hold_goals(last).items() if i not in arm.unpowered_steppers}
+        arm.send([arm.make_position(i, q) for i, q in goals.items()])
+    for attempt in range(HOLD_ATTEMPTS):
+        drain(arm)
+        try:
+            return hold_once(arm, settle_s, period, goals)
+        except (NodeError, ReplyTimeout):
+            if attempt == HOLD_ATTEMPTS - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
+def hold_goals(state: ArmState) -> dict[int, float]:
+    """Where to hold each joint of ``state`` (rad): a stepper at its motor's angle, a servo
+    at its angle; a stepper its node stopped (STALLED, a hardware error) is left out."""
+    goals = {s.joint: s.motor_angle for s in state.steppers
+             if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
+    goals.update({v.joint: v.angle for v in state.servos})
+    return goals
+
+
+def drain(arm: Arm) -> None:
+    """Drop what the bus still carries: replies to an exchange cut short, arriving until
+    nothing more comes for the link's latency (at least 2 ms)."""
+    transport = arm.transport
+    quiet = max(arm.bus.latency_s, 0.002)
+    while transport.recv(quiet):
+        pass
+
+
+def hold_once(arm: Arm, settle_s: float = 0.0, period: float = 0.01,
+              goals: dict[int, float] | None = None) -> Held:
     """Hold every joint whose torque is on where it is (see the module docs).  With
     ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
     at rest (:class:`~host.arm_rest.RestWatch`) or that time has passed, each time with the
@@ -82,7 +123,7 @@ def hold(arm: Arm, settle_s: float = 0.0, period: float = 0.01) -> Held:
             skipped[name] = "torque off" + (f" ({why.removeprefix(name + ' ')})" if why else "")
             continue
         angle = state.motor_joints[i] if i < N_STEPPERS else state.joints[i]
-        commands.append(arm.make_position(i, angle))
+        commands.append(arm.make_position(i, (goals or {}).get(i, angle)))
         held.append(name)
     if commands:
         now = arm.cycle(commands)
