@@ -13,6 +13,11 @@ to hold where it is:
   not the belt and cable routes' coupling, with no host feeding goals any longer;
 * a servo's goal := its present angle.
 
+The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
+and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
+exchange short whose late replies would not fit a read.  Then the line is drained, the
+torque and the state read, and the same goals sent again with fresh coupling offsets.
+
 Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
 or the host did) is left alone and named.  Nothing is latched by holding.
 :func:`stop_for_alarms` is what a motion does when a node latches an alarm on the way: hold
