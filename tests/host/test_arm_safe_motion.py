@@ -90,7 +90,9 @@ def test_ctrl_c_mid_move_holds_the_arm_where_it_was(url: str) -> None:
 
 def test_ctrl_c_mid_controlled_path_holds_the_arm_where_it_was(url: str) -> None:
     """The joint controller's paths (waypoints, moveto) feed the coupling feed-forward every
-    10 ms; the hold keeps the capstans where they are without it."""
+    10 ms and their goals lead the path by little, so a controller merely stopping already
+    leaves the arm near where it was: this guards that the hold (motor goals, fresh
+    coupling offsets) keeps it so, rather than proving a change."""
     seen: dict[str, np.ndarray] = {}
     arm = Arm.open(url)
     arm.torque(True, hold=True)
