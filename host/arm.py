@@ -686,7 +686,7 @@ class Arm:
         sits off it by the elastic deflection under load) and its joint slower than
         ``settle_speed`` (rad/s), every servo within ``tolerance`` of its goal, and the
         arm at rest (``rest``, a :class:`~host.arm_rest.RestWatch`: every joint's angle and
-        spring deflection still for its window, half a second by default; pass one to ask
+        spring deflection still for its window, a second by default; pass one to ask
         it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
         so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)

@@ -6,7 +6,7 @@ end of a swing (a stepper node measures its joint's velocity over 10 ms, in step
 counts/s = 0.063 rad/s: a slow swing reads 0).  :class:`RestWatch` therefore looks at a
 window of readings, :data:`REST_WINDOW_S` of the link's clock: the arm is at rest when,
 throughout it, every stepper joint's angle and spring deflection each stayed within
-:data:`REST_SPREAD_COUNTS` encoder counts (a speed below 2 counts in 0.5 s, 2.5 mrad/s, and
+:data:`REST_SPREAD_COUNTS` encoder counts (a speed below 2 counts in 1 s, 1.3 mrad/s, and
 a spring torque steady to 2 counts' worth: 0.17 N·m at the elbow), and every servo's angle
 within :data:`REST_SERVO_SPREAD_RAD`.  At that the hand on the wrist reads its
 accelerometers steadily enough to be homed from them (``handctl home``).
@@ -22,12 +22,13 @@ from host.arm_state import JOINT_NAMES, ArmState
 from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, RX64_RAD_PER_UNIT
 
 #: How long (s, the link's clock) the arm must have stayed still to count as at rest.
-REST_WINDOW_S: Final = 0.5
+REST_WINDOW_S: Final = 1.0
 #: How far (joint encoder counts) a stepper joint's angle, and its spring's deflection, may
 #: wander within the window.
 REST_SPREAD_COUNTS: Final = 2
-#: How far (rad) a servo's angle may wander within the window: one position unit and a bit.
-REST_SERVO_SPREAD_RAD: Final = 1.5 * RX64_RAD_PER_UNIT
+#: How far (rad) a servo's angle may wander within the window: a position unit either way
+#: (an RX-64 at rest hunts across its compliance margin by a unit).
+REST_SERVO_SPREAD_RAD: Final = 2.05 * RX64_RAD_PER_UNIT
 _COUNT_RAD: Final = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
 
 
@@ -57,7 +58,7 @@ class RestWatch:
         return self.why_not() is None
 
     def why_not(self) -> str | None:
-        """None at rest, else what still moves (``J2 moved 0.004 rad in the last 0.5 s``)."""
+        """None at rest, else what still moves (``J2 moved 0.004 rad in the last 1.00 s``)."""
         states = self._states
         if not states or states[-1].t - states[0].t < self.window_s:
             return f"not yet {self.window_s:g} s of readings"
