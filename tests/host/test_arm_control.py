@@ -304,7 +304,12 @@ def test_waypoints_recorded_by_one_program_play_back_in_another(tmp_path: Path) 
             second.calibration = None  # as a new process would: home again first
             second.home()
             log = TrackingLog()
-            play_waypoints(second, load_waypoints(path), log=log)
+            loaded = load_waypoints(path)
+            try:  # a hand may turn the base faster than its stepper can: slower then
+                play_waypoints(second, loaded, log=log)
+            except LimitError as refused:
+                scale = float(re.search(r"of ([\d.]+) or more", str(refused))[1])  # type: ignore[index]
+                play_waypoints(second, loaded, log=log, time_scale=scale)
             assert log.stall_events == []
             assert np.array(second.state().joints) == pytest.approx(points[-1].joints,
                                                                     abs=0.03)

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
-from host.arm_control import Waypoint, play_waypoints, timed_path
+from host.arm_control import Waypoint, choose_ik, play_waypoints, timed_path
 from host.arm_gate import check_path, path_rates, slowdown
 from host.arm_state import ArmState
 from host.errors import JointAlarmError, LimitError
@@ -205,6 +205,20 @@ def test_a_path_too_brisk_is_refused_with_the_time_scale_that_would_do() -> None
         check_path(times, q, [0.0] * 7, homed=True, slower="a time scale of")
     scale = slowdown(times, q)
     check_path([t * scale for t in times], q, [0.0] * 7, homed=True)
+
+
+@pytest.mark.parametrize(("xyz", "rpy", "match"), [
+    ((math.nan, 0.0, -0.5), None, "x coordinate nan is not a finite number"),
+    ((0.25, -0.08, -0.52), (math.inf, 0.0, 0.0), "roll angle inf is not a finite number"),
+    ((0.25, -0.08, -0.52), (1e300, 0.0, 0.0), "roll 1e[+]300 rad is not an orientation angle"),
+    ((0.0, 1e300, 0.0), None, "is out of reach"),
+])
+def test_cartesian_targets_must_be_finite_and_within_reach(
+        xyz: tuple[float, ...], rpy: tuple[float, ...] | None, match: str) -> None:
+    """nan gave a ValueError, inf LinAlgError: SVD did not converge, 1e300 rad a meaningless
+    orientation the arm moved to."""
+    with pytest.raises(LimitError, match=match):
+        choose_ik(xyz, rpy, [0.0] * 7)
 
 
 def test_a_path_must_start_where_the_arm_is() -> None:

@@ -52,10 +52,10 @@ def _truth(arm: Arm) -> np.ndarray:
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (("moveto", "nan", "0", "-0.5"), "x coordinate nan is not a finite number"),
-    (("moveto", "inf", "0", "-0.5"), "x coordinate inf is not a finite number"),
+    (("moveto", "nan", "0", "-0.5"), "argument X: nan: give a position (m)"),
+    (("moveto", "inf", "0", "-0.5"), "argument X: inf: give a position (m)"),
     (("moveto", "0.25", "-0.08", "-0.52", "--rpy", "nan", "0", "0"),
-     "roll angle nan is not a finite number"),
+     "argument --rpy: nan: give an angle (rad)"),
     (("moveto", "0.25", "-0.08", "-0.52", "--rpy", "1e300", "0", "0"),
      "roll 1e+300 rad is not an orientation angle"),
     (("moveto", "0", "1e300", "0"), "is out of reach"),
