@@ -78,6 +78,9 @@ import struct
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, Final
 
+from host.arm_gate import HOLD_TOLERANCE_RAD, check_goals, check_speeds, latches, require_torque
+from host.arm_hold import Held, hold, stop_for_alarms
+from host.arm_rest import RestWatch
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
     JOINT_IDS,
@@ -93,7 +96,14 @@ from host.arm_state import (
     TorqueCommand,
 )
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
-from host.errors import NodeError, ReplyTimeout, UsageError
+from host.errors import (
+    HostError,
+    JointAlarmError,
+    LimitError,
+    NodeError,
+    ReplyTimeout,
+    UsageError,
+)
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
@@ -121,7 +131,7 @@ from protocol.dynamixel import (
     rx64_position_to_radians,
     rx64_present_speed_to_rad_s,
 )
-from protocol.robot import ARM_JOINT_LIMITS, arm_route_coupling_matrix
+from protocol.robot import ARM_JOINT_SPEED_LIMITS, arm_route_coupling_matrix
 
 if TYPE_CHECKING:
     from host.arm_control import CartesianMove
@@ -198,6 +208,8 @@ class Arm:
         #: The browser view drawing this arm (:meth:`watch`), if any.
         self.view: RobotView | None = None
         self._owns_view = False
+        #: The last state a cycle read (None before any): what a hold starts from.
+        self.last_state: ArmState | None = None
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
         #: Stepper joints the last state found stopped by their node's command watchdog
@@ -285,8 +297,28 @@ class Arm:
     def __enter__(self) -> Arm:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: object) -> None:
+        """Close; when the block raised (Ctrl-C included), first :meth:`hold` the arm where
+        it is, and add a note saying what was held (or why not) to the exception."""
+        try:
+            # a JointAlarmError held the arm at the alarm, and says so
+            if exc is not None and not isinstance(exc, JointAlarmError) \
+                    and not self.transport.closed:
+                try:
+                    note = self.hold().describe()
+                except HostError as failed:
+                    note = f"could not hold the arm: {failed}"
+                exc.add_note(f"the arm: {note}")
+        finally:
+            self.close()
+
+    def hold(self) -> Held:
+        """Stop every joint whose torque is on where it is, torque left on
+        (:func:`host.arm_hold.hold`: a stepper's goal := its motor's present angle, with the
+        coupling offset of the joints as they are; a servo's := its present angle); what
+        was held, and what not."""
+        return hold(self)
 
     @property
     def steppers(self) -> tuple[JointInfo, ...]:
@@ -507,9 +539,29 @@ class Arm:
                                                 state.steppers[c.joint].flags & _LATCHES)
         if calibration is not None:
             state = calibration.state_from_node(state)
+        self.last_state = state
         for tap in self.state_taps:
             tap(state)
         return state
+
+    @property
+    def unpowered_steppers(self) -> frozenset[int]:
+        """The stepper joints (0..3) whose torque this arm turned off, or found off."""
+        return frozenset(self._unpowered)
+
+    def send(self, commands: Iterable[Command]) -> None:
+        """Send position ``commands`` without reading anything back (no reply is waited
+        for): what a hold does first, while the line may still carry the replies of an
+        exchange cut short.  The stepper goals go with the coupling offsets of the last
+        state read."""
+        commands = list(commands)
+        if self.calibration is not None:
+            commands = self.calibration.commands_to_node(commands)
+        self.bus.exchange(self.packets_for(commands))
+        for c in commands:
+            if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
+                self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
+                                               / GOAL_FINE_PER_COUNT)
 
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
@@ -603,20 +655,15 @@ class Arm:
         return tuple(bool(_TORQUE.decode(replies[j.dxl_id].params)) for j in self.joints)
 
     def check_limits(self, angles: Sequence[float], present: Sequence[float] | None = None,
-                     tolerance: float = 0.02) -> None:
-        """Raise :class:`~host.errors.UsageError` naming the first goal (rad, J1..J7)
-        outside its joint's range (:data:`protocol.robot.ARM_JOINT_LIMITS`): the servos'
-        always, the steppers' once homed (before, their angles count from power-up).  A
-        goal within ``tolerance`` (rad) of the joint's ``present`` angle (rad, 7) passes:
-        a joint already out there may hold where it is."""
-        for i, (angle, (lo, hi)) in enumerate(zip(angles, ARM_JOINT_LIMITS, strict=True)):
-            if i < N_STEPPERS and not self.homed:
-                continue
-            if present is not None and abs(angle - present[i]) <= tolerance:
-                continue
-            if not lo <= angle <= hi:
-                raise UsageError(f"{JOINT_NAMES[i]} goal {angle:+.3f} rad is outside the "
-                                 f"joint's range {lo:+.2f} … {hi:+.2f} rad")
+                     tolerance: float = HOLD_TOLERANCE_RAD) -> None:
+        """Raise :class:`~host.errors.LimitError` (a :class:`~host.errors.UsageError`)
+        naming the first goal (rad, J1..J7) that is not finite or outside its joint's range
+        (:func:`host.arm_gate.check_goals`: the servos' always, the steppers' once homed,
+        before that a stepper goal further from the ``present`` angle than the joint's whole
+        range).  A goal within ``tolerance`` (rad) of the joint's ``present`` angle (rad,
+        7) passes: a joint already out there may hold where it is."""
+        here = list(angles) if present is None else present
+        check_goals(angles, here, homed=self.homed, tolerance=tolerance)
 
     def set_position(self, joint: int | str, angle: float,
                      speed: float | None = None) -> ArmState:
@@ -629,34 +676,56 @@ class Arm:
         return self.cycle(self.make_positions(angles, speeds))
 
     def move(self, angles: Sequence[float], *, duration: float | None = None,
-             tolerance: float = 0.02, settle_speed: float = 0.05, timeout: float = 10.0,
-             period: float = 0.01) -> tuple[ArmState, bool]:
+             speed: float | None = None, tolerance: float = 0.02,
+             settle_speed: float = 0.05, timeout: float = 10.0, period: float = 0.01,
+             rest: RestWatch | None = None) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
         (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
-        until the move settled or ``timeout`` (s) passed.  Settled: every stepper
-        node stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
+        until the move settled or ``timeout`` (s) passed.  Settled: every stepper node
+        stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
         sits off it by the elastic deflection under load) and its joint slower than
-        ``settle_speed`` (rad/s: the elastic element's ringing has died down), every servo
-        within ``tolerance`` of its goal.  ``duration`` (s) sets each joint's speed so all arrive
-        together, none below :data:`MOVE_MIN_SPEED` (a joint that barely moves arrives early
-        and keeps a speed limit it can hold with).  Returns the last state and whether the
-        move settled.  Raises :class:`~host.errors.UsageError` before anything moves for a
-        goal outside its joint's range (:meth:`check_limits`)."""
+        ``settle_speed`` (rad/s), every servo within ``tolerance`` of its goal, and the
+        arm at rest (``rest``, a :class:`~host.arm_rest.RestWatch`: every joint's angle and
+        spring deflection still for its window, a second by default; pass one to ask
+        it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
+        so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
+        moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
+        caps every joint's instead.  Returns the last state and whether the move settled.
+
+        Before anything moves, the gate (:mod:`host.arm_gate`) raises
+        :class:`~host.errors.LimitError` (a :class:`~host.errors.UsageError`) for a goal
+        that is not finite or outside its joint's range, a ``duration`` or ``speed`` that
+        needs a joint faster than its limit, and a joint to be moved whose torque is off.
+        A joint whose node latches an alarm on the way (STALLED, SLIP, an RX-64's
+        OVERLOAD ...) stops the move: the arm is held where it is and
+        :class:`~host.errors.JointAlarmError` names the joint and the latch."""
         if len(angles) != N_JOINTS:
-            raise UsageError(f"give {N_JOINTS} joint angles, J1..J7")
+            raise LimitError(f"give {N_JOINTS} joint angles, J1..J7")
+        if not (timeout > 0 and not math.isnan(timeout)):
+            raise LimitError(f"move timeout {timeout} must be > 0 s")
         now = self.state()
-        self.check_limits(angles, now.joints)
+        check_goals(angles, now.joints, homed=self.homed, tolerance=tolerance)
         speeds: list[float | None] = [None] * N_JOINTS
         if duration is not None:
-            if not duration > 0:
-                raise UsageError(f"move duration {duration} must be > 0 s")
+            check_speeds(angles, now.joints, duration)
             speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
                       for a, b in zip(angles, now.joints, strict=True)]
+        elif speed is not None:
+            if not (math.isfinite(speed) and speed > 0):
+                raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
+            speeds = [min(speed, limit) for limit in ARM_JOINT_SPEED_LIMITS]
+        driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance]
+        require_torque(self, driven, "moving them")
+        before = latches(now)
+        watch = rest if rest is not None else RestWatch()
+        watch.reset()
         state = self.set_positions(angles, speeds)
         clock = self.bus.transport
         deadline = clock.now() + timeout
         while True:
-            if settled(state, angles, tolerance, settle_speed):
+            stop_for_alarms(self, state, before)
+            still = watch.update(state)
+            if settled(state, angles, tolerance, settle_speed) and still:
                 return state, True
             if clock.now() >= deadline:
                 return state, False
@@ -710,6 +779,22 @@ def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
             bits |= StepperClear.STALL
         out[dxl_id] = reg.encode(int(bits))
     return out
+
+
+def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str | None:
+    """Which joint of ``state`` is not yet at its goal (``goals``, rad) within ``tolerance``
+    (rad): a stepper whose motor is further or still moving, a servo whose joint is
+    further; None when every joint is there."""
+    for s in state.steppers:
+        if s.moving:
+            return f"{JOINT_NAMES[s.joint]}'s motor is still on its way"
+        if abs(s.motor_angle - goals[s.joint]) > tolerance:
+            return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
+                    "rad off its goal")
+    for v in state.servos:
+        if abs(v.angle - goals[v.joint]) > tolerance:
+            return f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal"
+    return None
 
 
 def settled(state: ArmState, goals: Sequence[float], tolerance: float,

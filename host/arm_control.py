@@ -71,12 +71,22 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from host import arm_gravity, arm_kinematics
+from host.arm_gate import (
+    check_cartesian,
+    check_finite,
+    check_goals,
+    check_path,
+    latches,
+    require_torque,
+)
+from host.arm_hold import stop_for_alarms
+from host.arm_rest import RestWatch
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
-from host.errors import StallError, UsageError
+from host.errors import LimitError, StallError, UsageError
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
-    ARM_JOINT_LIMITS,
+    ARM_JOINT_ACCEL_LIMITS,
     RX64_RAD_PER_UNIT,
     arm_route_coupling_matrix,
 )
@@ -97,8 +107,6 @@ STALL_WINDOW_S: Final = 2.0
 #: Waypoint file header.
 WAYPOINTS_KIND: Final = "arm-waypoints"
 WAYPOINTS_VERSION: Final = 1
-_LOWER = np.array([lo for lo, _ in ARM_JOINT_LIMITS])
-_UPPER = np.array([hi for _, hi in ARM_JOINT_LIMITS])
 
 
 # ----------------------------------------------------------------------------- the math
@@ -267,18 +275,27 @@ class Trajectory:
 
 
 def timed_path(points: Sequence[Vector], max_speed: float, start_t: float = 0.0,
-               min_segment_s: float = 0.05, smooth: bool = False) -> list[Waypoint]:
+               min_segment_s: float = 0.05, smooth: bool = False,
+               accel: Vector | None = ARM_JOINT_ACCEL_LIMITS) -> list[Waypoint]:
     """Waypoints through ``points`` (7 rad each), each segment timed so no joint is faster
-    than ``max_speed`` (rad/s): linearly interpolated, or with ``smooth`` for a
-    ``Trajectory(..., smooth=True)`` (:data:`MIN_JERK_PEAK` times longer)."""
-    if not max_speed > 0:
-        raise UsageError(f"joint speed {max_speed} must be > 0 rad/s")
+    than ``max_speed`` (rad/s) and, from rest and to rest, accelerates no more than
+    ``accel`` (rad/s², per joint; None: no such bound): linearly interpolated, or with
+    ``smooth`` for a ``Trajectory(..., smooth=True)`` (:data:`MIN_JERK_PEAK` times longer;
+    its peak acceleration is 10/√3 · Δq/T²).  A short segment then takes a little longer
+    than its speed alone asks, so :func:`host.arm_gate.check_path` passes it."""
+    if not (max_speed > 0 and math.isfinite(max_speed)):
+        raise UsageError(f"joint speed {max_speed} must be a finite number > 0 rad/s")
     out = [Waypoint(start_t, tuple(float(v) for v in points[0]))]
     t = start_t
     stretch = MIN_JERK_PEAK if smooth else 1.0
+    sharpness = 10 / math.sqrt(3) if smooth else 1.0
+    limits = None if accel is None else np.asarray(accel, dtype=float)
     for a, b in zip(points, points[1:], strict=False):
-        t += max(stretch * float(np.max(np.abs(np.subtract(b, a)))) / max_speed,
-                 min_segment_s)
+        step = np.abs(np.subtract(b, a, dtype=float))
+        span = max(stretch * float(np.max(step)) / max_speed, min_segment_s)
+        if limits is not None:
+            span = max(span, float(np.max(np.sqrt(sharpness * step / limits))) * (1 + 1e-9))
+        t += span
         out.append(Waypoint(t, tuple(float(v) for v in b)))
     return out
 
@@ -326,6 +343,9 @@ class JointController:
         self._last_t: float | None = None
         #: Per stepper joint, when (s) its node latched STALLED lately.
         self._stalls: dict[int, list[float]] = {}
+        #: The latches and alarm bits there were when the controller took the arm: a new
+        #: one (other than a STALLED it clears, below) stops the motion.
+        self._latched: dict[str, tuple[str, ...]] = {}
 
     def power_up_angles(self) -> np.ndarray:
         """Joint angles (rad) where the stepper nodes powered up (their encoder count then,
@@ -376,9 +396,15 @@ class JointController:
                     joint=name)
 
     def start(self) -> ArmState:
-        """Enable every joint's torque and take the first state."""
-        self.state = self.arm.torque(True)
+        """Enable every joint's torque, each joint whose torque was off holding where it is
+        (not heading for a goal its node kept), and take the first state.
+        :class:`~host.errors.LimitError` names a joint whose node keeps its torque off (a
+        latched alarm: :meth:`~host.arm.Arm.clear_errors` first)."""
+        self.arm.torque(True, hold=True)
+        require_torque(self.arm, what="the controller drives the arm")
+        self.state = self.arm.state()
         self._last_t = self.state.t
+        self._latched = latches(self.state)
         return self.state
 
     def step(self, q_des: Vector, qd_des: Vector | None = None,
@@ -387,6 +413,10 @@ class JointController:
         state = self.state if self.state is not None else self.start()
         qa = np.asarray(q_des, dtype=float)
         qda = np.zeros(N_JOINTS) if qd_des is None else np.asarray(qd_des, dtype=float)
+        check_goals(qa, state.joints, homed=self.arm.homed, what="desired angle")
+        check_finite(qda, "desired speed")
+        stop_for_alarms(self.arm, state, self._latched, "the controlled motion",
+                        ignore={JOINT_NAMES[s.joint] for s in state.steppers if s.stalled})
         dt = max(state.t - (self._last_t if self._last_t is not None else state.t), 0.0)
         self._last_t = state.t
         u = self.goals(qa, qda, state, dt if dt > 0 else self.period)
@@ -410,9 +440,20 @@ class JointController:
             duration: float, log: TrackingLog | None = None,
             until: Callable[[ArmState], bool] | None = None) -> ArmState:
         """Follow ``trajectory(t)`` (``t`` from 0 at the call) for ``duration`` seconds of
-        the transport's clock, one cycle per period, or until ``until(state)``."""
+        the transport's clock, one cycle per period, or until ``until(state)``.
+
+        A :class:`Trajectory` passes the gate first (:func:`host.arm_gate.check_path`: it
+        starts where the arm is, every point in range, no joint faster or accelerating more
+        than its limits), or :class:`~host.errors.LimitError` is raised before anything
+        moves; every cycle's desired angles are checked against the joint ranges, and a
+        new alarm stops the motion, the arm held (:class:`~host.errors.JointAlarmError`)."""
         clock = self.arm.transport
         state = self.state if self.state is not None else self.start()
+        if math.isnan(duration) or duration < 0:
+            raise LimitError(f"control run duration {duration} must be >= 0 s")
+        if isinstance(trajectory, Trajectory):
+            check_path(trajectory.times, trajectory.points, state.joints,
+                       homed=self.arm.homed, smooth=trajectory.smooth)
         t0 = clock.now()
         tick = 0
         while True:
@@ -503,9 +544,14 @@ def choose_ik(xyz: Vector, rpy: Vector | None, q_now: Vector, *, hand: bool = Tr
     on the straight joint path there at most that or what it holds at ``q_now``.  :class:`~host.errors.UsageError` if the target is out
     of reach, or if every solution overloads a joint (naming it, its torque and its
     limit)."""
+    check_cartesian(xyz, rpy)
     here = np.asarray(q_now, dtype=float)
-    solutions = [arm_kinematics.solve_ik(xyz, rpy, q0=seed)
-                 for seed in (here, None, *IK_SEEDS)]
+    try:
+        solutions = [arm_kinematics.solve_ik(xyz, rpy, q0=seed)
+                     for seed in (here, None, *IK_SEEDS)]
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+        raise LimitError(f"{tuple(float(v) for v in xyz)} m: no joint angles reach it "
+                         f"({exc})") from exc
     reaching = [ik for ik in solutions if ik.position_error <= 1e-3
                 and (rpy is None or ik.orientation_error <= 0.01)]
     if not reaching:
@@ -536,12 +582,13 @@ def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
     more than :data:`MOVETO_LOAD_LIMIT` of its stall torque in, ``hand`` saying whether the
     hand's weight is on the flange; assuming it is errs on the safe side), a straight
     joint-space path at ``speed`` (rad/s, fastest joint), then the PID holds the goals until
-    the flange (by FK of the measured joints) is within ``tolerance_m`` and the joints are
-    still, or ``settle_timeout`` (s) passes.
+    the flange (by FK of the measured joints) is within ``tolerance_m`` and the arm is at
+    rest (:class:`~host.arm_rest.RestWatch`), or ``settle_timeout`` (s) passes.
 
     Refuses (:class:`~host.errors.UsageError`) an arm that is not homed unless
     ``allow_unhomed``, a target the IK cannot reach within 1 mm, and one where every IK
     solution would load a stepper joint beyond the limit."""
+    check_cartesian(xyz, rpy)
     if not arm.homed and not allow_unhomed:
         raise UsageError("the arm is not homed: its joint angles are relative to power-up; "
                          "home it first (armctl home / Arm.home())")
@@ -554,9 +601,11 @@ def moveto(arm: Arm, xyz: Vector, rpy: Vector | None = None, *,
     state = control.run(trajectory, trajectory.duration, log)
     target = np.asarray(xyz, dtype=float)
 
+    rest = RestWatch()
+
     def settled(s: ArmState) -> bool:
         err = float(np.linalg.norm(arm_kinematics.forward(s.joints).position - target))
-        still = all(abs(j.velocity) < 0.01 for j in s.steppers)
+        still = rest.update(s)
         return err <= tolerance_m and still
 
     state = control.run(lambda _t: (goals, np.zeros(N_JOINTS)), settle_timeout, log,
@@ -610,19 +659,38 @@ def play_waypoints(arm: Arm, waypoints: Sequence[Waypoint], *, approach_speed: f
                    controller: JointController | None = None,
                    log: TrackingLog | None = None) -> ArmState:
     """Play recorded waypoints: from where the arm is to the first at ``approach_speed``
-    (rad/s), then through the rest at their recorded times (× ``time_scale``), clamped to the
-    joint limits, then hold the last for ``settle_s`` seconds."""
+    (rad/s), then through the rest at their recorded times (× ``time_scale``), then hold
+    the last for ``settle_s`` seconds.
+
+    The whole path passes the gate before anything moves (:func:`host.arm_gate.check_path`):
+    a waypoint outside its joint's range, or steps needing more speed or acceleration than
+    a joint has, raise :class:`~host.errors.LimitError` naming the joint and the waypoint
+    (and how much larger a ``time_scale`` would do); nothing is clamped."""
     if not waypoints:
         raise UsageError("no waypoints to play")
+    for value, what in ((approach_speed, "approach speed (rad/s)"),
+                        (time_scale, "time scale")):
+        if not (math.isfinite(value) and value > 0):
+            raise LimitError(f"{what} {value} must be a finite number > 0")
+    if not (math.isfinite(settle_s) and settle_s >= 0):
+        raise LimitError(f"settle time {settle_s} must be a finite number >= 0 s")
     control = controller or JointController(arm)
     state = control.state or control.start()
-    first = np.clip(waypoints[0].joints, _LOWER, _UPPER)
+    first = np.asarray(waypoints[0].joints, dtype=float)
+    check_goals(first, state.joints, homed=arm.homed, what="goal (waypoint 1)")
     approach = timed_path([state.joints, first], approach_speed)
     lead = approach[-1].t
     t_first = waypoints[0].t
-    path = approach + [Waypoint(lead + (w.t - t_first) * time_scale,
-                                tuple(np.clip(w.joints, _LOWER, _UPPER)))
+    path = approach + [Waypoint(lead + (w.t - t_first) * time_scale, w.joints)
                        for w in waypoints[1:]]
+    extra = len(approach) - 1
+
+    def label(k: int) -> str:
+        return "where the arm is" if k < extra else f"waypoint {k - extra + 1}"
+
+    check_path([w.t for w in path], np.array([w.joints for w in path]), state.joints,
+               homed=arm.homed, label=label,
+               slower="a time scale (time_scale=, armctl waypoints play --time-scale) of")
     trajectory = Trajectory(path)
     return control.run(trajectory, trajectory.duration + settle_s, log)
 

@@ -9,8 +9,11 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── RouteError                        the palm could not deliver to a finger node
     ├── NodeError                         a node answered, but with a refusal or a bad reply
     ├── UsageError(ValueError)            the caller asked for something impossible
-    │   └── NotHomedError                 a motion command for a finger not yet homed
+    │   ├── NotHomedError                 a motion command for a finger not yet homed
+    │   └── LimitError                    an arm motion the gate refuses before it starts
     ├── HomingError                       an arm joint's index mark was not found
+    ├── StallError                        a stepper joint kept latching STALLED
+    ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     └── RecordingError(OSError)           a recording's file could not be written
 """
 
@@ -93,6 +96,28 @@ class NotHomedError(UsageError):
     def __init__(self, message: str, *, fingers: list[int]) -> None:
         super().__init__(message)
         self.fingers = fingers
+
+
+class LimitError(UsageError):
+    """An arm motion refused before anything moved (:mod:`host.arm_gate`): a goal outside a
+    joint's range, a path faster than a joint can follow, a joint's torque off, a number
+    that is not finite.  ``joint`` names the joint (``"J1"`` … ``"J7"``) when one is to
+    blame, else None."""
+
+    def __init__(self, message: str, *, joint: str | None = None) -> None:
+        super().__init__(message)
+        self.joint = joint
+
+
+class JointAlarmError(HostError):
+    """A joint's node latched an alarm during a motion (a stepper's STALLED or SLIP, an
+    RX-64's OVERLOAD …) and turned its torque off; the motion stopped and the rest of the
+    arm holds where it is.  ``joint`` names it, ``latches`` the latches and alarm bits."""
+
+    def __init__(self, message: str, *, joint: str, latches: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.joint = joint
+        self.latches = latches
 
 
 def why_no_answer(exc: HostError) -> str:

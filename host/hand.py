@@ -326,8 +326,61 @@ class Hand:
     def __enter__(self) -> Hand:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: object) -> None:
+        """Close; when the block raised (Ctrl-C included), first :meth:`hold` every finger
+        where it is, and add a note saying which (or why not) to the exception."""
+        try:
+            if exc is not None and not self.session.transport.closed:
+                try:
+                    held = self.hold()
+                    note = (f"finger(s) {', '.join(map(str, held))} held where they were, "
+                            "motors on" if held else "no finger was moving")
+                except HostError as failed:
+                    note = f"could not hold the fingers: {failed}"
+                exc.add_note(f"the hand: {note}")
+        finally:
+            self.close()
+
+    def hold(self, fingers: Sequence[int] | None = None) -> list[int]:
+        """Stop ``fingers`` (default: every finger) where they are: each one's motor targets
+        := its present motor positions (hall counts, :attr:`ControlMode.MOTOR`: the same
+        joint angles, with no limit or homing to refuse them), the motors left on.  A finger
+        whose targets already are where it is (idle: its fmcb keeps them there; or holding)
+        is left as it is, and so is one that does not answer (unpowered, booting, gone);
+        returns the fingers held."""
+        chosen = list(range(FINGERS)) if fingers is None else list(fingers)
+        pending = []
+        for k in chosen:
+            try:
+                pending.append((k, self.fingers[k].motor.start("fmcb.status", retries=0)))
+            except HostError:
+                continue
+        present: dict[int, list[int]] = {}
+        for k, p in pending:
+            try:
+                state = FingerState(k)
+                state.update_from_status(self.session.wait(p))
+            except HostError:
+                continue
+            if state.targets_hall != state.joints_hall:
+                present[k] = list(state.joints_hall)
+        commands = [self.fingers[k].make_command(hall=hall) for k, hall in present.items()]
+        held = []
+        replies = []
+        for c in commands:
+            try:
+                replies.append((c.finger, self.fingers[c.finger].motor.start("fmcb.control",
+                                                                             c.fields)))
+            except HostError:
+                continue
+        for k, p in replies:
+            try:
+                self.session.wait(p)
+                held.append(k)
+            except HostError:
+                continue
+        return held
 
     # --- discovery and power ---------------------------------------------------------------
     def discover(self) -> list[NodeInfo]:

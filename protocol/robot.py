@@ -353,6 +353,29 @@ RX64_RAD_PER_UNIT: Final = RX64_RANGE_RAD / RX64_POSITION_UNITS
 #: RX-64 position units per radian.
 RX64_UNITS_PER_RAD: Final = RX64_POSITION_UNITS / RX64_RANGE_RAD
 
+# --- arm motion limits (every host-planned motion is checked against them) -----------------
+
+#: The stepper nodes' ``acceleration_limit`` at power-up (joint encoder counts/s²; π rad/s²):
+#: their motion profile brakes towards every goal at this rate.
+STEPPER_DEFAULT_ACCEL_COUNTS_S2: Final = 5000
+#: RX-64 speed at no load and 18 V (rad/s): 0.157 s per 60° on the datasheet.
+RX64_NO_LOAD_SPEED_RAD_S: Final = math.radians(60.0) / 0.157
+#: Each joint's speed limit (rad/s), J1..J7: a path needing more is refused, not clamped.
+#: J1–J4 at the controllers' maximum step rate (:data:`STEPPER_MAX_STEP_RATE` through each
+#: reduction: 2.41, 1.45, 1.11, 1.11), J5–J7 the RX-64's no-load speed.
+ARM_JOINT_SPEED_LIMITS: Final[tuple[float, ...]] = tuple(
+    [encoder_counts_to_rad(max_velocity_counts_per_s(j)) for j in range(ARM_STEPPER_JOINTS)]
+    + [RX64_NO_LOAD_SPEED_RAD_S] * 3)
+#: Each joint's acceleration limit (rad/s²), J1..J7.  J1–J4: what their nodes' motion profile
+#: does (:data:`STEPPER_DEFAULT_ACCEL_COUNTS_S2`); a path asking more leaves the joint
+#: trailing it, and the elastic joint ringing.  J5–J7: the RX-64 has no acceleration limit of
+#: its own (it drives at full torque towards its setpoint); 10 rad/s² takes the wrist from
+#: rest to 1 rad/s in 0.1 s, well within what its 6.3 N·m stall torque gives the 1 kg hand;
+#: a step needing more is a jump, not a motion.
+ARM_JOINT_ACCEL_LIMITS: Final[tuple[float, ...]] = (
+    (encoder_counts_to_rad(STEPPER_DEFAULT_ACCEL_COUNTS_S2),) * ARM_STEPPER_JOINTS
+    + (10.0,) * 3)
+
 # --- arm geometry and routing (the emulator's model and the host's kinematics share them) --
 
 #: Each arm joint's body origin in its parent body's frame at the kinematic zero (m), J1..J7:

@@ -26,7 +26,11 @@ homed).
 they lose power, so a later armctl picks it up); ``--unhomed`` moves in the nodes' frames
 (angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
 would have a stepper joint hold more than 70 % of its stall torque against gravity, naming
-the joint (the hand's weight counted unless ``--no-hand``).
+the joint (the hand's weight counted unless ``--no-hand``).  Every motion passes the arm's
+gate first (:mod:`host.arm_gate`: finite numbers, ranges, speeds and accelerations, torque);
+Ctrl-C or SIGTERM mid-motion holds the arm where it is (:meth:`host.arm.Arm.hold`) and says
+so on one line; a joint whose node latches an alarm on the way is named with its latch
+(exit 1), the rest of the arm held.
 
 ``--port`` takes a serial path (1 Mbaud unless ``?baud=N``) or any transport URL
 (``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
@@ -46,8 +50,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from host.arm import Arm, open_bus
+from host.arm import Arm, off_goal, open_bus
+from host.arm_gate import check_cartesian, check_finite, require_torque
 from host.arm_homing import restore
+from host.arm_rest import RestWatch
 from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
@@ -136,6 +142,11 @@ def make_parser() -> argparse.ArgumentParser:
                            help="how long to record (s, default 10)")
     waypoints.add_argument("--unhomed", action="store_true",
                            help="play although the arm is not homed")
+    waypoints.add_argument("--time-scale", type=number_above(0, what="a time scale"),
+                           default=1.0, metavar="K",
+                           help="play K times slower than recorded (default 1): a file "
+                                "whose steps need more speed or acceleration than a joint "
+                                "has is refused, and the message says what K would do")
     record = sub.add_parser("record", help="record raw bus bytes and decoded states (MCAP)")
     record.add_argument("file", help="output .mcap file")
     record.add_argument("--seconds", type=_TIME, required=True, metavar="S")
@@ -227,12 +238,9 @@ def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def _require_torque(arm: Arm, what: str) -> None:
     """Refuse ``what`` while a joint's torque is off: its goal would wait in the node, and
-    the joint jump there whenever the torque came on."""
-    off = [JOINT_NAMES[i] for i, on in enumerate(arm.torque_enabled()) if not on]
-    if off:
-        raise UsageError(f"torque is off on {', '.join(off)}: turn it on first (armctl "
-                         f"torque on; armctl status shows a latched alarm, armctl clear "
-                         f"clears it) before {what}")
+    the joint jump there whenever the torque came on (:func:`host.arm_gate.require_torque`
+    names a latched alarm)."""
+    require_torque(arm, what=what)
 
 
 def _require_homed(arm: Arm, args: argparse.Namespace, what: str) -> None:
@@ -253,6 +261,7 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    check_cartesian((args.x, args.y, args.z), args.rpy)
     _require_homed(arm, args, "moveto")
     _require_torque(arm, "moveto")
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
@@ -315,7 +324,7 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     points = load_waypoints(args.file)
     _require_homed(arm, args, "playing waypoints")
     _require_torque(arm, "playing waypoints")
-    state = play_waypoints(arm, points)
+    state = play_waypoints(arm, points, time_scale=args.time_scale)
     _print(out, args.json, {"file": args.file, "waypoints": len(points), **state.as_dict()},
            f"played {len(points)} waypoints from {args.file}")
     return EXIT_OK
@@ -361,14 +370,17 @@ def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     goals = _joint_values(args.joints)
+    check_finite(goals, "goal")
     _require_homed(arm, args, "move")
     _require_torque(arm, "move")
-    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout)
+    rest = RestWatch()
+    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout, rest=rest)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:
-        print(f"armctl: the move did not settle within {args.timeout} s: is torque on "
-              "(armctl torque on)? is a joint blocked or slipping (armctl status)?",
+        why = off_goal(state, goals, 0.02) or rest.why_not() or "?"
+        print(f"armctl: the move did not settle within {args.timeout} s ({why}): is a joint "
+              "blocked, or still swinging (armctl status; a longer --timeout)?",
               file=sys.stderr)
         return EXIT_NOT_SETTLED
     return EXIT_OK

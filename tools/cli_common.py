@@ -8,7 +8,8 @@ Exit statuses (every CLI built on :func:`run_cli`):
 1      the robot or the link: no such port, unplugged, no answer, refused (``HostError``)
 2      the command line, or a request refused before anything was sent (``UsageError``)
 3+     a CLI's own outcome (``armctl``: a move that did not settle)
-130    interrupted (Ctrl-C)
+130    interrupted (Ctrl-C, or SIGTERM: both stop the robot where it is, see
+       :func:`interrupts_as_ctrl_c`; the message says what was held)
 =====  ===================================================================================
 
 ``--timeout S`` is the link budget (s): how long the host waits for the link itself on top
@@ -24,9 +25,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 from typing import Final
 
 from host.errors import (
@@ -122,14 +127,18 @@ def run(prog: str, port: str, body: Callable[[], int], *,
     :class:`UsageError` (and ``usage``: a CLI's own "refused before anything was
     touched") → 2, other :class:`HostError` → 1 (``hint``, if given, ends its message),
     ``OSError`` (a file, or standard output that cannot be written: one line) → 1, Ctrl-C
-    → 130, standard output closed by its reader → 141, quietly."""
+    or SIGTERM → 130 (:func:`interrupts_as_ctrl_c`), standard output closed by its reader
+    → 141, quietly.  The notes a context manager added to the exception (``the arm: held
+    where they were …``) end the message."""
     with checked_stdout():
         try:
-            status = body()
-            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
-            return status
-        except KeyboardInterrupt:
-            print(f"{prog}: interrupted", file=sys.stderr)
+            with interrupts_as_ctrl_c():
+                status = body()
+                sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+                return status
+        except KeyboardInterrupt as exc:
+            print(f"{prog}: interrupted" + "".join(f"; {n}" for n in _notes(exc)),
+                  file=sys.stderr)
             return EXIT_INTERRUPTED
         except UsageError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
@@ -139,13 +148,49 @@ def run(prog: str, port: str, body: Callable[[], int], *,
             return EXIT_USAGE
         except HostError as exc:
             print(f"{prog}: {advice(exc, port, prog, command)}"
-                  + (f"\n{hint}." if hint else ""), file=sys.stderr)
+                  + (f"\n{hint}." if hint else "")
+                  + "".join(f"\n{n}" for n in _notes(exc)), file=sys.stderr)
             return EXIT_ROBOT
         except (BrokenPipeError, OutputError) as exc:
             return output_failed(prog, exc)  # closed pipe: quietly; else one line
         except OSError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return EXIT_ROBOT
+
+
+def _notes(exc: BaseException) -> list[str]:
+    """The notes the library added to ``exc`` on its way out (what a context manager did
+    about it: ``the arm: held where they were …``)."""
+    return [str(n) for n in getattr(exc, "__notes__", ())]
+
+
+@contextmanager
+def interrupts_as_ctrl_c() -> Iterator[None]:
+    """Within the block SIGTERM is Ctrl-C: the first SIGINT or SIGTERM raises
+    :class:`KeyboardInterrupt` (so the robot's context managers stop and hold it, and the
+    tool exits 130), and any later one is ignored until the block is left, so a second
+    Ctrl-C cannot cut the hold short.  Outside the main thread (where Python takes no
+    signals) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    interrupted = False
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        nonlocal interrupted
+        if not interrupted:
+            interrupted = True
+            raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    except KeyboardInterrupt:
+        interrupted = True  # raised elsewhere (a test, the terminal): later ones wait too
+        raise
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def parse(parser: argparse.ArgumentParser,

@@ -342,9 +342,9 @@ class Demo:
 
     def _move(self, pose: tuple[float, ...], timeout: float) -> None:
         """A joint-space move of the nodes themselves at :data:`JOINT_SPEED_RAD_S` on every
-        joint (for the servos' homing tilts: the steppers stay where they are)."""
-        self.arm.set_positions(list(pose), [JOINT_SPEED_RAD_S] * len(pose))
-        self.arm.move(list(pose), timeout=timeout)
+        joint (for the servos' homing tilts: the steppers stay where they are), through the
+        arm's gate (:mod:`host.arm_gate`) like every motion."""
+        self.arm.move(list(pose), speed=JOINT_SPEED_RAD_S, timeout=timeout)
         self._check_arm()
 
     def _joint_path(self, pose: tuple[float, ...], settle_s: float = 4.0) -> None:

@@ -19,7 +19,7 @@
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
 ``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
 Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line,
-130: interrupted).
+130: interrupted; Ctrl-C or SIGTERM holds every moving finger where it is, and says which).
 """
 
 from __future__ import annotations

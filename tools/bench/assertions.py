@@ -206,6 +206,38 @@ def arm_torque_drift(record: RunRecord, joint: int, after: str, min_ratio: float
     return ok, measured, message
 
 
+def arm_holds(record: RunRecord, action: str, since: str, within_deg: float) -> Verdict:
+    """From action ``action``'s ``since`` (``start`` or ``end``) to the end of the run, on
+    the plant's and the nodes' truth: no arm joint moved more than ``within_deg`` from
+    where it was then (none fell, none drove on), no node latched an alarm, and every
+    joint's torque stayed as it was."""
+    a = record.actions.get(action)
+    if a is None:
+        return False, {}, f"action {action!r} did not run"
+    t0 = a["t_start"] if since == "start" else a["t_end"]
+    rows = [r for r in record.truth if r["t"] >= t0 and "arm_q" in r]
+    if not rows:
+        return False, {}, f"no truth samples of the arm after {action}'s {since}"
+    first = rows[0]
+    moved = [max(abs(r["arm_q"][j] - first["arm_q"][j]) for r in rows)
+             for j in range(len(first["arm_q"]))]
+    worst = max(range(len(moved)), key=lambda j: moved[j])
+    latched = sorted({f"J{j + 1}" for r in rows
+                      for j, x in enumerate(r.get("arm_node_alarm", ())) if x})
+    dropped = sorted({f"J{j + 1}" for r in rows
+                      for j, x in enumerate(r.get("arm_node_torque", ()))
+                      if x < first["arm_node_torque"][j]})
+    deg = math.degrees(moved[worst])
+    measured = {"max_move_deg": round(deg, 3), "joint": f"J{worst + 1}",
+                "latched": latched, "torque_dropped": dropped,
+                "seconds": round(rows[-1]["t"] - rows[0]["t"], 3)}
+    ok = deg <= within_deg and not latched and not dropped
+    return (ok, measured,
+            f"from {action}'s {since}: J{worst + 1} moved {deg:.2f}° at most (limit "
+            f"{within_deg}°) over {measured['seconds']} s; latched: {latched or 'none'}; "
+            f"torque dropped: {dropped or 'none'}")
+
+
 def fault_applied(record: RunRecord, label: str, count: int) -> Verdict:
     n = len(record.fault_times(label))
     return n == count, {"applied": n}, f"{label} applied {n} times (expected {count})"
@@ -279,5 +311,5 @@ CHECKS: dict[str, Callable[..., Verdict]] = {
     "fingers_present": fingers_present, "no_unsent_frames": no_unsent_frames,
     "flash_verified": flash_verified, "arm_flag": arm_flag, "servo_error": servo_error,
     "fault_applied": fault_applied, "node_state": node_state,
-    "arm_torque_drift": arm_torque_drift, "arm_held": arm_held,
+    "arm_torque_drift": arm_torque_drift, "arm_held": arm_held, "arm_holds": arm_holds,
 }

@@ -22,13 +22,16 @@ from typing import Any, Final
 from hil_emulator.emulator import Emulator
 from hil_emulator.faults import targets
 from host.errors import HostError
-from protocol.control_tables import StepperFlag
+from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
 from tools.bench.assertions import judge
 from tools.bench.scenario import Scenario, Step, parse_scenario
 
 #: Period of the plant-truth samples (µs).
 TRUTH_PERIOD_US: Final = 10_000
+#: A stepper node's latches (status_flags bits), read as the nodes' truth.
+_LATCHES: Final = int(StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)
+_STEPPER_MODEL: Final = STEPPER_TABLE["model_number"].default
 
 
 @dataclass
@@ -77,6 +80,13 @@ class Bench:
             row["arm_q"] = [round(float(q), 5) for q in emu.arm_plant.joint_angles()]
             row["arm_slips"] = [int(n) for n in emu.arm_plant.slips()]
             row.update(self._stepper_truth())
+        if emu.arm is not None:  # the nodes' own registers: latches, torque
+            nodes = [app for _, app in (emu.arm.nodes[i] for i in sorted(emu.arm.nodes))]
+            row["arm_node_alarm"] = [int(bool(a.get("status_flags") & _LATCHES))
+                                     if a.get("model_number") == _STEPPER_MODEL
+                                     else int(bool(getattr(a, "shutdown", False)))
+                                     for a in nodes]
+            row["arm_node_torque"] = [int(a.get("torque_enable")) for a in nodes]
         self.record.truth.append(row)
 
     def _stepper_truth(self) -> dict[str, Any]:
@@ -250,10 +260,48 @@ class Bench:
     def _do_arm_torque(self, on: bool) -> None:
         self.arm.torque(on)
 
-    def _do_arm_move(self, angles: list[float], duration: float, timeout: float
+    def _do_arm_move(self, angles: list[float], duration: float, timeout: float,
+                     interrupt_s: float | None) -> dict[str, Any]:
+        """``Arm.move``; with ``interrupt_s``, interrupted that long after it starts as
+        Ctrl-C would (a KeyboardInterrupt in the host's loop) and the arm held, as
+        ``with Arm.open(...)`` does on the way out."""
+        arm = self.arm
+        if interrupt_s is None:
+            state, settled = arm.move(angles, duration=duration, timeout=timeout)
+            return {"errors": state.errors, "settled": settled}
+        stop_at = arm.transport.now() + interrupt_s
+        fired = False
+
+        def ctrl_c(_state: Any) -> None:
+            nonlocal fired
+            if not fired and arm.transport.now() >= stop_at:
+                fired = True
+                raise KeyboardInterrupt
+
+        arm.state_taps.append(ctrl_c)
+        try:
+            state, settled = arm.move(angles, duration=duration, timeout=timeout)
+        except KeyboardInterrupt:
+            held = arm.hold()
+            return {"interrupted": True, "held": list(held.joints),
+                    "at": [round(q, 5) for q in held.state.joints]}
+        finally:
+            arm.state_taps.remove(ctrl_c)
+        return {"interrupted": False, "errors": state.errors, "settled": settled}
+
+    def _do_arm_home(self) -> dict[str, Any]:
+        self.arm.torque(True, hold=True)
+        return {"offsets": list(self.arm.home().offsets)}
+
+    def _do_arm_play(self, waypoints: list[dict[str, Any]], time_scale: float
                      ) -> dict[str, Any]:
-        state = self.arm.move(angles, duration=duration, timeout=timeout)
-        return {"errors": state[0].errors if isinstance(state, tuple) else None}
+        """``play_waypoints`` of ``waypoints`` (``{t = s, joints = [7 rad]}`` each)."""
+        from host.arm_control import Waypoint, play_waypoints
+
+        points = [Waypoint(float(w["t"]), tuple(float(q) for q in w["joints"]))
+                  for w in waypoints]
+        state = play_waypoints(self.arm, points, time_scale=time_scale)
+        return {"joints": [round(q, 5) for q in state.joints]}
 
     def _do_arm_stream(self, seconds: float, rate_hz: float) -> dict[str, Any]:
         arm, transport = self.arm, self.arm.transport

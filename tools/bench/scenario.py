@@ -33,7 +33,9 @@ ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "flash": ((), {"version": "9.9.9", "fingers": [], "all_or_nothing": False}),
     "arm_open": ((), {}),
     "arm_torque": (("on",), {}),
-    "arm_move": (("angles",), {"duration": 1.0, "timeout": 3.0}),
+    "arm_move": (("angles",), {"duration": 1.0, "timeout": 3.0, "interrupt_s": None}),
+    "arm_home": ((), {}),
+    "arm_play": (("waypoints",), {"time_scale": 1.0}),
     "arm_stream": (("seconds",), {"rate_hz": 100.0}),
     "arm_clear_errors": ((), {}),
     "arm_move_vanish": (("angles",), {"duration": 6.0, "after_s": 1.5}),
@@ -54,12 +56,13 @@ ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
                                               "tolerance": 0.25}),
     "arm_held": (("action",), {"within_ms": 500.0, "max_fall_deg": 2.0,
                                "max_drive_on_deg": 8.0}),
+    "arm_holds": (("action",), {"since": "end", "within_deg": 2.0}),
 }
 #: The actions that go through the palm (need a configuration with the hand) and those
 #: that go to the arm's line; the configurations that have each.
 HAND_ACTIONS: Final = ("power", "poll", "stream", "move", "grasp", "home", "flash")
 ARM_ACTIONS: Final = ("arm_open", "arm_torque", "arm_move", "arm_stream", "arm_clear_errors",
-                      "arm_move_vanish")
+                      "arm_move_vanish", "arm_home", "arm_play")
 HAND_CONFIGS: Final = ("full", "hand")
 ARM_CONFIGS: Final = ("full", "arm")
 #: The boards of a finger, as ``ping`` names them (``finger<k>.<board>``).
@@ -129,7 +132,7 @@ def _steps(raw: Any, where: str, table: dict[str, tuple[tuple[str, ...], dict[st
         params = {**copy.deepcopy(optional), **{k: v for k, v in item.items()
                                                  if k not in (kind_key, "id")}}
         for key in ("seconds", "within_ms", "settle_ms", "window_ms", "duration", "timeout",
-                    "rate_hz"):
+                    "rate_hz", "interrupt_s", "within_deg", "time_scale"):
             value = params.get(key)
             if value is not None and (isinstance(value, bool)
                                       or not isinstance(value, int | float) or value < 0):

@@ -1,0 +1,165 @@
+"""Stopping the arm where it is: what an interrupted, failed or alarmed motion leaves.
+
+:func:`hold` (``Arm.hold()``; ``with Arm.open(...) as arm:`` calls it when the block raises,
+Ctrl-C included) reads the arm and, in the next cycle, sets every joint whose torque is on
+to hold where it is:
+
+* a stepper node's goal := its motor's present angle (the node plans every goal as a stop:
+  a motor still turning brakes at its ``acceleration_limit`` and comes back to it).  Its
+  motor, not its joint: under load the joint sags off the motor by the spring's deflection,
+  and a goal at the joint angle would let the arm drop by that much.  The goal goes with
+  the coupling offset of the joints as they are now (``deflection_offset``, see
+  :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
+  not the belt and cable routes' coupling, with no host feeding goals any longer;
+* a servo's goal := its present angle.
+
+The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
+and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
+exchange short whose late replies would not fit a read.  Then the line is drained, the
+torque and the state read, and the same goals sent again with fresh coupling offsets.
+
+Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
+or the host did) is left alone and named.  Nothing is latched by holding.
+:func:`stop_for_alarms` is what a motion does when a node latches an alarm on the way: hold
+the rest (re-sending the hold while the arm comes to rest, at most :data:`ALARM_SETTLE_S`),
+then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Final
+
+from host.arm_gate import describe_latches, latches
+from host.arm_rest import RestWatch
+from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
+from host.errors import JointAlarmError, NodeError, ReplyTimeout
+from protocol.control_tables import StepperFlag
+
+if TYPE_CHECKING:
+    from host.arm import Arm
+
+#: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
+ALARM_SETTLE_S: Final = 3.0
+#: Tries of a hold whose exchange failed (a late reply of an interrupted one in the way).
+HOLD_ATTEMPTS: Final = 3
+
+
+@dataclass(frozen=True)
+class Held:
+    """What :func:`hold` did: the ``state`` read before (the angles held), the ``joints``
+    set to hold there (names), and the joints left alone with why (``skipped``)."""
+
+    state: ArmState
+    joints: tuple[str, ...]
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        """One line: ``J1-J7 held where they were (torque on)``, naming the ones left out."""
+        if not self.joints:
+            text = "nothing held"
+        else:
+            angles = ", ".join(f"{n} {self.state.joints[JOINT_NAMES.index(n)]:+.3f}"
+                               for n in self.joints)
+            text = f"held where they were, torque on: {angles} rad"
+        reasons: dict[str, list[str]] = {}
+        for name, why in self.skipped.items():
+            reasons.setdefault(why, []).append(name)
+        for why, names in reasons.items():
+            text += f"; {', '.join(names)}: {why}"
+        return text
+
+
+def hold(arm: Arm, settle_s: float = 0.0, period: float = 0.01) -> Held:
+    """:func:`hold_once`, tried up to :data:`HOLD_ATTEMPTS` times: an interrupted program's
+    last exchange may still be answering (its replies, late, do not fit the hold's reads),
+    so what is on the line is let through and dropped before each attempt."""
+    goals: dict[int, float] = {}
+    last = arm.last_state
+    if last is not None:  # at once, from the last state read: nothing to read first
+        goals = {i: q for i, q in hold_goals(last).items() if i not in arm.unpowered_steppers}
+        arm.send([arm.make_position(i, q) for i, q in goals.items()])
+    for attempt in range(HOLD_ATTEMPTS):
+        drain(arm)
+        try:
+            return hold_once(arm, settle_s, period, goals)
+        except (NodeError, ReplyTimeout):
+            if attempt == HOLD_ATTEMPTS - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
+def hold_goals(state: ArmState) -> dict[int, float]:
+    """Where to hold each joint of ``state`` (rad): a stepper at its motor's angle, a servo
+    at its angle; a stepper its node stopped (STALLED, a hardware error) is left out."""
+    goals = {s.joint: s.motor_angle for s in state.steppers
+             if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
+    goals.update({v.joint: v.angle for v in state.servos})
+    return goals
+
+
+def drain(arm: Arm) -> None:
+    """Drop what the bus still carries: replies to an exchange cut short, arriving until
+    nothing more comes for the link's latency (at least 2 ms)."""
+    transport = arm.transport
+    quiet = max(arm.bus.latency_s, 0.002)
+    while transport.recv(quiet):
+        pass
+
+
+def hold_once(arm: Arm, settle_s: float = 0.0, period: float = 0.01,
+              goals: dict[int, float] | None = None) -> Held:
+    """Hold every joint whose torque is on where it is (see the module docs).  With
+    ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
+    at rest (:class:`~host.arm_rest.RestWatch`) or that time has passed, each time with the
+    coupling offsets of the joints as they are by then: after an alarm a joint whose torque
+    is off may fall to its stop, turning the capstans of the joints after it through the
+    routes, which a goal sent only once would let the nodes read as deflection."""
+    enabled = arm.torque_enabled()
+    state = arm.cycle()
+    found = latches(state)
+    commands: list[Command] = []
+    held: list[str] = []
+    skipped: dict[str, str] = {}
+    for i, name in enumerate(JOINT_NAMES):
+        if not enabled[i]:
+            why = describe_latches({name: found[name]}) if name in found else ""
+            skipped[name] = "torque off" + (f" ({why.removeprefix(name + ' ')})" if why else "")
+            continue
+        angle = state.motor_joints[i] if i < N_STEPPERS else state.joints[i]
+        commands.append(arm.make_position(i, (goals or {}).get(i, angle)))
+        held.append(name)
+    if commands:
+        now = arm.cycle(commands)
+        clock = arm.transport
+        end = clock.now() + settle_s
+        rest = RestWatch()
+        while clock.now() < end and not rest.update(now):
+            clock.sleep(period)
+            now = arm.cycle(commands)
+    return Held(state, tuple(held), skipped)
+
+
+def new_latches(state: ArmState, before: Mapping[str, tuple[str, ...]]
+                ) -> dict[str, tuple[str, ...]]:
+    """The joints of ``state`` with latches or alarm bits they had not in ``before``
+    (:func:`~host.arm_gate.latches` of an earlier state)."""
+    return {k: v for k, v in latches(state).items() if not set(v) <= set(before.get(k, ()))}
+
+
+def stop_for_alarms(arm: Arm, state: ArmState, before: Mapping[str, tuple[str, ...]],
+                    what: str = "the move", ignore: Collection[str] = ()) -> None:
+    """If ``state`` shows a latch or alarm that ``before`` did not (on a joint not in
+    ``ignore``), hold the arm where it is and raise :class:`~host.errors.JointAlarmError`
+    naming the joint and the latch."""
+    found = {k: v for k, v in new_latches(state, before).items() if k not in ignore}
+    if not found:
+        return
+    held = hold(arm, settle_s=ALARM_SETTLE_S)
+    name = next(iter(found))
+    raise JointAlarmError(
+        f"{describe_latches(found)} during {what}; the motion stopped ({held.describe()}). "
+        f"A latched joint's node may have turned its torque off: check that {name} moves "
+        f"freely and nothing holds it (armctl status), then armctl clear and armctl "
+        f"torque on", joint=name, latches=found[name])
