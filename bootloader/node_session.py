@@ -146,6 +146,8 @@ class NodeReport:
     downtime_s: float | None = None
     #: Time (s, link clock) a rollback of the node took, to its previous application.
     rollback_s: float | None = None
+    #: Payload SHA-256 of the image the node ran before the update (two-slot nodes).
+    previous_sha256: bytes | None = None
 
     @property
     def seconds(self) -> float:

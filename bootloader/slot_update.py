@@ -156,6 +156,8 @@ class SlotChannel:
         report = self.reports[job]
         self._set(job, NodeState.INFO)
         info = yield from self.call("slot.info", {}, job.hop)
+        if info["primary_status"] != ImageStatus.EMPTY:
+            report.previous_sha256 = info["primary_sha256"]  # what a rollback returns to
         sha = job.image.header.sha256
         if (info["primary_sha256"] == sha and info["primary_status"] == ImageStatus.VALID
                 and info["state"] == SlotState.CONFIRMED and not self.plan.force):
@@ -300,19 +302,36 @@ class SlotChannel:
         order = sorted(jobs, key=lambda j: -_ORDER.index(j.board))
         fmcb_done = False
         for job in order:
-            yield from self.rollback_node(job)
+            try:
+                yield from self.rollback_node(job)
+            except StepFailed as exc:  # the others still go back
+                report = self.reports[job]
+                report.result = "failed"
+                report.error = str(exc)
+                self._set(job, NodeState.FAILED)
+                continue
             fmcb_done = fmcb_done or job.board == BoardType.FMCB
         if fmcb_done:
             yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+            for job in self.jobs:
+                if job.board != BoardType.FMCB:  # powered again behind the fmcb's reboot
+                    yield from self.wait_application(job, PHALANGE_BOOT_WITHIN_S)
             yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
 
     def rollback_node(self, job: NodeJob) -> Flow:
+        """Put one node back on its previous image (one that already went back on its own,
+        a trial that did not start, is only checked)."""
         report = self.reports[job]
-        previous_error = report.error
+        failed = report.result == "failed"
         self._set(job, NodeState.ROLLING_BACK)
         info = yield from self.call("slot.info", {}, job.hop)
         began = self.clock()
-        if info["state"] == SlotState.TRIAL:
+        back_already = (report.previous_sha256 is not None
+                        and info["primary_sha256"] == report.previous_sha256
+                        and info["state"] == SlotState.CONFIRMED)
+        if back_already:
+            target = info["primary_version"]
+        elif info["state"] == SlotState.TRIAL:
             target = info["secondary_version"]
             yield from self.call("reset", {}, job.hop)
         else:
@@ -327,9 +346,7 @@ class SlotChannel:
                 raise StepFailed(f"{job.name}: rollback swap refused: "
                                  f"{SlotResult(got['status']).name}")
         yield Sleep(POLL_S)
-        within = SWAP_WITHIN_S + (PHALANGE_BOOT_WITHIN_S if job.board != BoardType.FMCB
-                                  and info["state"] == SlotState.TRIAL else 0.0)
-        who = yield from self.wait_application(job, within)
+        who = yield from self.wait_application(job, SWAP_WITHIN_S)
         report.rollback_s = self.clock() - began
         report.version = version_text(who["fw_version"])
         if report.version != version_text(target):
@@ -340,6 +357,8 @@ class SlotChannel:
             yield from self.call("slot.confirm", {}, job.hop, extra_ms=WRITE_EXTRA_MS)
             info = yield from self.call("slot.info", {}, job.hop)
         report.slots = slot_summary(info)
-        report.result = "rolled back"
-        report.error = previous_error
+        if failed:
+            report.error = f"{report.error}; back on {report.version}"
+        else:
+            report.result = "rolled back"
         self._set(job, NodeState.ROLLED_BACK)
