@@ -346,7 +346,32 @@ def _run_slot_update(session: HandSession, plan: FlashPlan,
             errors[finger] = error
             _fail_finger(session, reports, finger, error, on_change, _BUSY_STATES)
 
-    driver.run({f: channels[f].download() for f in two_slot}, on_end)
+    attempts = dict.fromkeys(two_slot, 0)
+    downloads: dict[int, Generator[Op, Outcome, Any]] = {}
+
+    def download(finger: int) -> Generator[Op, Outcome, Any]:
+        attempts[finger] += 1
+        if attempts[finger] > 1:  # a node lost power or its link: let it boot again
+            yield from channels[finger].wait_for_fingers()
+        yield from channels[finger].download()
+
+    def on_download_end(finger: int, error: BaseException | None) -> None:
+        if error is not None and attempts[finger] < FINGER_ATTEMPTS:
+            for j, r in reports.items():
+                if j.finger == finger and r.state in _BUSY_STATES:
+                    r.error = f"retried after: {error}"
+            downloads[finger] = download(finger)
+            again.append(finger)
+            return
+        on_end(finger, error)
+
+    again: list[int] = list(two_slot)
+    for f in two_slot:
+        downloads[f] = download(f)
+    while again:
+        batch = {f: downloads[f] for f in again}
+        again = []
+        driver.run(batch, on_download_end)
     if errors:
         failed = ", ".join(r.job.name for r in reports.values() if r.state == NodeState.FAILED)
         for j, r in reports.items():

@@ -239,6 +239,20 @@ class SlotChannel:
         if fmcb is not None:
             yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
 
+    def wait_for_fingers(self) -> Flow:
+        """After a lost power or link: power the finger (and its phalanges) as the run
+        found them, and wait for every planned node's application to answer."""
+        for job in self.jobs:
+            if job.board == BoardType.FMCB:
+                yield from self.wait_application(job, PHALANGE_BOOT_WITHIN_S)
+        if any(job.board != BoardType.FMCB for job in self.jobs):
+            fmcb = NodeJob(self.finger, BoardType.FMCB, self.jobs[0].image)
+            yield from self.wait_application(fmcb, PHALANGE_BOOT_WITHIN_S)
+            yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+            for job in self.jobs:
+                if job.board != BoardType.FMCB:
+                    yield from self.wait_application(job, PHALANGE_BOOT_WITHIN_S)
+
     def wait_application(self, job: NodeJob, within_s: float) -> Flow:
         """Poll ``identify`` until the node's application answers; return its reply."""
         deadline = self.clock() + within_s
