@@ -328,15 +328,16 @@ def _run_slot_update(session: HandSession, plan: FlashPlan,
     :mod:`bootloader.slot_update`); returns the fingers left for the one-slot way."""
     driver = Driver(session)
     channels = {f: SlotChannel(f, plan, reports, session.now, keep_trial=plan.keep_trial,
-                               on_change=on_change)
-                for f in plan.fingers if status["fingers"][f]["power"] != FingerPower.OFF}
+                               on_change=on_change) for f in plan.fingers}
     two_slot: list[int] = []
 
     def probe(finger: int) -> Generator[Op, Outcome, Any]:
+        if status["fingers"][finger]["power"] == FingerPower.OFF:
+            yield from channels[finger].power_up()  # off when the run began: power it
         if (yield from channels[finger].probe()):
             two_slot.append(finger)
 
-    driver.run({f: probe(f) for f in channels}, lambda f, e: None)
+    driver.run({f: probe(f) for f in channels}, lambda f, e: None)  # unanswered: one-slot
     if not two_slot:
         return list(plan.fingers)
     errors: dict[int, BaseException] = {}

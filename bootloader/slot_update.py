@@ -46,15 +46,23 @@ from bootloader.plan import FlashPlan, NodeJob
 from protocol.image import BoardType
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
 from protocol.messages.common import Running
+from protocol.messages.palm import FingerPower
 from protocol.messages.slots import ConfirmBy, SlotResult, SlotState
 from protocol.topology import Hop
 
 #: How long a swapped node may take to answer from its new application (s): the swap of a
 #: full slot (3 × 492 page writes of 2 ms and the records) with margin.
 SWAP_WITHIN_S: Final = 5.0
-#: How long phalanges powered up again behind their rebooted fmcb may take to answer from
-#: their application (s): their autoboot window and a second.
-PHALANGE_BOOT_WITHIN_S: Final = AUTOBOOT_WINDOW_US / 1e6 + 1.0
+#: How long a node just powered (a finger, or phalanges behind their rebooted fmcb) may
+#: take to answer from its application (s, link clock): its autoboot window, twice over
+#: (an emulator on a busy machine runs behind the wall clock a serial link is timed by).
+PHALANGE_BOOT_WITHIN_S: Final = 2 * AUTOBOOT_WINDOW_US / 1e6
+#: Longest wait (s, link clock) for a node that keeps answering from a bootloader still
+#: inside its autoboot window by its own clock.
+BOOT_GUARD_S: Final = 60.0
+#: Beyond the autoboot window, how long a node's bootloader may run before it is no longer
+#: taken as booting (µs, the node's clock): a swap of a full slot and the jump.
+BOOT_MARGIN_US: Final = 4_000_000
 #: Pause between identify polls of a rebooting node (s).
 POLL_S: Final = 0.02
 #: Attempts of one slot.write.
@@ -134,9 +142,19 @@ class SlotChannel:
     # --- probe and download -----------------------------------------------------------------
     def probe(self) -> Flow:
         """True if every planned node of the finger answers ``slot.info`` (two slots)."""
+        powered = False
         for job in self.jobs:
             out = yield Send("slot.info", {}, job.hop)
             if out.error is not None:
+                out = yield Send("slot.info", {}, job.hop)
+            if out.error is not None and job.board != BoardType.FMCB and not powered:
+                # Phalanges unpowered (as after the fmcb's power-up): power them, once.
+                powered = True
+                try:
+                    yield from self.call("fmcb.phalange_power", {"on": 1}, Hop.FMCB)
+                    yield from self.wait_application(job, PHALANGE_BOOT_WITHIN_S)
+                except StepFailed:
+                    return False
                 out = yield Send("slot.info", {}, job.hop)
             if out.error is not None or out.fields is None:
                 return False
@@ -239,6 +257,24 @@ class SlotChannel:
         if fmcb is not None:
             yield from self.call("fmcb.autopoll", {"on": 1}, Hop.FMCB)
 
+    def power_up(self) -> Flow:
+        """A finger off when the run began: power it (full) and wait for its nodes."""
+        for job in self.jobs:
+            self._set(job, NodeState.FORCING)  # its time starts with the power-up
+        on = {"finger": self.finger, "state": FingerPower.FULL, "stagger_ms": 0}
+        yield from self.call_palm("palm.finger_power", on)
+        yield from self.wait_for_fingers()
+
+    def call_palm(self, name: str, fields: dict[str, Any]) -> Flow:
+        """Send ``name`` to the palm itself, up to :data:`QUERY_TRIES` times."""
+        last: object = None
+        for _ in range(QUERY_TRIES):
+            out = yield Send(name, dict(fields), None)
+            if out.error is None:
+                return out.fields
+            last = out.error
+        raise StepFailed(f"{name} to the palm failed {QUERY_TRIES} times: {last}")
+
     def wait_for_fingers(self) -> Flow:
         """After a lost power or link: power the finger (and its phalanges) as the run
         found them, and wait for every planned node's application to answer."""
@@ -254,13 +290,24 @@ class SlotChannel:
                     yield from self.wait_application(job, PHALANGE_BOOT_WITHIN_S)
 
     def wait_application(self, job: NodeJob, within_s: float) -> Flow:
-        """Poll ``identify`` until the node's application answers; return its reply."""
-        deadline = self.clock() + within_s
+        """Poll ``identify`` until the node's application answers; return its reply.
+
+        Gives up ``within_s`` after the start (link clock), except while the node answers
+        from a bootloader whose own clock (``uptime_us``) is still inside its autoboot
+        window (or a swap): a link timed by the wall clock to an emulator running behind
+        it must not give up on a node that is merely booting, up to :data:`BOOT_GUARD_S`."""
+        start = self.clock()
         last: object = None
-        while self.clock() <= deadline:
+        booting = False
+        while True:
+            now = self.clock()
+            if now > start + within_s and not (booting and now <= start + BOOT_GUARD_S):
+                break
             out = yield Send("identify", {}, job.hop)
             if out.fields is not None and out.fields["running"] == Running.APPLICATION:
                 return out.fields
+            booting = (out.fields is not None
+                       and out.fields["uptime_us"] < AUTOBOOT_WINDOW_US + BOOT_MARGIN_US)
             last = out.error or "still in its bootloader"
             yield Sleep(POLL_S)
         raise StepFailed(f"{job.name}: no application answered within {within_s:g} s: {last}")
