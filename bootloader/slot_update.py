@@ -114,6 +114,9 @@ class SlotChannel:
         self.on_change = on_change
         self.swapped: list[NodeJob] = []
         self.failed_check = False
+        #: Nodes found running the new image on trial (an earlier run stopped before it
+        #: confirmed them): checked and confirmed without another swap.
+        self.on_trial: set[NodeJob] = set()
 
     # --- plumbing ---------------------------------------------------------------------------
     def _set(self, job: NodeJob, state: NodeState) -> None:
@@ -177,6 +180,18 @@ class SlotChannel:
         if info["primary_status"] != ImageStatus.EMPTY:
             report.previous_sha256 = info["primary_sha256"]  # what a rollback returns to
         sha = job.image.header.sha256
+        if info["state"] == SlotState.TRIAL and info["primary_sha256"] == sha:
+            # An earlier run swapped it and stopped before confirming: check it, confirm it.
+            self.on_trial.add(job)
+            report.result = "staged"
+            self._set(job, NodeState.STAGED)
+            return
+        if info["state"] == SlotState.TRIAL:
+            # On trial of another image: its reset swaps the previous one back first.
+            yield from self.call("reset", {}, job.hop)
+            yield Sleep(POLL_S)
+            yield from self.wait_application(job, SWAP_WITHIN_S)
+            info = yield from self.call("slot.info", {}, job.hop)
         if (info["primary_sha256"] == sha and info["primary_status"] == ImageStatus.VALID
                 and info["state"] == SlotState.CONFIRMED and not self.plan.force):
             report.result = "skipped"
@@ -318,14 +333,15 @@ class SlotChannel:
         report = self.reports[job]
         self._set(job, NodeState.SWAPPING)
         began = self.clock()
-        got = yield from self.call("slot.swap", {"sha256": job.image.header.sha256,
-                                                 "confirm_by": ConfirmBy.HOST}, job.hop,
-                                   extra_ms=WRITE_EXTRA_MS)
-        if got["status"] != SlotResult.OK:
-            raise StepFailed(f"{job.name}: swap refused: {SlotResult(got['status']).name} "
-                             f"({refusal(got['image_status'])})")
+        if job not in self.on_trial:
+            got = yield from self.call("slot.swap", {"sha256": job.image.header.sha256,
+                                                     "confirm_by": ConfirmBy.HOST}, job.hop,
+                                       extra_ms=WRITE_EXTRA_MS)
+            if got["status"] != SlotResult.OK:
+                raise StepFailed(f"{job.name}: swap refused: {SlotResult(got['status']).name} "
+                                 f"({refusal(got['image_status'])})")
+            yield Sleep(POLL_S)
         self.swapped.append(job)
-        yield Sleep(POLL_S)
         self._set(job, NodeState.CHECKING)
         try:
             who = yield from self.wait_application(job, SWAP_WITHIN_S)
