@@ -15,7 +15,7 @@ node verified; otherwise nothing is activated and the nodes wait in their bootlo
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Final
 
 from bootloader.errors import PlanError
@@ -30,6 +30,7 @@ from bootloader.node_session import (
     StepFailed,
 )
 from bootloader.plan import FlashPlan, NodeJob
+from bootloader.slot_update import SlotChannel
 from host.errors import HostError, NodeError
 from host.hand_session import LINK_NODE, HandSession, PendingReply, Target
 from protocol.messages.common import Running, TxnStatus
@@ -49,10 +50,15 @@ class RunReport:
     nodes: list[NodeReport]
     total_seconds: float
     stopped: str | None = None
+    #: A ``--rollback`` run: every node must end back on its previous image.
+    rollback: bool = False
 
     @property
     def ok(self) -> bool:
-        """Every node ends verified and running the requested version."""
+        """Every node ends verified and running the requested version (a rollback: every
+        node runs its previous image again)."""
+        if self.rollback:
+            return self.stopped is None and all(r.result == "rolled back" for r in self.nodes)
         return self.stopped is None and all(
             r.result in ("flashed", "skipped") and r.state == NodeState.DONE
             and r.version == r.job.version for r in self.nodes)
@@ -62,6 +68,15 @@ class RunReport:
         """What to do after a run that did not verify every node (None after one that did)."""
         if self.ok:
             return None
+        if self.rollback:
+            return ("not every node went back: a node on the one-slot layout keeps no "
+                    "previous image (flash it with the image you want); for the others fix "
+                    "the cause shown and run --rollback again")
+        if any(r.result == "rolled back" for r in self.nodes):
+            return ("the update was rolled back: the nodes marked 'rolled back' run their "
+                    "previous image again, confirmed. Fix the cause shown for the failed "
+                    "node and run the same command again (--no-fleet-rollback keeps the "
+                    "nodes that passed their check)")
         left: dict[int, list[str]] = {}
         for r in self.nodes:
             if not (r.state == NodeState.DONE and r.version == r.job.version):
@@ -74,7 +89,8 @@ class RunReport:
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` object."""
-        return {"ok": self.ok, "nodes": [r.to_dict() for r in self.nodes],
+        return {"ok": self.ok, "mode": "rollback" if self.rollback else "update",
+                "nodes": [r.to_dict() for r in self.nodes],
                 "total_seconds": round(self.total_seconds, 3), "stopped": self.stopped,
                 "next_step": self.next_step}
 
@@ -93,7 +109,7 @@ def settle(reports: dict[NodeJob, NodeReport], started: float, now: float,
     for r in reports.values():
         if r.started is not None and r.finished is None:
             r.finished = now
-        if r.state != NodeState.DONE and r.result != "failed":
+        if r.state not in (NodeState.DONE, NodeState.ROLLED_BACK) and r.result != "failed":
             r.result = "failed"
             if r.state == NodeState.PENDING:
                 r.error = r.error or f"not started ({why})"
@@ -249,23 +265,12 @@ def run_plan(session: HandSession, plan: FlashPlan,
     if poll_hz:
         session.request("palm.poll", {"rate_hz": 0}, retries=2)
     try:
-        if plan.all_or_nothing:
-            _run_phase(session, plan, reports, status, "stage", on_change)
-            # An fmcb an earlier run left in its bootloader is finished while staging.
-            staged = all(r.state in (NodeState.STAGED, NodeState.DONE)
-                         for r in reports.values())
-            if staged:
-                _run_phase(session, plan, reports, status, "activate", on_change)
-            else:
-                failed = ", ".join(r.job.name for r in reports.values()
-                                   if r.state == NodeState.FAILED) or "another node"
-                for r in reports.values():
-                    if r.state not in (NodeState.FAILED, NodeState.DONE):
-                        r.result = "failed"
-                        waits = "; waits in its bootloader" if r.state == NodeState.STAGED else ""
-                        r.error = f"not activated: {failed} failed to stage (all-or-nothing){waits}"
-        else:
-            _run_phase(session, plan, reports, status, "all", on_change)
+        one_slot = list(plan.fingers)
+        if plan.slots:
+            one_slot = _run_slot_update(session, plan, reports, status, on_change)
+        if one_slot:
+            plan = replace(plan, jobs=tuple(j for j in plan.jobs if j.finger in one_slot))
+            _run_one_slot(session, plan, reports, status, on_change)
     finally:
         if poll_hz:
             try:
@@ -273,6 +278,163 @@ def run_plan(session: HandSession, plan: FlashPlan,
             except HostError:
                 pass
     return settle(reports, started, session.now())
+
+
+def _run_one_slot(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
+                  status: dict[str, Any], on_change: Callable[[NodeReport], None] | None
+                  ) -> None:
+    """Flash ``plan`` the one-slot way: each node halted in its bootloader and written."""
+    if plan.all_or_nothing:
+        _run_phase(session, plan, reports, status, "stage", on_change)
+        # An fmcb an earlier run left in its bootloader is finished while staging.
+        staged = all(r.state in (NodeState.STAGED, NodeState.DONE)
+                     for j, r in reports.items() if j in plan.jobs)
+        if staged:
+            _run_phase(session, plan, reports, status, "activate", on_change)
+        else:
+            failed = ", ".join(r.job.name for r in reports.values()
+                               if r.state == NodeState.FAILED) or "another node"
+            for j, r in reports.items():
+                if j in plan.jobs and r.state not in (NodeState.FAILED, NodeState.DONE):
+                    r.result = "failed"
+                    waits = "; waits in its bootloader" if r.state == NodeState.STAGED else ""
+                    r.error = f"not activated: {failed} failed to stage (all-or-nothing){waits}"
+    else:
+        _run_phase(session, plan, reports, status, "all", on_change)
+
+
+def _fail_finger(session: HandSession, reports: dict[NodeJob, NodeReport], finger: int,
+                 error: BaseException, on_change: Callable[[NodeReport], None] | None,
+                 states: tuple[NodeState, ...]) -> None:
+    """Mark the node of ``finger`` that was in one of ``states`` failed with ``error``."""
+    for j, r in reports.items():
+        if j.finger == finger and r.state in states:
+            r.result = "failed"
+            r.error = str(error)
+            r.state = NodeState.FAILED
+            r.finished = session.now()
+            if on_change is not None:
+                on_change(r)
+
+
+_BUSY_STATES: Final = (NodeState.INFO, NodeState.DOWNLOADING, NodeState.SWAPPING,
+                       NodeState.CHECKING, NodeState.ROLLING_BACK)
+
+
+def _run_slot_update(session: HandSession, plan: FlashPlan,
+                     reports: dict[NodeJob, NodeReport], status: dict[str, Any],
+                     on_change: Callable[[NodeReport], None] | None) -> list[int]:
+    """The two-slot update of every finger whose nodes all answer ``slot.info`` (see
+    :mod:`bootloader.slot_update`); returns the fingers left for the one-slot way."""
+    driver = Driver(session)
+    channels = {f: SlotChannel(f, plan, reports, session.now, keep_trial=plan.keep_trial,
+                               on_change=on_change) for f in plan.fingers}
+    two_slot: list[int] = []
+
+    def probe(finger: int) -> Generator[Op, Outcome, Any]:
+        if status["fingers"][finger]["power"] == FingerPower.OFF:
+            yield from channels[finger].power_up()  # off when the run began: power it
+        if (yield from channels[finger].probe()):
+            two_slot.append(finger)
+
+    driver.run({f: probe(f) for f in channels}, lambda f, e: None)  # unanswered: one-slot
+    if not two_slot:
+        return list(plan.fingers)
+    errors: dict[int, BaseException] = {}
+
+    def on_end(finger: int, error: BaseException | None) -> None:
+        if error is not None:
+            errors[finger] = error
+            _fail_finger(session, reports, finger, error, on_change, _BUSY_STATES)
+
+    attempts = dict.fromkeys(two_slot, 0)
+    downloads: dict[int, Generator[Op, Outcome, Any]] = {}
+
+    def download(finger: int) -> Generator[Op, Outcome, Any]:
+        attempts[finger] += 1
+        if attempts[finger] > 1:  # a node lost power or its link: let it boot again
+            yield from channels[finger].wait_for_fingers()
+        yield from channels[finger].download()
+
+    def on_download_end(finger: int, error: BaseException | None) -> None:
+        if error is not None and attempts[finger] < FINGER_ATTEMPTS:
+            for j, r in reports.items():
+                if j.finger == finger and r.state in _BUSY_STATES:
+                    r.error = f"retried after: {error}"
+            downloads[finger] = download(finger)
+            again.append(finger)
+            return
+        on_end(finger, error)
+
+    again: list[int] = list(two_slot)
+    for f in two_slot:
+        downloads[f] = download(f)
+    while again:
+        batch = {f: downloads[f] for f in again}
+        again = []
+        driver.run(batch, on_download_end)
+    if errors:
+        failed = ", ".join(r.job.name for r in reports.values() if r.state == NodeState.FAILED)
+        for j, r in reports.items():
+            if j.finger in two_slot and r.state == NodeState.STAGED:
+                r.result = "failed"
+                r.error = (f"not swapped: {failed} failed to download; this node keeps "
+                           "running its image (the new one waits in its secondary slot)")
+        return [f for f in plan.fingers if f not in two_slot]
+    driver.run({f: channels[f].swap() for f in two_slot}, on_end)
+    failed_check = bool(errors) or any(channels[f].failed_check for f in two_slot)
+    if failed_check:
+        back: dict[int, list[NodeJob]] = {}
+        for f in two_slot:
+            ch = channels[f]
+            if plan.fleet_rollback:
+                back[f] = list(ch.swapped)
+            else:
+                back[f] = [j for j in ch.swapped if reports[j].result == "failed"]
+        errors.clear()
+        driver.run({f: channels[f].rollback(jobs) for f, jobs in back.items() if jobs},
+                   on_end)
+    return [f for f in plan.fingers if f not in two_slot]
+
+
+def run_rollback(session: HandSession, plan: FlashPlan,
+                 on_change: Callable[[NodeReport], None] | None = None, *,
+                 reports: dict[NodeJob, NodeReport] | None = None) -> RunReport:
+    """Every node of ``plan`` (a :func:`~bootloader.plan.rollback_plan`) back to the image
+    in its secondary slot, four fingers at once; one-slot nodes are reported, untouched."""
+    reports = new_reports(plan) if reports is None else reports
+    started = session.now()
+    status = preflight(session, plan, reports)
+    poll_hz = int(status["poll_hz"])
+    if poll_hz:
+        session.request("palm.poll", {"rate_hz": 0}, retries=2)
+    try:
+        driver = Driver(session)
+        channels = {f: SlotChannel(f, plan, reports, session.now, on_change=on_change)
+                    for f in plan.fingers}
+
+        def back(finger: int) -> Generator[Op, Outcome, Any]:
+            if not (yield from channels[finger].probe()):
+                for j, r in reports.items():
+                    if j.finger == finger:
+                        r.result = "failed"
+                        r.error = ("one-slot layout (no slot.info answer): it keeps no "
+                                   "previous image to go back to")
+                return
+            yield from channels[finger].rollback(channels[finger].jobs)
+
+        def on_end(finger: int, error: BaseException | None) -> None:
+            if error is not None:
+                _fail_finger(session, reports, finger, error, on_change, _BUSY_STATES)
+
+        driver.run({f: back(f) for f in plan.fingers}, on_end)
+    finally:
+        if poll_hz:
+            try:
+                session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
+            except HostError:
+                pass
+    return replace(settle(reports, started, session.now()), rollback=True)
 
 
 def _run_phase(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],

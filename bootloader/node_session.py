@@ -108,6 +108,12 @@ class NodeState(enum.Enum):
     CONFIRMING = "confirming"
     DONE = "done"
     FAILED = "failed"
+    #: The two-slot path (:mod:`bootloader.slot_update`).
+    DOWNLOADING = "downloading"
+    SWAPPING = "swapping"
+    CHECKING = "checking"
+    ROLLING_BACK = "rolling back"
+    ROLLED_BACK = "rolled back"
 
 
 @dataclass
@@ -130,6 +136,18 @@ class NodeReport:
     wrote: bool = False
     blocks_done: int = 0
     blocks_total: int = 0
+    #: ``"two-slot"`` (updated through the slots) or ``"one-slot"`` (flashed in its
+    #: bootloader, as a node with an older bootloader must be).
+    layout: str = "one-slot"
+    #: The node's slots after the run (``slot_update.slot_summary``), two-slot nodes only.
+    slots: dict[str, Any] | None = None
+    #: Time (s, link clock) the node ran no application because of the update: from its
+    #: swap (or its fmcb's) to the first answer of its new application.
+    downtime_s: float | None = None
+    #: Time (s, link clock) a rollback of the node took, to its previous application.
+    rollback_s: float | None = None
+    #: Payload SHA-256 of the image the node ran before the update (two-slot nodes).
+    previous_sha256: bytes | None = None
 
     @property
     def seconds(self) -> float:
@@ -145,7 +163,10 @@ class NodeReport:
                 "partly_written": self.partly_written,
                 "version": self.version, "requested": self.job.version,
                 "bytes_written": self.bytes_written, "retries": self.retries,
-                "seconds": round(self.seconds, 3), "error": self.error}
+                "seconds": round(self.seconds, 3), "error": self.error,
+                "layout": self.layout, "slots": self.slots,
+                "downtime_s": None if self.downtime_s is None else round(self.downtime_s, 3),
+                "rollback_s": None if self.rollback_s is None else round(self.rollback_s, 3)}
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,12 @@ class FlashPlan:
     jobs: tuple[NodeJob, ...]
     force: bool = False
     all_or_nothing: bool = False
+    #: Update two-slot nodes through their slots (one-slot nodes are flashed as before).
+    slots: bool = True
+    #: A node failing its check after the swap rolls back every node of the update.
+    fleet_rollback: bool = True
+    #: Leave the swapped images unconfirmed: the next reset of a node reverts it.
+    keep_trial: bool = False
 
     @property
     def fingers(self) -> list[int]:
@@ -109,6 +115,11 @@ class FlashPlan:
     def describe(self) -> list[str]:
         """One line per node: what will happen to it."""
         mode = "rewrite all pages" if self.force else "skip if installed, else write what differs"
+        if self.slots:
+            mode += ("; two-slot nodes: into the secondary slot while running, then swap, "
+                     + ("left on trial" if self.keep_trial else "check and confirm")
+                     + (", all back if one fails" if self.fleet_rollback
+                        else ", a failed node back alone"))
         lines = [f"{job.name}: {job.image.header.app_name} {job.version} "
                  f"({len(job.image.pages())} pages, {job.image.header.image_size} bytes; "
                  f"{mode})" for job in self.jobs]
@@ -119,7 +130,8 @@ class FlashPlan:
 
 def make_plan(images: Mapping[BoardType, Path | FirmwareImage], fingers: Sequence[int] = (),
               *, force: bool = False, all_or_nothing: bool = False,
-              public_key: bytes | None = None) -> FlashPlan:
+              public_key: bytes | None = None, slots: bool = True,
+              fleet_rollback: bool = True, keep_trial: bool = False) -> FlashPlan:
     """Check ``images`` (board → file or image) and make the plan for ``fingers`` (default:
     all).  With ``public_key`` (32 bytes) every image must be signed with it.  Raises
     :class:`PlanError` naming the file and what is wrong."""
@@ -150,4 +162,27 @@ def make_plan(images: Mapping[BoardType, Path | FirmwareImage], fingers: Sequenc
         checked[board] = image
     jobs = tuple(NodeJob(f, board, checked[board]) for f in sorted(fingers)
                  for board in FINGER_BOARDS if board in checked)
-    return FlashPlan(jobs, force=force, all_or_nothing=all_or_nothing)
+    return FlashPlan(jobs, force=force, all_or_nothing=all_or_nothing, slots=slots,
+                     fleet_rollback=fleet_rollback, keep_trial=keep_trial)
+
+
+@dataclass(frozen=True)
+class RollbackJob(NodeJob):
+    """Put a node back on the image in its secondary slot (its previous one): no file;
+    ``image`` is an empty stand-in (:func:`rollback_plan`)."""
+
+    @property
+    def version(self) -> str:
+        """Whatever the node ran before: not known until it answers."""
+        return "previous"
+
+
+def rollback_plan(fingers: Sequence[int] = ()) -> FlashPlan:
+    """Every finger board of ``fingers`` (default all) back to its previous image."""
+    fingers = list(fingers) or list(range(FINGERS))
+    bad = [f for f in fingers if not 0 <= f < FINGERS]
+    if bad or len(set(fingers)) != len(fingers):
+        raise PlanError(f"fingers {fingers}: each must appear once, in 0..{FINGERS - 1}")
+    jobs = tuple(RollbackJob(f, board, FirmwareImage.build(b"", board, "0.0.0", "rollback"))
+                 for f in sorted(fingers) for board in FINGER_BOARDS)
+    return FlashPlan(jobs)

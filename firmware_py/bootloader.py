@@ -15,6 +15,15 @@ address, the payload pages hash to the header's SHA-256, and the activation reco
 :data:`~firmware_py.flash_layout.BOOT_CONTROL_PAGE` names that SHA-256.  Otherwise the node
 stays here and ``bl.status`` / ``bl.info`` say why.
 
+Two image slots (:mod:`firmware_py.slot_swap`): at start, before any autoboot window, the
+bootloader carries an update on from the swap-status record: it verifies a pending
+secondary image and swaps it in, resumes a swap a reset or power cut interrupted, or swaps
+the previous image back when a trial ended unconfirmed.  After a swap it boots at once (no
+window; a ``bl.*`` command meanwhile makes it stay); a trial image is booted with the trial
+watchdog armed (:data:`~protocol.messages.slots.TRIAL_TIMEOUT_US`), and one that does not
+verify or has no program on this board is swapped back at once.  ``bl.status`` says what
+happened.
+
 Flashing is staged: the first write to the image area in a session first erases the
 activation record (and waits for that), so an interrupted update never boots half an image;
 ``bl.activate`` verifies the staged image and writes the record.  An explicit ``bl.boot``
@@ -31,7 +40,9 @@ Choices beyond the original:
   reads back wrong gives status ``0x80 + i`` (word ``i``), a write the flash reports as
   failed gives ``0x80``.  Status 1: page < 32 or ≥ 1024 (as the original, so the identity
   page 31 is covered); 2: the boot-control page (activation only through ``bl.activate``);
-  3: a write is already in progress.
+  3: a write is already in progress (or a swap is running).  A write of the application
+  area first forgets an update in progress (the record goes back to CONFIRMED), so that no
+  swap later undoes the image being burnt the one-slot way.
 * A write of the header page (page 32) holding an image header this node would never
   activate is refused before anything is erased, so the installed image keeps booting:
   status 4 for another board or load address or a payload too large, 5 for a signature
@@ -46,37 +57,43 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import replace
 from typing import Any, Final
 
-from firmware_py import ed25519
 from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import (
     APP_PAGES,
     BOOT_CONTROL_PAGE,
     BOOTLOADER_PAGES,
     HEADER_PAGE,
-    KEY_PAGE,
     PAGE_SIZE,
     PARAM_PAGE,
-    PAYLOAD_FIRST_PAGE,
     ActivationRecord,
-    KeyRecord,
     page_address,
 )
-from firmware_py.hal import Flash, Hal, Timer, Uart
+from firmware_py.hal import Hal, Timer, Uart
 from firmware_py.hand_node import DEFERRED, HandNode, Request
-from firmware_py.mcu import Mcu
-from protocol.errors import ImageError
-from protocol.framing import Frame
-from protocol.image import (
-    FLASH,
-    MAX_PAYLOAD,
-    BoardType,
-    ImageHeader,
-    parse_header,
-    signing_bytes,
+from firmware_py.image_check import (
+    ERASED_PAGE,
+    RESULT_OF_IMAGE_STATUS,
+    ImageCheck,
+    check_header,
+    check_signature,
+    inspect_image,
 )
+from firmware_py.mcu import Mcu
+from firmware_py.slot_swap import (
+    PRIMARY,
+    SECONDARY,
+    SlotSwap,
+    SwapRecord,
+    image_pages,
+    read_record,
+    secondary_check,
+    write_record,
+)
+from protocol.framing import Frame
+from protocol.image import FLASH, BoardType
 from protocol.messages import CATALOGUE
 from protocol.messages.bootloader import (
     AUTOBOOT_WINDOW_US,
@@ -87,6 +104,10 @@ from protocol.messages.bootloader import (
     WriteStatus,
 )
 from protocol.messages.common import Running
+from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotEvent, SlotState
+
+__all__ = ["AUTOBOOT_US", "Bootloader", "ImageCheck", "check_header", "check_signature",
+           "inspect_image"]
 
 #: Default autoboot window (µs): the protocol's window, long enough for the original host
 #: tools' reset, wait 1 s + 2 s, halt (see :data:`AUTOBOOT_WINDOW_US`).
@@ -104,108 +125,7 @@ UPSTREAM_UART: Final = {
     BoardType.F3: "tendon",
 }
 
-#: What a failed image check means as a command result.
-_RESULT_OF_IMAGE_STATUS: Final = {
-    ImageStatus.EMPTY: BootResult.BAD_IMAGE,
-    ImageStatus.BAD_HEADER: BootResult.BAD_IMAGE,
-    ImageStatus.TOO_LARGE: BootResult.BAD_IMAGE,
-    ImageStatus.WRONG_BOARD: BootResult.WRONG_BOARD,
-    ImageStatus.HASH_MISMATCH: BootResult.HASH_MISMATCH,
-    ImageStatus.NOT_ACTIVATED: BootResult.NOT_ACTIVATED,
-    ImageStatus.BAD_SIGNATURE: BootResult.BAD_SIGNATURE,
-    ImageStatus.UNSIGNED: BootResult.BAD_SIGNATURE,
-}
-_ERASED_PAGE: Final = b"\xff" * PAGE_SIZE
 _NO_PAGE: Final = 0xFFFFFFFF
-
-
-@dataclass(frozen=True)
-class ImageCheck:
-    """The verdict on the installed image: its status, the header, and why."""
-
-    status: ImageStatus
-    header: ImageHeader | None
-    reason: str
-
-    @property
-    def staged_ok(self) -> bool:
-        """Header and payload verify (the image may still lack its activation)."""
-        return self.status in (ImageStatus.VALID, ImageStatus.NOT_ACTIVATED)
-
-
-def inspect_image(flash: Flash, board: BoardType | None) -> ImageCheck:
-    """Check the image installed in ``flash`` for a board of type ``board``.
-
-    In order: header page erased → empty; header does not parse or names another load
-    address → bad header; another board → wrong board; payload larger than the
-    application area → too large; SHA-256 of the payload pages differs → hash mismatch
-    (a truncated image lands here); the node is provisioned with a key (key page) and the
-    image is signed by another key → bad signature, or unsigned while the key record
-    requires a signature → unsigned; activation record missing or naming another hash →
-    not activated; else valid.
-    """
-    raw = flash.read_page(HEADER_PAGE)
-    if raw == _ERASED_PAGE:
-        return ImageCheck(ImageStatus.EMPTY, None, "no image: header page is erased")
-    checked = check_header(raw, board)
-    if isinstance(checked, ImageCheck):
-        return checked
-    header = checked
-    payload = flash.read(page_address(PAYLOAD_FIRST_PAGE), header.payload_size)
-    if hashlib.sha256(payload).digest() != header.sha256:
-        return ImageCheck(ImageStatus.HASH_MISMATCH, header,
-                          f"hash mismatch: payload pages do not hash to "
-                          f"{header.sha256.hex()[:16]}... (truncated or corrupt)")
-    refused = check_signature(header, flash)
-    if refused is not None:
-        return refused
-    record = ActivationRecord.from_page(flash.read_page(BOOT_CONTROL_PAGE))
-    if record is None or record.sha256 != header.sha256:
-        return ImageCheck(ImageStatus.NOT_ACTIVATED, header,
-                          f"not activated: {header.app_name} {header.version} verifies but "
-                          "has no activation record")
-    return ImageCheck(ImageStatus.VALID, header,
-                      f"valid: {header.app_name} {header.version} ({header.payload_size} B)")
-
-
-def check_header(raw: bytes, board: BoardType | None) -> ImageHeader | ImageCheck:
-    """The header in ``raw`` (a header page) if it parses, names the header page as its load
-    address and ``board``, and its payload fits; else the :class:`ImageCheck` saying why
-    (bad header, wrong board, too large)."""
-    try:
-        header = parse_header(raw, max_payload=0xFFFFFFFF)
-    except ImageError as exc:
-        return ImageCheck(ImageStatus.BAD_HEADER, None, f"bad header: {exc}")
-    if header.load_address != page_address(HEADER_PAGE):
-        return ImageCheck(ImageStatus.BAD_HEADER, header,
-                          f"bad header: load address 0x{header.load_address:x} is not "
-                          f"0x{page_address(HEADER_PAGE):x}")
-    if board is None or header.board != board:
-        mine = board.name if board is not None else "unknown"
-        return ImageCheck(ImageStatus.WRONG_BOARD, header,
-                          f"wrong board: image is for {header.board.name}, this is {mine}")
-    if header.payload_size > MAX_PAYLOAD:
-        return ImageCheck(ImageStatus.TOO_LARGE, header,
-                          f"too large: payload {header.payload_size} B > {MAX_PAYLOAD} B")
-    return header
-
-
-def check_signature(header: ImageHeader, flash: Flash) -> ImageCheck | None:
-    """None if the node's key record (key page) accepts ``header``'s signature (or the node
-    has no key); else the :class:`ImageCheck` (bad signature, or unsigned where the record
-    requires a signature)."""
-    key = KeyRecord.from_page(flash.read_page(KEY_PAGE))
-    if key is None:
-        return None
-    if not header.signed:
-        if key.required:
-            return ImageCheck(ImageStatus.UNSIGNED, header,
-                              "unsigned: this node requires a signed image")
-        return None
-    if not ed25519.verify(key.public_key, header.signature, signing_bytes(header)):
-        return ImageCheck(ImageStatus.BAD_SIGNATURE, header,
-                          "bad signature: not signed by this node's key")
-    return None
 
 
 def _first_bad_word(expected: bytes, actual: bytes) -> int | None:
@@ -247,6 +167,11 @@ class Bootloader(HandNode):
         self._timer: Timer | None = None
         self._busy = False
         self._waiting: list[Callable[[], None]] = []
+        #: The slot swap under way (None: none), and whether a host asked to stay here.
+        self._swap: SlotSwap | None = None
+        self._stay = False
+        if self.slots is not None:
+            self.slots.busy = lambda: self._busy or self._swap is not None
         self.handle("bl.halt", lambda req: {})
         self.handle("bl.status", self._on_status)
         self.handle("bl.info", self._on_info)
@@ -263,9 +188,100 @@ class Bootloader(HandNode):
         if self.board == BoardType.FMCB:
             self.hal.power("phalange").set(0)
         self.listen(self.upstream)
+        record, _ = read_record(self.hal.flash)
+        if self.slots is not None and record.state != SlotState.CONFIRMED:
+            self._finish_update(record)
+        else:
+            self._open_window()
+
+    def _open_window(self) -> None:
+        """Start the autoboot countdown."""
         self.state = BootState.AUTOBOOT_COUNTDOWN
         self._deadline_us = self.hal.clock.now_us() + self.autoboot_us
         self._timer = self.hal.clock.call_later(self.autoboot_us, self._autoboot)
+
+    # --- the two slots ------------------------------------------------------------------------
+    def _finish_update(self, record: SwapRecord) -> None:
+        """Carry an update on from ``record``: verify and start a pending swap, swap back an
+        unconfirmed trial, or resume a swap a reset or power cut interrupted."""
+        self.state = BootState.SWAPPING
+        if record.state == SlotState.PENDING:
+            check = secondary_check(self.hal.flash, self.board)
+            if (check.status != ImageStatus.VALID or check.header is None
+                    or check.header.sha256 != record.sha256):
+                why = check.reason if check.status != ImageStatus.VALID else "another SHA-256"
+                self.note = f"swap refused: secondary image: {why}"
+                refused = replace(record, state=SlotState.CONFIRMED, event=SlotEvent.REFUSED)
+                self._record_then(refused, lambda rec: self._open_window())
+                return
+            pages = max(image_pages(self.hal.flash, SECONDARY.start, self.board),
+                        image_pages(self.hal.flash, PRIMARY.start, self.board))
+            record = replace(record, state=SlotState.SWAPPING, event=SlotEvent.NONE,
+                             pages=pages, index=0, step=0)
+            self._record_then(record, self._run_swap)
+        elif record.state == SlotState.TRIAL:
+            self._revert(record, "trial image not confirmed: swapping the previous image back")
+        else:
+            self._run_swap(record)
+
+    def _revert(self, record: SwapRecord, why: str) -> None:
+        """Swap the previous image back (the trial image failed or was not confirmed)."""
+        self.note = why
+        self.state = BootState.SWAPPING
+        self._record_then(replace(record, state=SlotState.REVERTING, index=0, step=0),
+                          self._run_swap)
+
+    def _record_then(self, record: SwapRecord, then: Callable[[SwapRecord], None]) -> None:
+        """Write the swap-status ``record``, then call ``then`` with it (as written)."""
+        self._busy = True
+        box: list[SwapRecord] = []
+
+        def done(ok: bool) -> None:
+            if not self._running():
+                return
+            self._busy = False
+            if ok:
+                then(box[0])
+            else:
+                self._swap_failed("swap-status page did not program")
+
+        box.append(write_record(self.hal.flash, record, done))
+
+    def _run_swap(self, record: SwapRecord) -> None:
+        self.state = BootState.SWAPPING
+        self._swap = SlotSwap(self.hal.flash, self.board, self._running)
+        self._swap.resume(record, self._swapped)
+
+    def _swap_failed(self, why: str) -> None:
+        self._swap = None
+        self.state = BootState.NO_VALID_IMAGE
+        self._fail(BootResult.PROTECTED, f"swap stopped: {why}")
+        self._run_waiting()
+
+    def _swapped(self, final: SwapRecord | None) -> None:
+        """The exchange is over: boot what is now primary at once (no autoboot window),
+        unless a host halted the countdown meanwhile."""
+        if final is None:
+            self._swap_failed("a page did not program")
+            return
+        self._swap = None
+        check = self.inspect()
+        name = f"{check.header.app_name} {check.header.version}" if check.header else "none"
+        if final.state == SlotState.TRIAL:
+            self.note = f"swapped: {name} boots on trial"
+        else:
+            self.note = f"reverted: the trial image was not confirmed; back to {name}"
+        self._run_waiting()
+        if final.state == SlotState.TRIAL and (
+                check.status != ImageStatus.VALID or check.header is None
+                or check.header.app_name not in self.mcu.apps):
+            self._revert(final, f"swapped-in image cannot boot ({check.reason}): reverting")
+        elif self._stay:
+            self.state = BootState.HALTED
+        elif check.status == ImageStatus.VALID:
+            self._jump(check)
+        else:
+            self.state = BootState.NO_VALID_IMAGE
 
     def _running(self) -> bool:
         """True while this program is the one running on the MCU (not reset or replaced)."""
@@ -290,6 +306,8 @@ class Bootloader(HandNode):
             self._timer = None
         if self.state == BootState.AUTOBOOT_COUNTDOWN:
             self.state = BootState.HALTED
+        elif self.state == BootState.SWAPPING:
+            self._stay = True  # finish the swap, then stay
 
     def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
                  send: Callable[[bytes | None, int], None]) -> None:
@@ -322,11 +340,17 @@ class Bootloader(HandNode):
         """Start the application the verified header names."""
         assert check.header is not None
         self.state = BootState.BOOTING
+        trial = read_record(self.hal.flash)[0].state == SlotState.TRIAL
         try:
             self.mcu.boot(check.header.app_name, check.header.version)
         except ConfigError as exc:
             self.state = BootState.NO_VALID_IMAGE
             self._fail(BootResult.BAD_IMAGE, f"boot failed: {exc}")
+            return
+        if trial:
+            # The trial watchdog: unless the image confirms itself (or the host confirms
+            # it) in time, the node resets and the next boot swaps the previous image back.
+            self.hal.watchdog.start(TRIAL_TIMEOUT_US)
 
     def _fail(self, code: int, note: str) -> None:
         self.last_error = code
@@ -336,7 +360,7 @@ class Bootloader(HandNode):
     @property
     def flash_busy(self) -> bool:
         """A page write (ours, or one left over from before a reset) is in progress."""
-        return self._busy or self.hal.flash.busy
+        return self._busy or self._swap is not None or self.hal.flash.busy
 
     def _program(self, page: int, data: bytes, then: Callable[[int], None]) -> None:
         """Erase and program ``page``, read it back, then call ``then`` with a write status."""
@@ -424,18 +448,41 @@ class Bootloader(HandNode):
             status, why = refused
             self._fail(status, f"write of page {page}: header refused: {why}")
             req.respond({"page": page, "status": status})
-        elif page in APP_PAGES and self.hal.flash.read_page(BOOT_CONTROL_PAGE) != _ERASED_PAGE:
-            # Staging begins: forget the activation before the image changes.
-            def cleared(status: int) -> None:
-                if status == WriteStatus.OK:
-                    self._program(page, data, reply)
-                else:
-                    reply(status)
-
-            self._program(BOOT_CONTROL_PAGE, _ERASED_PAGE, cleared)
+        elif page in APP_PAGES:
+            self._stage(page, data, reply)
         else:
             self._program(page, data, reply)
         return DEFERRED
+
+    def _stage(self, page: int, data: bytes, reply: Callable[[int], None]) -> None:
+        """Write a page of the application area the one-slot way: first forget an update
+        in progress (so that no swap later undoes the image being burnt) and the activation
+        (so that an interrupted write never boots), then the page."""
+        def program(status: int = WriteStatus.OK) -> None:
+            if status == WriteStatus.OK:
+                self._program(page, data, reply)
+            else:
+                reply(status)
+
+        def deactivate(status: int = WriteStatus.OK) -> None:
+            if status != WriteStatus.OK:
+                reply(status)
+            elif self.hal.flash.read_page(BOOT_CONTROL_PAGE) != ERASED_PAGE:
+                self._program(BOOT_CONTROL_PAGE, ERASED_PAGE, program)
+            else:
+                program()
+
+        if read_record(self.hal.flash)[0].state != SlotState.CONFIRMED:
+            self._busy = True
+
+            def forgotten(ok: bool) -> None:
+                if self._running():
+                    self._busy = False
+                    deactivate(WriteStatus.OK if ok else WRITE_STATUS_WORD_FAILED)
+
+            write_record(self.hal.flash, SwapRecord(), forgotten)
+        else:
+            deactivate()
 
     def _header_refusal(self, data: bytes) -> tuple[WriteStatus, str] | None:
         """Why a header page must not be written: its status and reason (None: write it).  An image header for
@@ -467,7 +514,7 @@ class Bootloader(HandNode):
         def activate() -> None:
             check = self.inspect()
             if not check.staged_ok:
-                code = _RESULT_OF_IMAGE_STATUS[check.status]
+                code = RESULT_OF_IMAGE_STATUS[check.status]
                 self._fail(code, f"activate refused: {check.reason}")
                 req.respond({"status": code, "image_status": check.status})
             elif check.header is None or check.header.sha256 != wanted:
@@ -514,7 +561,7 @@ class Bootloader(HandNode):
         check = self.inspect()
         if not check.staged_ok:
             self.state = BootState.NO_VALID_IMAGE
-            self._fail(_RESULT_OF_IMAGE_STATUS[check.status], f"boot refused: {check.reason}")
+            self._fail(RESULT_OF_IMAGE_STATUS[check.status], f"boot refused: {check.reason}")
             return
         assert check.header is not None
         if check.header.app_name not in self.mcu.apps:

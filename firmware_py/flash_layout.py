@@ -1,7 +1,9 @@
 """Where things live in a hand microcontroller's flash, as the firmware names it.
 
 The geometry (bootloader pages 0–31, header page 32, payload from 33, parameters 1020,
-activation record 1021) is declared once, in :class:`protocol.image.FlashGeometry`.
+activation record 1021, and the two-slot division: primary 32–523, secondary 524–1015,
+scratch 1016–1019, swap status 1022–1023) is declared once, in
+:class:`protocol.image.FlashGeometry`.
 
 An image boots only if its header is valid for this board, its payload's SHA-256 matches,
 and the activation record names that same SHA-256.  Writing any page of the image area

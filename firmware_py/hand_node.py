@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Final
 
 from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
+from firmware_py.slot_service import SlotService
 from protocol.catalogue import REQUEST, Message
 from protocol.errors import ProtocolError
 from protocol.framing import Frame, encode_frame
@@ -80,6 +81,9 @@ class HandNode:
     #: The version the program declares (major, minor, patch).
     FW_VERSION: ClassVar[tuple[int, int, int]] = (0, 1, 0)
     running: ClassVar[Running] = Running.APPLICATION
+    #: The program knows the two-slot layout and answers ``slot.*`` (False: a program
+    #: built for the one-slot layout, which answers none of them).
+    two_slots: ClassVar[bool] = True
 
     def __init__(self, hal: Hal) -> None:
         self.hal = hal
@@ -97,6 +101,20 @@ class HandNode:
         self.handle("identify", self._identify)
         self.handle("reset", self._reset)
         self.handle("txn", self._txn)
+        board = self.identity.board_type
+        #: The ``slot.*`` service (None on a one-slot program or a board without an identity).
+        self.slots: SlotService | None = None
+        if self.two_slots and board is not None:
+            application = self.running == Running.APPLICATION
+            self.slots = SlotService(self, hal, board, application, health=self.health_check)
+            if application:
+                self.slots.start_self_check()
+
+    def health_check(self) -> bool:
+        """The application's own check before it confirms a trial image it was asked to
+        confirm itself (see :mod:`firmware_py.slot_service`): True by default, once it has
+        run :data:`~firmware_py.slot_service.SELF_CHECK_US` without a reset."""
+        return True
 
     # --- wiring ---------------------------------------------------------------------------
     def listen(self, uart: Uart) -> None:

@@ -100,6 +100,13 @@ class Mcu:
                     (version.major, version.minor, version.patch))
         self.program.start()
 
+    def install_programs(self, bootloader: ProgramFactory,
+                         apps: Mapping[str, ProgramFactory]) -> None:
+        """Replace the bootloader and the application table (a factory reflash over JTAG);
+        they run from the next reset or power-up."""
+        self._bootloader_factory = bootloader
+        self.apps = apps
+
     def _start_bootloader(self) -> None:
         self.hal.halt(restart_clock=True)
         self.program_name = "bootloader"

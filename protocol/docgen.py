@@ -11,7 +11,9 @@ import construct as c
 from protocol import control_tables
 from protocol.catalogue import REPLY, REQUEST, Message, iter_fields, static_size
 from protocol.enum_field import EnumField
+from protocol.image import FLASH, MAX_PAYLOAD, SLOT_MAX_PAYLOAD
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
+from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotEvent, SlotState
 
 _NODE_TITLES = {
     "common": "Every node (application and bootloader)",
@@ -126,6 +128,91 @@ def _control_table_section(table: control_tables.ControlTable) -> list[str]:
     return out + [""]
 
 
+def _pages(r: range) -> str:
+    return f"{r.start}–{r.stop - 1}"
+
+
+_STATE_MEANING = {
+    SlotState.CONFIRMED: "the primary image is the one that boots; nothing pending (also "
+    "what a node flashed the one-slot way reads as)",
+    SlotState.PENDING: "`slot.swap` accepted a verified secondary image; the next reset swaps",
+    SlotState.SWAPPING: "the bootloader exchanges the slots; a reset or power cut at any "
+    "instant resumes it",
+    SlotState.TRIAL: "the new image runs once on trial; unconfirmed at the next reset or "
+    "when the trial watchdog fires, it is swapped back",
+    SlotState.REVERTING: "the exchange back to the previous image, resumable like SWAPPING",
+}
+_EVENT_MEANING = {
+    SlotEvent.NONE: "nothing since the last update began",
+    SlotEvent.INSTALLED: "a swap finished; the new image runs on trial",
+    SlotEvent.CONFIRMED: "the trial image was confirmed (host or application)",
+    SlotEvent.REVERTED: "the trial image was not confirmed (reset, crash, trial watchdog, "
+    "or it did not verify after the swap): the previous image is back",
+    SlotEvent.REFUSED: "the pending image no longer verified at the reset: nothing swapped",
+}
+
+
+def _slots_section() -> list[str]:
+    """The two-slot flash layout and how an update proceeds."""
+    status = ", ".join(str(p) for p in FLASH.swap_status_pages)
+    out = [
+        "## Firmware update with two image slots",
+        "",
+        f"Flash of every finger MCU: {FLASH.page_count} pages of {FLASH.page_size} B.",
+        "",
+        "| pages | what |",
+        "|---|---|",
+        f"| {_pages(FLASH.bootloader_pages)} | bootloader, key record (page {FLASH.key_page}), "
+        "identity (end of page 31); locked |",
+        f"| {_pages(FLASH.primary_slot)} | primary slot: the image that runs (header on page "
+        f"{FLASH.header_page}) |",
+        f"| {_pages(FLASH.secondary_slot)} | secondary slot: where a new image is written |",
+        f"| {_pages(FLASH.scratch)} | scratch: one chunk of the primary during a swap |",
+        f"| {FLASH.param_page} | parameters (kept across updates) |",
+        f"| {FLASH.boot_control_page} | activation record of the primary image |",
+        f"| {status} | swap status: two records written alternately (sequence number, "
+        "CRC-32) |",
+        "",
+        f"An image of at most {SLOT_MAX_PAYLOAD} payload bytes fits a slot.  The one-slot way "
+        f"(`bl.write_page` from page {FLASH.header_page}, then `bl.activate` or `bl.boot`) "
+        f"still burns the primary slot with images of up to {MAX_PAYLOAD} bytes; it forgets "
+        "any update in progress first, and a node whose running image runs on into the "
+        "secondary slot refuses `slot.write` (PAGE_PROTECTED).  A node with an older, "
+        "one-slot bootloader answers no `slot.*` message.",
+        "",
+        "An update, while the application keeps running:",
+        "",
+        "1. `slot.write` each page of the new image into the secondary slot (through "
+        "`palm.route` and the fmcb tunnel for f2/f3, like any request); the header page is "
+        "refused first if the image is for another board, too large for a slot, or not "
+        "signed with the node's key.",
+        "2. `slot.hash` the written pages on the node and compare with the file's hash; its "
+        "`image_status` is the verdict the swap will apply.",
+        "3. `slot.swap` with the payload SHA-256 and who confirms: the node verifies the image "
+        "(header, board, size, payload hash, signature where provisioned), records PENDING, "
+        "acknowledges and resets.  The bootloader verifies it again, exchanges the slots "
+        "(only the pages either image occupies, a chunk of scratch pages at a time) and "
+        "boots the new image at once, on trial, with no autoboot window: the node is down "
+        "for that one reboot.",
+        f"4. Within {TRIAL_TIMEOUT_US / 1e6:g} s (the trial watchdog), `slot.confirm` from the "
+        "host after its checks, or the application itself after its health check when the "
+        "swap asked for APPLICATION, makes the new image the confirmed one.  Otherwise (a "
+        "reset, a crash, the watchdog) the next boot swaps the previous image back and "
+        "`slot.info` reports REVERTED.  After a confirmed update the secondary slot holds "
+        "the previous image: `slot.swap` of it is a rollback.",
+        "",
+        "| state | meaning |",
+        "|---|---|",
+        *(f"| {int(k)} {k.name} | {v} |" for k, v in _STATE_MEANING.items()),
+        "",
+        "| event | meaning |",
+        "|---|---|",
+        *(f"| {int(k)} {k.name} | {v} |" for k, v in _EVENT_MEANING.items()),
+        "",
+    ]
+    return out
+
+
 def render() -> str:
     """The whole of docs/PROTOCOL.md as text."""
     out = [
@@ -154,6 +241,7 @@ def render() -> str:
         out += [f"## {title}", ""]
         for msg in msgs:
             out += _message_section(msg)
+    out += _slots_section()
     out += ["## Arm bus: Dynamixel 1.0 control tables", ""]
     for table in (control_tables.RX64_TABLE, control_tables.STEPPER_TABLE):
         out += _control_table_section(table)

@@ -63,6 +63,7 @@ from protocol.errors import ImageError, wrap_construct
 
 __all__ = [
     "APP_START_ADDRESS", "FLASH", "HEADER_SIZE", "HEADER_VERSION", "MAGIC", "MAX_PAYLOAD",
+    "SLOT_MAX_PAYLOAD",
     "BoardType", "FirmwareImage", "FlashGeometry", "ImageFlags", "ImageHeader", "Version",
     "header_crc", "make_image", "pages_needed", "parse_header", "parse_image", "signing_bytes",
     "split_pages", "verify_payload",
@@ -78,10 +79,20 @@ class FlashGeometry:
         pages 0–31      bootloader; page 30 the signing-key record (trust anchor), page 31
                         ends with the node identity (16 B at 0x401FF0)
         page 32         image header (``app_start_page``; one page, :data:`HEADER_SIZE`)
-        pages 33–1019   image payload
+        pages 33–1019   image payload (one-slot layout: an image may fill the whole area)
         page 1020       parameters (kept across updates)
         page 1021       boot control: the activation record
-        pages 1022–1023 unused
+        pages 1022–1023 swap status (two alternating records)
+
+    The two-slot layout divides the same application area::
+
+        pages 32–523    primary slot (492 pages): the image that runs, header on page 32
+        pages 524–1015  secondary slot (492 pages): where a new image is written
+        pages 1016–1019 scratch (4 pages): one chunk of the primary during a swap
+
+    An image of at most :data:`SLOT_MAX_PAYLOAD` bytes fits a slot and can be installed by
+    a swap; a larger one (up to :data:`MAX_PAYLOAD`) is burnt into the application area
+    the one-slot way and leaves no room for a second image.
     """
 
     flash_base: int = 0x400000
@@ -94,6 +105,15 @@ class FlashGeometry:
     key_page: int = 30
     #: The node identity: board type, unique id, hardware version, bus address (u32 each).
     identity_address: int = 0x401FF0
+    #: Pages in each image slot (header included).
+    slot_pages: int = 492
+    #: First page of the secondary slot (its header page).
+    secondary_slot_page: int = 524
+    #: First scratch page and how many (a swap moves this many pages at a time).
+    scratch_page: int = 1016
+    scratch_pages: int = 4
+    #: The two swap-status pages, written alternately so that one always holds a whole record.
+    swap_status_pages: tuple[int, int] = (1022, 1023)
 
     @property
     def bootloader_pages(self) -> range:
@@ -139,6 +159,26 @@ class FlashGeometry:
         return range(self.app_start_page, self.param_page)
 
     @property
+    def primary_slot(self) -> range:
+        """Pages of the primary slot: where the running image lives (header first)."""
+        return range(self.app_start_page, self.app_start_page + self.slot_pages)
+
+    @property
+    def secondary_slot(self) -> range:
+        """Pages of the secondary slot: where a new image is written while the old one runs."""
+        return range(self.secondary_slot_page, self.secondary_slot_page + self.slot_pages)
+
+    @property
+    def scratch(self) -> range:
+        """Pages a swap parks one chunk of the primary slot in."""
+        return range(self.scratch_page, self.scratch_page + self.scratch_pages)
+
+    @property
+    def slot_max_payload(self) -> int:
+        """Largest payload (bytes) an image in one slot can carry: 491 pages, 125696 B."""
+        return (self.slot_pages - HEADER_SIZE // self.page_size) * self.page_size
+
+    @property
     def app_area_bytes(self) -> int:
         """Size of the application area in bytes (988 pages = 252928 B on the SAM3S)."""
         return len(self.app_pages) * self.page_size
@@ -155,6 +195,8 @@ APP_NAME_SIZE = 16
 APP_START_ADDRESS = FLASH.app_start_address
 #: Largest payload (bytes) that fits the SAM3S application area after the header: 252672.
 MAX_PAYLOAD = FLASH.app_area_bytes - HEADER_SIZE
+#: Largest payload (bytes) of an image that fits one slot of the two-slot layout: 125696.
+SLOT_MAX_PAYLOAD = FLASH.slot_max_payload
 _CRC_OFFSET = HEADER_SIZE - 4
 _APP_NAME_RE = re.compile(r"[\x21-\x7e]{1,16}")
 
@@ -533,3 +575,11 @@ def split_pages(image_bytes: bytes, page_size: int = 256, fill: int = 0xFF) -> l
     count = pages_needed(len(data), page_size)
     padded = data.ljust(count * page_size, bytes([fill]))
     return [padded[i * page_size : (i + 1) * page_size] for i in range(count)]
+
+
+assert (
+    FLASH.primary_slot.stop == FLASH.secondary_slot.start
+    and FLASH.secondary_slot.stop == FLASH.scratch.start
+    and FLASH.scratch.stop == FLASH.param_page
+    and min(FLASH.swap_status_pages) > FLASH.boot_control_page
+), "the two-slot layout must tile the application area"

@@ -5,6 +5,16 @@
     flash-all-fingers --port /dev/ttyACM0 --fmcb fmcb.img --f2 f2.img --f3 f3.img
     flash-all-fingers --port emu://hand/palm --f2 f2.img --fingers 0,2 --dry-run
     flash-all-fingers --port P --fmcb fmcb.img --all-or-nothing --json --key signing.pub
+    flash-all-fingers --port P --rollback            # every node back to its previous image
+
+Nodes with two image slots are updated through them by default: each new image is written
+into every secondary slot while the applications keep running, verified by its on-node hash,
+then every node swaps (down for that one reboot), is checked (identify, version, its sensors
+answer) and confirmed; if any node fails its check, every node of the update goes back to
+its previous image (``--no-fleet-rollback``: only that node).  ``--keep-trial`` leaves the
+new images unconfirmed, so that the next reset of a node reverts it.  Nodes still on the
+one-slot layout (an older bootloader) are flashed in their bootloader as before
+(``--one-slot`` flashes every node that way); the report's ``layout`` says which.
 
 Every image is checked before anything is touched (exists, parses, right board, signed with
 ``--key`` when given), and the palm and every finger must answer.  A node already holding
@@ -27,10 +37,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from bootloader.batch import RunReport, new_reports, run_plan, settle
+from bootloader.batch import RunReport, new_reports, run_plan, run_rollback, settle
 from bootloader.errors import FlashError, PlanError
 from bootloader.node_session import NodeReport, NodeState
-from bootloader.plan import FlashPlan, make_plan
+from bootloader.plan import FlashPlan, make_plan, rollback_plan
 from bootloader.signing import load_public_key
 from host.errors import HostError, TransportError
 from host.hand_session import HandSession
@@ -64,16 +74,37 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-or-nothing", action="store_true",
                    help="stage and verify every node, activate only if all verified")
     p.add_argument("--key", type=Path, help="public key the nodes require signatures from")
+    p.add_argument("--no-fleet-rollback", action="store_true",
+                   help="a node failing its check after the swap goes back alone; the "
+                   "others keep the new image")
+    p.add_argument("--keep-trial", action="store_true",
+                   help="leave the new images unconfirmed: the next reset of a node reverts "
+                   "it (to test the rollback path)")
+    p.add_argument("--rollback", action="store_true",
+                   help="no images: every node goes back to its previous image")
+    p.add_argument("--one-slot", action="store_true",
+                   help="flash every node in its bootloader (the one-slot way)")
     return p
 
 
 def plan_from_args(args: argparse.Namespace) -> FlashPlan:
     """The checked plan the command line asks for (raises :class:`FlashError`)."""
+    if args.rollback:
+        given = [f"--{n}" for n in ("fmcb", "f2", "f3") if getattr(args, n) is not None]
+        given += [f"--{n.replace('_', '-')}" for n in ("keep_trial", "no_fleet_rollback",
+                                                         "one_slot", "force", "all_or_nothing")
+                  if getattr(args, n)]
+        if given:
+            raise PlanError(f"--rollback takes no {' '.join(given)}: it puts every node back "
+                            "on the image it ran before")
+        return rollback_plan(args.fingers)
     images = {board: path for board, path in ((BoardType.FMCB, args.fmcb),
               (BoardType.F2, args.f2), (BoardType.F3, args.f3)) if path is not None}
     key = load_public_key(args.key) if args.key is not None else None
     return make_plan(images, args.fingers, force=args.force,
-                     all_or_nothing=args.all_or_nothing, public_key=key)
+                     all_or_nothing=args.all_or_nothing, public_key=key,
+                     slots=not args.one_slot, fleet_rollback=not args.no_fleet_rollback,
+                     keep_trial=args.keep_trial)
 
 
 def progress_printer(stream: TextIO) -> object:
@@ -91,16 +122,20 @@ def progress_printer(stream: TextIO) -> object:
 
 
 def table(report: RunReport) -> str:
-    """The end-of-run table: node, before → after, bytes, retries, time, result."""
-    rows = [("node", "version", "bytes", "retries", "time", "result")]
+    """The end-of-run table: node, before → after, bytes, retries, time, layout, time the
+    node was down (its swap to its new application; ``-`` flashed the one-slot way or not
+    swapped), result."""
+    rows = [("node", "version", "bytes", "retries", "time", "layout", "down", "result")]
     for r in report.nodes:
         before = r.version_before or (f"{r.partly_written} partly written"
                                       if r.partly_written else "?")
+        down = f"{r.downtime_s:.2f} s" if r.downtime_s is not None else "-"
         rows.append((r.job.name, f"{before} → {r.version or '?'}",
-                     str(r.bytes_written), str(r.retries), f"{r.seconds:.2f} s",
+                     str(r.bytes_written), str(r.retries), f"{r.seconds:.2f} s", r.layout,
+                     down,
                      r.result + (f": {r.error}" if r.error and r.result == "failed" else "")))
-    widths = [max(len(row[i]) for row in rows) for i in range(5)]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=False)) + "  " + row[5]
+    widths = [max(len(row[i]) for row in rows) for i in range(7)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=False)) + "  " + row[7]
              for row in rows]
     stopped = f"{report.stopped}: " if report.stopped else ""
     lines.append(f"total {report.total_seconds:.2f} s; {stopped}"
@@ -116,6 +151,11 @@ def _print_report(report: RunReport, as_json: bool) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     plan = plan_from_args(args)
+    if args.dry_run and args.rollback:
+        lines = [f"finger {f}: every node back to the image in its secondary slot"
+                 for f in plan.fingers]
+        print(json.dumps({"dry_run": True, "plan": lines}) if args.json else "\n".join(lines))
+        return 0
     if args.dry_run:
         lines = plan.describe()
         print(json.dumps({"dry_run": True, "plan": lines}) if args.json else "\n".join(lines))
@@ -135,14 +175,17 @@ def _run(args: argparse.Namespace) -> int:
               "answer; a hand just switched on takes a few seconds)", file=sys.stderr,
               flush=True)
         try:
-            report = run_plan(session, plan, on_change=progress_printer(sys.stderr),  # type: ignore[arg-type]
-                              reports=reports)
+            run = run_rollback if args.rollback else run_plan
+            report = run(session, plan, on_change=progress_printer(sys.stderr),  # type: ignore[arg-type]
+                         reports=reports)
         except (KeyboardInterrupt, HostError) as exc:
             # Ctrl-C or the link lost mid-run: what every node got to, then the message.
             touched = any(r.state != NodeState.PENDING for r in reports.values())
             if touched or args.json:
                 why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"link lost: {exc}"
-                _print_report(settle(reports, started, session.now(), why), args.json)
+                settled = settle(reports, started, session.now(), why)
+                settled.rollback = args.rollback
+                _print_report(settled, args.json)
             raise
     _print_report(report, args.json)
     return 0 if report.ok else EXIT_FAILED

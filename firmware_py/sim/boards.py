@@ -104,11 +104,28 @@ BOARD_SPECS: dict[BoardType, BoardSpec] = {
 }
 
 
-def load_program(path: str) -> ProgramFactory:
-    """Import ``"module:Class"`` and return it as a program factory."""
+def _program_class(path: str) -> type:
     module, _, attr = path.partition(":")
     cls = getattr(importlib.import_module(module), attr)
-    return _factory(cls)
+    assert isinstance(cls, type)
+    return cls
+
+
+def load_program(path: str) -> ProgramFactory:
+    """Import ``"module:Class"`` and return it as a program factory."""
+    return _factory(_program_class(path))
+
+
+def install_one_slot_firmware(mcu: Mcu) -> None:
+    """Give ``mcu`` firmware built for the one-slot layout (an older bootloader and
+    applications that answer no ``slot.*`` message), from its next reset or power-up: a
+    node a host must still flash the one-slot way."""
+    def older(path: str) -> ProgramFactory:
+        cls = _program_class(path)
+        return _factory(type(f"OneSlot{cls.__name__}", (cls,), {"two_slots": False}))
+
+    mcu.install_programs(older(BOOTLOADER_PROGRAM),
+                         {name: older(path) for name, path in APP_PROGRAMS.items()})
 
 
 def _factory(cls: Callable[..., Program]) -> ProgramFactory:

@@ -62,6 +62,8 @@ class BootState(IntEnum):
     HALTED = 1
     BOOTING = 2
     NO_VALID_IMAGE = 3
+    #: New: exchanging the image slots (an update or a revert; see the slot messages).
+    SWAPPING = 4
 
 
 class ImageStatus(IntEnum):

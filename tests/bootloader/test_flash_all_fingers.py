@@ -252,10 +252,10 @@ def test_a_resumed_node_is_shown_with_the_partial_image_it_held(hand: Hand) -> N
 
     session.taps.append(kill_mid_write)
     with pytest.raises(HostKilled):
-        run_plan(session, make_plan(NEW, [0]), on_change=on_change)
+        run_plan(session, make_plan(NEW, [0], slots=False), on_change=on_change)
     session.close()
     hand.emu.step(200_000)
-    report = run(hand, make_plan(NEW, [0]))
+    report = run(hand, make_plan(NEW, [0], slots=False))  # the one-slot way's own story
     assert report.ok
     fmcb = next(r for r in report.nodes if r.job.name == "finger 0 fmcb")
     assert fmcb.result == "flashed" and fmcb.version_before is None
@@ -328,7 +328,7 @@ def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
         return on_change
 
     monkeypatch.setattr(flash_all_fingers, "progress_printer", ctrl_c_while_writing)
-    args = ["--port", "emu://hand/palm", *paths]
+    args = ["--port", "emu://hand/palm", *paths, "--one-slot"]
     assert flash_all_fingers.main([*args, "--json"]) == 130
     captured = capsys.readouterr()
     assert "writing (3 blocks)" in captured.err  # progress names the blocks to write
@@ -391,7 +391,7 @@ def test_a_node_refusing_the_signature_says_which_key_to_sign_with(tmp_path: Pat
         install_image(f2.hal, old.to_bytes())
         # … and is given one signed with another key.
         image = sign_image(NEW[BoardType.F2], load_private_key(tmp_path / "other"))
-        report = run(hand, make_plan({BoardType.F2: image}, [0]))
+        report = run(hand, make_plan({BoardType.F2: image}, [0], slots=False))
         (node,) = report.nodes
         assert node.result == "failed" and node.error is not None
         assert "not signed with the key this node was provisioned with" in node.error
@@ -412,7 +412,7 @@ def test_a_finger_lost_during_its_power_cycle_is_named_with_what_to_check(hand: 
             hand.emu.break_away(2)
 
     with hand.session() as session:
-        report = run_plan(session, make_plan(NEW, [2]), on_change=on_change)
+        report = run_plan(session, make_plan(NEW, [2], slots=False), on_change=on_change)
     fmcb = report.nodes[0]
     assert fmcb.result == "failed" and fmcb.error is not None
     assert "is the finger on its pogo pins?" in fmcb.error

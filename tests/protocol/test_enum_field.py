@@ -21,6 +21,7 @@ from protocol.messages.bootloader import BootResult, BootState, ImageStatus, Wri
 from protocol.messages.common import Running, TxnStatus
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import FingerEvent, FingerPower, RouteStatus
+from protocol.messages.slots import ConfirmBy, SlotEvent, SlotResult, SlotState
 from protocol.topology import Hop
 
 
@@ -83,6 +84,24 @@ CASES = [
     Case("bl.write_page", REPLY, "status", WriteStatus.PAGE_PROTECTED,
          lambda v: {"page": 40, "status": v},
          bytes([0x28, 0x00, 0x00, 0x00, 0x02]), 4),
+    Case("slot.swap", REQUEST, "confirm_by", ConfirmBy.APPLICATION,
+         lambda v: {"sha256": bytes(range(32)), "confirm_by": v},
+         bytes(range(32)) + bytes([0x01]), 32),
+    Case("slot.confirm", REPLY, "status", SlotResult.NOT_IN_TRIAL,
+         lambda v: {"status": v, "state": SlotState.TRIAL}, bytes([0x05, 0x03]), 0),
+    Case("slot.confirm", REPLY, "state", SlotState.REVERTING,
+         lambda v: {"status": SlotResult.OK, "state": v}, bytes([0x00, 0x04]), 1),
+    Case("slot.info", REPLY, "event", SlotEvent.REVERTED,
+         lambda v: {"primary_page": 32, "secondary_page": 524, "slot_pages": 492,
+                    "state": SlotState.CONFIRMED, "event": v, "confirm_by": ConfirmBy.HOST,
+                    "swap_pages": 14, "swap_done": 14, "primary_status": ImageStatus.VALID,
+                    "primary_version": {"major": 1, "minor": 0, "patch": 0},
+                    "primary_sha256": b"\xaa" * 32, "secondary_status": ImageStatus.VALID,
+                    "secondary_version": {"major": 2, "minor": 0, "patch": 0},
+                    "secondary_sha256": b"\xbb" * 32},
+         bytes([0x20, 0x00, 0x0C, 0x02, 0xEC, 0x01, 0x00, 0x03, 0x00, 0x0E, 0x00, 0x0E, 0x00,
+                0x00, 0x01, 0x00, 0x00, 0x00]) + b"\xaa" * 32
+         + bytes([0x00, 0x02, 0x00, 0x00, 0x00]) + b"\xbb" * 32, 7),
 ]
 IDS = [f"{case.message}.{case.field}" for case in CASES]
 
@@ -116,7 +135,8 @@ def test_every_enum_of_the_catalogue_has_a_case() -> None:
     in_catalogue = {e for msg in CATALOGUE for con in (msg.request, msg.reply)
                     for e in _enums_in(con)}
     assert in_catalogue == {RouteStatus, FingerPower, FingerEvent, ControlMode, TxnStatus,
-                            BoardType, Running, BootState, ImageStatus, BootResult, WriteStatus, Hop}
+                            BoardType, Running, BootState, ImageStatus, BootResult, WriteStatus, Hop,
+                            SlotState, SlotEvent, SlotResult, ConfirmBy}
     assert {type(case.code) for case in CASES} == in_catalogue
 
 
