@@ -17,6 +17,8 @@ DURATION_S = 6.0
 FALL_LIMIT = math.radians(2.0)
 #: Driving on: the watchdog's time at the move's speed, the braking, the elastic overshoot.
 DRIVE_ON_LIMIT = math.radians(8.0)
+#: A stepper joint at rest (rad/s).
+REST_SPEED = 0.02
 
 
 def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.ndarray]:
@@ -38,12 +40,13 @@ def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.nda
         apps = [emu.arm.app(i) for i in range(1, 5)]
         steppers = [hal.stepper() for hal in emu.arm.stepper_hals]
         q0 = plant.joint_angles().copy()
-        q, rates = [], []
+        q, qd, rates = [], [], []
         for _ in range(2000):  # 2 s, one sample a millisecond
             emu.step(1_000)
             q.append(plant.joint_angles().copy())
+            qd.append(plant.joint_velocities()[:4].copy())
             rates.append([s.rate for s in steppers])
-        return {"q0": q0, "q": np.array(q), "rates": np.array(rates),
+        return {"q0": q0, "q": np.array(q), "qd": np.array(qd), "rates": np.array(rates),
                 "flags": np.array([a.get("status_flags") for a in apps]),
                 "torque": np.array([a.get("torque_enable") for a in apps]),
                 "slips": plant.slips().copy(), "goal_flags": state.steppers[1].flags}
@@ -73,6 +76,19 @@ def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
     assert run["torque"].all()
     assert not run["slips"].any()
     assert run["flags"][1] & StepperFlag.WATCHDOG and run["flags"][3] & StepperFlag.WATCHDOG
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the elastic joints ring on after the watchdog hold "
+                   "(about 1-3 s to below 0.02 rad/s): no hold damping yet")
+@pytest.mark.parametrize("after_s", [0.7, 1.5, 3.7])
+def test_a_host_killed_mid_move_leaves_the_stepper_joints_at_rest_within_half_a_second(
+        after_s):
+    """The acceptance bound: every stepper joint below REST_SPEED (plant's truth) from 0.5 s
+    after the host's last cycle on."""
+    run = vanish_mid_move(HOST_WATCHDOG_MS, after_s)
+    fast = np.nonzero((np.abs(run["qd"]) >= REST_SPEED).any(axis=1))[0]
+    assert fast.size == 0 or fast[-1] < 500, f"moving until {fast[-1] + 1} ms"
 
 
 def test_without_the_watchdog_the_arm_drives_on():

@@ -345,3 +345,20 @@ def test_a_failed_action_no_assertion_checks_is_noted(
     assert "quiet seed 0: pass" in out
     assert "note: action gone failed (no assertion checks it): " in out
     assert "action palm" not in out and "action power0" not in out
+
+
+
+def test_host_vanish_measures_when_the_elastic_joints_come_to_rest() -> None:
+    """``arm_held`` reports ``joints_rest_ms`` (from the plant's joint velocities, not the
+    motors' step rates: an elastic joint rings on after its motor stopped) and, given
+    ``rest_within_ms``, fails a run whose joints are not at rest by then."""
+    from tools.bench.runner import run_scenario
+
+    raw = tomllib.loads((scenario_dir() / "host_vanish.toml").read_text())
+    (held,) = run_scenario(raw)["assertions"]
+    assert held["passed"]
+    motors, joints = held["measured"]["rest_ms"], held["measured"]["joints_rest_ms"]
+    assert joints == -1 or joints >= motors > 0  # the joints move while the motors step
+    raw["assertions"][0]["rest_within_ms"] = 0  # they were moving when the host vanished
+    (held,) = run_scenario(raw)["assertions"]
+    assert not held["passed"] and "not at rest" in held["message"]

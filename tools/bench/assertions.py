@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from protocol.stream import decode_all
 
@@ -253,13 +253,21 @@ def node_state(record: RunRecord, node: str, state: str) -> Verdict:
     return actual == state, {"state": actual}, f"{node} is {actual}"
 
 
+#: A stepper joint at rest: |velocity| below this (rad/s, the plant's truth).
+REST_SPEED_RAD_S: Final = 0.02
+
+
 def arm_held(record: RunRecord, action: str, within_ms: float, max_fall_deg: float,
-             max_drive_on_deg: float) -> Verdict:
+             max_drive_on_deg: float, rest_within_ms: float | None) -> Verdict:
     """After the host of ``action`` (``arm_move_vanish``) went silent, on the plant's truth:
     every stepper motor stopped within ``within_ms`` and stayed so, no joint went back from
     where it was (or, not moving, strayed either way) more than ``max_fall_deg``, no stepper
     joint drove on more than ``max_drive_on_deg`` (a servo: its goal), nothing latched
-    (SLIP/STALLED, a plant slip) and every stepper's torque stayed on, to the run's end."""
+    (SLIP/STALLED, a plant slip) and every stepper's torque stayed on, to the run's end.
+    ``joints_rest_ms`` (measured) is when every stepper *joint* was last faster than
+    :data:`REST_SPEED_RAD_S` (the elastic joints ring after their motors stop; -1: still
+    moving at the run's end, a sample every 10 ms); ``rest_within_ms`` (None: only measured)
+    bounds it."""
     a = record.actions.get(action)
     if a is None or not a.get("ok"):
         return False, {}, f"action {action!r} {'failed' if a else 'did not run'}"
@@ -271,6 +279,11 @@ def arm_held(record: RunRecord, action: str, within_ms: float, max_fall_deg: flo
     moving = [0 if abs(g - q) < 0.01 else (1 if g > q else -1) for g, q in zip(goals, q0, strict=True)]
     still = [r["t"] for r in rows if any(r["arm_step_rates"])]
     rest_ms = round(((still[-1] if still else t0) - t0) * 1e3, 1)
+    n_steppers = len(rows[0]["arm_step_rates"])
+    fast = [r["t"] for r in rows
+            if any(abs(v) >= REST_SPEED_RAD_S for v in r.get("arm_qd", [])[:n_steppers])]
+    joints_rest_ms = (-1.0 if fast and fast[-1] == rows[-1]["t"]
+                      else round(((fast[-1] if fast else t0) - t0) * 1e3, 1))
     fall = [0.0] * len(q0)
     on = [0.0] * len(q0)
     for r in rows:
@@ -286,13 +299,18 @@ def arm_held(record: RunRecord, action: str, within_ms: float, max_fall_deg: flo
                if any(r["arm_latched"][j] for r in rows)]
     torque_off = [j for j in range(len(rows[-1]["arm_torque_on"]))
                   if not all(r["arm_torque_on"][j] for r in rows)]
-    measured = {"rest_ms": rest_ms, "fall_deg": [round(x, 2) for x in fall],
+    measured = {"rest_ms": rest_ms, "joints_rest_ms": joints_rest_ms, "fall_deg": [round(x, 2) for x in fall],
                 "drive_on_deg": [round(x, 2) for x in on], "plant_slips": slips,
                 "latched": [f"J{j + 1}" for j in latched],
                 "torque_off": [f"J{j + 1}" for j in torque_off]}
     problems = []
     if rest_ms > within_ms:
         problems.append(f"motors still stepping {rest_ms} ms after the host vanished")
+    if rest_within_ms is not None and not 0 <= joints_rest_ms <= rest_within_ms:
+        problems.append("stepper joints not at rest "
+                        + ("by the run's end" if joints_rest_ms < 0
+                           else f"until {joints_rest_ms} ms")
+                        + " after the host vanished")
     problems += [f"J{j + 1} fell {fall[j]:.2f}°" for j in range(len(q0))
                  if fall[j] > max_fall_deg]
     problems += [f"J{j + 1} drove on {on[j]:.2f}°" for j in range(len(q0))

@@ -78,6 +78,7 @@ class Bench:
             row["fmcb_on"] = [int(f.fmcb.powered) for f in emu.hand.fingers]
         if emu.arm_plant is not None:
             row["arm_q"] = [round(float(q), 5) for q in emu.arm_plant.joint_angles()]
+            row["arm_qd"] = [round(float(v), 4) for v in emu.arm_plant.joint_velocities()]
             row["arm_slips"] = [int(n) for n in emu.arm_plant.slips()]
             row.update(self._stepper_truth())
         if emu.arm is not None:  # the nodes' own registers: latches, torque

@@ -55,7 +55,7 @@ ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "arm_torque_drift": (("joint", "after"), {"min_ratio": 1.5, "window_ms": 500.0,
                                               "tolerance": 0.25}),
     "arm_held": (("action",), {"within_ms": 500.0, "max_fall_deg": 2.0,
-                               "max_drive_on_deg": 8.0}),
+                               "max_drive_on_deg": 8.0, "rest_within_ms": None}),
     "arm_holds": (("action",), {"since": "end", "within_deg": 2.0}),
 }
 #: The actions that go through the palm (need a configuration with the hand) and those
