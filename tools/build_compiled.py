@@ -157,7 +157,12 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
         raise BuildError(f"mypyc failed: {exc}") from exc
     finally:
         os.chdir(here)
-    return compiled_files(root)
+    built = compiled_files(root)
+    # build_ext skips a module whose C shim did not change and copies it with its old time:
+    # stamp them all now, or protocol.compiled_guard would take the new build for stale.
+    for path in built:
+        os.utime(path)
+    return built
 
 
 def is_built(root: Path = ROOT) -> bool:
