@@ -4,8 +4,8 @@
 
 mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
 its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
-Python imports instead of the source.  ``make compiled`` builds it; by default
-(``COMPILED_CORE=no`` skips it) the set-up (``make install``, so every ``make`` target) runs
+Python imports instead of the source.  ``make compiled`` builds it; with
+``COMPILED_CORE=yes`` the set-up (``make install``, so every ``make`` target) runs
 ``--setup``: it builds the core where a C compiler exists, saying so in one line, and falls
 back to pure Python with one line where it cannot; with ``LOWCOST_PURE_PYTHON=1`` it removes
 any build and stays pure Python, and the same variable makes a process import the sources
