@@ -49,6 +49,8 @@ import zlib
 from collections.abc import Callable, Mapping
 from typing import ClassVar
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.flash_layout import PARAM_PAGE
 from firmware_py.hal import Hal, Timer
 from protocol.control_tables import RAM_START, ControlTable, Register, RegisterError
@@ -96,6 +98,8 @@ def baud_from_register(value: int) -> int:
     return 2_000_000 // (value + 1)
 
 
+# The compiled core (mypyc) lets a program written in Python subclass it, as the source does.
+@mypyc_attr(allow_interpreted_subclasses=True)
 class DynamixelSlave:
     """One Dynamixel 1.0 node: control table, EEPROM in flash, instruction handling.
 

@@ -36,6 +36,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.flash_layout import PARAM_PAGE
 from firmware_py.fmcb_control import (
     EFFORT_FULL,
@@ -144,6 +146,8 @@ class _Pending:
     timer: Timer
 
 
+# The compiled core (mypyc) lets a program written in Python subclass it, as the source does.
+@mypyc_attr(allow_interpreted_subclasses=True)
 class FmcbApp(HandNode):
     """The fmcb application on ``hal``; ``mcu`` is the node running it (may be None)."""
 

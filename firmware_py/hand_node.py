@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Final
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
 from firmware_py.slot_service import SlotService
@@ -69,6 +71,8 @@ Handler = Callable[[Request], Any]
 _NO_ROUTE: Final[tuple[Message | None, Handler | None]] = (None, None)
 
 
+# The compiled core (mypyc) lets a program written in Python subclass it, as the source does.
+@mypyc_attr(allow_interpreted_subclasses=True)
 class HandNode:
     """Base of every hand-protocol program (applications and the bootloader).
 

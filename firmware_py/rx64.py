@@ -95,7 +95,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._goal = self._moving_speed = self._torque_limit = self._punch = 0
 
     @property
-    def alarms(self) -> int:
+    def alarms(self) -> ErrorBit | int:
         """Latched ErrorBit alarms (0 when none)."""
         return ErrorBit(self._alarms) if self._alarms else 0
 

@@ -165,7 +165,8 @@ _set_crc_ok = _FRAME_SLOTS.crc_ok.__set__
 _set_t = _FRAME_SLOTS.t.__set__
 
 
-def encode_frame(address: int, msg_type: int, payload: bytes = b"") -> bytes:
+def encode_frame(address: int, msg_type: int,
+                 payload: bytes | bytearray | memoryview = b"") -> bytes:
     """Build one hand frame: sync, address, length, type, payload, CRC-16/XMODEM LE.
 
     Raises :class:`FrameError` for an address or type outside 0..255 or a payload longer
@@ -181,29 +182,29 @@ def encode_frame(address: int, msg_type: int, payload: bytes = b"") -> bytes:
     return body + _CRC.pack(crc16_xmodem_fast(body))
 
 
-def parse_frame(data: bytes, max_payload: int = 0xFFFF) -> Frame:
+def parse_frame(data: bytes | bytearray | memoryview, max_payload: int = 0xFFFF) -> Frame:
     """Parse exactly one complete frame from ``data`` (strict: no bytes may remain).
 
     Raises :class:`CrcError` on a CRC mismatch, :class:`FrameLengthError` when the declared
     length exceeds ``max_payload``, :class:`FrameError` for anything else malformed.
     """
-    data = bytes(data)
-    if len(data) < OVERHEAD:
-        raise FrameError(f"a hand frame has at least {OVERHEAD} bytes, got {len(data)}")
-    if data[0] != SYNC:
-        raise FrameError(f"sync byte is 0x{data[0]:02x}, expected 0x{SYNC:02x}")
-    length = data[2] | (data[3] << 8)
+    raw = bytes(data)
+    if len(raw) < OVERHEAD:
+        raise FrameError(f"a hand frame has at least {OVERHEAD} bytes, got {len(raw)}")
+    if raw[0] != SYNC:
+        raise FrameError(f"sync byte is 0x{raw[0]:02x}, expected 0x{SYNC:02x}")
+    length = raw[2] | (raw[3] << 8)
     if length > max_payload:
         raise FrameLengthError(f"declared payload length {length} exceeds {max_payload}")
-    if len(data) != length + OVERHEAD:
+    if len(raw) != length + OVERHEAD:
         raise FrameError(
-            f"declared payload length {length} needs {length + OVERHEAD} bytes, got {len(data)}"
+            f"declared payload length {length} needs {length + OVERHEAD} bytes, got {len(raw)}"
         )
     try:
-        parsed = HAND_FRAME.parse(data)
+        parsed = HAND_FRAME.parse(raw)
     except c.ChecksumError as exc:
-        got = data[-2] | (data[-1] << 8)
-        want = crc16_xmodem(data[:-2])
+        got = raw[-2] | (raw[-1] << 8)
+        want = crc16_xmodem(raw[:-2])
         raise CrcError(f"CRC 0x{got:04x} does not match 0x{want:04x}") from exc
     except c.ConstructError as exc:  # pragma: no cover - guarded by the checks above
         raise FrameError(f"malformed frame: {exc}") from exc

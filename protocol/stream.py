@@ -244,7 +244,7 @@ class StreamDecoder:
         return out
 
 
-def decode_all(data: bytes, max_payload: int = DEFAULT_MAX_PAYLOAD) -> list[Frame]:
+def decode_all(data: bytes | bytearray, max_payload: int = DEFAULT_MAX_PAYLOAD) -> list[Frame]:
     """Decode a whole capture at once (feed + flush); convenience for tools and tests."""
     dec = StreamDecoder(max_payload=max_payload, gap_s=None)
     return dec.feed(data) + dec.flush()

@@ -30,7 +30,8 @@ class Rule:
 
 RULES: dict[str, Rule] = {
     "protocol": Rule(("protocol",), ("construct", "crcmod", "numpy", "hypothesis")),
-    "firmware_py": Rule(("firmware_py", "protocol"), ("numpy",)),
+    # mypy_extensions: @mypyc_attr on the classes programs subclass (the compiled core)
+    "firmware_py": Rule(("firmware_py", "protocol"), ("numpy", "mypy_extensions")),
     # rerun: the live browser view (host.view), imported only when a view is asked for
     "host": Rule(("host", "protocol"),
                  ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun")),

@@ -31,13 +31,14 @@ from typing import Final
 from tools.cli_output import guard_output
 
 #: The modules compiled, as paths relative to the repository root; declared once here.
+#: Not protocol/manchester.py: its work is numpy's, and its public functions take what numpy
+#: takes (array-likes, truthy flags), which a compiled signature would refuse with TypeError.
 COMPILED_MODULES: Final[tuple[str, ...]] = (
     # the clock and the wire formats
     "firmware_py/scheduler.py",
     "protocol/crc.py",
     "protocol/framing.py",
     "protocol/stream.py",
-    "protocol/manchester.py",
     # the hand nodes' firmware (HandNode and every program built on it)
     "firmware_py/hand_node.py",
     "firmware_py/bootloader.py",
@@ -79,6 +80,11 @@ def compiled_files(root: Path = ROOT) -> list[Path]:
         source = root / module
         found += sorted(source.parent.glob(f"{source.stem}.*.so"))
         found += sorted(source.parent.glob(f"{source.stem}.*.pyd"))
+    # An extension of a module no longer listed (an update dropped it) would still be
+    # imported in preference to its source: every extension beside a source of ours counts.
+    from protocol.compiled_guard import extensions
+
+    found += [ext for ext, _source in extensions(root)]
     # mypyc's shared library of the group: beside a lone module, else at the root.
     for folder in {root, *((root / module).parent for module in COMPILED_MODULES)}:
         found += sorted(folder.glob("*__mypyc.*.so"))
@@ -151,7 +157,12 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
         raise BuildError(f"mypyc failed: {exc}") from exc
     finally:
         os.chdir(here)
-    return compiled_files(root)
+    built = compiled_files(root)
+    # build_ext skips a module whose C shim did not change and copies it with its old time:
+    # stamp them all now, or protocol.compiled_guard would take the new build for stale.
+    for path in built:
+        os.utime(path)
+    return built
 
 
 def is_built(root: Path = ROOT) -> bool:

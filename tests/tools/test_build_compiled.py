@@ -41,6 +41,12 @@ def test_clean_removes_the_extensions_and_the_build_directory(tmp_path: Path) ->
         extension = source.with_name(f"{source.stem}.cpython-311-x86_64-linux-gnu.so")
         extension.write_bytes(b"")
         built.append(extension)
+    # a module an earlier build compiled and the list no longer names: its extension would
+    # still shadow its source, so it goes too
+    dropped = tmp_path / "protocol" / "dropped.py"
+    dropped.write_text("")
+    built.append(dropped.with_name("dropped.cpython-311-x86_64-linux-gnu.so"))
+    built[-1].write_bytes(b"")
     shared = tmp_path / "0123abcd__mypyc.cpython-311-x86_64-linux-gnu.so"
     shared.write_bytes(b"")
     (tmp_path / "build" / "temp").mkdir(parents=True)
