@@ -305,11 +305,16 @@ class Arm:
             # a JointAlarmError held the arm at the alarm, and says so
             if exc is not None and not isinstance(exc, JointAlarmError) \
                     and not self.transport.closed:
+                note: str | None
                 try:
-                    note = self.hold().describe()
+                    held = self.hold()
+                    # nothing to hold is news only after Ctrl-C (what did it leave?)
+                    note = held.describe() if held.joints or isinstance(
+                        exc, KeyboardInterrupt) else None
                 except HostError as failed:
                     note = f"could not hold the arm: {failed}"
-                exc.add_note(f"the arm: {note}")
+                if note is not None:
+                    exc.add_note(f"the arm: {note}")
         finally:
             self.close()
 

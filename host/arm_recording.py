@@ -58,6 +58,9 @@ STATE_SCHEMA: Final = {
         "torques": _array("stepper J1..J4 series-elastic torques (N·m)", "number", 4),
         "slip": _array("stepper J1..J4 SLIP latched (steps lost)", "boolean", 4),
         "stalled": _array("stepper J1..J4 STALLED latched (over-deflection)", "boolean", 4),
+        "moving": _array("stepper J1..J4 stepping towards their goals", "boolean", 4),
+        "watchdog": _array("stepper J1..J4 stopped and held by their command watchdog (no "
+                           "goal or keep-alive within its timeout)", "boolean", 4),
         "deflection_counts": _array("stepper J1..J4 elastic deflection (joint encoder counts)",
                                     "integer", 4),
         "step_counts": _array("stepper J1..J4 motor positions (microsteps)", "integer", 4),
@@ -69,7 +72,7 @@ STATE_SCHEMA: Final = {
                    "additionalProperties": {"type": "array", "items": {"type": "string"}}},
     },
     "required": ["t", "joints", "motor_joints", "goals", "torques", "slip", "stalled",
-                 "deflection_counts", "step_counts", "servo_load", "servo_temperature_c",
+                 "moving", "watchdog", "deflection_counts", "step_counts", "servo_load", "servo_temperature_c",
                  "errors"],
     "additionalProperties": False,
 }

@@ -332,13 +332,17 @@ class Hand:
         where it is, and add a note saying which (or why not) to the exception."""
         try:
             if exc is not None and not self.session.transport.closed:
+                note: str | None
                 try:
                     held = self.hold()
+                    # nothing to hold is news only after Ctrl-C (what did it leave?)
                     note = (f"finger(s) {', '.join(map(str, held))} held where they were, "
-                            "motors on" if held else "no finger was moving")
+                            "motors on" if held else "no finger was moving"
+                            if isinstance(exc, KeyboardInterrupt) else None)
                 except HostError as failed:
                     note = f"could not hold the fingers: {failed}"
-                exc.add_note(f"the hand: {note}")
+                if note is not None:
+                    exc.add_note(f"the hand: {note}")
         finally:
             self.close()
 

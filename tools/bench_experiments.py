@@ -152,6 +152,9 @@ def holding_ratio(seed: int = DEFAULT_SEED) -> Outcome:
         arm.torque(True)
         clock = arm.transport
         if moving:  # the elbow stepping slowly away (0.02 rad/s) while pushed back
+            # one goal, then no traffic while the hand pushes: the command watchdog would
+            # stop the slow move (and measure the standstill again), so it is off here
+            arm.set_watchdog(0)
             arm.cycle([arm.make_position(3, 1.0, speed=0.02)])
         peak, torque = 0.0, 0.0
         while not plant.slips()[3] and torque < 60.0:

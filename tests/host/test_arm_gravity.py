@@ -71,6 +71,7 @@ HAND_POSES: Final = ([0.3, 0.5, 0.4, 0.4, 0.0, 0.3, 0.0], [-0.3, 0.6, -0.3, 0.2,
 def _homed_arm(url: str) -> Iterator[Arm]:
     """The arm at ``url``, homed, for a module's tests; its emulator forgotten after."""
     with Arm.open(url) as opened:
+        opened.torque(True, hold=True)  # as a user does first (a move needs every joint on)
         opened.home()
         yield opened
     forget_shared_emulators()
