@@ -14,7 +14,8 @@ node verified; otherwise nothing is activated and the nodes wait in their bootlo
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any, Final
 
@@ -261,23 +262,30 @@ def run_plan(session: HandSession, plan: FlashPlan,
     reports = new_reports(plan) if reports is None else reports
     started = session.now()
     status = preflight(session, plan, reports)
-    poll_hz = int(status["poll_hz"])
-    if poll_hz:
-        session.request("palm.poll", {"rate_hz": 0}, retries=2)
-    try:
+    with _palm_poll_paused(session, int(status["poll_hz"])):
         one_slot = list(plan.fingers)
         if plan.slots:
             one_slot = _run_slot_update(session, plan, reports, status, on_change)
         if one_slot:
             plan = replace(plan, jobs=tuple(j for j in plan.jobs if j.finger in one_slot))
             _run_one_slot(session, plan, reports, status, on_change)
+    return settle(reports, started, session.now())
+
+
+@contextmanager
+def _palm_poll_paused(session: HandSession, poll_hz: int) -> Iterator[None]:
+    """The palm's polling of the fingers off while a run uses their links, and back at
+    ``poll_hz`` (Hz; 0: it was off) after it, however the run ends."""
+    if poll_hz:
+        session.request("palm.poll", {"rate_hz": 0}, retries=2)
+    try:
+        yield
     finally:
         if poll_hz:
             try:
                 session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
             except HostError:
                 pass
-    return settle(reports, started, session.now())
 
 
 def _run_one_slot(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
@@ -405,10 +413,7 @@ def run_rollback(session: HandSession, plan: FlashPlan,
     reports = new_reports(plan) if reports is None else reports
     started = session.now()
     status = preflight(session, plan, reports)
-    poll_hz = int(status["poll_hz"])
-    if poll_hz:
-        session.request("palm.poll", {"rate_hz": 0}, retries=2)
-    try:
+    with _palm_poll_paused(session, int(status["poll_hz"])):
         driver = Driver(session)
         channels = {f: SlotChannel(f, plan, reports, session.now, on_change=on_change)
                     for f in plan.fingers}
@@ -428,12 +433,6 @@ def run_rollback(session: HandSession, plan: FlashPlan,
                 _fail_finger(session, reports, finger, error, on_change, _BUSY_STATES)
 
         driver.run({f: back(f) for f in plan.fingers}, on_end)
-    finally:
-        if poll_hz:
-            try:
-                session.request("palm.poll", {"rate_hz": poll_hz}, retries=2)
-            except HostError:
-                pass
     return replace(settle(reports, started, session.now()), rollback=True)
 
 
