@@ -56,7 +56,7 @@ WALL_CLOCK_FILES: Final = frozenset({
     "tools/test_hil_fuzz.py",
     "tools/test_build_compiled.py",
     "tools/test_demo_realtime.py",
-    "test_benchmarks.py",
+    "benchmarks/test_benchmarks.py",
 })
 
 

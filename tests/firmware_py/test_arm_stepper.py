@@ -17,7 +17,7 @@ from protocol.control_tables import (
 from protocol.dynamixel import ErrorBit, StatusPacket, make_read, make_write
 from protocol.image import BoardType
 from protocol.robot import STEPPER_MAX_STEP_RATE
-from tests.firmware.dxl_bench import transact as dxl_transact
+from tests.firmware_py.dxl_bench import transact as dxl_transact
 
 #: Microsteps per joint count with the defaults: 6.00 x 200 x 10 / 10 000.
 K = 600 * 200 * 10 / 1_000_000

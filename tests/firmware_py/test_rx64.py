@@ -17,7 +17,7 @@ from protocol.dynamixel import (
     make_write,
 )
 from protocol.image import BoardType
-from tests.firmware.dxl_bench import transact as dxl_transact
+from tests.firmware_py.dxl_bench import transact as dxl_transact
 
 ID = 6
 

@@ -18,7 +18,7 @@ from protocol.control_tables import (
 )
 from protocol.dynamixel import make_ping, make_read, make_sync_write, make_write
 from protocol.image import BoardType
-from tests.firmware.dxl_bench import transact
+from tests.firmware_py.dxl_bench import transact
 
 #: Microsteps per joint count with the defaults: 6.00 x 200 x 10 / 10 000.
 K = 600 * 200 * 10 / 1_000_000

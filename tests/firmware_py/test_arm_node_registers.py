@@ -23,7 +23,7 @@ from protocol.dynamixel import (
     make_write,
 )
 from protocol.image import BoardType
-from tests.firmware.dxl_bench import transact
+from tests.firmware_py.dxl_bench import transact
 
 
 def write(sched: Scheduler, hal: VirtualHal, dxl_id: int, table: ControlTable, name: str,

@@ -22,7 +22,7 @@ from protocol.dynamixel import (
     make_write,
 )
 from protocol.image import BoardType
-from tests.firmware.dxl_bench import transact
+from tests.firmware_py.dxl_bench import transact
 
 
 def read_value(sched: Scheduler, hal: VirtualHal, dxl_id: int, name: str, table=STEPPER_TABLE
