@@ -137,7 +137,7 @@ def _library_cycle_rate(path: str, wall_s: float) -> tuple[float, int]:
 def realtime_rates(wall_s: float) -> dict[str, tuple[float, int]]:
     """Cycles per wall second of the SDK and of this library over the emulator's arm pty."""
     with tempfile.TemporaryDirectory(prefix="bench_arm_") as tmp:
-        proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config",
+        proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--config",
                                  "arm", "--can", "none", "--link-dir", tmp], cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:

@@ -242,7 +242,7 @@ def realtime_lateness(wall_s: float, config: str = "full",
     ``cpu_per_wall``: the emulator's CPU seconds per wall second while the traffic ran."""
     import serial
 
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", config,
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--config", config,
                              "--can", "none", "--stats", "--ready", "--priority", priority],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -4,7 +4,7 @@ Each path turns one synthetic capture (:func:`benchmarks.capture.make_capture`: 
 and replies of every catalogue message, the sample session first) into the JSON lines
 ``handbus decode`` prints, written to an in-memory text stream:
 
-- ``handbus-decode``: :func:`tools.handbus.decode_hand`, the product path;
+- ``handbus-decode``: :func:`tools.cli.handbus.decode_hand`, the product path;
 - ``per-frame-dumps`` (the baseline): the writer the tool had before it was made fast, and
   what anyone writes first: decode everything into ``Frame`` objects, interpret each frame
   from scratch, copy the fields with ``jsonable`` and ``json.dumps`` a dict per frame.  It
@@ -35,7 +35,7 @@ from protocol.interpret import Interpretation, candidate_nodes, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import StreamDecoder
 from protocol.topology import ADDR_HOST
-from tools.handbus import decode_hand, jsonable
+from tools.cli.handbus import decode_hand, jsonable
 
 BASELINE = "per-frame-dumps"
 #: Goal of the product path: 10 MB in at most 15 s.

@@ -13,7 +13,7 @@ topic                   payload
 ``/hand/link/stats``    :class:`host.hand_session.SessionCounters` as a dict (counts)
 ======================  ==============================================================
 
-so a recording replays (:func:`tools.robot_view`) exactly as it was drawn live.  The time
+so a recording replays (:func:`tools.cli.robot_view`) exactly as it was drawn live.  The time
 line ``time`` is each message's ``t`` (s on the link's clock: the simulation's on an
 in-process emulator).  Entities: ``world/arm`` and ``world/hand/*`` (3D, metres, the arm's
 base frame, or the palm frame for a hand on its own), ``arm/*`` and ``hand/finger{k}/*``

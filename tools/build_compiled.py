@@ -28,7 +28,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Final
 
-from tools.cli_output import guard_output
+from tools.cli.output import guard_output
 
 #: The modules compiled, as paths relative to the repository root; declared once here.
 #: Not protocol/manchester.py: its work is numpy's, and its public functions take what numpy

@@ -30,8 +30,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
-from tools.cli_numbers import number_above, read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.numeric import number_above, read_negative_numbers
+from tools.cli.output import guard_output
 
 #: ``--runs``: a number of inputs >= 1.
 _RUNS = number_above(1, int, inclusive=True, what="a number of runs",

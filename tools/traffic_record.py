@@ -40,8 +40,8 @@ from protocol.topology import (
     STEPPER_IDS,
     Hop,
 )
-from tools.cli_numbers import read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.numeric import read_negative_numbers
+from tools.cli.output import guard_output
 
 Record = dict[str, Any]
 #: The ``palm.route`` timeout of the script's routed requests (ms).

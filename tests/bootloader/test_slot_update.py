@@ -23,7 +23,7 @@ from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, WriteStatus
 from protocol.messages.common import Running
 from protocol.messages.slots import TRIAL_TIMEOUT_US
 from protocol.topology import Hop
-from tools import flash_all_fingers
+from tools.cli import flash_all_fingers
 
 BOARDS = (BoardType.FMCB, BoardType.F2, BoardType.F3)
 

@@ -87,7 +87,7 @@ def wait_simulated(info: dict[str, Any], seconds: float) -> None:
 
 @contextmanager
 def _running(args: tuple[str, ...], startup_timeout_s: float) -> Iterator[dict[str, Any]]:
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--stats", *args],
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--stats", *args],
                             cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})

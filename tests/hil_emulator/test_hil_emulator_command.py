@@ -58,7 +58,7 @@ def test_every_configuration_starts_names_its_ports_and_cleans_up(config: str,
 
 @pytest.mark.slow
 def test_sigterm_also_stops_it_cleanly(tmp_path: Path) -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--no-physics", "--link-dir", str(tmp_path)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -83,7 +83,7 @@ def test_sigterm_acts_at_once_on_an_emulator_far_behind_on_a_busy_machine() -> N
     teardown on a loaded machine); ``stop_ms`` in ``--stats`` is the emulator's own figure
     from the signal to its loop's end."""
     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--stats"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -111,7 +111,7 @@ def test_sigterm_acts_at_once_on_an_emulator_far_behind_on_a_busy_machine() -> N
 
 
 def test_an_unknown_configuration_is_refused_with_the_choices() -> None:
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "octopus"],
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "octopus"],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stdout == ""
@@ -119,7 +119,7 @@ def test_an_unknown_configuration_is_refused_with_the_choices() -> None:
 
 
 def test_an_unknown_hand_layout_is_refused_with_the_choices() -> None:
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "hand",
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "hand",
                              "--layout", "octopus"],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
@@ -130,7 +130,7 @@ def test_an_unknown_hand_layout_is_refused_with_the_choices() -> None:
 @pytest.mark.slow
 def test_viewer_without_a_display_says_so_and_runs_on() -> None:
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    proc = subprocess.Popen([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--viewer", "--duration", "1"], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out, err = proc.communicate(timeout=60)
@@ -161,7 +161,7 @@ def test_fast_mode_serves_the_stock_sdk_too() -> None:
 
 def test_a_link_name_taken_by_a_file_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "arm").write_text("not a link")
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--no-physics", "--link-dir", str(tmp_path)],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
@@ -172,7 +172,7 @@ def test_a_link_name_taken_by_a_file_is_a_clear_error(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
 def test_duration_must_be_positive_and_finite(value: str) -> None:
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--duration", value],
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--duration", value],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stdout == ""
@@ -182,7 +182,7 @@ def test_duration_must_be_positive_and_finite(value: str) -> None:
 def test_a_link_dir_that_cannot_be_made_is_named(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("")
     bad = tmp_path / "file" / "robot"
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--no-physics", "--link-dir", str(bad)],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
@@ -195,7 +195,7 @@ def test_a_link_dir_a_running_emulator_holds_is_refused_and_left_alone(tmp_path:
     links = tmp_path / "robot"
     with running_emulator("--config", "arm", "--no-physics", "--link-dir", str(links)) as info:
         before = {name: os.readlink(links / name) for name in ("arm",)}
-        second = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+        second = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                                  "--no-physics", "--link-dir", str(links)],
                                 cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert second.returncode == 1 and second.stdout == ""
@@ -216,7 +216,7 @@ def test_links_the_emulator_did_not_make_are_never_removed(tmp_path: Path) -> No
 
 def test_a_link_dir_naming_a_file_says_so(tmp_path: Path) -> None:
     (tmp_path / "robot").write_text("")
-    result = subprocess.run([sys.executable, "-m", "tools.hil_emulator", "--config", "arm",
+    result = subprocess.run([sys.executable, "-m", "tools.cli.serve_emulator", "--config", "arm",
                              "--no-physics", "--link-dir", str(tmp_path / "robot")],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 1 and result.stdout == ""

@@ -65,7 +65,7 @@ def test_a_run_gives_the_thread_its_scheduling_back_and_says_which_it_had() -> N
 
 
 def _command(*args: str, prefix: tuple[str, ...] = ()) -> tuple[list[str], dict[str, object]]:
-    proc = subprocess.run([*prefix, sys.executable, "-m", "tools.hil_emulator", "--config",
+    proc = subprocess.run([*prefix, sys.executable, "-m", "tools.cli.serve_emulator", "--config",
                            "arm", "--no-physics", "--duration", "0.5", "--stats", *args],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -15,7 +15,7 @@ from tests.hil_emulator.emulator_process import HANG_GUARD_S, running_emulator
 
 
 def _flash(*args: str) -> dict[str, object]:
-    done = subprocess.run([sys.executable, "-m", "tools.flash_all_fingers", *args, "--json"],
+    done = subprocess.run([sys.executable, "-m", "tools.cli.flash_all_fingers", *args, "--json"],
                           capture_output=True, text=True, timeout=20 * HANG_GUARD_S)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return dict(json.loads(done.stdout))

@@ -15,7 +15,7 @@ from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.dynamixel import ErrorBit
-from tools import armctl
+from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_arm"
 

@@ -37,7 +37,7 @@ from host.arm_control import (
 )
 from host.errors import LimitError, StallError, UsageError
 from protocol.robot import ARM_INDEX_ANGLES
-from tools import armctl
+from tools.cli import armctl
 
 # ----------------------------------------------------------------------------- math
 

@@ -17,7 +17,7 @@ from hil_emulator.emulator import Emulator
 from host.errors import NotHomedError, UsageError
 from host.grasp import SQUEEZE_ROUNDS, squeeze, synergy_targets
 from host.hand import Hand
-from tools.handctl import main
+from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=grasp-tests"
 

@@ -19,7 +19,7 @@ from host.errors import NotHomedError
 from host.hand import Hand
 from host.hand_homing import home_finger, inertial_estimate
 from host.inertial_closed_form import UnobservableJointError
-from tools.handctl import main
+from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=estimation-tests"
 THUMB = 3

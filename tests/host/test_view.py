@@ -31,7 +31,7 @@ from host.robot_geometry import (  # noqa: E402
 )
 from host.view import RobotView  # noqa: E402
 from protocol.robot import FINGER_LINK_LENGTHS_M, HAND_LAYOUTS  # noqa: E402
-from tools import robot_view  # noqa: E402
+from tools.cli import robot_view  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -182,7 +182,7 @@ def test_replay_refuses_a_file_that_is_not_a_recording(tmp_path: Path,
 
 # --- lazily imported -----------------------------------------------------------------------
 def test_plain_host_use_never_imports_rerun() -> None:
-    code = ("import sys, host.arm, host.hand, host.view, tools.armctl, tools.handctl; "
+    code = ("import sys, host.arm, host.hand, host.view, tools.cli.armctl, tools.cli.handctl; "
             "print('rerun' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout

@@ -15,7 +15,7 @@ from host.arm import Arm
 from host.errors import HomingError, TransportError, UsageError
 from protocol.control_tables import STEPPER_TABLE
 from protocol.dynamixel import ErrorBit
-from tools import armctl
+from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_armctl"
 

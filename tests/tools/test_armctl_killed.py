@@ -44,7 +44,7 @@ def truth(info: dict[str, Any]) -> dict[str, Any]:
 
 
 def armctl(port: str, *args: str) -> tuple[int, dict[str, Any]]:
-    out = subprocess.run([sys.executable, "-m", "tools.armctl", "--port", port, "--json",
+    out = subprocess.run([sys.executable, "-m", "tools.cli.armctl", "--port", port, "--json",
                           *args], cwd=ROOT, capture_output=True, text=True, timeout=120,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     return out.returncode, json.loads(out.stdout) if out.stdout.strip() else {}
@@ -60,7 +60,7 @@ def test_armctl_killed_mid_move_leaves_the_arm_held() -> None:
         delay = 3.0
         for _ in range(4):
             move = subprocess.Popen(
-                [sys.executable, "-m", "tools.armctl", "--port", port, "move", "--unhomed",
+                [sys.executable, "-m", "tools.cli.armctl", "--port", port, "move", "--unhomed",
                  "--joints", *GOAL, "--duration", "6"], cwd=ROOT,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                 env={**os.environ, "PYTHONPATH": str(ROOT)})

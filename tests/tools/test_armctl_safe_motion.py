@@ -29,7 +29,8 @@ from tests.hil_emulator.emulator_process import (
     running_emulator,
     wait_simulated,
 )
-from tools import armctl, cli_common
+from tools.cli import armctl
+from tools.cli import common as cli_common
 
 URL = "emu://arm/arm?name=test_armctl_safe_motion"
 
@@ -193,7 +194,7 @@ def test_ctrl_c_of_armctl_over_a_pty_holds_the_arm_where_it_was() -> None:
     with running_emulator("--config", "arm") as info:
         port = str(info["arm"])
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        cli = [sys.executable, "-m", "tools.armctl", "--port", port]
+        cli = [sys.executable, "-m", "tools.cli.armctl", "--port", port]
         torque = subprocess.run([*cli, "torque", "on"], env=env, cwd=ROOT, capture_output=True,
                                 text=True, timeout=HANG_GUARD_S)
         assert torque.returncode == 0, torque.stderr

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-import tools.bench_experiments as bench
-from tools.bench_experiments import Outcome, Row
+import tools.experiments.dissertation as bench
+from tools.experiments.dissertation import Outcome, Row
 
 
 def values(outcome: Outcome) -> dict[str, float | None]:

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from tools.bench.campaign import expand, run_jobs
-from tools.bench.report import (
+from tools.hil_bench.campaign import expand, run_jobs
+from tools.hil_bench.report import (
     FAULT_RATES_PNG,
     NO_FAULT,
     PARAMETER_RATES_PNG,
@@ -16,7 +16,7 @@ from tools.bench.report import (
     summary_markdown,
     write_report,
 )
-from tools.bench.scenario import scenario_dir
+from tools.hil_bench.scenario import scenario_dir
 
 
 def _result(scenario: str, seed: int, passed: bool, faults: list[str],

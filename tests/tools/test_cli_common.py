@@ -19,7 +19,8 @@ from host.hand import Hand
 from host.hand_session import LINK_BUDGET_S, HandSession, Timeouts
 from host.transport import open_transport, schemes
 from protocol.messages.common import TxnStatus
-from tools import armctl, cli_common, flash_all_fingers, handctl
+from tools.cli import armctl, flash_all_fingers, handctl
+from tools.cli import common as cli_common
 
 CLIS: dict[str, Callable[[list[str]], int]] = {
     "handctl": handctl.main, "armctl": armctl.main, "flash-all-fingers": flash_all_fingers.main}
@@ -151,7 +152,7 @@ def test_output_cut_short_by_its_reader_ends_quietly() -> None:
     import subprocess
     import sys
 
-    program = ("from tools import cli_common\n"
+    program = ("from tools.cli import common as cli_common\n"
                "def body():\n"
                "    for k in range(200000):\n"
                "        print('joint', k)\n"

@@ -37,5 +37,5 @@ def test_every_command_and_subcommand_answers_help(
     subcommands = choices.group(1).split(",") if choices else []
     for sub in subcommands:
         if command == "hil-bench" and sub == "experiments":
-            continue  # hands its words to tools.bench_experiments, tested with hil-bench
+            continue  # hands its words to tools.experiments.dissertation, tested with hil-bench
         _help(SCRIPTS[command], [sub], capsys)

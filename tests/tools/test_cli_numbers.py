@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from tools.cli_numbers import (
+from tools.cli.numeric import (
     NEGATIVE_NUMBER,
     finite,
     number_above,

@@ -1,5 +1,5 @@
 """Every tool's standard output or output file that cannot be written: one line on stderr,
-a non-zero exit, never a traceback (tools.cli_output)."""
+a non-zero exit, never a traceback (tools.cli.output)."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ SAMPLE = ROOT / "tools" / "samples" / "hand_session.hex"
 
 #: (tool, arguments): each prints enough to fill a buffer, or flushes on exit.
 COMMANDS = [
-    ("handbus", ["list"]),
-    ("handbus", ["decode", "--hex", str(SAMPLE)]),
-    ("fwimage", ["--help"]),
-    ("hil_bench", ["list-faults"]),
-    ("armctl", ["--port", "emu://arm/arm", "ping"]),
+    ("cli.handbus", ["list"]),
+    ("cli.handbus", ["decode", "--hex", str(SAMPLE)]),
+    ("cli.fwimage", ["--help"]),
+    ("hil_bench.cli", ["list-faults"]),
+    ("cli.armctl", ["--port", "emu://arm/arm", "ping"]),
 ]
 
 
@@ -36,7 +36,7 @@ def run_into_full_disk(tool: str, args: list[str], buffered: bool) -> subprocess
 
 #: argparse's --help swallows the failed write where standard output is unbuffered.
 CASES = [(tool, args, True) for tool, args in COMMANDS] + [
-    ("fwimage", ["--help"], False), ("handbus", ["list"], False)]
+    ("cli.fwimage", ["--help"], False), ("cli.handbus", ["list"], False)]
 
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")

@@ -15,8 +15,8 @@ from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.inprocess import forget_shared_emulators
 from hil_emulator.scene_model import MUG_HEIGHT_M, MUG_MASS_KG, MUG_RADIUS_M, TABLE_TOP_Z_M
 from tests.tools.mcap_check import check_recording
-from tools import demo
-from tools.demo_watch import SLIP_M
+from tools.demo import script as demo
+from tools.demo.watch import SLIP_M
 
 
 def test_the_mug_scene_stands_a_real_mug_on_the_table_within_reach() -> None:
@@ -123,7 +123,7 @@ class _Body:
 def test_the_mug_moving_in_the_hand_while_off_the_table_is_a_slip() -> None:
     from types import SimpleNamespace
 
-    from tools.demo_watch import SLIP_M, MugInHand
+    from tools.demo.watch import SLIP_M, MugInHand
 
     data = _Body()
     mug = SimpleNamespace(start=np.array([0.0, 0.0, 0.05]), position=np.array([0.0, 0.0, 0.05]))
@@ -142,7 +142,7 @@ def test_the_mug_moving_in_the_hand_while_off_the_table_is_a_slip() -> None:
 
 def test_what_a_finger_felt_is_its_taxels_rise_since_the_baseline() -> None:
     from host.hand_state import FingerState
-    from tools.demo_watch import felt
+    from tools.demo.watch import felt
 
     base = FingerState(0, tactile={"proximal": [100] * 6, "distal": [100] * 12})
     pressed = FingerState(0, tactile={"proximal": [100, 400, 100, 100, 90, 100],

@@ -22,7 +22,7 @@ from hil_emulator.emulator import Emulator
 from host.hand_session import HandSession
 from protocol.image import BoardType, FirmwareImage, ImageHeader
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus
-from tools import flash_all_fingers
+from tools.cli import flash_all_fingers
 
 BOARDS = (BoardType.FMCB, BoardType.F2, BoardType.F3)
 

@@ -19,7 +19,7 @@ from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import install_image, make_hal, provision_key
 from protocol.image import BoardType
 from protocol.messages.bootloader import ImageStatus
-from tools import fwimage
+from tools.cli import fwimage
 
 PAYLOAD = bytes((i * 7 + 3) & 0xFF for i in range(1000))
 

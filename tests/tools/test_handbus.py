@@ -17,9 +17,9 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from protocol.framing import encode_frame
-from tools import handbus
-from tools.cli_values import FieldValueError, build_fields, parse_value
-from tools.mcap_capture import MCAP_MAGIC
+from tools.cli import handbus
+from tools.cli.mcap_capture import MCAP_MAGIC
+from tools.cli.values import FieldValueError, build_fields, parse_value
 
 # Golden frames written by hand (CRCs from the bitwise reference in test_framing.py).
 PING_HEX = "420a000001612d"
@@ -91,7 +91,7 @@ def test_decode_capture_as_a_console_script(tmp_path: Path) -> None:
     path = tmp_path / "capture.bin"
     path.write_bytes(capture())
     script = Path(sys.executable).with_name("handbus")
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "tools.handbus"]
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "tools.cli.handbus"]
     proc = subprocess.run(
         [*cmd, "decode", str(path)], capture_output=True, text=True, cwd=REPO, timeout=60,
         env={**os.environ, "PYTHONPATH": str(REPO)},
@@ -100,7 +100,7 @@ def test_decode_capture_as_a_console_script(tmp_path: Path) -> None:
     check_capture_output(proc.stdout)
     # standard input works too, via python -m
     piped = subprocess.run(
-        [sys.executable, "-m", "tools.handbus", "decode", "-"], input=capture(),
+        [sys.executable, "-m", "tools.cli.handbus", "decode", "-"], input=capture(),
         capture_output=True, cwd=REPO, timeout=60,
     )
     assert piped.returncode == 0
@@ -339,7 +339,7 @@ def test_progress_bar_absent_for_a_console_script_with_stderr_piped(tmp_path: Pa
     path = tmp_path / "capture.bin"
     path.write_bytes(capture())
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    result = subprocess.run([sys.executable, "-m", "tools.handbus", "decode", str(path)],
+    result = subprocess.run([sys.executable, "-m", "tools.cli.handbus", "decode", str(path)],
                             capture_output=True, env=env, check=False)
     assert (result.returncode, result.stderr) == (0, b"")
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tools import handbus
+from tools.cli import handbus
 
 # WRITE id 5, goal position (address 30) = 0x0200: FF FF 05 05 03 1E 00 02 CHK
 # CHK = ~(05 + 05 + 03 + 1E + 00 + 02) = ~0x2D = 0xD2

@@ -10,8 +10,8 @@ import pytest
 from mcap.reader import make_reader
 
 from hil_emulator.inprocess import forget_shared_emulators
-from tools import armctl, handbus, handctl
-from tools.mcap_capture import MCAP_MAGIC, is_mcap, raw_chunks
+from tools.cli import armctl, handbus, handctl
+from tools.cli.mcap_capture import MCAP_MAGIC, is_mcap, raw_chunks
 
 
 def _decode(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[list[dict], dict]:

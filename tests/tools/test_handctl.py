@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 
 from hil_emulator.emulator import Emulator
 from protocol.framing import parse_frame
-from tools.handctl import main
+from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=host-tests"
 
@@ -129,7 +129,7 @@ def test_status_exits_1_naming_a_powered_finger_that_does_not_answer(
 ])
 def test_the_advice_for_a_finger_that_did_not_reply_fits_what_the_link_carried(
         seen: dict[str, int], says: str) -> None:
-    from tools.handctl import _no_reply_advice
+    from tools.cli.handctl import _no_reply_advice
 
     advice = _no_reply_advice(seen)
     assert says in advice

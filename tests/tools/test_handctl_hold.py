@@ -15,7 +15,7 @@ from hil_emulator import inprocess
 from hil_emulator.inprocess import forget_shared_emulators
 from host.hand import Hand
 from tests.hil_emulator.emulator_process import HANG_GUARD_S
-from tools import handctl
+from tools.cli import handctl
 
 URL = "emu://hand/palm?name=test-handctl-hold"
 

@@ -23,7 +23,7 @@ from host.transport import open_transport
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
 from protocol.topology import FINGERS
 from tests.host.slow_link import FastLinkClock
-from tools.handctl import main
+from tools.cli.handctl import main
 
 #: Simulation time for the palm to leave its bootloader after power-on (µs).
 PALM_BOOT_US = AUTOBOOT_WINDOW_US + 500_000

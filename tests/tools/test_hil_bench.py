@@ -11,9 +11,9 @@ from typing import Any
 
 import pytest
 
-from tools import hil_bench
-from tools.bench.campaign import comparable, expand, run_jobs
-from tools.bench.scenario import ScenarioError, parse_scenario, scenario_dir, standard_suite
+from tools.hil_bench import cli as hil_bench
+from tools.hil_bench.campaign import comparable, expand, run_jobs
+from tools.hil_bench.scenario import ScenarioError, parse_scenario, scenario_dir, standard_suite
 
 SUITE = scenario_dir()
 #: The subset of the standard suite run by default (about 15 s).
@@ -127,18 +127,18 @@ def test_experiments_dispatches_or_says_the_module_is_missing(
     import sys
     import types
 
-    fake = types.ModuleType("tools.bench_experiments")
+    fake = types.ModuleType("tools.experiments.dissertation")
     seen: list[list[str]] = []
     fake.main = lambda argv: seen.append(argv) or 0  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "tools.bench_experiments", fake)
+    monkeypatch.setitem(sys.modules, "tools.experiments.dissertation", fake)
     assert hil_bench.main(["experiments", "sweep", "--x", "1"]) == 0
     # its own options first, as a user types them (argparse's REMAINDER refused these)
     assert hil_bench.main(["experiments", "--json", "--report", "out"]) == 0
     assert seen == [["sweep", "--x", "1"], ["--json", "--report", "out"]]
-    monkeypatch.setitem(sys.modules, "tools.bench_experiments", None)  # import fails
+    monkeypatch.setitem(sys.modules, "tools.experiments.dissertation", None)  # import fails
     monkeypatch.setattr(hil_bench.importlib, "import_module", _missing)
     assert hil_bench.main(["experiments"]) == 2
-    assert "bench_experiments.py is not installed" in capsys.readouterr().err
+    assert "dissertation.py is not installed" in capsys.readouterr().err
 
 
 def _missing(name: str) -> Any:
@@ -239,7 +239,7 @@ def test_a_failed_run_prints_the_command_that_runs_it_alone(
 def test_ctrl_c_keeps_the_finished_runs_and_exits_130(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    from tools.bench import campaign
+    from tools.hil_bench import campaign
 
     run_job = campaign.run_job
     calls = [0]
@@ -272,7 +272,7 @@ def test_ctrl_c_keeps_the_finished_runs_and_exits_130(
 def test_outputs_that_cannot_be_written_are_refused_before_anything_runs(
         option: list[str], message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    from tools.bench import campaign
+    from tools.hil_bench import campaign
 
     (tmp_path / "file").write_text("")
     monkeypatch.setattr(campaign, "run_job", _never)
@@ -323,7 +323,7 @@ def test_set_fixes_one_value_of_a_varied_key(tmp_path: Path) -> None:
 def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
         address: str, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    from tools.bench import campaign
+    from tools.hil_bench import campaign
 
     monkeypatch.setattr(campaign, "run_job", _never)
     monkeypatch.setattr(hil_bench, "SCHEDULER_TIMEOUT_S", 0.5)
@@ -352,7 +352,7 @@ def test_host_vanish_measures_when_the_elastic_joints_come_to_rest() -> None:
     """``arm_held`` reports ``joints_rest_ms`` (from the plant's joint velocities, not the
     motors' step rates: an elastic joint rings on after its motor stopped) and, given
     ``rest_within_ms``, fails a run whose joints are not at rest by then."""
-    from tools.bench.runner import run_scenario
+    from tools.hil_bench.runner import run_scenario
 
     raw = tomllib.loads((scenario_dir() / "host_vanish.toml").read_text())
     (held,) = run_scenario(raw)["assertions"]

@@ -12,7 +12,7 @@ from firmware_py.sim import boards
 from protocol.messages import CATALOGUE
 from protocol.strategies import mutate_frame
 from tests.tools.fuzz_planted import HANGING_INDEX, PROGRAM
-from tools import hil_fuzz
+from tools.cli import hil_fuzz
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer, Step
 from tools.fuzz.targets import TARGETS, TargetLink, is_motion_frame

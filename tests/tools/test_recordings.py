@@ -20,8 +20,8 @@ from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.recording import FLUSH_INTERVAL_S
 from tests.tools.mcap_check import check_recording
-from tools import armctl, handbus, handctl
-from tools.mcap_capture import read_recording
+from tools.cli import armctl, handbus, handctl
+from tools.cli.mcap_capture import read_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 #: A hand without physics (quick to bring up) in this process, simulated time.
@@ -156,7 +156,7 @@ def _run(argv: list[str], **options: object) -> subprocess.Popen[str]:
 
 
 def test_a_full_disk_stops_the_recording_with_one_line() -> None:
-    proc = _run(["tools.handctl", "--port", HAND_URL, "record", "/dev/full", "--seconds", "6"])
+    proc = _run(["tools.cli.handctl", "--port", HAND_URL, "record", "/dev/full", "--seconds", "6"])
     out, err = proc.communicate(timeout=600)
     assert proc.returncode == 1, err
     assert err.strip().splitlines() == [
@@ -188,7 +188,7 @@ def _limit_file_size(limit: int) -> None:
 @pytest.mark.slow
 def test_a_disk_that_fills_mid_run_keeps_what_was_written(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
-    proc = _run(["tools.handctl", "--port", HAND_URL, "record", str(path), "--seconds", "30"],
+    proc = _run(["tools.cli.handctl", "--port", HAND_URL, "record", str(path), "--seconds", "30"],
                 preexec_fn=lambda: _limit_file_size(60_000))
     _out, err = proc.communicate(timeout=600)
     assert proc.returncode == 1, err
@@ -202,7 +202,7 @@ def test_a_disk_that_fills_mid_run_keeps_what_was_written(tmp_path: Path) -> Non
 @pytest.mark.slow
 def test_kill_9_leaves_a_file_that_decodes_up_to_shortly_before_the_kill(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
-    proc = _run(["tools.handctl", "--port", HAND_URL, "record", str(path), "--seconds", "60"])
+    proc = _run(["tools.cli.handctl", "--port", HAND_URL, "record", str(path), "--seconds", "60"])
     try:
         deadline = time.monotonic() + 300
         span = 0.0
@@ -226,7 +226,7 @@ def test_kill_9_leaves_a_file_that_decodes_up_to_shortly_before_the_kill(tmp_pat
     # what the process logged until about a second before it was killed is there (a busy
     # machine may have paused it for a while before the kill, hence the margin)
     assert frames[-1].log_time_ns >= killed_at - (1.0 + FLUSH_INTERVAL_S + 1.0) * 1e9
-    out = subprocess.run([sys.executable, "-m", "tools.handbus", "decode", str(path)],
+    out = subprocess.run([sys.executable, "-m", "tools.cli.handbus", "decode", str(path)],
                          cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == handbus.EXIT_CUT, out.stderr
     assert json.loads(out.stdout.splitlines()[-1])["summary"]["frames"] == len(frames)

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)")
 
 from hil_emulator.inprocess import forget_shared_emulators  # noqa: E402
-from tools import armctl, handctl  # noqa: E402
+from tools.cli import armctl, handctl  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 ADDRESS = re.compile(r"view: (http://127\.0\.0\.1:\d+/\?url=\S+)")
@@ -81,7 +81,7 @@ def test_a_bad_view_port_is_a_usage_error() -> None:
 
 
 def test_without_rerun_the_view_says_how_to_install_it() -> None:
-    code = ("import sys; sys.modules['rerun'] = None; from tools.armctl import main; "
+    code = ("import sys; sys.modules['rerun'] = None; from tools.cli.armctl import main; "
             "sys.exit(main(['--port', 'emu://arm/arm', '--view', '--view-port', '0', "
             "'status']))")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,

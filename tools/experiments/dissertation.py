@@ -12,7 +12,7 @@ Chapters 5 (the arm) and 6 (the hand) of the dissertation; tolerances are ±10 %
 row says otherwise.  A row is *not comparable* when the emulator cannot measure what the
 dissertation did, with the reason; the command exits 0 only when every other row passes.
 
-    python -c "import tools.bench_experiments as b; b.main(['--json'])"
+    python -c "import tools.experiments.dissertation as b; b.main(['--json'])"
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ from protocol.robot import (
     max_velocity_counts_per_s,
     microsteps_to_rad,
 )
-from tools.cli_numbers import read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.numeric import read_negative_numbers
+from tools.cli.output import guard_output
 
 #: Seed of every experiment's emulator unless given.
 DEFAULT_SEED: Final = 1

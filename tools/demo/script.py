@@ -27,10 +27,10 @@ would, with the host library and the command-line tools:
    the hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames, states, finger readings and
    events, arm bus and states; from the firmware step on, the hand's state read at
-   :data:`tools.demo_watch.HAND_STATE_HZ` while the arm moves) and a Markdown report with
-   plots over the whole session (:mod:`tools.demo_report`).  In process, the mug's slip in
-   the hand is watched on the physics (:class:`tools.demo_watch.MugInHand`): more than
-   :data:`tools.demo_watch.SLIP_M` fails the demo.
+   :data:`tools.demo.watch.HAND_STATE_HZ` while the arm moves) and a Markdown report with
+   plots over the whole session (:mod:`tools.demo.report`).  In process, the mug's slip in
+   the hand is watched on the physics (:class:`tools.demo.watch.MugInHand`): more than
+   :data:`tools.demo.watch.SLIP_M` fails the demo.
 
 Every step prints one line with the simulated and the wall time.  By default the emulator
 runs in this process on the simulation clock (``emu://…``: deterministic, and as reliable
@@ -89,10 +89,10 @@ from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
-from tools.cli_numbers import read_negative_numbers
-from tools.cli_output import guard_output
-from tools.cli_view import add_view_arguments
-from tools.demo_plan import (
+from tools.cli.numeric import read_negative_numbers
+from tools.cli.output import guard_output
+from tools.cli.view import add_view_arguments
+from tools.demo.plan import (
     APPROACH_M,
     FW_VERSION,
     GRASP_AMOUNT,
@@ -117,9 +117,9 @@ from tools.demo_plan import (
     FlangePose,
     flange_pose,
 )
-from tools.demo_watch import SLIP_M, HandSampler, MugInHand, felt
+from tools.demo.watch import SLIP_M, HandSampler, MugInHand, felt
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: The hand's fall reported for the put-down: the most it fell in this long (s).
 FALL_WINDOW_S = 0.3
 
@@ -252,7 +252,7 @@ class Demo:
 
     # ------------------------------------------------------------------ steps
     def firmware(self) -> None:
-        from tools import flash_all_fingers, fwimage
+        from tools.cli import flash_all_fingers, fwimage
 
         self.begin("firmware", f"building demo images {FW_VERSION} (fwimage build)")
         fw = self.out / "firmware"
@@ -625,7 +625,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[b
 def emulator_process(link_dir: Path, seed: int) -> Iterator[tuple[dict[str, Any],
                                                                  subprocess.Popen[str]]]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.hil_emulator", "--config", "full", "--scene", "mug",
+        [sys.executable, "-m", "tools.cli.serve_emulator", "--config", "full", "--scene", "mug",
          "--ready", "--stats", "--seed", str(seed), "--link-dir", str(link_dir)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -736,7 +736,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
 
 
 def _write_report(demo: Demo, out: Path) -> None:
-    from tools.demo_report import write_report
+    from tools.demo.report import write_report
 
     try:
         path = write_report(demo.log, out)

@@ -25,7 +25,7 @@ only if every node ends verified and running the requested version; 1 if not (or
 failed: run again to resume); 2 for a bad command line or a plan refused before touching
 anything (an image, a key, a finger not answering, a port that does not open); 130 when
 interrupted.
-``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
+``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli.common`).
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ from host.errors import HostError, TransportError
 from host.hand_session import HandSession
 from host.transport import open_transport
 from protocol.image import BoardType
-from tools.cli_common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
-from tools.cli_output import guard_output
+from tools.cli.common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
+from tools.cli.output import guard_output
 
 #: Not every node ended verified (or the link failed mid-run).
 EXIT_FAILED = EXIT_ROBOT

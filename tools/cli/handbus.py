@@ -39,9 +39,9 @@ from protocol.interpret import interpret, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import FrameTuple, StreamDecoder
 from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
-from tools.cli_numbers import read_negative_numbers
-from tools.cli_output import guard_output
-from tools.cli_values import FieldValueError, build_fields, check_fields
+from tools.cli.numeric import read_negative_numbers
+from tools.cli.output import guard_output
+from tools.cli.values import FieldValueError, build_fields, check_fields
 
 
 class UsageError(Exception):
@@ -341,7 +341,7 @@ EXIT_CUT = 3
 
 def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     if args.file != "-" and not args.hex:
-        from tools import mcap_capture
+        from tools.cli import mcap_capture
 
         if mcap_capture.is_mcap(args.file):
             return _decode_mcap(args, out)
@@ -350,7 +350,7 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     if not data:
         raise UsageError(f"{name} is empty (0 bytes): nothing to decode")
     if args.file.lower().endswith(".mcap") and not args.hex:
-        from tools import mcap_capture
+        from tools.cli import mcap_capture
 
         raise UsageError(f"{name} is not an MCAP recording: "
                          f"{mcap_capture.describe_start(data)}")
@@ -364,9 +364,9 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
 
 
 def _decode_mcap(args: argparse.Namespace, out: Any) -> int:
-    """``decode FILE.mcap``: the raw-frame channels of a recording (:mod:`tools.mcap_capture`),
+    """``decode FILE.mcap``: the raw-frame channels of a recording (:mod:`tools.cli.mcap_capture`),
     up to where it is cut short (exit :data:`EXIT_CUT`, with a warning)."""
-    from tools import mcap_capture
+    from tools.cli import mcap_capture
 
     def decoder(topic: str) -> mcap_capture.Decoder:
         if not args.dynamixel:

@@ -17,8 +17,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from tools.bench.runner import run_scenario
-from tools.bench.scenario import find_scenario, load_scenario, parse_scenario, with_overrides
+from tools.hil_bench.runner import run_scenario
+from tools.hil_bench.scenario import find_scenario, load_scenario, parse_scenario, with_overrides
 
 Job = dict[str, Any]
 

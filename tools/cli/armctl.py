@@ -36,7 +36,7 @@ so on one line; a joint whose node latches an alarm on the way is named with its
 (``emu://arm/arm`` runs the emulator in this process); ``--timeout S`` is the adapter latency
 allowed on top of each exchange's wire time (default 100 ms on a serial link, 0.2 ms in
 process).  Opening sets every node's return delay to 0 for fast cycles unless
-``--keep-return-delay``.  Errors say what to do next (:mod:`tools.cli_common`); exit status 1
+``--keep-return-delay``.  Errors say what to do next (:mod:`tools.cli.common`); exit status 1
 for a robot or link problem, 2 for bad arguments, 3 when a move did not settle in time, 130
 when interrupted.
 """
@@ -58,7 +58,7 @@ from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
-from tools.cli_common import (
+from tools.cli.common import (
     EXIT_OK,
     EXIT_ROBOT,
     EXIT_USAGE,
@@ -66,11 +66,11 @@ from tools.cli_common import (
     run_cli,
     unwritable,
 )
-from tools.cli_numbers import finite, number_above
-from tools.cli_output import guard_output
-from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
+from tools.cli.numeric import finite, number_above
+from tools.cli.output import guard_output
+from tools.cli.view import add_view_arguments, add_watch_command, view_spec, watch
 
-#: Exit status of a move that did not settle in time (the others: :mod:`tools.cli_common`).
+#: Exit status of a move that did not settle in time (the others: :mod:`tools.cli.common`).
 EXIT_NOT_SETTLED = 3
 __all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "make_parser"]
 

@@ -24,8 +24,8 @@ from hil_emulator.faults import targets
 from host.errors import HostError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
-from tools.bench.assertions import judge
-from tools.bench.scenario import Scenario, Step, parse_scenario
+from tools.hil_bench.assertions import judge
+from tools.hil_bench.scenario import Scenario, Step, parse_scenario
 
 #: Period of the plant-truth samples (µs).
 TRUTH_PERIOD_US: Final = 10_000

@@ -51,8 +51,8 @@ from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import load_plan
 from hil_emulator.scene_model import SCENES
 from hil_emulator.scheduling import PRIORITIES
-from tools.cli_numbers import number_above, read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.numeric import number_above, read_negative_numbers
+from tools.cli.output import guard_output
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,7 +18,7 @@ per fault class and per ``campaign.vary`` parameter value, and their bar charts)
 per run and PNG plots around each fault.  ``list-scenarios`` prints the built-in
 scenarios (a NAME ``run`` takes instead of a file).  ``list-faults`` prints the fault catalogue with parameters,
 including those not implemented yet.  ``experiments`` hands its arguments to
-``tools.bench_experiments``.
+``tools.experiments.dissertation``.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from pathlib import Path
 from typing import Any
 
 from hil_emulator.errors import EmulatorError
-from tools.cli_common import EXIT_INTERRUPTED, unwritable
-from tools.cli_numbers import number_above, read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.common import EXIT_INTERRUPTED, unwritable
+from tools.cli.numeric import number_above, read_negative_numbers
+from tools.cli.output import guard_output
 
 #: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
 SCHEDULER_TIMEOUT_S = 10.0
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     lf.add_argument("--json", action="store_true", help="as JSON")
     # ``experiments`` takes its own options (--json, --report …), which argparse's REMAINDER
     # would refuse when they come first: main hands them over before parsing
-    sub.add_parser("experiments", help="bench experiments (tools.bench_experiments): "
+    sub.add_parser("experiments", help="bench experiments (tools.experiments.dissertation): "
                    "hil-bench experiments [--json] [--report DIR] [--only NAME …] [--seed N]",
                    add_help=False)
     return parser
@@ -100,7 +100,7 @@ def _setting(text: str) -> tuple[str, Any]:
 
 def run_line(result: dict[str, Any]) -> str:
     """The line ``run`` prints for one result (its overrides by their last key)."""
-    from tools.bench.report import override_texts
+    from tools.hil_bench.report import override_texts
 
     failed = [a["id"] for a in result["assertions"] if not a["passed"]]
     verdict = "pass" if result["passed"] else f"FAIL ({', '.join(failed)})"
@@ -150,7 +150,7 @@ def list_faults(as_json: bool) -> int:
 
 
 def list_scenarios(as_json: bool) -> int:
-    from tools.bench.scenario import load_scenario, standard_suite
+    from tools.hil_bench.scenario import load_scenario, standard_suite
 
     entries: list[dict[str, Any]] = []
     for path in standard_suite():
@@ -196,9 +196,9 @@ def _connect(address: str) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.bench.campaign import expand, iter_jobs
-    from tools.bench.report import reproduce_command, write_report
-    from tools.bench.scenario import ScenarioError, standard_suite
+    from tools.hil_bench.campaign import expand, iter_jobs
+    from tools.hil_bench.report import reproduce_command, write_report
+    from tools.hil_bench.scenario import ScenarioError, standard_suite
 
     files = list(args.files)
     if args.suite == "standard":
@@ -257,11 +257,11 @@ def run(args: argparse.Namespace) -> int:
 
 def experiments(argv: Sequence[str]) -> int:
     try:
-        module: Any = importlib.import_module("tools.bench_experiments")
+        module: Any = importlib.import_module("tools.experiments.dissertation")
     except ModuleNotFoundError as exc:
-        if exc.name != "tools.bench_experiments":
+        if exc.name != "tools.experiments.dissertation":
             raise
-        print("hil-bench experiments: tools/bench_experiments.py is not installed in this "
+        print("hil-bench experiments: tools/experiments/dissertation.py is not installed in this "
               "tree (it is developed separately); nothing to run", file=sys.stderr)
         return 2
     return int(module.main(list(argv)) or 0)

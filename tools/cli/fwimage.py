@@ -39,8 +39,8 @@ from bootloader.signing import (
 )
 from protocol.errors import ImageError
 from protocol.image import BoardType, FirmwareImage, Version
-from tools.cli_common import parse
-from tools.cli_output import guard_output
+from tools.cli.common import parse
+from tools.cli.output import guard_output
 
 EXIT_BAD = 1
 EXIT_USAGE = 2

@@ -3,7 +3,7 @@ full disk, ``/dev/full``, a read-only folder) ends the tool with one line on std
 status 1, never a traceback; standard output closed by its reader (``… | head``) ends it
 quietly with 141, as a process killed by SIGPIPE.
 
-Every ``main`` of ``tools/`` is wrapped in :func:`guard_output`; :func:`tools.cli_common.run`
+Every ``main`` of ``tools/`` is wrapped in :func:`guard_output`; :func:`tools.cli.common.run`
 (the robot CLIs) catches :class:`OutputError` itself, before its other mappings.
 """
 

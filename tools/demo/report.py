@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Final
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from tools.demo import Log
+    from tools.demo.script import Log
 
 
 #: Readings further apart than this (s) are not joined by a line.
@@ -85,7 +85,7 @@ def write_report(log: Log, out: Path) -> Path:
         plt.close(fig)
     if log.fingers:
         fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-        from tools.demo_watch import touch
+        from tools.demo.watch import touch
 
         for k in range(4):
             rows = sorted(((t, s) for t, f, s in log.fingers if f == k and s.tactile),

@@ -26,9 +26,9 @@ from typing import Any
 from host.errors import HostError
 from host.view import WEB_PORT, RobotView, ViewUnavailable
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
-from tools.cli_numbers import number_above, read_negative_numbers
-from tools.cli_output import guard_output
-from tools.cli_view import port_number
+from tools.cli.numeric import number_above, read_negative_numbers
+from tools.cli.output import guard_output
+from tools.cli.view import port_number
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from host.view import WEB_PORT, RobotView
-from tools.cli_numbers import number_above
+from tools.cli.numeric import number_above
 
 __all__ = ["add_view_arguments", "add_watch_command", "port_number", "view_spec", "watch"]
 

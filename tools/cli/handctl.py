@@ -17,7 +17,7 @@
     handctl --port P move … --view                        # any command: a browser view too
 
 ``--port`` takes a serial path or any transport URL (``socket://``, ``emu://hand/palm`` …);
-``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli_common`).
+``--timeout S`` sets the link budget (default by link kind, see :mod:`tools.cli.common`).
 Errors print what to do next and exit non-zero (1: the robot or link, 2: the command line,
 130: interrupted; Ctrl-C or SIGTERM holds every moving finger where it is, and says which).
 """
@@ -50,7 +50,7 @@ from protocol.image import BoardType
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
-from tools.cli_common import (
+from tools.cli.common import (
     EXIT_ROBOT,
     EXIT_USAGE,
     add_common_arguments,
@@ -58,9 +58,9 @@ from tools.cli_common import (
     run_cli,
     unwritable,
 )
-from tools.cli_numbers import finite, number_above, number_in
-from tools.cli_output import guard_output
-from tools.cli_view import add_view_arguments, add_watch_command, view_spec, watch
+from tools.cli.numeric import finite, number_above, number_in
+from tools.cli.output import guard_output
+from tools.cli.view import add_view_arguments, add_watch_command, view_spec, watch
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
 

@@ -19,9 +19,9 @@ import sys
 from collections.abc import Sequence
 
 from host.errors import HostError
-from tools.cli_common import EXIT_INTERRUPTED
-from tools.cli_numbers import number_above, read_negative_numbers
-from tools.cli_output import guard_output
+from tools.cli.common import EXIT_INTERRUPTED
+from tools.cli.numeric import number_above, read_negative_numbers
+from tools.cli.output import guard_output
 from tools.fuzz.campaign import replay, run_campaign
 from tools.fuzz.steps import Reproducer
 from tools.fuzz.targets import TARGETS

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, Final
 from protocol.stream import decode_all
 
 if TYPE_CHECKING:
-    from tools.bench.runner import RunRecord
-    from tools.bench.scenario import Step
+    from tools.hil_bench.runner import RunRecord
+    from tools.hil_bench.scenario import Step
 
 Verdict = tuple[bool, dict[str, Any], str]
 

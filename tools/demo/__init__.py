@@ -1,0 +1,4 @@
+"""``make demo`` (``python -m tools.demo [--realtime]``): the mug picked up by the hand on the
+arm.  ``script`` runs it, ``plan`` says where things are, ``watch`` what it watches, ``report``
+what it writes.
+"""
