@@ -1,4 +1,4 @@
-"""Sub-commands declared once each (tools.cli_commands): the parser a program builds and the
+"""Sub-commands declared once each (tools.cli.commands): the parser a program builds and the
 handler it runs come from the same declaration, in the order declared."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from typing import TextIO
 
 import pytest
 
-from tools import armctl, handctl
-from tools.cli_commands import Commands
+from tools.cli import armctl, handctl
+from tools.cli.commands import Commands
 
 
 def _sub_names(parser: argparse.ArgumentParser) -> list[str]:

@@ -58,7 +58,7 @@ from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
-from tools.cli_commands import Commands
+from tools.cli.commands import Commands
 from tools.cli.common import (
     EXIT_OK,
     EXIT_ROBOT,

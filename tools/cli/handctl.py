@@ -50,7 +50,7 @@ from protocol.image import BoardType
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
-from tools.cli_commands import Commands
+from tools.cli.commands import Commands
 from tools.cli.common import (
     EXIT_ROBOT,
     EXIT_USAGE,
