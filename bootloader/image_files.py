@@ -23,6 +23,7 @@ from elftools.elf.elffile import ELFFile
 from elftools.elf.enums import ENUM_E_MACHINE
 
 from bootloader.errors import ImageFileError
+from protocol import topology
 from protocol.errors import ImageError
 from protocol.image import (
     APP_START_ADDRESS,
@@ -33,6 +34,8 @@ from protocol.image import (
     FirmwareImage,
     parse_image,
 )
+from protocol.topology import FINGER_BOARDS
+from protocol.topology import board as board_row
 
 #: Where a payload is linked: right after the one-page header (bytes).
 PAYLOAD_ADDRESS: Final = APP_START_ADDRESS + HEADER_SIZE
@@ -42,19 +45,24 @@ _PT_LOAD: Final = "PT_LOAD"
 APP_END_ADDRESS: Final = APP_START_ADDRESS + FLASH.app_area_bytes
 
 
+#: Boards with the hand bootloader: a finger's in hop order, then the others.
+HAND_BOARDS: Final = (*(b.board_type for b in FINGER_BOARDS),
+                      *(b.board_type for b in topology.HAND_BOARDS if b.hop is None))
+#: Their names, in that order (``fmcb``, ``f2``, ``f3``, ``palm``).
+HAND_BOARD_NAMES: Final = tuple(board_row(b).app for b in HAND_BOARDS)
+
+
 def board_of(name: str) -> BoardType:
-    """The hand board called ``name`` (``fmcb``, ``f2``, ``f3``, ``palm``)."""
+    """The hand board called ``name`` (one of :data:`HAND_BOARD_NAMES`)."""
     try:
         board = BoardType[name.upper()]
     except KeyError:
-        raise ImageFileError(f"unknown board {name!r}: choose fmcb, f2, f3 or palm") from None
+        raise ImageFileError(f"unknown board {name!r}: choose "
+                             f"{', '.join(HAND_BOARD_NAMES[:-1])} or {HAND_BOARD_NAMES[-1]}"
+                             ) from None
     if board not in HAND_BOARDS:
-        raise ImageFileError(f"{name}: not a hand board (fmcb, f2, f3, palm)")
+        raise ImageFileError(f"{name}: not a hand board ({', '.join(HAND_BOARD_NAMES)})")
     return board
-
-
-#: Boards with the hand bootloader.
-HAND_BOARDS: Final = (BoardType.FMCB, BoardType.F2, BoardType.F3, BoardType.PALM)
 
 
 def default_app(board: BoardType) -> str:

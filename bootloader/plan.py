@@ -17,13 +17,15 @@ from typing import Final
 from bootloader.errors import FlashError, PlanError
 from bootloader.image_files import read_image
 from bootloader.signing import signature_ok
+from protocol import topology
 from protocol.image import FLASH, BoardType, FirmwareImage
 from protocol.topology import FINGERS, Hop
 
 #: Boards of a finger module, in the order a finger is flashed: the fmcb first (the
 #: phalanges are reached through its running application), then f2 and f3.
-FINGER_BOARDS: Final = (BoardType.FMCB, BoardType.F2, BoardType.F3)
-HOP_OF_BOARD: Final = {BoardType.FMCB: Hop.FMCB, BoardType.F2: Hop.F2, BoardType.F3: Hop.F3}
+FINGER_BOARDS: Final = tuple(b.board_type for b in topology.FINGER_BOARDS)
+HOP_OF_BOARD: Final[dict[BoardType, Hop]] = {
+    b.board_type: b.hop for b in topology.FINGER_BOARDS if b.hop is not None}
 #: Pages hashed and verified together; a re-run skips every block that already verifies.
 BLOCK_PAGES: Final = 8
 

@@ -42,7 +42,8 @@ from bootloader.node_session import (
     StepFailed,
     refusal,
 )
-from bootloader.plan import FlashPlan, NodeJob
+from bootloader.plan import FINGER_BOARDS, FlashPlan, NodeJob
+from protocol import topology
 from protocol.image import BoardType
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
 from protocol.messages.common import Running
@@ -68,13 +69,7 @@ POLL_S: Final = 0.02
 #: Attempts of one slot.write.
 PAGE_TRIES: Final = 5
 #: The self-test after a swap: requests each board's application must answer.
-SELF_TEST: Final = {
-    BoardType.FMCB: ("fmcb.status", "fmcb.imu"),
-    BoardType.F2: ("f2.imu", "f2.tactile"),
-    BoardType.F3: ("f3.imu", "f3.tactile"),
-}
-_ORDER: Final = (BoardType.FMCB, BoardType.F2, BoardType.F3)
-_HOPS: Final = {BoardType.FMCB: Hop.FMCB, BoardType.F2: Hop.F2, BoardType.F3: Hop.F3}
+SELF_TEST: Final = {b.board_type: b.self_test for b in topology.FINGER_BOARDS}
 
 
 def version_text(v: dict[str, int]) -> str:
@@ -376,7 +371,7 @@ class SlotChannel:
     # --- rollback ---------------------------------------------------------------------------
     def rollback(self, jobs: list[NodeJob]) -> Flow:
         """Put ``jobs``' nodes back on their previous image: phalanges first, then the fmcb."""
-        order = sorted(jobs, key=lambda j: -_ORDER.index(j.board))
+        order = sorted(jobs, key=lambda j: -FINGER_BOARDS.index(j.board))
         fmcb_done = False
         for job in order:
             try:

@@ -105,6 +105,7 @@ from protocol.messages.bootloader import (
 )
 from protocol.messages.common import Running
 from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotEvent, SlotState
+from protocol.topology import HAND_BOARDS
 
 __all__ = ["AUTOBOOT_US", "Bootloader", "ImageCheck", "check_header", "check_signature",
            "inspect_image"]
@@ -118,12 +119,7 @@ BOOT_DELAY_US: Final = 200
 BUSY_POLL_US: Final = 500
 
 #: Upstream UART of each hand board: where the host (or the board above) talks to it.
-UPSTREAM_UART: Final = {
-    BoardType.PALM: "host",
-    BoardType.FMCB: "pogo",
-    BoardType.F2: "tendon",
-    BoardType.F3: "tendon",
-}
+UPSTREAM_UART: Final = {b.board_type: b.upstream for b in HAND_BOARDS}
 
 _NO_PAGE: Final = 0xFFFFFFFF
 

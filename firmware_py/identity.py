@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 from firmware_py.hal import Flash
 from protocol.image import FLASH, BoardType
-from protocol.topology import ADDR_F2, ADDR_F3, ADDR_FMCB
+from protocol.topology import ADDR_FMCB
+from protocol.topology import board as board_row
 
 IDENTITY_ADDRESS = FLASH.identity_address
 HW_VERSION_FINGER = 0xBEEF0041
@@ -56,6 +57,7 @@ def read_identity(flash: Flash) -> Identity:
 
 def default_identity(board: BoardType, uid: int = 0) -> Identity:
     """The identity a factory gives a board of this type (address and hw version)."""
-    address = {BoardType.F2: ADDR_F2, BoardType.F3: ADDR_F3}.get(board, ADDR_FMCB)
+    own = board_row(board).address
+    address = ADDR_FMCB if own is None else own  # an arm node keeps the factory default
     hw = HW_VERSION_PALM_RIGHT if board == BoardType.PALM else HW_VERSION_FINGER
     return Identity(int(board), uid, hw, address)

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
-from typing import Any, Final
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar, Final
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from host.errors import TransportError, UsageError
-from host.transport import Transport, register_transport, url_options
+from host.transport import LinkKind, Transport, url_options
 
 #: The link names each configuration offers.
 LINKS: Final = {"full": ("palm", "arm"), "hand": ("palm",), "arm": ("arm",),
@@ -41,6 +41,10 @@ class EmulatorTransport(Transport):
     The transport takes the link's bytes from whatever listened before (a port, a
     recorder); ``tee`` keeps passing them to that listener too, and :meth:`close` gives
     the link back to it."""
+
+    #: The simulation clock: wire times exact, so the palm's own budget (30 ms) is all.
+    schemes: ClassVar[Mapping[str, LinkKind]] = {
+        "emu": LinkKind("in-process", budget_s=0.030, exact_timing=True)}
 
     def __init__(self, emulator: Emulator, link: str, url: str | None = None, *,
                  tee: bool = False) -> None:
@@ -149,5 +153,3 @@ def forget_shared_emulators() -> None:
     """Drop the emulators URL-opened transports share (tests start from a fresh robot)."""
     _shared.clear()
 
-
-register_transport("emu", EmulatorTransport.from_url)

@@ -28,13 +28,13 @@ from __future__ import annotations
 import logging
 import secrets
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Final
 
 from host.code_names import code_name
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
-from host.transport import Transport, link_kind
+from host.transport import Transport, declared_links, link_of
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
 from protocol.framing import encode_frame, parse_frame
@@ -114,9 +114,10 @@ class Timeouts:
     @classmethod
     def for_url(cls, url: str, link_s: float | None = None) -> Timeouts:
         """The defaults for the link ``url`` names, with ``link_s`` (s) if given:
-        :data:`LINK_BUDGET_S` by :func:`~host.transport.link_kind`."""
+        the budget the link's backend declares (:func:`~host.transport.link_of`)."""
         if link_s is None:
-            link_s = LINK_BUDGET_S.get(link_kind(url), cls.link_s)
+            declared = link_of(url).budget_s
+            link_s = cls.link_s if declared is None else declared
         if not link_s > 0:
             raise UsageError(f"link budget {link_s} s: it must be > 0")
         return cls(link_s=float(link_s))
@@ -126,15 +127,29 @@ class Timeouts:
         return self.fmcb_ms + (self.tendon_ms if hop else 0) + extra_ms
 
 
-#: Default :attr:`Timeouts.link_s` (s) by kind of link.  In process the simulation clock
-#: makes wire times exact, so the palm's own budget (30 ms) is all; a serial link adds a USB
-#: adapter's latency timer (16 ms by default, each way) and, on the emulator's ptys, a busy
-#: machine's scheduling; CAN adapters buffer similarly; a network link adds its round trip.
-LINK_BUDGET_S: Final[dict[str, float]] = {
-    "in-process": 0.030, "loop": 0.030, "serial": 0.100, "can": 0.100, "network": 0.250,
-}
-#: Kinds of link whose arrival times are the wire's own (:func:`frame_gap_s`).
-EXACT_TIMING_LINKS: Final = frozenset({"in-process", "loop"})
+class _LinkBudgets(Mapping[str, float]):
+    """Default :attr:`Timeouts.link_s` (s) by kind of link, as the transports declare them
+    (:class:`~host.transport.LinkKind`; read when first asked).  In process the simulation
+    clock makes wire times exact, so the palm's own budget (30 ms) is all; a serial link
+    adds a USB adapter's latency timer (16 ms by default, each way) and, on the emulator's
+    ptys, a busy machine's scheduling; CAN adapters buffer similarly; a network link adds
+    its round trip."""
+
+    def _table(self) -> dict[str, float]:
+        return {name: kind.budget_s for name, kind in declared_links().items()
+                if kind.budget_s is not None}
+
+    def __getitem__(self, name: str) -> float:
+        return self._table()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._table())
+
+    def __len__(self) -> int:
+        return len(self._table())
+
+
+LINK_BUDGET_S: Final[Mapping[str, float]] = _LinkBudgets()
 
 
 def frame_gap_s(url: str, timeouts: Timeouts) -> float:
@@ -150,7 +165,7 @@ def frame_gap_s(url: str, timeouts: Timeouts) -> float:
     cut off by a reset, say), and by then its request has timed out anyway."""
     default = StreamDecoder().gap_s
     assert default is not None
-    if link_kind(url) in EXACT_TIMING_LINKS:
+    if link_of(url).exact_timing:
         return default
     return max(default, timeouts.link_s)
 
@@ -161,7 +176,7 @@ def first_seq(url: str) -> int:
     a program stopped mid-request (Ctrl-C) leaves replies on their way, and a session
     opened right after it, counting from 0 too, would take the one to its own first
     request's number as the answer."""
-    if link_kind(url) in EXACT_TIMING_LINKS:
+    if link_of(url).exact_timing:
         return 0
     return secrets.randbelow(256)
 

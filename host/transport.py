@@ -23,18 +23,26 @@ URLs (:func:`open_transport`):
 ``emu://…``                         the emulator in process (registered by the emulator)
 =================================  ==================================================
 
-Backends are imported only when a URL needs them.  Other packages add schemes with
-:func:`register_transport` or the ``lowcost_hand.transports`` entry-point group.
+Each backend is a :class:`Transport` subclass that declares its own URL schemes and, for
+each, the kind of link it is (:class:`LinkKind`: a name, the default link budget of a
+session on it, whether arrival times are the wire's own), as python-can's interfaces declare
+themselves: a class that declares ``schemes`` is registered when its module is imported.
+The built-in backends are the modules of :mod:`host.transports`, imported when a scheme is
+first looked up (python-can itself only when a ``can://`` link opens).  Other packages add
+schemes with such a class, with :func:`register_transport`, or through the
+``lowcost_hand.transports`` entry-point group (the scheme's name → the class or a factory).
 """
 
 from __future__ import annotations
 
 import importlib
+import pkgutil
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from importlib import metadata
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 from urllib.parse import parse_qsl, urlsplit
 
 from host.errors import TransportError, UsageError
@@ -45,13 +53,50 @@ ENTRY_POINT_GROUP: Final = "lowcost_hand.transports"
 HAND_SERIAL_BAUD: Final = 2_000_000
 
 
+@dataclass(frozen=True)
+class LinkKind:
+    """What kind of link a URL scheme opens, for a session's timing defaults.
+
+    ``name``: ``"serial"``, ``"can"``, ``"network"``, ``"loop"``, ``"in-process"`` …;
+    ``budget_s``: the default link budget (s) of a hand session on it (the link both ways
+    and the first node's turnaround; None: the session's own default); ``exact_timing``:
+    bytes arrive at their wire times (the simulation clock, ``loop://``), so a stream
+    decoder's inter-frame gap holds as it is and runs are repeatable.
+    """
+
+    name: str
+    budget_s: float | None = None
+    exact_timing: bool = False
+
+
+#: A scheme whose backend declares no kind (a factory registered by another package).
+OTHER_LINK: Final = LinkKind("other")
+
+
 class Transport(ABC):
     """Bytes to and from one link.  A context manager; :meth:`close` is idempotent.
 
     :meth:`send` takes whole frames (a CAN backend cuts each into CAN frames);
     :meth:`recv` returns the bytes that arrived, or ``b""`` when ``timeout`` (seconds on
     :meth:`now`'s clock) passed without any.
+
+    A backend declares the URL schemes it opens in ``schemes`` (scheme → :class:`LinkKind`)
+    and opens one in :meth:`from_url`; declaring ``schemes`` registers the class.
     """
+
+    #: The URL schemes this backend opens, each with the kind of link it is.
+    schemes: ClassVar[Mapping[str, LinkKind]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "schemes" in cls.__dict__:  # declared by this class, not inherited
+            for scheme in cls.schemes:
+                _declared[scheme.lower()] = cls
+
+    @classmethod
+    def from_url(cls, url: str, **options: Any) -> Transport:
+        """Open the link ``url`` names (a backend's own URL syntax and ``?options``)."""
+        raise UsageError(f"{url}: {cls.__name__} cannot be opened from a URL")
 
     def __init__(self, url: str) -> None:
         self.url = url
@@ -126,21 +171,37 @@ class Transport(ABC):
 
 TransportFactory = Callable[..., Transport]
 
-#: Built-in schemes → "module:attribute" of a factory ``f(url, **options) -> Transport``.
-_BUILTIN: Final[dict[str, str]] = {
-    "serial": "host.transports.serial_port:SerialTransport.from_url",
-    "socket": "host.transports.serial_port:SerialTransport.from_url",
-    "rfc2217": "host.transports.serial_port:SerialTransport.from_url",
-    "loop": "host.transports.serial_port:SerialTransport.from_url",
-    "spy": "host.transports.serial_port:SerialTransport.from_url",
-    "can": "host.transports.can_bus:CanTransport.from_url",
-}
+#: Scheme → the backend class that declared it (filled as backend modules are imported).
+_declared: dict[str, type[Transport]] = {}
+#: Scheme → a factory (or ``"module:attr"``) registered with :func:`register_transport`.
 _registered: dict[str, TransportFactory | str] = {}
+#: The package whose modules are the built-in backends.
+_BUILTIN_PACKAGE: Final = "host.transports"
+_builtins_loaded = False
 
 
-def register_transport(scheme: str, factory: TransportFactory | str) -> None:
+def _load_builtins() -> None:
+    """Import every module of :mod:`host.transports` (each declares its backend)."""
+    global _builtins_loaded
+    if _builtins_loaded:
+        return
+    package = importlib.import_module(_BUILTIN_PACKAGE)
+    for module in pkgutil.iter_modules(package.__path__):
+        importlib.import_module(f"{_BUILTIN_PACKAGE}.{module.name}")
+    _builtins_loaded = True
+
+
+def register_transport(scheme: str | type[Transport],
+                       factory: TransportFactory | str | None = None) -> None:
     """Make ``scheme://…`` URLs open with ``factory`` (a callable, or ``"module:attr"``
-    imported on first use)."""
+    imported on first use); or, given a :class:`Transport` subclass, every scheme it
+    declares (as its import already did)."""
+    if isinstance(scheme, type):
+        for name in scheme.schemes:
+            _declared[name.lower()] = scheme
+        return
+    if factory is None:
+        raise TypeError("register_transport(scheme, factory): no factory given")
     _registered[scheme.lower()] = factory
 
 
@@ -161,6 +222,27 @@ def _from_entry_points(scheme: str) -> TransportFactory | None:
     return None
 
 
+def _backend(scheme: str) -> TransportFactory | None:
+    """What opens ``scheme``: a registered factory, a declaring class's ``from_url``, or an
+    entry point's (a class or a factory)."""
+    target = _registered.get(scheme)
+    if target is not None:
+        found: object = _resolve(target)
+    else:
+        if scheme not in _declared:
+            _load_builtins()
+        found = _declared[scheme] if scheme in _declared else _from_entry_points(scheme)
+    if isinstance(found, type) and issubclass(found, Transport):
+        return found.from_url
+    return found if callable(found) else None
+
+
+def _declaring_class(factory: TransportFactory) -> type[Transport] | None:
+    """The backend class behind ``factory``: the class itself or its bound ``from_url``."""
+    owner = factory if isinstance(factory, type) else getattr(factory, "__self__", None)
+    return owner if isinstance(owner, type) and issubclass(owner, Transport) else None
+
+
 def url_scheme(url: str) -> str:
     """The scheme of a transport URL; a bare path (no ``://``) is ``serial``."""
     if "://" not in url:
@@ -168,19 +250,30 @@ def url_scheme(url: str) -> str:
     return url.split("://", 1)[0].lower()
 
 
-#: What kind of link each built-in scheme is, for timing defaults (:func:`link_kind`).
-_KINDS: Final[dict[str, str]] = {
-    "serial": "serial", "spy": "serial", "loop": "loop", "socket": "network",
-    "rfc2217": "network", "can": "can", "emu": "in-process",
-}
+def link_of(url: str) -> LinkKind:
+    """The kind of link ``url`` opens, as its backend declares it (:data:`OTHER_LINK` for an
+    unknown scheme or a backend that declares none); imports the backend if need be."""
+    scheme = url_scheme(url)
+    factory = _backend(scheme)
+    owner = None if factory is None else _declaring_class(factory)
+    return OTHER_LINK if owner is None else owner.schemes.get(scheme, OTHER_LINK)
+
+
+def declared_links() -> dict[str, LinkKind]:
+    """Every link kind a backend declares, by name: the built-in backends', and those of
+    the entry-point group's (each loaded)."""
+    _load_builtins()
+    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        entry.load()  # a backend class registers itself as its module is imported
+    return {kind.name: kind for cls in _declared.values() for kind in cls.schemes.values()}
 
 
 def link_kind(url: str) -> str:
     """``"serial"`` (a device or pty: USB adapters buffer up to their latency timer, 16 ms
     by default), ``"can"``, ``"network"`` (``socket://``, ``rfc2217://``), ``"loop"``,
     ``"in-process"`` (``emu://``: the simulation clock, exact wire times), or ``"other"``
-    for a scheme registered by another package."""
-    return _KINDS.get(url_scheme(url), "other")
+    for a scheme whose backend declares no kind: :func:`link_of`'s name."""
+    return link_of(url).name
 
 
 def url_options(url: str) -> dict[str, str]:
@@ -192,7 +285,8 @@ def url_options(url: str) -> dict[str, str]:
 
 def schemes() -> list[str]:
     """Every scheme :func:`open_transport` knows now (built-in, registered, entry points)."""
-    found = set(_BUILTIN) | set(_registered)
+    _load_builtins()
+    found = set(_declared) | set(_registered)
     found |= {e.name for e in metadata.entry_points(group=ENTRY_POINT_GROUP)}
     return sorted(found)
 
@@ -207,15 +301,12 @@ def open_transport(url: str, **options: Any) -> Transport:
     if not url:
         raise UsageError("no port given: a path such as /dev/ttyUSB0 or a transport URL")
     scheme = url_scheme(url)
-    target: TransportFactory | str | None = _registered.get(scheme) or _BUILTIN.get(scheme)
-    if target is None:
-        target = _from_entry_points(scheme)
-    if target is None:
+    backend = _backend(scheme)
+    if backend is None:
         raise UsageError(f"unknown transport scheme {scheme!r} in {url!r}; "
                          f"known: {', '.join(schemes())}")
-    factory = _resolve(target)
     try:
-        return factory(url, **options)
+        return backend(url, **options)
     except UsageError:
         raise
     except ValueError as exc:  # a backend's own parsing of the URL's options

@@ -14,13 +14,11 @@ from protocol.enum_field import EnumField
 from protocol.image import FLASH, MAX_PAYLOAD, SLOT_MAX_PAYLOAD
 from protocol.messages import CATALOGUE, CATALOGUE_HASH
 from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotEvent, SlotState
+from protocol.topology import HAND_BOARDS
 
 _NODE_TITLES = {
     "common": "Every node (application and bootloader)",
-    "palm": "Palm",
-    "fmcb": "Finger motor control board (fmcb)",
-    "f2": "Proximal phalange (f2)",
-    "f3": "Distal phalange (f3)",
+    **{b.app: b.title for b in HAND_BOARDS},
     "bootloader": "Bootloader (every microcontroller)",
 }
 

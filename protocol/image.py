@@ -60,6 +60,7 @@ from dataclasses import dataclass, field, replace
 import construct as cs
 
 from protocol.errors import ImageError, wrap_construct
+from protocol.topology import BoardType
 
 __all__ = [
     "APP_START_ADDRESS", "FLASH", "HEADER_SIZE", "HEADER_VERSION", "MAGIC", "MAX_PAYLOAD",
@@ -199,17 +200,6 @@ MAX_PAYLOAD = FLASH.app_area_bytes - HEADER_SIZE
 SLOT_MAX_PAYLOAD = FLASH.slot_max_payload
 _CRC_OFFSET = HEADER_SIZE - 4
 _APP_NAME_RE = re.compile(r"[\x21-\x7e]{1,16}")
-
-
-class BoardType(enum.IntEnum):
-    """Which board an image is built for (header byte 5)."""
-
-    PALM = 1
-    FMCB = 2
-    F2 = 3
-    F3 = 4
-    ARM_STEPPER = 5
-    RX64 = 6
 
 
 class ImageFlags(enum.IntFlag):

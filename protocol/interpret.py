@@ -24,11 +24,14 @@ from protocol.framing import Frame, FrameError, parse_frame
 from protocol.messages import CATALOGUE
 from protocol.topology import ADDR_BROADCAST, ADDR_HOST, NODE_ADDRESS, NodeKind
 
-#: Node kinds in the order they are tried (the bootloader answers at every node's address).
-_ALL_NODES = ("fmcb", "palm", "f2", "f3", "bootloader")
-#: Node kinds a request to each node address may be for, in :data:`_ALL_NODES` order.
+#: Node kinds in the order they are tried: the fmcb first (at address 10 it decides between
+#: an fmcb's and the palm's message of one type), then the others in the board table's order,
+#: then the bootloader (it answers at every node's address).
+NODE_KINDS_TRIED: Final = (NodeKind.FMCB.value,
+                           *(k.value for k in NodeKind if k != NodeKind.FMCB), "bootloader")
+#: Node kinds a request to each node address may be for, in :data:`NODE_KINDS_TRIED` order.
 _BY_ADDRESS: dict[int, tuple[str, ...]] = {
-    address: tuple(n for n in _ALL_NODES
+    address: tuple(n for n in NODE_KINDS_TRIED
                    if n == "bootloader" or NODE_ADDRESS[NodeKind(n)] == address)
     for address in NODE_ADDRESS.values()
 }
@@ -55,7 +58,7 @@ class Interpretation:
 
 def candidate_nodes(address: int, hint: str | None = None) -> tuple[str, ...]:
     """Node kinds a frame to ``address`` may be for, hint first."""
-    nodes = _ALL_NODES if address in (ADDR_HOST, ADDR_BROADCAST) else _BY_ADDRESS.get(address, _ALL_NODES)
+    nodes = NODE_KINDS_TRIED if address in (ADDR_HOST, ADDR_BROADCAST) else _BY_ADDRESS.get(address, NODE_KINDS_TRIED)
     if hint:
         nodes = (hint, *[n for n in nodes if n != hint])
     return nodes

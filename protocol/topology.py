@@ -24,16 +24,6 @@ from typing import Final
 
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 
-
-class NodeKind(StrEnum):
-    """The hand boards that speak hand frames (the catalogue's node kinds, in its order)."""
-
-    PALM = "palm"
-    FMCB = "fmcb"
-    F2 = "f2"
-    F3 = "f3"
-
-
 # --- hand addresses -------------------------------------------------------------------------
 
 #: Replies go to the host.
@@ -45,16 +35,37 @@ ADDR_PALM: Final = 0x0A
 #: Every node on the bus takes a frame to this address.
 ADDR_BROADCAST: Final = 0xFF
 
-#: Bus address of each hand node kind (a node's bootloader answers at the same address).
-NODE_ADDRESS: Final[dict[NodeKind, int]] = {
-    NodeKind.PALM: ADDR_PALM,
-    NodeKind.FMCB: ADDR_FMCB,
-    NodeKind.F2: ADDR_F2,
-    NodeKind.F3: ADDR_F3,
-}
-
 #: Finger modules on a hand (the palm's pogo links ``finger0`` .. ``finger3``).
 FINGERS: Final = 4
+
+
+# --- the board table ------------------------------------------------------------------------
+#
+# A board is its name in three enumerations (the image header's byte, the catalogue's node
+# kind, the hop behind a finger's pogo link: wire values, so declared as enums) and one row of
+# BOARDS with its facts.  Every list of boards elsewhere is derived from BOARDS; a test
+# (tests/protocol/test_board_table.py) checks the enums and the rows agree, and another that
+# every board has its firmware, a factory and a rig (tests/hil_emulator/test_board_coverage.py).
+
+
+class BoardType(IntEnum):
+    """Which board an image is built for (image header byte 5; a node's identity names it too)."""
+
+    PALM = 1
+    FMCB = 2
+    F2 = 3
+    F3 = 4
+    ARM_STEPPER = 5
+    RX64 = 6
+
+
+class NodeKind(StrEnum):
+    """The hand boards that speak hand frames (the catalogue's node kinds, in its order)."""
+
+    PALM = "palm"
+    FMCB = "fmcb"
+    F2 = "f2"
+    F3 = "f3"
 
 
 class Hop(IntEnum):
@@ -65,9 +76,83 @@ class Hop(IntEnum):
     F3 = 2
 
 
+@dataclass(frozen=True)
+class Board:
+    """One board of the robot and what the rest of the code needs to know about it.
+
+    ``app`` is the application name its images carry (the header's app name, the program a
+    node boots); for a hand board it is also its node kind.  ``address`` is its hand-bus
+    address (None: a Dynamixel arm node, addressed by its bus ID).  ``hop`` is its place
+    behind a finger's pogo link (None: not in a finger).  ``upstream`` names its UART toward
+    the host (its bootloader listens there).  ``self_test`` lists the requests its
+    application must answer after a slot swap.  ``title`` names it in docs/PROTOCOL.md,
+    ``role`` in a few words (command-line help: "image for the motor boards").
+    """
+
+    board_type: BoardType
+    app: str
+    title: str
+    role: str
+    upstream: str
+    address: int | None = None
+    hop: Hop | None = None
+    self_test: tuple[str, ...] = ()
+
+    @property
+    def node_kind(self) -> NodeKind | None:
+        """The catalogue's node kind of a hand board; None for an arm node."""
+        return None if self.address is None else NodeKind(self.app)
+
+    @property
+    def name(self) -> str:
+        """The board's name for people and command lines (``"fmcb"``, ``"arm_stepper"``)."""
+        return self.app
+
+
+#: Every board, hand boards first in :class:`NodeKind` order.
+BOARDS: Final = (
+    Board(BoardType.PALM, "palm", "Palm", "palm", "host", ADDR_PALM),
+    Board(BoardType.FMCB, "fmcb", "Finger motor control board (fmcb)", "motor board", "pogo",
+          ADDR_FMCB, Hop.FMCB, ("fmcb.status", "fmcb.imu")),
+    Board(BoardType.F2, "f2", "Proximal phalange (f2)", "proximal phalange", "tendon",
+          ADDR_F2, Hop.F2, ("f2.imu", "f2.tactile")),
+    Board(BoardType.F3, "f3", "Distal phalange (f3)", "distal phalange", "tendon",
+          ADDR_F3, Hop.F3, ("f3.imu", "f3.tactile")),
+    Board(BoardType.ARM_STEPPER, "arm_stepper", "Series-elastic stepper node (J1–J4)",
+          "stepper joint", "bus"),
+    Board(BoardType.RX64, "rx64", "RX-64 servo (J5–J7)", "servo joint", "bus"),
+)
+
+#: The board of each board type.
+BOARD_OF_TYPE: Final[dict[BoardType, Board]] = {b.board_type: b for b in BOARDS}
+#: The boards that speak hand frames and run the hand bootloader, in :class:`NodeKind` order.
+HAND_BOARDS: Final = tuple(b for b in BOARDS if b.address is not None)
+#: The boards of a finger module, in hop order (the order a finger is flashed: the fmcb
+#: first, whose running application reaches the phalanges).
+FINGER_BOARDS: Final = tuple(sorted((b for b in BOARDS if b.hop is not None),
+                                    key=lambda b: int(b.hop or 0)))
+#: The Dynamixel arm nodes.
+ARM_BOARDS: Final = tuple(b for b in BOARDS if b.address is None)
+
+
+def board(name: str | BoardType) -> Board:
+    """The board called ``name`` (its app name, ``"fmcb"``) or of board type ``name``.
+
+    Raises KeyError for neither."""
+    if isinstance(name, BoardType):
+        return BOARD_OF_TYPE[name]
+    for b in BOARDS:
+        if b.app == name:
+            return b
+    raise KeyError(name)
+
+
+#: Bus address of each hand node kind (a node's bootloader answers at the same address).
+NODE_ADDRESS: Final[dict[NodeKind, int]] = {
+    NodeKind(b.app): b.address for b in HAND_BOARDS if b.address is not None}
 #: The node kind at each hop.
-HOP_NODE: Final[dict[Hop, NodeKind]] = {Hop.FMCB: NodeKind.FMCB, Hop.F2: NodeKind.F2,
-                                        Hop.F3: NodeKind.F3}
+HOP_NODE: Final[dict[Hop, NodeKind]] = {
+    b.hop: NodeKind(b.app) for b in FINGER_BOARDS if b.hop is not None}
 #: The bus address of the node at each hop.
 HOP_ADDRESS: Final[dict[Hop, int]] = {hop: NODE_ADDRESS[kind] for hop, kind in HOP_NODE.items()}
 

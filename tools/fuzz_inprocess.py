@@ -30,6 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
+from protocol.topology import HAND_BOARDS
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
 
@@ -40,7 +41,8 @@ _RUNS = number_above(1, int, inclusive=True, what="a number of runs",
 
 #: The repository's small seed corpus, one folder per target.
 CORPUS_ROOT: Final = Path(__file__).resolve().parent.parent / "tests" / "fuzz_corpus"
-HANDLER_BOARDS: Final = ("palm", "fmcb", "f2", "f3", "bootloader")
+#: The hand boards' message handlers, and the bootloader's (every hand board runs it).
+HANDLER_BOARDS: Final = (*(b.app for b in HAND_BOARDS), "bootloader")
 
 
 class FuzzPropertyError(AssertionError):
@@ -122,11 +124,11 @@ def _node(board: str) -> Any:
     if board not in _NODES:
         from firmware_py.scheduler import Scheduler
         from firmware_py.sim.boards import make_node
-        from protocol.image import BoardType
+        from protocol.topology import BoardType
+        from protocol.topology import board as board_row
 
         scheduler = Scheduler()
-        kind = {"palm": BoardType.PALM, "fmcb": BoardType.FMCB, "f2": BoardType.F2,
-                "f3": BoardType.F3, "bootloader": BoardType.FMCB}[board]
+        kind = BoardType.FMCB if board == "bootloader" else board_row(board).board_type
         mcu = make_node(scheduler, kind, installed=board != "bootloader")
         mcu.power_on()
         scheduler.run_for(3_500_000)

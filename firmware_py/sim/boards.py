@@ -14,8 +14,8 @@ import hashlib
 import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import cast
 
-from firmware_py.arm_stepper import StepperNodeApp
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import (
@@ -29,28 +29,31 @@ from firmware_py.flash_layout import (
 from firmware_py.hal import Hal
 from firmware_py.identity import IDENTITY_ADDRESS, Identity, default_identity
 from firmware_py.mcu import Mcu, Program, ProgramFactory
-from firmware_py.rx64 import Rx64ServoApp
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.image import BoardType, make_image, parse_image
-from protocol.topology import ARM_BUS_BAUD, FINGERS, HOST_LINK_BAUD, POGO_BAUD, TENDON_BAUD
+from protocol.topology import (
+    ARM_BOARDS,
+    ARM_BUS_BAUD,
+    FINGERS,
+    HAND_BOARDS,
+    HOST_LINK_BAUD,
+    POGO_BAUD,
+    TENDON_BAUD,
+)
+from protocol.topology import board as board_row
 
-#: Application name (in the image header) → "module:Class" of its program.
-APP_PROGRAMS: dict[str, str] = {
-    "palm": "firmware_py.palm:PalmApp",
-    "fmcb": "firmware_py.fmcb:FmcbApp",
-    "f2": "firmware_py.phalange:F2App",
-    "f3": "firmware_py.phalange:F3App",
-}
 BOOTLOADER_PROGRAM = "firmware_py.bootloader:Bootloader"
 
 
 @dataclass(frozen=True)
 class BoardSpec:
-    """A board's peripherals: UART names with baud rates, power switches, motors, sensors."""
+    """How a factory makes a board: its program (``"module:Class"``, imported when a node
+    first boots it) and its peripherals: UART names with baud rates, power switches, motors,
+    sensors.  Its name, address and the rest are its row of :data:`protocol.topology.BOARDS`."""
 
     board: BoardType
-    app_name: str
+    program: str
     uarts: Mapping[str, int]
     power_switches: tuple[str, ...] = ()
     motors: int = 0
@@ -68,7 +71,7 @@ _IMU: dict[str, int | tuple[int, ...]] = {"accel": (0, 0, 1000), "mag": (0, 0, 0
 
 BOARD_SPECS: dict[BoardType, BoardSpec] = {
     BoardType.PALM: BoardSpec(
-        BoardType.PALM, "palm",
+        BoardType.PALM, "firmware_py.palm:PalmApp",
         {"host": HOST_LINK_BAUD, **{f"finger{k}": POGO_BAUD for k in range(FINGERS)}},
         power_switches=("finger0", "finger1", "finger2", "finger3"),
         can=True,
@@ -76,17 +79,17 @@ BOARD_SPECS: dict[BoardType, BoardSpec] = {
                  **_channels("temperature", 7, 250), "supply_mv": 24000},
     ),
     BoardType.FMCB: BoardSpec(
-        BoardType.FMCB, "fmcb", {"pogo": POGO_BAUD, "tendon": TENDON_BAUD},
+        BoardType.FMCB, "firmware_py.fmcb:FmcbApp", {"pogo": POGO_BAUD, "tendon": TENDON_BAUD},
         power_switches=("phalange",), motors=3,
         sensors={**_IMU, **_channels("temperature", 3, 250), "supply_mv": 24000},
     ),
     BoardType.F2: BoardSpec(
-        BoardType.F2, "f2", {"tendon": TENDON_BAUD},
+        BoardType.F2, "firmware_py.phalange:F2App", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 6, 2000), "strain": 0,
                  **_channels("thermistor", 4, 0)},
     ),
     BoardType.F3: BoardSpec(
-        BoardType.F3, "f3", {"tendon": TENDON_BAUD},
+        BoardType.F3, "firmware_py.phalange:F3App", {"tendon": TENDON_BAUD},
         sensors={**_IMU, **_channels("taxel", 12, 2000), **_channels("thermistor", 4, 2048)},
     ),
     # Arm nodes: Dynamixel protocol 1.0 slaves on one RS-485 bus; they run their application
@@ -94,14 +97,18 @@ BOARD_SPECS: dict[BoardType, BoardSpec] = {
     # "temperature" is in 0.1 degC, "supply_mv" in mV, "pot" 0..1023 over 300 deg, "load" in
     # 1/1023 of maximum torque (signed, + = CCW).
     BoardType.ARM_STEPPER: BoardSpec(
-        BoardType.ARM_STEPPER, "arm_stepper", {"bus": ARM_BUS_BAUD},
+        BoardType.ARM_STEPPER, "firmware_py.arm_stepper:StepperNodeApp", {"bus": ARM_BUS_BAUD},
         sensors={"temperature": 250, "supply_mv": 24000}, stepper=True, encoder=True,
     ),
     BoardType.RX64: BoardSpec(
-        BoardType.RX64, "rx64", {"bus": ARM_BUS_BAUD}, motors=1,
+        BoardType.RX64, "firmware_py.rx64:Rx64ServoApp", {"bus": ARM_BUS_BAUD}, motors=1,
         sensors={"pot": 512, "temperature": 250, "supply_mv": 18000, "load": 0},
     ),
 }
+
+#: Application name (in the image header) → "module:Class" of its program, for every board
+#: with the hand bootloader (a hand node boots the program its image names).
+APP_PROGRAMS: dict[str, str] = {b.app: BOARD_SPECS[b.board_type].program for b in HAND_BOARDS}
 
 
 def _program_class(path: str) -> type:
@@ -179,12 +186,12 @@ def default_image(board: BoardType, version: str | None = None, timestamp: int =
     payload is what a real build would contain, here deterministic filler of a real size.
     ``version`` defaults to the one the program declares (:func:`app_version`).
     """
-    spec = BOARD_SPECS[board]
+    app = board_row(board).app
     if version is None:
-        version = app_version(spec.app_name)
-    seed = f"{spec.app_name}-{version}".encode()
+        version = app_version(app)
+    seed = f"{app}-{version}".encode()
     payload = b"".join(hashlib.sha256(seed + bytes([i])).digest() for i in range(64))  # 2 KiB
-    return make_image(payload, board, version, spec.app_name, timestamp)
+    return make_image(payload, board, version, app, timestamp)
 
 
 def install_image(hal: VirtualHal, image: bytes, activate: bool = True) -> None:
@@ -223,13 +230,11 @@ def make_arm_node(scheduler: Scheduler, board: BoardType, dxl_id: int
     """A powered arm node of ``board`` (ARM_STEPPER or RX64) with factory ID ``dxl_id`` at
     1 Mbaud, its application started (arm nodes have no hand bootloader).  The HAL's reset
     (watchdog, ``hal.reset()``) reboots the application."""
-    app_class: type[StepperNodeApp] | type[Rx64ServoApp]
-    if board == BoardType.ARM_STEPPER:
-        app_class = StepperNodeApp
-    elif board == BoardType.RX64:
-        app_class = Rx64ServoApp
-    else:
+    if board_row(board) not in ARM_BOARDS:
         raise ConfigError(f"{board!r} is not an arm node")
+    cls = _program_class(BOARD_SPECS[board].program)
+    assert issubclass(cls, DynamixelSlave)
+    app_class = cast("Callable[[VirtualHal, int], DynamixelSlave]", cls)  # (hal, dxl_id)
     hal = make_hal(scheduler, board)
     app = app_class(hal, dxl_id)
     hal.on_reset = app.reboot

@@ -18,12 +18,14 @@ from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand_rig import Finger
 from hil_emulator.rs485_bus import Rs485Bus
+from protocol.topology import FINGER_BOARDS
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
     from hil_emulator.finger_plant import FingerPlant
 
-_FINGER_NODE = re.compile(r"finger(\d)\.(fmcb|f2|f3)$")
+_FINGER_BOARDS = "|".join(b.app for b in FINGER_BOARDS)
+_FINGER_NODE = re.compile(rf"finger(\d)\.({_FINGER_BOARDS})$")
 _ARM_NODE = re.compile(r"arm\.(\d)$")
 
 
@@ -82,7 +84,8 @@ def node(emulator: Emulator, name: str) -> NodeRef:
             raise EmulatorConfigError(f"node {name!r}: the arm has ids 1..7")
         hal, app = emulator.arm.nodes[dxl_id]
         return NodeRef(name, hal, None, app)
-    raise EmulatorConfigError(f"unknown node {name!r}: palm, finger<k>.fmcb|f2|f3 or arm.<id>")
+    raise EmulatorConfigError(
+        f"unknown node {name!r}: palm, finger<k>.{_FINGER_BOARDS} or arm.<id>")
 
 
 def bus(emulator: Emulator, name: str) -> Rs485Bus:

@@ -9,13 +9,15 @@ byte stream, which the session's stream decoder reassembles as on a serial line.
 from __future__ import annotations
 
 import time
-from typing import Any
-
-import can
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from host.errors import TransportError, UsageError
-from host.transport import Transport, url_options
+from host.transport import LinkKind, Transport, url_options
 from protocol.canlink import DEFAULT_PALM_NODE, can_id, segment
+
+if TYPE_CHECKING:
+    import can
 
 #: What a user reads when the bus fails under an open transport.
 _GONE = ("the CAN adapter is gone or the bus is off (adapter unplugged, cable, "
@@ -35,7 +37,13 @@ def _hint(interface: str, channel: str) -> str:
 
 
 class CanTransport(Transport):
-    """One palm on a CAN bus: ``interface`` and ``channel`` as python-can names them."""
+    """One palm on a CAN bus: ``interface`` and ``channel`` as python-can names them.
+
+    python-can is imported when the first such transport opens (importing it costs about
+    0.12 s of CPU time), not when the scheme is looked up."""
+
+    #: CAN adapters buffer frames as a USB serial adapter does.
+    schemes: ClassVar[Mapping[str, LinkKind]] = {"can": LinkKind("can", budget_s=0.100)}
 
     def __init__(self, interface: str, channel: str, *, bitrate: int = DEFAULT_BITRATE,
                  node: int = DEFAULT_PALM_NODE, url: str | None = None, **bus_options: Any):
@@ -47,6 +55,9 @@ class CanTransport(Transport):
         self._to_node = can_id(self.node, to_host=False)
         self._to_host = can_id(self.node, to_host=True)
         self._bus_options = bus_options
+        import can  # here, not at the module's top: see the class docstring
+
+        self._can = can
         self.bus = self._open()
 
     @classmethod
@@ -66,6 +77,7 @@ class CanTransport(Transport):
         return cls(interface, channel, bitrate=bitrate, node=node, url=url, **merged)
 
     def _open(self) -> can.BusABC:
+        can = self._can
         options = dict(self._bus_options)
         if self.interface == "slcan":
             options.setdefault("sleep_after_open", 0)
@@ -85,6 +97,7 @@ class CanTransport(Transport):
                                  f"{_hint(self.interface, self.channel)}") from exc
 
     def _send(self, data: bytes) -> None:
+        can = self._can
         try:
             for chunk in segment(data):
                 self.bus.send(can.Message(arbitration_id=self._to_node, data=chunk,
@@ -93,6 +106,7 @@ class CanTransport(Transport):
             raise TransportError(f"{self.url}: CAN send failed ({exc}): {_GONE}") from exc
 
     def _recv(self, timeout: float | None) -> bytes:
+        can = self._can
         deadline = None if timeout is None else time.monotonic() + timeout
         out = bytearray()
         try:
@@ -109,6 +123,7 @@ class CanTransport(Transport):
             raise TransportError(f"{self.url}: CAN receive failed ({exc}): {_GONE}") from exc
 
     def _close(self) -> None:
+        can = self._can
         try:
             self.bus.shutdown()
         except (can.CanError, OSError):

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import os
 import select
-from typing import Any, Final
+from collections.abc import Mapping
+from typing import Any, ClassVar, Final
 from urllib.parse import urlencode
 
 import serial
 
 from host.errors import TransportError, UsageError
-from host.transport import HAND_SERIAL_BAUD, Transport, url_options
+from host.transport import HAND_SERIAL_BAUD, LinkKind, Transport, url_options
 
 #: Highest ``?baud=`` taken (bit/s): the fastest USB-serial adapters (FT232H, 12 Mbaud).
 MAX_BAUD: Final = 12_000_000
@@ -57,6 +58,10 @@ def _who_holds(path: str) -> str:
             "one first, or share the port knowingly with ?exclusive=0")
 
 
+_DEVICE: Final = LinkKind("serial", budget_s=0.100)
+_NETWORK: Final = LinkKind("network", budget_s=0.250)
+
+
 class SerialTransport(Transport):
     """A serial port (8N1) opened with ``serial.serial_for_url``.
 
@@ -66,6 +71,13 @@ class SerialTransport(Transport):
     waited on with ``select`` (the port's settings are not touched per call), a pyserial
     URL handler (``loop://``, ``socket://``) with its read timeout.
     """
+
+    #: A device or pty: a USB adapter's latency timer (16 ms by default, each way) and, on
+    #: the emulator's ptys, a busy machine's scheduling; a network link adds its round trip;
+    #: ``loop://`` hands back what was written at once.
+    schemes: ClassVar[Mapping[str, LinkKind]] = {
+        "serial": _DEVICE, "spy": _DEVICE, "loop": LinkKind("loop", 0.030, exact_timing=True),
+        "socket": _NETWORK, "rfc2217": _NETWORK}
 
     def __init__(self, port: str, baud: int = HAND_SERIAL_BAUD, *, exclusive: bool = True,
                  url: str | None = None) -> None:

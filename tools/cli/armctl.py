@@ -58,6 +58,7 @@ from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
+from tools.cli.commands import Commands
 from tools.cli.common import (
     EXIT_OK,
     EXIT_ROBOT,
@@ -68,7 +69,7 @@ from tools.cli.common import (
 )
 from tools.cli.numeric import finite, number_above
 from tools.cli.output import guard_output
-from tools.cli.view import add_view_arguments, add_watch_command, view_spec, watch
+from tools.cli.view import WATCH_HELP, add_view_arguments, view_spec, watch, watch_arguments
 
 #: Exit status of a move that did not settle in time (the others: :mod:`tools.cli.common`).
 EXIT_NOT_SETTLED = 3
@@ -79,81 +80,9 @@ __all__ = ["EXIT_NOT_SETTLED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE", "main", "m
 _TIME = number_above(0, what="a time (s)")
 
 
-def make_parser() -> argparse.ArgumentParser:
-    """armctl's command line."""
-    parser = argparse.ArgumentParser(
-        prog="armctl", description="armctl: the 7-DOF arm from a terminal (see docs/HOST.md)")
-    add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
-                         timeout_default="100 ms on a serial link, 0.2 ms in process")
-    parser.add_argument("--keep-return-delay", action="store_true",
-                        help="leave the nodes' return delay (register 5) as it is")
-    add_view_arguments(parser)
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_watch_command(sub, default_rate=50.0)
-    sub.add_parser("ping", help="discover the joints: ids, models, firmware")
-    scan = sub.add_parser("scan", help="ping every bus ID in a range and list the nodes that "
-                                       "answer (a node at an unexpected ID, a wrong baud)")
-    scan.add_argument("--ids", default="0-31", metavar="FIRST-LAST",
-                      help="the IDs to ping (default 0-31; 0-253 takes a while: each absent "
-                           "ID waits out the link budget)")
-    sub.add_parser("status", help="one cycle's state of all joints")
-    torque = sub.add_parser("torque", help="enable or disable every joint's torque")
-    torque.add_argument("state", choices=("on", "off"))
-    torque.add_argument("--keep-goals", action="store_true",
-                        help="on: let each joint head for the goal its node has instead of "
-                             "holding where it is")
-    sub.add_parser("clear", help="clear the joints' latched alarms (SLIP/STALLED, RX-64 "
-                                 "alarms); torque stays off: armctl torque on next")
-    move = sub.add_parser("move", help="move all joints and wait until the move settles")
-    move.add_argument("--joints", nargs="+", required=True, metavar="RAD",
-                      help="seven joint angles J1..J7 (rad), as seven values or one "
-                           "comma-separated list")
-    move.add_argument("--duration", type=_TIME, default=None, metavar="S",
-                      help="take this long (s): speeds set so every joint arrives together")
-    move.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
-                      help="give up waiting after this long (s, default 10)")
-    move.add_argument("--unhomed", action="store_true",
-                      help="move although the arm is not homed (angles from power-up)")
-    sub.add_parser("home", help="find every stepper joint's encoder index (moves J1-J4 "
-                                "slowly a little)")
-    moveto = sub.add_parser("moveto", help="move the flange to X Y Z (m, base frame)")
-    # three positionals, not nargs=3 with a tuple metavar: argparse's help crashes on that
-    for axis in "xyz":
-        moveto.add_argument(axis, type=finite("a position (m)"), metavar=axis.upper(),
-                            help=f"flange {axis} (m, base frame)")
-    moveto.add_argument("--rpy", nargs=3, type=finite("an angle (rad)"), default=None,
-                        metavar="ANGLE",
-                        help="flange orientation: roll pitch yaw (rad, fixed base axes)")
-    moveto.add_argument("--unhomed", action="store_true",
-                        help="move although the arm is not homed")
-    moveto.add_argument("--timeout", type=_TIME, default=8.0, metavar="S",
-                        help="settle time allowed after the path (s, default 8)")
-    moveto.add_argument("--tolerance", type=number_above(0, what="a distance (mm)"),
-                        default=2.0, metavar="MM",
-                        help="reached when the flange is this close to the target (mm, "
-                             "default 2)")
-    moveto.add_argument("--no-hand", action="store_true",
-                        help="no hand on the flange: leave its weight out of the check that "
-                             "no stepper joint would hold near its stall torque")
-    waypoints = sub.add_parser("waypoints", help="record waypoints by hand, or play them")
-    waypoints.add_argument("action", choices=("record", "play"))
-    waypoints.add_argument("file", help="waypoint file (JSON lines)")
-    waypoints.add_argument("--seconds", type=_TIME, default=10.0, metavar="S",
-                           help="how long to record (s, default 10)")
-    waypoints.add_argument("--unhomed", action="store_true",
-                           help="play although the arm is not homed")
-    waypoints.add_argument("--time-scale", type=number_above(0, what="a time scale"),
-                           default=1.0, metavar="K",
-                           help="play K times slower than recorded (default 1): a file "
-                                "whose steps need more speed or acceleration than a joint "
-                                "has is refused, and the message says what K would do")
-    record = sub.add_parser("record", help="record raw bus bytes and decoded states (MCAP)")
-    record.add_argument("file", help="output .mcap file")
-    record.add_argument("--seconds", type=_TIME, required=True, metavar="S")
-    record.add_argument("--rate", type=number_above(0, what="a rate (Hz)"), default=100.0,
-                        metavar="HZ",
-                        help="cycles per second (default 100)")
-    return parser
+#: armctl's sub-commands, in the order its help lists them (each declared below, with its
+#: arguments beside its handler); a handler gets the arm, the arguments and the output.
+COMMANDS: Commands[Arm, [TextIO]] = Commands()
 
 
 def _print(out: TextIO, as_json: bool, data: dict[str, Any], text: str) -> None:
@@ -175,6 +104,16 @@ def _state_text(state: ArmState) -> str:
     return "\n".join(lines)
 
 
+@COMMANDS.command("watch", WATCH_HELP, watch_arguments(default_rate=50.0))
+def cmd_watch(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    """Read the arm's state (no commands) ``--rate`` times a second; the view draws it."""
+    t = arm.transport
+    cycles = watch(arm.state, t.now, t.sleep, args.rate, args.seconds)
+    _print(out, args.json, {"cycles": cycles}, f"{cycles} states read")
+    return EXIT_OK
+
+
+@COMMANDS.command("ping", "discover the joints: ids, models, firmware")
 def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     joints = [{"joint": j.name, "id": j.dxl_id, "kind": j.kind, "model": j.model_number,
                "firmware": j.firmware_version,
@@ -185,6 +124,12 @@ def cmd_ping(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
                      f"firmware {d['firmware']}" for d in joints)
     _print(out, args.json, {"joints": joints}, text)
     return EXIT_OK
+
+
+def _scan_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ids", default="0-31", metavar="FIRST-LAST",
+                   help="the IDs to ping (default 0-31; 0-253 takes a while: each absent "
+                        "ID waits out the link budget)")
 
 
 def _id_range(text: str) -> range:
@@ -198,6 +143,8 @@ def _id_range(text: str) -> range:
     return range(lo, hi + 1)
 
 
+@COMMANDS.alone("scan", "ping every bus ID in a range and list the nodes that "
+                "answer (a node at an unexpected ID, a wrong baud)", _scan_arguments)
 def cmd_scan(args: argparse.Namespace, out: TextIO) -> int:
     ids = _id_range(args.ids)
     bus = open_bus(args.port, latency_s=args.link_timeout)
@@ -224,6 +171,7 @@ def cmd_scan(args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK if nodes else EXIT_ROBOT
 
 
+@COMMANDS.command("status", "one cycle's state of all joints")
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     homed = restore(arm)
     state = arm.state()
@@ -249,6 +197,99 @@ def _require_homed(arm: Arm, args: argparse.Namespace, what: str) -> None:
                          "or pass --unhomed to use angles from power-up")
 
 
+def _torque_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("state", choices=("on", "off"))
+    p.add_argument("--keep-goals", action="store_true",
+                   help="on: let each joint head for the goal its node has instead of "
+                        "holding where it is")
+
+
+@COMMANDS.command("torque", "enable or disable every joint's torque", _torque_arguments)
+def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    on = args.state == "on"
+    state = arm.torque(on, hold=on and not args.keep_goals)
+    enabled = arm.torque_enabled()
+    refused = [JOINT_NAMES[i] for i, e in enumerate(enabled) if e != on]
+    _print(out, args.json, {"torque": args.state, "enabled": list(enabled), **state.as_dict()},
+           f"torque {args.state}" + (f", except {', '.join(refused)}" if refused else ""))
+    if refused:
+        latched = "; ".join(f"{k}: {', '.join(v)}" for k, v in state.errors.items())
+        print(f"armctl: the torque of {', '.join(refused)} stayed "
+              f"{'off' if on else 'on'}" + (f" (latched: {latched})" if latched else "")
+              + ": the node turned it off after an alarm; check the joint moves freely, then "
+              "armctl clear and armctl torque on", file=sys.stderr)
+        return EXIT_ROBOT
+    return EXIT_OK
+
+
+@COMMANDS.command("clear", "clear the joints' latched alarms (SLIP/STALLED, RX-64 "
+                  "alarms); torque stays off: armctl torque on next")
+def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    before = arm.state()
+    latched = sorted({*before.errors, *(JOINT_NAMES[s.joint] for s in before.steppers
+                                        if s.flags & (StepperFlag.SLIP | StepperFlag.STALLED))})
+    arm.clear_errors()
+    state = arm.state()
+    text = ("no alarm was latched" if not latched else
+            f"cleared {', '.join(latched)}; a stepper holds where it stopped, an RX-64's "
+            "torque is off (armctl torque on)")
+    _print(out, args.json, {"cleared": not state.errors, "latched": latched,
+                            **state.as_dict()},
+           text if not state.errors else "still latched: " + "; ".join(
+               f"{k}: {', '.join(v)}" for k, v in state.errors.items()))
+    if state.errors:
+        print("armctl: an alarm is still there after clearing it: the fault is present now "
+              "(overheated, supply voltage, a joint still held); fix it and clear again",
+              file=sys.stderr)
+        return EXIT_ROBOT
+    return EXIT_OK
+
+
+def _move_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--joints", nargs="+", required=True, metavar="RAD",
+                   help="seven joint angles J1..J7 (rad), as seven values or one "
+                        "comma-separated list")
+    p.add_argument("--duration", type=_TIME, default=None, metavar="S",
+                   help="take this long (s): speeds set so every joint arrives together")
+    p.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
+                   help="give up waiting after this long (s, default 10)")
+    p.add_argument("--unhomed", action="store_true",
+                   help="move although the arm is not homed (angles from power-up)")
+
+
+@COMMANDS.command("move", "move all joints and wait until the move settles", _move_arguments)
+def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    goals = _joint_values(args.joints)
+    check_finite(goals, "goal")
+    _require_homed(arm, args, "move")
+    _require_torque(arm, "move")
+    rest = RestWatch()
+    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout, rest=rest)
+    _print(out, args.json, {"settled": ok, **state.as_dict()},
+           ("settled\n" if ok else "not settled\n") + _state_text(state))
+    if not ok:
+        why = off_goal(state, goals, 0.02) or rest.why_not() or "?"
+        print(f"armctl: the move did not settle within {args.timeout} s ({why}): is a joint "
+              "blocked, or still swinging (armctl status; a longer --timeout)?",
+              file=sys.stderr)
+        return EXIT_NOT_SETTLED
+    return EXIT_OK
+
+
+def _joint_values(words: list[str]) -> list[float]:
+    """Seven joint angles (rad) from ``0 0.3 0 …`` or ``0,0.3,0,…``."""
+    parts = [p for w in words for p in w.split(",") if p.strip()]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"--joints takes numbers (rad), got {' '.join(words)!r}") from None
+    if len(values) != N_JOINTS:
+        raise UsageError(f"--joints takes {N_JOINTS} angles J1..J7 (rad), got {len(values)}")
+    return values
+
+
+@COMMANDS.command("home", "find every stepper joint's encoder index (moves J1-J4 "
+                  "slowly a little)")
 def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     calibration = arm.home()
     data = {"homed": True, "offsets": list(calibration.offsets),
@@ -260,6 +301,28 @@ def cmd_home(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
+def _moveto_arguments(p: argparse.ArgumentParser) -> None:
+    # three positionals, not nargs=3 with a tuple metavar: argparse's help crashes on that
+    for axis in "xyz":
+        p.add_argument(axis, type=finite("a position (m)"), metavar=axis.upper(),
+                       help=f"flange {axis} (m, base frame)")
+    p.add_argument("--rpy", nargs=3, type=finite("an angle (rad)"), default=None,
+                   metavar="ANGLE",
+                   help="flange orientation: roll pitch yaw (rad, fixed base axes)")
+    p.add_argument("--unhomed", action="store_true",
+                   help="move although the arm is not homed")
+    p.add_argument("--timeout", type=_TIME, default=8.0, metavar="S",
+                   help="settle time allowed after the path (s, default 8)")
+    p.add_argument("--tolerance", type=number_above(0, what="a distance (mm)"),
+                   default=2.0, metavar="MM",
+                   help="reached when the flange is this close to the target (mm, "
+                        "default 2)")
+    p.add_argument("--no-hand", action="store_true",
+                   help="no hand on the flange: leave its weight out of the check that "
+                        "no stepper joint would hold near its stall torque")
+
+
+@COMMANDS.command("moveto", "move the flange to X Y Z (m, base frame)", _moveto_arguments)
 def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     check_cartesian((args.x, args.y, args.z), args.rpy)
     _require_homed(arm, args, "moveto")
@@ -288,6 +351,21 @@ def _check_writable(path: str, what: str) -> None:
         raise UsageError(f"cannot write the {what} to {path}: {problem}")
 
 
+def _waypoints_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("action", choices=("record", "play"))
+    p.add_argument("file", help="waypoint file (JSON lines)")
+    p.add_argument("--seconds", type=_TIME, default=10.0, metavar="S",
+                   help="how long to record (s, default 10)")
+    p.add_argument("--unhomed", action="store_true",
+                   help="play although the arm is not homed")
+    p.add_argument("--time-scale", type=number_above(0, what="a time scale"),
+                   default=1.0, metavar="K",
+                   help="play K times slower than recorded (default 1): a file "
+                        "whose steps need more speed or acceleration than a joint "
+                        "has is refused, and the message says what K would do")
+
+
+@COMMANDS.command("waypoints", "record waypoints by hand, or play them", _waypoints_arguments)
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     from host.arm_control import (
         Waypoint,
@@ -330,62 +408,21 @@ def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
-def cmd_torque(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    on = args.state == "on"
-    state = arm.torque(on, hold=on and not args.keep_goals)
-    enabled = arm.torque_enabled()
-    refused = [JOINT_NAMES[i] for i, e in enumerate(enabled) if e != on]
-    _print(out, args.json, {"torque": args.state, "enabled": list(enabled), **state.as_dict()},
-           f"torque {args.state}" + (f", except {', '.join(refused)}" if refused else ""))
-    if refused:
-        latched = "; ".join(f"{k}: {', '.join(v)}" for k, v in state.errors.items())
-        print(f"armctl: the torque of {', '.join(refused)} stayed "
-              f"{'off' if on else 'on'}" + (f" (latched: {latched})" if latched else "")
-              + ": the node turned it off after an alarm; check the joint moves freely, then "
-              "armctl clear and armctl torque on", file=sys.stderr)
-        return EXIT_ROBOT
-    return EXIT_OK
+def _record_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", help="output .mcap file")
+    p.add_argument("--seconds", type=_TIME, required=True, metavar="S")
+    p.add_argument("--rate", type=number_above(0, what="a rate (Hz)"), default=100.0,
+                   metavar="HZ",
+                   help="cycles per second (default 100)")
 
 
-def cmd_clear(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    before = arm.state()
-    latched = sorted({*before.errors, *(JOINT_NAMES[s.joint] for s in before.steppers
-                                        if s.flags & (StepperFlag.SLIP | StepperFlag.STALLED))})
-    arm.clear_errors()
-    state = arm.state()
-    text = ("no alarm was latched" if not latched else
-            f"cleared {', '.join(latched)}; a stepper holds where it stopped, an RX-64's "
-            "torque is off (armctl torque on)")
-    _print(out, args.json, {"cleared": not state.errors, "latched": latched,
-                            **state.as_dict()},
-           text if not state.errors else "still latched: " + "; ".join(
-               f"{k}: {', '.join(v)}" for k, v in state.errors.items()))
-    if state.errors:
-        print("armctl: an alarm is still there after clearing it: the fault is present now "
-              "(overheated, supply voltage, a joint still held); fix it and clear again",
-              file=sys.stderr)
-        return EXIT_ROBOT
-    return EXIT_OK
+def _record_check(args: argparse.Namespace) -> None:
+    """Before the arm is opened (and its return delay set)."""
+    _check_writable(args.file, "recording")
 
 
-def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    goals = _joint_values(args.joints)
-    check_finite(goals, "goal")
-    _require_homed(arm, args, "move")
-    _require_torque(arm, "move")
-    rest = RestWatch()
-    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout, rest=rest)
-    _print(out, args.json, {"settled": ok, **state.as_dict()},
-           ("settled\n" if ok else "not settled\n") + _state_text(state))
-    if not ok:
-        why = off_goal(state, goals, 0.02) or rest.why_not() or "?"
-        print(f"armctl: the move did not settle within {args.timeout} s ({why}): is a joint "
-              "blocked, or still swinging (armctl status; a longer --timeout)?",
-              file=sys.stderr)
-        return EXIT_NOT_SETTLED
-    return EXIT_OK
-
-
+@COMMANDS.command("record", "record raw bus bytes and decoded states (MCAP)", _record_arguments,
+                  check=_record_check)
 def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     from host.arm_recording import record
 
@@ -405,29 +442,17 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK
 
 
-def cmd_watch(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    """Read the arm's state (no commands) ``--rate`` times a second; the view draws it."""
-    t = arm.transport
-    cycles = watch(arm.state, t.now, t.sleep, args.rate, args.seconds)
-    _print(out, args.json, {"cycles": cycles}, f"{cycles} states read")
-    return EXIT_OK
-
-
-COMMANDS = {"watch": cmd_watch, "ping": cmd_ping, "status": cmd_status, "torque": cmd_torque, "move": cmd_move,
-            "record": cmd_record, "home": cmd_home, "moveto": cmd_moveto,
-            "waypoints": cmd_waypoints, "clear": cmd_clear}
-
-
-def _joint_values(words: list[str]) -> list[float]:
-    """Seven joint angles (rad) from ``0 0.3 0 …`` or ``0,0.3,0,…``."""
-    parts = [p for w in words for p in w.split(",") if p.strip()]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise UsageError(f"--joints takes numbers (rad), got {' '.join(words)!r}") from None
-    if len(values) != N_JOINTS:
-        raise UsageError(f"--joints takes {N_JOINTS} angles J1..J7 (rad), got {len(values)}")
-    return values
+def make_parser() -> argparse.ArgumentParser:
+    """armctl's command line."""
+    parser = argparse.ArgumentParser(
+        prog="armctl", description="armctl: the 7-DOF arm from a terminal (see docs/HOST.md)")
+    add_common_arguments(parser, what="the arm bus adapter (1 Mbaud unless ?baud=N)",
+                         timeout_default="100 ms on a serial link, 0.2 ms in process")
+    parser.add_argument("--keep-return-delay", action="store_true",
+                        help="leave the nodes' return delay (register 5) as it is")
+    add_view_arguments(parser)
+    COMMANDS.add_parsers(parser.add_subparsers(dest="command", required=True))
+    return parser
 
 
 @guard_output("armctl")
@@ -436,14 +461,13 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     stream = out or sys.stdout
 
     def body(args: argparse.Namespace) -> int:
-        if args.command == "scan":
-            return cmd_scan(args, stream)
-        if args.command == "record":  # before the arm is opened (and its delay set)
-            _check_writable(args.file, "recording")
+        COMMANDS.check(args)
+        if not COMMANDS[args.command].opens:
+            return COMMANDS.run_alone(args, stream)
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
                        latency_s=args.link_timeout, view=view_spec(args))
         with arm:
-            return COMMANDS[args.command](arm, args, stream)
+            return COMMANDS.run(arm, args, stream)
 
     return run_cli(make_parser(), argv, body)
 

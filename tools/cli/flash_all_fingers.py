@@ -45,7 +45,7 @@ from bootloader.signing import load_public_key
 from host.errors import HostError, TransportError
 from host.hand_session import HandSession
 from host.transport import open_transport
-from protocol.image import BoardType
+from protocol.topology import FINGER_BOARDS
 from tools.cli.common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 from tools.cli.output import guard_output
 
@@ -65,9 +65,8 @@ def _fingers(text: str) -> list[int]:
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="flash-all-fingers", description=__doc__.split("\n\n")[0])
     add_common_arguments(p, what="the palm's port")
-    p.add_argument("--fmcb", type=Path, help="image for the motor boards")
-    p.add_argument("--f2", type=Path, help="image for the proximal phalanges")
-    p.add_argument("--f3", type=Path, help="image for the distal phalanges")
+    for board in FINGER_BOARDS:
+        p.add_argument(f"--{board.app}", type=Path, help=f"image for the {board.role}s")
     p.add_argument("--fingers", type=_fingers, default=[], help="e.g. 0,1,2,3 (default all)")
     p.add_argument("--force", action="store_true", help="rewrite even matching images")
     p.add_argument("--dry-run", action="store_true", help="print the plan, touch nothing")
@@ -90,7 +89,7 @@ def _parser() -> argparse.ArgumentParser:
 def plan_from_args(args: argparse.Namespace) -> FlashPlan:
     """The checked plan the command line asks for (raises :class:`FlashError`)."""
     if args.rollback:
-        given = [f"--{n}" for n in ("fmcb", "f2", "f3") if getattr(args, n) is not None]
+        given = [f"--{b.app}" for b in FINGER_BOARDS if getattr(args, b.app) is not None]
         given += [f"--{n.replace('_', '-')}" for n in ("keep_trial", "no_fleet_rollback",
                                                          "one_slot", "force", "all_or_nothing")
                   if getattr(args, n)]
@@ -98,8 +97,8 @@ def plan_from_args(args: argparse.Namespace) -> FlashPlan:
             raise PlanError(f"--rollback takes no {' '.join(given)}: it puts every node back "
                             "on the image it ran before")
         return rollback_plan(args.fingers)
-    images = {board: path for board, path in ((BoardType.FMCB, args.fmcb),
-              (BoardType.F2, args.f2), (BoardType.F3, args.f3)) if path is not None}
+    images = {b.board_type: getattr(args, b.app) for b in FINGER_BOARDS
+              if getattr(args, b.app) is not None}
     key = load_public_key(args.key) if args.key is not None else None
     return make_plan(images, args.fingers, force=args.force,
                      all_or_nothing=args.all_or_nothing, public_key=key,

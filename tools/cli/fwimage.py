@@ -29,7 +29,13 @@ from pathlib import Path
 from typing import Any
 
 from bootloader.errors import FlashError, ImageFileError
-from bootloader.image_files import board_of, default_app, read_image, read_payload
+from bootloader.image_files import (
+    HAND_BOARD_NAMES,
+    board_of,
+    default_app,
+    read_image,
+    read_payload,
+)
 from bootloader.signing import (
     generate_key_pair,
     load_private_key,
@@ -77,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fwimage", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
     build = sub.add_parser("build", help="make an image from a .bin, .hex or .elf")
-    build.add_argument("--board", required=True, choices=("fmcb", "f2", "f3", "palm"))
+    build.add_argument("--board", required=True, choices=HAND_BOARD_NAMES)
     build.add_argument("--version", required=True, type=_version, help="major.minor.patch")
     build.add_argument("--app", type=_app_name,
                        help="application name (default: the board's own)")

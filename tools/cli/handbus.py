@@ -35,10 +35,10 @@ import construct as c
 from protocol.catalogue import REPLY, REQUEST, Message
 from protocol.errors import ProtocolError
 from protocol.framing import DEFAULT_MAX_PAYLOAD, Frame
-from protocol.interpret import interpret, unwrap_envelopes
+from protocol.interpret import NODE_KINDS_TRIED, interpret, unwrap_envelopes
 from protocol.messages import CATALOGUE
 from protocol.stream import FrameTuple, StreamDecoder
-from protocol.topology import ADDR_BROADCAST, ADDR_F2, ADDR_F3, ADDR_FMCB, ADDR_HOST
+from protocol.topology import ADDR_BROADCAST, ADDR_HOST, NODE_ADDRESS, NodeKind
 from tools.cli.numeric import read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.values import FieldValueError, build_fields, check_fields
@@ -399,6 +399,15 @@ def _salvaged(n: int) -> str:
     return f" ({n} of them from the start of the chunk it cuts)" if n else ""
 
 
+def _node_addresses() -> str:
+    """The hand nodes' addresses, for messages: ``"fmcb/palm 10, f2 1, f3 2"``."""
+    names: dict[int, list[str]] = {}
+    for name in NODE_KINDS_TRIED:
+        if name in tuple(NodeKind):
+            names.setdefault(NODE_ADDRESS[NodeKind(name)], []).append(name)
+    return ", ".join(f"{'/'.join(kinds)} {address}" for address, kinds in names.items())
+
+
 def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     try:
         msg = CATALOGUE.by_name(args.name)
@@ -410,7 +419,7 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     con = msg.request if direction == REQUEST else msg.reply
     if con is None:
         raise UsageError(f"{msg.name} has no {direction}")
-    addresses = f"fmcb/palm {ADDR_FMCB}, f2 {ADDR_F2}, f3 {ADDR_F3}"
+    addresses = _node_addresses()
     if not args.reply:
         if args.addr is None:
             raise UsageError(f"--addr is required for a request ({addresses})")
@@ -452,7 +461,7 @@ def make_parser() -> argparse.ArgumentParser:
     dec.add_argument("--dynamixel", action="store_true", help="decode Dynamixel 1.0 packets")
     dec.add_argument("--direction", choices=("auto", "instruction", "status"), default="auto",
                      help="with --dynamixel: what the packets are")
-    dec.add_argument("--node", choices=("fmcb", "palm", "f2", "f3", "bootloader"),
+    dec.add_argument("--node", choices=NODE_KINDS_TRIED,
                      help="decode frames as this node's messages first")
     dec.add_argument("--max-payload", type=_int, default=DEFAULT_MAX_PAYLOAD,
                      help="bound on the length field (bytes)")

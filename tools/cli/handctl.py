@@ -50,6 +50,7 @@ from protocol.image import BoardType
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
+from tools.cli.commands import Commands
 from tools.cli.common import (
     EXIT_ROBOT,
     EXIT_USAGE,
@@ -60,7 +61,7 @@ from tools.cli.common import (
 )
 from tools.cli.numeric import finite, number_above, number_in
 from tools.cli.output import guard_output
-from tools.cli.view import add_view_arguments, add_watch_command, view_spec, watch
+from tools.cli.view import WATCH_HELP, add_view_arguments, view_spec, watch, watch_arguments
 
 __all__ = ["EXIT_ROBOT", "EXIT_USAGE", "main", "tilt_hints"]
 
@@ -99,70 +100,9 @@ def _finger_list(text: str) -> list[int]:
     return chosen
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
-    add_common_arguments(p, what="the palm's port")
-    add_view_arguments(p)
-    sub = p.add_subparsers(dest="command", required=True)
-    add_watch_command(sub, default_rate=20.0)
-    sub.add_parser("ping", help="discover every node: program, versions")
-    sub.add_parser("status", help="joints, taxels, currents, power of every finger")
-    up = sub.add_parser("up", help="bring the fingers up after power-on: power, boot, "
-                                   "phalange power, autopoll (about 10 s)")
-    up.add_argument("--finger", type=int, choices=range(FINGERS), metavar="N",
-                    help="one finger, 0..3 (default: every finger)")
-    up.add_argument("--boot-timeout", type=number_above(0), default=BOOT_TIMEOUT_S, metavar="S",
-                    help=f"longest wait for a board to boot after its power is switched on "
-                         f"(s, default {BOOT_TIMEOUT_S:g}; by the board's own clock while it "
-                         f"answers from its bootloader)")
-    power = sub.add_parser("power", help="switch finger power")
-    power.add_argument("finger", help="0..3 or all")
-    power.add_argument("state", choices=("off", "low", "full"))
-    move = sub.add_parser("move", help="move joints (rad) and wait until they settle")
-    group = move.add_mutually_exclusive_group(required=True)
-    group.add_argument("--hand", type=_floats, metavar="Q0,…,Q11", help="12 joint targets")
-    group.add_argument("--joints", type=_floats, metavar="Q0,Q1,Q2",
-                       help="3 joint targets of --finger")
-    move.add_argument("--finger", type=int, help="finger index for --joints")
-    move.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
-    move.add_argument("--duration", type=number_above(0), default=3.0,
-                      help="seconds to wait for the move to settle (default 3)")
-    move.add_argument("--clamp", action="store_true",
-                      help="clamp targets beyond the joint limits instead of refusing")
-    move.add_argument("--unhomed", action="store_true",
-                      help="move fingers that were never homed (joint angles then mean "
-                           "nothing)")
-    home = sub.add_parser("home", help="set the hall offsets from the accelerometers "
-                                       "(no joint axis near vertical)")
-    home.add_argument("--finger", type=int, help="one finger (default: every finger)")
-    grasp = sub.add_parser("grasp", help="blend towards a grasp or pose (host.grasp): "
-                                         + ", ".join(sorted(SYNERGIES)))
-    grasp.add_argument("name", help="grasp or pose name")
-    grasp.add_argument("amount", type=finite("a number 0..1"),
-                       help="0 (open / relaxed) .. 1 (closed / pose)")
-    grasp.add_argument("--speed", type=number_in(0, MAX_SPEED_RAD_S, what="a speed (rad/s)"),
-                       default=DEFAULT_SPEED_RAD_S,
-                       help=f"blend speed of the joint moving most, rad/s "
-                            f"(default {DEFAULT_SPEED_RAD_S})")
-    grasp.add_argument("--fingers", type=_finger_list, metavar="K,…",
-                       help="only these fingers, e.g. 0,1,3 (default: all four)")
-    grasp.add_argument("--until-contact", action="store_true",
-                       help="stop closing a finger when its taxels or effort say contact")
-    grasp.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
-    grasp.add_argument("--layout", choices=sorted(HAND_LAYOUTS), default=DEFAULT_HAND_LAYOUT,
-                       help=f"the hand frame (default {DEFAULT_HAND_LAYOUT})")
-    grasp.add_argument("--duration", type=number_above(0), default=3.0,
-                       help="seconds to wait for the fingers to settle after the blend")
-    grasp.add_argument("--unhomed", action="store_true",
-                       help="move fingers that were never homed (joint angles then mean "
-                            "nothing)")
-    record = sub.add_parser("record", help="record frames and states to an MCAP file")
-    record.add_argument("file")
-    record.add_argument("--seconds", type=number_above(0), required=True,
-                        help="how long to record (s)")
-    record.add_argument("--rate", type=number_above(0), default=50.0,
-                        help="state rate (Hz, default 50)")
-    return p
+#: handctl's sub-commands, in the order its help lists them (each declared below, with its
+#: arguments beside its handler).
+COMMANDS: Commands[Hand, []] = Commands()
 
 
 def _emit(args: argparse.Namespace, data: Any, text: str) -> None:
@@ -179,6 +119,16 @@ def _not_a_palm(board: int | None, port: str) -> str | None:
             f"HandSession(open_transport(P), link=\"finger\") (docs/HOST.md)")
 
 
+@COMMANDS.command("watch", WATCH_HELP, watch_arguments(default_rate=20.0))
+def _cmd_watch(hand: Hand, args: argparse.Namespace) -> int:
+    """Read the hand's state ``--rate`` times a second; the view draws it and its events."""
+    s = hand.session
+    reads = watch(hand.status, s.now, s.sleep, args.rate, args.seconds)
+    _emit(args, {"states": reads}, f"{reads} states read")
+    return 0
+
+
+@COMMANDS.command("ping", "discover every node: program, versions")
 def _cmd_ping(hand: Hand, args: argparse.Namespace) -> int:
     found = hand.discover()
     if (not_palm := _not_a_palm(found[0].board, args.port)) is not None:
@@ -204,6 +154,7 @@ def _node_line(n: NodeInfo) -> str:
     return f"{n.where:15} {n.running:11} v{n.fw_version}  uid {n.uid:#010x}{cat}"
 
 
+@COMMANDS.command("status", "joints, taxels, currents, power of every finger")
 def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
     """Exit 1 when a finger that is powered does not answer (the advice fits what the link
     carried meanwhile: garbage, late replies, or nothing)."""
@@ -268,60 +219,6 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
     return out
 
 
-def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
-    try:
-        results = hand.home(args.finger)
-    except UnobservableJointError as exc:  # one finger asked for: an error, with the way out
-        raise UsageError("\n".join([str(exc), *tilt_hints([args.finger])])) from exc
-    lines = []
-    for r in results:
-        if r.homed and r.joints is not None:
-            q = ", ".join(f"{v:+.3f}" for v in r.joints)
-            lines.append(f"finger {r.finger}: homed at [{q}] rad")
-        else:
-            problem = str(r.problem).removeprefix(f"finger {r.finger}: ")
-            lines.append(f"finger {r.finger}: not homed: {problem}")
-    lines += tilt_hints([r.finger for r in results if r.unobservable])
-    _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
-    return 0 if all(r.homed for r in results) else EXIT_ROBOT
-
-
-def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
-    hand.layout = args.layout
-    try:
-        result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
-                            until_contact=args.until_contact, timeout=args.duration,
-                            unhomed=args.unhomed, fingers=args.fingers)
-    except RouteError as exc:  # one finger unreachable: the others could still grasp
-        chosen = args.fingers or list(range(FINGERS))
-        others = [k for k in chosen if k != exc.finger]
-        if exc.finger is None or not others:
-            raise
-        raise RouteError(f"{exc}\nTo grasp with the others: --fingers "
-                         f"{','.join(map(str, others))}", status=exc.status,
-                         finger=exc.finger, hop=exc.hop) from exc
-    move = result.move
-    assert move is not None
-    data = {"grasp": result.name, "amount": result.amount,
-            "targets": {str(k): list(q) for k, q in result.targets.items()},
-            "contacts": {str(k): why for k, why in result.contacts.items()},
-            **_move_dict(move)}
-    lines = [f"{result.name} {result.amount:g}: "
-             f"{'settled' if move.settled else 'not settled'} after {result.elapsed_s:.2f} s"]
-    for k, s in move.states.items():
-        q = ", ".join(f"{v:+.3f}" for v in s.joints)
-        t = ", ".join(f"{v:+.3f}" for v in result.targets[k])
-        why = f", contact: {result.contacts[k]}" if k in result.contacts else ""
-        lines.append(f"finger {k}: joints [{q}] rad, target [{t}] rad{why}")
-    _emit(args, data, "\n".join(lines))
-    if move.settled or result.contacts:
-        return 0
-    if slow := _slow_robot(move):
-        print(f"handctl: {result.name} did not settle within {args.duration} s after the "
-              f"blend.{slow}", file=sys.stderr)
-    return EXIT_ROBOT
-
-
 #: What ``status`` adds for a finger whose fmcb did not answer, by why (``{k}``: finger).
 _FINGER_ADVICE = {
     "unpowered": ": bring it up with `handctl up --finger {k}`",
@@ -352,22 +249,17 @@ def _status_text(state: HandState, no_reply: str = "") -> str:
     return "\n".join(lines)
 
 
-def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
-    finger: int | str = args.finger
-    if finger != "all":
-        try:
-            finger = int(finger)
-        except ValueError:
-            raise UsageError(f"finger {args.finger!r}: give 0..3 or all") from None
-    states = hand.power(finger, args.state)
-    text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
-    if args.state != "off":
-        text += ("\n(fingers switched on boot for about 4.5 s before they answer; their "
-                 "phalanges need power too: `handctl up` does it all and waits)")
-    _emit(args, {"power": states}, text)
-    return 0
+def _up_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--finger", type=int, choices=range(FINGERS), metavar="N",
+                   help="one finger, 0..3 (default: every finger)")
+    p.add_argument("--boot-timeout", type=number_above(0), default=BOOT_TIMEOUT_S, metavar="S",
+                   help=f"longest wait for a board to boot after its power is switched on "
+                        f"(s, default {BOOT_TIMEOUT_S:g}; by the board's own clock while it "
+                        f"answers from its bootloader)")
 
 
+@COMMANDS.command("up", "bring the fingers up after power-on: power, boot, phalange power, "
+                  "autopoll (about 10 s)", _up_arguments)
 def _cmd_up(hand: Hand, args: argparse.Namespace) -> int:
     """Bring the hand (or ``--finger``) up; progress lines as it goes (on stderr with
     ``--json``, so stdout stays one JSON document)."""
@@ -392,6 +284,45 @@ def _cmd_up(hand: Hand, args: argparse.Namespace) -> int:
     return EXIT_ROBOT
 
 
+def _power_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("finger", help="0..3 or all")
+    p.add_argument("state", choices=("off", "low", "full"))
+
+
+@COMMANDS.command("power", "switch finger power", _power_arguments)
+def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
+    finger: int | str = args.finger
+    if finger != "all":
+        try:
+            finger = int(finger)
+        except ValueError:
+            raise UsageError(f"finger {args.finger!r}: give 0..3 or all") from None
+    states = hand.power(finger, args.state)
+    text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
+    if args.state != "off":
+        text += ("\n(fingers switched on boot for about 4.5 s before they answer; their "
+                 "phalanges need power too: `handctl up` does it all and waits)")
+    _emit(args, {"power": states}, text)
+    return 0
+
+
+def _move_arguments(p: argparse.ArgumentParser) -> None:
+    group = p.add_mutually_exclusive_group(required=True)
+    group.add_argument("--hand", type=_floats, metavar="Q0,…,Q11", help="12 joint targets")
+    group.add_argument("--joints", type=_floats, metavar="Q0,Q1,Q2",
+                       help="3 joint targets of --finger")
+    p.add_argument("--finger", type=int, help="finger index for --joints")
+    p.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
+    p.add_argument("--duration", type=number_above(0), default=3.0,
+                   help="seconds to wait for the move to settle (default 3)")
+    p.add_argument("--clamp", action="store_true",
+                   help="clamp targets beyond the joint limits instead of refusing")
+    p.add_argument("--unhomed", action="store_true",
+                   help="move fingers that were never homed (joint angles then mean "
+                        "nothing)")
+
+
+@COMMANDS.command("move", "move joints (rad) and wait until they settle", _move_arguments)
 def _cmd_move(hand: Hand, args: argparse.Namespace) -> int:
     if args.clamp:
         hand.limits = hand.limits.with_action("clamp")
@@ -447,6 +378,106 @@ def _move_text(r: MoveResult) -> str:
     return "\n".join(lines)
 
 
+def _home_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--finger", type=int, help="one finger (default: every finger)")
+
+
+@COMMANDS.command("home", "set the hall offsets from the accelerometers (no joint axis near "
+                  "vertical)", _home_arguments)
+def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
+    try:
+        results = hand.home(args.finger)
+    except UnobservableJointError as exc:  # one finger asked for: an error, with the way out
+        raise UsageError("\n".join([str(exc), *tilt_hints([args.finger])])) from exc
+    lines = []
+    for r in results:
+        if r.homed and r.joints is not None:
+            q = ", ".join(f"{v:+.3f}" for v in r.joints)
+            lines.append(f"finger {r.finger}: homed at [{q}] rad")
+        else:
+            problem = str(r.problem).removeprefix(f"finger {r.finger}: ")
+            lines.append(f"finger {r.finger}: not homed: {problem}")
+    lines += tilt_hints([r.finger for r in results if r.unobservable])
+    _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
+    return 0 if all(r.homed for r in results) else EXIT_ROBOT
+
+
+def _grasp_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", help="grasp or pose name")
+    p.add_argument("amount", type=finite("a number 0..1"),
+                   help="0 (open / relaxed) .. 1 (closed / pose)")
+    p.add_argument("--speed", type=number_in(0, MAX_SPEED_RAD_S, what="a speed (rad/s)"),
+                   default=DEFAULT_SPEED_RAD_S,
+                   help=f"blend speed of the joint moving most, rad/s "
+                        f"(default {DEFAULT_SPEED_RAD_S})")
+    p.add_argument("--fingers", type=_finger_list, metavar="K,…",
+                   help="only these fingers, e.g. 0,1,3 (default: all four)")
+    p.add_argument("--until-contact", action="store_true",
+                   help="stop closing a finger when its taxels or effort say contact")
+    p.add_argument("--effort", type=int, help="per-joint effort cap, 0..255")
+    p.add_argument("--layout", choices=sorted(HAND_LAYOUTS), default=DEFAULT_HAND_LAYOUT,
+                   help=f"the hand frame (default {DEFAULT_HAND_LAYOUT})")
+    p.add_argument("--duration", type=number_above(0), default=3.0,
+                   help="seconds to wait for the fingers to settle after the blend")
+    p.add_argument("--unhomed", action="store_true",
+                   help="move fingers that were never homed (joint angles then mean "
+                        "nothing)")
+
+
+@COMMANDS.command("grasp", "blend towards a grasp or pose (host.grasp): "
+                  + ", ".join(sorted(SYNERGIES)), _grasp_arguments)
+def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
+    hand.layout = args.layout
+    try:
+        result = hand.grasp(args.name, args.amount, speed=args.speed, effort=args.effort,
+                            until_contact=args.until_contact, timeout=args.duration,
+                            unhomed=args.unhomed, fingers=args.fingers)
+    except RouteError as exc:  # one finger unreachable: the others could still grasp
+        chosen = args.fingers or list(range(FINGERS))
+        others = [k for k in chosen if k != exc.finger]
+        if exc.finger is None or not others:
+            raise
+        raise RouteError(f"{exc}\nTo grasp with the others: --fingers "
+                         f"{','.join(map(str, others))}", status=exc.status,
+                         finger=exc.finger, hop=exc.hop) from exc
+    move = result.move
+    assert move is not None
+    data = {"grasp": result.name, "amount": result.amount,
+            "targets": {str(k): list(q) for k, q in result.targets.items()},
+            "contacts": {str(k): why for k, why in result.contacts.items()},
+            **_move_dict(move)}
+    lines = [f"{result.name} {result.amount:g}: "
+             f"{'settled' if move.settled else 'not settled'} after {result.elapsed_s:.2f} s"]
+    for k, s in move.states.items():
+        q = ", ".join(f"{v:+.3f}" for v in s.joints)
+        t = ", ".join(f"{v:+.3f}" for v in result.targets[k])
+        why = f", contact: {result.contacts[k]}" if k in result.contacts else ""
+        lines.append(f"finger {k}: joints [{q}] rad, target [{t}] rad{why}")
+    _emit(args, data, "\n".join(lines))
+    if move.settled or result.contacts:
+        return 0
+    if slow := _slow_robot(move):
+        print(f"handctl: {result.name} did not settle within {args.duration} s after the "
+              f"blend.{slow}", file=sys.stderr)
+    return EXIT_ROBOT
+
+
+def _record_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file")
+    p.add_argument("--seconds", type=number_above(0), required=True,
+                   help="how long to record (s)")
+    p.add_argument("--rate", type=number_above(0), default=50.0,
+                   help="state rate (Hz, default 50)")
+
+
+def _record_check(args: argparse.Namespace) -> None:
+    """Refuse a recording file that cannot be written before the link opens."""
+    if problem := unwritable(args.file):
+        raise UsageError(f"cannot write the recording to {args.file}: {problem}")
+
+
+@COMMANDS.command("record", "record frames and states to an MCAP file", _record_arguments,
+                  check=_record_check)
 def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     from host.hand_recording import HandRecorder
 
@@ -466,25 +497,19 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_watch(hand: Hand, args: argparse.Namespace) -> int:
-    """Read the hand's state ``--rate`` times a second; the view draws it and its events."""
-    s = hand.session
-    reads = watch(hand.status, s.now, s.sleep, args.rate, args.seconds)
-    _emit(args, {"states": reads}, f"{reads} states read")
-    return 0
-
-
-COMMANDS = {"watch": _cmd_watch, "ping": _cmd_ping, "status": _cmd_status, "power": _cmd_power,
-            "move": _cmd_move, "record": _cmd_record, "home": _cmd_home,
-            "grasp": _cmd_grasp, "up": _cmd_up}
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="handctl", description=__doc__.split("\n\n")[0])
+    add_common_arguments(p, what="the palm's port")
+    add_view_arguments(p)
+    COMMANDS.add_parsers(p.add_subparsers(dest="command", required=True))
+    return p
 
 
 def _run(args: argparse.Namespace) -> int:
-    if args.command == "record" and (problem := unwritable(args.file)):
-        raise UsageError(f"cannot write the recording to {args.file}: {problem}")
+    COMMANDS.check(args)
     with Hand.open(args.port, timeouts=hand_timeouts(args), view=view_spec(args)) as hand:
         try:
-            return COMMANDS[args.command](hand, args)
+            return COMMANDS.run(hand, args)
         except NodeError as exc:
             # The link's node does not know a palm request: is it a palm at all?
             if exc.status == TxnStatus.UNKNOWN_TYPE:

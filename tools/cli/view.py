@@ -16,7 +16,8 @@ from typing import Any
 from host.view import WEB_PORT, RobotView
 from tools.cli.numeric import number_above
 
-__all__ = ["add_view_arguments", "add_watch_command", "port_number", "view_spec", "watch"]
+__all__ = ["WATCH_HELP", "add_view_arguments", "add_watch_command", "port_number", "view_spec",
+           "watch", "watch_arguments"]
 
 
 def port_number(text: str) -> int:
@@ -39,15 +40,27 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the view's web page port (default {WEB_PORT}; its data on N+1)")
 
 
+#: The ``watch`` sub-command's help line.
+WATCH_HELP = "only read the robot and draw it in a browser view (prints its address) until Ctrl-C"
+
+
+def watch_arguments(default_rate: float) -> Callable[[argparse.ArgumentParser], None]:
+    """What adds the ``watch`` sub-command's ``--rate`` (default ``default_rate``, Hz) and
+    ``--seconds`` to its parser."""
+    def add(watch_cmd: argparse.ArgumentParser) -> None:
+        watch_cmd.add_argument("--rate", type=number_above(0, what="a rate (Hz)"),
+                               default=default_rate, metavar="HZ",
+                               help=f"states read per second (default {default_rate:g})")
+        watch_cmd.add_argument("--seconds", type=number_above(0, what="a time (s)"),
+                               default=None, metavar="S",
+                               help="stop after this long (s; default: until Ctrl-C)")
+
+    return add
+
+
 def add_watch_command(sub: Any, default_rate: float) -> None:
     """The ``watch`` sub-command: ``--rate`` and ``--seconds``."""
-    watch_cmd = sub.add_parser("watch", help="only read the robot and draw it in a browser "
-                                             "view (prints its address) until Ctrl-C")
-    watch_cmd.add_argument("--rate", type=number_above(0, what="a rate (Hz)"),
-                           default=default_rate, metavar="HZ",
-                           help=f"states read per second (default {default_rate:g})")
-    watch_cmd.add_argument("--seconds", type=number_above(0, what="a time (s)"), default=None,
-                           metavar="S", help="stop after this long (s; default: until Ctrl-C)")
+    watch_arguments(default_rate)(sub.add_parser("watch", help=WATCH_HELP))
 
 
 def view_spec(args: argparse.Namespace) -> RobotView | int | None:

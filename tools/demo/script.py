@@ -88,7 +88,7 @@ from host.hand_state import FingerState, HandState
 from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
-from protocol.topology import FINGERS
+from protocol.topology import FINGER_BOARDS, FINGERS
 from tools.cli.numeric import read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.view import add_view_arguments
@@ -258,7 +258,7 @@ class Demo:
         fw = self.out / "firmware"
         fw.mkdir(parents=True, exist_ok=True)
         args: list[str] = []
-        for board in ("fmcb", "f2", "f3"):
+        for board in (b.app for b in FINGER_BOARDS):
             payload = fw / f"{board}.bin"
             payload.write_bytes((f"{board} demo firmware {FW_VERSION}\n".encode() * 64)[:4096])
             image = fw / f"{board}.img"

@@ -22,13 +22,13 @@ from protocol.messages import CATALOGUE
 from protocol.messages.fmcb import ControlMode
 from protocol.stream import StreamDecoder
 from protocol.topology import (
-    ADDR_F2,
-    ADDR_F3,
     ADDR_FMCB,
     ADDR_HOST,
-    ADDR_PALM,
+    FINGER_BOARDS,
+    HAND_BOARDS,
     SERVO_IDS,
     STEPPER_IDS,
+    Board,
 )
 from tools.fuzz.oracles import Introspection
 
@@ -74,14 +74,26 @@ class TargetKind:
         return (TUNNEL_LISTEN_MS + 5) * 1000 if self.via_tunnel else 5_000
 
 
+#: The palm answers its first ping later than a finger's board (s).
+PALM_PING_DEADLINE_S: Final = 0.2
+
+
+def _hand_target(board: Board) -> TargetKind:
+    """How to fuzz a hand board: the palm on the hand's link, a finger's boards on a loose
+    finger's cable (the fmcb directly, a phalange inside its tunnel among its neighbours)."""
+    assert board.address is not None
+    if board.hop is None:
+        return TargetKind(board.app, "emu://hand/palm", board.app, board.address,
+                          ping_deadline_s=PALM_PING_DEADLINE_S, board=board.board_type)
+    tunnelled = [b.address for b in FINGER_BOARDS if b.hop and b.address is not None]
+    return TargetKind(board.app, "emu://loose-finger/finger0", board.app, board.address,
+                      via_tunnel=bool(board.hop), board=board.board_type,
+                      neighbours=tuple(a for a in tunnelled if a != board.address)
+                      if board.hop else ())
+
+
 TARGETS: Final = {
-    "palm": TargetKind("palm", "emu://hand/palm", "palm", ADDR_PALM, ping_deadline_s=0.2,
-                       board=BoardType.PALM),
-    "fmcb": TargetKind("fmcb", "emu://loose-finger/finger0", "fmcb", board=BoardType.FMCB),
-    "f2": TargetKind("f2", "emu://loose-finger/finger0", "f2", ADDR_F2, via_tunnel=True,
-                     neighbours=(ADDR_F3,), board=BoardType.F2),
-    "f3": TargetKind("f3", "emu://loose-finger/finger0", "f3", ADDR_F3, via_tunnel=True,
-                     neighbours=(ADDR_F2,), board=BoardType.F3),
+    **{b.app: _hand_target(b) for b in HAND_BOARDS},
     "bootloader": TargetKind("bootloader", "emu://loose-finger/finger0?ready=0", "bootloader",
                              board=BoardType.FMCB),
     "arm": TargetKind("arm", "emu://arm/arm", "arm", dynamixel=True),

@@ -24,8 +24,9 @@ from hil_emulator.faults import targets
 from host.errors import HostError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
+from protocol.topology import board as board_row
 from tools.hil_bench.assertions import judge
-from tools.hil_bench.scenario import Scenario, Step, parse_scenario
+from tools.hil_bench.scenario import FINGER_BOARDS, Scenario, Step, parse_scenario
 
 #: Period of the plant-truth samples (µs).
 TRUTH_PERIOD_US: Final = 10_000
@@ -153,7 +154,7 @@ class Bench:
         out: dict[str, dict[str, Any]] = {}
         if self.emu.hand is not None:
             for k in range(FINGERS):
-                for board in ("fmcb", "f2", "f3"):
+                for board in FINGER_BOARDS:
                     mcu = targets.node(self.emu, f"finger{k}.{board}").mcu
                     assert mcu is not None
                     out[f"finger{k}.{board}"] = {
@@ -194,8 +195,9 @@ class Bench:
         if node == "palm":
             return dict(self.hand.palm.identify().to_dict())
         finger, board = node.removeprefix("finger").split(".")
-        where = {"fmcb": "motor", "f2": "proximal", "f3": "distal"}[board]
-        return dict(getattr(self.hand.fingers[int(finger)], where).identify().to_dict())
+        hop = board_row(board).hop
+        assert hop is not None
+        return dict(self.hand.fingers[int(finger)].nodes[hop].identify().to_dict())
 
     def _do_poll(self, rate_hz: int) -> None:
         self.hand.set_poll_rate(rate_hz)

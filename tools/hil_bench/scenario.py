@@ -17,6 +17,7 @@ from typing import Any, Final
 from hil_emulator.emulator import CONFIGS
 from hil_emulator.errors import FaultPlanError
 from hil_emulator.faults import PlanEntry, parse_plan
+from protocol import topology
 from protocol.messages.palm import FingerPower
 from protocol.topology import FINGERS, SERVO_IDS, STEPPER_IDS
 
@@ -66,7 +67,7 @@ ARM_ACTIONS: Final = ("arm_open", "arm_torque", "arm_move", "arm_stream", "arm_c
 HAND_CONFIGS: Final = ("full", "hand")
 ARM_CONFIGS: Final = ("full", "arm")
 #: The boards of a finger, as ``ping`` names them (``finger<k>.<board>``).
-FINGER_BOARDS: Final = ("fmcb", "f2", "f3")
+FINGER_BOARDS: Final = tuple(b.app for b in topology.FINGER_BOARDS)
 TOP_KEYS: Final = ("name", "description", "config", "seed", "physics", "ready", "faults",
                    "actions", "assertions", "campaign")
 
