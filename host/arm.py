@@ -76,11 +76,26 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, Final
+from typing import Final
 
+from host import arm_cartesian, arm_homing
+from host.arm_cartesian import (
+    MOVETO_SETTLE_S,
+    MOVETO_SPEED_RAD_S,
+    MOVETO_TOLERANCE_M,
+    CartesianMove,
+)
+from host.arm_discovery import discover, open_arm_transport, open_bus
 from host.arm_gate import HOLD_TOLERANCE_RAD, check_goals, check_speeds, latches, require_torque
 from host.arm_hold import Held, hold, stop_for_alarms
-from host.arm_rest import RestWatch
+from host.arm_homing import (
+    SEARCH_PERIOD_S,
+    SEARCH_SPEED_RAD_S,
+    SEARCH_STEP_RAD,
+    SEARCH_TOLERANCE_RAD,
+)
+from host.arm_joint_loop import JointController, TrackingLog
+from host.arm_rest import RestWatch, off_goal, settled
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
     JOINT_IDS,
@@ -89,6 +104,7 @@ from host.arm_state import (
     N_STEPPERS,
     ArmState,
     Command,
+    JointCalibration,
     JointInfo,
     PositionCommand,
     ServoState,
@@ -96,14 +112,7 @@ from host.arm_state import (
     TorqueCommand,
 )
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
-from host.errors import (
-    HostError,
-    JointAlarmError,
-    LimitError,
-    NodeError,
-    ReplyTimeout,
-    UsageError,
-)
+from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
@@ -132,10 +141,6 @@ from protocol.dynamixel import (
     rx64_present_speed_to_rad_s,
 )
 from protocol.robot import ARM_JOINT_SPEED_LIMITS, arm_route_coupling_matrix
-
-if TYPE_CHECKING:
-    from host.arm_control import CartesianMove
-    from host.arm_homing import JointCalibration
 
 _S = STEPPER_TABLE
 _R = RX64_TABLE
@@ -613,20 +618,30 @@ class Arm:
         absolute angles; until then angles are the nodes' (from power-up)."""
         return self.calibration is not None
 
-    def home(self, **options: Any) -> JointCalibration:
-        """Find every stepper joint's index mark (:func:`host.arm_homing.home`)."""
-        from host.arm_homing import home
+    def home(self, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
+             period: float = SEARCH_PERIOD_S,
+             tolerance: float = SEARCH_TOLERANCE_RAD) -> JointCalibration:
+        """Find every stepper joint's index mark and fix the joints' absolute angles:
+        ``speed`` (rad/s) and ``step`` (rad) shape the search, ``period`` (s) is its polling
+        cycle, ``tolerance`` (rad) when a search target counts as reached
+        (:func:`host.arm_homing.home`, which raises :class:`~host.errors.HomingError`)."""
+        return arm_homing.home(self, speed=speed, step=step, period=period,
+                               tolerance=tolerance)
 
-        return home(self, **options)
-
-    def moveto(self, xyz: Sequence[float], rpy: Sequence[float] | None = None,
-               **options: Any) -> CartesianMove:
+    def moveto(self, xyz: Sequence[float], rpy: Sequence[float] | None = None, *,
+               speed: float = MOVETO_SPEED_RAD_S, tolerance_m: float = MOVETO_TOLERANCE_M,
+               settle_timeout: float = MOVETO_SETTLE_S,
+               controller: JointController | None = None, allow_unhomed: bool = False,
+               hand: bool = True, log: TrackingLog | None = None) -> CartesianMove:
         """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given:
-        IK, then an interpolated, feed-forward-compensated joint move
-        (:func:`host.arm_control.moveto`); the result carries the joint goals."""
-        from host.arm_control import moveto
-
-        return moveto(self, xyz, rpy, **options)
+        IK, then an interpolated, feed-forward-compensated joint move at ``speed`` (rad/s,
+        fastest joint) until the flange is within ``tolerance_m`` (m) and the arm at rest,
+        or ``settle_timeout`` (s) passed (:func:`host.arm_cartesian.moveto`: ``controller``,
+        ``allow_unhomed``, ``hand`` on the flange, ``log``); the result carries the joint
+        goals."""
+        return arm_cartesian.moveto(self, xyz, rpy, speed=speed, tolerance_m=tolerance_m,
+                                    settle_timeout=settle_timeout, controller=controller,
+                                    allow_unhomed=allow_unhomed, hand=hand, log=log)
 
     # ------------------------------------------------------------------ conveniences
 
@@ -752,23 +767,6 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
-def open_arm_transport(url: str) -> Transport:
-    """Open the arm bus's transport: a serial path at 1 Mbaud unless ``?baud=N``, or any
-    transport URL."""
-    options: dict[str, Any] = {}
-    if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
-        options["baud"] = ARM_BUS_BAUD
-    return open_transport(url, **options)
-
-
-def open_bus(url: str, *, latency_s: float | None = None, retries: int = 2) -> DynamixelBus:
-    """The arm's Dynamixel bus on ``url`` (:func:`open_arm_transport`) without discovering
-    the joints (to scan it, or reach a node at an unexpected ID); close its transport."""
-    transport = open_arm_transport(url)
-    return DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD), retries=retries,
-                        latency_s=latency_s)
-
-
 def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
     """The ``clear_flags`` values re-syncing the rotors of these stepper nodes (bus ID ->
     the SLIP/STALLED latches each had when its torque went off): RESYNC_ROTOR, and clear the
@@ -786,75 +784,19 @@ def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
     return out
 
 
-def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str | None:
-    """Which joint of ``state`` is not yet at its goal (``goals``, rad) within ``tolerance``
-    (rad): a stepper whose motor is further or still moving, a servo whose joint is
-    further; None when every joint is there."""
-    for s in state.steppers:
-        if s.moving:
-            return f"{JOINT_NAMES[s.joint]}'s motor is still on its way"
-        if abs(s.motor_angle - goals[s.joint]) > tolerance:
-            return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
-                    "rad off its goal")
-    for v in state.servos:
-        if abs(v.angle - goals[v.joint]) > tolerance:
-            return f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal"
-    return None
-
-
-def settled(state: ArmState, goals: Sequence[float], tolerance: float,
-            settle_speed: float = math.inf) -> bool:
-    """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
-    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
-    is within ``tolerance`` of its goal."""
-    for s in state.steppers:
-        if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
-                or abs(s.velocity) > settle_speed):
-            return False
-    return all(abs(s.angle - goals[s.joint]) <= tolerance for s in state.servos)
-
-
-def discover(bus: DynamixelBus,
-             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> list[JointInfo]:
-    """Ping the seven joints and read what each node is: model, firmware and, for a stepper
-    node, its reduction, steps per rev, microstepping and encoder resolution.
-
-    Raises :class:`~host.errors.ReplyTimeout` naming a joint that does not answer and
-    :class:`~host.errors.NodeError` for a node of the wrong model."""
-    joints = []
-    for joint, dxl_id in enumerate(JOINT_IDS):
-        want = STEPPER_TABLE if joint < N_STEPPERS else RX64_TABLE
-        try:
-            bus.ping(dxl_id)
-        except ReplyTimeout as exc:
-            raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
-                               f"; a scan lists the IDs that do (armctl scan)") from exc
-        head = bus.read(dxl_id, 0, 3)
-        model, firmware = int.from_bytes(head[:2], "little"), head[2]
-        table = TABLES_BY_MODEL.get(model)
-        if table is not want:
-            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) is model {model} "
-                            f"({table.name if table else 'unknown'}), the arm has "
-                            f"{want.name} there; check the node's ID")
-        if table is STEPPER_TABLE and firmware < STEPPER_CYCLE_BLOCK_FIRMWARE:
-            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) runs stepper firmware "
-                            f"{firmware}, without the cycle block (from version "
-                            f"{STEPPER_CYCLE_BLOCK_FIRMWARE}); update the node")
-        if table is RX64_TABLE:
-            joints.append(JointInfo(joint, dxl_id, "servo", model, firmware))
-            continue
-        at = _S["gear_reduction_x100"].address
-        end = _S["encoder_resolution"].end
-        eeprom = bus.read(dxl_id, at, end - at)
-
-        def value(name: str, eeprom: bytes = eeprom, at: int = at) -> int:
-            reg = _S[name]
-            return reg.decode(eeprom[reg.address - at : reg.end - at])
-
-        joints.append(JointInfo(
-            joint, dxl_id, "stepper", model, firmware,
-            reduction=value("gear_reduction_x100") / 100,
-            steps_per_rev=value("steps_per_rev"), microstepping=value("microstepping"),
-            encoder_counts_per_rev=value("encoder_resolution"),
-            stiffness=float(stiffness[joint])))
-    return joints
+#: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
+#: in) the free functions and types its users import from here.
+__all__ = [
+    "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS", "MOVE_MIN_SPEED",
+    "RESYNC_MIN_COUNTS", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
+    "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
+    # moved out, importable here as before
+    "discover", "open_arm_transport", "open_bus", "off_goal", "settled",
+    "CartesianMove", "Held", "JointCalibration", "JointController", "TrackingLog",
+    "ARM_BUS_BAUD", "DEFAULT_STIFFNESS_NM_PER_RAD", "HOLD_TOLERANCE_RAD", "JOINT_IDS",
+    "JOINT_NAMES", "N_JOINTS", "N_STEPPERS", "ArmState", "Command", "JointInfo",
+    "PositionCommand", "ServoState", "StepperState", "TorqueCommand",
+    # other modules' names this module once imported, kept for programs that used them
+    "NodeError", "ReplyTimeout", "open_transport", "url_options", "url_scheme",
+    "STEPPER_CYCLE_BLOCK_FIRMWARE", "TABLES_BY_MODEL",
+]
