@@ -39,6 +39,8 @@ from host.grasp_synergies import (
     KINDS,
     MAX_SPEED_RAD_S,
     ROLES,
+    SAME_DIRECTION_COS,
+    SPREAD_EPS_M,
     SQUEEZE_RAD,
     SYNERGIES,
     TACTILE_CONTACT_COUNTS,
@@ -181,7 +183,7 @@ def grasp(hand: MovingHand, name: str, amount: float, *, speed: float = DEFAULT_
 __all__ = [
     "GRASP_TIMEOUT_S", "SQUEEZE_ROUNDS", "SQUEEZE_SETTLED_RAD", "grasp", "squeeze",
     "GraspResult", "Vec3", "BLEND_PERIOD_S", "CONTACT_EFFORT", "CONTACT_LAG_RAD",
-    "CONTACT_STALL_RAD_S", "DEFAULT_SPEED_RAD_S", "KINDS", "MAX_SPEED_RAD_S", "ROLES",
+    "CONTACT_STALL_RAD_S", "DEFAULT_SPEED_RAD_S", "KINDS", "MAX_SPEED_RAD_S", "ROLES", "SAME_DIRECTION_COS", "SPREAD_EPS_M",
     "SQUEEZE_RAD", "SYNERGIES", "TACTILE_CONTACT_COUNTS", "Synergy", "blend", "contact",
     "finger_roles", "spread_signs", "squeeze_target", "synergy", "synergy_targets",
 ]

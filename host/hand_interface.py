@@ -5,6 +5,7 @@ the view); they never import it back.  Each helper types its ``hand`` (or ``fing
 argument with the protocol here that names what it calls; :class:`~host.hand.Hand` and
 :class:`~host.hand.Finger` satisfy them (mypy checks it where the facade calls a helper).
 
+* :class:`FingerOwner` - what a :class:`~host.hand_finger.Finger` asks of its hand;
 * :class:`HandFinger` - one finger's boards and its commands as data;
 * :class:`LinkedHand` - the link and the fingers (homing);
 * :class:`PoweredHand` - and the palm and the fingers' power (bring-up);
@@ -21,6 +22,34 @@ from host.hand_node import Node
 from host.hand_session import FingerEvent, HandSession
 from host.hand_state import FingerCommand, FingerState, HandState, MoveResult
 from host.joint_limits import JointLimits
+
+
+class FingerOwner(Protocol):
+    """The hand a finger belongs to: its link, joint limits, power switches and sends."""
+
+    @property
+    def session(self) -> HandSession:
+        """The conversation with the palm."""
+        ...
+
+    @property
+    def limits(self) -> JointLimits:
+        """The joint limits targets pass."""
+        ...
+
+    def power(self, finger: int | str, state: int | str, stagger_ms: int = ...) -> list[str]:
+        """Switch finger ``finger`` (or ``"all"``) to ``state``; every finger's power state."""
+        ...
+
+    def send(self, commands: Sequence[FingerCommand], *, unhomed: bool = False) -> None:
+        """Send ``commands`` in one pipelined round."""
+        ...
+
+    def move_fingers(self, targets: dict[int, Sequence[float]], *,
+                     effort: Sequence[int] | int | None = None,
+                     timeout: float = ..., unhomed: bool = False) -> MoveResult:
+        """Joint targets (rad) for some fingers; command them, wait until they settle."""
+        ...
 
 
 class HandFinger(Protocol):
