@@ -91,32 +91,9 @@ from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
-from protocol.control_tables import (
-    GOAL_FINE_PER_COUNT,
-    RX64_TABLE,
-    STEPPER_COMMAND_BLOCK,
-    STEPPER_CYCLE_BLOCK,
-    STEPPER_CYCLE_BLOCK_FIRMWARE,
-    STEPPER_ROTOR_RESYNC_FIRMWARE,
-    STEPPER_TABLE,
-    STEPPER_WATCHDOG_FIRMWARE,
-    TABLES_BY_MODEL,
-    StepperClear,
-    StepperFlag,
-)
-from protocol.dynamixel import (
-    ErrorBit,
-    InstructionPacket,
-    make_bulk_read,
-    make_reset,
-    make_sync_write,
-    radians_to_rx64_position,
-    rpm_to_rx64_speed,
-    rx64_load_to_fraction,
-    rx64_position_to_radians,
-    rx64_present_speed_to_rad_s,
-)
-from protocol.robot import ARM_JOINT_SPEED_LIMITS, arm_route_coupling_matrix
+from protocol.control_tables import STEPPER_TABLE, STEPPER_WATCHDOG_FIRMWARE, StepperClear
+from protocol.dynamixel import InstructionPacket, make_reset
+from protocol.robot import ARM_JOINT_SPEED_LIMITS
 
 _S = STEPPER_TABLE
 _GOAL = _S["command_goal"]
@@ -578,8 +555,6 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
-
-
 #: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
 #: in) the free functions and types its users import from here.
 __all__ = [
@@ -592,13 +567,6 @@ __all__ = [
     "ARM_BUS_BAUD", "DEFAULT_STIFFNESS_NM_PER_RAD", "HOLD_TOLERANCE_RAD", "JOINT_IDS",
     "JOINT_NAMES", "N_JOINTS", "N_STEPPERS", "ArmState", "Command", "JointInfo",
     "PositionCommand", "ServoState", "StepperState", "TorqueCommand",
-    # other modules' names this module once imported, kept for programs that used them
+    # other host modules' names this module once imported, kept for programs that used them
     "NodeError", "ReplyTimeout", "open_transport", "url_options", "url_scheme",
-    "GOAL_FINE_PER_COUNT", "RX64_TABLE", "STEPPER_COMMAND_BLOCK", "STEPPER_CYCLE_BLOCK",
-    "STEPPER_CYCLE_BLOCK_FIRMWARE", "STEPPER_ROTOR_RESYNC_FIRMWARE", "STEPPER_TABLE",
-    "STEPPER_WATCHDOG_FIRMWARE", "TABLES_BY_MODEL", "StepperClear", "StepperFlag",
-    "ErrorBit", "InstructionPacket", "make_bulk_read", "make_reset", "make_sync_write",
-    "radians_to_rx64_position", "rpm_to_rx64_speed", "rx64_load_to_fraction",
-    "rx64_position_to_radians", "rx64_present_speed_to_rad_s", "ARM_JOINT_SPEED_LIMITS",
-    "arm_route_coupling_matrix",
 ]

@@ -47,12 +47,10 @@ from host.inertial_closed_form import DEFAULT_MIN_AXIS_TILT_RAD
 from host.joint_limits import JOINTS_PER_FINGER, JointLimits
 from host.transport import Transport, open_transport
 from host.view import RobotView, ViewSpec, open_view
-from protocol.messages import CATALOGUE_HASH
-from protocol.messages.common import Running
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import ALL_FINGERS, FingerPower
 from protocol.robot import DEFAULT_HAND_LAYOUT, HandLayout
-from protocol.topology import FINGERS, HOP_NODE, Hop
+from protocol.topology import FINGERS
 
 #: Default stagger between fingers when all are switched (ms).
 POWER_STAGGER_MS: Final = 5
@@ -532,7 +530,4 @@ __all__ = [
     "NodeInfo", "FingerState", "HandState", "FingerEvent", "HandSession", "PendingReply",
     "Target", "Timeouts", "LINK_NODE", "BOOT_TIMEOUT_S", "JOINTS_PER_FINGER", "JointLimits",
     "FingerParams", "bring_up",
-    # other libraries' names this module once imported, kept for programs that used them
-    "ALL_FINGERS", "CATALOGUE_HASH", "DEFAULT_HAND_LAYOUT", "FINGERS", "HOP_NODE",
-    "ControlMode", "FingerPower", "Hop", "Running",
 ]
