@@ -13,46 +13,9 @@ limits; stepper goals; servo goals, with speeds when asked) followed by one BULK
 the seven nodes' state, all sent as one write; the nodes answer in turn and the cycle
 returns an :class:`~host.arm_state.ArmState`.  Nothing else crosses the bus.
 
-**Stepper goals** go to each node's *command block* (``command_goal``, in 1/16 counts, so
-one microstep can be commanded, and ``deflection_offset``): with every goal the arm tells
-the node ``−C·Δq`` (counts; :data:`protocol.robot.ARM_ROUTE_COUPLING`, ``Δq`` the joints
-since the nodes' power-up, from the last state read), by how much the belt and cable routes
-make the node's own deflection (motor − joint) differ from its elastic element's, so the
-node's SLIP/STALLED protection watches the elastic element however the joints before it
-moved.
-
-**Torque off, and on again.** An unpowered stepper's rotor turns with its joint (the elastic
-element relaxes; a hand moving the arm, a joint coasting on), which the node's step count
-cannot follow: its deflection then says the element is wound up, and enabling the torque
-would latch STALLED. So when a cycle turns on a stepper's torque that this arm turned off
-and whose encoder has moved since (more than :data:`RESYNC_MIN_COUNTS`), it first sends that
-node its command block (the goal it has, the coupling offset now) and ``clear_flags``
-RESYNC_ROTOR: the node takes the element as relaxed and moves its step origin to match
-(``step_count`` moves with it); latches the joint had when its torque went off stay (a node
-latches SLIP/STALLED while its coils hold, not once the host turned them off). The joint
-then heads for the goal it had, unless :meth:`Arm.torque` is told to ``hold`` it where it
-is. A stepper found unpowered and without a latch when the arm
-opens (power-up, or another program turned it off: ``armctl waypoints record`` then
-``play``) is treated the same way. Torque the node turned off itself (an alarm, its latch
-set) is not re-synced.
-
-**What a cycle reads** (the least the state needs, as each node answers one contiguous
-range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
-deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
-:data:`~protocol.control_tables.STEPPER_TABLE`), an RX-64's ``present_position`` ..
-``present_load`` (36-41: position, speed, load; 6 bytes), and one cycle in
-:data:`SLOW_READ_EVERY` (the first included) on to ``present_temperature`` (voltage and
-temperature, 2 bytes more: they drift over seconds; a state reports the last read, at most
-9 cycles old); the alarm bits (overheating, input voltage among them) come in every status
-packet's error byte.  That is 193 bytes per cycle with the seven goals, 199 on the slow
-cycles (~512 cycles/s at 1 Mbaud in fast mode; reading every cycle's 199 bytes gave ~498;
-reading ``status_flags`` .. ``step_count`` plus ``deflection`` instead of the cycle block
-would cost 18 + 18 bytes more per stepper).
-The stepper's goal is not in the block: the state reports the goal this arm last sent
-(learnt from the nodes' ``goal_position`` at :meth:`Arm.open` and :meth:`Arm.read_goals`;
-call the latter if anything else writes goals).  Discovery refuses stepper nodes whose
-firmware predates the block (``firmware_version`` <
-:data:`~protocol.control_tables.STEPPER_CYCLE_BLOCK_FIRMWARE`).
+**On the wire** (:mod:`host.arm_cycle`): how the stepper goals carry the routes' coupling
+offsets, how a stepper whose rotor turned while unpowered is re-synced before its torque
+comes on, and what a cycle reads.
 
 **Fast mode.**  Nodes leave the factory with a return delay of 250 × 2 µs = 0.5 ms, which
 costs 3.5 ms per cycle of seven replies.  ``Arm.open(url, return_delay=0)`` (the default)
@@ -74,13 +37,40 @@ RESET (after which this class restores the return delay it set; torque stays off
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, Final
+from typing import Final
 
+from host import arm_cartesian, arm_homing
+from host.arm_cartesian import (
+    MOVETO_SETTLE_S,
+    MOVETO_SPEED_RAD_S,
+    MOVETO_TOLERANCE_M,
+    CartesianMove,
+)
+from host.arm_cycle import (
+    COMMAND_AT,
+    COMMAND_LEN,
+    RESYNC_MIN_COUNTS,
+    SERVO_READ_AT,
+    SERVO_READ_LEN,
+    SERVO_SLOW_READ_LEN,
+    SLOW_READ_EVERY,
+    STEPPER_READ_AT,
+    STEPPER_READ_LEN,
+    CycleWire,
+    resync_clears,
+)
+from host.arm_discovery import discover, open_arm_transport, open_bus
 from host.arm_gate import HOLD_TOLERANCE_RAD, check_goals, check_speeds, latches, require_torque
 from host.arm_hold import Held, hold, stop_for_alarms
-from host.arm_rest import RestWatch
+from host.arm_homing import (
+    SEARCH_PERIOD_S,
+    SEARCH_SPEED_RAD_S,
+    SEARCH_STEP_RAD,
+    SEARCH_TOLERANCE_RAD,
+)
+from host.arm_joint_loop import JointController, TrackingLog
+from host.arm_rest import RestWatch, off_goal, settled
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
     JOINT_IDS,
@@ -89,83 +79,27 @@ from host.arm_state import (
     N_STEPPERS,
     ArmState,
     Command,
+    JointCalibration,
     JointInfo,
     PositionCommand,
     ServoState,
     StepperState,
     TorqueCommand,
 )
+from host.arm_trajectory import Vector
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
-from host.errors import (
-    HostError,
-    JointAlarmError,
-    LimitError,
-    NodeError,
-    ReplyTimeout,
-    UsageError,
-)
+from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
-from protocol.control_tables import (
-    GOAL_FINE_PER_COUNT,
-    RX64_TABLE,
-    STEPPER_COMMAND_BLOCK,
-    STEPPER_CYCLE_BLOCK,
-    STEPPER_CYCLE_BLOCK_FIRMWARE,
-    STEPPER_ROTOR_RESYNC_FIRMWARE,
-    STEPPER_TABLE,
-    STEPPER_WATCHDOG_FIRMWARE,
-    TABLES_BY_MODEL,
-    StepperClear,
-    StepperFlag,
-)
-from protocol.dynamixel import (
-    ErrorBit,
-    InstructionPacket,
-    make_bulk_read,
-    make_reset,
-    make_sync_write,
-    radians_to_rx64_position,
-    rpm_to_rx64_speed,
-    rx64_load_to_fraction,
-    rx64_position_to_radians,
-    rx64_present_speed_to_rad_s,
-)
-from protocol.robot import ARM_JOINT_SPEED_LIMITS, arm_route_coupling_matrix
-
-if TYPE_CHECKING:
-    from host.arm_control import CartesianMove
-    from host.arm_homing import JointCalibration
+from protocol.control_tables import STEPPER_TABLE, STEPPER_WATCHDOG_FIRMWARE, StepperClear
+from protocol.dynamixel import InstructionPacket, make_reset
+from protocol.robot import ARM_JOINT_SPEED_LIMITS
 
 _S = STEPPER_TABLE
-_R = RX64_TABLE
-#: What a cycle reads from a stepper node: its cycle block (see the module docs).
-STEPPER_READ_AT: Final = _S[STEPPER_CYCLE_BLOCK[0]].address
-STEPPER_READ_LEN: Final = _S[STEPPER_CYCLE_BLOCK[1]].end - STEPPER_READ_AT
-#: What a cycle reads from an RX-64: present_position .. present_load ...
-SERVO_READ_AT: Final = _R["present_position"].address
-SERVO_READ_LEN: Final = _R["present_load"].end - SERVO_READ_AT
-#: ... and every :data:`SLOW_READ_EVERY` cycles on to present_temperature (with the voltage).
-SERVO_SLOW_READ_LEN: Final = _R["present_temperature"].end - SERVO_READ_AT
-#: One cycle in this many (the first included) reads the RX-64s' voltage and temperature.
-SLOW_READ_EVERY: Final = 10
-_STEPPER_FIELDS = struct.Struct("<iihhB")  # position, steps, velocity, deflection, flags
-_SERVO_FIELDS = struct.Struct("<HHH")  # position, speed, load
-_SERVO_SLOW_FIELDS = struct.Struct("<BB")  # voltage (0.1 V), temperature (°C)
-assert _STEPPER_FIELDS.size == STEPPER_READ_LEN and _SERVO_FIELDS.size == SERVO_READ_LEN
-assert SERVO_READ_LEN + _SERVO_SLOW_FIELDS.size == SERVO_SLOW_READ_LEN
 _GOAL = _S["command_goal"]
 _TORQUE = _S["torque_enable"]
-_OFFSET = _S["deflection_offset"]
-#: The stepper command block (command_goal, deflection_offset): address and length.
-COMMAND_AT: Final = _S[STEPPER_COMMAND_BLOCK[0]].address
-COMMAND_LEN: Final = _S[STEPPER_COMMAND_BLOCK[1]].end - COMMAND_AT
-_ROUTES = [[float(c) for c in row] for row in arm_route_coupling_matrix()]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
-#: A stepper joint whose encoder moved more than this (counts) while this arm had its
-#: torque off gets its rotor re-synced when the torque comes on again (see the module docs).
-RESYNC_MIN_COUNTS: Final = 2
 #: The least speed limit (rad/s) :meth:`Arm.move` with a ``duration`` gives a joint: one
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
@@ -174,7 +108,6 @@ MOVE_MIN_SPEED: Final = 0.2
 #: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
 #: after this long, the arm at rest within 0.5 s; ten of the 10 ms cycles a move runs.
 HOST_WATCHDOG_MS: Final = 100
-_LATCHES = StepperFlag.SLIP | StepperFlag.STALLED
 
 
 class Arm:
@@ -186,22 +119,9 @@ class Arm:
         self.bus = bus
         self.joints = tuple(joints)
         self.return_delay: int | None = None
-        #: Each stepper node's goal (joint encoder counts, in 1/16 steps): what this arm
-        #: last sent, learnt from the nodes by :meth:`read_goals`.
-        self.stepper_goals = [0.0] * N_STEPPERS
-        #: Each stepper node's encoder count in the last state read (None before any).
-        self.stepper_counts: list[int] | None = None
         #: Absolute joint frames after homing (:mod:`host.arm_homing`); None: the nodes'
         #: frames (angles from power-up), and :attr:`homed` is False.
         self.calibration: JointCalibration | None = None
-        #: Encoder count at each stepper node's power-up (from each cycle's step count, encoder and deflection).
-        self.encoder_at_power_up = [0] * N_STEPPERS
-        #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
-        self._servo_speed = [0, 0, 0]
-        #: Stepper joints whose torque is off: joint -> (encoder count, latched
-        #: SLIP/STALLED flags) in the state read with that command.
-        #: Those found unpowered when the arm opened have no count (None): any move counts.
-        self._unpowered: dict[int, tuple[int | None, StepperFlag]] = {}
         #: Called with every cycle's :class:`ArmState` (a recorder, a plot): whoever runs
         #: the cycles (a move, a controller) need not know they are watched.
         self.state_taps: list[Callable[[ArmState], None]] = []
@@ -212,21 +132,8 @@ class Arm:
         self.last_state: ArmState | None = None
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
-        #: Stepper joints the last state found stopped by their node's command watchdog
-        #: (this host was late): the next cycle sends them this arm's goal again.
-        self._watchdog_stopped: set[int] = set()
-        #: Stepper joints this arm has sent a goal (not just learnt one at open): only those
-        #: are resumed, so a program that only reads (armctl status) changes nothing.
-        self._goals_sent: set[int] = set()
-        #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
-        self._servo_slow = [(0, 0)] * len(self.servos)
-        entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
-        fast = entries + [(SERVO_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
-        slow = entries + [(SERVO_SLOW_READ_LEN, j.dxl_id, SERVO_READ_AT) for j in self.servos]
-        #: The cycle's BULK_READ and its replies: (every cycle, the slow-register cycles).
-        self.bulk_reads = (make_bulk_read(fast), make_bulk_read(slow))
-        self.expected_replies = ([Expect(dxl_id, length) for length, dxl_id, _ in fast],
-                                 [Expect(dxl_id, length) for length, dxl_id, _ in slow])
+        #: The cycles' bytes, and what encoding them remembers between cycles.
+        self.wire = CycleWire(self.joints)
 
     # ------------------------------------------------------------------ opening
 
@@ -370,28 +277,44 @@ class Arm:
         power-up), then read a state: the coupling offsets sent with goals need it."""
         replies = self.bus.bulk_read([(_GOAL.size, j.dxl_id, _GOAL.address)
                                       for j in self.steppers])
-        self.stepper_goals = [_GOAL.decode(replies[j.dxl_id].params) / GOAL_FINE_PER_COUNT
-                              for j in self.steppers]
+        self.wire.learn_goals([_GOAL.decode(replies[j.dxl_id].params) for j in self.steppers])
         torque = self.bus.bulk_read([(_TORQUE.size, j.dxl_id, _TORQUE.address)
                                      for j in self.steppers])
         state = self.cycle()
-        for k, j in enumerate(self.steppers):
-            # unpowered and not alarmed (a node latches SLIP/STALLED only while its coils
-            # hold): whoever turned its torque off, another program or power-up, the rotor
-            # turned with the joint since, so enabling it re-syncs the node first
-            if (not _TORQUE.decode(torque[j.dxl_id].params)
-                    and not state.steppers[k].flags & _LATCHES):
-                self._unpowered[k] = (None, StepperFlag(0))
+        self.wire.found_unpowered([bool(_TORQUE.decode(torque[j.dxl_id].params))
+                                   for j in self.steppers], state)
+
+    @property
+    def stepper_goals(self) -> list[float]:
+        """Each stepper node's goal (joint encoder counts, in 1/16 steps): what this arm
+        last sent, learnt from the nodes by :meth:`read_goals`."""
+        return self.wire.stepper_goals
+
+    @property
+    def stepper_counts(self) -> list[int] | None:
+        """Each stepper node's encoder count in the last state read (None before any)."""
+        return self.wire.stepper_counts
+
+    @property
+    def encoder_at_power_up(self) -> list[int]:
+        """Encoder count at each stepper node's power-up (from each cycle's step count,
+        encoder and deflection)."""
+        return self.wire.encoder_at_power_up
+
+    @property
+    def bulk_reads(self) -> tuple[InstructionPacket, InstructionPacket]:
+        """The cycle's BULK_READ: (every cycle, the slow-register cycles)."""
+        return self.wire.bulk_reads
+
+    @property
+    def expected_replies(self) -> tuple[list[Expect], list[Expect]]:
+        """The replies to :attr:`bulk_reads`."""
+        return self.wire.expected_replies
 
     def deflection_offsets(self) -> list[int]:
         """What each stepper node's deflection differs from its elastic element's by, now
-        (counts): ``−C·Δq``, ``Δq`` the joints since the nodes' power-up in the last state
-        read (0 before any state)."""
-        counts = self.stepper_counts
-        if counts is None:
-            return [0] * N_STEPPERS
-        moved = [c - p for c, p in zip(counts, self.encoder_at_power_up, strict=True)]
-        return [-round(sum(c * d for c, d in zip(row, moved, strict=True))) for row in _ROUTES]
+        (counts; :meth:`host.arm_cycle.CycleWire.deflection_offsets`)."""
+        return self.wire.deflection_offsets()
 
     # ------------------------------------------------------------------ commands as data
 
@@ -427,93 +350,9 @@ class Arm:
                 for i, a in enumerate(angles)]
 
     def packets_for(self, commands: Iterable[Command]) -> list[InstructionPacket]:
-        """The SYNC_WRITEs that carry ``commands`` (the last command for a joint wins)."""
-        torque: dict[int, bytes] = {}
-        stepper_goal: dict[int, bytes] = {}
-        offsets: list[int] | None = None
-        stepper_speed: dict[int, bytes] = {}
-        servo: dict[int, PositionCommand] = {}
-        for c in commands:
-            j = self.joints[c.joint]
-            if isinstance(c, TorqueCommand):
-                torque[j.dxl_id] = b"\x01" if c.on else b"\x00"
-            elif j.kind == "stepper":
-                if offsets is None:
-                    offsets = self.deflection_offsets()
-                offset = max(-32768, min(32767, offsets[c.joint]))
-                stepper_goal[j.dxl_id] = (_GOAL.encode(j.rad_to_fine(c.angle))
-                                          + _OFFSET.encode(offset))
-                if c.speed is not None:
-                    counts = min(max(j.rad_to_counts(c.speed), 1), _S["velocity_limit"].maximum
-                                 or 1_000_000)
-                    stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
-            else:
-                servo[j.dxl_id] = c
-        for joint in self._watchdog_stopped & self._goals_sent:
-            j = self.joints[joint]
-            if j.dxl_id not in stepper_goal and torque.get(j.dxl_id) != b"\x00":
-                if offsets is None:
-                    offsets = self.deflection_offsets()
-                stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
-        packets = []
-        resync = self._resyncs(torque)
-        if resync:  # the command block (offsets), then the re-sync, then the torque
-            if offsets is None:
-                offsets = self.deflection_offsets()
-            for joint in resync:
-                j = self.joints[joint]
-                if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
-                    stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
-            packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
-            stepper_goal = {}
-            packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
-                {self.joints[joint].dxl_id: flags for joint, flags in resync.items()})))
-        if torque:  # torque_enable is address 24 on both models
-            packets.append(make_sync_write(_S["torque_enable"].address, 1, torque))
-        if stepper_speed:
-            packets.append(make_sync_write(_S["velocity_limit"].address, 4, stepper_speed))
-        if stepper_goal:
-            packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
-        if servo:
-            packets.append(self._servo_goals(servo))
-        return packets
-
-    def _goal_entry(self, joint: int, offsets: list[int]) -> bytes:
-        """A stepper's command block holding the goal this arm last sent it and the
-        coupling offset now."""
-        return (_GOAL.encode(round(self.stepper_goals[joint] * GOAL_FINE_PER_COUNT))
-                + _OFFSET.encode(max(-32768, min(32767, offsets[joint]))))
-
-    def _resyncs(self, torque: dict[int, bytes]) -> dict[int, StepperFlag]:
-        """The stepper joints that ``torque`` turns on after this arm turned them off and
-        whose encoder moved since (more than :data:`RESYNC_MIN_COUNTS`), or that were
-        unpowered and not alarmed when this arm opened, with the SLIP/STALLED latches they
-        had when their torque went off."""
-        counts = self.stepper_counts
-        out: dict[int, StepperFlag] = {}
-        if counts is None:
-            return out
-        for joint, (count, flags) in self._unpowered.items():
-            j = self.joints[joint]
-            moved = count is None or abs(counts[joint] - count) > RESYNC_MIN_COUNTS
-            if (torque.get(j.dxl_id) == b"\x01" and moved
-                    and j.firmware_version >= STEPPER_ROTOR_RESYNC_FIRMWARE):
-                out[joint] = flags
-        return out
-
-    def _servo_goals(self, servo: dict[int, PositionCommand]) -> InstructionPacket:
-        goal = _R["goal_position"]
-        with_speed = any(c.speed is not None for c in servo.values())
-        data: dict[int, bytes] = {}
-        for dxl_id, c in servo.items():
-            value = goal.encode(radians_to_rx64_position(c.angle))
-            if with_speed:
-                k = dxl_id - self.servos[0].dxl_id
-                if c.speed is not None:
-                    self._servo_speed[k] = rpm_to_rx64_speed(c.speed * 60 / (2 * math.pi))
-                value += _R["moving_speed"].encode(self._servo_speed[k])
-            data[dxl_id] = value
-        return make_sync_write(goal.address, 4 if with_speed else 2, data)
+        """The SYNC_WRITEs that carry ``commands`` (the last command for a joint wins;
+        :meth:`host.arm_cycle.CycleWire.packets_for`)."""
+        return self.wire.packets_for(commands)
 
     # ------------------------------------------------------------------ the cycle
 
@@ -527,21 +366,10 @@ class Arm:
         packets = [*self.packets_for(commands), self.bulk_reads[slow]]
         replies = self.bus.exchange(packets, self.expected_replies[slow])
         self.cycles += 1
-        for c in commands:  # the nodes took the goals: the state reports them
-            if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
-                self._goals_sent.add(c.joint)
-                self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
-                                               / GOAL_FINE_PER_COUNT)
+        self.wire.took_goals(commands)  # the nodes took the goals: the state reports them
         state = self.decode_state(self.bus.transport.now(), {s.id: (s.error, s.params)
                                                              for s in replies})
-        counts = self.stepper_counts or [0] * N_STEPPERS
-        for c in commands:  # which steppers are unpowered, and since where
-            if isinstance(c, TorqueCommand) and c.joint < N_STEPPERS:
-                if c.on:
-                    self._unpowered.pop(c.joint, None)
-                elif c.joint not in self._unpowered:
-                    self._unpowered[c.joint] = (counts[c.joint],
-                                                state.steppers[c.joint].flags & _LATCHES)
+        self.wire.took_torque(commands, state)  # which steppers are unpowered, since where
         if calibration is not None:
             state = calibration.state_from_node(state)
         self.last_state = state
@@ -552,7 +380,7 @@ class Arm:
     @property
     def unpowered_steppers(self) -> frozenset[int]:
         """The stepper joints (0..3) whose torque this arm turned off, or found off."""
-        return frozenset(self._unpowered)
+        return frozenset(self.wire.unpowered)
 
     def send(self, commands: Iterable[Command]) -> None:
         """Send position ``commands`` without reading anything back (no reply is waited
@@ -563,47 +391,12 @@ class Arm:
         if self.calibration is not None:
             commands = self.calibration.commands_to_node(commands)
         self.bus.exchange(self.packets_for(commands))
-        for c in commands:
-            if isinstance(c, PositionCommand) and c.joint < N_STEPPERS:
-                self.stepper_goals[c.joint] = (self.joints[c.joint].rad_to_fine(c.angle)
-                                               / GOAL_FINE_PER_COUNT)
+        self.wire.took_goals(commands, sent=False)
 
     def decode_state(self, t: float, replies: dict[int, tuple[int, bytes]]) -> ArmState:
-        """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
-        steppers = []
-        counts = [0] * N_STEPPERS
-        for i, j in enumerate(self.steppers):
-            error, data = replies[j.dxl_id]
-            position, steps, velocity, deflection, flags = _STEPPER_FIELDS.unpack_from(data)
-            counts[i] = position
-            deflection_rad = j.counts_to_rad(deflection)
-            # Where the encoder stood when the step count was 0 (the node's power-up):
-            # the motor side in encoder counts is that plus the steps' worth.
-            self.encoder_at_power_up[i] = (position + deflection
-                                           - round(steps / j.microsteps_per_count))
-            steppers.append(StepperState(
-                joint=j.joint, angle=j.counts_to_rad(position),
-                velocity=j.counts_to_rad(velocity),
-                motor_angle=j.counts_to_rad(position + deflection),
-                step_count=steps, deflection=deflection, deflection_rad=deflection_rad,
-                torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
-                errors=ErrorBit(error), goal=j.counts_to_rad(self.stepper_goals[i])))
-        servos = []
-        for k, j in enumerate(self.servos):
-            error, data = replies[j.dxl_id]
-            position, speed, load = _SERVO_FIELDS.unpack_from(data)
-            if len(data) >= SERVO_SLOW_READ_LEN:
-                self._servo_slow[k] = _SERVO_SLOW_FIELDS.unpack_from(data, SERVO_READ_LEN)
-            volts, temperature = self._servo_slow[k]
-            servos.append(ServoState(
-                joint=j.joint, angle=rx64_position_to_radians(position),
-                velocity=rx64_present_speed_to_rad_s(speed), load=rx64_load_to_fraction(load),
-                temperature=float(temperature), voltage=volts / 10, errors=ErrorBit(error)))
-        self.stepper_counts = counts
-        self._watchdog_stopped = {i for i, s in enumerate(steppers)
-                                  if s.flags & StepperFlag.WATCHDOG}
-        raw = {dxl_id: data for dxl_id, (_, data) in replies.items()}
-        return ArmState(t, tuple(steppers), tuple(servos), raw)
+        """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read
+        (the nodes' frame; :meth:`host.arm_cycle.CycleWire.decode_state`)."""
+        return self.wire.decode_state(t, replies)
 
     # ------------------------------------------------------------------ homing, Cartesian
 
@@ -613,20 +406,30 @@ class Arm:
         absolute angles; until then angles are the nodes' (from power-up)."""
         return self.calibration is not None
 
-    def home(self, **options: Any) -> JointCalibration:
-        """Find every stepper joint's index mark (:func:`host.arm_homing.home`)."""
-        from host.arm_homing import home
+    def home(self, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
+             period: float = SEARCH_PERIOD_S,
+             tolerance: float = SEARCH_TOLERANCE_RAD) -> JointCalibration:
+        """Find every stepper joint's index mark and fix the joints' absolute angles:
+        ``speed`` (rad/s) and ``step`` (rad) shape the search, ``period`` (s) is its polling
+        cycle, ``tolerance`` (rad) when a search target counts as reached
+        (:func:`host.arm_homing.home`, which raises :class:`~host.errors.HomingError`)."""
+        return arm_homing.home(self, speed=speed, step=step, period=period,
+                               tolerance=tolerance)
 
-        return home(self, **options)
-
-    def moveto(self, xyz: Sequence[float], rpy: Sequence[float] | None = None,
-               **options: Any) -> CartesianMove:
+    def moveto(self, xyz: Vector, rpy: Vector | None = None, *,
+               speed: float = MOVETO_SPEED_RAD_S, tolerance_m: float = MOVETO_TOLERANCE_M,
+               settle_timeout: float = MOVETO_SETTLE_S,
+               controller: JointController | None = None, allow_unhomed: bool = False,
+               hand: bool = True, log: TrackingLog | None = None) -> CartesianMove:
         """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given:
-        IK, then an interpolated, feed-forward-compensated joint move
-        (:func:`host.arm_control.moveto`); the result carries the joint goals."""
-        from host.arm_control import moveto
-
-        return moveto(self, xyz, rpy, **options)
+        IK, then an interpolated, feed-forward-compensated joint move at ``speed`` (rad/s,
+        fastest joint) until the flange is within ``tolerance_m`` (m) and the arm at rest,
+        or ``settle_timeout`` (s) passed (:func:`host.arm_cartesian.moveto`: ``controller``,
+        ``allow_unhomed``, ``hand`` on the flange, ``log``); the result carries the joint
+        goals."""
+        return arm_cartesian.moveto(self, xyz, rpy, speed=speed, tolerance_m=tolerance_m,
+                                    settle_timeout=settle_timeout, controller=controller,
+                                    allow_unhomed=allow_unhomed, hand=hand, log=log)
 
     # ------------------------------------------------------------------ conveniences
 
@@ -752,109 +555,18 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
-def open_arm_transport(url: str) -> Transport:
-    """Open the arm bus's transport: a serial path at 1 Mbaud unless ``?baud=N``, or any
-    transport URL."""
-    options: dict[str, Any] = {}
-    if url_scheme(url) == "serial" and "baud" not in url_options(url) and "?" not in url:
-        options["baud"] = ARM_BUS_BAUD
-    return open_transport(url, **options)
-
-
-def open_bus(url: str, *, latency_s: float | None = None, retries: int = 2) -> DynamixelBus:
-    """The arm's Dynamixel bus on ``url`` (:func:`open_arm_transport`) without discovering
-    the joints (to scan it, or reach a node at an unexpected ID); close its transport."""
-    transport = open_arm_transport(url)
-    return DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD), retries=retries,
-                        latency_s=latency_s)
-
-
-def resync_clears(flags: dict[int, StepperFlag]) -> dict[int, bytes]:
-    """The ``clear_flags`` values re-syncing the rotors of these stepper nodes (bus ID ->
-    the SLIP/STALLED latches each had when its torque went off): RESYNC_ROTOR, and clear the
-    latches that came while unpowered (they measured a rotor the step count could not
-    follow); latches from before stay for the host to see."""
-    reg = _S["clear_flags"]
-    out = {}
-    for dxl_id, before in flags.items():
-        bits = StepperClear.RESYNC_ROTOR
-        if not before & StepperFlag.SLIP:
-            bits |= StepperClear.SLIP
-        if not before & StepperFlag.STALLED:
-            bits |= StepperClear.STALL
-        out[dxl_id] = reg.encode(int(bits))
-    return out
-
-
-def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str | None:
-    """Which joint of ``state`` is not yet at its goal (``goals``, rad) within ``tolerance``
-    (rad): a stepper whose motor is further or still moving, a servo whose joint is
-    further; None when every joint is there."""
-    for s in state.steppers:
-        if s.moving:
-            return f"{JOINT_NAMES[s.joint]}'s motor is still on its way"
-        if abs(s.motor_angle - goals[s.joint]) > tolerance:
-            return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
-                    "rad off its goal")
-    for v in state.servos:
-        if abs(v.angle - goals[v.joint]) > tolerance:
-            return f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal"
-    return None
-
-
-def settled(state: ArmState, goals: Sequence[float], tolerance: float,
-            settle_speed: float = math.inf) -> bool:
-    """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
-    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
-    is within ``tolerance`` of its goal."""
-    for s in state.steppers:
-        if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
-                or abs(s.velocity) > settle_speed):
-            return False
-    return all(abs(s.angle - goals[s.joint]) <= tolerance for s in state.servos)
-
-
-def discover(bus: DynamixelBus,
-             stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD) -> list[JointInfo]:
-    """Ping the seven joints and read what each node is: model, firmware and, for a stepper
-    node, its reduction, steps per rev, microstepping and encoder resolution.
-
-    Raises :class:`~host.errors.ReplyTimeout` naming a joint that does not answer and
-    :class:`~host.errors.NodeError` for a node of the wrong model."""
-    joints = []
-    for joint, dxl_id in enumerate(JOINT_IDS):
-        want = STEPPER_TABLE if joint < N_STEPPERS else RX64_TABLE
-        try:
-            bus.ping(dxl_id)
-        except ReplyTimeout as exc:
-            raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
-                               f"; a scan lists the IDs that do (armctl scan)") from exc
-        head = bus.read(dxl_id, 0, 3)
-        model, firmware = int.from_bytes(head[:2], "little"), head[2]
-        table = TABLES_BY_MODEL.get(model)
-        if table is not want:
-            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) is model {model} "
-                            f"({table.name if table else 'unknown'}), the arm has "
-                            f"{want.name} there; check the node's ID")
-        if table is STEPPER_TABLE and firmware < STEPPER_CYCLE_BLOCK_FIRMWARE:
-            raise NodeError(f"bus ID {dxl_id} ({JOINT_NAMES[joint]}) runs stepper firmware "
-                            f"{firmware}, without the cycle block (from version "
-                            f"{STEPPER_CYCLE_BLOCK_FIRMWARE}); update the node")
-        if table is RX64_TABLE:
-            joints.append(JointInfo(joint, dxl_id, "servo", model, firmware))
-            continue
-        at = _S["gear_reduction_x100"].address
-        end = _S["encoder_resolution"].end
-        eeprom = bus.read(dxl_id, at, end - at)
-
-        def value(name: str, eeprom: bytes = eeprom, at: int = at) -> int:
-            reg = _S[name]
-            return reg.decode(eeprom[reg.address - at : reg.end - at])
-
-        joints.append(JointInfo(
-            joint, dxl_id, "stepper", model, firmware,
-            reduction=value("gear_reduction_x100") / 100,
-            steps_per_rev=value("steps_per_rev"), microstepping=value("microstepping"),
-            encoder_counts_per_rev=value("encoder_resolution"),
-            stiffness=float(stiffness[joint])))
-    return joints
+#: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
+#: in) the free functions and types its users import from here.
+__all__ = [
+    "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS", "MOVE_MIN_SPEED",
+    "RESYNC_MIN_COUNTS", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
+    "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
+    # moved out, importable here as before
+    "discover", "open_arm_transport", "open_bus", "off_goal", "settled",
+    "CartesianMove", "Held", "JointCalibration", "JointController", "TrackingLog",
+    "ARM_BUS_BAUD", "DEFAULT_STIFFNESS_NM_PER_RAD", "HOLD_TOLERANCE_RAD", "JOINT_IDS",
+    "JOINT_NAMES", "N_JOINTS", "N_STEPPERS", "ArmState", "Command", "JointInfo",
+    "PositionCommand", "ServoState", "StepperState", "TorqueCommand",
+    # other host modules' names this module once imported, kept for programs that used them
+    "NodeError", "ReplyTimeout", "open_transport", "url_options", "url_scheme",
+]

@@ -1,7 +1,7 @@
 """The one gate every arm motion passes before anything moves.
 
-:meth:`host.arm.Arm.move`, the joint controller's paths (:meth:`host.arm_control.JointController.run`:
-:func:`~host.arm_control.moveto`, :func:`~host.arm_control.play_waypoints`, the demo's
+:meth:`host.arm.Arm.move`, the joint controller's paths (:meth:`host.arm_joint_loop.JointController.run`:
+:func:`~host.arm_cartesian.moveto`, :func:`~host.arm_waypoints.play_waypoints`, the demo's
 joint paths) and ``armctl`` all check here, and a refusal is a
 :class:`~host.errors.LimitError` (a :class:`~host.errors.UsageError`: ``armctl`` exits 2)
 naming the joint, raised before a single goal is sent:
@@ -26,7 +26,7 @@ naming the joint, raised before a single goal is sent:
   joint whose torque is off waits in its node, and the joint jumps there when the torque
   comes on; a joint its node turned off after an alarm is named with its latch;
 * **Cartesian targets** finite, orientations within ±2π (:func:`check_cartesian`); reach is
-  the IK's to judge (:func:`host.arm_control.choose_ik`), but a target further than
+  the IK's to judge (:func:`host.arm_cartesian.choose_ik`), but a target further than
   :data:`REACH_M` from the base is refused at once.
 """
 
@@ -34,10 +34,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Final
+from typing import Final
 
 import numpy as np
 
+from host.arm_interface import ArmReader
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState
 from host.errors import LimitError
 from protocol.control_tables import StepperFlag
@@ -50,9 +51,6 @@ from protocol.robot import (
     ARM_JOINT_SPEED_LIMITS,
     RX64_RAD_PER_UNIT,
 )
-
-if TYPE_CHECKING:
-    from host.arm import Arm
 
 #: A goal this close (rad) to where its joint is passes the range check.
 HOLD_TOLERANCE_RAD: Final = 0.02
@@ -258,7 +256,7 @@ def describe_latches(found: dict[str, tuple[str, ...]]) -> str:
     return "; ".join(parts)
 
 
-def require_torque(arm: Arm, joints: Sequence[int] = range(N_JOINTS), what: str = "moving"
+def require_torque(arm: ArmReader, joints: Sequence[int] = range(N_JOINTS), what: str = "moving"
                    ) -> None:
     """Refuse ``what`` while the torque of one of ``joints`` (0..6) is off, naming the joints
     and, for one its node turned off, the latch."""

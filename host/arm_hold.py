@@ -29,16 +29,14 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final
+from typing import Final
 
 from host.arm_gate import describe_latches, latches
+from host.arm_interface import CyclingArm
 from host.arm_rest import RestWatch
 from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
 from host.errors import JointAlarmError, NodeError, ReplyTimeout
 from protocol.control_tables import StepperFlag
-
-if TYPE_CHECKING:
-    from host.arm import Arm
 
 #: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
 ALARM_SETTLE_S: Final = 3.0
@@ -71,7 +69,7 @@ class Held:
         return text
 
 
-def hold(arm: Arm, settle_s: float = 0.0, period: float = 0.01) -> Held:
+def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     """:func:`hold_once`, tried up to :data:`HOLD_ATTEMPTS` times: an interrupted program's
     last exchange may still be answering (its replies, late, do not fit the hold's reads),
     so what is on the line is let through and dropped before each attempt."""
@@ -99,7 +97,7 @@ def hold_goals(state: ArmState) -> dict[int, float]:
     return goals
 
 
-def drain(arm: Arm) -> None:
+def drain(arm: CyclingArm) -> None:
     """Drop what the bus still carries: replies to an exchange cut short, arriving until
     nothing more comes for the link's latency (at least 2 ms)."""
     transport = arm.transport
@@ -108,7 +106,7 @@ def drain(arm: Arm) -> None:
         pass
 
 
-def hold_once(arm: Arm, settle_s: float = 0.0, period: float = 0.01,
+def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
               goals: dict[int, float] | None = None) -> Held:
     """Hold every joint whose torque is on where it is (see the module docs).  With
     ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
@@ -148,7 +146,7 @@ def new_latches(state: ArmState, before: Mapping[str, tuple[str, ...]]
     return {k: v for k, v in latches(state).items() if not set(v) <= set(before.get(k, ()))}
 
 
-def stop_for_alarms(arm: Arm, state: ArmState, before: Mapping[str, tuple[str, ...]],
+def stop_for_alarms(arm: CyclingArm, state: ArmState, before: Mapping[str, tuple[str, ...]],
                     what: str = "the move", ignore: Collection[str] = ()) -> None:
     """If ``state`` shows a latch or alarm that ``before`` did not (on a joint not in
     ``ignore``), hold the arm where it is and raise :class:`~host.errors.JointAlarmError`

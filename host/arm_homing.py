@@ -15,7 +15,7 @@ absolute angle = node angle + offset) is ``index angle − index_encoder_count``
 latched step count is the motor's position at the mark (``index_step_count``), recorded for
 force-sensing calibration.  The RX-64 servos measure absolute angles already: offset 0.
 
-:class:`JointCalibration` turns states and commands between the nodes' frame and the
+:class:`~host.arm_state.JointCalibration` (the result) turns states and commands between the nodes' frame and the
 absolute (kinematic) frame; :class:`~host.arm.Arm` applies it in every cycle once homed.
 Because the latches live in the nodes, a new host process can pick a calibration up again
 without moving the arm (:func:`restore`), as long as the nodes have not been power-cycled or
@@ -24,26 +24,22 @@ re-armed since.
 
 from __future__ import annotations
 
-import dataclasses
 import struct
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Final
+from collections.abc import Sequence
+from typing import Final
 
+from host.arm_interface import DrivenArm
 from host.arm_state import (
     JOINT_NAMES,
     N_JOINTS,
     N_STEPPERS,
     ArmState,
     Command,
-    PositionCommand,
+    JointCalibration,
 )
 from host.errors import HomingError, UsageError
 from protocol.control_tables import STEPPER_TABLE, StepperClear, StepperFlag
 from protocol.robot import ARM_INDEX_ANGLES, ARM_JOINT_LIMITS
-
-if TYPE_CHECKING:
-    from host.arm import Arm
 
 _S = STEPPER_TABLE
 #: The index latch registers read after homing: index_step_count, index_encoder_count.
@@ -53,52 +49,15 @@ assert _S["index_encoder_count"].address == _LATCH_AT + 4
 #: Default search speed (rad/s at the joint) and search step (rad).
 SEARCH_SPEED_RAD_S: Final = 0.15
 SEARCH_STEP_RAD: Final = 0.12
+#: The search's polling cycle (s), and how near (rad) its node must stop a motor to a search
+#: target for it to count as reached.
+SEARCH_PERIOD_S: Final = 0.01
+SEARCH_TOLERANCE_RAD: Final = 0.01
 #: The stepper node's default velocity limit (counts/s), restored after the search.
 DEFAULT_VELOCITY_COUNTS: Final = int(_S["velocity_limit"].default)
 
 
-@dataclass(frozen=True)
-class JointCalibration:
-    """The arm's joint frames after homing.
-
-    ``offsets`` (rad, 7): absolute joint angle = the node's angle + offset (0 for the
-    servos); ``index_encoder_counts`` and ``index_step_counts`` (4): the stepper nodes'
-    latches (joint encoder counts, microsteps)."""
-
-    offsets: tuple[float, ...]
-    index_encoder_counts: tuple[int, ...]
-    index_step_counts: tuple[int, ...]
-
-    def to_node(self, angles: Sequence[float]) -> list[float]:
-        """Absolute joint angles (rad, 7) → the nodes' frame."""
-        return [a - o for a, o in zip(angles, self.offsets, strict=True)]
-
-    def from_node(self, angles: Sequence[float]) -> list[float]:
-        """The nodes' joint angles (rad, 7) → absolute."""
-        return [a + o for a, o in zip(angles, self.offsets, strict=True)]
-
-    def commands_to_node(self, commands: Iterable[Command]) -> list[Command]:
-        """Position commands with absolute angles → the nodes' frame (others unchanged)."""
-        out: list[Command] = []
-        for c in commands:
-            if isinstance(c, PositionCommand) and self.offsets[c.joint]:
-                c = dataclasses.replace(c, angle=c.angle - self.offsets[c.joint])
-            out.append(c)
-        return out
-
-    def state_from_node(self, state: ArmState) -> ArmState:
-        """A state read in the nodes' frame, in absolute angles (joint, motor and goal angles
-        shifted alike, so deflections and torques are unchanged)."""
-        steppers = tuple(dataclasses.replace(
-            s, angle=s.angle + self.offsets[s.joint],
-            motor_angle=s.motor_angle + self.offsets[s.joint],
-            goal=s.goal + self.offsets[s.joint]) for s in state.steppers)
-        servos = tuple(dataclasses.replace(s, angle=s.angle + self.offsets[s.joint])
-                       if self.offsets[s.joint] else s for s in state.servos)
-        return dataclasses.replace(state, steppers=steppers, servos=servos)
-
-
-def calibration_from_latches(arm: Arm, encoder_counts: Sequence[int],
+def calibration_from_latches(arm: DrivenArm, encoder_counts: Sequence[int],
                              step_counts: Sequence[int]) -> JointCalibration:
     """The calibration for the stepper nodes' latched index counts."""
     offsets = [ARM_INDEX_ANGLES[i] - j.counts_to_rad(encoder_counts[i])
@@ -108,7 +67,7 @@ def calibration_from_latches(arm: Arm, encoder_counts: Sequence[int],
                             tuple(int(c) for c in step_counts))
 
 
-def read_latches(arm: Arm) -> tuple[list[bool], list[int], list[int]]:
+def read_latches(arm: DrivenArm) -> tuple[list[bool], list[int], list[int]]:
     """Each stepper node's index latch: seen, encoder count, step count."""
     state = arm.cycle()
     seen = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
@@ -120,7 +79,7 @@ def read_latches(arm: Arm) -> tuple[list[bool], list[int], list[int]]:
     return seen, encoder, steps
 
 
-def restore(arm: Arm) -> bool:
+def restore(arm: DrivenArm) -> bool:
     """Take the calibration from the nodes' index latches if every stepper has one (a
     previous :func:`home`, or the index crossed since power-up); True if the arm is homed."""
     if arm.calibration is not None:
@@ -154,7 +113,7 @@ def search_time(plans: Sequence[Sequence[float]], speed: float) -> float:
     return 2 * longest / speed + 5.0
 
 
-def _check_search(arm: Arm, state: ArmState, found: Sequence[bool], start: Sequence[float],
+def _check_search(arm: DrivenArm, state: ArmState, found: Sequence[bool], start: Sequence[float],
                   speed: float, late: bool) -> None:
     """Raise :class:`~host.errors.HomingError` for a joint still searching that its node
     stopped (a latched STALLED, held where it stopped, or a hardware error) or, once ``late``, that
@@ -182,8 +141,9 @@ def _check_search(arm: Arm, state: ArmState, found: Sequence[bool], start: Seque
         "freely (armctl status) and home again", joint=names[0])
 
 
-def home(arm: Arm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
-         period: float = 0.01, tolerance: float = 0.01) -> JointCalibration:
+def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEARCH_STEP_RAD,
+         period: float = SEARCH_PERIOD_S,
+         tolerance: float = SEARCH_TOLERANCE_RAD) -> JointCalibration:
     """Home the arm (see the module docs); returns the calibration, also set on ``arm``.
 
     ``speed`` (rad/s) and ``step`` (rad) shape the search; ``period`` (s) is the polling

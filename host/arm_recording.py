@@ -27,12 +27,13 @@ import math
 from pathlib import Path
 from typing import Any, Final
 
-from host.arm import Arm
+from host.arm_interface import WatchedArm
 from host.arm_state import ArmState
 from host.recording import JSON_ENCODING, Recording, Sink, Topic
+from host.topics import ARM_STATE
 
 RAW_ENCODING: Final = "application/octet-stream"
-STATE_TOPIC: Final = "/arm/state"
+STATE_TOPIC: Final = ARM_STATE
 TX_TOPIC: Final = "/arm/bus/tx"
 RX_TOPIC: Final = "/arm/bus/rx"
 
@@ -89,7 +90,7 @@ class ArmRecorder(Recording):
     finishes the file).  :class:`~host.errors.RecordingError` if ``path`` cannot be
     created."""
 
-    def __init__(self, arm: Arm, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
+    def __init__(self, arm: WatchedArm, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm_recording",
                          sinks=sinks)
@@ -125,7 +126,7 @@ class ArmRecorder(Recording):
         self.close()
 
 
-def record(arm: Arm, path: str | Path, *, seconds: float, rate_hz: float = 100.0) -> int:
+def record(arm: WatchedArm, path: str | Path, *, seconds: float, rate_hz: float = 100.0) -> int:
     """Cycle ``arm`` at ``rate_hz`` for ``seconds`` (its transport's clock), writing raw
     bytes and states to the MCAP file ``path``; returns the number of cycles.
     :class:`~host.errors.RecordingError` stops it when the file cannot be written (what was

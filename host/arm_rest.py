@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from typing import Final
 
 from host.arm_state import JOINT_NAMES, ArmState
@@ -78,3 +79,31 @@ class RestWatch:
                 return (f"{JOINT_NAMES[servo.joint]} moved {max(angles) - min(angles):.4f} "
                         f"rad in the last {span:.2f} s")
         return None
+
+
+def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str | None:
+    """Which joint of ``state`` is not yet at its goal (``goals``, rad) within ``tolerance``
+    (rad): a stepper whose motor is further or still moving, a servo whose joint is
+    further; None when every joint is there."""
+    for s in state.steppers:
+        if s.moving:
+            return f"{JOINT_NAMES[s.joint]}'s motor is still on its way"
+        if abs(s.motor_angle - goals[s.joint]) > tolerance:
+            return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
+                    "rad off its goal")
+    for v in state.servos:
+        if abs(v.angle - goals[v.joint]) > tolerance:
+            return f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal"
+    return None
+
+
+def settled(state: ArmState, goals: Sequence[float], tolerance: float,
+            settle_speed: float = math.inf) -> bool:
+    """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
+    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
+    is within ``tolerance`` of its goal."""
+    for s in state.steppers:
+        if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
+                or abs(s.velocity) > settle_speed):
+            return False
+    return all(abs(s.angle - goals[s.joint]) <= tolerance for s in state.servos)

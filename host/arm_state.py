@@ -21,7 +21,9 @@ joint's stiffness is the series-elastic torque (N·m).
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Final, Literal
 
@@ -245,3 +247,44 @@ class ArmState:
             "servo_temperature_c": [s.temperature for s in self.servos],
             "errors": self.errors,
         }
+
+
+@dataclass(frozen=True)
+class JointCalibration:
+    """The arm's joint frames after homing.
+
+    ``offsets`` (rad, 7): absolute joint angle = the node's angle + offset (0 for the
+    servos); ``index_encoder_counts`` and ``index_step_counts`` (4): the stepper nodes'
+    latches (joint encoder counts, microsteps)."""
+
+    offsets: tuple[float, ...]
+    index_encoder_counts: tuple[int, ...]
+    index_step_counts: tuple[int, ...]
+
+    def to_node(self, angles: Sequence[float]) -> list[float]:
+        """Absolute joint angles (rad, 7) → the nodes' frame."""
+        return [a - o for a, o in zip(angles, self.offsets, strict=True)]
+
+    def from_node(self, angles: Sequence[float]) -> list[float]:
+        """The nodes' joint angles (rad, 7) → absolute."""
+        return [a + o for a, o in zip(angles, self.offsets, strict=True)]
+
+    def commands_to_node(self, commands: Iterable[Command]) -> list[Command]:
+        """Position commands with absolute angles → the nodes' frame (others unchanged)."""
+        out: list[Command] = []
+        for c in commands:
+            if isinstance(c, PositionCommand) and self.offsets[c.joint]:
+                c = dataclasses.replace(c, angle=c.angle - self.offsets[c.joint])
+            out.append(c)
+        return out
+
+    def state_from_node(self, state: ArmState) -> ArmState:
+        """A state read in the nodes' frame, in absolute angles (joint, motor and goal angles
+        shifted alike, so deflections and torques are unchanged)."""
+        steppers = tuple(dataclasses.replace(
+            s, angle=s.angle + self.offsets[s.joint],
+            motor_angle=s.motor_angle + self.offsets[s.joint],
+            goal=s.goal + self.offsets[s.joint]) for s in state.steppers)
+        servos = tuple(dataclasses.replace(s, angle=s.angle + self.offsets[s.joint])
+                       if self.offsets[s.joint] else s for s in state.servos)
+        return dataclasses.replace(state, steppers=steppers, servos=servos)

@@ -18,28 +18,40 @@ targets pass the hand's :class:`~host.joint_limits.JointLimits` (clamp or refuse
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Final
 
+from host import grasp as grasping
+from host import hand_bring_up, hand_homing
 from host.code_names import code_name
 from host.errors import HostError, NotHomedError, UsageError, why_no_answer
 from host.finger_params import FingerParams
-from host.hand_bring_up import BOOT_TIMEOUT_S, FingerUp, bring_up
+from host.grasp import GRASP_TIMEOUT_S
+from host.grasp_synergies import BLEND_PERIOD_S, DEFAULT_SPEED_RAD_S
+from host.hand_bring_up import BOOT_TIMEOUT_S, bring_up
+from host.hand_finger import FALLBACK_DEADBAND_HALL, FULL_EFFORT, Finger
+from host.hand_homing import DEFAULT_SAMPLES, HomeResult
+from host.hand_node import Node
 from host.hand_session import LINK_NODE, FingerEvent, HandSession, PendingReply, Target, Timeouts
-from host.hand_state import FingerState, HandState, NodeInfo
+from host.hand_state import (
+    FingerCommand,
+    FingerState,
+    FingerUp,
+    GraspResult,
+    HandState,
+    MoveResult,
+    NodeInfo,
+)
+from host.inertial_closed_form import DEFAULT_MIN_AXIS_TILT_RAD
 from host.joint_limits import JOINTS_PER_FINGER, JointLimits
 from host.transport import Transport, open_transport
 from host.view import RobotView, ViewSpec, open_view
-from protocol.messages import CATALOGUE_HASH
-from protocol.messages.common import Running
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import ALL_FINGERS, FingerPower
-from protocol.robot import DEFAULT_HAND_LAYOUT
-from protocol.topology import FINGERS, HOP_NODE, Hop
+from protocol.robot import DEFAULT_HAND_LAYOUT, HandLayout
+from protocol.topology import FINGERS
 
-#: Full effort (1/255 of full PWM).
-FULL_EFFORT: Final = 255
 #: Default stagger between fingers when all are switched (ms).
 POWER_STAGGER_MS: Final = 5
 #: Longest further wait (s), after ``(FINGERS - 1) × stagger``, for the palm to report
@@ -52,184 +64,8 @@ STALL_COUNTS: Final = 3
 STALL_S: Final = 0.2
 #: Highest rate the palm polls fingers at (Hz).
 MAX_POLL_HZ: Final = 200
-#: The fmcb's position deadband (hall counts) assumed when its ``deadband`` parameter cannot
-#: be read (a firmware without it): the firmware's default (``firmware_py.fmcb_params``).
-FALLBACK_DEADBAND_HALL: Final = 50
 #: A motor within its fmcb's deadband plus this many hall counts of its target has settled.
 SETTLE_MARGIN_HALL: Final = 15
-
-
-class Node:
-    """One board the host can talk to: the palm, or a finger's fmcb / f2 / f3."""
-
-    def __init__(self, session: HandSession, target: Target, where: str) -> None:
-        self.session = session
-        self.target = target
-        self.where = where
-
-    def request(self, name: str, fields: dict[str, Any] | None = None,
-                **options: Any) -> dict[str, Any]:
-        """Request ``name`` of this node (see :meth:`HandSession.request` for options)."""
-        return self.session.request(name, fields, to=self.target, **options)
-
-    def start(self, name: str, fields: dict[str, Any] | None = None,
-              **options: Any) -> PendingReply:
-        """Send request ``name`` to this node without waiting (:meth:`HandSession.wait`)."""
-        return self.session.start(name, fields, to=self.target, **options)
-
-    def ping(self) -> None:
-        """Ask the node to answer (raises if it does not)."""
-        self.request("ping")
-
-    def identify(self) -> NodeInfo:
-        """Who answers here: running program, board, versions (:class:`NodeInfo`)."""
-        return self._info(self.request("identify"))
-
-    def _info(self, reply: dict[str, Any]) -> NodeInfo:
-        v = reply["fw_version"]
-        return NodeInfo(
-            where=self.where, finger=self.target.finger,
-            hop=None if self.where == "palm" else self.target.hop, answered=True,
-            running=code_name(Running, reply["running"], "running"), board=reply["board"],
-            address=reply["address"], fw_version=f"{v['major']}.{v['minor']}.{v['patch']}",
-            hw_version=reply["hw_version"], uid=reply["uid"],
-            catalogue_matches=bytes(reply["catalogue"]) == CATALOGUE_HASH)
-
-    def __repr__(self) -> str:
-        return f"Node({self.where})"
-
-
-@dataclass(frozen=True)
-class FingerCommand:
-    """An ``fmcb.control`` request for finger ``finger`` as data: ``mode`` and ``args``."""
-
-    finger: int
-    mode: int
-    args: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def fields(self) -> dict[str, Any]:
-        """The ``fmcb.control`` request fields."""
-        return {"mode": self.mode, "args": self.args}
-
-
-@dataclass
-class MoveResult:
-    """How a move ended: ``settled`` when every finger's motors are within the deadband
-    tolerance of their targets; ``stalled`` fingers stopped short (blocked, effort too
-    low); ``errors`` joint errors (rad, target − actual) per finger moved.  ``robot_rate``
-    is how fast the robot's clock (the fmcbs' status timestamps) ran against the link's
-    while waiting: 1.0 on hardware and in process, less for an emulator a busy machine
-    slows below real time (then ``elapsed_s`` on the wall meant less robot time); None
-    when unknown."""
-
-    settled: bool
-    stalled: list[int]
-    errors: dict[int, tuple[float, float, float]]
-    states: dict[int, FingerState]
-    elapsed_s: float
-    robot_rate: float | None = None
-
-
-class Finger:
-    """Finger ``index``: its fmcb (``motor``), proximal (f2) and distal (f3) boards."""
-
-    def __init__(self, hand: Hand, index: int) -> None:
-        self.hand = hand
-        self.index = index
-        session = hand.session
-        nodes = [Node(session, Target(index, hop), f"finger {index} {HOP_NODE[hop]}")
-                 for hop in Hop]
-        self.motor, self.proximal, self.distal = nodes
-        self.params = FingerParams(self.motor.request)
-        #: The fmcb holds homing offsets (set here, or found on it); moves need it.
-        self.homed = False
-
-    def deadband(self) -> int:
-        """The fmcb's position deadband (hall counts): its ``deadband`` parameter, read at
-        first use and kept; :data:`FALLBACK_DEADBAND_HALL` while the board cannot tell."""
-        try:
-            return int(self.params.cached("deadband"))
-        except HostError:
-            return FALLBACK_DEADBAND_HALL
-
-    @property
-    def nodes(self) -> list[Node]:
-        """fmcb, f2, f3."""
-        return [self.motor, self.proximal, self.distal]
-
-    def power(self, state: int | str) -> list[str]:
-        """Switch this finger's power (``"off"``, ``"low"``, ``"full"``); every finger's
-        power state after."""
-        return self.hand.power(self.index, state)
-
-    def status(self) -> FingerState:
-        """The fmcb's status now (joints, tactile, currents)."""
-        state = FingerState(self.index)
-        state.update_from_status(self.motor.request("fmcb.status"))
-        return state
-
-    def make_command(self, joints: Sequence[float] | None = None, *,
-                     effort: Sequence[int] | int | None = None, relative: bool = False,
-                     hall: Sequence[int] | None = None, idle: bool = False) -> FingerCommand:
-        """A control command as data: joint targets (rad; ``relative``: deltas) with an
-        optional per-joint effort cap (1/255 of full PWM), motor targets ``hall`` (hall
-        counts), or ``idle`` (motors off).  Absolute targets pass the joint limits."""
-        if idle:
-            return FingerCommand(self.index, ControlMode.IDLE, {})
-        if hall is not None:
-            if len(hall) != JOINTS_PER_FINGER:
-                raise UsageError(f"a finger takes {JOINTS_PER_FINGER} motor targets")
-            return FingerCommand(self.index, ControlMode.MOTOR,
-                                 {"hall_target": [int(h) for h in hall]})
-        if joints is None:
-            raise UsageError("give joint targets, motor targets or idle")
-        if relative:
-            target = [float(q) for q in joints]
-            if len(target) != JOINTS_PER_FINGER:
-                raise UsageError(f"a finger takes {JOINTS_PER_FINGER} joint deltas")
-        else:
-            target = list(self.hand.limits.apply(self.index, joints))
-        if effort is None and not relative:
-            return FingerCommand(self.index, ControlMode.JOINT, {"target": target})
-        caps = _efforts(FULL_EFFORT if effort is None else effort)
-        mode = ControlMode.RELATIVE if relative else ControlMode.JOINT_EFFORT
-        return FingerCommand(self.index, mode, {"target": target, "max_effort": caps})
-
-    def command(self, joints: Sequence[float] | None = None, *, unhomed: bool = False,
-                **options: Any) -> None:
-        """Send :meth:`make_command` (same arguments) now, without waiting to settle."""
-        self.hand.send([self.make_command(joints, **options)], unhomed=unhomed)
-
-    def idle(self) -> None:
-        """Motors off (control mode idle)."""
-        self.command(idle=True)
-
-    def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
-             timeout: float = 3.0, unhomed: bool = False) -> MoveResult:
-        """Command joint targets (rad) and wait until the finger settles or ``timeout`` s."""
-        return self.hand.move_fingers({self.index: joints}, effort=effort, timeout=timeout,
-                                      unhomed=unhomed)
-
-    def set_home(self, offsets: Sequence[int] | None = None) -> None:
-        """Make the current pose (or motor ``offsets``, raw hall counts) the zero."""
-        if offsets is None:
-            offsets = self.motor.request("fmcb.hall_counts", {"raw": 1})["counts"]
-        self.motor.request("fmcb.set_home", {"offset": [int(v) for v in offsets]})
-        self.homed = True
-
-    def __repr__(self) -> str:
-        return f"Finger({self.index})"
-
-
-def _efforts(effort: Sequence[int] | int) -> list[int]:
-    caps = [int(effort)] * JOINTS_PER_FINGER if isinstance(effort, int) else [
-        int(e) for e in effort]
-    if len(caps) != JOINTS_PER_FINGER or not all(0 <= e <= FULL_EFFORT for e in caps):
-        shown = effort if isinstance(effort, int) else caps  # plain ints, never reprs
-        raise UsageError(f"efforts are {JOINTS_PER_FINGER} values in 0..{FULL_EFFORT} "
-                         f"(1/255 of full PWM), got {shown}")
-    return caps
 
 
 @dataclass
@@ -448,10 +284,10 @@ class Hand:
                  on_progress: Callable[[str], None] | None = None) -> list[FingerUp]:
         """Power ``fingers`` full, wait for each fmcb to boot, power its phalanges, wait for
         f2 and f3, switch the fmcb's autopoll on (about 10 s on the link's clock): see
-        :func:`host.hand_bring_up.bring_up`.  One :class:`~host.hand_bring_up.FingerUp`
+        :func:`host.hand_bring_up.bring_up`.  One :class:`~host.hand_state.FingerUp`
         per finger, saying what came up and, for what did not, why.  ``timeout`` (s)
         bounds each board's boot after its power is switched on."""
-        return bring_up(self, fingers, timeout, on_progress)
+        return hand_bring_up.bring_up(self, fingers, timeout, on_progress)
 
     # --- state -------------------------------------------------------------------------------
     def finger_states(self, fingers: Sequence[int]) -> dict[int, FingerState]:
@@ -556,7 +392,7 @@ class Hand:
         Motion for a finger not homed is refused (:class:`NotHomedError`) unless
         ``unhomed``."""
         if not unhomed:
-            self._require_homed([c.finger for c in commands if c.mode != ControlMode.IDLE])
+            self.require_homed([c.finger for c in commands if c.mode != ControlMode.IDLE])
         pending = [self.fingers[c.finger].motor.start("fmcb.control", c.fields)
                    for c in commands]
         errors = []
@@ -583,29 +419,40 @@ class Hand:
                   unhomed=unhomed)
         return self.wait_settled(list(targets), timeout)
 
-    def grasp(self, name: str, amount: float = 1.0, **options: Any) -> Any:
-        """Blend towards grasp or pose ``name`` at ``amount`` (0..1): see
-        :func:`host.grasp.grasp` (options ``speed`` rad/s, ``fingers``, ``until_contact``,
-        ``effort``, ``timeout``, ``squeeze_rad``, ``unhomed``, ``on_states``); returns its :class:`~host.grasp.GraspResult`."""
-        from host.grasp import grasp
-
-        return grasp(self, name, amount, **options)
+    def grasp(self, name: str, amount: float = 1.0, *, speed: float = DEFAULT_SPEED_RAD_S,
+              fingers: Sequence[int] | None = None, until_contact: bool = False,
+              effort: Sequence[int] | int | None = None, timeout: float = GRASP_TIMEOUT_S,
+              squeeze_rad: float = 0.0, unhomed: bool = False,
+              layout: str | HandLayout | None = None, period: float = BLEND_PERIOD_S,
+              on_states: Callable[[float, Mapping[int, FingerState]], None] | None = None
+              ) -> GraspResult:
+        """Blend ``fingers`` (default: all four) towards grasp or pose ``name`` at ``amount``
+        (0..1) at ``speed`` rad/s, every ``period`` s, stopping a finger at contact with
+        ``until_contact``, then wait up to ``timeout`` s for them to settle and squeeze by
+        ``squeeze_rad`` (rad of J1) with ``effort`` (1/255 of full PWM); ``layout`` other
+        than the hand's, ``unhomed`` fingers allowed, ``on_states`` told every status read:
+        see :func:`host.grasp.grasp`."""
+        return grasping.grasp(self, name, amount, speed=speed, fingers=fingers,
+                              until_contact=until_contact, effort=effort, timeout=timeout,
+                              squeeze_rad=squeeze_rad, unhomed=unhomed, layout=layout,
+                              period=period, on_states=on_states)
 
     # --- homing (host.hand_homing) ---------------------------------------------------------
-    def home(self, finger: int | None = None, **options: Any) -> list[Any]:
-        """Home ``finger`` (or every finger) from its accelerometers: see
-        :func:`host.hand_homing.home`."""
-        from host.hand_homing import home
+    def home(self, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
+             min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> list[HomeResult]:
+        """Home ``finger`` (or every finger) from its accelerometers, averaging ``samples``
+        status reads, refusing a joint whose axis is within ``min_tilt_rad`` of vertical:
+        see :func:`host.hand_homing.home`."""
+        return hand_homing.home(self, finger, samples, min_tilt_rad)
 
-        return home(self, finger, **options)
-
-    def _require_homed(self, fingers: Sequence[int]) -> None:
-        from host.hand_homing import homed_on_robot
-
+    def require_homed(self, fingers: Sequence[int]) -> None:
+        """Raise :class:`~host.errors.NotHomedError` naming those of ``fingers`` whose fmcb
+        holds no homing offsets (asked of the fmcb for a finger not homed here: another
+        program's homing counts too)."""
         for k in sorted(set(fingers)):
             finger = self.fingers[k]
             if not finger.homed:
-                finger.homed = homed_on_robot(finger)
+                finger.homed = hand_homing.homed_on_robot(finger)
         missing = [k for k in sorted(set(fingers)) if not self.fingers[k].homed]
         if missing:
             raise NotHomedError(
@@ -670,3 +517,17 @@ def _joint_error(state: FingerState) -> tuple[float, float, float]:
     target = state.joint_targets or state.joints
     return (target[0] - state.joints[0], target[1] - state.joints[1],
             target[2] - state.joints[2])
+
+
+#: The hand's API: :class:`Hand`, :class:`Finger` and the constants of their moves, and
+#: (from the modules they live in) the types and names its users import from here.
+__all__ = [
+    "MAX_POLL_HZ", "POWER_SETTLE_S", "POWER_STAGGER_MS", "SETTLE_MARGIN_HALL",
+    "SETTLE_POLL_S", "STALL_COUNTS", "STALL_S", "Hand", "StatusRead",
+    # moved out, importable here as before
+    "FALLBACK_DEADBAND_HALL", "FULL_EFFORT", "Finger",
+    "FingerCommand", "FingerUp", "GraspResult", "HomeResult", "MoveResult", "Node",
+    "NodeInfo", "FingerState", "HandState", "FingerEvent", "HandSession", "PendingReply",
+    "Target", "Timeouts", "LINK_NODE", "BOOT_TIMEOUT_S", "JOINTS_PER_FINGER", "JointLimits",
+    "FingerParams", "bring_up",
+]

@@ -17,7 +17,7 @@ at most ``timeout`` s after its power was switched on.  That time is the board's
 answers (``identify``'s ``uptime_us`` counts from its power-up), so a robot whose clock runs
 slower than the link's (the emulator on a busy machine) is waited for, up to
 :data:`BOOT_WAIT_LIMIT` times ``timeout`` on the link's clock.  A board that does not come up
-is reported with a reason (:class:`NodeUp`): one still in its bootloader after its autoboot
+is reported with a reason (:class:`~host.hand_state.NodeUp`): one still in its bootloader after its autoboot
 window is asked ``bl.status`` why (no bootable image, or halted by a flashing tool); the
 others carry on.
 """
@@ -25,18 +25,17 @@ others carry on.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final
+from typing import Final
 
 from host.code_names import code_name
 from host.errors import HostError, NodeError, ReplyTimeout, UsageError, why_no_answer
+from host.hand_interface import PoweredHand
+from host.hand_node import Node
 from host.hand_session import PendingReply
+from host.hand_state import FingerUp, NodeUp
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, BootState, ImageStatus
 from protocol.messages.common import Running
 from protocol.topology import FINGERS
-
-if TYPE_CHECKING:
-    from host.hand import Hand, Node
 
 #: Longest wait for a board to run its application after its power is switched on (s):
 #: the autoboot window (4.5 s), the application's start and a margin for a slow link.
@@ -62,53 +61,6 @@ _ADVICE: Final = {
 }
 
 
-@dataclass
-class NodeUp:
-    """How one board came up: ``up`` once it answered running its application,
-    ``after_s`` (s on the link's clock since the bring-up began) when it was first seen so;
-    otherwise ``problem`` says what was last seen and what to check.  ``running`` is the
-    program that last answered (``"application"``, ``"bootloader"``) or None."""
-
-    where: str
-    up: bool = False
-    running: str | None = None
-    after_s: float | None = None
-    problem: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"where": self.where, "up": self.up, "running": self.running,
-                "after_s": None if self.after_s is None else round(self.after_s, 3),
-                "problem": self.problem}
-
-
-@dataclass
-class FingerUp:
-    """One finger's bring-up: its ``power`` state after, its three boards (fmcb, f2, f3)
-    and whether the fmcb's ``autopoll`` of its phalanges is on (``autopoll_problem`` if
-    switching it on failed)."""
-
-    finger: int
-    power: str
-    nodes: list[NodeUp] = field(default_factory=list)
-    autopoll: bool = False
-    autopoll_problem: str | None = None
-
-    @property
-    def up(self) -> bool:
-        """Every board runs its application and the fmcb polls its phalanges."""
-        return self.autopoll and all(n.up for n in self.nodes)
-
-    @property
-    def down(self) -> list[str]:
-        """The boards that did not come up (``"finger 2 f3"`` …)."""
-        return [n.where for n in self.nodes if not n.up]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"finger": self.finger, "up": self.up, "power": self.power,
-                "nodes": [n.to_dict() for n in self.nodes], "autopoll": self.autopoll,
-                "autopoll_problem": self.autopoll_problem}
-
-
 def _fingers(fingers: int | str | Sequence[int]) -> list[int]:
     if fingers == "all":
         return list(range(FINGERS))
@@ -126,7 +78,7 @@ class _Waiter:
     """Asks boards ``identify`` every :data:`POLL_S` until each runs its application or
     its time is up (see :func:`bring_up`'s ``timeout``)."""
 
-    def __init__(self, hand: Hand, start_s: float, say: Callable[[str], None]) -> None:
+    def __init__(self, hand: PoweredHand, start_s: float, say: Callable[[str], None]) -> None:
         self.hand = hand
         self.start_s = start_s
         self.say = say
@@ -219,7 +171,7 @@ class _Waiter:
         return f"still in its bootloader {uptime_s:.1f} s after power-up ({state}: {why})"
 
 
-def bring_up(hand: Hand, fingers: int | str | Sequence[int] = "all",
+def bring_up(hand: PoweredHand, fingers: int | str | Sequence[int] = "all",
              timeout: float = BOOT_TIMEOUT_S,
              on_progress: Callable[[str], None] | None = None) -> list[FingerUp]:
     """Bring ``fingers`` (``"all"``, an index or indices) up from power-on, as the module
@@ -293,7 +245,7 @@ def bring_up(hand: Hand, fingers: int | str | Sequence[int] = "all",
     return [results[k] for k in chosen]
 
 
-def _check_polled(hand: Hand, fingers: Sequence[FingerUp]) -> None:
+def _check_polled(hand: PoweredHand, fingers: Sequence[FingerUp]) -> None:
     """Wait until each finger's ``fmcb.status`` carries readings of every phalange that
     came up (so the next status has their taxels and accelerometers); a finger whose
     phalanges stay silent gets an ``autopoll_problem`` and ``autopoll`` False."""

@@ -17,11 +17,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final
 
 import numpy as np
 
 from host.errors import HostError, UsageError, why_no_answer
+from host.hand_interface import HandFinger, LinkedHand
 from host.inertial_closed_form import (
     ACCEL_BOARDS,
     DEFAULT_MIN_AXIS_TILT_RAD,
@@ -31,9 +32,6 @@ from host.inertial_closed_form import (
     estimate,
 )
 from protocol.robot import joint_to_motor
-
-if TYPE_CHECKING:
-    from host.hand import Finger, Hand
 
 #: Status samples averaged per estimate, and their spacing (s): the fmcb samples its own
 #: accelerometer every 40 ms, the phalanges' arrive every 10 ms.
@@ -77,12 +75,12 @@ def accels_from_status(status: dict[str, Any]) -> dict[str, list[int]]:
             "f3": list(status["dp_imu"][:3])}
 
 
-def read_at_rest(finger: Finger, samples: int = DEFAULT_SAMPLES,
+def read_at_rest(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                  interval_s: float = SAMPLE_INTERVAL_S) -> InertialReading:
     """Average ``samples`` status snapshots ``interval_s`` apart (the link's clock)."""
     rows: list[dict[str, list[int]]] = []
     halls: list[list[int]] = []
-    session = finger.hand.session
+    session = finger.motor.session
     for k in range(max(1, samples)):
         if k:
             session.sleep(interval_s)
@@ -97,7 +95,7 @@ def read_at_rest(finger: Finger, samples: int = DEFAULT_SAMPLES,
         int((hall.max(axis=0) - hall.min(axis=0)).max()), len(rows))
 
 
-def inertial_estimate(finger: Finger, samples: int = DEFAULT_SAMPLES,
+def inertial_estimate(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                       previous: Sequence[float | None] | None = None,
                       min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> InertialEstimate:
     """The finger's joint angles (rad) from its accelerometers now (closed form)."""
@@ -125,7 +123,7 @@ class HomeResult:
                 "unobservable": list(self.unobservable)}
 
 
-def home_finger(finger: Finger, samples: int = DEFAULT_SAMPLES,
+def home_finger(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                 min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> HomeResult:
     """Home ``finger`` from its accelerometers; raises (:class:`UnobservableJointError`,
     :class:`AmbiguousPoseError`, :class:`FingerMovingError`) instead of guessing."""
@@ -153,7 +151,7 @@ def home_finger(finger: Finger, samples: int = DEFAULT_SAMPLES,
     return HomeResult(finger.index, True, q, offsets)
 
 
-def _silent_boards(finger: Finger, exc: NoAccelerationError) -> str:
+def _silent_boards(finger: HandFinger, exc: NoAccelerationError) -> str:
     """Why ``finger``'s accelerometers in ``exc`` read nothing and what to do: a phalange
     is asked whether it answers (unpowered phalanges are the usual cause after power-up)."""
     nodes = {"f2": finger.proximal, "f3": finger.distal}
@@ -188,7 +186,7 @@ def _silent_boards(finger: Finger, exc: NoAccelerationError) -> str:
     return f"finger {finger.index}: " + "; ".join(parts)
 
 
-def home(hand: Hand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
+def home(hand: LinkedHand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
          min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> list[HomeResult]:
     """Home one finger (errors raised) or every finger (``None``: one :class:`HomeResult`
     each, ``problem`` saying why a finger was not homed)."""
@@ -208,7 +206,7 @@ def home(hand: Hand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
     return results
 
 
-def homed_on_robot(finger: Finger) -> bool:
+def homed_on_robot(finger: HandFinger) -> bool:
     """Whether the fmcb holds homing offsets (raw and homing-relative counts differ): it
     keeps them until it resets, so another program's homing counts too."""
     raw = finger.motor.request("fmcb.hall_counts", {"raw": 1})["counts"]

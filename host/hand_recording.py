@@ -29,10 +29,11 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Final
 
-from host.hand import Hand
+from host.hand_interface import WatchedHand
 from host.hand_session import FingerEvent
 from host.hand_state import FingerState, HandState
 from host.recording import JSON_ENCODING, Recording, Sink, Topic
+from host.topics import HAND_EVENTS, HAND_STATE
 
 #: Message encoding of raw hand frames.
 FRAME_ENCODING: Final = "hand-frame"
@@ -113,10 +114,10 @@ EVENT_SCHEMA: Final = _object("an unsolicited palm.finger_event", {
 
 FRAMES_TX: Final = Topic("/hand/frames/tx", FRAME_ENCODING)
 FRAMES_RX: Final = Topic("/hand/frames/rx", FRAME_ENCODING)
-STATE: Final = Topic("/hand/state", JSON_ENCODING, "HandState", HAND_STATE_SCHEMA)
+STATE: Final = Topic(HAND_STATE, JSON_ENCODING, "HandState", HAND_STATE_SCHEMA)
 FINGERS_READ: Final = Topic("/hand/fingers", JSON_ENCODING, "FingerReading",
                             FINGER_READING_SCHEMA)
-EVENTS: Final = Topic("/hand/events", JSON_ENCODING, "FingerEvent", EVENT_SCHEMA)
+EVENTS: Final = Topic(HAND_EVENTS, JSON_ENCODING, "FingerEvent", EVENT_SCHEMA)
 TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS)
 
 
@@ -126,7 +127,7 @@ class HandRecorder(Recording):
     finishes the file).  :class:`~host.errors.RecordingError` if ``path`` cannot be
     created."""
 
-    def __init__(self, hand: Hand, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
+    def __init__(self, hand: WatchedHand, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand_recording",
                          sinks=sinks)
@@ -136,7 +137,7 @@ class HandRecorder(Recording):
         self.hand = hand
         self.attach(hand)
 
-    def attach(self, hand: Hand) -> None:
+    def attach(self, hand: WatchedHand) -> None:
         """Record ``hand`` from now on (detached from the one before: a link closed and
         opened again goes on in the same file)."""
         self._detach()

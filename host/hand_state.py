@@ -4,6 +4,11 @@
 summaries and, where a finger answered, its ``fmcb.status`` snapshot.  Joint angles (rad)
 come from the motor hall counts through the gear ratios and the tendon coupling
 (:func:`protocol.robot.motor_to_joint`); ``to_dict`` gives JSON-ready dicts (``handctl --json``).
+
+The outcomes of the hand's procedures are data too, shared by the facade
+(:class:`host.hand.Hand`) and its helpers: a command as data (:class:`FingerCommand`), how a
+move ended (:class:`MoveResult`), how the boards came up (:class:`NodeUp`,
+:class:`FingerUp`) and how a grasp ended (:class:`GraspResult`).
 """
 
 from __future__ import annotations
@@ -175,3 +180,96 @@ class NodeInfo:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class FingerCommand:
+    """An ``fmcb.control`` request for finger ``finger`` as data: ``mode`` and ``args``."""
+
+    finger: int
+    mode: int
+    args: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        """The ``fmcb.control`` request fields."""
+        return {"mode": self.mode, "args": self.args}
+
+
+@dataclass
+class MoveResult:
+    """How a move ended: ``settled`` when every finger's motors are within the deadband
+    tolerance of their targets; ``stalled`` fingers stopped short (blocked, effort too
+    low); ``errors`` joint errors (rad, target − actual) per finger moved.  ``robot_rate``
+    is how fast the robot's clock (the fmcbs' status timestamps) ran against the link's
+    while waiting: 1.0 on hardware and in process, less for an emulator a busy machine
+    slows below real time (then ``elapsed_s`` on the wall meant less robot time); None
+    when unknown."""
+
+    settled: bool
+    stalled: list[int]
+    errors: dict[int, tuple[float, float, float]]
+    states: dict[int, FingerState]
+    elapsed_s: float
+    robot_rate: float | None = None
+
+
+@dataclass
+class NodeUp:
+    """How one board came up: ``up`` once it answered running its application,
+    ``after_s`` (s on the link's clock since the bring-up began) when it was first seen so;
+    otherwise ``problem`` says what was last seen and what to check.  ``running`` is the
+    program that last answered (``"application"``, ``"bootloader"``) or None."""
+
+    where: str
+    up: bool = False
+    running: str | None = None
+    after_s: float | None = None
+    problem: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"where": self.where, "up": self.up, "running": self.running,
+                "after_s": None if self.after_s is None else round(self.after_s, 3),
+                "problem": self.problem}
+
+
+@dataclass
+class FingerUp:
+    """One finger's bring-up: its ``power`` state after, its three boards (fmcb, f2, f3)
+    and whether the fmcb's ``autopoll`` of its phalanges is on (``autopoll_problem`` if
+    switching it on failed)."""
+
+    finger: int
+    power: str
+    nodes: list[NodeUp] = field(default_factory=list)
+    autopoll: bool = False
+    autopoll_problem: str | None = None
+
+    @property
+    def up(self) -> bool:
+        """Every board runs its application and the fmcb polls its phalanges."""
+        return self.autopoll and all(n.up for n in self.nodes)
+
+    @property
+    def down(self) -> list[str]:
+        """The boards that did not come up (``"finger 2 f3"`` …)."""
+        return [n.where for n in self.nodes if not n.up]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"finger": self.finger, "up": self.up, "power": self.power,
+                "nodes": [n.to_dict() for n in self.nodes], "autopoll": self.autopoll,
+                "autopoll_problem": self.autopoll_problem}
+
+
+@dataclass
+class GraspResult:
+    """How a grasp ended: the ``targets`` (rad) per finger, ``contacts`` (finger → why it
+    stopped closing), the final settle (:class:`MoveResult`), ``elapsed_s`` on
+    the link's clock."""
+
+    name: str
+    amount: float
+    targets: dict[int, Vec3]
+    contacts: dict[int, str] = field(default_factory=dict)
+    move: MoveResult | None = None
+    elapsed_s: float = 0.0

@@ -34,18 +34,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from host.errors import HostError, UsageError
+
+# Topics (the MCAP recorders' names; host.view_render draws them), importable from here too.
+from host.topics import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
 from protocol.robot import DEFAULT_HAND_LAYOUT
 
 if TYPE_CHECKING:
-    from host.arm import Arm
-    from host.hand import Hand
+    from host.arm_interface import WatchedArm
+    from host.hand_interface import WatchedHand
 
-#: Topics (the MCAP recorders' names; :mod:`host.view_render` draws them).
-ARM_STATE: Final = "/arm/state"
-HAND_STATE: Final = "/hand/state"
-HAND_EVENTS: Final = "/hand/events"
-ARM_BUS_STATS: Final = "/arm/bus/stats"
-HAND_LINK_STATS: Final = "/hand/link/stats"
 #: Default port of the web page; the data it reads is served on the next port up.
 WEB_PORT: Final = 9090
 DEFAULT_RATE_HZ: Final = 10.0
@@ -184,7 +181,7 @@ class RobotView:
         self.message(topic, t, payload)
         return True
 
-    def attach_arm(self, arm: Arm) -> None:
+    def attach_arm(self, arm: WatchedArm) -> None:
         """Draw every cycle's state of ``arm`` (and its bus counters) from now on."""
         stats = arm.bus.stats
 
@@ -198,7 +195,7 @@ class RobotView:
         arm.state_taps.append(tap)
         self._detach.append(lambda: _remove(arm.state_taps, tap))
 
-    def attach_hand(self, hand: Hand) -> None:
+    def attach_hand(self, hand: WatchedHand) -> None:
         """Draw every state ``hand`` reads (its link counters) and every finger event."""
         counters = hand.session.counters
 

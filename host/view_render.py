@@ -39,7 +39,7 @@ from host.robot_geometry import (
     palm_on_flange,
     palm_outline,
 )
-from host.view import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
+from host.topics import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
 from protocol.robot import ARM_JOINT_NAMES, FINGER_JOINT_NAMES, motor_to_joint
 
 #: Every topic :meth:`Renderer.message` draws.

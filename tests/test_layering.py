@@ -3,13 +3,19 @@
 Two towers on one ground floor: ``protocol`` at the bottom; the device tower
 (``firmware_py``) and the host tower (``host``, then ``bootloader``) on it, never importing
 each other; the emulator (``hil_emulator``) and the ``tools`` where they meet.  Imports inside
-functions count too: a lazy import is still a dependency.
+functions (and under ``TYPE_CHECKING``) count too: a lazy import is still a dependency.
+
+Inside the host library, the facades (:data:`FACADES`: ``host.arm``, ``host.hand``) sit on
+top of their helpers: no module of ``host`` imports a facade (a helper takes a small
+``Protocol`` of what it uses: ``host.arm_interface``, ``host.hand_interface``), and no
+modules of ``host`` import each other round a circle.
 """
 
 from __future__ import annotations
 
 import ast
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,3 +123,114 @@ def test_repository_text_never_points_outside_the_repository() -> None:
             if needle in text:
                 offenders.append(f"{path.relative_to(ROOT)}: {needle}")
     assert offenders == []
+
+
+# ----------------------------------------------------------------------------- inside a package
+
+#: The facades of the host library: what programs use, built on helpers that never import
+#: them back.
+FACADES = ("host.arm", "host.hand")
+#: Packages whose modules import no circle of each other (the others still have some:
+#: firmware_py, hil_emulator, tools).
+CYCLE_FREE = ("protocol", "host", "bootloader")
+
+
+def module_name(path: Path, root: Path = ROOT) -> str:
+    """``host/arm.py`` -> ``host.arm``; a package's ``__init__.py`` -> the package."""
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(package: str, root: Path = ROOT) -> dict[str, set[str]]:
+    """Each module of ``package`` -> the modules of ``package`` it imports, by any import
+    statement (in a function, under ``TYPE_CHECKING``); ``from host import arm_gate`` names
+    the module ``host.arm_gate``."""
+    modules = {module_name(p, root): p for p in sorted((root / package).rglob("*.py"))}
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        here = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        found: set[str] = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                found.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = here.split(".")[: len(here.split(".")) - node.level + 1]
+                    base = ".".join([*up, node.module] if node.module else up)
+                found.add(base)
+                found.update(f"{base}.{alias.name}" for alias in node.names)
+        graph[name] = {m for m in found if m in modules and m != name}
+    return graph
+
+
+def facade_importers(graph: Mapping[str, set[str]],
+                     facades: tuple[str, ...] = FACADES) -> list[str]:
+    """``module -> facade`` for every module of the graph that imports a facade."""
+    return [f"{module} -> {target}" for module, targets in sorted(graph.items())
+            for target in sorted(targets & set(facades)) if module not in facades]
+
+
+def import_cycles(graph: Mapping[str, set[str]]) -> list[list[str]]:
+    """The import circles of ``graph``: each strongly connected set of two or more modules,
+    sorted (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+def test_no_host_module_imports_a_facade() -> None:
+    """The facades import their helpers, never the other way round."""
+    assert facade_importers(import_graph("host")) == []
+
+
+@pytest.mark.parametrize("package", CYCLE_FREE)
+def test_no_import_cycle_inside_the_package(package: str) -> None:
+    assert import_cycles(import_graph(package)) == []
+
+
+def test_the_checker_sees_a_facade_import_and_a_cycle(tmp_path: Path) -> None:
+    """Both checks can fail: a helper importing its facade inside a function, and a circle
+    closed by ``from host import ...`` under ``TYPE_CHECKING`` and a relative import."""
+    host = tmp_path / "host"
+    host.mkdir()
+    (host / "__init__.py").write_text("", encoding="utf-8")
+    (host / "arm.py").write_text("from host import arm_helper\n", encoding="utf-8")
+    (host / "arm_helper.py").write_text(
+        "def later():\n    from host.arm import Arm\n", encoding="utf-8")
+    (host / "left.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from host import right\n",
+        encoding="utf-8")
+    (host / "right.py").write_text("from .left import x\n", encoding="utf-8")
+    graph = import_graph("host", tmp_path)
+    assert facade_importers(graph) == ["host.arm_helper -> host.arm"]
+    assert import_cycles(graph) == [["host.arm", "host.arm_helper"], ["host.left", "host.right"]]

@@ -16,25 +16,19 @@ import pytest
 from hil_emulator.inprocess import forget_shared_emulators
 from host import arm_kinematics
 from host.arm import Arm
-from host.arm_control import (
+from host.arm_joint_loop import (
     ENCODER_COUNT_RAD,
-    MIN_JERK_PEAK,
     STALL_RETRIES,
     STEPPER_ACCEL_RAD_S2,
     JointController,
     JointPid,
     PidGains,
     TrackingLog,
-    Trajectory,
-    Waypoint,
     braking_lead,
     coupling_feedforward,
-    load_waypoints,
-    play_waypoints,
-    record_waypoints,
-    save_waypoints,
-    timed_path,
 )
+from host.arm_trajectory import MIN_JERK_PEAK, Trajectory, Waypoint, timed_path
+from host.arm_waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 from host.errors import LimitError, StallError, UsageError
 from protocol.robot import ARM_INDEX_ANGLES
 from tools.cli import armctl

@@ -1,5 +1,5 @@
 """The arm's static gravity model (host.arm_gravity) against the emulated plant, and moveto's
-choice of an IK solution the stepper joints can hold (host.arm_control.choose_ik)."""
+choice of an IK solution the stepper joints can hold (host.arm_cartesian.choose_ik)."""
 
 from __future__ import annotations
 
@@ -13,13 +13,8 @@ import pytest
 from hil_emulator.inprocess import forget_shared_emulators
 from host import arm_gravity, arm_kinematics
 from host.arm import Arm
-from host.arm_control import (
-    MOVETO_LOAD_LIMIT,
-    JointController,
-    TrackingLog,
-    choose_ik,
-    elastic_deflections,
-)
+from host.arm_cartesian import MOVETO_LOAD_LIMIT, choose_ik
+from host.arm_joint_loop import JointController, TrackingLog, elastic_deflections
 from host.errors import UsageError
 from protocol.robot import SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
 

@@ -15,9 +15,11 @@ from hypothesis import strategies as st
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
-from host.arm_control import Waypoint, choose_ik, play_waypoints, timed_path
+from host.arm_cartesian import choose_ik
 from host.arm_gate import check_path, path_rates, slowdown
 from host.arm_state import ArmState
+from host.arm_trajectory import Waypoint, timed_path
+from host.arm_waypoints import play_waypoints
 from host.errors import JointAlarmError, LimitError
 from protocol.robot import (
     ARM_JOINT_ACCEL_LIMITS,

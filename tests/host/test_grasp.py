@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from host.errors import UsageError
-from host.grasp import (
+from host.grasp_synergies import (
     CONTACT_EFFORT,
     SYNERGIES,
     TACTILE_CONTACT_COUNTS,

@@ -15,7 +15,8 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from host.errors import NotHomedError, UsageError
-from host.grasp import SQUEEZE_ROUNDS, squeeze, synergy_targets
+from host.grasp import SQUEEZE_ROUNDS, squeeze
+from host.grasp_synergies import synergy_targets
 from host.hand import Hand
 from tools.cli.handctl import main
 

@@ -194,7 +194,7 @@ def test_waypoints_recorded_before_ctrl_c_or_a_lost_link_are_saved(
         capsys: pytest.CaptureFixture[str], stop: type[BaseException]) -> None:
     """They lived in memory until the end: Ctrl-C or the emulator killed mid-recording lost
     them all."""
-    from host.arm_control import load_waypoints
+    from host.arm_waypoints import load_waypoints
 
     opened = Arm.open
 

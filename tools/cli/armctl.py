@@ -367,13 +367,8 @@ def _waypoints_arguments(p: argparse.ArgumentParser) -> None:
 
 @COMMANDS.command("waypoints", "record waypoints by hand, or play them", _waypoints_arguments)
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    from host.arm_control import (
-        Waypoint,
-        load_waypoints,
-        play_waypoints,
-        record_waypoints,
-        save_waypoints,
-    )
+    from host.arm_trajectory import Waypoint
+    from host.arm_waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 
     if args.action == "record":
         if not args.seconds > 0:

@@ -39,7 +39,7 @@ from host.errors import (
     RouteError,
     UsageError,
 )
-from host.grasp import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
+from host.grasp_synergies import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from host.hand import Hand, MoveResult
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.hand_homing import homed_on_robot

@@ -76,11 +76,13 @@ from typing import Any
 import numpy as np
 
 from host.arm import Arm
-from host.arm_control import JointController, TrackingLog, Trajectory, timed_path
+from host.arm_joint_loop import JointController, TrackingLog
 from host.arm_kinematics import solve_ik
 from host.arm_recording import ArmRecorder
 from host.arm_state import ArmState
-from host.grasp import finger_roles, squeeze
+from host.arm_trajectory import Trajectory, timed_path
+from host.grasp import squeeze
+from host.grasp_synergies import finger_roles
 from host.hand import Hand
 from host.hand_homing import FingerMovingError, HomeResult
 from host.hand_recording import HandRecorder

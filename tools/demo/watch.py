@@ -21,7 +21,7 @@ from typing import Any, Final
 import numpy as np
 
 from host.errors import HostError
-from host.grasp import TACTILE_CONTACT_COUNTS
+from host.grasp_synergies import TACTILE_CONTACT_COUNTS
 from host.hand import Hand, StatusRead
 from host.hand_state import FingerState
 

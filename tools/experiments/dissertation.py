@@ -30,8 +30,9 @@ import numpy as np
 
 from hil_emulator.emulator import Emulator
 from host.arm import Arm
-from host.arm_control import JointController, PidGains, TrackingLog, Trajectory, timed_path
+from host.arm_joint_loop import JointController, PidGains, TrackingLog
 from host.arm_state import N_JOINTS
+from host.arm_trajectory import Trajectory, timed_path
 from host.errors import StallError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,

@@ -299,7 +299,8 @@ class Bench:
     def _do_arm_play(self, waypoints: list[dict[str, Any]], time_scale: float
                      ) -> dict[str, Any]:
         """``play_waypoints`` of ``waypoints`` (``{t = s, joints = [7 rad]}`` each)."""
-        from host.arm_control import Waypoint, play_waypoints
+        from host.arm_trajectory import Waypoint
+        from host.arm_waypoints import play_waypoints
 
         points = [Waypoint(float(w["t"]), tuple(float(q) for q in w["joints"]))
                   for w in waypoints]
