@@ -24,6 +24,7 @@ from hil_emulator.faults.nodes import SensorFault
 from protocol.topology import SERVO_IDS, STEPPER_IDS
 
 if TYPE_CHECKING:
+    from hil_emulator.arm_plant import ArmPlant
     from hil_emulator.emulator import Emulator
 
 
@@ -254,7 +255,7 @@ class DuplicateServoId(Fault):
             self._spare = None
 
 
-def _arm_plant(emulator: Emulator) -> Any:
+def _arm_plant(emulator: Emulator) -> ArmPlant:
     if emulator.arm_plant is None:
         raise EmulatorConfigError("arm faults on the plant need the arm with physics")
     return emulator.arm_plant
