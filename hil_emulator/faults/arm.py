@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from firmware_py.sim.virtual_hal import VirtualEncoder
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault
 from hil_emulator.faults.nodes import SensorFault
 from protocol.topology import SERVO_IDS, STEPPER_IDS

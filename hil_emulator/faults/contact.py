@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault
 
 if TYPE_CHECKING:

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from hil_emulator.errors import FaultPlanError
-from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault, make_fault
 from hil_emulator.faults.plan import PlanEntry, Schedule
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 from hil_emulator.emulator import Emulator
@@ -27,6 +26,7 @@ from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
 from protocol.topology import board as board_row
 from tools.hil_bench.assertions import judge
+from tools.hil_bench.record import RunRecord
 from tools.hil_bench.scenario import FINGER_BOARDS, Scenario, Step, parse_scenario
 
 #: Period of the plant-truth samples (µs).
@@ -34,26 +34,6 @@ TRUTH_PERIOD_US: Final = 10_000
 #: A stepper node's latches (status_flags bits), read as the nodes' truth.
 _LATCHES: Final = int(StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)
 _STEPPER_MODEL: Final = STEPPER_TABLE["model_number"].default
-
-
-@dataclass
-class RunRecord:
-    """What a run observed (times in s from the plan's start)."""
-
-    t0_us: int = 0
-    timeline: list[dict[str, Any]] = field(default_factory=list)
-    actions: dict[str, dict[str, Any]] = field(default_factory=dict)
-    events: list[dict[str, Any]] = field(default_factory=list)
-    hand_samples: list[dict[str, Any]] = field(default_factory=list)
-    arm_samples: list[dict[str, Any]] = field(default_factory=list)
-    truth: list[dict[str, Any]] = field(default_factory=list)
-    links: dict[str, dict[str, bytes]] = field(default_factory=dict)
-    nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def fault_times(self, label: str, action: str = "apply") -> list[float]:
-        """When faults labelled ``label`` were applied (or cleared), s."""
-        return [e["t_s"] for e in self.timeline if e["label"] == label
-                and e["action"] == action]
 
 
 class Bench:
