@@ -237,7 +237,7 @@ class DuplicateServoId(Fault):
         from protocol.image import BoardType
 
         original = targets.node(emulator, f"arm.{self.servo}")
-        assert emulator.arm is not None
+        assert emulator.arm is not None and original.app is not None
         hal, app = make_arm_node(emulator.scheduler, BoardType.RX64, self.servo)
         app.image[:] = original.app.image  # configured exactly as the servo it duplicates
         app.reload_registers()
