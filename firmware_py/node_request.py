@@ -4,15 +4,14 @@ A handler gets a :class:`Request` and returns the reply fields (a dict), ``None`
 message has no reply, or :data:`DEFERRED` when it will call :meth:`Request.respond` later
 (a tunnel, a routed frame waiting for a downstream reply, a flash write in progress).
 :class:`~firmware_py.hand_node.HandNode` dispatches to handlers; services a node carries
-(:mod:`firmware_py.slot_service`) register theirs through :class:`Handlers`, without
-knowing the node.
+(:mod:`firmware_py.slot_service`) register theirs on it without knowing it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Final, Protocol
+from typing import Any, Final
 
 from firmware_py.hal import Uart
 from protocol.catalogue import Message
@@ -43,11 +42,3 @@ class Request:
 
 
 Handler = Callable[[Request], Any]
-
-
-class Handlers(Protocol):
-    """Where a service registers its handlers (a :class:`~firmware_py.hand_node.HandNode`)."""
-
-    def handle(self, name: str, handler: Handler) -> None:
-        """Answer message ``name`` with ``handler``."""
-        ...

@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from firmware_py.flash_layout import PAGE_SIZE, page_address
 from firmware_py.hal import Hal
 from firmware_py.image_check import ImageCheck, check_header, check_signature, inspect_image
-from firmware_py.node_request import DEFERRED, Handlers, Request
+from firmware_py.node_request import DEFERRED, Handler, Request
 from firmware_py.slot_swap import (
     PRIMARY,
     SECONDARY,
@@ -50,6 +50,14 @@ def _version(check: ImageCheck) -> dict[str, int]:
     if check.header is None:
         return {"major": 0, "minor": 0, "patch": 0}
     return vars(check.header.version)
+
+
+class Handlers(Protocol):
+    """Where the service registers its handlers (a :class:`~firmware_py.hand_node.HandNode`)."""
+
+    def handle(self, name: str, handler: Handler) -> None:
+        """Answer message ``name`` with ``handler``."""
+        ...
 
 
 class SlotService:
