@@ -46,6 +46,7 @@ from typing import Final
 
 from benchmarks.harness import Result
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import bring_up
 from hil_emulator.scheduling import request_priority
 from protocol import dynamixel as dxl
 from protocol.compiled_guard import PURE_PYTHON_ENV
@@ -104,7 +105,7 @@ def boot_full(emulator: Emulator, heavy: bool = True) -> None:
     (and, ``heavy``, the palm polling every finger)."""
     hand, arm = emulator.hand, emulator.arm
     assert hand is not None and arm is not None
-    emulator.bring_up()
+    bring_up(emulator)
     if heavy:
         hand.send_from_host(CATALOGUE["palm.poll"].request_frame(ADDR_PALM, rate_hz=100))
     for k in range(FINGERS):

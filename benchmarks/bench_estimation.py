@@ -36,6 +36,7 @@ import numpy as np
 
 from benchmarks.harness import Table
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
 from host.hand import Hand
 from host.hand_homing import accels_from_status, home_finger, inertial_estimate
@@ -95,9 +96,9 @@ def measure(settings: Settings) -> list[str]:
     """Run the benchmark; the table's lines."""
     wall = time.perf_counter()
     emulator = Emulator("hand", seed=settings.seed, can="none")
-    emulator.bring_up()
+    bring_up(emulator)
     plant = emulator.finger_plants[THUMB]
-    hand = Hand.open(emulator.transport("palm"))
+    hand = Hand.open(EmulatorTransport(emulator, "palm"))
     thumb = hand.fingers[THUMB]
     session = hand.session
     rng = np.random.default_rng(settings.seed)

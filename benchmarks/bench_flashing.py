@@ -38,6 +38,7 @@ from bootloader.batch import RunReport, run_plan, run_rollback
 from bootloader.plan import make_plan, rollback_plan
 from firmware_py.sim.virtual_hal import PAGE_WRITE_US
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession
 from protocol.framing import OVERHEAD
 from protocol.image import FLASH, BoardType, FirmwareImage
@@ -95,10 +96,10 @@ def _slot_update() -> tuple[RunReport, RunReport, float]:
     """Update all twelve nodes through their slots, then roll them back; (update report,
     rollback report, wall s)."""
     emu = Emulator("hand", physics=False, can="none")
-    emu.bring_up()
+    bring_up(emu)
     wall = time.perf_counter()
     try:
-        with HandSession(emu.transport("palm")) as session:
+        with HandSession(EmulatorTransport(emu, "palm")) as session:
             update = run_plan(session, make_plan(images("2.0.0")))
             if not update.ok:
                 failed = [r.to_dict() for r in update.nodes if r.result != "flashed"]
@@ -114,12 +115,12 @@ def _slot_update() -> tuple[RunReport, RunReport, float]:
 def _flash(fingers: list[list[int]], version: str) -> tuple[float, float, list[RunReport]]:
     """Flash each group of ``fingers`` in turn on a fresh hand; (sim s, wall s, reports)."""
     emu = Emulator("hand", physics=False, can="none")
-    emu.bring_up()
+    bring_up(emu)
     sim = 0.0
     reports = []
     wall = time.perf_counter()
     try:
-        with HandSession(emu.transport("palm")) as session:
+        with HandSession(EmulatorTransport(emu, "palm")) as session:
             for group in fingers:
                 report = run_plan(session, make_plan(images(version), group, slots=False))
                 if not report.ok:

@@ -36,7 +36,7 @@ import time
 
 from benchmarks.harness import Result
 from firmware_py.palm_router import FMCB_TURNAROUND_US
-from hil_emulator.inprocess import forget_shared_emulators
+from hil_emulator.inprocess import bring_up, forget_shared_emulators
 from host.errors import HostError
 from host.hand import FingerCommand, Hand
 from protocol.framing import parse_frame
@@ -122,7 +122,7 @@ def realtime(wall_s: float) -> tuple[float, int]:
     from hil_emulator.emulator import Emulator
 
     emulator = Emulator("hand", physics=False, can="none")
-    emulator.bring_up()
+    bring_up(emulator)
     ports = emulator.open_ports()
     stop = threading.Event()
     runner = threading.Thread(target=emulator.run, args=(stop,), kwargs={"realtime": True})

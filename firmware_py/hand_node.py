@@ -6,21 +6,22 @@ broadcast, checks the payload against the catalogue (a wrong length is dropped a
 never acted on), and calls the handler registered for that message.  It answers the common
 messages (ping, reset, hardware version, identify, transaction envelope) itself.
 
-A handler gets a :class:`Request` and returns the reply fields (a dict), ``None`` when the
-message has no reply, or :data:`DEFERRED` when it will call :meth:`Request.respond` later
-(a tunnel or a routed frame waiting for a downstream reply).
+A handler gets a :class:`~firmware_py.node_request.Request` and returns the reply fields (a
+dict), ``None`` when the message has no reply, or
+:data:`~firmware_py.node_request.DEFERRED` when it will answer later.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar, Final
 
 from mypy_extensions import mypyc_attr
 
 from firmware_py.hal import Hal, Uart
 from firmware_py.identity import read_identity
+from firmware_py.node_request import DEFERRED, Handler, Request
 from firmware_py.slot_service import SlotService
 from protocol.catalogue import REQUEST, Message
 from protocol.errors import ProtocolError
@@ -30,8 +31,6 @@ from protocol.messages.common import Running, TxnStatus
 from protocol.stream import StreamDecoder
 from protocol.topology import ADDR_BROADCAST, ADDR_HOST
 
-#: Returned by a handler that will answer later through :meth:`Request.respond`.
-DEFERRED: Final = object()
 #: Inter-frame gap after which a partial frame is dropped (µs).
 FRAME_GAP_US: Final = 10_000
 
@@ -47,26 +46,6 @@ class NodeCounters:
     replies: int = 0
 
 
-@dataclass
-class Request:
-    """A request being handled: its message, fields, frame and where to answer."""
-
-    message: Message
-    fields: dict[str, Any]
-    frame: Frame
-    uart: Uart
-    _send: Callable[[bytes | None, int], None] = field(repr=False)
-
-    def respond(self, reply: dict[str, Any] | bytes | None, status: int = TxnStatus.OK) -> None:
-        """Send the reply now (fields, raw payload, or None for an error status)."""
-        if isinstance(reply, dict):
-            payload: bytes | None = self.message.build_reply(reply)
-        else:
-            payload = reply
-        self._send(payload, status)
-
-
-Handler = Callable[[Request], Any]
 #: What :meth:`HandNode.dispatch` finds for a type id without a handler.
 _NO_ROUTE: Final[tuple[Message | None, Handler | None]] = (None, None)
 

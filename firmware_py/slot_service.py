@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final, Protocol
 
 from firmware_py.flash_layout import PAGE_SIZE, page_address
 from firmware_py.hal import Hal
 from firmware_py.image_check import ImageCheck, check_header, check_signature, inspect_image
+from firmware_py.node_request import DEFERRED, Handler, Request
 from firmware_py.slot_swap import (
     PRIMARY,
     SECONDARY,
@@ -35,9 +36,6 @@ from firmware_py.slot_swap import (
 from protocol.image import SLOT_MAX_PAYLOAD, BoardType, pages_needed
 from protocol.messages.bootloader import WRITE_STATUS_WORD_FAILED, ImageStatus, WriteStatus
 from protocol.messages.slots import ConfirmBy, SlotEvent, SlotResult, SlotState
-
-if TYPE_CHECKING:
-    from firmware_py.hand_node import HandNode, Request
 
 #: After this long on trial (µs) without a reset, an application that was asked to confirm
 #: itself runs its health check and, if it passes, confirms.
@@ -54,6 +52,14 @@ def _version(check: ImageCheck) -> dict[str, int]:
     return vars(check.header.version)
 
 
+class Handlers(Protocol):
+    """Where the service registers its handlers (a :class:`~firmware_py.hand_node.HandNode`)."""
+
+    def handle(self, name: str, handler: Handler) -> None:
+        """Answer message ``name`` with ``handler``."""
+        ...
+
+
 class SlotService:
     """Registers the ``slot.*`` handlers on ``node`` and answers them from ``hal.flash``.
 
@@ -63,7 +69,7 @@ class SlotService:
     application's own check before it confirms itself.
     """
 
-    def __init__(self, node: HandNode, hal: Hal, board: BoardType, application: bool,
+    def __init__(self, node: Handlers, hal: Hal, board: BoardType, application: bool,
                  busy: Callable[[], bool] = lambda: False,
                  health: Callable[[], bool] = lambda: True) -> None:
         self.node = node
@@ -140,8 +146,6 @@ class SlotService:
         return None
 
     def _on_write(self, req: Request) -> Any:
-        from firmware_py.hand_node import DEFERRED
-
         index, data = req.fields["index"], req.fields["data"]
         refused = self._write_refusal(index, data)
         if refused is not None:
@@ -173,8 +177,6 @@ class SlotService:
                 "image_status": status}
 
     def _on_swap(self, req: Request) -> Any:
-        from firmware_py.hand_node import DEFERRED
-
         record, _ = read_record(self.hal.flash)
         check = secondary_check(self.hal.flash, self.board)
         if self.flash_busy or record.in_swap or record.state == SlotState.TRIAL:
@@ -199,8 +201,6 @@ class SlotService:
         return DEFERRED
 
     def _on_confirm(self, req: Request) -> Any:
-        from firmware_py.hand_node import DEFERRED
-
         record, _ = read_record(self.hal.flash)
         if record.state == SlotState.CONFIRMED and record.event == SlotEvent.CONFIRMED:
             return {"status": SlotResult.OK, "state": record.state}

@@ -28,10 +28,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
+from hil_emulator.link_tap import LinkTap
 from hil_emulator.port_reader import PortReader
 from hil_emulator.pty_port import PtyPort, make_link, remove_link
 from hil_emulator.slcan_adapter import SlcanAdapter
@@ -55,6 +56,29 @@ Clock = Callable[[], int]
 #: The simulation time (µs) at which host input enters, given its arrival on the wall clock
 #: (``time.monotonic()`` s) or None for "now".
 InputClock = Callable[[float | None], int]
+
+
+class Port(Protocol):
+    """What the emulator serves beside the simulation: a host link, or the fault control
+    channel.  The loop calls :meth:`poll` to take what arrived and waits on :meth:`fileno`."""
+
+    name: str
+
+    def poll(self) -> int:
+        """Take what arrived (host input, requests); returns how much."""
+        ...
+
+    def fileno(self) -> int:
+        """A descriptor that becomes readable when something arrives; -1 for none."""
+        ...
+
+    def stats(self) -> dict[str, int]:
+        """Counters for ``--stats``."""
+        ...
+
+    def close(self) -> None:
+        """Close it (idempotent)."""
+        ...
 
 
 def _apply_now(apply: Callable[[], None], t_us: int) -> None:
@@ -120,8 +144,8 @@ class PtyBacked:
         self.reader_overrun = 0  #: bytes earlier readers could not hold
         self._link_dir: str | None = None
         self._link_name: str | None = None
-        #: The link's fault stages (:mod:`hil_emulator.faults.host_link`), or None.
-        self.tap: Any = None
+        #: The link's fault stages (:mod:`hil_emulator.link_tap`), or None.
+        self.tap: LinkTap | None = None
 
     @property
     def path(self) -> str:
@@ -396,3 +420,8 @@ class VirtualCanLink:
     def close(self) -> None:
         """Shut the python-can bus down (idempotent)."""
         self.bus.shutdown()
+
+
+#: A host link proper (not the control channel): it takes the real-time runner's input
+#: clock and reports its deliveries.
+HostLink = SerialLink | SlcanLink | VirtualCanLink

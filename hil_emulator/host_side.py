@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from firmware_py.scheduler import Scheduler
-
-if TYPE_CHECKING:
-    from hil_emulator.faults.host_link import LinkTap
+from hil_emulator.link_tap import LinkTap
 
 
 class HostSide:
@@ -20,7 +17,7 @@ class HostSide:
         self.scheduler = scheduler
         self.host_received: list[tuple[bytes, int]] = []
         self.on_host_bytes: Callable[[bytes, int], None] | None = None
-        #: The host link's fault stages (:mod:`hil_emulator.faults.host_link`), or None.
+        #: The host link's fault stages (:mod:`hil_emulator.link_tap`), or None.
         self.link_tap: LinkTap | None = None
 
     def _to_host(self, data: bytes, t_us: int) -> None:

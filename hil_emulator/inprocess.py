@@ -1,7 +1,8 @@
-"""The emulator in the host's own process: a :class:`host.transport.Transport` on its clock.
+"""The emulator in the host's own process: a :class:`host.transport.Transport` on its clock,
+and the hand brought up through it.
 
-Host code opened on ``emu://CONFIG/LINK`` (or given ``emulator.transport("palm")``) talks to
-an :class:`~hil_emulator.emulator.Emulator` in fast lockstep: :meth:`EmulatorTransport.send`
+Host code opened on ``emu://CONFIG/LINK`` (or given ``EmulatorTransport(emulator, "palm")``)
+talks to an :class:`~hil_emulator.emulator.Emulator` in fast lockstep: :meth:`EmulatorTransport.send`
 puts bytes on the host adapter's wire at the current simulation time, and waiting in
 :meth:`EmulatorTransport.recv` advances the simulation event by event until bytes arrive or
 the timeout (simulation seconds) passes.  Timing is therefore exact and independent of how
@@ -13,6 +14,21 @@ URLs: ``emu://full/palm``, ``emu://full/arm``, ``emu://hand/palm``, ``emu://arm/
 opened with the same configuration, seed, options and ``name`` share one emulator, so a
 program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 ``ready=1`` (the default) brings the hand up first, as ``hil-emulator --ready`` does.
+
+:func:`bring_up` starts from a robot whose thirteen hand microcontrollers run their
+applications (``hil-emulator --ready``, ``ready=1``, benchmarks, tests).  The host library
+does it, through this transport: a :class:`~host.hand.Hand` on the palm's link waits out the
+palm's bootloader window (4.5 s), powers the fingers (``palm.finger_power``), waits for each
+fmcb to boot, powers the phalanges over the tendons (``fmcb.phalange_power``) and, after
+their boot, switches on every fmcb's 100 Hz autopoll of its phalanges; a
+:class:`~host.hand_session.HandSession` on a loose finger's cable does the same for its one
+module.  Every reply is checked (route statuses), then the emulator checks that each node
+runs its application.  The arm is left as it powers up: torque off, hanging, until the host
+enables it.  The requests go without the ``txn`` envelope (``txn=False``) and each starts a
+fixed slot of simulation time, so the frames and their times are those of the original
+hand's host and a recorded run (``tools/traffic_record.py``) does not depend on the
+envelope's format.  Bytes a listener already had on the link (a recorder) keep reaching it
+(``tee``).
 """
 
 from __future__ import annotations
@@ -22,14 +38,30 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Final
 
+from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
-from hil_emulator.errors import EmulatorConfigError
-from host.errors import TransportError, UsageError
+from hil_emulator.errors import EmulatorConfigError, EmulatorError
+from host.errors import HostError, TransportError, UsageError
+from host.hand import Hand, Node
+from host.hand_session import LINK_NODE, HandSession, Timeouts
 from host.transport import LinkKind, Transport, url_options
+from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.palm import ALL_FINGERS, FingerPower
+from protocol.topology import FINGERS
 
 #: The link names each configuration offers.
 LINKS: Final = {"full": ("palm", "arm"), "hand": ("palm",), "arm": ("arm",),
                 "loose-finger": ("finger0",)}
+
+#: Time a hand node needs from power-up to its application (µs): the autoboot window and
+#: 0.3 s for the application to start.
+BOOT_US: Final = AUTOBOOT_WINDOW_US + 300_000
+#: Stagger between fingers when the palm switches them all on (ms).
+STAGGER_MS: Final = 5
+#: How long the palm waits for an fmcb's reply to a routed bring-up request (ms).
+ROUTE_MS: Final = 20
+#: Simulation time each routed request is given before the next is sent (µs).
+ROUTED_SLOT_US: Final = 30_000
 
 _shared: dict[tuple[str, ...], Emulator] = {}
 
@@ -62,7 +94,7 @@ class EmulatorTransport(Transport):
         rig.on_host_bytes = self._arrived
 
     @classmethod
-    def from_url(cls, url: str, **options: Any) -> EmulatorTransport:
+    def from_url(cls, url: str, **options: object) -> EmulatorTransport:
         """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&name=X``."""
         rest = url.split("://", 1)[1].split("?", 1)[0]
         config, _, link = rest.partition("/")
@@ -92,7 +124,7 @@ class EmulatorTransport(Transport):
             except EmulatorConfigError as exc:
                 raise UsageError(f"{url}: {exc}") from exc
             if ready:
-                emulator.bring_up()
+                bring_up(emulator)
             _shared[key] = emulator
         return cls(emulator, link, url)
 
@@ -147,6 +179,71 @@ class EmulatorTransport(Transport):
 
     def _reopen(self) -> None:
         self._rig.on_host_bytes = self._arrived
+
+
+def bring_up(emulator: Emulator, autopoll: bool = True) -> None:
+    """Power and boot every hand node of ``emulator`` (its hand, or its loose finger) with
+    the host library, on the simulation clock; call before :meth:`Emulator.open_ports
+    <hil_emulator.emulator.Emulator.open_ports>`.  The arm is left as it powers up, torque
+    off.  Raise :class:`EmulatorError` if a request fails or a node is not
+    running its application afterwards."""
+    try:
+        if emulator.hand is not None:
+            with _session(emulator, "palm") as session:
+                _bring_up_hand(emulator, Hand(session), autopoll)
+            _check_running(emulator.hand.mcus)
+        if emulator.loose is not None:
+            with _session(emulator, "finger0") as session:
+                fmcb = Node(session, LINK_NODE, "fmcb")
+                _bring_up_finger(emulator, fmcb, BOOT_US, autopoll)
+            finger = emulator.loose.finger
+            _check_running([finger.fmcb, finger.f2, finger.f3])
+    except HostError as exc:
+        raise EmulatorError(f"bring-up: {exc}") from exc
+
+
+def _session(emulator: Emulator, link: str) -> HandSession:
+    transport = EmulatorTransport(emulator, link, tee=True)
+    return HandSession(transport, link="palm" if link == "palm" else "finger",
+                       timeouts=Timeouts(fmcb_ms=ROUTE_MS), retries=0)
+
+
+def _in_slot(emulator: Emulator, slot_us: int, node: Node, name: str,
+             fields: dict[str, Any]) -> dict[str, Any]:
+    """Request ``name`` of ``node`` un-enveloped, take its reply, and let the rest of
+    ``slot_us`` (µs from the moment it was sent) pass."""
+    sent_us = emulator.scheduler.now_us()
+    reply = node.request(name, fields, txn=False)
+    emulator.step(max(0, sent_us + slot_us - emulator.scheduler.now_us()))
+    node.session.pump()
+    return reply
+
+
+def _bring_up_hand(emulator: Emulator, hand: Hand, autopoll: bool) -> None:
+    emulator.step(BOOT_US)
+    # The reply shows the first finger on; the others follow STAGGER_MS apart.
+    _in_slot(emulator, BOOT_US + FINGERS * STAGGER_MS * 1000, hand.palm, "palm.finger_power",
+             {"finger": ALL_FINGERS, "state": FingerPower.FULL, "stagger_ms": STAGGER_MS})
+    for finger in hand.fingers:
+        _in_slot(emulator, ROUTED_SLOT_US, finger.motor, "fmcb.phalange_power", {"on": 1})
+    emulator.step(BOOT_US)
+    if autopoll:
+        for finger in hand.fingers:
+            _in_slot(emulator, ROUTED_SLOT_US, finger.motor, "fmcb.autopoll", {"on": 1})
+
+
+def _bring_up_finger(emulator: Emulator, fmcb: Node, boot_us: int, autopoll: bool) -> None:
+    emulator.step(boot_us)
+    _in_slot(emulator, boot_us, fmcb, "fmcb.phalange_power", {"on": 1})
+    if autopoll:
+        _in_slot(emulator, ROUTED_SLOT_US, fmcb, "fmcb.autopoll", {"on": 1})
+
+
+def _check_running(mcus: list[Mcu]) -> None:
+    stuck = [f"board {m.identity.board} uid {m.identity.uid:#x}" for m in mcus
+             if not m.powered or m.program_name in (None, "bootloader")]
+    if stuck:
+        raise EmulatorError(f"bring-up: not running their application: {', '.join(stuck)}")
 
 
 def forget_shared_emulators() -> None:

@@ -171,7 +171,7 @@ class Arm:
            stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
            watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """As :meth:`open`, on a transport already open (e.g. an in-process emulator's
-        ``Emulator.transport("arm")``); closing the arm closes it."""
+        ``EmulatorTransport(emulator, "arm")``); closing the arm closes it."""
         bus = DynamixelBus(transport, getattr(transport, "baud", ARM_BUS_BAUD),
                            retries=retries, latency_s=latency_s)
         arm = cls(bus, discover(bus, stiffness))

@@ -41,6 +41,7 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     "protocol/stream.py",
     # the hand nodes' firmware (HandNode and every program built on it)
     "firmware_py/hand_node.py",
+    "firmware_py/node_request.py",
     "firmware_py/bootloader.py",
     "firmware_py/fmcb.py",
     "firmware_py/fmcb_control.py",

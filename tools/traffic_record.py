@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import bring_up
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.messages import CATALOGUE
@@ -71,7 +72,7 @@ def _full_run(seed: int, out: list[Record]) -> None:
     assert emu.hand is not None and emu.arm is not None
     emu.hand.on_host_bytes = _recorder("palm", out)
     emu.arm.on_host_bytes = _recorder("arm", out)
-    emu.bring_up()
+    bring_up(emu)
     hand, arm = emu.hand, emu.arm
 
     def hand_send(frame: bytes, wait_us: int = 20_000) -> None:
@@ -128,7 +129,7 @@ def _loose_run(seed: int, out: list[Record]) -> None:
     emu = Emulator("loose-finger", seed=seed, can="none")
     assert emu.loose is not None
     emu.loose.on_host_bytes = _recorder("finger0", out)
-    emu.bring_up()
+    bring_up(emu)
     loose = emu.loose
     for frame in (request("identify"),
                   request("fmcb.control", mode=ControlMode.JOINT, args={"target": [0.2, 0.4, 0.2]})):

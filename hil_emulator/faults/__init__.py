@@ -3,9 +3,11 @@
 Each fault is one class (:class:`~hil_emulator.faults.base.Fault`) with typed parameters, a
 seeded ``apply(emulator, rng)`` and ``clear(emulator)``, naming the entry point it acts
 through; declaring it registers it in :data:`FAULTS`.  Plans schedule faults on simulation
-time (:mod:`~hil_emulator.faults.plan`), the injector (``emulator.faults``) applies them and
-records a replayable timeline (:mod:`~hil_emulator.faults.injector`), and the control channel
-lets another process inject into a running emulator (:mod:`~hil_emulator.faults.control`).
+time (:mod:`~hil_emulator.faults.plan`), an injector that whoever runs the plan makes
+(``FaultInjector(emulator)``) applies them and records a replayable timeline
+(:mod:`~hil_emulator.faults.injector`), and the control channel lets another process inject
+into a running emulator (:mod:`~hil_emulator.faults.control`).  The emulator imports nothing
+from here: faults act on it from above.
 
 Modules by entry point: :mod:`.line` (bus line models), :mod:`.contact` (pogo pins, tendon
 supply, node power), :mod:`.host_link` (the host's serial ports), :mod:`.nodes` (hang, reset,

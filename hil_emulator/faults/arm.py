@@ -16,14 +16,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from firmware_py.sim.virtual_hal import VirtualEncoder
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault
 from hil_emulator.faults.nodes import SensorFault
 from protocol.topology import SERVO_IDS, STEPPER_IDS
 
 if TYPE_CHECKING:
+    from hil_emulator.arm_plant import ArmPlant
     from hil_emulator.emulator import Emulator
 
 
@@ -236,7 +237,7 @@ class DuplicateServoId(Fault):
         from protocol.image import BoardType
 
         original = targets.node(emulator, f"arm.{self.servo}")
-        assert emulator.arm is not None
+        assert emulator.arm is not None and original.app is not None
         hal, app = make_arm_node(emulator.scheduler, BoardType.RX64, self.servo)
         app.image[:] = original.app.image  # configured exactly as the servo it duplicates
         app.reload_registers()
@@ -254,7 +255,7 @@ class DuplicateServoId(Fault):
             self._spare = None
 
 
-def _arm_plant(emulator: Emulator) -> Any:
+def _arm_plant(emulator: Emulator) -> ArmPlant:
     if emulator.arm_plant is None:
         raise EmulatorConfigError("arm faults on the plant need the arm with physics")
     return emulator.arm_plant

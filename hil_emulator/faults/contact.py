@@ -12,12 +12,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.faults import targets
 from hil_emulator.faults.base import Fault
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
+    from hil_emulator.hand_rig import HandRig
 
 
 @dataclass
@@ -154,7 +155,7 @@ class NodePowerCut(Fault):
         mcu.power_on()
 
 
-def _hand(emulator: Emulator) -> Any:
+def _hand(emulator: Emulator) -> HandRig:
     if emulator.hand is None:
         raise EmulatorConfigError(f"the {emulator.config!r} configuration has no pogo pins")
     return emulator.hand

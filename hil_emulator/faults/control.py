@@ -20,7 +20,7 @@ request                                                            answer
 =================================================================  ==========================
 
 ``status`` is the simulation clock (``t_us``) with the real-time loop's lateness figures
-(:meth:`~hil_emulator.emulator.Emulator.lateness_stats`: delivery lateness in ms,
+(:meth:`~hil_emulator.pacing.Pacer.lateness_stats`: delivery lateness in ms,
 ``late_episodes``, ``slipped_s``): a test over the wire waits on the simulation clock and
 takes its wall-clock margins from what the emulator reports, not from an idle machine.
 
@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING, Any
 
 from hil_emulator.errors import EmulatorError, PortError
 from hil_emulator.faults.base import FAULTS
+from hil_emulator.faults.injector import FaultInjector
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
@@ -69,13 +70,19 @@ def _clear_stale(path: str) -> None:
 
 
 class ControlChannel:
-    """A listening unix socket at ``path`` served by the emulator's loop (``poll``)."""
+    """A listening unix socket at ``path``, injecting through ``faults`` (a new
+    :class:`FaultInjector` of ``emulator`` if not given).  Give it to the emulator to serve
+    (:meth:`Emulator.add_port <hil_emulator.emulator.Emulator.add_port>`: its loop calls
+    :meth:`poll`)."""
 
     name = "control"
 
-    def __init__(self, emulator: Emulator, path: str) -> None:
+    def __init__(self, emulator: Emulator, path: str,
+                 faults: FaultInjector | None = None) -> None:
         self.emulator = emulator
         self.path = path
+        #: The injector requests act through (its timeline is the ``timeline`` answer).
+        self.faults = faults if faults is not None else FaultInjector(emulator)
         _clear_stale(path)
         self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
@@ -87,8 +94,6 @@ class ControlChannel:
         self._server.listen(4)
         self._server.setblocking(False)
         self._clients: dict[socket.socket, bytearray] = {}
-        self.on_emit = None  # the link interface the emulator's loop expects
-        self.schedule_input = None
         self.requests = 0
 
     def fileno(self) -> int:
@@ -141,7 +146,7 @@ class ControlChannel:
 
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
         """Carry out one request (see the module's table)."""
-        faults = self.emulator.faults
+        faults = self.faults
         op = request.get("op")
         if op == "inject":
             entry = faults.inject(str(request["fault"]), request.get("params") or {},

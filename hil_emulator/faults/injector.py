@@ -1,5 +1,6 @@
-"""The fault injector of one emulator (``emulator.faults``): plans on simulation time, a
-recorded timeline, and its replay.
+"""The fault injector of one emulator: plans on simulation time, a recorded timeline, and
+its replay.  Whoever runs a plan makes one (``FaultInjector(emulator)``): the
+``hil-emulator`` command, the HIL bench, a test; the emulator itself knows no faults.
 
 Randomness: occurrence ``k`` of plan entry ``i`` applies its fault with the generator
 ``default_rng(SeedSequence(seed, spawn_key=(i, k)))`` and jitter is drawn from
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 
 import numpy as np
 
+import hil_emulator.faults.targets as targets
 from hil_emulator.errors import FaultPlanError
 from hil_emulator.faults.base import Fault, make_fault
 from hil_emulator.faults.plan import PlanEntry, Schedule
@@ -189,8 +191,6 @@ class FaultInjector:
     def _arm_flash_trigger(self, index: int, node_name: str, threshold: int) -> None:
         """Apply entry ``index`` once ``node_name`` has started writing ``threshold`` bytes
         of flash: one page write after the count reaches it, in the middle of that write."""
-        from hil_emulator.faults import targets
-
         flash = targets.node(self.emulator, node_name).hal.flash
         original = type(flash).write_page
         written = 0

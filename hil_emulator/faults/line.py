@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hil_emulator.faults import targets
+import hil_emulator.faults.targets as targets
 from hil_emulator.faults.base import Fault
 
 if TYPE_CHECKING:

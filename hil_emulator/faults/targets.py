@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.mcu import Mcu
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.errors import EmulatorConfigError
@@ -36,7 +37,7 @@ class NodeRef:
     name: str
     hal: VirtualHal
     mcu: Mcu | None = None
-    app: Any = None
+    app: DynamixelSlave | None = None
 
     def reset(self) -> None:
         """The node's reset line (watchdog, reset button): its program starts again."""

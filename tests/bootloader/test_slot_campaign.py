@@ -28,6 +28,7 @@ from firmware_py.sim.boards import APP_PROGRAMS
 from firmware_py.sim.virtual_hal import VirtualHal
 from firmware_py.slot_swap import read_record
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
 from host.hand_session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage
@@ -108,7 +109,7 @@ def arm_swap_page_cut(emu: Emulator, finger: int, board: BoardType, nth: int) ->
 def run_case(kind: str, finger: int, board: BoardType, after: int) -> None:
     emu = Emulator("hand", physics=False, can="none")
     try:
-        emu.bring_up()
+        bring_up(emu)
         before = {name: getattr(mcu.program, "fw_version", None) for name, mcu in all_nodes(emu)}
         crashing = board if kind == "crash_at_boot" else None
         if crashing is not None:
@@ -116,7 +117,7 @@ def run_case(kind: str, finger: int, board: BoardType, after: int) -> None:
                 node(emu, f, crashing).apps["crash"] = crashing_app(crashing)  # type: ignore[index]
         if kind == "swap_page_cut":
             arm_swap_page_cut(emu, finger, board, 1 + after % 40)
-        session = HandSession(emu.transport("palm"))
+        session = HandSession(EmulatorTransport(emu, "palm"))
         sent = [0]
 
         def fault(direction: str, t: float, frame: bytes) -> None:
@@ -148,7 +149,7 @@ def run_case(kind: str, finger: int, board: BoardType, after: int) -> None:
 def check_every_node(emu: Emulator, before: dict[str, Any]) -> None:
     """No re-run: wait out every trial, power up as a user would, then check each node."""
     emu.step(TRIAL_TIMEOUT_US + AUTOBOOT_WINDOW_US + 1_000_000)
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         for f in range(FINGERS):
             session.request("palm.finger_power",
                             {"finger": f, "state": FingerPower.FULL, "stagger_ms": 0})

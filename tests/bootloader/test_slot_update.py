@@ -17,6 +17,7 @@ from bootloader.slot_update import SWAP_WITHIN_S
 from firmware_py.mcu import Mcu
 from firmware_py.sim.boards import install_one_slot_firmware
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage, split_pages
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, WriteStatus
@@ -40,7 +41,7 @@ NEW = images("2.3.4")
 @pytest.fixture()
 def emu() -> Iterator[Emulator]:
     emulator = Emulator("hand", physics=False, can="none")
-    emulator.bring_up()
+    bring_up(emulator)
     try:
         yield emulator
     finally:
@@ -61,7 +62,7 @@ def versions(emu: Emulator) -> set[tuple[int, ...]]:
 
 
 def run(emu: Emulator, plan: Any) -> RunReport:
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         return run_plan(session, plan)
 
 
@@ -71,7 +72,7 @@ def test_the_secondary_slot_of_f3_is_written_through_both_tunnels_while_it_runs(
     f3 = emu.hand.fingers[1].f3
     boots = f3.boots
     image = NEW[BoardType.F3]
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         to = Target(1, Hop.F3)
         for index, data in enumerate(split_pages(image.to_bytes())):
             reply = session.request("slot.write", {"index": index, "data": data}, to=to,
@@ -141,7 +142,7 @@ def test_rollback_option_puts_every_node_back(emu: Emulator, tmp_path: Path,
     before = versions(emu)
     assert run(emu, make_plan(NEW)).ok
     monkeypatch.setattr(flash_all_fingers, "open_transport",
-                        lambda url: emu.transport("palm"))
+                        lambda url: EmulatorTransport(emu, "palm"))
     assert flash_all_fingers.main(["--port", "emu://hand/palm", "--rollback", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["ok"] is True and out["mode"] == "rollback"
@@ -165,7 +166,7 @@ def test_keep_trial_leaves_the_images_unconfirmed_and_the_trial_watchdog_reverts
     emu.step(TRIAL_TIMEOUT_US + AUTOBOOT_WINDOW_US)
     # The fmcb's trial watchdog reset it (its phalanges' power too, as any fmcb reset
     # does, until the host powers them): every node comes back on its previous image.
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         session.request("fmcb.phalange_power", {"on": 1}, to=Target(2, Hop.FMCB))
     emu.step(AUTOBOOT_WINDOW_US + 500_000)
     assert versions(emu) == before
@@ -177,7 +178,7 @@ def test_one_slot_nodes_are_flashed_as_before_and_the_report_says_which(
     finger = emu.hand.fingers[3]
     for mcu in (finger.fmcb, finger.f2, finger.f3):
         install_one_slot_firmware(mcu)
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         session.request("palm.finger_power", {"finger": 3, "state": 0, "stagger_ms": 0})
         session.sleep(0.05)
         session.request("palm.finger_power", {"finger": 3, "state": 2, "stagger_ms": 0})
@@ -193,7 +194,7 @@ def test_one_slot_nodes_are_flashed_as_before_and_the_report_says_which(
 def test_rollback_of_a_node_never_updated_says_it_has_no_previous_image(
         emu: Emulator) -> None:
     assert emu.hand is not None
-    with HandSession(emu.transport("palm")) as session:
+    with HandSession(EmulatorTransport(emu, "palm")) as session:
         report = run_rollback(session, rollback_plan([1]))
     # Never updated through its slots: no previous image in the secondary slot.
     assert not report.ok

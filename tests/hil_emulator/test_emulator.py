@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_emulator.bring_up import BOOT_US
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
@@ -204,7 +204,7 @@ def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() 
     from hil_emulator.errors import EmulatorError
 
     emu = Emulator("loose-finger", physics=False)
-    emu.bring_up()
+    bring_up(emu)
     finger = emu.loose.finger  # type: ignore[union-attr]
     assert [m.program_name for m in (finger.fmcb, finger.f2, finger.f3)] == ["fmcb", "f2", "f3"]
 
@@ -212,7 +212,7 @@ def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() 
     f3 = broken.loose.finger.f3  # type: ignore[union-attr]
     f3.hal.flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)  # type: ignore[attr-defined]
     with pytest.raises(EmulatorError, match="uid"):
-        broken.bring_up()  # f3's image is not activated: it stays in its bootloader
+        bring_up(broken)  # f3's image is not activated: it stays in its bootloader
 
 
 def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering(
@@ -231,7 +231,7 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
     emu = Emulator("hand", seed=2, can="none", physics=False)
     recorded: list[bytes] = []
     emu.hand.on_host_bytes = lambda data, t_us: recorded.append(data)  # type: ignore[union-attr]
-    emu.bring_up()
+    bring_up(emu)
     assert sent == ([("palm.finger_power", None, False)]
                     + [("fmcb.phalange_power", k, False) for k in range(4)]
                     + [("fmcb.autopoll", k, False) for k in range(4)])
@@ -239,7 +239,7 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
     replies = decode_all(b"".join(recorded))
     assert sum(f.type == CATALOGUE["palm.route"].type_id for f in replies) == 8
     monkeypatch.undo()
-    with Hand(HandSession(emu.transport("palm"))) as hand:
+    with Hand(HandSession(EmulatorTransport(emu, "palm"))) as hand:
         found = hand.discover()
     assert len(found) == 13
     assert all(n.answered and n.running == "application" for n in found), found

@@ -8,15 +8,24 @@ import os
 import socket
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from hil_emulator.bring_up import BOOT_US
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, FaultPlanError
-from hil_emulator.faults import FAULTS, NOT_YET_IMPLEMENTED, catalogue, make_fault, parse_plan
+from hil_emulator.faults import (
+    FAULTS,
+    NOT_YET_IMPLEMENTED,
+    FaultInjector,
+    catalogue,
+    make_fault,
+    parse_plan,
+)
+from hil_emulator.faults.control import ControlChannel
 from hil_emulator.faults.nodes import FaultySensors
+from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
 from host.errors import HostError, TransportError
 from host.hand import Hand
 from host.hand_session import HandSession
@@ -25,17 +34,30 @@ from protocol.dynamixel import ErrorBit, make_ping
 MS = 1_000
 
 
+class FaultyEmulator(Emulator):
+    """An emulator and the fault injector that whoever runs a plan owns (here: the test)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.faults = FaultInjector(self)
+
+    def open_control(self, path: str) -> str:
+        """Serve the control channel at ``path`` on this emulator's injector."""
+        self.add_port(ControlChannel(self, path, self.faults))
+        return path
+
+
 @pytest.fixture
-def hand() -> Iterator[Emulator]:
+def hand() -> Iterator[FaultyEmulator]:
     """A hand without physics, brought up (about 1 s of wall time)."""
-    emu = Emulator("hand", seed=4, physics=False, can="none")
-    emu.bring_up()
+    emu = FaultyEmulator("hand", seed=4, physics=False, can="none")
+    bring_up(emu)
     yield emu
     emu.close()
 
 
 def _host(emu: Emulator) -> Hand:
-    return Hand(HandSession(emu.transport("palm"), retries=0))
+    return Hand(HandSession(EmulatorTransport(emu, "palm"), retries=0))
 
 
 def _answers(node: object) -> bool:
@@ -98,7 +120,7 @@ def test_parameters_are_checked_and_errors_name_the_key() -> None:
 
 
 def test_arm_bus_bit_errors_loss_bursts_jam_and_cut_each_clear() -> None:
-    emu = Emulator("arm", seed=1, physics=False)
+    emu = FaultyEmulator("arm", seed=1, physics=False)
     bus = emu.arm.bus  # type: ignore[union-attr]
     assert _arm_ping_answered(emu)
     for name, params in (("bus_bit_errors", {"rate": 0.5}), ("bus_frame_loss",
@@ -114,7 +136,7 @@ def test_arm_bus_bit_errors_loss_bursts_jam_and_cut_each_clear() -> None:
 
 def test_burst_dropout_loses_frames_in_runs() -> None:
     fault = make_fault("burst_dropout", {"bus": "arm", "p_enter": 0.1, "p_leave": 0.25})
-    emu = Emulator("arm", seed=2, physics=False)
+    emu = FaultyEmulator("arm", seed=2, physics=False)
     emu.faults.inject(fault)
     answered = [_arm_ping_answered(emu) for _ in range(300)]
     losses = [i for i, ok in enumerate(answered) if not ok]
@@ -128,9 +150,9 @@ def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_fin
     entered at ``p_enter · load / tendon_torque_nm``: slack (motors coasting, load 0) it loses
     nothing; holding a pose (≈ 0.23 N·m at the capstan) it loses frames; holding against a
     3 N press on its fingertip (≈ 0.48 N·m, the most loaded tendon) more."""
-    emu = Emulator("hand", seed=3, physics=True, can="none")
+    emu = FaultyEmulator("hand", seed=3, physics=True, can="none")
     try:
-        emu.bring_up()
+        bring_up(emu)
         plant = emu.finger_plants[1]
         fault = make_fault("burst_dropout", {"bus": "tendon1", "p_enter": 0.2, "p_leave": 0.3,
                                              "tendon_torque_nm": 0.5})
@@ -147,7 +169,7 @@ def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_fin
             return (fault.lost - lost) / (fault.frames - frames), max(loads)
 
         slack, slack_load = loss_rate_over_500_ms()
-        Hand(HandSession(emu.transport("palm"), retries=1)).move_fingers(
+        Hand(HandSession(EmulatorTransport(emu, "palm"), retries=1)).move_fingers(
             {1: [0.0, 1.0, 0.5]}, effort=255, timeout=1.0, unhomed=True)
         held, held_load = loss_rate_over_500_ms()
         plant.press("F3", 3.0)
@@ -159,7 +181,7 @@ def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_fin
     assert 0.1 < held < pressed
 
 
-def test_a_tendon_load_driven_burst_dropout_needs_a_tendon_bus_and_physics(hand: Emulator
+def test_a_tendon_load_driven_burst_dropout_needs_a_tendon_bus_and_physics(hand: FaultyEmulator
                                                                           ) -> None:
     with pytest.raises(FaultPlanError, match="needs a tendon<k> bus"):
         make_fault("burst_dropout", {"bus": "arm", "tendon_torque_nm": 0.5})
@@ -170,7 +192,7 @@ def test_a_tendon_load_driven_burst_dropout_needs_a_tendon_bus_and_physics(hand:
     assert hand.hand.fingers[2].tendon_bus.fault_filter is None  # type: ignore[union-attr]
 
 
-def test_tendon_chip_errors_garble_characters_until_cleared(hand: Emulator) -> None:
+def test_tendon_chip_errors_garble_characters_until_cleared(hand: FaultyEmulator) -> None:
     bus = hand.hand.fingers[1].tendon_bus  # type: ignore[union-attr]
     assert bus is not None
     before = bus.manchester_bad_characters
@@ -183,7 +205,7 @@ def test_tendon_chip_errors_garble_characters_until_cleared(hand: Emulator) -> N
     assert bus.manchester_bad_characters == during
 
 
-def test_a_cut_tendon_line_silences_the_phalanges_only(hand: Emulator) -> None:
+def test_a_cut_tendon_line_silences_the_phalanges_only(hand: FaultyEmulator) -> None:
     host = _host(hand)
     entry = hand.faults.inject("line_cut", {"bus": "tendon2"})
     assert not _answers(host.fingers[2].distal)
@@ -192,7 +214,7 @@ def test_a_cut_tendon_line_silences_the_phalanges_only(hand: Emulator) -> None:
     assert _answers(host.fingers[2].distal)
 
 
-def test_tendon_glitch_within_hold_up_is_ridden_through_beyond_it_reboots(hand: Emulator
+def test_tendon_glitch_within_hold_up_is_ridden_through_beyond_it_reboots(hand: FaultyEmulator
                                                                            ) -> None:
     f2 = hand.hand.fingers[0].f2  # type: ignore[union-attr]
     boots = f2.boots
@@ -207,7 +229,7 @@ def test_tendon_glitch_within_hold_up_is_ridden_through_beyond_it_reboots(hand: 
 # ---------------------------------------------------------------------------- contacts
 
 
-def test_break_away_and_its_clear_a_cold_booting_reattach(hand: Emulator) -> None:
+def test_break_away_and_its_clear_a_cold_booting_reattach(hand: FaultyEmulator) -> None:
     finger = hand.hand.fingers[3]  # type: ignore[union-attr]
     boots = finger.fmcb.boots
     entry = hand.faults.inject("break_away", {"finger": 3})
@@ -218,7 +240,7 @@ def test_break_away_and_its_clear_a_cold_booting_reattach(hand: Emulator) -> Non
     assert finger.fmcb.boots == boots + 1
 
 
-def test_reattach_and_pogo_chatter_power_cycle_the_fmcb(hand: Emulator) -> None:
+def test_reattach_and_pogo_chatter_power_cycle_the_fmcb(hand: FaultyEmulator) -> None:
     finger = hand.hand.fingers[1]  # type: ignore[union-attr]
     hand.break_away(1)
     hand.faults.inject("reattach", {"finger": 1, "bounce": False})
@@ -231,7 +253,7 @@ def test_reattach_and_pogo_chatter_power_cycle_the_fmcb(hand: Emulator) -> None:
     assert finger.attached and finger.fmcb.in_bootloader
 
 
-def test_partial_contact_powers_the_finger_but_carries_no_data(hand: Emulator) -> None:
+def test_partial_contact_powers_the_finger_but_carries_no_data(hand: FaultyEmulator) -> None:
     host = _host(hand)
     finger = hand.hand.fingers[0]  # type: ignore[union-attr]
     entry = hand.faults.inject("partial_contact", {"finger": 0})
@@ -241,7 +263,7 @@ def test_partial_contact_powers_the_finger_but_carries_no_data(hand: Emulator) -
     assert _answers(host.fingers[0].motor)
 
 
-def test_a_shorted_tendon_trips_the_phalange_breaker_until_cleared(hand: Emulator) -> None:
+def test_a_shorted_tendon_trips_the_phalange_breaker_until_cleared(hand: FaultyEmulator) -> None:
     host = _host(hand)
     finger = hand.hand.fingers[2]  # type: ignore[union-attr]
     entry = hand.faults.inject("shorted_tendon", {"finger": 2})
@@ -258,7 +280,7 @@ def test_a_shorted_tendon_trips_the_phalange_breaker_until_cleared(hand: Emulato
     assert finger.f2.powered
 
 
-def test_node_power_cut_triggered_in_the_middle_of_a_flash_write(hand: Emulator) -> None:
+def test_node_power_cut_triggered_in_the_middle_of_a_flash_write(hand: FaultyEmulator) -> None:
     from hil_emulator.faults import Schedule
 
     fmcb = hand.hand.fingers[1].fmcb  # type: ignore[union-attr]
@@ -280,7 +302,7 @@ def test_node_power_cut_triggered_in_the_middle_of_a_flash_write(hand: Emulator)
     assert [e.action for e in hand.faults.timeline] == ["apply"]
 
 
-def test_a_flash_page_that_fails_to_write(hand: Emulator) -> None:
+def test_a_flash_page_that_fails_to_write(hand: FaultyEmulator) -> None:
     flash = hand.hand.fingers[0].f3.hal.flash  # type: ignore[union-attr]
     entry = hand.faults.inject("flash_page_fail", {"node": "finger0.f3", "page": 700})
     results: list[bool] = []
@@ -298,7 +320,7 @@ def test_a_flash_page_that_fails_to_write(hand: Emulator) -> None:
 # ---------------------------------------------------------------------------- nodes
 
 
-def test_node_hang_reset_and_reset_storm(hand: Emulator) -> None:
+def test_node_hang_reset_and_reset_storm(hand: FaultyEmulator) -> None:
     host = _host(hand)
     fmcb = hand.hand.fingers[2].fmcb  # type: ignore[union-attr]
     entry = hand.faults.inject("node_hang", {"node": "finger2.fmcb"})
@@ -314,7 +336,7 @@ def test_node_hang_reset_and_reset_storm(hand: Emulator) -> None:
     assert fmcb.resets == resets + 5
 
 
-def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: Emulator) -> None:
+def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: FaultyEmulator) -> None:
     sensors = hand.hand.fingers[0].f2.hal.sensors  # type: ignore[union-attr]
     true = sensors.read("strain")
     assert isinstance(true, int)
@@ -331,7 +353,7 @@ def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: Emulator) -> None:
         hand.faults.inject("sensor_fault", {"node": "finger0.f2", "channel": "pressure"})
 
 
-def test_a_misaligned_accelerometer_reads_the_vector_rotated_and_is_restored(hand: Emulator
+def test_a_misaligned_accelerometer_reads_the_vector_rotated_and_is_restored(hand: FaultyEmulator
                                                                             ) -> None:
     sensors = hand.hand.fingers[1].f3.hal.sensors  # type: ignore[union-attr]
     sensors.set_accel(0, 0, 1000)  # 1 g along its z axis
@@ -356,7 +378,7 @@ def test_a_misaligned_accelerometer_reads_the_vector_rotated_and_is_restored(han
 
 
 def test_servo_overheat_overload_and_supply_sag_latch_alarms() -> None:
-    emu = Emulator("arm", seed=1, physics=False)
+    emu = FaultyEmulator("arm", seed=1, physics=False)
     arm = emu.arm
     assert arm is not None
     servo = arm.app(5)
@@ -383,7 +405,7 @@ def test_servo_overheat_overload_and_supply_sag_latch_alarms() -> None:
 
 
 def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
-    emu = Emulator("arm", seed=1, physics=False)
+    emu = FaultyEmulator("arm", seed=1, physics=False)
     hal, app = emu.arm.nodes[2]  # type: ignore[union-attr]
     entry = emu.faults.inject("missed_index", {"joint": 1})
     hal.encoder().pulse_index(1234)
@@ -394,7 +416,7 @@ def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
 
 
 def test_an_arm_push_moves_the_joint_and_stops_when_cleared() -> None:
-    emu = Emulator("arm", seed=1)
+    emu = FaultyEmulator("arm", seed=1)
     plant = emu.arm_plant
     emu.step(300 * MS)
     q0 = plant.joint_angles()[4]
@@ -409,9 +431,9 @@ def test_an_arm_push_moves_the_joint_and_stops_when_cleared() -> None:
 def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared() -> None:
     from host.arm import Arm
 
-    emu = Emulator("arm", seed=1)
+    emu = FaultyEmulator("arm", seed=1)
     plant = emu.arm_plant
-    arm = Arm.open(emu.transport("arm"))
+    arm = Arm.open(EmulatorTransport(emu, "arm"))
     arm.torque(True)
 
     def mean_over_1_s() -> tuple[float, float]:
@@ -442,7 +464,7 @@ def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared()
 
 
 def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
-    emu = Emulator("arm", seed=1)
+    emu = FaultyEmulator("arm", seed=1)
     plant = emu.arm_plant
     entry = emu.faults.inject("spring_drift", {"joint": 2, "final_fraction": 1.5,
                                                "drift_s": 0.01, "update_us": 5_000})
@@ -456,7 +478,7 @@ def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
 
 
 def test_a_duplicate_servo_id_garbles_that_servos_replies_until_unplugged() -> None:
-    emu = Emulator("arm", seed=1, physics=False)
+    emu = FaultyEmulator("arm", seed=1, physics=False)
     bus = emu.arm.bus  # type: ignore[union-attr]
     assert _arm_ping_answered(emu, 5)
     entry = emu.faults.inject("duplicate_servo_id", {"servo": 5})
@@ -472,7 +494,7 @@ def test_a_duplicate_servo_id_garbles_that_servos_replies_until_unplugged() -> N
 # ---------------------------------------------------------------------------- host links
 
 
-def test_link_corruption_loss_latency_noise_and_vanish_on_the_palm_link(hand: Emulator) -> None:
+def test_link_corruption_loss_latency_noise_and_vanish_on_the_palm_link(hand: FaultyEmulator) -> None:
     host = _host(hand)
     tap = hand.link_tap("palm")
     tap.record = True
@@ -504,7 +526,7 @@ def test_link_corruption_loss_latency_noise_and_vanish_on_the_palm_link(hand: Em
     assert _answers(host.palm)
 
 
-def test_a_stuck_host_transmitter_blocks_the_link_until_cleared(hand: Emulator) -> None:
+def test_a_stuck_host_transmitter_blocks_the_link_until_cleared(hand: FaultyEmulator) -> None:
     host = _host(hand)
     tap = hand.link_tap("palm")
     tap.record = True
@@ -532,7 +554,7 @@ def test_a_stuck_host_transmitter_blocks_the_link_until_cleared(hand: Emulator) 
 
 
 def test_a_stuck_host_transmitter_on_the_arm_link_jams_until_cleared() -> None:
-    emu = Emulator("arm", seed=1, physics=False)
+    emu = FaultyEmulator("arm", seed=1, physics=False)
     tap = emu.link_tap("arm")
     entry = emu.faults.inject("serial_driver_stuck", {"link": "arm", "mode": "noise"})
     emu.step(5 * MS)
@@ -566,7 +588,7 @@ def test_misread_resamples_uart_characters_bit_by_bit() -> None:
     assert misread(b"", 1, 2) == b""
 
 
-def test_a_baud_mismatch_breaks_every_frame_both_ways_until_cleared(hand: Emulator) -> None:
+def test_a_baud_mismatch_breaks_every_frame_both_ways_until_cleared(hand: FaultyEmulator) -> None:
     from protocol.stream import decode_all
 
     host = _host(hand)
@@ -578,7 +600,7 @@ def test_a_baud_mismatch_breaks_every_frame_both_ways_until_cleared(hand: Emulat
     assert not [f for f in decode_all(bytes(tap.received)) if f.crc_ok]  # nothing whole
     hand.faults.clear(entry)
     assert _answers(host.palm)
-    arm = Emulator("arm", seed=1, physics=False)
+    arm = FaultyEmulator("arm", seed=1, physics=False)
     entry = arm.faults.inject("baud_mismatch", {"link": "arm", "baud": 1_100_000,
                                                 "side": "host"})
     arm_tap = arm.link_tap("arm")
@@ -591,7 +613,7 @@ def test_a_baud_mismatch_breaks_every_frame_both_ways_until_cleared(hand: Emulat
 
 
 def test_port_vanish_recreates_the_pty_at_the_same_link_path(tmp_path: Path) -> None:
-    emu = Emulator("arm", physics=False)
+    emu = FaultyEmulator("arm", physics=False)
     try:
         emu.open_ports(str(tmp_path))
         link = tmp_path / "arm"
@@ -625,7 +647,7 @@ def _plan() -> list[dict[str, object]]:
 
 def _run(seed: int, replay: list[dict[str, object]] | None = None
          ) -> tuple[list[dict[str, object]], bytes]:
-    emu = Emulator("arm", seed=seed, physics=False)
+    emu = FaultyEmulator("arm", seed=seed, physics=False)
     if replay is None:
         emu.faults.load(parse_plan(_plan()))
     else:
@@ -649,7 +671,7 @@ def test_same_seed_and_plan_same_timeline_and_run_and_a_timeline_replays() -> No
 
 
 def test_the_control_channel_injects_into_a_running_emulator(tmp_path: Path) -> None:
-    emu = Emulator("arm", physics=False)
+    emu = FaultyEmulator("arm", physics=False)
     path = emu.open_control(str(tmp_path / "control"))
     client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
@@ -696,7 +718,7 @@ def _ask(client: socket.socket, emu: Emulator, request: bytes) -> dict[str, obje
 
 
 def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -> None:
-    emu = Emulator("arm", seed=1)
+    emu = FaultyEmulator("arm", seed=1)
     path = emu.open_control(str(tmp_path / "control"))
     client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
@@ -718,7 +740,7 @@ def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -
     finally:
         client.close()
         emu.close()
-    hand = Emulator("hand", physics=False)
+    hand = FaultyEmulator("hand", physics=False)
     try:
         client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         client.connect(hand.open_control(str(tmp_path / "hand-control")))
@@ -729,7 +751,7 @@ def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -
 
 
 def test_rngs_differ_by_entry_and_occurrence() -> None:
-    emu = Emulator("arm", seed=3, physics=False)
+    emu = FaultyEmulator("arm", seed=3, physics=False)
     draws = {(e, k): emu.faults._rng(e, k).random() for e in range(2) for k in range(2)}
     assert len(set(draws.values())) == 4
     assert np.isclose(emu.faults._rng(1, 1).random(), draws[(1, 1)])
@@ -786,7 +808,7 @@ def test_overlapping_repeats_of_a_fault_are_cleared_before_applied_again() -> No
     """A repeat that starts while the last one is still applied (a fault that stays until
     cleared, repeated) clears it first: each apply has its clear, and clearing the fault
     once leaves nothing of it (two stacked applies would leave frames lost for good)."""
-    emu = Emulator("arm", seed=3, physics=False)
+    emu = FaultyEmulator("arm", seed=3, physics=False)
     try:
         emu.faults.load(parse_plan([
             {"fault": "bus_frame_loss", "params": {"bus": "arm", "probability": 1.0},

@@ -20,7 +20,6 @@ from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
 from firmware_py.sim.virtual_hal import VirtualHal
-from hil_emulator.bring_up import BOOT_US
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand_model import (
@@ -33,6 +32,7 @@ from hil_emulator.hand_model import (
 )
 from hil_emulator.hand_rig import HandRig
 from hil_emulator.hand_sensors import DEFAULT_TACTILE, STRAIN_COUNTS_PER_NM
+from hil_emulator.inprocess import BOOT_US
 from hil_emulator.plant import Plant, new_spec
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE

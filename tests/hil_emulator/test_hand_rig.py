@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from hil_emulator.bring_up import BOOT_US
 from hil_emulator.hand_rig import HandRig
+from hil_emulator.inprocess import BOOT_US
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all

@@ -10,7 +10,8 @@ import time
 import serial
 
 from firmware_py.scheduler import Scheduler
-from hil_emulator.emulator import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S, Emulator
+from hil_emulator.emulator import Emulator
+from hil_emulator.pacing import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S
 from protocol.dynamixel import make_ping
 
 
@@ -34,7 +35,7 @@ def test_stop_takes_effect_at_once_when_far_behind() -> None:
 
     emulator.scheduler.call_every(100, costly)
     said: list[str] = []
-    emulator.on_late = said.append
+    emulator.pacer.on_late = said.append
     stop = threading.Event()
     thread = _run_in_thread(emulator, stop)
     time.sleep(0.5)
@@ -48,8 +49,8 @@ def test_stop_takes_effect_at_once_when_far_behind() -> None:
     # It said so, once, with the figure; and gave up wall time instead of bursting.
     assert len(said) == 1 and "ms late" in said[0], said
     assert float(said[0].split(" ms late")[0].rsplit(" ", 1)[1]) > LATE_WARN_MS
-    assert emulator.late_episodes == 1
-    assert emulator.slipped_s > 0.0
+    assert emulator.pacer.late_episodes == 1
+    assert emulator.pacer.slipped_s > 0.0
 
 
 def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
@@ -99,7 +100,7 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
     # The reply is one event chain away on the simulation clock: the ping's and the reply's
     # wire time and the servo's return delay, far less than the backlog (MAX_BEHIND_S).
     assert 0 < replies[0] - t_in < 2_000 < MAX_BEHIND_S * 1e6
-    assert emulator.slipped_s > 0.0
+    assert emulator.pacer.slipped_s > 0.0
 
 
 def test_an_idle_run_sleeps_and_keeps_time() -> None:
@@ -115,7 +116,7 @@ def test_an_idle_run_sleeps_and_keeps_time() -> None:
     wall = time.monotonic() - wall0
     sim = (emulator.scheduler.now_us() - sim0) / 1e6
     assert sim <= wall  # never ahead of the wall clock
-    assert sim >= wall - 0.1 - emulator.slipped_s
+    assert sim >= wall - 0.1 - emulator.pacer.slipped_s
     # The arm's firmware alone needs a small fraction of a core; polling would take it all.
     assert time.process_time() - cpu0 < 0.8 * wall
 

@@ -50,13 +50,13 @@ def test_realtime_where_allowed_is_round_robin_for_that_thread_only() -> None:
 def test_a_run_gives_the_thread_its_scheduling_back_and_says_which_it_had() -> None:
     emulator = Emulator("arm", physics=False)
     said: list[str] = []
-    emulator.on_notice = said.append
+    emulator.pacer.on_notice = said.append
     stop = threading.Event()
     threading.Timer(0.3, stop.set).start()
 
     def run() -> tuple[str, bool]:
         emulator.run(stop, priority="realtime")
-        return current().policy, bool(emulator.scheduling and emulator.scheduling.realtime)
+        return current().policy, bool(emulator.pacer.scheduling and emulator.pacer.scheduling.realtime)
 
     after, had = _in_thread(run)  # type: ignore[misc]
     assert had and after == "SCHED_OTHER"

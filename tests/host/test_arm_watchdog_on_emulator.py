@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from hil_emulator.inprocess import EmulatorTransport
 from host.arm import HOST_WATCHDOG_MS, MOVE_MIN_SPEED, Arm
 from protocol.control_tables import StepperFlag
 
@@ -147,7 +148,7 @@ def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
         state = arm.torque(True, hold=True)
         arm.cycle([arm.make_position(1, state.joints[1] + 0.4, 0.2)])
         emu.step(500_000)  # gone mid-move
-    with Arm.on(emu.transport("arm")) as reader:
+    with Arm.on(EmulatorTransport(emu, "arm")) as reader:
         for _ in range(5):
             state = reader.state()
             assert state.steppers[1].watchdog

@@ -8,6 +8,7 @@ from __future__ import annotations
 from firmware_py.flash_layout import BOOT_CONTROL_PAGE, PAGE_SIZE, page_address
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport
 from host.hand import Hand
 from host.hand_bring_up import BOOT_TIMEOUT_S, BOOT_WAIT_LIMIT
 from host.hand_session import HandSession, Target
@@ -23,7 +24,7 @@ AUTOBOOT_S = AUTOBOOT_WINDOW_US / 1e6
 def _hand(factor: float = 1.0) -> tuple[Emulator, Hand]:
     emulator = Emulator("hand", physics=False, can="none")
     emulator.step(PALM_BOOT_US)
-    link: Transport = emulator.transport("palm")
+    link: Transport = EmulatorTransport(emulator, "palm")
     if factor != 1.0:
         link = FastLinkClock(link, factor)
     return emulator, Hand(HandSession(link))

@@ -19,6 +19,7 @@ from bootloader.plan import FlashPlan, make_plan
 from firmware_py.bootloader import inspect_image
 from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession
 from protocol.image import BoardType, FirmwareImage, ImageHeader
 from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus
@@ -40,7 +41,7 @@ class Hand:
 
     def __init__(self) -> None:
         self.emu = Emulator("hand", physics=False, can="none")
-        self.emu.bring_up()
+        bring_up(self.emu)
         assert self.emu.hand is not None
         self.rig = self.emu.hand
         self.boots: list[tuple[str, ImageStatus, ImageHeader | None]] = []
@@ -59,7 +60,7 @@ class Hand:
         mcu.boot = boot  # type: ignore[method-assign]
 
     def session(self) -> HandSession:
-        return HandSession(self.emu.transport("palm"))
+        return HandSession(EmulatorTransport(self.emu, "palm"))
 
     def nodes(self) -> list[Mcu]:
         return [m for f in self.rig.fingers for m in (f.fmcb, f.f2, f.f3)]
@@ -119,7 +120,7 @@ def test_cli_json_and_refusals_before_touching_anything(
         paths[board] = tmp_path / f"{board.name.lower()}.img"
         paths[board].write_bytes(image.to_bytes())
     monkeypatch.setattr(flash_all_fingers, "open_transport",
-                        lambda url: hand.emu.transport("palm"))
+                        lambda url: EmulatorTransport(hand.emu, "palm"))
     args = ["--port", "emu://hand/palm", "--fmcb", str(paths[BoardType.FMCB]),
             "--f2", str(paths[BoardType.F2]), "--f3", str(paths[BoardType.F3])]
     boots = len(hand.boots)
@@ -289,7 +290,7 @@ def test_a_hand_just_switched_on_is_waited_for_and_a_halted_palm_is_named() -> N
     # The palm starts its application 4.5 s after power-up: preflight waits for it.
     emu = Emulator("hand", physics=False, can="none")
     try:
-        with HandSession(emu.transport("palm")) as session:
+        with HandSession(EmulatorTransport(emu, "palm")) as session:
             report = run_plan(session, make_plan(NEW, [0]))
         assert report.ok, [r.to_dict() for r in report.nodes]
     finally:
@@ -297,7 +298,7 @@ def test_a_hand_just_switched_on_is_waited_for_and_a_halted_palm_is_named() -> N
     # A palm that stays in its bootloader: refused before touching anything, saying so.
     emu = Emulator("hand", physics=False, can="none")
     try:
-        with HandSession(emu.transport("palm")) as session:
+        with HandSession(EmulatorTransport(emu, "palm")) as session:
             session.request("bl.halt")
             with pytest.raises(PlanError, match="palm .* runs its bootloader"):
                 run_plan(session, make_plan(NEW, [0]))
@@ -314,7 +315,7 @@ def test_ctrl_c_mid_flash_prints_where_every_node_stopped_then_a_rerun_resumes(
         path.write_bytes(image.to_bytes())
         paths += [f"--{board.name.lower()}", str(path)]
     monkeypatch.setattr(flash_all_fingers, "open_transport",
-                        lambda url: hand.emu.transport("palm"))
+                        lambda url: EmulatorTransport(hand.emu, "palm"))
     printer = flash_all_fingers.progress_printer
 
     def ctrl_c_while_writing(stream: Any) -> Any:
@@ -367,7 +368,7 @@ def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
     try:
         plan = make_plan({BoardType.F2: NEW[BoardType.F2], BoardType.F3: NEW[BoardType.F3]},
                          [1], all_or_nothing=all_or_nothing)
-        with HandSession(emu.transport("palm")) as session:
+        with HandSession(EmulatorTransport(emu, "palm")) as session:
             report = run_plan(session, plan)
         assert report.ok, [r.to_dict() for r in report.nodes]
         assert [r.result for r in report.nodes] == ["flashed", "flashed"]

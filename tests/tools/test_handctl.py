@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import bring_up
 from protocol.framing import parse_frame
 from tools.cli.handctl import main
 
@@ -79,7 +80,7 @@ def test_record_writes_frames_and_states_to_mcap(tmp_path: Path,
 def palm_pty() -> Iterator[str]:
     """An emulated hand (firmware only, no physics) serving its palm pty in real time."""
     emulator = Emulator("hand", physics=False, can="none")
-    emulator.bring_up()
+    bring_up(emulator)
     ports = emulator.open_ports()
     stop = threading.Event()
     runner = threading.Thread(target=emulator.run, args=(stop,), kwargs={"realtime": True})

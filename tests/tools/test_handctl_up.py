@@ -47,7 +47,7 @@ def _autopolling(emulator: Emulator) -> list[bool]:
 def test_power_all_reports_every_fingers_state_after_the_stagger() -> None:
     emulator = Emulator("hand", physics=False, can="none")
     emulator.step(PALM_BOOT_US)
-    with Hand.open(emulator.transport("palm")) as hand:
+    with Hand.open(EmulatorTransport(emulator, "palm")) as hand:
         start = hand.session.now()
         states = hand.power("all", "full", stagger_ms=50)
         # The palm answers at the first switch; the states come after the last one.

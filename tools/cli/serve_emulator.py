@@ -46,9 +46,12 @@ from collections.abc import Callable, Sequence
 from types import FrameType
 from typing import Any
 
-from hil_emulator.emulator import CONFIGS, Emulator, has_display
+from hil_emulator.emulator import Emulator, has_display
 from hil_emulator.errors import EmulatorError
-from hil_emulator.faults import load_plan
+from hil_emulator.faults import FaultInjector, load_plan
+from hil_emulator.faults.control import ControlChannel
+from hil_emulator.inprocess import bring_up
+from hil_emulator.robot import CONFIGS
 from hil_emulator.scene_model import SCENES
 from hil_emulator.scheduling import PRIORITIES
 from tools.cli.numeric import number_above, read_negative_numbers
@@ -138,24 +141,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2
+    faults = FaultInjector(emulator)  # the plan's and the control channel's
     with emulator:
         try:
             if args.ready:
-                emulator.bring_up()
-            ports = emulator.open_ports(args.link_dir)
+                bring_up(emulator)
+            ports: dict[str, object] = {**emulator.open_ports(args.link_dir)}
             ports["ready"] = bool(args.ready)
             control = args.control or (os.path.join(args.link_dir, "control")
                                        if args.link_dir else None)
             if control is not None:
-                ports["control"] = emulator.open_control(control)
-            emulator.faults.load(plan)
+                emulator.add_port(ControlChannel(emulator, control, faults))
+                ports["control"] = control
+            faults.load(plan)
             ports["faults"] = len(plan)
         except EmulatorError as exc:
             print(f"hil-emulator: {exc}", file=sys.stderr)
             return 1
-        emulator.on_late = lambda text: print(f"hil-emulator: {text}", file=sys.stderr,
-                                              flush=True)
-        emulator.on_notice = emulator.on_late
+        pacer = emulator.pacer
+        pacer.on_late = lambda text: print(f"hil-emulator: {text}", file=sys.stderr,
+                                           flush=True)
+        pacer.on_notice = pacer.on_late
         on_idle: Callable[[], None] | None = None
         handle: Any = None
         if args.viewer:
@@ -182,10 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 stats: dict[str, Any] = {
                     "sim_s": emulator.scheduler.now_us() / 1e6, **emulator.lateness_stats(),
                     "stop_ms": stop_ms,
-                    "scheduling": (emulator.scheduling.policy if emulator.scheduling
-                                   else None),
+                    "scheduling": pacer.scheduling.policy if pacer.scheduling else None,
                     "ports": emulator.link_stats(),
-                    "fault_timeline": emulator.faults.timeline_dicts()}
+                    "fault_timeline": faults.timeline_dicts()}
                 if emulator.scene_parts:
                     stats["scene"] = emulator.scene_stats()
                 print(f"hil-emulator stats: {json.dumps(stats)}", file=sys.stderr)

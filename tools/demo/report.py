@@ -14,13 +14,33 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
+
+from host.arm_state import ArmState
+from host.hand_state import FingerState, HandState
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from tools.demo.script import Log
+
+@dataclass
+class Log:
+    """What the demo saw, for the report: arm states, finger readings (t, finger, state),
+    hand states, the steps (name, sim s, wall s, text) and, in process, the physics' ground
+    truth of the mug and the palm (``truth``)."""
+
+    arm: list[ArmState] = field(default_factory=list)
+    fingers: list[tuple[float, int, FingerState]] = field(default_factory=list)
+    hands: list[HandState] = field(default_factory=list)
+    steps: list[tuple[str, float, float, str]] = field(default_factory=list)
+    phases: list[tuple[str, float]] = field(default_factory=list)
+    result: dict[str, Any] = field(default_factory=dict)
+    #: In process: the mug and the palm (t, mug z, palm z, slip; s, m) from the physics.
+    truth: list[tuple[float, float, float, float]] = field(default_factory=list)
+    #: Each finger's reading when the grasp began: the tactile plot's baseline.
+    touch_baseline: dict[int, FingerState] = field(default_factory=dict)
 
 
 #: Readings further apart than this (s) are not joined by a line.

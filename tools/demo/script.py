@@ -69,7 +69,6 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +118,7 @@ from tools.demo.plan import (
     FlangePose,
     flange_pose,
 )
+from tools.demo.report import Log, write_report
 from tools.demo.watch import SLIP_M, HandSampler, MugInHand, felt
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -145,24 +145,6 @@ class DemoFailed(Exception):
     def __init__(self, step: str, reason: str) -> None:
         super().__init__(reason)
         self.step = step
-
-
-@dataclass
-class Log:
-    """What the demo saw, for the report: arm states, finger readings (t, finger, state),
-    hand states, the steps (name, sim s, wall s, text) and, in process, the physics' ground
-    truth of the mug and the palm (``truth``)."""
-
-    arm: list[ArmState] = field(default_factory=list)
-    fingers: list[tuple[float, int, FingerState]] = field(default_factory=list)
-    hands: list[HandState] = field(default_factory=list)
-    steps: list[tuple[str, float, float, str]] = field(default_factory=list)
-    phases: list[tuple[str, float]] = field(default_factory=list)
-    result: dict[str, Any] = field(default_factory=dict)
-    #: In process: the mug and the palm (t, mug z, palm z, slip; s, m) from the physics.
-    truth: list[tuple[float, float, float, float]] = field(default_factory=list)
-    #: Each finger's reading when the grasp began: the tactile plot's baseline.
-    touch_baseline: dict[int, FingerState] = field(default_factory=dict)
 
 
 class Demo:
@@ -738,7 +720,6 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
 
 
 def _write_report(demo: Demo, out: Path) -> None:
-    from tools.demo.report import write_report
 
     try:
         path = write_report(demo.log, out)

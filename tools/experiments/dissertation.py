@@ -2,7 +2,7 @@
 
 Every experiment runs the emulator in process, in fast mode, and drives the robot through
 the wire with the host library (:class:`host.arm.Arm`, :class:`host.hand.Hand` on
-``Emulator(...).transport(...)``); the plant is used only where the dissertation used an
+``EmulatorTransport(Emulator(...), link)``); the plant is used only where the dissertation used an
 instrument (an optical tracker on the flange, masses hung on it, a hand pushing a joint, a
 coin dropped on a pad).  One table comes out: quantity, dissertation, emulator, tolerance,
 pass.  ``--report DIR`` writes it as Markdown with PNG plots (figure 5.8's step responses,
@@ -29,6 +29,7 @@ from typing import Any, Final
 import numpy as np
 
 from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.arm import Arm
 from host.arm_joint_loop import JointController, PidGains, TrackingLog
 from host.arm_state import N_JOINTS
@@ -87,7 +88,7 @@ def within(value: float, target: float, rel: float = 0.10) -> bool:
 def open_arm(seed: int) -> tuple[Emulator, Arm]:
     """An arm-only emulator and the host's :class:`Arm` on its bus (fast mode)."""
     emulator = Emulator("arm", seed=seed)
-    return emulator, Arm.on(emulator.transport("arm"))
+    return emulator, Arm.on(EmulatorTransport(emulator, "arm"))
 
 
 def go(control: JointController, goal: Sequence[float], speed: float = 0.4,
@@ -113,7 +114,7 @@ def lift_unloaded(seed: int = DEFAULT_SEED) -> Outcome:
     state = go(control, OUTSTRETCHED, log=log)
     error = abs(state.joints[1] - OUTSTRETCHED[1])
     go(control, (0.0,) * N_JOINTS, log=log)
-    slips = int(emulator.arm_plant.slips().sum())
+    slips = int(emulator.require_arm_plant().slips().sum())
     ok = not log.stall_events and slips == 0 and error < math.radians(0.5)
     return Outcome("lift", [Row(
         "arm lifts to horizontal, unloaded (closed loop, feed-forward)", "yes",
@@ -127,7 +128,7 @@ def stall_still_trips(seed: int = DEFAULT_SEED) -> Outcome:
     emulator, arm = open_arm(seed)
     control = JointController(arm)
     go(control, OUTSTRETCHED)
-    emulator.arm_plant.push(3, -25.0)  # more than the elbow stepper can move against
+    emulator.require_arm_plant().push(3, -25.0)  # more than the elbow stepper can move against
     goal = list(OUTSTRETCHED)
     goal[3] = 0.6
     log = TrackingLog()
@@ -136,7 +137,7 @@ def stall_still_trips(seed: int = DEFAULT_SEED) -> Outcome:
         go(control, goal, speed=0.3, settle_s=1.0, log=log)
     except StallError as exc:  # the controller stops re-enabling a joint that stays held
         gave_up = exc.joint
-    emulator.arm_plant.push(3, 0.0)
+    emulator.require_arm_plant().push(3, 0.0)
     tripped = "J4" in log.stall_events and gave_up in ("", "J4")
     return Outcome("stall", [Row(
         "elbow held against its stepper: node latches STALLED", "trips (§5.3.2)",
@@ -149,7 +150,7 @@ def holding_ratio(seed: int = DEFAULT_SEED) -> Outcome:
     results = []
     for moving in (False, True):
         emulator, arm = open_arm(seed)
-        plant = emulator.arm_plant
+        plant = emulator.require_arm_plant()
         arm.torque(True)
         clock = arm.transport
         if moving:  # the elbow stepping slowly away (0.02 rad/s) while pushed back
@@ -182,16 +183,19 @@ def payload(seed: int = DEFAULT_SEED, low: float = 1.6, high: float = 2.4,
 
     def trial(kg: float) -> bool:
         emulator, arm = open_arm(seed)
-        plant = emulator.arm_plant
+        plant = emulator.require_arm_plant()
         control = JointController(arm, gains=OPEN_LOOP)
         below = list(OUTSTRETCHED)
         below[1] = math.pi / 2 - 0.45
         go(control, below, speed=0.4, settle_s=1.0)
         clock = arm.transport
         t0 = clock.now()
-        control.run(lambda _t: (np.array(below), np.zeros(N_JOINTS)), 1.5,
-                    until=lambda _s: plant.set_payload(min(kg, kg * (clock.now() - t0)))
-                    or False)
+
+        def ramp_payload(_state: object) -> bool:  # the mass hung on over the run
+            plant.set_payload(min(kg, kg * (clock.now() - t0)))
+            return False
+
+        control.run(lambda _t: (np.array(below), np.zeros(N_JOINTS)), 1.5, until=ramp_payload)
         span, seconds = 0.9, 9.0  # J2 from 45 to 135 ... via horizontal, slowly
 
         def path(t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -227,7 +231,7 @@ def max_speed(seed: int = DEFAULT_SEED) -> Outcome:
     rate the node caps it to), the flange's speed from the plant (an optical tracker):
     the arc length's slope while J2's step generator runs at its cap."""
     emulator, arm = open_arm(seed)
-    plant = emulator.arm_plant
+    plant = emulator.require_arm_plant()
     stepper = emulator.arm.stepper_hals[1].stepper() if emulator.arm else None
     control = JointController(arm)
     start = list(OUTSTRETCHED)
@@ -269,7 +273,7 @@ def base_step(seed: int = DEFAULT_SEED, steps: int = 10) -> Outcome:
     """The outstretched arm; J1's goal advanced by one microstep at a time (command_goal,
     1/16 count) ``steps`` times; the flange's travel per step (tracker, 0.1 mm)."""
     emulator, arm = open_arm(seed)
-    plant = emulator.arm_plant
+    plant = emulator.require_arm_plant()
     control = JointController(arm)
     state = go(control, OUTSTRETCHED, settle_s=2.0)
     clock = arm.transport
@@ -322,7 +326,7 @@ def stepper_modes(emulator: Emulator, locked: Sequence[int] = ()) -> list[float]
     import mujoco
 
     plant = emulator.plant
-    arm = emulator.arm_plant
+    arm = emulator.require_arm_plant()
     assert plant is not None
     model, data = plant.model, plant.data
     work = mujoco.MjData(model)
@@ -362,7 +366,7 @@ def elbow_frequency(seed: int = DEFAULT_SEED) -> Outcome:
     modes: list[float] = []
     for case in ("held", "hanging"):
         emulator, arm = open_arm(seed)
-        plant = emulator.arm_plant
+        plant = emulator.require_arm_plant()
         control = JointController(arm, gains=OPEN_LOOP)
         pose = [0.0] * N_JOINTS
         if case == "held":
@@ -458,7 +462,7 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
     Repeatability as the largest distance from the points' mean (and ISO 9283's mean +
     3σ)."""
     emulator, arm = open_arm(seed)
-    plant = emulator.arm_plant
+    plant = emulator.require_arm_plant()
     control = JointController(arm)
     home = np.array(REPEAT_HOME)
     count = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
@@ -508,8 +512,8 @@ def finger_deadband(seed: int = DEFAULT_SEED) -> Outcome:
     from host.hand import Hand
 
     emulator = Emulator("hand", seed=seed)
-    emulator.bring_up()
-    hand = Hand.open(emulator.transport("palm"))
+    bring_up(emulator)
+    hand = Hand.open(EmulatorTransport(emulator, "palm"))
     worst = 0.0
     try:
         finger = hand.fingers[0]
@@ -533,8 +537,8 @@ def tactile_coin(seed: int = DEFAULT_SEED, cycles: int = 4) -> Outcome:
     from host.hand import Hand
 
     emulator = Emulator("hand", seed=seed)
-    emulator.bring_up()
-    hand = Hand.open(emulator.transport("palm"))
+    bring_up(emulator)
+    hand = Hand.open(EmulatorTransport(emulator, "palm"))
     plant = emulator.finger_plants[0]
     clock = hand.session.transport
     samples: list[tuple[float, bool, list[int]]] = []

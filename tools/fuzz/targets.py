@@ -221,6 +221,7 @@ class TargetLink:
     @classmethod
     def _open_emulated(cls, kind: TargetKind, port: str, seed: int) -> TargetLink:
         from hil_emulator.emulator import Emulator
+        from hil_emulator.inprocess import EmulatorTransport, bring_up
         from hil_emulator.introspection import EmulatorIntrospection
 
         rest = port.split("://", 1)[1].split("?", 1)[0]
@@ -231,9 +232,10 @@ class TargetLink:
         emulator = Emulator(config, seed=int(options.get("seed", seed)), physics=physics,
                             can="none")
         if ready and config != "arm":
-            emulator.bring_up()
-        transport = emulator.transport(link_name or {"arm": "arm", "loose-finger": "finger0"}
-                                       .get(config, "palm"))
+            bring_up(emulator)
+        transport = EmulatorTransport(emulator, link_name or {"arm": "arm",
+                                                              "loose-finger": "finger0"}
+                                      .get(config, "palm"))
         link = cls(kind, transport, EmulatorIntrospection(emulator), emulator)
         link.prepare()
         return link

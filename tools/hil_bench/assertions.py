@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Final
 from protocol.stream import decode_all
 
 if TYPE_CHECKING:
-    from tools.hil_bench.runner import RunRecord
+    from tools.hil_bench.record import RunRecord
     from tools.hil_bench.scenario import Step
 
 Verdict = tuple[bool, dict[str, Any], str]

@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 from hil_emulator.emulator import Emulator
-from hil_emulator.faults import targets
+from hil_emulator.faults import FaultInjector, targets
+from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
 from protocol.topology import board as board_row
 from tools.hil_bench.assertions import judge
+from tools.hil_bench.record import RunRecord
 from tools.hil_bench.scenario import FINGER_BOARDS, Scenario, Step, parse_scenario
 
 #: Period of the plant-truth samples (µs).
@@ -35,26 +36,6 @@ _LATCHES: Final = int(StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.HARDW
 _STEPPER_MODEL: Final = STEPPER_TABLE["model_number"].default
 
 
-@dataclass
-class RunRecord:
-    """What a run observed (times in s from the plan's start)."""
-
-    t0_us: int = 0
-    timeline: list[dict[str, Any]] = field(default_factory=list)
-    actions: dict[str, dict[str, Any]] = field(default_factory=dict)
-    events: list[dict[str, Any]] = field(default_factory=list)
-    hand_samples: list[dict[str, Any]] = field(default_factory=list)
-    arm_samples: list[dict[str, Any]] = field(default_factory=list)
-    truth: list[dict[str, Any]] = field(default_factory=list)
-    links: dict[str, dict[str, bytes]] = field(default_factory=dict)
-    nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def fault_times(self, label: str, action: str = "apply") -> list[float]:
-        """When faults labelled ``label`` were applied (or cleared), s."""
-        return [e["t_s"] for e in self.timeline if e["label"] == label
-                and e["action"] == action]
-
-
 class Bench:
     """The emulator and the host objects one scenario's actions use."""
 
@@ -62,6 +43,8 @@ class Bench:
         self.scenario = scenario
         self.emu = Emulator(scenario.config, seed=scenario.seed, physics=scenario.physics,
                             can="none")
+        #: The scenario's fault plan is applied through it (the bench owns it).
+        self.faults = FaultInjector(self.emu)
         self.record = RunRecord()
         self._hand: Any = None
         self._arm: Any = None
@@ -110,7 +93,7 @@ class Bench:
             from host.hand import Hand
             from host.hand_session import HandSession
 
-            self._hand = Hand(HandSession(self.emu.transport("palm"), retries=1))
+            self._hand = Hand(HandSession(EmulatorTransport(self.emu, "palm"), retries=1))
             self._hand.subscribe(self._event)
         return self._hand
 
@@ -123,27 +106,27 @@ class Bench:
         if self._arm is None:
             from host.arm import Arm
 
-            self._arm = Arm.open(self.emu.transport("arm"))
+            self._arm = Arm.open(EmulatorTransport(self.emu, "arm"))
         return self._arm
 
     # ------------------------------------------------------------------ running
     def run(self) -> RunRecord:
         emu, s = self.emu, self.scenario
         if s.ready and (emu.hand is not None or emu.loose is not None):
-            emu.bring_up()
+            bring_up(emu)
         for a in s.assertions:
             if a.kind == "no_unsent_frames":
                 emu.link_tap(a.params["link"]).record = True
         self.record.t0_us = emu.scheduler.now_us()
         emu.scheduler.call_every(TRUTH_PERIOD_US, self._sample_truth)
-        emu.faults.load(s.faults)
+        self.faults.load(s.faults)
         for step in s.actions:
             self._act(step)
-        for ev in emu.faults.timeline:
+        for ev in self.faults.timeline:
             d = ev.to_dict()
             d["t_s"] = round((ev.t_us - self.record.t0_us) / 1e6, 6)
             self.record.timeline.append(d)
-        for name, tap in emu._taps.items():
+        for name, tap in emu.taps.items():
             if tap.record:
                 self.record.links[name] = {"sent": bytes(tap.sent),
                                            "received": bytes(tap.received)}

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from hil_emulator.emulator import CONFIGS
 from hil_emulator.errors import FaultPlanError
 from hil_emulator.faults import PlanEntry, parse_plan
+from hil_emulator.robot import CONFIGS
 from protocol import topology
 from protocol.messages.palm import FingerPower
 from protocol.topology import FINGERS, SERVO_IDS, STEPPER_IDS
