@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any, Final
 
-from bootloader.errors import PlanError
+from bootloader.errors import PlanError, StepFailed
 from bootloader.node_session import (
     FingerChannel,
     NodeReport,
@@ -28,7 +28,6 @@ from bootloader.node_session import (
     Outcome,
     Send,
     Sleep,
-    StepFailed,
 )
 from bootloader.plan import FlashPlan, NodeJob
 from bootloader.slot_update import SlotChannel

@@ -27,10 +27,11 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any, Final
 
+from bootloader.errors import StepFailed
 from bootloader.plan import Block, FlashPlan, NodeJob
 from protocol.errors import ImageError
 from protocol.image import FLASH, BoardType, parse_header
-from protocol.messages.bootloader import (
+from protocol.messages.boot_program import (
     AUTOBOOT_WINDOW_US,
     BootResult,
     ImageStatus,
@@ -43,7 +44,7 @@ from protocol.topology import Hop
 #: Power off time when forcing a node into its bootloader (s).
 POWER_OFF_S: Final = 0.05
 #: How long after power-on the host keeps trying to halt autoboot (s); inside the
-#: bootloader's :data:`~protocol.messages.bootloader.AUTOBOOT_WINDOW_US`.
+#: bootloader's :data:`~protocol.messages.boot_program.AUTOBOOT_WINDOW_US`.
 HALT_WITHIN_S: Final = 2.5
 #: Pause between halt attempts (s).
 HALT_RETRY_S: Final = 0.02
@@ -196,10 +197,6 @@ class Outcome:
 
 Op = Send | Sleep
 Flow = Generator[Op, Outcome, Any]
-
-
-class StepFailed(Exception):
-    """A step of a node's flashing failed for good (the message says which and why)."""
 
 
 class FingerChannel:

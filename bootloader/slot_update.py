@@ -30,6 +30,7 @@ import hashlib
 from collections.abc import Callable
 from typing import Any, Final
 
+from bootloader.errors import StepFailed
 from bootloader.node_session import (
     HEADER_REFUSALS,
     QUERY_TRIES,
@@ -39,13 +40,12 @@ from bootloader.node_session import (
     NodeState,
     Send,
     Sleep,
-    StepFailed,
     refusal,
 )
 from bootloader.plan import FINGER_BOARDS, FlashPlan, NodeJob
 from protocol import topology
 from protocol.image import BoardType
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
 from protocol.messages.common import Running
 from protocol.messages.palm import FingerPower
 from protocol.messages.slots import ConfirmBy, SlotResult, SlotState

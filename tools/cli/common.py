@@ -46,7 +46,8 @@ from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
 from protocol.messages.common import TxnStatus
 from tools.cli.numeric import number_above, read_negative_numbers
-from tools.cli.output import EXIT_BROKEN_PIPE, OutputError, checked_stdout, output_failed
+from tools.cli.output import EXIT_BROKEN_PIPE, checked_stdout, output_failed
+from tools.errors import OutputError
 
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1

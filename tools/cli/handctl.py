@@ -207,7 +207,7 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
         homed = False
     try:
         found = estimate(f.accels)
-    except UsageError as exc:  # e.g. NoAccelerationError: phalanges unpowered or unpolled
+    except (NoAccelerationError, UsageError) as exc:  # NoAccelerationError: phalanges unpowered
         return {"joints_accel": None, "homed": homed,
                 "accel_problem": f"{exc}; power the phalanges: handctl up"
                 if isinstance(exc, NoAccelerationError) else str(exc)}
@@ -525,7 +525,9 @@ def _run(args: argparse.Namespace) -> int:
 @guard_output("handctl")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run handctl; returns the exit status."""
-    return run_cli(_parser(), argv, _run)
+    # Phalanges unpowered for one finger's homing: the user's next step is `handctl up`
+    # (exit 2, as a usage error, though the library no longer calls it one).
+    return run_cli(_parser(), argv, _run, usage=(NoAccelerationError,))
 
 
 if __name__ == "__main__":
