@@ -85,6 +85,12 @@ HEADER_REFUSALS: Final = {
 }
 
 
+#: Page-write statuses that end a page's retries: the image refused, or a page it may not
+#: write.
+PAGE_STOPS: Final = frozenset({*HEADER_REFUSALS, WriteStatus.PAGE_OUT_OF_RANGE,
+                               WriteStatus.PAGE_PROTECTED})
+
+
 def refusal(image_status: int) -> str:
     """``image_status`` (:class:`ImageStatus`) of a refused activation, in words."""
     try:
@@ -197,6 +203,38 @@ class Outcome:
 
 Op = Send | Sleep
 Flow = Generator[Op, Outcome, Any]
+#: A page write that did not succeed: the status that stopped it (None: no reply last) and
+#: the problem, in words.
+PageFailure = tuple[int | None, object]
+
+
+def send_page(report: NodeReport, hop: Hop, name: str, key: str, index: int, data: bytes, *,
+              stop_on: frozenset[int], pause_s: float = 0.0
+              ) -> Generator[Op, Outcome, PageFailure | None]:
+    """Send the page write ``name`` (``{key: index, "data": data}``) to ``hop`` up to
+    :data:`PAGE_TRIES` times until the node acknowledges that page with OK; None when it
+    did, else what stopped it.  A status in ``stop_on`` stops at once (the caller says
+    why); any other retries, after ``pause_s`` (s, link clock).  ``report`` counts the
+    retries and the bytes sent."""
+    problem: object = None
+    status: int | None = None
+    for attempt in range(PAGE_TRIES):
+        if attempt:
+            report.retries += 1
+        out = yield Send(name, {key: index, "data": data}, hop, WRITE_EXTRA_MS)
+        if out.error is not None or out.fields is None:
+            problem, status = out.error, None
+            continue
+        status = out.fields["status"]
+        report.bytes_written += len(data)
+        if status == WriteStatus.OK and out.fields[key] == index:
+            return None
+        problem = f"status {status!r}"
+        if status in stop_on:
+            break
+        if pause_s:
+            yield Sleep(pause_s)
+    return status, problem
 
 
 class FingerChannel:
@@ -450,31 +488,18 @@ class FingerChannel:
 
     def write_page(self, job: NodeJob, page: int, data: bytes) -> Flow:
         """One page, retried up to :data:`PAGE_TRIES` times (no reply, busy, bad word)."""
-        report = self.reports[job]
-        problem: object = None
-        for attempt in range(PAGE_TRIES):
-            if attempt:
-                report.retries += 1
-            out = yield Send("bl.write_page", {"page": page, "data": data}, job.hop,
-                             WRITE_EXTRA_MS)
-            if out.error is not None:
-                problem = out.error
-                continue
-            assert out.fields is not None
-            status = out.fields["status"]
-            report.bytes_written += len(data)
-            if status == WriteStatus.OK and out.fields["page"] == page:
-                return
-            problem = f"status {status!r}"
-            if status in HEADER_REFUSALS:
-                booted = yield from self.boot_installed(job)
-                then = ("runs it again" if booted else
-                        "stays in its bootloader (that image does not verify either)")
-                raise StepFailed(f"{job.name}: image refused before anything was written: "
-                                 f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
-                                 f"the image it had and {then}")
-            if status in (WriteStatus.PAGE_OUT_OF_RANGE, WriteStatus.PAGE_PROTECTED):
-                break
+        failed = yield from send_page(self.reports[job], job.hop, "bl.write_page", "page", page,
+                                      data, stop_on=PAGE_STOPS)
+        if failed is None:
+            return
+        status, problem = failed
+        if status in HEADER_REFUSALS:
+            booted = yield from self.boot_installed(job)
+            then = ("runs it again" if booted else
+                    "stays in its bootloader (that image does not verify either)")
+            raise StepFailed(f"{job.name}: image refused before anything was written: "
+                             f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
+                             f"the image it had and {then}")
         raise StepFailed(f"{job.name}: page {page} not written: {problem}")
 
     def boot_installed(self, job: NodeJob) -> Flow:

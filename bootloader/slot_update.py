@@ -33,6 +33,7 @@ from typing import Any, Final
 from bootloader.errors import StepFailed
 from bootloader.node_session import (
     HEADER_REFUSALS,
+    PAGE_STOPS,
     QUERY_TRIES,
     WRITE_EXTRA_MS,
     Flow,
@@ -41,6 +42,7 @@ from bootloader.node_session import (
     Send,
     Sleep,
     refusal,
+    send_page,
 )
 from bootloader.plan import FINGER_BOARDS, FlashPlan, NodeJob
 from protocol import topology
@@ -66,8 +68,6 @@ BOOT_GUARD_S: Final = 60.0
 BOOT_MARGIN_US: Final = 4_000_000
 #: Pause between identify polls of a rebooting node (s).
 POLL_S: Final = 0.02
-#: Attempts of one slot.write.
-PAGE_TRIES: Final = 5
 #: The self-test after a swap: requests each board's application must answer.
 SELF_TEST: Final = {b.board_type: b.self_test for b in topology.FINGER_BOARDS}
 
@@ -213,32 +213,18 @@ class SlotChannel:
         self._set(job, NodeState.STAGED)
 
     def write_page(self, job: NodeJob, index: int, data: bytes) -> Flow:
-        report = self.reports[job]
-        problem: object = None
-        for attempt in range(PAGE_TRIES):
-            if attempt:
-                report.retries += 1
-            out = yield Send("slot.write", {"index": index, "data": data}, job.hop,
-                             WRITE_EXTRA_MS)
-            if out.error is not None or out.fields is None:
-                problem = out.error
-                continue
-            status = out.fields["status"]
-            report.bytes_written += len(data)
-            if status == WriteStatus.OK and out.fields["index"] == index:
-                return
-            problem = f"status {status!r}"
-            if status in HEADER_REFUSALS:
-                raise StepFailed(f"{job.name}: image refused before anything was written: "
-                                 f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
-                                 "running the image it had")
-            if status == WriteStatus.PAGE_PROTECTED:
-                problem = ("the secondary slot is protected (a trial still runs, or the "
-                           "running image was burnt past its slot: flash with --one-slot)")
-                break
-            if status == WriteStatus.PAGE_OUT_OF_RANGE:
-                break
-            yield Sleep(POLL_S)
+        failed = yield from send_page(self.reports[job], job.hop, "slot.write", "index", index,
+                                      data, stop_on=PAGE_STOPS, pause_s=POLL_S)
+        if failed is None:
+            return
+        status, problem = failed
+        if status in HEADER_REFUSALS:
+            raise StepFailed(f"{job.name}: image refused before anything was written: "
+                             f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
+                             "running the image it had")
+        if status == WriteStatus.PAGE_PROTECTED:
+            problem = ("the secondary slot is protected (a trial still runs, or the "
+                       "running image was burnt past its slot: flash with --one-slot)")
         raise StepFailed(f"{job.name}: secondary-slot page {index} not written: {problem}; "
                          "the node keeps running the image it had")
 
