@@ -237,46 +237,35 @@ def send_page(report: NodeReport, hop: Hop, name: str, key: str, index: int, dat
     return status, problem
 
 
-class FingerChannel:
-    """Flashes the jobs of one finger (see the module docs).
+class Channel:
+    """What a finger's flashing channel and its slot update share: the finger, its planned
+    jobs and their reports, the link's clock (s), state changes and retried requests.
 
-    ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
-    verify every node, leave them halted in their bootloaders, phalanges first; an fmcb an
-    earlier run left in its bootloader is finished first, as its phalanges are reached only
-    through its application), or ``"activate"`` (activate, boot and confirm nodes staged by
-    an earlier ``"stage"``).  ``power_state`` is the finger's power when the run began (off:
-    powered before its phalanges are reached) and the power to restore after a power cycle;
-    ``clock`` the link's clock (s); ``on_change`` is called with a report on every state
-    change.
-    """
+    ``on_change`` is called with a report on every state change."""
+
+    #: States that end a node's part of the run (its report's ``finished`` is set).
+    FINISHED: tuple[NodeState, ...] = (NodeState.DONE, NodeState.FAILED, NodeState.STAGED)
+    #: Whether a node that ends DONE drops the note of an earlier, retried failure.
+    CLEAR_ERROR_WHEN_DONE = True
 
     def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
-                 clock: Callable[[], float], *, phase: str = "all",
-                 power_state: int = FingerPower.FULL,
+                 clock: Callable[[], float],
                  on_change: Callable[[NodeReport], None] | None = None) -> None:
         self.finger = finger
         self.plan = plan
         self.jobs = plan.jobs_of(finger)
         self.reports = reports
         self.clock = clock
-        self.phase = phase
-        self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
-        #: The finger was unpowered when the run began (its fmcb must be powered and boot
-        #: before its phalanges can be reached).
-        self.unpowered = power_state == FingerPower.OFF
         self.on_change = on_change
-        #: (node, block first page) written and verified in this run (force writes once).
-        self.written: set[tuple[BoardType, int]] = set()
 
-    # --- plumbing -----------------------------------------------------------------------
     def _set(self, job: NodeJob, state: NodeState) -> None:
         report = self.reports[job]
         if report.started is None:
             report.started = self.clock()
         report.state = state
-        if state in (NodeState.DONE, NodeState.FAILED, NodeState.STAGED):
+        if state in self.FINISHED:
             report.finished = self.clock()
-        if state == NodeState.DONE:
+        if state == NodeState.DONE and self.CLEAR_ERROR_WHEN_DONE:
             report.error = None
         if self.on_change is not None:
             self.on_change(report)
@@ -294,6 +283,31 @@ class FingerChannel:
                 report.retries += 1
         where = "the palm" if hop is None else f"finger {self.finger} {hop.name.lower()}"
         raise StepFailed(f"{name} to {where} failed {tries} times: {out.error}")
+
+
+class FingerChannel(Channel):
+    """Flashes the jobs of one finger (see the module docs).
+
+    ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
+    verify every node, leave them halted in their bootloaders, phalanges first; an fmcb an
+    earlier run left in its bootloader is finished first, as its phalanges are reached only
+    through its application), or ``"activate"`` (activate, boot and confirm nodes staged by
+    an earlier ``"stage"``).  ``power_state`` is the finger's power when the run began (off:
+    powered before its phalanges are reached) and the power to restore after a power cycle.
+    """
+
+    def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
+                 clock: Callable[[], float], *, phase: str = "all",
+                 power_state: int = FingerPower.FULL,
+                 on_change: Callable[[NodeReport], None] | None = None) -> None:
+        super().__init__(finger, plan, reports, clock, on_change)
+        self.phase = phase
+        self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
+        #: The finger was unpowered when the run began (its fmcb must be powered and boot
+        #: before its phalanges can be reached).
+        self.unpowered = power_state == FingerPower.OFF
+        #: (node, block first page) written and verified in this run (force writes once).
+        self.written: set[tuple[BoardType, int]] = set()
 
     # --- the channel ----------------------------------------------------------------------
     def run(self) -> Flow:

@@ -34,8 +34,8 @@ from bootloader.errors import StepFailed
 from bootloader.node_session import (
     HEADER_REFUSALS,
     PAGE_STOPS,
-    QUERY_TRIES,
     WRITE_EXTRA_MS,
+    Channel,
     Flow,
     NodeReport,
     NodeState,
@@ -90,52 +90,26 @@ def slot_summary(info: dict[str, Any]) -> dict[str, Any]:
             "primary": image("primary"), "secondary": image("secondary")}
 
 
-class SlotChannel:
+class SlotChannel(Channel):
     """The slot update of one finger's planned nodes (see the module docs).
 
-    ``clock`` is the link's clock (s); ``on_change`` is called with a report on every state
-    change.  ``swapped`` lists the nodes this run swapped (what a fleet rollback undoes).
+    ``swapped`` lists the nodes this run swapped (what a fleet rollback undoes).
     """
+
+    FINISHED = (*Channel.FINISHED, NodeState.ROLLED_BACK)
+    #: A node done after a retried download keeps the note that it was retried.
+    CLEAR_ERROR_WHEN_DONE = False
 
     def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
                  clock: Callable[[], float], *, keep_trial: bool = False,
                  on_change: Callable[[NodeReport], None] | None = None) -> None:
-        self.finger = finger
-        self.plan = plan
-        self.jobs = plan.jobs_of(finger)
-        self.reports = reports
-        self.clock = clock
+        super().__init__(finger, plan, reports, clock, on_change)
         self.keep_trial = keep_trial
-        self.on_change = on_change
         self.swapped: list[NodeJob] = []
         self.failed_check = False
         #: Nodes found running the new image on trial (an earlier run stopped before it
         #: confirmed them): checked and confirmed without another swap.
         self.on_trial: set[NodeJob] = set()
-
-    # --- plumbing ---------------------------------------------------------------------------
-    def _set(self, job: NodeJob, state: NodeState) -> None:
-        report = self.reports[job]
-        if report.started is None:
-            report.started = self.clock()
-        report.state = state
-        if state in (NodeState.DONE, NodeState.FAILED, NodeState.STAGED,
-                     NodeState.ROLLED_BACK):
-            report.finished = self.clock()
-        if self.on_change is not None:
-            self.on_change(report)
-
-    def call(self, name: str, fields: dict[str, Any] | None, hop: Hop, *,
-             tries: int = QUERY_TRIES, extra_ms: int = 0) -> Flow:
-        """Send ``name`` up to ``tries`` times until it is answered; return its fields."""
-        last: object = None
-        for _ in range(tries):
-            out = yield Send(name, dict(fields or {}), hop, extra_ms)
-            if out.error is None:
-                return out.fields
-            last = out.error
-        raise StepFailed(f"{name} to finger {self.finger} {hop.name.lower()} failed "
-                         f"{tries} times: {last}")
 
     # --- probe and download -----------------------------------------------------------------
     def probe(self) -> Flow:
@@ -263,13 +237,7 @@ class SlotChannel:
 
     def call_palm(self, name: str, fields: dict[str, Any]) -> Flow:
         """Send ``name`` to the palm itself, up to :data:`QUERY_TRIES` times."""
-        last: object = None
-        for _ in range(QUERY_TRIES):
-            out = yield Send(name, dict(fields), None)
-            if out.error is None:
-                return out.fields
-            last = out.error
-        raise StepFailed(f"{name} to the palm failed {QUERY_TRIES} times: {last}")
+        return (yield from self.call(name, fields))
 
     def wait_for_fingers(self) -> Flow:
         """After a lost power or link: power the finger (and its phalanges) as the run
