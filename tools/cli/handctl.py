@@ -47,6 +47,7 @@ from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.joint_ekf import fuse_snapshot
 from protocol.image import BoardType
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
@@ -300,8 +301,9 @@ def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
     states = hand.power(finger, args.state)
     text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
     if args.state != "off":
-        text += ("\n(fingers switched on boot for about 4.5 s before they answer; their "
-                 "phalanges need power too: `handctl up` does it all and waits)")
+        text += (f"\n(fingers switched on boot for about {AUTOBOOT_WINDOW_US / 1e6:g} s before "
+                 "they answer; their phalanges need power too: `handctl up` does it all and "
+                 "waits)")
     _emit(args, {"power": states}, text)
     return 0
 
