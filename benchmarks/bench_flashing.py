@@ -42,6 +42,7 @@ from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession
 from protocol.framing import OVERHEAD
 from protocol.image import FLASH, BoardType, FirmwareImage
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.topology import (
     FINGERS,
     HOST_LINK_BAUD,
@@ -184,7 +185,7 @@ def _slot_results(image: FirmwareImage, total_kib: float, bound_s: float,
         Result(group, "two-slot update: phalange downtime (sensors)",
                worst_phalange.downtime_s or math.nan, "s", at_most=True,
                note=f"worst {worst_phalange.job.name}: its fmcb's reboot, its autoboot "
-                    "window behind it (4.5 s), then its own swap"),
+                    f"window behind it ({AUTOBOOT_WINDOW_US / 1e6:g} s), then its own swap"),
         Result(group, "rollback of 12 nodes", back.total_seconds, "s", at_most=True,
                note=f"slowest node {slowest_back.job.name} "
                     f"{slowest_back.rollback_s or 0.0:.2f} s from its request to its "

@@ -31,7 +31,6 @@ cut the host link's bytes to ≈ 60 out and ≈ 110 back.
 
 from __future__ import annotations
 
-import threading
 import time
 
 from benchmarks.harness import Result
@@ -120,30 +119,22 @@ def in_process(n_cycles: int) -> tuple[float, float, dict[str, int]]:
 def realtime(wall_s: float) -> tuple[float, int]:
     """(cycles per wall second, failed cycles) through the emulator's palm pty."""
     from hil_emulator.emulator import Emulator
+    from tests.hil_emulator.emulator_thread import serving
 
     emulator = Emulator("hand", physics=False, can="none")
     bring_up(emulator)
-    ports = emulator.open_ports()
-    stop = threading.Event()
-    runner = threading.Thread(target=emulator.run, args=(stop,), kwargs={"realtime": True})
-    runner.start()
     cycles = failures = 0
-    try:
-        with Hand.open(ports["palm"]) as hand:
-            hand.power("all", "full")
-            time.sleep(0.3)  # the fingers boot
-            commands = hand.make_commands(JOINTS)
-            end = time.monotonic() + wall_s
-            while time.monotonic() < end:
-                try:
-                    cycle(hand, commands)
-                except HostError:
-                    failures += 1
-                cycles += 1
-    finally:
-        stop.set()
-        runner.join(timeout=10)
-        emulator.close()
+    with serving(emulator) as run, Hand.open(run.ports["palm"]) as hand:
+        hand.power("all", "full")
+        time.sleep(0.3)  # the fingers boot
+        commands = hand.make_commands(JOINTS)
+        end = time.monotonic() + wall_s
+        while time.monotonic() < end:
+            try:
+                cycle(hand, commands)
+            except HostError:
+                failures += 1
+            cycles += 1
     return cycles / wall_s, failures
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import collections
 import cProfile
-import heapq
 import io
 import pstats
 import signal
@@ -38,6 +37,7 @@ import mujoco
 from benchmarks.bench_emulator import ARM_READ, boot_full
 from firmware_py.scheduler import Scheduler
 from hil_emulator.emulator import Emulator
+from tests.firmware_py.reference_scheduler import run_due
 
 
 def booted(physics: bool) -> Emulator:
@@ -66,29 +66,15 @@ def _timed_run_until(acc: collections.Counter[str], calls: collections.Counter[s
     """A :meth:`Scheduler.run_until` that times each callback (same event order)."""
     clock = time.perf_counter
 
+    def timed(cb: Callable[[], None]) -> None:
+        start = clock()
+        cb()
+        key = getattr(cb, "__qualname__", type(cb).__name__)
+        acc[key] += clock() - start
+        calls[key] += 1
+
     def run_until(self: Scheduler, t_us: int) -> int:
-        queue = self._queue
-        ran = 0
-        while queue and queue[0][0] <= t_us:
-            when, _, ev = heapq.heappop(queue)
-            cb = ev.callback
-            if cb is None:
-                continue
-            self._now = when
-            if ev.period_us:
-                ev.t_us = when + ev.period_us
-                ev.seq = next(self._seq)
-                heapq.heappush(queue, (ev.t_us, ev.seq, ev))
-            else:
-                ev.callback = None
-            start = clock()
-            cb()
-            key = getattr(cb, "__qualname__", type(cb).__name__)
-            acc[key] += clock() - start
-            calls[key] += 1
-            ran += 1
-        self._now = max(self._now, t_us)
-        return ran
+        return run_due(self, t_us, timed)
 
     return run_until
 

@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any, Final
 
-from bootloader.errors import PlanError
+from bootloader.errors import PlanError, StepFailed
 from bootloader.node_session import (
     FingerChannel,
     NodeReport,
@@ -28,7 +28,6 @@ from bootloader.node_session import (
     Outcome,
     Send,
     Sleep,
-    StepFailed,
 )
 from bootloader.plan import FlashPlan, NodeJob
 from bootloader.slot_update import SlotChannel
@@ -325,6 +324,8 @@ def _fail_finger(session: HandSession, reports: dict[NodeJob, NodeReport], finge
                 on_change(r)
 
 
+#: Every state but DONE: a finger that gives up fails all its nodes not yet done.
+_NOT_DONE: Final = tuple(s for s in NodeState if s is not NodeState.DONE)
 _BUSY_STATES: Final = (NodeState.INFO, NodeState.DOWNLOADING, NodeState.SWAPPING,
                        NodeState.CHECKING, NodeState.ROLLING_BACK)
 
@@ -460,14 +461,7 @@ def _run_phase(session: HandSession, plan: FlashPlan, reports: dict[NodeJob, Nod
             flows[finger] = new_flow(finger)
             restart.append(finger)
             return
-        for j, r in reports.items():
-            if j.finger == finger and r.state != NodeState.DONE:
-                r.result = "failed"
-                r.error = str(error)
-                r.state = NodeState.FAILED
-                r.finished = session.now()
-                if on_change is not None:
-                    on_change(r)
+        _fail_finger(session, reports, finger, error, on_change, _NOT_DONE)
 
     driver = Driver(session)
     restart: list[int] = []

@@ -27,10 +27,11 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any, Final
 
+from bootloader.errors import StepFailed
 from bootloader.plan import Block, FlashPlan, NodeJob
 from protocol.errors import ImageError
 from protocol.image import FLASH, BoardType, parse_header
-from protocol.messages.bootloader import (
+from protocol.messages.boot_program import (
     AUTOBOOT_WINDOW_US,
     BootResult,
     ImageStatus,
@@ -43,7 +44,7 @@ from protocol.topology import Hop
 #: Power off time when forcing a node into its bootloader (s).
 POWER_OFF_S: Final = 0.05
 #: How long after power-on the host keeps trying to halt autoboot (s); inside the
-#: bootloader's :data:`~protocol.messages.bootloader.AUTOBOOT_WINDOW_US`.
+#: bootloader's :data:`~protocol.messages.boot_program.AUTOBOOT_WINDOW_US`.
 HALT_WITHIN_S: Final = 2.5
 #: Pause between halt attempts (s).
 HALT_RETRY_S: Final = 0.02
@@ -82,6 +83,12 @@ HEADER_REFUSALS: Final = {
     "or does not fit this node's application area",
     WriteStatus.BAD_SIGNATURE: REFUSALS[ImageStatus.BAD_SIGNATURE],
 }
+
+
+#: Page-write statuses that end a page's retries: the image refused, or a page it may not
+#: write.
+PAGE_STOPS: Final = frozenset({*HEADER_REFUSALS, WriteStatus.PAGE_OUT_OF_RANGE,
+                               WriteStatus.PAGE_PROTECTED})
 
 
 def refusal(image_status: int) -> str:
@@ -196,52 +203,69 @@ class Outcome:
 
 Op = Send | Sleep
 Flow = Generator[Op, Outcome, Any]
+#: A page write that did not succeed: the status that stopped it (None: no reply last) and
+#: the problem, in words.
+PageFailure = tuple[int | None, object]
 
 
-class StepFailed(Exception):
-    """A step of a node's flashing failed for good (the message says which and why)."""
+def send_page(report: NodeReport, hop: Hop, name: str, key: str, index: int, data: bytes, *,
+              stop_on: frozenset[int], pause_s: float = 0.0
+              ) -> Generator[Op, Outcome, PageFailure | None]:
+    """Send the page write ``name`` (``{key: index, "data": data}``) to ``hop`` up to
+    :data:`PAGE_TRIES` times until the node acknowledges that page with OK; None when it
+    did, else what stopped it.  A status in ``stop_on`` stops at once (the caller says
+    why); any other retries, after ``pause_s`` (s, link clock).  ``report`` counts the
+    retries and the bytes sent."""
+    problem: object = None
+    status: int | None = None
+    for attempt in range(PAGE_TRIES):
+        if attempt:
+            report.retries += 1
+        out = yield Send(name, {key: index, "data": data}, hop, WRITE_EXTRA_MS)
+        if out.error is not None or out.fields is None:
+            problem, status = out.error, None
+            continue
+        status = out.fields["status"]
+        report.bytes_written += len(data)
+        if status == WriteStatus.OK and out.fields[key] == index:
+            return None
+        problem = f"status {status!r}"
+        if status in stop_on:
+            break
+        if pause_s:
+            yield Sleep(pause_s)
+    return status, problem
 
 
-class FingerChannel:
-    """Flashes the jobs of one finger (see the module docs).
+class Channel:
+    """What a finger's flashing channel and its slot update share: the finger, its planned
+    jobs and their reports, the link's clock (s), state changes and retried requests.
 
-    ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
-    verify every node, leave them halted in their bootloaders, phalanges first; an fmcb an
-    earlier run left in its bootloader is finished first, as its phalanges are reached only
-    through its application), or ``"activate"`` (activate, boot and confirm nodes staged by
-    an earlier ``"stage"``).  ``power_state`` is the finger's power when the run began (off:
-    powered before its phalanges are reached) and the power to restore after a power cycle;
-    ``clock`` the link's clock (s); ``on_change`` is called with a report on every state
-    change.
-    """
+    ``on_change`` is called with a report on every state change."""
+
+    #: States that end a node's part of the run (its report's ``finished`` is set).
+    FINISHED: tuple[NodeState, ...] = (NodeState.DONE, NodeState.FAILED, NodeState.STAGED)
+    #: Whether a node that ends DONE drops the note of an earlier, retried failure.
+    CLEAR_ERROR_WHEN_DONE = True
 
     def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
-                 clock: Callable[[], float], *, phase: str = "all",
-                 power_state: int = FingerPower.FULL,
+                 clock: Callable[[], float],
                  on_change: Callable[[NodeReport], None] | None = None) -> None:
         self.finger = finger
         self.plan = plan
         self.jobs = plan.jobs_of(finger)
         self.reports = reports
         self.clock = clock
-        self.phase = phase
-        self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
-        #: The finger was unpowered when the run began (its fmcb must be powered and boot
-        #: before its phalanges can be reached).
-        self.unpowered = power_state == FingerPower.OFF
         self.on_change = on_change
-        #: (node, block first page) written and verified in this run (force writes once).
-        self.written: set[tuple[BoardType, int]] = set()
 
-    # --- plumbing -----------------------------------------------------------------------
     def _set(self, job: NodeJob, state: NodeState) -> None:
         report = self.reports[job]
         if report.started is None:
             report.started = self.clock()
         report.state = state
-        if state in (NodeState.DONE, NodeState.FAILED, NodeState.STAGED):
+        if state in self.FINISHED:
             report.finished = self.clock()
-        if state == NodeState.DONE:
+        if state == NodeState.DONE and self.CLEAR_ERROR_WHEN_DONE:
             report.error = None
         if self.on_change is not None:
             self.on_change(report)
@@ -259,6 +283,31 @@ class FingerChannel:
                 report.retries += 1
         where = "the palm" if hop is None else f"finger {self.finger} {hop.name.lower()}"
         raise StepFailed(f"{name} to {where} failed {tries} times: {out.error}")
+
+
+class FingerChannel(Channel):
+    """Flashes the jobs of one finger (see the module docs).
+
+    ``phase``: ``"all"`` (stage, activate, boot, confirm each node), ``"stage"`` (write and
+    verify every node, leave them halted in their bootloaders, phalanges first; an fmcb an
+    earlier run left in its bootloader is finished first, as its phalanges are reached only
+    through its application), or ``"activate"`` (activate, boot and confirm nodes staged by
+    an earlier ``"stage"``).  ``power_state`` is the finger's power when the run began (off:
+    powered before its phalanges are reached) and the power to restore after a power cycle.
+    """
+
+    def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
+                 clock: Callable[[], float], *, phase: str = "all",
+                 power_state: int = FingerPower.FULL,
+                 on_change: Callable[[NodeReport], None] | None = None) -> None:
+        super().__init__(finger, plan, reports, clock, on_change)
+        self.phase = phase
+        self.power_state = power_state if power_state != FingerPower.OFF else FingerPower.FULL
+        #: The finger was unpowered when the run began (its fmcb must be powered and boot
+        #: before its phalanges can be reached).
+        self.unpowered = power_state == FingerPower.OFF
+        #: (node, block first page) written and verified in this run (force writes once).
+        self.written: set[tuple[BoardType, int]] = set()
 
     # --- the channel ----------------------------------------------------------------------
     def run(self) -> Flow:
@@ -453,31 +502,18 @@ class FingerChannel:
 
     def write_page(self, job: NodeJob, page: int, data: bytes) -> Flow:
         """One page, retried up to :data:`PAGE_TRIES` times (no reply, busy, bad word)."""
-        report = self.reports[job]
-        problem: object = None
-        for attempt in range(PAGE_TRIES):
-            if attempt:
-                report.retries += 1
-            out = yield Send("bl.write_page", {"page": page, "data": data}, job.hop,
-                             WRITE_EXTRA_MS)
-            if out.error is not None:
-                problem = out.error
-                continue
-            assert out.fields is not None
-            status = out.fields["status"]
-            report.bytes_written += len(data)
-            if status == WriteStatus.OK and out.fields["page"] == page:
-                return
-            problem = f"status {status!r}"
-            if status in HEADER_REFUSALS:
-                booted = yield from self.boot_installed(job)
-                then = ("runs it again" if booted else
-                        "stays in its bootloader (that image does not verify either)")
-                raise StepFailed(f"{job.name}: image refused before anything was written: "
-                                 f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
-                                 f"the image it had and {then}")
-            if status in (WriteStatus.PAGE_OUT_OF_RANGE, WriteStatus.PAGE_PROTECTED):
-                break
+        failed = yield from send_page(self.reports[job], job.hop, "bl.write_page", "page", page,
+                                      data, stop_on=PAGE_STOPS)
+        if failed is None:
+            return
+        status, problem = failed
+        if status in HEADER_REFUSALS:
+            booted = yield from self.boot_installed(job)
+            then = ("runs it again" if booted else
+                    "stays in its bootloader (that image does not verify either)")
+            raise StepFailed(f"{job.name}: image refused before anything was written: "
+                             f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
+                             f"the image it had and {then}")
         raise StepFailed(f"{job.name}: page {page} not written: {problem}")
 
     def boot_installed(self, job: NodeJob) -> Flow:

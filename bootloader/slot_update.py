@@ -30,22 +30,24 @@ import hashlib
 from collections.abc import Callable
 from typing import Any, Final
 
+from bootloader.errors import StepFailed
 from bootloader.node_session import (
     HEADER_REFUSALS,
-    QUERY_TRIES,
+    PAGE_STOPS,
     WRITE_EXTRA_MS,
+    Channel,
     Flow,
     NodeReport,
     NodeState,
     Send,
     Sleep,
-    StepFailed,
     refusal,
+    send_page,
 )
 from bootloader.plan import FINGER_BOARDS, FlashPlan, NodeJob
 from protocol import topology
 from protocol.image import BoardType
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, ImageStatus, WriteStatus
 from protocol.messages.common import Running
 from protocol.messages.palm import FingerPower
 from protocol.messages.slots import ConfirmBy, SlotResult, SlotState
@@ -66,8 +68,6 @@ BOOT_GUARD_S: Final = 60.0
 BOOT_MARGIN_US: Final = 4_000_000
 #: Pause between identify polls of a rebooting node (s).
 POLL_S: Final = 0.02
-#: Attempts of one slot.write.
-PAGE_TRIES: Final = 5
 #: The self-test after a swap: requests each board's application must answer.
 SELF_TEST: Final = {b.board_type: b.self_test for b in topology.FINGER_BOARDS}
 
@@ -90,52 +90,26 @@ def slot_summary(info: dict[str, Any]) -> dict[str, Any]:
             "primary": image("primary"), "secondary": image("secondary")}
 
 
-class SlotChannel:
+class SlotChannel(Channel):
     """The slot update of one finger's planned nodes (see the module docs).
 
-    ``clock`` is the link's clock (s); ``on_change`` is called with a report on every state
-    change.  ``swapped`` lists the nodes this run swapped (what a fleet rollback undoes).
+    ``swapped`` lists the nodes this run swapped (what a fleet rollback undoes).
     """
+
+    FINISHED = (*Channel.FINISHED, NodeState.ROLLED_BACK)
+    #: A node done after a retried download keeps the note that it was retried.
+    CLEAR_ERROR_WHEN_DONE = False
 
     def __init__(self, finger: int, plan: FlashPlan, reports: dict[NodeJob, NodeReport],
                  clock: Callable[[], float], *, keep_trial: bool = False,
                  on_change: Callable[[NodeReport], None] | None = None) -> None:
-        self.finger = finger
-        self.plan = plan
-        self.jobs = plan.jobs_of(finger)
-        self.reports = reports
-        self.clock = clock
+        super().__init__(finger, plan, reports, clock, on_change)
         self.keep_trial = keep_trial
-        self.on_change = on_change
         self.swapped: list[NodeJob] = []
         self.failed_check = False
         #: Nodes found running the new image on trial (an earlier run stopped before it
         #: confirmed them): checked and confirmed without another swap.
         self.on_trial: set[NodeJob] = set()
-
-    # --- plumbing ---------------------------------------------------------------------------
-    def _set(self, job: NodeJob, state: NodeState) -> None:
-        report = self.reports[job]
-        if report.started is None:
-            report.started = self.clock()
-        report.state = state
-        if state in (NodeState.DONE, NodeState.FAILED, NodeState.STAGED,
-                     NodeState.ROLLED_BACK):
-            report.finished = self.clock()
-        if self.on_change is not None:
-            self.on_change(report)
-
-    def call(self, name: str, fields: dict[str, Any] | None, hop: Hop, *,
-             tries: int = QUERY_TRIES, extra_ms: int = 0) -> Flow:
-        """Send ``name`` up to ``tries`` times until it is answered; return its fields."""
-        last: object = None
-        for _ in range(tries):
-            out = yield Send(name, dict(fields or {}), hop, extra_ms)
-            if out.error is None:
-                return out.fields
-            last = out.error
-        raise StepFailed(f"{name} to finger {self.finger} {hop.name.lower()} failed "
-                         f"{tries} times: {last}")
 
     # --- probe and download -----------------------------------------------------------------
     def probe(self) -> Flow:
@@ -213,32 +187,18 @@ class SlotChannel:
         self._set(job, NodeState.STAGED)
 
     def write_page(self, job: NodeJob, index: int, data: bytes) -> Flow:
-        report = self.reports[job]
-        problem: object = None
-        for attempt in range(PAGE_TRIES):
-            if attempt:
-                report.retries += 1
-            out = yield Send("slot.write", {"index": index, "data": data}, job.hop,
-                             WRITE_EXTRA_MS)
-            if out.error is not None or out.fields is None:
-                problem = out.error
-                continue
-            status = out.fields["status"]
-            report.bytes_written += len(data)
-            if status == WriteStatus.OK and out.fields["index"] == index:
-                return
-            problem = f"status {status!r}"
-            if status in HEADER_REFUSALS:
-                raise StepFailed(f"{job.name}: image refused before anything was written: "
-                                 f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
-                                 "running the image it had")
-            if status == WriteStatus.PAGE_PROTECTED:
-                problem = ("the secondary slot is protected (a trial still runs, or the "
-                           "running image was burnt past its slot: flash with --one-slot)")
-                break
-            if status == WriteStatus.PAGE_OUT_OF_RANGE:
-                break
-            yield Sleep(POLL_S)
+        failed = yield from send_page(self.reports[job], job.hop, "slot.write", "index", index,
+                                      data, stop_on=PAGE_STOPS, pause_s=POLL_S)
+        if failed is None:
+            return
+        status, problem = failed
+        if status in HEADER_REFUSALS:
+            raise StepFailed(f"{job.name}: image refused before anything was written: "
+                             f"{HEADER_REFUSALS[WriteStatus(status)]}; the node keeps "
+                             "running the image it had")
+        if status == WriteStatus.PAGE_PROTECTED:
+            problem = ("the secondary slot is protected (a trial still runs, or the "
+                       "running image was burnt past its slot: flash with --one-slot)")
         raise StepFailed(f"{job.name}: secondary-slot page {index} not written: {problem}; "
                          "the node keeps running the image it had")
 
@@ -277,13 +237,7 @@ class SlotChannel:
 
     def call_palm(self, name: str, fields: dict[str, Any]) -> Flow:
         """Send ``name`` to the palm itself, up to :data:`QUERY_TRIES` times."""
-        last: object = None
-        for _ in range(QUERY_TRIES):
-            out = yield Send(name, dict(fields), None)
-            if out.error is None:
-                return out.fields
-            last = out.error
-        raise StepFailed(f"{name} to the palm failed {QUERY_TRIES} times: {last}")
+        return (yield from self.call(name, fields))
 
     def wait_for_fingers(self) -> Flow:
         """After a lost power or link: power the finger (and its phalanges) as the run

@@ -24,7 +24,7 @@ from firmware_py.flash_layout import (
 from firmware_py.hal import Flash
 from protocol.errors import ImageError
 from protocol.image import MAX_PAYLOAD, BoardType, ImageHeader, parse_header, signing_bytes
-from protocol.messages.bootloader import BootResult, ImageStatus
+from protocol.messages.boot_program import BootResult, ImageStatus
 
 #: What a failed image check means as a command result.
 RESULT_OF_IMAGE_STATUS: Final = {

@@ -34,7 +34,7 @@ from firmware_py.slot_swap import (
     write_record,
 )
 from protocol.image import SLOT_MAX_PAYLOAD, BoardType, pages_needed
-from protocol.messages.bootloader import WRITE_STATUS_WORD_FAILED, ImageStatus, WriteStatus
+from protocol.messages.boot_program import WRITE_STATUS_WORD_FAILED, ImageStatus, WriteStatus
 from protocol.messages.slots import ConfirmBy, SlotEvent, SlotResult, SlotState
 
 #: After this long on trial (µs) without a reset, an application that was asked to confirm

@@ -2,7 +2,13 @@
 
 Every error also inherits the built-in a caller would catch for it: a bad configuration is a
 ``ValueError``, a port that cannot be made an ``OSError``, a physics model that does not build
-or diverges a ``RuntimeError``.
+or diverges a ``RuntimeError``::
+
+    EmulatorError
+    ├── EmulatorConfigError(ValueError)   a configuration, layout, seed or parameter
+    │   └── FaultPlanError                a fault plan, a fault's parameters or a scenario
+    ├── PortError(OSError)                a virtual serial port or link
+    └── PlantError(RuntimeError)          the MuJoCo plant would not build, bind or stay stable
 """
 
 from __future__ import annotations

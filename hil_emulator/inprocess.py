@@ -18,7 +18,7 @@ program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 :func:`bring_up` starts from a robot whose thirteen hand microcontrollers run their
 applications (``hil-emulator --ready``, ``ready=1``, benchmarks, tests).  The host library
 does it, through this transport: a :class:`~host.hand.Hand` on the palm's link waits out the
-palm's bootloader window (4.5 s), powers the fingers (``palm.finger_power``), waits for each
+palm's bootloader window (``AUTOBOOT_WINDOW_US``), powers the fingers (``palm.finger_power``), waits for each
 fmcb to boot, powers the phalanges over the tendons (``fmcb.phalange_power``) and, after
 their boot, switches on every fmcb's 100 Hz autopoll of its phalanges; a
 :class:`~host.hand_session.HandSession` on a loose finger's cable does the same for its one
@@ -45,7 +45,7 @@ from host.errors import HostError, TransportError, UsageError
 from host.hand import Hand, Node
 from host.hand_session import LINK_NODE, HandSession, Timeouts
 from host.transport import LinkKind, Transport, url_options
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import ALL_FINGERS, FingerPower
 from protocol.topology import FINGERS
 

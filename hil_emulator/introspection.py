@@ -11,13 +11,13 @@ from __future__ import annotations
 import hashlib
 from typing import Final
 
-from firmware_py.bootloader import inspect_image
+from firmware_py.boot_program import inspect_image
 from firmware_py.mcu import Mcu
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.emulator import Emulator
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import FLASH, BoardType
-from protocol.messages.bootloader import ImageStatus
+from protocol.messages.boot_program import ImageStatus
 
 #: A transmission still on a line this long after now (µs) means a driver left on.
 STUCK_DRIVER_US: Final = 50_000

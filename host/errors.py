@@ -8,13 +8,21 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── ReplyTimeout(TimeoutError)        a request got no (matching) reply in time
     ├── RouteError                        the palm could not deliver to a finger node
     ├── NodeError                         a node answered, but with a refusal or a bad reply
+    │   └── DynamixelNodeError            an arm node's status error byte (host.dynamixel_bus)
     ├── UsageError(ValueError)            the caller asked for something impossible
     │   ├── NotHomedError                 a motion command for a finger not yet homed
-    │   └── LimitError                    an arm motion the gate refuses before it starts
+    │   ├── LimitError                    an arm motion the gate refuses before it starts
+    │   ├── FingerMovingError             the finger moved while read for homing
+    │   ├── AmbiguousPoseError            two poses fit the accelerometers
+    │   └── UnobservableJointError        a joint axis too near vertical (host.inertial_closed_form)
+    ├── NoAccelerationError               accelerometers unpowered or silent (host.inertial_closed_form)
     ├── HomingError                       an arm joint's index mark was not found
     ├── StallError                        a stepper joint kept latching STALLED
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
+    ├── ViewUnavailable                   the live view cannot start
     └── RecordingError(OSError)           a recording's file could not be written
+
+Defined here unless their constructor needs their module's data (the module is named).
 """
 
 from __future__ import annotations
@@ -107,6 +115,18 @@ class LimitError(UsageError):
     def __init__(self, message: str, *, joint: str | None = None) -> None:
         super().__init__(message)
         self.joint = joint
+
+
+class FingerMovingError(UsageError):
+    """The finger moved while its accelerometers were read for homing."""
+
+
+class AmbiguousPoseError(UsageError):
+    """Two poses within the joint stops fit the accelerometers; homing cannot choose."""
+
+
+class ViewUnavailable(HostError):
+    """The view cannot start: rerun-sdk is not installed, or a port is taken."""
 
 
 class JointAlarmError(HostError):

@@ -253,8 +253,8 @@ class Hand:
         The palm switches ``"all"`` one finger every ``stagger_ms`` ms and answers at the
         first switch, so for ``"all"`` this waits out the stagger on the link's clock and
         reports the states the palm's ``palm.hand_status`` gives afterwards: what the palm
-        does, not the moment in between.  Fingers switched on boot for about 4.5 s (the
-        autoboot window) before their fmcb answers; :meth:`bring_up` waits for them."""
+        does, not the moment in between.  Fingers switched on boot for their autoboot window
+        (:data:`~protocol.messages.boot_program.AUTOBOOT_WINDOW_US`) before their fmcb answers; :meth:`bring_up` waits for them."""
         try:
             code = FingerPower[state.upper()] if isinstance(state, str) else FingerPower(state)
         except (KeyError, ValueError) as exc:

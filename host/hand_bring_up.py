@@ -2,8 +2,8 @@
 
 A hand just switched on runs its palm only.  Each finger's boards then need, in order:
 
-1. the palm running its application (its bootloader's autoboot window is 4.5 s,
-   :data:`protocol.messages.bootloader.AUTOBOOT_WINDOW_US`);
+1. the palm running its application (after its bootloader's autoboot window,
+   :data:`protocol.messages.boot_program.AUTOBOOT_WINDOW_US`);
 2. the finger's supply: ``palm.finger_power`` full (:meth:`host.hand.Hand.power`);
 3. its fmcb running its application, after its own autoboot window;
 4. the phalange bus: ``fmcb.phalange_power`` on, which powers f2 and f3;
@@ -33,12 +33,12 @@ from host.hand_interface import PoweredHand
 from host.hand_node import Node
 from host.hand_session import PendingReply
 from host.hand_state import FingerUp, NodeUp
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, BootState, ImageStatus
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, BootState, ImageStatus
 from protocol.messages.common import Running
 from protocol.topology import FINGERS
 
 #: Longest wait for a board to run its application after its power is switched on (s):
-#: the autoboot window (4.5 s), the application's start and a margin for a slow link.
+#: the autoboot window, the application's start and a margin for a slow link.
 BOOT_TIMEOUT_S: Final = AUTOBOOT_WINDOW_US / 1e6 + 3.5
 #: The autoboot window (s).
 AUTOBOOT_WINDOW_S: Final = AUTOBOOT_WINDOW_US / 1e6

@@ -21,7 +21,13 @@ from typing import Any, Final
 
 import numpy as np
 
-from host.errors import HostError, UsageError, why_no_answer
+from host.errors import (
+    AmbiguousPoseError,
+    FingerMovingError,
+    HostError,
+    UsageError,
+    why_no_answer,
+)
 from host.hand_interface import HandFinger, LinkedHand
 from host.inertial_closed_form import (
     ACCEL_BOARDS,
@@ -41,14 +47,6 @@ SAMPLE_INTERVAL_S: Final = 0.04
 #: accelerometers' readings spread less than :data:`STILL_ACCEL_COUNTS` (counts, std).
 STILL_HALL_COUNTS: Final = 2
 STILL_ACCEL_COUNTS: Final = 15.0
-
-
-class FingerMovingError(UsageError):
-    """The finger moved while its accelerometers were read for homing."""
-
-
-class AmbiguousPoseError(UsageError):
-    """Two poses within the joint stops fit the accelerometers; homing cannot choose."""
 
 
 @dataclass

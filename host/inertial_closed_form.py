@@ -33,7 +33,7 @@ from typing import Final
 
 import numpy as np
 
-from host.errors import UsageError
+from host.errors import HostError, UsageError
 from host.finger_gravity_model import Vector, to_segment
 from protocol.robot import FINGER_JOINT_AXES, FINGER_JOINT_NAMES, FINGER_JOINT_STOPS
 
@@ -61,9 +61,10 @@ def plain(vector: Vector | None) -> list[float] | None:
     return None if vector is None else [float(v) for v in np.asarray(vector, dtype=float)]
 
 
-class NoAccelerationError(UsageError):
+class NoAccelerationError(HostError):
     """Accelerometer readings are missing or zero (no direction): their boards are
-    unpowered, do not answer, or are not polled.  ``boards`` names them (``"f2"`` …),
+    unpowered, do not answer, or are not polled (the robot's state, not the caller's
+    mistake).  ``boards`` names them (``"f2"`` …),
     ``readings`` holds what was read (plain floats, None where missing)."""
 
     def __init__(self, boards: Sequence[str], readings: Mapping[str, list[float] | None],

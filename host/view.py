@@ -33,7 +33,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
-from host.errors import HostError, UsageError
+from host.errors import UsageError, ViewUnavailable
 
 # Topics (the MCAP recorders' names; host.view_render draws them), importable from here too.
 from host.topics import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
@@ -50,10 +50,6 @@ DEFAULT_QUEUE: Final = 64
 #: The bus and link counters are drawn once a second (s, the link's clock).
 STATS_INTERVAL_S: Final = 1.0
 INSTALL_HINT: Final = "pip install 'lowcost-hand-stack[view]' (or: pip install rerun-sdk)"
-
-
-class ViewUnavailable(HostError):
-    """The view cannot start: rerun-sdk is not installed, or a port is taken."""
 
 
 class MessageSink(Protocol):

@@ -3,7 +3,24 @@
 Every error raised by `protocol` is a :class:`ProtocolError`, which is also a
 :class:`ValueError`: bad bytes are bad values.  Errors coming from ``construct`` are
 wrapped at the package boundary by :func:`wrap_construct`, keeping construct's path
-(``(parsing) -> fields -> hall_pos``) so a person sees *where* a payload went wrong.
+(``(parsing) -> fields -> hall_pos``) so a person sees *where* a payload went wrong::
+
+    ProtocolError(ValueError)
+    ├── FrameError                    a hand frame is malformed
+    │   ├── CrcError                  its CRC-16/XMODEM does not match
+    │   └── FrameLengthError          it declares a payload longer than the maximum
+    ├── ManchesterError               a chip stream cannot be decoded
+    ├── MessageError                  a message cannot be found, built or parsed
+    │   ├── UnknownMessageError       no catalogue entry by that name or key
+    │   └── PayloadError              a payload does not match its declaration
+    ├── ImageError                    a firmware image is truncated or inconsistent
+    └── DynamixelError                a Dynamixel 1.0 packet is malformed
+        ├── DynamixelChecksumError    its checksum does not match
+        └── RegisterError             a control-table access is not allowed (protocol.control_tables)
+            ├── RegisterRangeError    outside the table or its register's limits
+            └── RegisterAccessError   a write to a read-only register
+
+Defined here unless they need their module's data (the module is named).
 """
 
 from __future__ import annotations

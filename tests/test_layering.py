@@ -257,3 +257,13 @@ def test_the_cycle_check_sees_a_circle_closed_inside_a_function(tmp_path: Path) 
         ["hil_emulator.emulator", "hil_emulator.tap"],
         ["hil_emulator.faults", "hil_emulator.faults.arm"],
         ["hil_emulator.faults.targets", "hil_emulator.pacing"]]
+
+
+def test_no_module_is_named_after_one_of_our_packages() -> None:
+    """``import hil_emulator`` and ``tools.hil_emulator`` would name two things (the
+    ``hil-emulator`` command is ``tools.cli.serve_emulator``; the node's boot program is
+    ``firmware_py.boot_program``, not a second ``bootloader``)."""
+    clashes = [str(path.relative_to(ROOT)) for package in OURS
+               for path in (ROOT / package).rglob("*")
+               if path.stem in OURS and (path.suffix == ".py" or path.is_dir())]
+    assert clashes == []

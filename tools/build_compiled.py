@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Final
 
 from tools.cli.output import guard_output
+from tools.errors import BuildError
 
 #: The modules compiled, as paths relative to the repository root; declared once here.
 #: Not protocol/manchester.py: its work is numpy's, and its public functions take what numpy
@@ -42,7 +43,7 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     # the hand nodes' firmware (HandNode and every program built on it)
     "firmware_py/hand_node.py",
     "firmware_py/node_request.py",
-    "firmware_py/bootloader.py",
+    "firmware_py/boot_program.py",
     "firmware_py/fmcb.py",
     "firmware_py/fmcb_control.py",
     "firmware_py/current_governor.py",
@@ -68,10 +69,6 @@ _MYPY_FLAGS: Final = ("--ignore-missing-imports", "--explicit-package-bases",
 
 #: The repository root (the directory holding ``protocol/``, ``firmware_py/`` …).
 ROOT: Final = Path(__file__).resolve().parent.parent
-
-
-class BuildError(Exception):
-    """The compiled core could not be built (no C compiler, or mypyc rejected a module)."""
 
 
 def compiled_files(root: Path = ROOT) -> list[Path]:

@@ -33,6 +33,7 @@ from typing import Any, Final
 from protocol.topology import HAND_BOARDS
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
+from tools.errors import FuzzPropertyError
 
 #: ``--runs``: a number of inputs >= 1.
 _RUNS = number_above(1, int, inclusive=True, what="a number of runs",
@@ -43,10 +44,6 @@ _RUNS = number_above(1, int, inclusive=True, what="a number of runs",
 CORPUS_ROOT: Final = Path(__file__).resolve().parent.parent / "tests" / "fuzz_corpus"
 #: The hand boards' message handlers, and the bootloader's (every hand board runs it).
 HANDLER_BOARDS: Final = (*(b.app for b in HAND_BOARDS), "bootloader")
-
-
-class FuzzPropertyError(AssertionError):
-    """A property of a decoder or handler failed on an input."""
 
 
 def _chunks(data: bytes) -> list[bytes]:

@@ -43,7 +43,7 @@ from protocol.topology import (
 )
 from protocol.topology import board as board_row
 
-BOOTLOADER_PROGRAM = "firmware_py.bootloader:Bootloader"
+BOOTLOADER_PROGRAM = "firmware_py.boot_program:BootProgram"
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from firmware_py import hal
-from firmware_py.errors import FlashError, HalError
+from firmware_py.errors import FlashMemoryError, HalError
 from firmware_py.scheduler import Scheduler, TimerHandle
 from protocol.topology import wire_time_us
 
@@ -274,7 +274,7 @@ class VirtualFlash(hal.Flash):
     def _offset(self, address: int, length: int) -> int:
         off = address - self.base_address
         if off < 0 or length < 0 or off + length > len(self.memory):
-            raise FlashError(f"address 0x{address:x}+{length} is outside flash")
+            raise FlashMemoryError(f"address 0x{address:x}+{length} is outside flash")
         return off
 
     def read(self, address: int, length: int) -> bytes:
@@ -283,11 +283,11 @@ class VirtualFlash(hal.Flash):
 
     def write_page(self, page: int, data: bytes, done: Callable[[bool], None]) -> None:
         if not 0 <= page < self.page_count:
-            raise FlashError(f"page {page} is outside 0..{self.page_count - 1}")
+            raise FlashMemoryError(f"page {page} is outside 0..{self.page_count - 1}")
         if len(data) != self.page_size:
-            raise FlashError(f"a page is {self.page_size} bytes, got {len(data)}")
+            raise FlashMemoryError(f"a page is {self.page_size} bytes, got {len(data)}")
         if self._pending is not None:
-            raise FlashError("flash is busy")
+            raise FlashMemoryError("flash is busy")
         if page in self.locked:
             self.scheduler.call_later(1, lambda: done(False))
             return

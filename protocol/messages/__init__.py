@@ -7,10 +7,10 @@ by the identify reply.
 from __future__ import annotations
 
 from protocol.catalogue import Catalogue
-from protocol.messages import bootloader, common, fmcb, palm, phalange, slots
+from protocol.messages import boot_program, common, fmcb, palm, phalange, slots
 
 CATALOGUE = Catalogue(
-    [*common.MESSAGES, *palm.MESSAGES, *fmcb.MESSAGES, *phalange.MESSAGES, *bootloader.MESSAGES,
+    [*common.MESSAGES, *palm.MESSAGES, *fmcb.MESSAGES, *phalange.MESSAGES, *boot_program.MESSAGES,
      *slots.MESSAGES]
 )
 CATALOGUE_HASH: bytes = CATALOGUE.fingerprint()

@@ -27,7 +27,7 @@ import construct as c
 
 from protocol.catalogue import Message
 from protocol.enum_field import EnumField
-from protocol.messages.bootloader import IMAGE_STATUS, PAGE_DATA, WriteStatus
+from protocol.messages.boot_program import IMAGE_STATUS, PAGE_DATA, WriteStatus
 from protocol.messages.fields import EMPTY, VERSION
 
 #: How long a trial image has to be confirmed (µs) before the trial watchdog resets the node

@@ -32,7 +32,7 @@ from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
 from host.hand_session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import FingerPower
 from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotState
 from protocol.topology import FINGERS, Hop

@@ -20,7 +20,7 @@ from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage, split_pages
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, WriteStatus
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, WriteStatus
 from protocol.messages.common import Running
 from protocol.messages.slots import TRIAL_TIMEOUT_US
 from protocol.topology import Hop

@@ -1,7 +1,7 @@
 """The scheduler: periodic timers of one period and phase share a queue entry, and the
 order of events is exactly that of one entry per timer.
 
-The reference below is the scheduler as it was before timers shared entries: every timer
+The reference (``reference_scheduler.py``) is the scheduler as it was before timers shared entries: every timer
 its own heap entry, re-pushed with a fresh sequence number each time it runs.  Random
 programs of periodic timers (mostly in phase), one-shots landing on the ticks, cancels and
 timers created from inside callbacks run on both and must log the same calls at the same
@@ -10,7 +10,6 @@ times.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import random
 from collections.abc import Callable
@@ -20,54 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_py.scheduler import Scheduler, TimerHandle
-
-
-class ReferenceScheduler:
-    """One heap entry per timer (the order the shared entries must reproduce)."""
-
-    def __init__(self) -> None:
-        self._now = 0
-        self._queue: list[tuple[int, int, TimerHandle]] = []
-        self._seq = itertools.count()
-
-    def now_us(self) -> int:
-        return self._now
-
-    def call_at(self, t_us: int, callback: Callable[[], None]) -> TimerHandle:
-        t = max(int(t_us), self._now)
-        ev = TimerHandle(t, next(self._seq), callback)
-        heapq.heappush(self._queue, (t, ev.seq, ev))
-        return ev
-
-    def call_later(self, delay_us: int, callback: Callable[[], None]) -> TimerHandle:
-        return self.call_at(self._now + max(0, int(delay_us)), callback)
-
-    def call_every(self, period_us: int, callback: Callable[[], None],
-                   first_us: int | None = None) -> TimerHandle:
-        delay = period_us if first_us is None else first_us
-        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback, period_us)
-        heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
-        return ev
-
-    def run_until(self, t_us: int) -> int:
-        ran = 0
-        while self._queue and self._queue[0][0] <= t_us:
-            when, _, ev = heapq.heappop(self._queue)
-            cb = ev.callback
-            if cb is None:
-                continue
-            self._now = when
-            if ev.period_us:
-                ev.t_us = when + ev.period_us
-                ev.seq = next(self._seq)
-                heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
-            else:
-                ev.callback = None
-            cb()
-            ran += 1
-        self._now = max(self._now, t_us)
-        return ran
-
+from tests.firmware_py.reference_scheduler import ReferenceScheduler
 
 PERIOD = 1_000
 

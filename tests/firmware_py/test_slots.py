@@ -20,7 +20,7 @@ from firmware_py.slot_service import SELF_CHECK_US
 from firmware_py.slot_swap import SwapRecord, read_record
 from protocol.image import FLASH, SLOT_MAX_PAYLOAD, BoardType, make_image, split_pages
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import BootState, ImageStatus, WriteStatus
+from protocol.messages.boot_program import BootState, ImageStatus, WriteStatus
 from protocol.messages.common import Running
 from protocol.messages.slots import (
     TRIAL_TIMEOUT_US,

@@ -13,7 +13,7 @@ from firmware_py.sim.boards import APP_PROGRAMS, BOARD_SPECS, load_program, make
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_rig import ArmRig
 from hil_emulator.hand_rig import HandRig, LooseFinger
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.topology import BOARDS, HAND_BOARDS, Board, BoardType
 
 #: Long enough for a node's bootloader to wait out its autoboot window, verify its image

@@ -17,7 +17,7 @@ from host.hand_session import HandSession, Target, Timeouts
 from host.transport import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import FingerPower
 from protocol.topology import ADDR_FMCB, ADDR_PALM, Hop
 from tests.hil_emulator.emulator_process import (

@@ -13,7 +13,7 @@ from firmware_py.sim.boards import default_image
 from hil_emulator.inprocess import EmulatorTransport, forget_shared_emulators
 from host.transport import open_transport
 from protocol.image import BoardType
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from tests.hil_emulator.original_host import OriginalHost
 
 #: A new version, so a successful burn is visible in identify.

@@ -13,7 +13,7 @@ from host.hand import Hand
 from host.hand_bring_up import BOOT_TIMEOUT_S, BOOT_WAIT_LIMIT
 from host.hand_session import HandSession, Target
 from host.transport import Transport
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from tests.host.slow_link import FastLinkClock
 
 #: Simulation time for the palm to leave its bootloader after power-on (µs).

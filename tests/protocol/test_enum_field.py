@@ -17,7 +17,7 @@ from protocol.enum_field import EnumField
 from protocol.errors import PayloadError
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import BootResult, BootState, ImageStatus, WriteStatus
+from protocol.messages.boot_program import BootResult, BootState, ImageStatus, WriteStatus
 from protocol.messages.common import Running, TxnStatus
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import FingerEvent, FingerPower, RouteStatus

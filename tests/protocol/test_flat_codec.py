@@ -15,7 +15,7 @@ from protocol.catalogue import to_plain
 from protocol.errors import PayloadError
 from protocol.flat_codec import flat_codec, tail_codec
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import BootResult, ImageStatus
+from protocol.messages.boot_program import BootResult, ImageStatus
 from protocol.messages.fmcb import ControlMode
 from protocol.messages.palm import FingerEvent, FingerPower
 

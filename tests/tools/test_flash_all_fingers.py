@@ -16,13 +16,13 @@ from bootloader.batch import RunReport, run_plan
 from bootloader.errors import PlanError
 from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan
-from firmware_py.bootloader import inspect_image
+from firmware_py.boot_program import inspect_image
 from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession
 from protocol.image import BoardType, FirmwareImage, ImageHeader
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US, ImageStatus
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, ImageStatus
 from tools.cli import flash_all_fingers
 
 BOARDS = (BoardType.FMCB, BoardType.F2, BoardType.F3)

@@ -14,11 +14,11 @@ from bootloader.errors import ImageFileError, PlanError
 from bootloader.image_files import PAYLOAD_ADDRESS, read_image, read_payload
 from bootloader.plan import make_plan
 from bootloader.signing import load_public_key
-from firmware_py.bootloader import inspect_image
+from firmware_py.boot_program import inspect_image
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import install_image, make_hal, provision_key
 from protocol.image import BoardType
-from protocol.messages.bootloader import ImageStatus
+from protocol.messages.boot_program import ImageStatus
 from tools.cli import fwimage
 
 PAYLOAD = bytes((i * 7 + 3) & 0xFF for i in range(1000))

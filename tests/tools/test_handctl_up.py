@@ -20,7 +20,7 @@ from host.hand import Hand
 from host.hand_bring_up import BOOT_TIMEOUT_S
 from host.transport import _registered as transport_registry
 from host.transport import open_transport
-from protocol.messages.bootloader import AUTOBOOT_WINDOW_US
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.topology import FINGERS
 from tests.host.slow_link import FastLinkClock
 from tools.cli.handctl import main

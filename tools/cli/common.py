@@ -44,9 +44,11 @@ from host.errors import (
 )
 from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
 from tools.cli.numeric import number_above, read_negative_numbers
-from tools.cli.output import EXIT_BROKEN_PIPE, OutputError, checked_stdout, output_failed
+from tools.cli.output import EXIT_BROKEN_PIPE, checked_stdout, output_failed
+from tools.errors import OutputError
 
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
@@ -114,7 +116,8 @@ def advice(exc: HostError, port: str, prog: str, command: str | None = None) -> 
         return f"homing failed: {exc}"
     if isinstance(exc, NodeError) and exc.status == TxnStatus.UNKNOWN_TYPE:
         return (f"{exc}\nThe node does not know this request: most likely it still runs its "
-                f"bootloader (a board waits about 4.5 s after power-up before it starts its "
+                f"bootloader (a board waits about {AUTOBOOT_WINDOW_US / 1e6:g} s after power-up "
+                f"before it starts its "
                 f"application). Wait a few seconds and retry; `{prog} --port {port} ping` "
                 "shows what each node runs.")
     return str(exc)

@@ -42,10 +42,7 @@ from protocol.topology import ADDR_BROADCAST, ADDR_HOST, NODE_ADDRESS, NodeKind
 from tools.cli.numeric import read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.values import FieldValueError, build_fields, check_fields
-
-
-class UsageError(Exception):
-    """Bad arguments or input: printed, exit status 2."""
+from tools.errors import InputError
 
 
 def jsonable(value: Any) -> Any:
@@ -75,7 +72,7 @@ def parse_hex_text(text: str) -> bytes:
                 continue
             m = _HEX_TOKEN.match(token)
             if not m or len(m.group(1)) % 2:
-                raise UsageError(f"line {lineno}: {token!r} is not hex bytes")
+                raise InputError(f"line {lineno}: {token!r} is not hex bytes")
             out += bytes.fromhex(m.group(1))
     return bytes(out)
 
@@ -89,13 +86,13 @@ def read_input(path: str, as_hex: bool, stdin: BinaryIO) -> bytes:
             with open(path, "rb") as fh:
                 raw = fh.read()
     except OSError as exc:
-        raise UsageError(f"cannot read {path}: {exc.strerror}") from exc
+        raise InputError(f"cannot read {path}: {exc.strerror}") from exc
     if not as_hex:
         return raw
     try:
         return parse_hex_text(raw.decode("ascii"))
     except UnicodeDecodeError as exc:
-        raise UsageError(f"{path} is not hex text (byte {exc.start} is not ASCII)") from exc
+        raise InputError(f"{path} is not hex text (byte {exc.start} is not ASCII)") from exc
 
 
 #: Bytes fed to the stream decoder at a time (the progress bar moves once per chunk).
@@ -348,11 +345,11 @@ def cmd_decode(args: argparse.Namespace, out: Any) -> int:
     data = read_input(args.file, args.hex, sys.stdin.buffer)
     name = "standard input" if args.file == "-" else args.file
     if not data:
-        raise UsageError(f"{name} is empty (0 bytes): nothing to decode")
+        raise InputError(f"{name} is empty (0 bytes): nothing to decode")
     if args.file.lower().endswith(".mcap") and not args.hex:
         from tools.cli import mcap_capture
 
-        raise UsageError(f"{name} is not an MCAP recording: "
+        raise InputError(f"{name} is not an MCAP recording: "
                          f"{mcap_capture.describe_start(data)}")
     if args.dynamixel:
         counters = decode_dynamixel(data, args.direction, out)
@@ -382,7 +379,7 @@ def _decode_mcap(args: argparse.Namespace, out: Any) -> int:
         contents = mcap_capture.read_recording(args.file)
         counters = mcap_capture.decode_mcap(args.file, encoding, decoder, out, contents)
     except mcap_capture.McapCaptureError as exc:
-        raise UsageError(str(exc)) from exc
+        raise InputError(str(exc)) from exc
     print(json.dumps({"summary": counters}), file=out)
     if contents.stopped:
         out.flush()
@@ -414,23 +411,23 @@ def cmd_encode(args: argparse.Namespace, out: Any) -> int:
     except ProtocolError:
         close = difflib.get_close_matches(args.name, CATALOGUE.names(), n=3)
         hint = f"; did you mean {', '.join(close)}?" if close else "; 'handbus list' lists them"
-        raise UsageError(f"no message called {args.name!r}{hint}") from None
+        raise InputError(f"no message called {args.name!r}{hint}") from None
     direction = REPLY if args.reply else REQUEST
     con = msg.request if direction == REQUEST else msg.reply
     if con is None:
-        raise UsageError(f"{msg.name} has no {direction}")
+        raise InputError(f"{msg.name} has no {direction}")
     addresses = _node_addresses()
     if not args.reply:
         if args.addr is None:
-            raise UsageError(f"--addr is required for a request ({addresses})")
+            raise InputError(f"--addr is required for a request ({addresses})")
         if not 0 <= args.addr <= 0xFF:
-            raise UsageError(f"address {args.addr} is outside 0..255 ({addresses}, "
+            raise InputError(f"address {args.addr} is outside 0..255 ({addresses}, "
                              f"broadcast {ADDR_BROADCAST})")
     fields = build_fields(con, args.fields)
     check_fields(con, fields, msg.name)
     payload = msg.build(direction, fields)
     if len(payload) > args.max_payload:
-        raise UsageError(f"the {msg.name} {direction} payload is {len(payload)} bytes; a decoder "
+        raise InputError(f"the {msg.name} {direction} payload is {len(payload)} bytes; a decoder "
                          f"reading at most {args.max_payload} bytes (--max-payload) drops it")
     frame = msg.reply_frame(fields) if args.reply else msg.request_frame(args.addr, fields)
     print(frame.hex(" ") if args.spaced else frame.hex(), file=out)
@@ -497,7 +494,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return int(args.func(args, sys.stdout))
-    except (UsageError, FieldValueError) as exc:
+    except (InputError, FieldValueError) as exc:
         print(f"handbus: error: {exc}", file=sys.stderr)
         return 2
     except ProtocolError as exc:

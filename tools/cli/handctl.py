@@ -47,6 +47,7 @@ from host.hand_state import FingerState, HandState, NodeInfo
 from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.joint_ekf import fuse_snapshot
 from protocol.image import BoardType
+from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS, HOMING_WRIST_TILTS
 from protocol.topology import FINGERS
@@ -207,7 +208,7 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
         homed = False
     try:
         found = estimate(f.accels)
-    except UsageError as exc:  # e.g. NoAccelerationError: phalanges unpowered or unpolled
+    except (NoAccelerationError, UsageError) as exc:  # NoAccelerationError: phalanges unpowered
         return {"joints_accel": None, "homed": homed,
                 "accel_problem": f"{exc}; power the phalanges: handctl up"
                 if isinstance(exc, NoAccelerationError) else str(exc)}
@@ -300,8 +301,9 @@ def _cmd_power(hand: Hand, args: argparse.Namespace) -> int:
     states = hand.power(finger, args.state)
     text = "power: " + ", ".join(f"finger {k} {s}" for k, s in enumerate(states))
     if args.state != "off":
-        text += ("\n(fingers switched on boot for about 4.5 s before they answer; their "
-                 "phalanges need power too: `handctl up` does it all and waits)")
+        text += (f"\n(fingers switched on boot for about {AUTOBOOT_WINDOW_US / 1e6:g} s before "
+                 "they answer; their phalanges need power too: `handctl up` does it all and "
+                 "waits)")
     _emit(args, {"power": states}, text)
     return 0
 
@@ -525,7 +527,9 @@ def _run(args: argparse.Namespace) -> int:
 @guard_output("handctl")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run handctl; returns the exit status."""
-    return run_cli(_parser(), argv, _run)
+    # Phalanges unpowered for one finger's homing: the user's next step is `handctl up`
+    # (exit 2, as a usage error, though the library no longer calls it one).
+    return run_cli(_parser(), argv, _run, usage=(NoAccelerationError,))
 
 
 if __name__ == "__main__":

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from tools.errors import McapCaptureError
+
 #: The first bytes of every MCAP file.
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: Message encodings of the raw-frame channels (:mod:`host.hand_recording`,
@@ -46,10 +48,6 @@ _RECORD_HEAD = 9  # opcode (1 byte) and length (8)
 
 #: ``(data, out) -> summary counters``: one of ``handbus``'s raw-capture decoders.
 Decoder = Callable[[bytes, Any], dict[str, int]]
-
-
-class McapCaptureError(Exception):
-    """The file is not a readable MCAP recording or holds no raw channel of that kind."""
 
 
 @dataclass(frozen=True)

@@ -16,16 +16,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Final, TextIO, TypeVar, cast
 
+from tools.errors import OutputError
+
 #: A file or standard output that cannot be written.
 EXIT_OUTPUT: Final = 1
 #: Standard output closed by its reader (``… | head``): as a process killed by SIGPIPE.
 EXIT_BROKEN_PIPE: Final = 141
 
 _Main = TypeVar("_Main", bound=Callable[..., int])
-
-
-class OutputError(OSError):
-    """Standard output could not be written (its ``errno`` and ``strerror`` say why)."""
 
 
 class _CheckedStdout:

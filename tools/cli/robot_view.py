@@ -23,18 +23,15 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from host.errors import HostError
-from host.view import WEB_PORT, RobotView, ViewUnavailable
+from host.errors import ViewUnavailable
+from host.view import WEB_PORT, RobotView
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.view import port_number
+from tools.errors import NotARecording
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-
-class NotARecording(HostError):
-    """A file that is not an MCAP recording this project wrote."""
 
 
 def messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[float, str, dict[str, Any]]]:

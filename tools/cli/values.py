@@ -15,10 +15,7 @@ from typing import Any
 import construct as c
 
 from protocol.enum_field import EnumField
-
-
-class FieldValueError(ValueError):
-    """A ``field=value`` word that cannot be used."""
+from tools.errors import FieldValueError
 
 
 def parse_scalar(text: str) -> Any:

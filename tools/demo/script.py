@@ -120,6 +120,7 @@ from tools.demo.plan import (
 )
 from tools.demo.report import Log, write_report
 from tools.demo.watch import SLIP_M, HandSampler, MugInHand, felt
+from tools.errors import DemoFailed
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The hand's fall reported for the put-down: the most it fell in this long (s).
@@ -139,12 +140,6 @@ def ready_joints() -> tuple[float, ...]:
     return tuple(float(q) for q in ik.q)
 
 
-class DemoFailed(Exception):
-    """A step failed: ``step`` names it, the message says why."""
-
-    def __init__(self, step: str, reason: str) -> None:
-        super().__init__(reason)
-        self.step = step
 
 
 class Demo:

@@ -24,7 +24,7 @@ from protocol.catalogue import REQUEST, Message
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 from protocol.framing import encode_frame
 from protocol.topology import SERVO_IDS, STEPPER_IDS
-from tools.fuzz.oracles import FuzzFailure
+from tools.errors import FuzzFailure
 from tools.fuzz.steps import Reproducer, Step
 from tools.fuzz.targets import (
     FRAME_GAP_US,

@@ -21,10 +21,6 @@ from __future__ import annotations
 from typing import Protocol
 
 
-class FuzzFailure(AssertionError):
-    """An oracle failed; the message says which and how."""
-
-
 class Introspection(Protocol):
     """What an emulated target can tell beyond the wire (see ``hil_emulator.introspection``)."""
 

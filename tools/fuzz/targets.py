@@ -30,6 +30,7 @@ from protocol.topology import (
     STEPPER_IDS,
     Board,
 )
+from tools.errors import TargetSilent, WrongTarget
 from tools.fuzz.oracles import Introspection
 
 #: Inter-frame gap of the hand nodes' decoders (µs): a partial frame older than this is
@@ -160,14 +161,6 @@ def _same_kind(answer: Any, request: bytes, link: TargetLink) -> bool:
             except Exception:  # noqa: BLE001
                 return True
     return len(inner) > 4 and answer.type == inner[4]
-
-
-class TargetSilent(TransportError):
-    """The target does not answer a ping before the campaign or replay sends anything."""
-
-
-class WrongTarget(TransportError):
-    """The node answering on the port identifies as another board than the target's."""
 
 
 class TargetLink:

@@ -20,6 +20,7 @@ from hil_emulator.robot import CONFIGS
 from protocol import topology
 from protocol.messages.palm import FingerPower
 from protocol.topology import FINGERS, SERVO_IDS, STEPPER_IDS
+from tools.errors import ScenarioError
 
 #: Each action's keys: required ones, then optional ones with defaults.
 ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
@@ -70,10 +71,6 @@ ARM_CONFIGS: Final = ("full", "arm")
 FINGER_BOARDS: Final = tuple(b.app for b in topology.FINGER_BOARDS)
 TOP_KEYS: Final = ("name", "description", "config", "seed", "physics", "ready", "faults",
                    "actions", "assertions", "campaign")
-
-
-class ScenarioError(ValueError):
-    """A scenario file that cannot be used; the message names the file and the key."""
 
 
 @dataclass

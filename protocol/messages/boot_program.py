@@ -1,4 +1,5 @@
-"""Messages of the bootloader that runs on every hand microcontroller.
+"""Messages (``bl.*``) of the boot program that runs on every hand microcontroller
+(:mod:`firmware_py.boot_program`; the host's flashing package is :mod:`bootloader`).
 
 The original commands keep their ids and meaning: ping 0x01 and hardware version 0xFA
 (common), boot 0x08, read page 0x0A, write page 0x0B with its status codes, halt autoboot

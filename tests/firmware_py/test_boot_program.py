@@ -10,7 +10,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from bootloader.signing import raw_public_key, sign_image
-from firmware_py.bootloader import AUTOBOOT_US, Bootloader, inspect_image
+from firmware_py.boot_program import AUTOBOOT_US, BootProgram, inspect_image
 from firmware_py.flash_layout import (
     BOOT_CONTROL_PAGE,
     HEADER_PAGE,
@@ -34,7 +34,7 @@ from protocol.image import (
     split_pages,
 )
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import BootState, WriteStatus
+from protocol.messages.boot_program import BootState, WriteStatus
 from protocol.stream import decode_all
 from protocol.topology import ADDR_BROADCAST
 
@@ -127,8 +127,8 @@ def halted_node(board: BoardType = BoardType.FMCB, **kw: Any) -> Mcu:
     return mcu
 
 
-def bootloader(mcu: Mcu) -> Bootloader:
-    assert isinstance(mcu.program, Bootloader)
+def bootloader(mcu: Mcu) -> BootProgram:
+    assert isinstance(mcu.program, BootProgram)
     return mcu.program
 
 
@@ -147,7 +147,7 @@ def test_valid_image_autoboots_after_the_window(board: BoardType) -> None:
 
 def test_autoboot_window_is_configurable() -> None:
     mcu = make_node(Scheduler(), BoardType.FMCB, apps=tiny_apps(),
-                    bootloader=lambda hal, m: Bootloader(hal, m, autoboot_us=500_000))
+                    bootloader=lambda hal, m: BootProgram(hal, m, autoboot_us=500_000))
     mcu.power_on()
     run(mcu, 499_000)
     assert mcu.in_bootloader
@@ -258,7 +258,7 @@ def test_fmcb_bootloader_holds_phalange_power_off() -> None:
     mcu = new_node()
     hal = vhal(mcu)
     hal.power("phalange").set(2)  # whatever the hardware did before the bootloader starts
-    bl = Bootloader(hal, mcu)
+    bl = BootProgram(hal, mcu)
     bl.start()
     assert hal.power("phalange").state == 0
     mcu.power_on()

@@ -18,7 +18,7 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
-from firmware_py.bootloader import AUTOBOOT_US
+from firmware_py.boot_program import AUTOBOOT_US
 from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
 from firmware_py.hal import Hal
 from firmware_py.hand_node import HandNode

@@ -1,9 +1,11 @@
-"""The bootloader that runs on every hand microcontroller after power-up and reset.
+"""The boot program: the bootloader that runs on every hand microcontroller after power-up
+and reset (named so beside the host's flashing package :mod:`bootloader`; its messages are
+:mod:`protocol.messages.boot_program`, ``bl.*`` on the wire).
 
 One program, configured by the board type in the node's identity page: it listens on the
 board's upstream UART (``pogo`` on an fmcb, ``tendon`` on f2/f3, ``host`` on the palm),
 locks its own pages 0–31 (bootloader and identity), holds the phalange bus unpowered on an
-fmcb, and opens an autoboot window of :attr:`Bootloader.autoboot_us` µs on the node clock.
+fmcb, and opens an autoboot window of :attr:`BootProgram.autoboot_us` µs on the node clock.
 Any bootloader command addressed to the node (its address or broadcast) closes the window
 for good, as read, write and halt did on the original hand.  The common messages (ping,
 identify, hw_version) are answered without closing it: a host that polls ``identify`` to
@@ -34,7 +36,7 @@ its ``bl.boot`` gets no reply (the original host's sign of a failed boot).
 Choices beyond the original:
 
 * ``bl.read_page`` of a page outside 0..1023 gets no reply (its reply has no status
-  field); the node counts it in :attr:`Bootloader.refused_reads` and ``bl.status``
+  field); the node counts it in :attr:`BootProgram.refused_reads` and ``bl.status``
   reports ``last_error`` 1.
 * ``bl.write_page`` replies only once the page is programmed and read back; a word that
   reads back wrong gives status ``0x80 + i`` (word ``i``), a write the flash reports as
@@ -95,7 +97,7 @@ from firmware_py.slot_swap import (
 from protocol.framing import Frame
 from protocol.image import FLASH, BoardType
 from protocol.messages import CATALOGUE
-from protocol.messages.bootloader import (
+from protocol.messages.boot_program import (
     AUTOBOOT_WINDOW_US,
     WRITE_STATUS_WORD_FAILED,
     BootResult,
@@ -107,7 +109,7 @@ from protocol.messages.common import Running
 from protocol.messages.slots import TRIAL_TIMEOUT_US, SlotEvent, SlotState
 from protocol.topology import HAND_BOARDS
 
-__all__ = ["AUTOBOOT_US", "Bootloader", "ImageCheck", "check_header", "check_signature",
+__all__ = ["AUTOBOOT_US", "BootProgram", "ImageCheck", "check_header", "check_signature",
            "inspect_image"]
 
 #: Default autoboot window (µs): the protocol's window, long enough for the original host
@@ -132,7 +134,7 @@ def _first_bad_word(expected: bytes, actual: bytes) -> int | None:
     return None
 
 
-class Bootloader(HandNode):
+class BootProgram(HandNode):
     """The bootloader program of a hand node (see the module docstring).
 
     ``autoboot_us`` overrides the class default window (µs).
