@@ -19,6 +19,7 @@ from protocol.control_tables import (
     STEPPER_MODEL_NUMBER,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
+    STEPPER_WATCHDOG_BRAKING_FIRMWARE,
     STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     ControlTable,
@@ -337,4 +338,5 @@ def test_stepper_cycle_block_addresses() -> None:
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
     assert STEPPER_ROTOR_RESYNC_FIRMWARE == 3
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_FIRMWARE == 4
+    assert STEPPER_WATCHDOG_FIRMWARE == 4
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_BRAKING_FIRMWARE == 5
