@@ -84,7 +84,7 @@ def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="the elastic joints ring on after the watchdog hold "
-                   "(about 1-2 s to below 0.02 rad/s): the node's hold does not damp them "
+                   "(about 2-3 s to below 0.02 rad/s): the node's hold does not damp them "
                    "(docs/decisions/watchdog-default.md says why not yet)")
 @pytest.mark.parametrize("after_s", [0.7, 1.5, 3.7])
 def test_a_host_killed_mid_move_leaves_the_stepper_joints_at_rest_within_half_a_second(
