@@ -54,12 +54,11 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
 * Command watchdog: every instruction addressed to the node (:meth:`host_heard`: PING, READ,
   WRITE, a SYNC_WRITE entry, a BULK_READ naming it, ...) restarts a count of ticks (ms).
   When the count passes ``watchdog_timeout`` (0 = off) while the step generator moves, the
-  node stops the move: its goal becomes the point where braking at ``acceleration_limit`` or
-  :data:`~protocol.control_tables.STEPPER_WATCHDOG_DECEL_COUNTS_S2`, whichever is higher,
-  from the present motor speed ends (``goal_position`` and ``command_goal`` say so; the
-  profile brakes at that rate until the next goal), and it sets StepperFlag.WATCHDOG.  It
-  holds the *motor* there, not the joint angle: the elastic element keeps the deflection
-  that carries the load, and the route coupling is not taken for deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
+  node stops the move: its goal becomes the point where braking at ``acceleration_limit``
+  from the present motor speed ends (``goal_position`` and ``command_goal`` say so), and it
+  sets StepperFlag.WATCHDOG.  It holds the *motor* there, not the joint angle: the elastic
+  element keeps the deflection that carries the load, and the route coupling is not taken for
+  deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
   on.  A node at rest is left alone whatever the count.
 
 Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
@@ -82,7 +81,6 @@ from firmware_py.hal import Hal
 from protocol.control_tables import (
     GOAL_FINE_PER_COUNT,
     STEPPER_TABLE,
-    STEPPER_WATCHDOG_DECEL_COUNTS_S2,
     Register,
     StepperClear,
     StepperFlag,
@@ -171,8 +169,6 @@ class StepperNodeApp(DynamixelSlave):
         self._run_current = self._holding_current = 0
         self._watchdog_timeout = 0  # ms (ticks); 0 = off
         self._quiet_ticks = 0  # ticks since the last instruction addressed to the node
-        #: The watchdog's braking deceleration (counts/s²) while its stop holds; 0 otherwise
-        self._braking = 0.0
         #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
         #: the least since; 0 once back within it (see the module docs)
         self._allowance = 0
@@ -208,7 +204,6 @@ class StepperNodeApp(DynamixelSlave):
         self._velocity = 0.0
         self._flags = 0
         self._quiet_ticks = 0
-        self._braking = 0.0
         self._allowance = 0
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
         self._set_goal_counts(self._enc0)
@@ -228,7 +223,6 @@ class StepperNodeApp(DynamixelSlave):
         names = {r.name for r in touched}
         if "command_goal" in names or "goal_position" in names:
             self._flags &= ~_WATCHDOG  # a new goal: the host is back in charge
-            self._braking = 0.0
         if "command_goal" in names:
             fine = self.get("command_goal")
             self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
@@ -402,15 +396,11 @@ class StepperNodeApp(DynamixelSlave):
 
     def _watchdog_stop(self, hw_steps: int, mpc: float) -> None:
         """No instruction within ``watchdog_timeout`` while moving: the goal becomes where
-        the motor stops braking at ``acceleration_limit`` or the watchdog's deceleration,
-        whichever is higher (the motor's frame, so the load's deflection stays in the
-        element), and the WATCHDOG flag is set."""
+        the motor stops braking at ``acceleration_limit`` (the motor's frame, so the load's
+        deflection stays in the element), and the WATCHDOG flag is set."""
         velocity = self._velocity
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         accel = float(self._acceleration_limit)
-        if accel < STEPPER_WATCHDOG_DECEL_COUNTS_S2:
-            accel = float(STEPPER_WATCHDOG_DECEL_COUNTS_S2)
-        self._braking = accel
         self._hold_at(motor + math.copysign(velocity * velocity / (2.0 * accel), velocity))
         self._flags |= _WATCHDOG
 
@@ -436,7 +426,7 @@ class StepperNodeApp(DynamixelSlave):
         v_max = float(self._velocity_limit)
         if v_max * mpc > STEPPER_MAX_STEP_RATE:
             v_max = STEPPER_MAX_STEP_RATE / mpc
-        accel = self._braking or float(self._acceleration_limit)
+        accel = float(self._acceleration_limit)
         velocity = self._velocity
         size = abs(error)
         if size < resolution and abs(velocity) <= accel * dt:

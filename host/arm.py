@@ -106,7 +106,7 @@ FAST_RETURN_DELAY: Final = 0
 MOVE_MIN_SPEED: Final = 0.2
 #: The stepper nodes' command watchdog this library sets at open (ms; see
 #: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
-#: after this long, their motors still within about 0.15 s; ten of the 10 ms cycles a move
+#: after this long, their motors still within about 0.2 s; ten of the 10 ms cycles a move
 #: runs.
 HOST_WATCHDOG_MS: Final = 100
 

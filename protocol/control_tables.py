@@ -339,11 +339,8 @@ STEPPER_ROTOR_RESYNC_FIRMWARE = 3
 #: The first stepper node firmware version with the command watchdog (``watchdog_timeout``,
 #: StepperFlag.WATCHDOG).
 STEPPER_WATCHDOG_FIRMWARE = 4
-#: The first stepper node firmware version whose watchdog stop brakes at
-#: :data:`STEPPER_WATCHDOG_DECEL_COUNTS_S2` (4 braked at ``acceleration_limit``).
-STEPPER_WATCHDOG_BRAKING_FIRMWARE = 5
 #: The stepper node's firmware version.
-STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_BRAKING_FIRMWARE
+STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_FIRMWARE
 #: The stepper node's factory ``alarm_shutdown``: OVERHEATING only.  A STALLED latch (the
 #: OVERLOAD bit) stops the node's stepping and holds its motor, torque on, instead of cutting
 #: the coils: a gravity-loaded joint that lost its torque falls, and its swing overloads the
@@ -354,11 +351,6 @@ STEPPER_ALARM_SHUTDOWN_DEFAULT: Final = int(ErrorBit.OVERHEATING)
 #: started it; long enough for a stock dynamixel-sdk program that polls while it waits
 #: (docs/decisions/watchdog-default.md).
 STEPPER_WATCHDOG_DEFAULT_MS: Final = 500
-#: The deceleration (joint encoder counts/s², 4π rad/s²) a node brakes at when its command
-#: watchdog stops a move (``acceleration_limit`` if that is higher): four times the move
-#: profile's default, so a vanished host's arm drives on less; the motor's share of the
-#: torque stays a few per cent of its pull-out torque (docs/decisions/watchdog-default.md).
-STEPPER_WATCHDOG_DECEL_COUNTS_S2: Final = 20_000
 _COUNTS = "joint encoder counts (0.036 deg)"
 #: ``command_goal`` units per joint encoder count: a goal finer than a count, so a host can
 #: command single microsteps (J1: 1.2 microsteps per count at 1/10 stepping).
@@ -394,8 +386,7 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: Address 98 is the *command watchdog*: ``watchdog_timeout`` (ms, 0 = off).  When no
 #: instruction addressed to the node (PING, READ, WRITE, REG_WRITE, ACTION, a SYNC_WRITE
 #: with an entry for it, a BULK_READ naming it; broadcasts included) has arrived within it
-#: while the node is stepping, the node stops: it brakes at ``acceleration_limit`` or
-#: :data:`STEPPER_WATCHDOG_DECEL_COUNTS_S2`, whichever is higher, and holds
+#: while the node is stepping, the node stops: it brakes at ``acceleration_limit`` and holds
 #: its motor where it stopped (the goal registers say where), torque on, nothing latched, and
 #: sets StepperFlag.WATCHDOG until the next goal (``goal_position`` or ``command_goal``) moves
 #: it again.  Nodes report firmware_version >= :data:`STEPPER_WATCHDOG_FIRMWARE` when they

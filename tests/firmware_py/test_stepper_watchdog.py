@@ -12,8 +12,6 @@ from firmware_py.sim.virtual_hal import VirtualHal
 from protocol.control_tables import (
     STEPPER_FIRMWARE_VERSION,
     STEPPER_TABLE,
-    STEPPER_WATCHDOG_BRAKING_FIRMWARE,
-    STEPPER_WATCHDOG_DECEL_COUNTS_S2,
     STEPPER_WATCHDOG_DEFAULT_MS,
     STEPPER_WATCHDOG_FIRMWARE,
     StepperFlag,
@@ -70,8 +68,7 @@ def test_the_register_and_the_version():
     assert (reg.address, reg.size, reg.area, reg.default) == (98, 2, "RAM",
                                                              STEPPER_WATCHDOG_DEFAULT_MS)
     assert STEPPER_WATCHDOG_DEFAULT_MS > 0  # on from power-up
-    assert STEPPER_WATCHDOG_FIRMWARE == 4
-    assert STEPPER_FIRMWARE_VERSION == STEPPER_WATCHDOG_BRAKING_FIRMWARE == 5
+    assert STEPPER_FIRMWARE_VERSION == STEPPER_WATCHDOG_FIRMWARE == 4
     assert int(StepperFlag.WATCHDOG) == 0x20
 
 
@@ -179,40 +176,10 @@ def test_once_stopped_the_motor_stays_still(timeout_ms):
     write(sched, hal, "watchdog_timeout", timeout_ms)
     write(sched, hal, "torque_enable", 1)
     write(sched, hal, "goal_position", 4000)
-    sched.run_for(timeout_ms * 1000 + 200_000)  # the timeout, then braking
+    sched.run_for(timeout_ms * 1000 + 200_000)  # the timeout, then braking at 5000 counts/s²
     assert flags(app) & StepperFlag.WATCHDOG
     rates = []
     for _ in range(300):
         sched.run_for(1_000)
         rates.append(hal.stepper().rate)
     assert not any(rates)
-
-
-def test_the_stop_brakes_harder_than_the_move_profile():
-    """At the default ``acceleration_limit`` (5000 counts/s²) the watchdog's stop brakes at
-    STEPPER_WATCHDOG_DECEL_COUNTS_S2 (20 000): from 1000 counts/s it stops within 50 ms and
-    25 counts instead of 200 ms and 100; the next goal moves at the profile's rate again."""
-    sched, hal, app = fresh()
-    assert app.get("acceleration_limit") == 5000 < STEPPER_WATCHDOG_DECEL_COUNTS_S2 == 20_000
-    write(sched, hal, "velocity_limit", SPEED)
-    write(sched, hal, "watchdog_timeout", TIMEOUT_MS)
-    write(sched, hal, "torque_enable", 1)
-    write(sched, hal, "goal_position", 5 * SPEED)
-    stepper = hal.stepper()
-    for _ in range(6):  # 0.3 s of keep-alives: at full speed after 0.2 s
-        transact(sched, hal, make_ping(2).encode(), run_us=50_000)
-    sched.run_for(TIMEOUT_MS * 1000 - 51_000)  # then silent: 1 ms before the timeout
-    assert stepper.rate == pytest.approx(SPEED * K)
-    assert not flags(app) & StepperFlag.WATCHDOG
-    sched.run_for(2_000)
-    assert flags(app) & StepperFlag.WATCHDOG
-    at_stop = stepper.step_count() / K
-    sched.run_for(50_000)  # braking 50 ms (5000 counts/s² would take 200 ms, 100 counts)
-    assert stepper.step_count() / K - at_stop == pytest.approx(25, abs=3)
-    sched.run_for(50_000)
-    assert stepper.rate == 0.0
-    assert stepper.step_count() / K - at_stop == pytest.approx(25, abs=3)
-    assert app.get("goal_position") == pytest.approx(stepper.step_count() / K, abs=1)
-    write(sched, hal, "goal_position", 5 * SPEED)
-    sched.run_for(10_000)  # 10 ms at 5000 counts/s²: 50 counts/s
-    assert 0 < stepper.rate <= 60 * K

@@ -34,7 +34,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
     assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 10)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
-    assert all(j.firmware_version == 5 for j in arm.steppers)
+    assert all(j.firmware_version == 4 for j in arm.steppers)
 
 
 def test_open_sets_the_fast_return_delay(arm: Arm) -> None:

@@ -19,7 +19,6 @@ from protocol.control_tables import (
     STEPPER_MODEL_NUMBER,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
-    STEPPER_WATCHDOG_BRAKING_FIRMWARE,
     STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     ControlTable,
@@ -338,5 +337,4 @@ def test_stepper_cycle_block_addresses() -> None:
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
     assert STEPPER_ROTOR_RESYNC_FIRMWARE == 3
-    assert STEPPER_WATCHDOG_FIRMWARE == 4
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_BRAKING_FIRMWARE == 5
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_FIRMWARE == 4
