@@ -86,7 +86,7 @@ from host.arm_state import (
     StepperState,
     TorqueCommand,
 )
-from host.arm_trajectory import Vector
+from host.arm_trajectory import SERVO_GOAL_LEAD_S, Vector, servo_lead
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
@@ -106,7 +106,8 @@ FAST_RETURN_DELAY: Final = 0
 MOVE_MIN_SPEED: Final = 0.2
 #: The stepper nodes' command watchdog this library sets at open (ms; see
 #: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
-#: after this long, the arm at rest within 0.5 s; ten of the 10 ms cycles a move runs.
+#: after this long, their motors still within about 0.2 s; ten of the 10 ms cycles a move
+#: runs.
 HOST_WATCHDOG_MS: Final = 100
 
 
@@ -527,9 +528,10 @@ class Arm:
         before = latches(now)
         watch = rest if rest is not None else RestWatch()
         watch.reset()
-        state = self.set_positions(angles, speeds)
         clock = self.bus.transport
-        deadline = clock.now() + timeout
+        start = clock.now()
+        state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0), speeds)
+        deadline = start + timeout
         while True:
             stop_for_alarms(self, state, before)
             still = watch.update(state)
@@ -539,7 +541,8 @@ class Arm:
                 return state, False
             clock.sleep(period)
             # the goals again, with the coupling offsets of the joints as they are now
-            state = self.set_positions(angles)
+            state = self.set_positions(servo_lead(now.joints, angles, speeds,
+                                                  clock.now() - start))
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
@@ -559,7 +562,7 @@ class Arm:
 #: in) the free functions and types its users import from here.
 __all__ = [
     "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS", "MOVE_MIN_SPEED",
-    "RESYNC_MIN_COUNTS", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
+    "RESYNC_MIN_COUNTS", "SERVO_GOAL_LEAD_S", "servo_lead", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
     "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
     # moved out, importable here as before
     "discover", "open_arm_transport", "open_bus", "off_goal", "settled",

@@ -18,7 +18,7 @@ from typing import Final
 
 import numpy as np
 
-from host.arm_state import N_JOINTS
+from host.arm_state import N_JOINTS, N_STEPPERS
 from host.errors import UsageError
 from protocol.robot import ARM_JOINT_ACCEL_LIMITS
 
@@ -109,4 +109,31 @@ def timed_path(points: Sequence[Vector], max_speed: float, start_t: float = 0.0,
             span = max(span, float(np.max(np.sqrt(sharpness * step / limits))) * (1 + 1e-9))
         t += span
         out.append(Waypoint(t, tuple(float(v) for v in b)))
+    return out
+
+
+#: How far ahead of its way (s of its speed) a move sends an RX-64 its goal
+#: (:func:`servo_lead`): five of a move's 10 ms cycles, so a late cycle does not stall it.
+SERVO_GOAL_LEAD_S: Final = 0.05
+
+
+def servo_lead(start: Sequence[float], goals: Sequence[float],
+               speeds: Sequence[float | None], elapsed: float) -> list[float]:
+    """The goals a move sends ``elapsed`` seconds after it began from ``start`` towards
+    ``goals`` (rad): the steppers' own (their nodes plan the way and stop by themselves
+    when the host vanishes), each RX-64's only :data:`SERVO_GOAL_LEAD_S` of its ``speed``
+    (rad/s; None: the goal itself) ahead of where that speed has taken it by then.  An
+    RX-64 moves its setpoint at the same speed, so the motion is the one the move's end as
+    goal would give; but it has no watchdog and drives on to the goal it was sent, so a
+    host that vanishes leaves it at most that lead further on (0.01 rad at 0.2 rad/s, and
+    its lag behind its setpoint), not at the move's end."""
+    out = list(goals)
+    for j in range(N_STEPPERS, N_JOINTS):
+        speed = speeds[j]
+        if speed is None:
+            continue
+        span = goals[j] - start[j]
+        reach = speed * (elapsed + SERVO_GOAL_LEAD_S)
+        if reach < abs(span):
+            out[j] = start[j] + math.copysign(reach, span)
     return out
