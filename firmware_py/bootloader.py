@@ -60,6 +60,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import (
     APP_PAGES,
@@ -132,6 +134,7 @@ def _first_bad_word(expected: bytes, actual: bytes) -> int | None:
     return None
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Bootloader(HandNode):
     """The bootloader program of a hand node (see the module docstring).
 
