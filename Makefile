@@ -18,17 +18,20 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 ## The compiled core (mypyc C extensions of the emulator's hot modules, listed in
-## tools/build_compiled.py).  COMPILED_CORE=yes: the set-up builds it where a C compiler
-## exists (once, a few minutes on 2 cores; again when one of its sources changes) and says
-## so in one line, or says in one line that the emulator runs pure Python.  Not yet the
-## default: the suite does not pass on it (docs/decisions/realtime-scheduling-and-ports.md).
-## LOWCOST_PURE_PYTHON=1 makes a process import the sources although a build exists.
-COMPILED_CORE ?= no
+## tools/build_compiled.py), on by default: the set-up builds it where a C compiler exists
+## (once, a few minutes on 2 cores; again when one of its sources changes), saying so in one
+## line, or says in one line that the emulator runs pure Python (no compiler, a failed build).
+## COMPILED_CORE=no skips it; LOWCOST_PURE_PYTHON=1 removes a build at set-up and makes a
+## process import the sources although a build exists.  Both builds behave the same; the
+## compiled one takes 1.3-1.7x less CPU per simulated second (docs/EMULATOR.md).
+COMPILED_CORE ?= yes
+PURE_PYTHON := $(filter-out 0,$(LOWCOST_PURE_PYTHON))
 COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(PYTHON) -m tools.build_compiled --list 2>/dev/null))
-CORE := $(VENV)/.compiled-core-$(COMPILED_CORE)
+CORE := $(VENV)/.compiled-core-$(if $(PURE_PYTHON),pure,$(COMPILED_CORE))
 
 $(CORE): $(STAMP) $(COMPILED_SOURCES)
 	@$(if $(filter yes,$(COMPILED_CORE)),$(PY) -m tools.build_compiled --setup,true)
+	@rm -f $(VENV)/.compiled-core-*
 	@touch $(CORE)
 
 install: $(CORE)

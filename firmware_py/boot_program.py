@@ -62,6 +62,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.errors import ConfigError
 from firmware_py.flash_layout import (
     APP_PAGES,
@@ -134,6 +136,7 @@ def _first_bad_word(expected: bytes, actual: bytes) -> int | None:
     return None
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class BootProgram(HandNode):
     """The bootloader program of a hand node (see the module docstring).
 

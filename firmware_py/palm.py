@@ -32,6 +32,8 @@ from __future__ import annotations
 
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.current_governor import FULL_CAP, GOVERNOR_PERIOD_US, CurrentGovernor
 from firmware_py.errors import HalError
 from firmware_py.hal import CanController, Hal, Timer, Uart
@@ -96,6 +98,7 @@ class CanLink(Uart):
         return False
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class PalmApp(HandNode):
     """The palm's application program (``firmware_py.palm:PalmApp``)."""
 

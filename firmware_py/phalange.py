@@ -36,6 +36,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, ClassVar, Final, Protocol
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.errors import HalError
 from firmware_py.hal import Hal, Timer, Uart
 from firmware_py.hand_node import HandNode, Request
@@ -70,6 +72,7 @@ def _clamp(value: int, lo: int, hi: int) -> int:
     return lo if value < lo else hi if value > hi else value
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class _PhalangeApp(HandNode):
     """What f2 and f3 share: tendon-bus slave, tactile scan, IMU, turnaround."""
 
@@ -210,6 +213,7 @@ class _PhalangeApp(HandNode):
         return {}
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class F2App(_PhalangeApp):
     """The proximal phalange: 6 taxels, IMU, strain gauge; no thermistors (address 1)."""
 
@@ -225,6 +229,7 @@ class F2App(_PhalangeApp):
         return _clamp(self._read_int("strain"), STRAIN_MIN, STRAIN_MAX)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class F3App(_PhalangeApp):
     """The distal phalange: 12 taxels, IMU, four thermistors (address 2)."""
 

@@ -171,8 +171,8 @@ class Scheduler:
         """Current simulation time (µs)."""
         return self._now
 
-    def call_at(self, t_us: int, callback: Callback) -> TimerHandle:
-        """Run ``callback`` at time ``t_us`` (µs; not earlier than now)."""
+    def call_at(self, t_us: float, callback: Callback) -> TimerHandle:
+        """Run ``callback`` at time ``t_us`` (µs, whole µs taken; not earlier than now)."""
         t = int(t_us)
         if t < self._now:
             t = self._now
@@ -181,12 +181,12 @@ class Scheduler:
         heapq.heappush(self._queue, (t, seq, ev))
         return ev
 
-    def call_later(self, delay_us: int, callback: Callback) -> TimerHandle:
+    def call_later(self, delay_us: float, callback: Callback) -> TimerHandle:
         """Run ``callback`` once, ``delay_us`` µs from now."""
         delay = int(delay_us)
         return self.call_at(self._now + delay if delay > 0 else self._now, callback)
 
-    def call_every(self, period_us: int, callback: Callback, first_us: int | None = None
+    def call_every(self, period_us: float, callback: Callback, first_us: float | None = None
                    ) -> TimerHandle:
         """Run ``callback`` every ``period_us`` µs, first after ``first_us`` (default: one period)."""
         if period_us <= 0:
@@ -241,14 +241,14 @@ class Scheduler:
             heapq.heappop(self._queue)
         return self._queue[0][0] if self._queue else None
 
-    def run_until(self, t_us: int) -> int:
+    def run_until(self, t_us: float) -> int:
         """Run every event due up to and including ``t_us``; then time is ``t_us``.
 
         Returns the number of callbacks run.
         """
         return self.run_some(t_us, _UNBOUNDED)
 
-    def run_some(self, t_us: int, max_events: int) -> int:
+    def run_some(self, t_us: float, max_events: int) -> int:
         """Run events due up to and including ``t_us``, at most ``max_events`` callbacks.
 
         Time becomes ``t_us`` only when every event due by then has run; otherwise it stays
@@ -257,11 +257,12 @@ class Scheduler:
         number of callbacks run (``max_events`` means there may be more).
         """
         ran = 0
+        limit = int(t_us)  # whole µs
         queue = self._queue
         pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
         while ran < max_events and queue:
             when, _, ev = queue[0]
-            if when > t_us:
+            if when > limit:
                 break
             cb = ev.callback
             if cb is None:
@@ -279,10 +280,10 @@ class Scheduler:
                 ev.callback = None
             cb()
             ran += 1
-        if ran < max_events and t_us > self._now:
-            self._now = t_us
+        if ran < max_events and limit > self._now:
+            self._now = limit
         return ran
 
-    def run_for(self, duration_us: int) -> int:
+    def run_for(self, duration_us: float) -> int:
         """Run for ``duration_us`` µs of simulation time."""
         return self.run_until(self._now + int(duration_us))

@@ -111,7 +111,7 @@ class StreamDecoder:
         # are sliced straight out of them) and keep only an unfinished tail.
         return self._scan(data if type(data) is bytes else bytes(data), t, final=False)
 
-    def pass_frame(self, data: bytes, t: float | None = None) -> bool:
+    def pass_frame(self, data: bytes | bytearray | memoryview, t: float | None = None) -> bool:
         """Account for ``data`` without building its frame, if it is exactly one whole
         good frame and nothing is held: the decoder ends as :meth:`feed` would leave it
         (counters, stream offset, arrival time) and the frame is not returned.  Returns
@@ -120,9 +120,10 @@ class StreamDecoder:
         For a listener that knows from the address byte (``data[1]``) that the frame is not
         for it: what it would do with the frame is count it, so building it is wasted.
         """
+        if type(data) is not bytes:  # a bytearray or a view: the caller feeds it
+            return False
         n = len(data)
-        if (self._buf or n < HEADER_SIZE + CRC_SIZE or data[0] != SYNC
-                or type(data) is not bytes):
+        if self._buf or n < HEADER_SIZE + CRC_SIZE or data[0] != SYNC:
             return False
         length = data[2] | (data[3] << 8)
         body_end = HEADER_SIZE + length

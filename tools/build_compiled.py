@@ -4,8 +4,8 @@
 
 mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
 its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
-Python imports instead of the source.  ``make compiled`` builds it; with
-``COMPILED_CORE=yes`` the set-up (``make install``, so every ``make`` target) runs
+Python imports instead of the source.  ``make compiled`` builds it; by default
+(``COMPILED_CORE=no`` skips it) the set-up (``make install``, so every ``make`` target) runs
 ``--setup``: it builds the core where a C compiler exists, saying so in one line, and falls
 back to pure Python with one line where it cannot; with ``LOWCOST_PURE_PYTHON=1`` it removes
 any build and stays pure Python, and the same variable makes a process import the sources
@@ -129,6 +129,7 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     try:
         from mypyc.build import mypycify
         from setuptools import Distribution
+        from setuptools.errors import CCompilerError
     except ImportError as exc:  # pragma: no cover - mypy (with mypyc) is a test dependency
         raise BuildError(f"mypyc is not installed: {exc}") from exc
     if shutil.which(os.environ.get("CC", "cc")) is None and shutil.which("gcc") is None:
@@ -149,7 +150,7 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
         command.build_temp = str(build_path / "temp")  # type: ignore[attr-defined]
         command.build_lib = str(build_path / "lib")  # type: ignore[attr-defined]
         dist.run_command("build_ext")
-    except SystemExit as exc:  # distutils reports a compiler failure by exiting
+    except (SystemExit, CCompilerError) as exc:  # distutils may report it by exiting
         raise BuildError(f"the C build failed: {exc}") from exc
     except Exception as exc:
         raise BuildError(f"mypyc failed: {exc}") from exc
@@ -194,9 +195,11 @@ def _output_to(log: Path) -> Iterator[None]:
             os.close(saved[1])
 
 
-def setup(root: Path = ROOT, build_dir: Path | None = None) -> str:
-    """The set-up's step: build the compiled core unless pure Python is asked for or it is
-    built and fresh already; never fails.  Returns the one line it printed."""
+def setup(root: Path = ROOT, build_dir: Path | None = None,
+          modules: Sequence[str] = COMPILED_MODULES) -> str:
+    """The set-up's step: build the compiled core (``modules``) unless pure Python is asked
+    for or it is built and fresh already; never fails (any error of the build leaves pure
+    Python).  Returns the one line it printed."""
     from protocol.compiled_guard import PURE_PYTHON_ENV, pure_python_requested, stale
 
     if pure_python_requested():
@@ -211,8 +214,8 @@ def setup(root: Path = ROOT, build_dir: Path | None = None) -> str:
         log = (build_dir if build_dir is not None else root / "build") / "compiled-core.log"
         try:
             with _output_to(log):
-                build(root, build_dir)
-        except BuildError as exc:
+                build(root, build_dir, modules)
+        except Exception as exc:  # a BuildError, or mypyc/setuptools failing another way
             clean(root, build_dir)
             reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
             line = (f"compiled core: cannot be built here ({reason}; see {log}): the emulator "

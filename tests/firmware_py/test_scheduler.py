@@ -108,3 +108,19 @@ def test_a_tick_started_just_before_the_group_fires_runs_first_from_then_on() ->
     sched.run_until(3 * PERIOD)
     assert seen == ["a", "b", "a", "b", "a"]
     assert len(sched._queue) == 1
+
+
+def test_times_given_as_floats_are_taken_in_whole_microseconds() -> None:
+    """``run_for(2e3)`` and friends, as pure Python always took them (the compiled core's
+    signatures say ``float``): the clock stays a whole number of µs."""
+    sched = Scheduler()
+    ran: list[int] = []
+    sched.call_at(1500.7, lambda: ran.append(sched.now_us()))
+    sched.call_later(2000.2, lambda: ran.append(sched.now_us()))
+    timer = sched.call_every(1000.0, lambda: ran.append(sched.now_us()), first_us=2500.0)
+    assert sched.run_for(2e3) == 2
+    assert sched.now_us() == 2000 and type(sched.now_us()) is int
+    sched.run_until(3000.9)
+    timer.cancel()
+    assert ran == [1500, 2000, 2500]
+    assert sched.now_us() == 3000 and type(sched.now_us()) is int

@@ -596,3 +596,13 @@ def test_pass_frame_respects_the_length_bound() -> None:
     dec = StreamDecoder(max_payload=0)
     assert dec.pass_frame(PING, 0.001)
     assert not dec.pass_frame(POWER_ON, 0.002)
+
+
+@pytest.mark.parametrize("kind", [bytearray, memoryview])
+def test_pass_frame_leaves_a_bytes_like_frame_to_feed(kind: type) -> None:
+    """A good frame given as a bytearray or a view: refused (the caller feeds it), not a
+    TypeError (as a compiled signature of ``bytes`` would raise)."""
+    dec = StreamDecoder()
+    assert not dec.pass_frame(kind(PING), 0.001)
+    assert dec.counters.frames == 0
+    assert [f.type for f in dec.feed(bytearray(PING), 0.001)] == [PING[4]]

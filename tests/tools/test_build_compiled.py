@@ -118,6 +118,39 @@ def test_setup_without_a_compiler_falls_back_in_one_line(
     assert printed[-1] == line and len(printed) == 2  # "building ..." then the outcome
 
 
+def test_setup_falls_back_in_one_line_whatever_the_build_raises(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    def broken(*args: object) -> list[Path]:
+        raise RuntimeError("mypyc crashed")
+
+    monkeypatch.delenv(PURE_PYTHON_ENV, raising=False)
+    monkeypatch.setattr(build_compiled, "build", broken)
+    line = build_compiled.setup(tmp_path, tmp_path / "build")
+    assert line.startswith("compiled core: cannot be built here (mypyc crashed; see ")
+    assert line.endswith("the emulator runs pure Python")
+    assert capsys.readouterr().out.strip().splitlines()[-1] == line
+
+
+@pytest.mark.slow
+def test_setup_falls_back_when_the_c_compiler_fails(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A compiler that is there but fails (``CC=/bin/false``): mypyc's C is not compiled,
+    nothing is left behind, and the set-up says so in one line."""
+    pytest.importorskip("mypyc", reason="mypyc (comes with mypy) is not installed")
+    module = tmp_path / "protocol" / "tiny.py"
+    module.parent.mkdir()
+    module.write_text("def double(x: int) -> int:\n    return 2 * x\n")
+    monkeypatch.delenv(PURE_PYTHON_ENV, raising=False)
+    monkeypatch.setenv("CC", "/bin/false")
+    monkeypatch.setenv("LDSHARED", "/bin/false -shared")
+    line = build_compiled.setup(tmp_path, tmp_path / "build", modules=("protocol/tiny.py",))
+    assert line.startswith("compiled core: cannot be built here (the C build failed")
+    assert line.endswith("the emulator runs pure Python")
+    assert list(tmp_path.rglob("*.so")) == []
+    assert module.is_file()
+
+
 def test_the_whole_compile_set_type_checks_as_mypyc_sees_it() -> None:
     """mypyc type-checks exactly :data:`COMPILED_MODULES` (with what they import) before it
     compiles; that set can fail where ``make typecheck`` of whole packages passes (an
