@@ -33,7 +33,9 @@ def report(results: list[Result]) -> list[str]:
         ratio = ""
         if r.baseline and (r.group, r.baseline) in by_key:
             base = by_key[(r.group, r.baseline)].rate
-            ratio = f"{r.rate / base:8.1f}× {r.baseline}" if base else ""
+            share = r.rate / base if base else 0.0
+            digits = 2 if share < 10 else 1  # 0.96× is not 1.0×
+            ratio = f"{share:8.{digits}f}× {r.baseline}" if base else ""
         target = ""
         if r.target is not None:
             bound = "≤" if r.at_most else "≥"

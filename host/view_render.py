@@ -20,6 +20,11 @@ base frame, or the palm frame for a hand on its own), ``arm/*`` and ``hand/finge
 time series, ``alarms`` (a text log of alarm bits, finger problems and events as they
 appear and clear).  This module imports rerun; :mod:`host.view` imports it only when a view
 is asked for.
+
+Cheap per state: a state becomes one row per entity (:class:`host.view_columns.Columns`),
+sent as columns when the owner calls :meth:`Renderer.flush` (the live view: a few times a
+second; a replay: at the end), never one rerun call per value.  Colours and sizes are logged
+once as static data, the palm outline once, the fingers' geometry in a few array operations.
 """
 
 from __future__ import annotations
@@ -27,24 +32,31 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
-import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from host.robot_geometry import (
-    IDENTITY,
     Pose,
     arm_skeleton,
-    finger_skeleton,
+    hand_skeleton,
     palm_on_flange,
     palm_outline,
 )
 from host.topics import ARM_BUS_STATS, ARM_STATE, HAND_EVENTS, HAND_LINK_STATS, HAND_STATE
+from host.view_columns import (
+    LEVEL,
+    MAT3X3,
+    POSITIONS,
+    SCALARS,
+    STRIPS,
+    TEXT,
+    TRANSLATION,
+    Columns,
+)
 from protocol.robot import ARM_JOINT_NAMES, FINGER_JOINT_NAMES, motor_to_joint
 
 #: Every topic :meth:`Renderer.message` draws.
 TOPICS: Final = (ARM_STATE, HAND_STATE, HAND_EVENTS, ARM_BUS_STATS, HAND_LINK_STATS)
-TIMELINE: Final = "time"
 FINGERS: Final = 4
 #: Colours (RGB): the arm, the fingers, the palm, alarms raised and cleared.
 ARM_RGB: Final = (255, 140, 0)
@@ -60,7 +72,7 @@ _STATS: Final = ("requests", "retries", "timeouts")
 _HAND_JOINTS: Final = tuple(f"f{k} {name}" for k in range(FINGERS)
                              for name in FINGER_JOINT_NAMES)
 #: Time-series entities and their series' names (logged once, static).  Few entities with
-#: several series each: every logging call costs about 0.1 ms of CPU, whatever it carries.
+#: several series each: every entity costs a column per batch, whatever it carries.
 SERIES: Final[dict[str, Sequence[str]]] = {
     "arm/joints": (*ARM_JOINT_NAMES, *(f"{j} goal" for j in _STEPPERS),
                    *(f"{j} motor" for j in _STEPPERS)),
@@ -77,6 +89,13 @@ SERIES: Final[dict[str, Sequence[str]]] = {
                              for what in ("supply", "phalange_bus")),
     "hand/temperature_c": tuple(f"f{k} motor{m}" for k in range(FINGERS) for m in range(3)),
 }
+
+
+#: Series the page's layout does not show (a user can add them): sent with the rest only
+#: every few sends (:meth:`Renderer.flush`), their rows complete but later.
+BACKGROUND: Final = frozenset({"arm/deflection_counts", "arm/servo_load",
+                               "arm/servo_temperature_c", "hand/current_ma",
+                               "hand/temperature_c"})
 
 
 def blueprint() -> rrb.Blueprint:
@@ -98,13 +117,16 @@ def blueprint() -> rrb.Blueprint:
 
 
 class Renderer:
-    """Logs messages to ``recording``; ``layout`` is the hand's
+    """Draws messages in ``recording``; ``layout`` is the hand's
     (:data:`protocol.robot.HAND_LAYOUTS`).  Keeps what it needs between messages: the
-    flange's last pose (a hand on the arm is drawn on it) and the alarms standing."""
+    flange's last pose (a hand on the arm is drawn on it) and the alarms standing.  What
+    :meth:`message` draws is sent by :meth:`flush` (or once an entity has gathered
+    :data:`host.view_columns.MAX_ROWS` rows)."""
 
     def __init__(self, recording: rr.RecordingStream, layout: str) -> None:
         self.rec = recording
         self.layout = layout
+        self.columns = Columns(recording, background=BACKGROUND)
         self._flange: Pose | None = None
         self._hand_seen = False
         self._last_values: dict[str, list[Any]] = {}
@@ -125,84 +147,86 @@ class Renderer:
 
     def message(self, topic: str, t: float, payload: Mapping[str, Any]) -> None:
         """Draw one message at time ``t`` (s); an unknown topic is ignored."""
-        # to the µs: the simulation clock's step, and what survives an MCAP round trip
-        self.rec.set_time(TIMELINE, duration=round(max(0.0, float(t)), 6))
         if topic == ARM_STATE:
-            self._arm(payload)
+            self._arm(t, payload)
         elif topic == HAND_STATE:
-            self._hand(payload)
+            self._hand(t, payload)
         elif topic == HAND_EVENTS:
-            self.rec.log("alarms", rr.TextLog(
-                f"finger {payload['finger']}: {payload['event']}",
-                level=rr.TextLogLevel.WARN if payload["event"] in ("lost", "breaker_trip")
-                else rr.TextLogLevel.INFO))
+            level = "WARN" if payload["event"] in ("lost", "breaker_trip") else "INFO"
+            self.columns.row("alarms", t, (TEXT, f"finger {payload['finger']}: "
+                                                 f"{payload['event']}"), (LEVEL, level))
         elif topic in (ARM_BUS_STATS, HAND_LINK_STATS):
             path = "arm/bus" if topic == ARM_BUS_STATS else "hand/link"
-            self._scalars(path, [payload.get(k, 0) for k in _STATS])
+            self._scalars(path, t, [payload.get(k, 0) for k in _STATS])
 
-    def _scalars(self, path: str, values: Sequence[Any], changes_only: bool = False) -> None:
-        """Log ``values`` on ``path`` (``changes_only``: unless they are the last ones: the
-        servos' temperatures, read one cycle in ten, change over seconds)."""
+    def flush(self, everything: bool = True) -> None:
+        """Send what was drawn since the last flush (``everything`` False: not the
+        :data:`BACKGROUND` series)."""
+        self.columns.flush(everything)
+
+    def _scalars(self, path: str, t: float, values: Sequence[Any],
+                 changes_only: bool = False) -> None:
+        """Draw ``values`` on ``path`` (``changes_only``: unless they are the last ones:
+        temperatures, read one cycle in ten, change over seconds)."""
         if changes_only:
             if self._last_values.get(path) == list(values):
                 return
             self._last_values[path] = list(values)
-        self.rec.log(path, rr.Scalars(np.array([np.nan if v is None else float(v)
-                                                for v in values])))
+        self.columns.row(path, t, (SCALARS, values))
 
-    def _alarm(self, source: str, text: str | None) -> None:
-        """Log ``source``'s alarm when it appears, changes or clears."""
+    def _alarm(self, source: str, t: float, text: str | None) -> None:
+        """Draw ``source``'s alarm when it appears, changes or clears."""
         if self._alarms.get(source) == text:
             return
         if text is None:
             self._alarms.pop(source, None)
-            self.rec.log("alarms", rr.TextLog(f"{source}: cleared", level=rr.TextLogLevel.INFO))
+            self.columns.row("alarms", t, (TEXT, f"{source}: cleared"), (LEVEL, "INFO"))
         else:
             self._alarms[source] = text
-            self.rec.log("alarms", rr.TextLog(f"{source}: {text}",
-                                              level=rr.TextLogLevel.ERROR))
+            self.columns.row("alarms", t, (TEXT, f"{source}: {text}"), (LEVEL, "ERROR"))
 
-    def _arm(self, p: Mapping[str, Any]) -> None:
+    def _arm(self, t: float, p: Mapping[str, Any]) -> None:
         joints = p["joints"]
         points, flange = arm_skeleton(joints)
         self._flange = flange
         if self._hand_seen:
-            self._place_hand()
-        self.rec.log("world/arm", rr.LineStrips3D.from_fields(strips=[points]),
-                     rr.Points3D.from_fields(positions=points[1:-1]))
+            self._place_hand(t)
+        self.columns.row("world/arm", t, (STRIPS, points[None]), (POSITIONS, points[1:-1]))
         goals = p.get("goals") or [None] * len(_STEPPERS)
-        self._scalars("arm/joints", [*joints, *goals, *p["motor_joints"]])
-        self._scalars("arm/torque_nm", p["torques"])
-        self._scalars("arm/deflection_counts", p["deflection_counts"])
-        self._scalars("arm/servo_load", p["servo_load"])
-        self._scalars("arm/servo_temperature_c", p["servo_temperature_c"], changes_only=True)
+        self._scalars("arm/joints", t, [*joints, *goals, *p["motor_joints"]])
+        self._scalars("arm/torque_nm", t, p["torques"])
+        self._scalars("arm/deflection_counts", t, p["deflection_counts"])
+        self._scalars("arm/servo_load", t, p["servo_load"])
+        self._scalars("arm/servo_temperature_c", t, p["servo_temperature_c"],
+                      changes_only=True)
         errors: Mapping[str, Sequence[str]] = p.get("errors") or {}
         flags = {name: ["SLIP"] for name, slip in zip(_STEPPERS, p.get("slip", ()),
                                                        strict=False) if slip}
         for name in ARM_JOINT_NAMES:
             bits = [*errors.get(name, ()), *flags.get(name, ())]
-            self._alarm(name, ", ".join(bits) if bits else None)
+            self._alarm(name, t, ", ".join(bits) if bits else None)
 
-    def _place_hand(self) -> None:
+    def _place_hand(self, t: float) -> None:
         """The palm frame (entity ``world/hand``) on the flange's last pose."""
         assert self._flange is not None
         position, rotation = palm_on_flange(self._flange)
-        self.rec.log("world/hand", rr.Transform3D(translation=position, mat3x3=rotation))
+        self.columns.row("world/hand", t, (TRANSLATION, position), (MAT3X3, rotation))
 
-    def _hand(self, p: Mapping[str, Any]) -> None:
-        if not self._hand_seen and self._flange is not None:
-            self._place_hand()
+    def _hand(self, t: float, p: Mapping[str, Any]) -> None:
+        if not self._hand_seen:
+            if self._flange is not None:
+                self._place_hand(t)
+            # drawn in the palm frame (world/hand is placed on the flange): it never moves
+            self.rec.log("world/hand/palm",
+                         rr.LineStrips3D.from_fields(strips=[palm_outline()]), static=True)
         self._hand_seen = True
-        palm = IDENTITY  # drawn in the palm frame; world/hand is placed on the flange
-        strips = []
+        fingers = sorted(p["fingers"], key=lambda f: int(f["index"]))
         joints: list[Any] = []
         targets: list[Any] = []
         tactile: list[Any] = []
         currents: list[Any] = []
         temperatures: list[Any] = []
-        for f in sorted(p["fingers"], key=lambda f: int(f["index"])):
-            k = int(f["index"])
-            strips.append(finger_skeleton(self.layout, k, f["joints"], palm))
+        for f in fingers:
             joints += f["joints"]
             hall = f.get("targets_hall")
             targets += [None] * 3 if hall is None else motor_to_joint(hall)
@@ -213,11 +237,12 @@ class Renderer:
             currents += [amps.get("supply"), amps.get("phalange_bus")]
             temperatures += f.get("temperatures_c") or [None] * 3
             problem = "breaker tripped" if f.get("breaker_tripped") else f.get("problem")
-            self._alarm(f"finger {k}", problem if f.get("power") != "off" else None)
-        self._scalars("hand/joints", [*joints, *targets])
-        self._scalars("hand/tactile", tactile)
-        self._scalars("hand/current_ma", currents)
-        self._scalars("hand/temperature_c", temperatures)
-        self.rec.log("world/hand/fingers", rr.LineStrips3D.from_fields(strips=strips))
-        self.rec.log("world/hand/palm",
-                     rr.LineStrips3D.from_fields(strips=[palm_outline(palm)]))
+            self._alarm(f"finger {f['index']}", t,
+                        problem if f.get("power") != "off" else None)
+        self._scalars("hand/joints", t, [*joints, *targets])
+        self._scalars("hand/tactile", t, tactile)
+        self._scalars("hand/current_ma", t, currents)
+        self._scalars("hand/temperature_c", t, temperatures, changes_only=True)
+        skeleton = hand_skeleton(self.layout, [int(f["index"]) for f in fingers],
+                                 [f["joints"] for f in fingers])
+        self.columns.row("world/hand/fingers", t, (STRIPS, skeleton))

@@ -40,9 +40,11 @@ RULES: dict[str, Rule] = {
     "protocol": Rule(("protocol",), ("construct", "crcmod", "numpy", "hypothesis")),
     # mypy_extensions: @mypyc_attr on the classes programs subclass (the compiled core)
     "firmware_py": Rule(("firmware_py", "protocol"), ("numpy", "mypy_extensions")),
-    # rerun: the live browser view (host.view), imported only when a view is asked for
+    # rerun (and its pyarrow, the columns the view sends): the live browser view
+    # (host.view), imported only when a view is asked for
     "host": Rule(("host", "protocol"),
-                 ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun")),
+                 ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun",
+                  "pyarrow")),
     "bootloader": Rule(("bootloader", "host", "protocol"),
                        ("serial", "can", "numpy", "cryptography", "intelhex", "elftools",
                         "nacl")),

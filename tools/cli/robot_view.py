@@ -62,6 +62,7 @@ def replay(view: RobotView, paths: Sequence[Path]) -> int:
     for t, topic, payload in merged:
         view.renderer.message(topic, t, payload)
         count += 1
+    view.renderer.flush()
     view.rec.flush()
     return count
 
