@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -64,7 +65,7 @@ def interrupt(command: list[str], cpu_s: float, after_handler: bool = True) -> t
 
 
 @pytest.fixture()
-def silent_port() -> str:
+def silent_port() -> Iterator[str]:
     """A pty nothing answers on."""
     leader, follower = os.openpty()
     yield os.ttyname(follower)
