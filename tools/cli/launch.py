@@ -50,8 +50,13 @@ def launch(prog: str, module: str) -> int:
         return main()
     except KeyboardInterrupt:
         interrupted = True
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except BaseException:
+        # An interruption may come out as another exception: numpy turns one inside its
+        # C extensions' import into an ImportError.  After this handler fired, it is that.
+        if not interrupted:
+            raise
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def armctl() -> int:
