@@ -47,6 +47,8 @@ def launch(prog: str, module: str) -> int:
         signal.signal(sig, handler)
     try:
         main: Callable[[], int] = importlib.import_module(module).main
+        if interrupted:  # swallowed on the way (an optional import's ``except ImportError``)
+            raise KeyboardInterrupt
         return main()
     except KeyboardInterrupt:
         interrupted = True
