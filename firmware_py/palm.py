@@ -30,6 +30,7 @@ Unsolicited ``palm.finger_event`` frames go to the host (address 0) on the host 
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Final
 
 from mypy_extensions import mypyc_attr
@@ -111,6 +112,8 @@ class PalmApp(HandNode):
         self.mcu = mcu
         self.host_uart = hal.uart("host")
         self.links = [FingerLink(k, hal.uart(f"finger{k}"), hal.clock) for k in range(FINGERS)]
+        for link in self.links:
+            link.on_route_heard = partial(self._route_heard, link)
         for k, link in enumerate(self.links):
             link.power = hal.power(f"finger{k}").state  # a jump from the bootloader keeps power
         self.can_node = can_node
@@ -303,6 +306,16 @@ class PalmApp(HandNode):
                 self._poll_done(link, frame, status)
 
             link.submit(Transaction(request, _STATUS.type_id, timeout_us, done, kind="poll"))
+
+    def _route_heard(self, link: FingerLink, answered: bool) -> None:
+        """A routed transaction's outcome, taken as a poll's: the only evidence while routes
+        keep the link busy and the polls skip it."""
+        if not answered:
+            if link.missed():
+                self._event(link.index, FingerEvent.LOST)
+        elif link.answered():
+            link.cap_sent = FULL_CAP
+            self._event(link.index, FingerEvent.RETURNED)
 
     def _poll_done(self, link: FingerLink, frame: Frame | None, status: int) -> None:
         if frame is None:

@@ -14,7 +14,10 @@ certainty routes a ``txn`` envelope, whose reply echoes its sequence number.
 The link also keeps the finger's summary (power, presence, the last polled status) and the
 breakaway state: a finger that answered once since power-up and then misses
 :data:`LOST_AFTER_MISSES` consecutive polls is *lost* (at a poll rate of r Hz that is
-detected within 3/r s: 30 ms at 100 Hz) until it answers again.
+detected within 3/r s: 30 ms at 100 Hz) until it answers again.  A routed transaction the
+fmcb lets time out counts as a miss and one it answers as an answer (polls are skipped while
+routes keep the link busy), so under host traffic a loss is detected after three
+consecutive routed timeouts (three times the host's ``timeout_ms``).
 
 :func:`route_transaction` turns a ``palm.route`` request into a transaction: hop 0 writes
 the frame as is; hops 1 and 2 wrap it in an ``fmcb.tunnel`` and unwrap the bytes heard.
@@ -103,6 +106,10 @@ class FingerLink:
         # Counters.
         self.stray_frames = 0
         self.timeouts = 0
+        #: Told whether the finger's fmcb answered a routed transaction (True) or let it
+        #: time out (False): the palm counts those as answers and misses like its polls,
+        #: which it skips while routes keep the link busy.
+        self.on_route_heard: Callable[[bool], None] | None = None
 
     # --- wiring ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -182,6 +189,9 @@ class FingerLink:
         self.in_flight = None
         if txn.timer is not None:
             txn.timer.cancel()
+        if txn.kind == "route" and self.on_route_heard is not None \
+                and status in (RouteStatus.OK, RouteStatus.NO_REPLY):
+            self.on_route_heard(frame is not None)
         txn.on_done(frame, status)
         self._start_next()
 

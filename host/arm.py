@@ -104,6 +104,12 @@ FAST_RETURN_DELAY: Final = 0
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
+#: The most speed (rad/s) :meth:`Arm.move` gives a stepper joint of an arm that is not homed:
+#: the host does not know where its stops are then, and a shoulder that meets its stop at
+#: the nodes' full speed jolts the forearm hard enough that the elbow's spring deflects past
+#: its stall torque and its node latches too (on the emulator: J2 to its lower stop at full
+#: speed latched J4 as well; at 0.5 rad/s only J2, the joint that met the stop).
+UNHOMED_STEPPER_SPEED: Final = 0.5
 #: The stepper nodes' command watchdog this library sets at open (ms; see
 #: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
 #: after this long, their motors still within about 0.2 s; ten of the 10 ms cycles a move
@@ -487,7 +493,8 @@ class Arm:
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = 0.02,
              settle_speed: float = 0.05, timeout: float = 10.0, period: float = 0.01,
-             rest: RestWatch | None = None) -> tuple[ArmState, bool]:
+             rest: RestWatch | None = None,
+             unhomed_speed: float | None = UNHOMED_STEPPER_SPEED) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
         (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
         until the move settled or ``timeout`` (s) passed.  Settled: every stepper node
@@ -499,7 +506,10 @@ class Arm:
         it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
         so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
-        caps every joint's instead.  Returns the last state and whether the move settled.
+        caps every joint's instead; while the arm is not homed (its stops unknown) a
+        stepper joint goes no faster than ``unhomed_speed`` (rad/s, None: no such cap; the
+        nodes keep that speed limit for later commands without a speed).  Returns the last
+        state and whether the move settled.
 
         Before anything moves, the gate (:mod:`host.arm_gate`) raises
         :class:`~host.errors.LimitError` (a :class:`~host.errors.UsageError`) for a goal
@@ -525,6 +535,9 @@ class Arm:
             speeds = [min(speed, limit) for limit in ARM_JOINT_SPEED_LIMITS]
         driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance]
         require_torque(self, driven, "moving them")
+        if not self.homed and unhomed_speed is not None:  # stops unknown: meet one gently
+            speeds[:N_STEPPERS] = [min(s or unhomed_speed, unhomed_speed)
+                                   for s in speeds[:N_STEPPERS]]
         before = latches(now)
         watch = rest if rest is not None else RestWatch()
         watch.reset()

@@ -196,7 +196,8 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
         raise HomingError(f"{', '.join(missing)}: the index latch was lost after the search "
                           "(a node restarted?); home again", joint=missing[0])
     back = arm.steppers[0].counts_to_rad(DEFAULT_VELOCITY_COUNTS)
-    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], timeout=10.0)
+    # back over the ground the search just covered: no stop to meet, no unhomed speed cap
+    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], timeout=10.0, unhomed_speed=None)
     arm.cycle([arm.make_position(i, start[i], back) for i in range(N_STEPPERS)])
     arm.calibration = calibration_from_latches(arm, encoder, steps)
     return arm.calibration

@@ -128,6 +128,8 @@ class DrivenArm(CyclingArm, Protocol):
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = ...,
              settle_speed: float = ..., timeout: float = ..., period: float = ...,
-             rest: RestWatch | None = None) -> tuple[ArmState, bool]:
-        """Move all seven joints to ``angles`` (rad) and wait until they settle."""
+             rest: RestWatch | None = None,
+             unhomed_speed: float | None = ...) -> tuple[ArmState, bool]:
+        """Move all seven joints to ``angles`` (rad) and wait until they settle (a stepper
+        joint no faster than ``unhomed_speed``, rad/s, while the arm is not homed)."""
         ...

@@ -347,6 +347,32 @@ def test_breakaway_lost_and_returned(palm: Palm) -> None:
     assert palm.replies("palm.route")[-1]["status"] == 0
 
 
+def test_a_finger_lost_while_routes_keep_its_link_busy_is_reported_after_three_timeouts(
+        palm: Palm) -> None:
+    """Routes back to back leave no idle moment for a poll: their timeouts count as misses,
+    so the loss is reported after LOST_AFTER_MISSES routed timeouts (10 ms each here), as
+    fast as polls at 100 Hz would, not never."""
+    palm.power(1)
+    palm.send("palm.poll", rate_hz=100)
+    palm.run(30 * MS)
+    assert palm.events() == [(1, 3)]
+    for _ in range(QUEUE_DEPTH + 1):  # one in flight, the queue full: the link never idles
+        palm.route(1, 0, PING_TO_FMCB, timeout_ms=10)
+    palm.run(1 * MS)
+    palm.fakes[1].alive = False
+    lost_at = None
+    for ms in range(1, 200):
+        palm.run(1 * MS)
+        palm.route(1, 0, PING_TO_FMCB, timeout_ms=10)  # the queue stays full (else BUSY)
+        if (1, 0) in palm.events():
+            lost_at = ms
+            break
+    assert lost_at is not None, "no lost event in 200 ms of routed traffic"
+    # the route in flight when it died may have been answered: at most one more timeout
+    assert lost_at <= (LOST_AFTER_MISSES + 1) * 10 + 2
+    assert palm.events() == [(1, 3), (1, 0)]
+
+
 def test_a_finger_that_never_answered_is_not_lost(palm: Palm) -> None:
     palm.fakes[0].alive = False
     palm.power(0)

@@ -126,6 +126,26 @@ def test_a_latch_mid_move_stops_it_naming_the_joint_and_holds_the_rest(url: str)
     assert not any(s.stalled for s in state.steppers if s.joint != 1)
 
 
+def test_an_unhomed_shoulder_that_meets_its_stop_latches_alone_with_the_hand_on(
+        request: pytest.FixtureRequest) -> None:
+    """The full arm (the hand on the wrist): J2 sent to −3 rad unhomed meets its lower stop.
+    At the nodes' full speed the jolt swung the forearm and J4 latched STALLED/OVERLOAD as
+    well; an unhomed move meets a stop at UNHOMED_STEPPER_SPEED, and only J2 latches."""
+    forget_shared_emulators()
+    try:
+        with Arm.open(f"emu://full/arm?name=stop_{request.node.name}") as arm:
+            assert not arm.homed
+            arm.torque(True, hold=True)
+            with pytest.raises(JointAlarmError, match=r"J2 latched STALLED"):
+                arm.move([0.0, -3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+            arm.transport.sleep(1.0)
+            state = arm.state()
+    finally:
+        forget_shared_emulators()
+    assert set(state.errors) == {"J2"}, state.errors
+    assert [s.joint for s in state.steppers if s.stalled] == [1]
+
+
 def test_the_library_move_refuses_joints_whose_torque_is_off_and_sends_nothing(
         url: str) -> None:
     """Arm.move used to write the goals anyway: they waited in the nodes, and the joints

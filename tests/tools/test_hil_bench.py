@@ -362,3 +362,12 @@ def test_host_vanish_measures_when_the_elastic_joints_come_to_rest() -> None:
     raw["assertions"][0]["rest_within_ms"] = 0  # they were moving when the host vanished
     (held,) = run_scenario(raw)["assertions"]
     assert not held["passed"] and "not at rest" in held["message"]
+
+
+def test_several_built_in_names_run_in_the_order_given(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``hil-bench run NAME1 NAME2``: both built-in scenarios run, in that order."""
+    assert hil_bench.main(["run", "link_latency", "link_loss", "--seed", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[:2]] == ["link_latency", "link_loss"]
+    assert lines[-1] == "2 of 2 runs passed"

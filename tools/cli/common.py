@@ -46,6 +46,7 @@ from host.hand_session import Timeouts
 from host.transport import link_kind, schemes
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
+from tools.cli.launch import EXIT_INTERRUPTED
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import EXIT_BROKEN_PIPE, checked_stdout, output_failed
 from tools.errors import OutputError
@@ -53,7 +54,6 @@ from tools.errors import OutputError
 EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
 EXIT_USAGE: Final = 2
-EXIT_INTERRUPTED: Final = 130
 __all__ = ["EXIT_BROKEN_PIPE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE",
            "add_common_arguments", "advice", "hand_timeouts", "parse", "port_help", "run",
            "run_cli", "unwritable"]
