@@ -21,21 +21,25 @@ import signal
 import sys
 from collections.abc import Callable
 from types import FrameType
-from typing import Final
+from typing import Any, Final
 
 EXIT_INTERRUPTED: Final = 130
 """Exit status after Ctrl-C or SIGTERM (128 + SIGINT, as a shell reports a process that a
 Ctrl-C ended)."""
 
 
-def launch(prog: str, module: str) -> int:
-    """Import ``module`` (a ``tools`` module with ``main() -> int``) and run its ``main``,
+def launch(prog: str, module: str, argv: list[str] | None = None) -> int:
+    """Import ``module`` (a ``tools`` module with ``main(argv) -> int``) and run its ``main``
+    (on ``argv``, or the command line's arguments when None),
     with Ctrl-C and SIGTERM taken as an interruption from now on: the first raises
     :class:`KeyboardInterrupt`, later ones are ignored (a second Ctrl-C cannot cut the
     one-line exit short). ``main`` installs its own handlers (:func:`tools.cli.common.run`
     holds the robot on Ctrl-C) and restores these when it returns. Returns the exit
-    status: ``main``'s, or :data:`EXIT_INTERRUPTED` with ``PROG: interrupted`` on stderr."""
+    status: ``main``'s, or :data:`EXIT_INTERRUPTED` with ``PROG: interrupted`` on stderr.
+    When ``main`` returns, the handlers found on entry are back (a caller in the same
+    process, such as a test, keeps its own)."""
     interrupted = False
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     def handler(signum: int, frame: FrameType | None) -> None:
         nonlocal interrupted
@@ -43,64 +47,74 @@ def launch(prog: str, module: str) -> int:
             interrupted = True
             raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in previous:
         signal.signal(sig, handler)
     try:
-        main: Callable[[], int] = importlib.import_module(module).main
+        main: Callable[[list[str] | None], int] = importlib.import_module(module).main
         if interrupted:  # swallowed on the way (an optional import's ``except ImportError``)
             raise KeyboardInterrupt
-        return main()
+        status = main(argv)
     except KeyboardInterrupt:
         interrupted = True
     except BaseException:
         # An interruption may come out as another exception: numpy turns one inside its
         # C extensions' import into an ImportError.  After this handler fired, it is that.
         if not interrupted:
+            _restore(previous)
             raise
+    else:
+        _restore(previous)
+        return status
     print(f"{prog}: interrupted", file=sys.stderr)
     return EXIT_INTERRUPTED
 
 
-def armctl() -> int:
+def _restore(handlers: dict[signal.Signals, Any]) -> None:
+    """Put back the signal handlers ``launch`` found on entry."""
+    for sig, old in handlers.items():
+        signal.signal(sig, old)
+
+
+def armctl(argv: list[str] | None = None) -> int:
     """``armctl`` (:mod:`tools.cli.armctl`)."""
-    return launch("armctl", "tools.cli.armctl")
+    return launch("armctl", "tools.cli.armctl", argv)
 
 
-def handctl() -> int:
+def handctl(argv: list[str] | None = None) -> int:
     """``handctl`` (:mod:`tools.cli.handctl`)."""
-    return launch("handctl", "tools.cli.handctl")
+    return launch("handctl", "tools.cli.handctl", argv)
 
 
-def handbus() -> int:
+def handbus(argv: list[str] | None = None) -> int:
     """``handbus`` (:mod:`tools.cli.handbus`)."""
-    return launch("handbus", "tools.cli.handbus")
+    return launch("handbus", "tools.cli.handbus", argv)
 
 
-def hil_emulator() -> int:
+def hil_emulator(argv: list[str] | None = None) -> int:
     """``hil-emulator`` (:mod:`tools.cli.serve_emulator`)."""
-    return launch("hil-emulator", "tools.cli.serve_emulator")
+    return launch("hil-emulator", "tools.cli.serve_emulator", argv)
 
 
-def hil_fuzz() -> int:
+def hil_fuzz(argv: list[str] | None = None) -> int:
     """``hil-fuzz`` (:mod:`tools.cli.hil_fuzz`)."""
-    return launch("hil-fuzz", "tools.cli.hil_fuzz")
+    return launch("hil-fuzz", "tools.cli.hil_fuzz", argv)
 
 
-def fwimage() -> int:
+def fwimage(argv: list[str] | None = None) -> int:
     """``fwimage`` (:mod:`tools.cli.fwimage`)."""
-    return launch("fwimage", "tools.cli.fwimage")
+    return launch("fwimage", "tools.cli.fwimage", argv)
 
 
-def flash_all_fingers() -> int:
+def flash_all_fingers(argv: list[str] | None = None) -> int:
     """``flash-all-fingers`` (:mod:`tools.cli.flash_all_fingers`)."""
-    return launch("flash-all-fingers", "tools.cli.flash_all_fingers")
+    return launch("flash-all-fingers", "tools.cli.flash_all_fingers", argv)
 
 
-def hil_bench() -> int:
+def hil_bench(argv: list[str] | None = None) -> int:
     """``hil-bench`` (:mod:`tools.hil_bench.cli`)."""
-    return launch("hil-bench", "tools.hil_bench.cli")
+    return launch("hil-bench", "tools.hil_bench.cli", argv)
 
 
-def robot_view() -> int:
+def robot_view(argv: list[str] | None = None) -> int:
     """``robot-view`` (:mod:`tools.cli.robot_view`)."""
-    return launch("robot-view", "tools.cli.robot_view")
+    return launch("robot-view", "tools.cli.robot_view", argv)
