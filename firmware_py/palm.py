@@ -309,7 +309,11 @@ class PalmApp(HandNode):
 
     def _route_heard(self, link: FingerLink, answered: bool) -> None:
         """A routed transaction's outcome, taken as a poll's: the only evidence while routes
-        keep the link busy and the polls skip it."""
+        keep the link busy and the polls skip it.  Only while the palm polls: a finger
+        marked lost refuses routes until a poll hears it again, so with polling stopped (a
+        host that owns the links, as a flash run does) a timeout stays the host's to judge."""
+        if not self.poll_hz:
+            return
         if not answered:
             if link.missed():
                 self._event(link.index, FingerEvent.LOST)
