@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,6 +11,7 @@ from mcap.reader import make_reader
 
 from hil_emulator.emulator import Emulator
 from protocol.framing import parse_frame
+from tests.hil_emulator.emulator_thread import serving
 from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=host-tests"
@@ -80,16 +80,8 @@ def palm_pty() -> Iterator[str]:
     """An emulated hand (firmware only, no physics) serving its palm pty in real time."""
     emulator = Emulator("hand", physics=False, can="none")
     emulator.bring_up()
-    ports = emulator.open_ports()
-    stop = threading.Event()
-    runner = threading.Thread(target=emulator.run, args=(stop,), kwargs={"realtime": True})
-    runner.start()
-    try:
-        yield ports["palm"]
-    finally:
-        stop.set()
-        runner.join(timeout=10)
-        emulator.close()
+    with serving(emulator) as run:
+        yield run.ports["palm"]
 
 
 def test_ping_through_the_emulators_pty_finds_every_node(
