@@ -43,7 +43,8 @@ typecheck: $(STAMP)
 ## slot update's 200 cases: make test-long), slow ones included, on TEST_WORKERS pytest-xdist
 ## workers: a test file runs whole on one worker (the campaigns' independent shards spread
 ## over both), and the wall-clock tests run one at a time on one of them (tests/conftest.py).
-## About 10 minutes on an idle 2-core machine, set-up included.  TEST_WORKERS=0: one process.
+## Meant to take about 10 minutes on an idle 2-core machine, set-up included (was 18).
+## TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2
 PYTEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
 test: lint typecheck $(CORE)
