@@ -57,7 +57,8 @@ def _children() -> frozenset[int]:
             found.update(int(p) for p in (task / "children").read_text().split())
         except OSError:
             continue
-    return frozenset(p for p in found if _state(p) not in ("Z", "X", ""))
+    return frozenset(p for p in found if _state(p) not in ("Z", "X", "")
+                     and "multiprocessing.resource_tracker" not in _command(p))  # one a process
 
 
 def _state(pid: int) -> str:
