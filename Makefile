@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 PACKAGES := protocol firmware_py hil_emulator host bootloader tools
 
-.PHONY: all install test test-fast lint typecheck demo bench docs clean compiled clean-compiled
+.PHONY: all install test test-long test-fast lint typecheck demo bench docs clean compiled clean-compiled
 
 all: test
 
@@ -42,17 +42,24 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(VENV)/bin/mypy $(PACKAGES)
 
-## make test: lint, type check, then every test (slow ones included), on TEST_WORKERS
-## pytest-xdist workers: a test file runs whole on one worker, and the wall-clock tests
-## run one at a time on one of them (tests/conftest.py).  TEST_WORKERS=0: one process.
+## make test: lint, type check, then every test but the longest campaigns (marked long; the
+## slot update's 200 cases: make test-long), slow ones included, on TEST_WORKERS pytest-xdist
+## workers: a test file runs whole on one worker (the campaigns' independent shards spread
+## over both), and the wall-clock tests run one at a time on one of them (tests/conftest.py).
+## Meant to take about 10 minutes on an idle 2-core machine, set-up included (was 18).
+## TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2
 PYTEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
 test: lint typecheck $(CORE)
+	$(PY) -m pytest -q $(PYTEST_PARALLEL) -m "not long"
+
+## make test-long: what make test runs, and the long campaigns.
+test-long: lint typecheck $(CORE)
 	$(PY) -m pytest -q $(PYTEST_PARALLEL)
 
-## make test-fast: skip the tests marked slow.
+## make test-fast: skip the tests marked slow (and long).
 test-fast: $(CORE)
-	$(PY) -m pytest -q $(PYTEST_PARALLEL) -m "not slow"
+	$(PY) -m pytest -q $(PYTEST_PARALLEL) -m "not slow and not long"
 
 demo: $(CORE)
 	$(PY) -m tools.demo

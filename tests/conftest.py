@@ -1,10 +1,14 @@
-"""How ``make test`` shares the machine between tests: two pytest-xdist workers.
+"""What every test shares: how ``make test`` shares the machine between tests, the
+hypothesis profile, and the check that no test leaves anything behind.
 
-``make test`` runs the suite on two workers (``-n 2``), scheduled by :func:`scope_of`:
+``make test`` runs the suite on two pytest-xdist workers (``-n 2``), scheduled by
+:func:`scope_of`:
 
 * every test file runs whole on one worker, in its own order (a module's tests share
   module-scoped fixtures, such as one emulator, and some build on the state the test before
-  left);
+  left), except the files of :data:`SPREAD_FILES`, whose tests are independent of each
+  other and long (the slot update's 200-case campaign, in shards): each of their tests is
+  a unit of its own, for whichever worker is free;
 * the files of :data:`WALL_CLOCK_FILES` (tests that hold wall-clock timing over real ptys,
   start the emulator or other programs as processes, start CPU-bound helpers of their own —
   a CPU hog, local worker processes, a compiler — or measure speed) form one unit,
@@ -13,7 +17,14 @@
   other CPU-bound process" every such test is written to stand (their timing bounds come
   from what the emulator reports, not from an idle machine's margins).
 
-Without xdist (``pytest`` alone, ``TEST_WORKERS=0``) the hook is never called.
+xdist hands out the largest units (by number of tests) first, the wall-clock group among
+them, and the one-test units last.  Without xdist (``pytest`` alone, ``TEST_WORKERS=0``)
+the hook is never called.
+
+Every test, and every module's fixtures, must leave no descriptor (a pty, a socket, a pipe,
+a file), no non-daemon thread and no running emulator (on a thread or as a process)
+behind: :func:`_leaves_nothing_behind` fails the test that did, naming what
+(:mod:`tests.leaks`).
 
 Hypothesis runs under the profile :data:`HYPOTHESIS_PROFILE`: no per-example deadline and no
 "too slow" health check, which measure the machine (a loaded two-core machine takes
@@ -23,10 +34,13 @@ without its own ``deadline`` inherits it.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any, Final
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+from tests import leaks
 
 #: The hypothesis settings profile every test runs under (registered and loaded here).
 HYPOTHESIS_PROFILE: Final = "any-machine"
@@ -46,7 +60,8 @@ WALL_CLOCK_FILES: Final = frozenset({
     "hil_emulator/test_port_reader.py",
     "hil_emulator/test_scheduling.py",
     "hil_emulator/test_slcan_adapter.py",
-    "hil_emulator/test_faults.py",
+    "hil_emulator/faults/test_fault_control.py",
+    "hil_emulator/faults/test_host_link_faults.py",
     "host/test_transports.py",
     "tools/test_handctl.py",
     "tools/test_handbus.py",
@@ -60,16 +75,26 @@ WALL_CLOCK_FILES: Final = frozenset({
 })
 
 
+#: Test files (relative to ``tests/``) whose tests are each a scheduling unit of their own.
+SPREAD_FILES: Final = frozenset({
+    "bootloader/test_slot_campaign.py",
+})
+
+
 def scope_of(nodeid: str) -> str:
     """The scheduling unit of the test ``nodeid`` (``tests/<file>::<name>[params]``): its
-    file, or :data:`WALL_CLOCK_GROUP` for the files of :data:`WALL_CLOCK_FILES`."""
+    file, :data:`WALL_CLOCK_GROUP` for the files of :data:`WALL_CLOCK_FILES`, the test
+    itself for those of :data:`SPREAD_FILES`."""
     path = nodeid.split("::", 1)[0]
-    return WALL_CLOCK_GROUP if path.removeprefix("tests/") in WALL_CLOCK_FILES else path
+    if path.removeprefix("tests/") in WALL_CLOCK_FILES:
+        return WALL_CLOCK_GROUP
+    return nodeid if path.removeprefix("tests/") in SPREAD_FILES else path
 
 
 @pytest.hookimpl(optionalhook=True)  # an xdist hook: unknown (and unused) without xdist
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
-    """Whole units (:func:`scope_of`) to whichever worker is free, the largest first."""
+    """Whole units (:func:`scope_of`) to whichever worker is free, the largest (most tests)
+    first."""
     from xdist.scheduler import LoadScopeScheduling
 
     class UnitScheduling(LoadScopeScheduling):  # type: ignore[misc]
@@ -77,3 +102,35 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
             return scope_of(nodeid)
 
     return UnitScheduling(config, log)
+
+
+@pytest.fixture(autouse=True)
+def _leaves_nothing_behind(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail the test that leaves a descriptor (a pty, a socket, a file), a non-daemon thread or
+    a running emulator behind (:mod:`tests.leaks`); its module's fixtures are checked when
+    the module ends."""
+    yield from _check(request, "")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _module_leaves_nothing_behind(request: pytest.FixtureRequest) -> Iterator[None]:
+    """The same check over a whole module: what its module-scoped fixtures leave behind."""
+    yield from _check(request, "the module's fixtures ")
+
+
+_REPORTED: set[str] = set()
+
+
+def _check(request: pytest.FixtureRequest, whose: str) -> Iterator[None]:
+    before = leaks.snapshot()
+    yield
+    found = [x for x in leaks.leaked(before) if x not in _REPORTED]
+    if request.scope == "function" and request.node.get_closest_marker("process_wide"):
+        # A test that starts a server its library keeps for the life of the process (rerun's
+        # web viewer) says so with ``@pytest.mark.process_wide("why")``: its descriptors
+        # are not counted, now or later.
+        _REPORTED.update(x for x in found if x.startswith("file descriptor "))
+        found = [x for x in found if x not in _REPORTED]
+    if found:
+        _REPORTED.update(found)
+        pytest.fail(f"{whose}left behind: " + "; ".join(found), pytrace=False)

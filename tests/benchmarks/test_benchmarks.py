@@ -19,6 +19,8 @@ import benchmarks
 from benchmarks.__main__ import report
 from benchmarks.harness import Result, Table
 
+pytestmark = pytest.mark.process_wide("bench_view: rerun serves its web viewer until the process ends")
+
 #: Modules that take more than 30 s in quick mode on a 2-core machine.
 SLOW = frozenset({"bench_arm_cycle", "bench_arm_tracking", "bench_backpressure", "bench_emulator",
                   "bench_estimation", "bench_flashing", "bench_hand_cycle", "bench_handbus",

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
 from bootloader.batch import run_plan
@@ -198,10 +198,51 @@ def test_each_kind_of_fault_once(kind: str, board: BoardType, after: int) -> Non
     run_case(kind, 1, board, after)
 
 
+#: The campaign's cases, run in :data:`CAMPAIGN_SHARDS` tests of equal share (so that the
+#: workers of ``make test-long`` share them out).  Shard ``k`` draws its frames from those
+#: ``≡ k (mod CAMPAIGN_SHARDS)``, so no two shards run the same case.
+CAMPAIGN_CASES = 200
+CAMPAIGN_SHARDS = 8
+#: ``make test`` runs a sample of the campaign instead (``make test-long`` both): this many
+#: cases in :data:`SAMPLE_SHARDS` shards, on seeds of their own.
+SAMPLE_CASES = 32
+SAMPLE_SHARDS = 4
+
+
+def shard_cases(shard: int, shards: int) -> st.SearchStrategy[tuple[str, int, BoardType, int]]:
+    """:data:`CASES` with the frame moved up to the next one ``≡ shard (mod shards)``."""
+    return CASES.map(lambda c: (*c[:3], c[3] + (shard - c[3]) % shards))
+
+
+def run_shard(shard: int, shards: int, cases: int, seed_value: int) -> None:
+    """Shard ``shard`` of a campaign of ``cases`` cases in ``shards`` shards: its share of
+    them, drawn on ``seed_value``; checks that it ran that many."""
+    assert cases % shards == 0
+    ran: list[tuple[str, int, BoardType, int]] = []
+
+    @seed(seed_value)
+    @settings(max_examples=cases // shards, deadline=None,
+              suppress_health_check=list(HealthCheck), database=None)
+    @given(case=shard_cases(shard, shards))
+    def campaign(case: tuple[str, int, BoardType, int]) -> None:
+        ran.append(case)
+        run_case(*case)
+
+    campaign()
+    assert len(ran) == cases // shards  # the shards add up to the campaign
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("shard", range(SAMPLE_SHARDS))
+def test_slot_update_campaign_sample_of_32_cases(shard: int) -> None:
+    """Shard ``shard`` of a 32-case sample of the campaign (``make test``)."""
+    run_shard(shard, SAMPLE_SHARDS, SAMPLE_CASES, seed_value=1_000 + shard)
+
+
+@pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.timeout(7200)
-@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck),
-          database=None)
-@given(case=CASES)
-def test_slot_update_campaign_of_200_cases(case: tuple[str, int, BoardType, int]) -> None:
-    run_case(*case)
+@pytest.mark.parametrize("shard", range(CAMPAIGN_SHARDS))
+def test_slot_update_campaign_of_200_cases(shard: int) -> None:
+    """Shard ``shard`` of the 200 cases (:data:`CAMPAIGN_CASES`; ``make test-long``)."""
+    run_shard(shard, CAMPAIGN_SHARDS, CAMPAIGN_CASES, seed_value=shard)

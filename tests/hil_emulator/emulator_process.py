@@ -45,10 +45,16 @@ def running_emulator(*args: str, startup_timeout_s: float = 120.0) -> Iterator[d
 def status(info: dict[str, Any]) -> dict[str, Any]:
     """The running emulator's ``status`` (control channel): ``t_us``, the simulation clock,
     and its lateness figures so far."""
+    return ask(info, "status")
+
+
+def ask(info: dict[str, Any], op: str) -> dict[str, Any]:
+    """The running emulator's answer to the control channel's ``op`` (``status``,
+    ``truth``, ``timeline``); an answer that is not ``ok`` is an error."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
         client.settimeout(HANG_GUARD_S)
         client.connect(info["control"])
-        client.sendall(b'{"op": "status"}\n')
+        client.sendall(json.dumps({"op": op}).encode() + b"\n")
         answer = b""
         while not answer.endswith(b"\n"):
             chunk = client.recv(65536)

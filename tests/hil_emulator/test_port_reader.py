@@ -15,6 +15,7 @@ import serial
 from hil_emulator.emulator import Emulator
 from hil_emulator.host_links import ADAPTER_BUFFER_BYTES, PtyBacked
 from protocol import dynamixel as dxl
+from tests.hil_emulator.emulator_thread import serving
 
 HANG_GUARD_S = 20.0  # a guard against a hang, not a timing bound
 
@@ -23,21 +24,6 @@ def _emulator(link: str) -> Emulator:
     if link == "arm":
         return Emulator("arm", physics=False)
     return Emulator("hand", physics=False, can="none")
-
-
-@contextmanager
-def running(emulator: Emulator) -> Iterator[threading.Event]:
-    """The emulator in real time on a thread; yields its stop flag."""
-    emulator.open_ports()
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield stop
-    finally:
-        stop.set()
-        thread.join(HANG_GUARD_S)
-        emulator.close()
 
 
 def _wait(condition: object, what: str) -> None:
@@ -74,7 +60,7 @@ def test_bytes_are_taken_at_once_while_the_simulation_thread_is_busy(name: str) 
     read off the pty at once (not at the next event), so the client's own flush of its
     output cannot lose it, and it all enters the simulation afterwards."""
     emulator = _emulator(name)
-    with running(emulator):
+    with serving(emulator):
         link = emulator.links[name]
         assert isinstance(link, PtyBacked)
         _wait(lambda: link.reader is not None, "the reader starts")
@@ -96,7 +82,7 @@ def test_a_thousand_writes_each_flushed_once_handed_over_lose_nothing(name: str)
     bytes to the emulator's end of the pty: nothing is lost, none is an overrun."""
     emulator = _emulator(name)
     packet = dxl.make_ping(0xFE).encode()
-    with running(emulator):
+    with serving(emulator):
         link = emulator.links[name]
         assert isinstance(link, PtyBacked)
         _wait(lambda: link.reader is not None, "the reader starts")
@@ -113,7 +99,7 @@ def test_a_thousand_writes_each_flushed_once_handed_over_lose_nothing(name: str)
 def test_a_client_that_writes_and_closes_loses_nothing() -> None:
     emulator = _emulator("arm")
     packet = dxl.make_ping(0xFE).encode()
-    with running(emulator):
+    with serving(emulator):
         link = emulator.links["arm"]
         for _ in range(300):
             with serial.Serial(link.path, 1_000_000, timeout=0) as port:
@@ -126,7 +112,7 @@ def test_beyond_the_adapter_buffer_bytes_are_an_overrun_counted() -> None:
     (they all reach the wire afterwards), the rest is an overrun, counted."""
     emulator = _emulator("arm")
     flood = bytes(10 * 1024)
-    with running(emulator):
+    with serving(emulator):
         link = emulator.links["arm"]
         assert isinstance(link, PtyBacked)
         _wait(lambda: link.reader is not None, "the reader starts")

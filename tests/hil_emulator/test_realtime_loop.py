@@ -4,7 +4,6 @@ is, it says when it is late, and its stats are strict JSON."""
 from __future__ import annotations
 
 import json
-import threading
 import time
 
 import serial
@@ -13,12 +12,7 @@ from firmware_py.scheduler import Scheduler
 from hil_emulator.emulator import Emulator
 from hil_emulator.pacing import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S
 from protocol.dynamixel import make_ping
-
-
-def _run_in_thread(emulator: Emulator, stop: threading.Event) -> threading.Thread:
-    thread = threading.Thread(target=emulator.run, args=(stop,), daemon=True)
-    thread.start()
-    return thread
+from tests.hil_emulator.emulator_thread import serving
 
 
 def test_stop_takes_effect_at_once_when_far_behind() -> None:
@@ -36,14 +30,13 @@ def test_stop_takes_effect_at_once_when_far_behind() -> None:
     emulator.scheduler.call_every(100, costly)
     said: list[str] = []
     emulator.pacer.on_late = said.append
-    stop = threading.Event()
-    thread = _run_in_thread(emulator, stop)
-    time.sleep(0.5)
-    t0 = time.monotonic()
-    stop.set()
-    ran_at_stop = ran[0]
-    thread.join(2.0)
-    assert not thread.is_alive()
+    with serving(emulator, ports=False) as run:
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        run.stop.set()
+        ran_at_stop = ran[0]
+        run.thread.join(2.0)
+        assert not run.thread.is_alive()
     stop_s = time.monotonic() - t0
     assert ran[0] - ran_at_stop <= CATCH_UP_EVENTS + 1, (ran[0] - ran_at_stop, stop_s)
     # It said so, once, with the figure; and gave up wall time instead of bursting.
@@ -79,9 +72,7 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
         emitted(t_us)
 
     link.on_emit = on_emit
-    stop = threading.Event()
-    thread = _run_in_thread(emulator, stop)
-    try:
+    with serving(emulator, ports=False):
         time.sleep(0.3)  # far behind by now: the clock has slipped
         with serial.Serial(link.path, 1_000_000, timeout=0) as port:
             port.write(make_ping(5).encode())
@@ -90,10 +81,6 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
             while len(got) < 6 and time.monotonic() < deadline:
                 got += port.read(64)
                 time.sleep(0.001)
-    finally:
-        stop.set()
-        thread.join(5.0)
-        emulator.close()
     assert got[:3] == b"\xff\xff\x05", got
     t_in, sim_at_read = entered[0]
     assert t_in == sim_at_read  # at the present simulation time, not ahead of a backlog
@@ -105,14 +92,12 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
 
 def test_an_idle_run_sleeps_and_keeps_time() -> None:
     emulator = Emulator("arm", physics=False)
-    stop = threading.Event()
     cpu0 = time.process_time()
     wall0 = time.monotonic()
     sim0 = emulator.scheduler.now_us()
-    thread = _run_in_thread(emulator, stop)
-    time.sleep(1.0)
-    stop.set()
-    thread.join(2.0)
+    with serving(emulator, ports=False) as run:
+        time.sleep(1.0)
+        run.end(2.0)
     wall = time.monotonic() - wall0
     sim = (emulator.scheduler.now_us() - sim0) / 1e6
     assert sim <= wall  # never ahead of the wall clock

@@ -5,11 +5,9 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections.abc import Iterator
 
 import pytest
 
-from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
@@ -18,13 +16,6 @@ from protocol.dynamixel import ErrorBit
 from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_arm"
-
-
-@pytest.fixture(scope="module")
-def arm() -> Iterator[Arm]:
-    with Arm.open(URL) as opened:
-        yield opened
-    forget_shared_emulators()
 
 
 def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import io
 import json
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import mujoco
@@ -109,13 +108,6 @@ def test_waypoint_file_round_trip_and_bad_lines(tmp_path: Path) -> None:
 URL = "emu://arm/arm?name=test_arm_control"
 #: armctl gets an emulator of its own: the in-process link delivers to the newest transport.
 CLI_URL = "emu://arm/arm?name=test_arm_control_cli"
-
-
-@pytest.fixture(scope="module")
-def arm() -> Iterator[Arm]:
-    with Arm.open(URL) as opened:
-        yield opened
-    forget_shared_emulators()
 
 
 def flange_truth(arm: Arm) -> np.ndarray:

@@ -27,6 +27,7 @@ from protocol.robot import (
     ARM_JOINT_SPEED_LIMITS,
     RX64_RAD_PER_UNIT,
 )
+from tests.ground_truth import arm_joints
 
 #: The issue's move: shoulder and elbow lifted over 6 s.
 LIFT = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]
@@ -41,14 +42,6 @@ def url(request: pytest.FixtureRequest) -> Iterator[str]:
     forget_shared_emulators()
 
 
-def _plant(arm: Arm) -> object:
-    return arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
-
-
-def _truth(arm: Arm) -> np.ndarray:
-    return np.array(_plant(arm).joint_angles())  # type: ignore[attr-defined]
-
-
 def _interrupt_after(arm: Arm, seconds: float, seen: dict[str, np.ndarray]) -> None:
     """Raise KeyboardInterrupt (as Ctrl-C does) in the first cycle ``seconds`` from now,
     noting the plant's joints then in ``seen["at"]``."""
@@ -56,7 +49,7 @@ def _interrupt_after(arm: Arm, seconds: float, seen: dict[str, np.ndarray]) -> N
 
     def ctrl_c(_state: ArmState) -> None:
         if "at" not in seen and arm.transport.now() >= stop_at:
-            seen["at"] = _truth(arm)
+            seen["at"] = arm_joints(arm)
             raise KeyboardInterrupt
 
     arm.state_taps.append(ctrl_c)
@@ -69,7 +62,7 @@ def _still_held(url: str, at: np.ndarray, seconds: float = 2.0) -> None:
         worst = 0.0
         for _ in range(int(seconds / 0.1)):
             arm.transport.sleep(0.1)
-            worst = max(worst, float(np.max(np.abs(_truth(arm) - at))))
+            worst = max(worst, float(np.max(np.abs(arm_joints(arm) - at))))
         state = arm.state()
         assert worst <= TWO_DEGREES, f"a joint moved {math.degrees(worst):.1f}° after the hold"
         assert arm.torque_enabled() == (True,) * 7
@@ -116,12 +109,12 @@ def test_a_latch_mid_move_stops_it_naming_the_joint_and_holds_the_rest(url: str)
         with pytest.raises(JointAlarmError, match=r"J2 latched STALLED") as caught:
             arm.move([0.0, -3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
         assert caught.value.joint == "J2" and "STALLED" in caught.value.latches
-        at = _truth(arm)
+        at = arm_joints(arm)
         arm.transport.sleep(1.0)
         enabled = arm.torque_enabled()
         state = arm.state()
     assert enabled[0] and enabled[2:] == (True,) * 5  # J2's node holds it, latched
-    moved = np.abs(_truth(arm) - at)
+    moved = np.abs(arm_joints(arm) - at)
     assert max(moved[0], *moved[2:]) <= TWO_DEGREES  # the rest held
     assert not any(s.stalled for s in state.steppers if s.joint != 1)
 
@@ -171,7 +164,7 @@ def test_the_gate_refuses_a_move_before_anything_moves(
         url: str, goals: list[float], options: dict[str, float], match: str) -> None:
     with Arm.open(url) as arm:
         arm.torque(True, hold=True)
-        before = _truth(arm)
+        before = arm_joints(arm)
         sent = arm.bus.stats.bytes_sent
         with pytest.raises(LimitError, match=match):
             arm.move(goals, **options)  # type: ignore[arg-type]
@@ -179,7 +172,7 @@ def test_the_gate_refuses_a_move_before_anything_moves(
         # torque registers (under 30 bytes each exchange)
         assert arm.bus.stats.bytes_sent - sent < 60
         arm.transport.sleep(0.5)
-        assert np.max(np.abs(_truth(arm) - before)) < math.radians(0.5)
+        assert np.max(np.abs(arm_joints(arm) - before)) < math.radians(0.5)
 
 
 def test_settled_means_at_rest(url: str) -> None:
@@ -189,11 +182,11 @@ def test_settled_means_at_rest(url: str) -> None:
         arm.torque(True, hold=True)
         state, settled = arm.move([0.0, 0.6, 0.0, 0.0, 0.0, 0.0, 0.0], timeout=10.0)
         assert settled
-        at = _truth(arm)
+        at = arm_joints(arm)
         worst = 0.0
         for _ in range(10):
             arm.transport.sleep(0.05)
-            worst = max(worst, float(np.max(np.abs(_truth(arm) - at))))
+            worst = max(worst, float(np.max(np.abs(arm_joints(arm) - at))))
     assert worst < 0.002, f"still moving {worst:.4f} rad after 'settled'"
 
 

@@ -8,38 +8,26 @@ grasps here run ``unhomed``; refusal before homing is checked separately.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
-from hil_emulator.emulator import Emulator
 from host.errors import NotHomedError, UsageError
 from host.grasp import SQUEEZE_ROUNDS, squeeze
 from host.grasp_synergies import synergy_targets
 from host.hand import Hand
+from tests.ground_truth import emulator_of, finger_joints
 from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=grasp-tests"
 
 
-@pytest.fixture(scope="module")
-def hand() -> Iterator[Hand]:
-    with Hand.open(URL) as opened:
-        yield opened
-
-
-def _truth(hand: Hand) -> np.ndarray:
-    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
-    return np.array([emulator.finger_plants[k].joint_angles() for k in range(4)])
-
-
 def test_a_grasp_is_refused_before_homing(hand: Hand) -> None:
-    before = _truth(hand)
+    before = finger_joints(hand)
     with pytest.raises(NotHomedError, match=r"not homed"):
         hand.grasp("cylindrical", 0.8)
     hand.session.sleep(0.1)
-    assert np.allclose(_truth(hand), before, atol=0.01)  # nothing moved
+    assert np.allclose(finger_joints(hand), before, atol=0.01)  # nothing moved
 
 
 @pytest.mark.parametrize("fingers", [[7], [0, -1]])
@@ -51,9 +39,9 @@ def test_a_finger_the_hand_does_not_have_is_a_usage_error(hand: Hand,
 
 @pytest.mark.slow
 def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
-    before = _truth(hand)
+    before = finger_joints(hand)
     result = hand.grasp("cylindrical", 0.8, speed=1.5, unhomed=True)
-    closed = _truth(hand)
+    closed = finger_joints(hand)
     targets = synergy_targets("cylindrical", 0.8)
     for k in range(4):
         # J1 and J2 flex (the closing direction) by most of the way to their targets.
@@ -64,7 +52,7 @@ def test_cylindrical_closes_every_finger_then_open_opens(hand: Hand) -> None:
     # The blend is rate-limited: 0.8 · 1.35 rad at 1.5 rad/s takes ≥ 0.72 s.
     assert result.elapsed_s >= 0.72
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)
-    opened = _truth(hand)
+    opened = finger_joints(hand)
     assert np.all(opened[:, 1:] < closed[:, 1:] - 0.5)
     assert np.all(np.abs(opened[:, 1:]) < 0.1)
 
@@ -109,9 +97,9 @@ def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> No
     # Something meets finger 1's proximal pad as the grasp starts (the plant pushes the pad,
     # as an object would): a cylindrical grasp until contact stops that finger at once and
     # closes the others.
-    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
+    emulator = emulator_of(hand)
     hand.grasp("open", 1.0, speed=2.0, unhomed=True)
-    before = _truth(hand)
+    before = finger_joints(hand)
     pressed: list[float] = []
 
     def touch(t: float, states: object) -> None:
@@ -126,7 +114,7 @@ def test_until_contact_stops_a_finger_whose_taxels_are_pressed(hand: Hand) -> No
                             on_states=touch)
     finally:
         emulator.finger_plants[1].press("F2", 0.0)
-    after = _truth(hand)
+    after = finger_joints(hand)
     targets = synergy_targets("cylindrical", 1.0)
     assert 1 in result.contacts, "the pressed pad went unnoticed"
     for k in range(4):
@@ -144,9 +132,9 @@ def test_a_squeeze_closes_j1_and_keeps_the_spread(hand: Hand) -> None:
     # turns J0 with it while motor 0 holds; the next round turns J0 back.  At the end J1 is
     # far closed and J0 where it started.
     hand.move_fingers({0: (0.0, 0.4, 0.2)}, unhomed=True)
-    before = _truth(hand)[0]
+    before = finger_joints(hand)[0]
     targets = squeeze(hand, [0], 0.3, effort=255)
-    after = _truth(hand)[0]
+    after = finger_joints(hand)[0]
     assert SQUEEZE_ROUNDS >= 3
     assert after[1] - before[1] > 0.8, (before, after)
     assert abs(after[0] - before[0]) < 0.05, (before, after)

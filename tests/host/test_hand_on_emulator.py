@@ -6,21 +6,14 @@ uses its own finger: 1 moves, 2 is switched off, 3 breaks away.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
 from host.errors import RouteError
 from host.hand import FALLBACK_DEADBAND_HALL, Hand
 from protocol.messages.palm import RouteStatus
+from tests.ground_truth import emulator_of
 
 URL = "emu://hand/palm?name=host-tests"
-
-
-@pytest.fixture(scope="module")
-def hand() -> Iterator[Hand]:
-    with Hand.open(URL) as opened:
-        yield opened
 
 
 def test_discovery_finds_all_thirteen_nodes_running_their_applications(hand: Hand) -> None:
@@ -88,7 +81,7 @@ def test_a_finger_that_breaks_away_is_reported_lost_and_its_routes_fail(hand: Ha
     hand.subscribe(seen.append)
     hand.set_poll_rate(100)
     hand.session.sleep(0.05)
-    hand.session.transport.emulator.break_away(3)  # type: ignore[attr-defined]
+    emulator_of(hand).break_away(3)
     hand.session.sleep(0.1)  # three missed polls at 100 Hz: 30 ms
     assert [(e.finger, e.event) for e in seen] == [(3, "lost")]
     with pytest.raises(RouteError) as caught:

@@ -9,31 +9,19 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
-from hil_emulator.emulator import Emulator
 from host.errors import NotHomedError
 from host.hand import Hand
 from host.hand_homing import home_finger, inertial_estimate
 from host.inertial_closed_form import UnobservableJointError
+from tests.ground_truth import finger_joints
 from tools.cli.handctl import main
 
 URL = "emu://hand/palm?name=estimation-tests"
 THUMB = 3
-
-
-@pytest.fixture(scope="module")
-def hand() -> Iterator[Hand]:
-    with Hand.open(URL) as opened:
-        yield opened
-
-
-def _truth(hand: Hand, finger: int) -> np.ndarray:
-    emulator: Emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
-    return np.asarray(emulator.finger_plants[finger].joint_angles())
 
 
 def _random_pose(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -57,7 +45,7 @@ def test_inertial_estimate_matches_the_plant_at_random_poses(hand: Hand) -> None
         thumb.idle()
         hand.session.sleep(0.2)
         found = inertial_estimate(thumb)
-        truth = _truth(hand, THUMB)
+        truth = finger_joints(hand)[THUMB]
         assert found.observable
         err = np.degrees(np.abs(np.asarray(found.q, dtype=float) - truth))
         assert np.all(err < 1.0), (found.q, truth)
@@ -79,7 +67,7 @@ def test_homing_from_a_random_pose_makes_the_joints_read_true(hand: Hand) -> Non
     result = home_finger(thumb)
     assert result.homed and thumb.homed
     joints = np.asarray(thumb.status().joints)
-    err = np.degrees(np.abs(joints - _truth(hand, THUMB)))
+    err = np.degrees(np.abs(joints - finger_joints(hand)[THUMB]))
     assert np.all(err < 1.0), err
     moved = thumb.move((0.1, 0.3, 0.2), effort=200, timeout=2.0)  # no override needed now
     assert moved.settled
@@ -101,7 +89,7 @@ def test_handctl_home_and_status_report_inertial_joints(
     thumb, first = status["fingers"][THUMB], status["fingers"][0]
     assert thumb["homed"] and not first["homed"]
     assert first["joints_accel"][0] is None and first["joints_accel"][1] is not None
-    truth = _truth(hand, THUMB)
+    truth = finger_joints(hand)[THUMB]
     for key in ("joints", "joints_accel"):
         assert max(abs(math.degrees(a - b)) for a, b in zip(thumb[key], truth,
                                                            strict=True)) < 1.0

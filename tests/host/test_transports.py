@@ -172,20 +172,19 @@ def test_exclusive_port_refused_to_this_process_says_it_holds_it(pty: Pty) -> No
 
 
 def test_exclusive_port_refuses_a_second_program_and_names_it(pty: Pty) -> None:
-    holder = subprocess.Popen(
-        [sys.executable, "-c", "import serial, sys; s = serial.Serial(sys.argv[1], "
-         "exclusive=True); print('held', flush=True); sys.stdin.read()", pty.path],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
-        with pytest.raises(TransportError, match=pty.path) as info:
-            SerialTransport(pty.path)
-        assert "another program (python" in str(info.value)
-        assert f"pid {holder.pid})" in str(info.value)
-        assert "?exclusive=0" in str(info.value)
-    finally:
-        holder.kill()
-        holder.wait()
+    with subprocess.Popen(  # closes its pipes when done
+            [sys.executable, "-c", "import serial, sys; s = serial.Serial(sys.argv[1], "
+             "exclusive=True); print('held', flush=True); sys.stdin.read()", pty.path],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as holder:
+        try:
+            assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+            with pytest.raises(TransportError, match=pty.path) as info:
+                SerialTransport(pty.path)
+            assert "another program (python" in str(info.value)
+            assert f"pid {holder.pid})" in str(info.value)
+            assert "?exclusive=0" in str(info.value)
+        finally:
+            holder.kill()
 
 
 def test_missing_port_names_the_path(tmp_path: Path) -> None:

@@ -189,6 +189,7 @@ def test_plain_host_use_never_imports_rerun() -> None:
     assert out.strip() == "False"
 
 
+@pytest.mark.process_wide("rerun serves its web viewer until the process ends")
 def test_the_view_tour_draws_the_arm_and_the_hand_in_one_view() -> None:
     from tools.examples import view_tour
 

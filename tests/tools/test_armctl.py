@@ -5,12 +5,10 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
 from host.errors import HomingError, TransportError, UsageError
 from protocol.control_tables import STEPPER_TABLE
@@ -18,15 +16,6 @@ from protocol.dynamixel import ErrorBit
 from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_armctl"
-
-
-@pytest.fixture()
-def arm() -> Iterator[Arm]:
-    """A freshly powered arm (torque off, not homed) shared with the armctl runs."""
-    forget_shared_emulators()
-    with Arm.open(URL) as opened:
-        yield opened
-    forget_shared_emulators()
 
 
 def run(*argv: str) -> tuple[int, dict[str, object]]:

@@ -15,17 +15,17 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
+from tests.ground_truth import arm_joints
 from tests.hil_emulator.emulator_process import (
     HANG_GUARD_S,
     ROOT,
+    ask,
     running_emulator,
     wait_simulated,
 )
@@ -35,21 +35,8 @@ from tools.cli import common as cli_common
 URL = "emu://arm/arm?name=test_armctl_safe_motion"
 
 
-@pytest.fixture()
-def arm() -> Iterator[Arm]:
-    """A freshly powered arm (torque off, not homed) shared with the armctl runs."""
-    forget_shared_emulators()
-    with Arm.open(URL) as opened:
-        yield opened
-    forget_shared_emulators()
-
-
 def run(*argv: str) -> int:
     return armctl.main(["--port", URL, *argv], out=io.StringIO())
-
-
-def _truth(arm: Arm) -> np.ndarray:
-    return np.array(arm.transport.emulator.arm_plant.joint_angles())  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize(("argv", "message"), [
@@ -73,13 +60,13 @@ def test_non_finite_and_unreachable_goals_are_refused_without_a_traceback(
     """These gave ValueError / LinAlgError tracebacks (exit 1), drove the flange to a
     meaningless orientation, or drove J2 into its stop."""
     assert run("torque", "on") == armctl.EXIT_OK
-    before = _truth(arm)
+    before = arm_joints(arm)
     capsys.readouterr()
     assert run(*argv) == armctl.EXIT_USAGE
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     arm.transport.sleep(0.5)
-    assert np.max(np.abs(_truth(arm) - before)) < math.radians(0.5)
+    assert np.max(np.abs(arm_joints(arm) - before)) < math.radians(0.5)
 
 
 def _write(path: Path, *points: tuple[float, list[float]]) -> str:
@@ -98,7 +85,7 @@ def test_waypoints_beyond_a_range_or_a_joints_speed_are_refused_before_anything_
     jump = _write(tmp_path / "jump.jsonl", (0.0, [0.0] * 7), (0.001, [2.5] * 7))
     brisk = _write(tmp_path / "brisk.jsonl", (0.0, [0.0] * 7),
                    (0.5, [0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0]), (1.0, [0.0] * 7))
-    before = _truth(arm)
+    before = arm_joints(arm)
     capsys.readouterr()
     assert run("waypoints", "play", beyond) == armctl.EXIT_USAGE
     assert "J2 goal (waypoint 2) +3.500 rad is outside the joint's range -0.35 … +2.80 rad" \
@@ -110,7 +97,7 @@ def test_waypoints_beyond_a_range_or_a_joints_speed_are_refused_before_anything_
     err = capsys.readouterr().err
     assert "J2 at waypoint 2 needs" in err and "--time-scale) of 1.2 or more" in err
     arm.transport.sleep(0.5)
-    assert np.max(np.abs(_truth(arm) - before)) < math.radians(0.5)
+    assert np.max(np.abs(arm_joints(arm) - before)) < math.radians(0.5)
     assert run("waypoints", "play", brisk, "--time-scale", "1.3") == armctl.EXIT_OK
 
 
@@ -120,7 +107,7 @@ def _signal_when(arm: Arm, joint: int, beyond: float, signum: int) -> threading.
     def watch() -> None:
         deadline = time.monotonic() + HANG_GUARD_S
         while time.monotonic() < deadline:
-            if _truth(arm)[joint] > beyond:
+            if arm_joints(arm)[joint] > beyond:
                 os.kill(os.getpid(), signum)
                 return
             time.sleep(0.002)
@@ -141,7 +128,7 @@ def test_a_signal_mid_move_holds_the_arm_and_exits_130_saying_what_was_held(
     code = run("move", "--unhomed", "--joints", "0", "1.5", "0", "1.5", "0", "0.2", "0",
                "--duration", "6")
     watcher.join()
-    at = _truth(arm)
+    at = arm_joints(arm)
     assert code == cli_common.EXIT_INTERRUPTED
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
@@ -150,7 +137,7 @@ def test_a_signal_mid_move_holds_the_arm_and_exits_130_saying_what_was_held(
     worst = 0.0
     for _ in range(20):
         arm.transport.sleep(0.1)
-        worst = max(worst, float(np.max(np.abs(_truth(arm) - at))))
+        worst = max(worst, float(np.max(np.abs(arm_joints(arm) - at))))
     state = arm.state()
     assert worst <= math.radians(2.0)
     assert arm.torque_enabled() == (True,) * 7
@@ -173,18 +160,7 @@ def test_a_second_signal_does_not_cut_the_hold_short() -> None:
 
 
 def _truth_over_control(info: dict[str, object]) -> dict[str, object]:
-    import socket
-
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
-        client.settimeout(HANG_GUARD_S)
-        client.connect(str(info["control"]))
-        client.sendall(b'{"op": "truth"}\n')
-        answer = b""
-        while not answer.endswith(b"\n"):
-            answer += client.recv(65536)
-    reply = json.loads(answer)
-    assert reply["ok"], reply
-    return dict(reply["arm"])
+    return dict(ask(info, "truth")["arm"])
 
 
 @pytest.mark.slow

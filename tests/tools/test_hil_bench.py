@@ -15,6 +15,8 @@ from tools.hil_bench import cli as hil_bench
 from tools.hil_bench.campaign import comparable, expand, run_jobs
 from tools.hil_bench.scenario import ScenarioError, parse_scenario, scenario_dir, standard_suite
 
+pytestmark = pytest.mark.process_wide("dask keeps its connection pools and event loop for the process")
+
 SUITE = scenario_dir()
 #: The subset of the standard suite run by default (about 15 s).
 SUBSET = ("break_away", "link_corruption", "tendon_glitch_long", "port_vanish",

@@ -28,6 +28,7 @@ from tests.tools.headless_browser import Browser, find_browser  # noqa: E402
 BROWSER = find_browser()
 pytestmark = [
     pytest.mark.slow,
+    pytest.mark.process_wide("rerun serves its web viewer until the process ends"),
     pytest.mark.skipif(BROWSER is None, reason="no Chromium on this machine (apt-get install "
                                               "chromium): the browser test cannot run"),
 ]

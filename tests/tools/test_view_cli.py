@@ -18,6 +18,8 @@ pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)
 from hil_emulator.inprocess import forget_shared_emulators  # noqa: E402
 from tools.cli import armctl, handctl  # noqa: E402
 
+pytestmark = pytest.mark.process_wide("rerun serves its web viewer until the process ends")
+
 ROOT = Path(__file__).resolve().parents[2]
 ADDRESS = re.compile(r"view: (http://127\.0\.0\.1:\d+/\?url=\S+)")
 

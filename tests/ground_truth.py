@@ -1,0 +1,32 @@
+"""Ground truth of a robot opened on an in-process emulator (``emu://``): the emulator behind
+a host ``Hand`` or ``Arm``, and the plant's joint angles a test holds the host's view to."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hil_emulator.emulator import Emulator
+from hil_emulator.inprocess import EmulatorTransport
+from host.arm import Arm
+from host.hand import Hand
+
+
+def emulator_of(robot: Hand | Arm) -> Emulator:
+    """The emulator ``robot`` talks to (it was opened on ``emu://``)."""
+    transport = robot.session.transport if isinstance(robot, Hand) else robot.transport
+    if not isinstance(transport, EmulatorTransport):
+        raise TypeError(f"{transport!r} is not an in-process emulator (emu://)")
+    return transport.emulator
+
+
+def finger_joints(hand: Hand) -> np.ndarray:
+    """Every finger plant's joint angles (rad), one row per finger (J0, J1, J2)."""
+    emulator = emulator_of(hand)
+    return np.array([plant.joint_angles() for plant in emulator.finger_plants])
+
+
+def arm_joints(arm: Arm) -> np.ndarray:
+    """The arm plant's seven joint angles (rad)."""
+    plant = emulator_of(arm).arm_plant
+    assert plant is not None, "the arm's emulator runs without physics"
+    return np.array(plant.joint_angles())
