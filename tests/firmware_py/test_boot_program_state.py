@@ -20,8 +20,6 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, ru
 
 from firmware_py.boot_program import AUTOBOOT_US
 from firmware_py.flash_layout import BOOT_CONTROL_PAGE, HEADER_PAGE, ActivationRecord, page_address
-from firmware_py.hal import Hal
-from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import install_image, make_node
@@ -30,6 +28,7 @@ from protocol.errors import ImageError
 from protocol.image import BoardType, make_image, parse_header, split_pages
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from tests.firmware_py.stand_ins import TinyApp
 
 BOARD = BoardType.FMCB
 ADDRESS = 10
@@ -39,17 +38,6 @@ NEW_PAGES = split_pages(NEW)
 NEW_SHA = NEW[40:72]
 PROTECTED_BYTES = 32 * 256
 
-
-class TinyApp(HandNode):
-    """A stand-in fmcb application that answers the common messages (reset included)."""
-
-    node_kind = "fmcb"
-
-    def __init__(self, hal: Hal, mcu: Mcu) -> None:
-        super().__init__(hal)
-
-    def start(self) -> None:
-        self.listen(self.hal.uart("pogo"))
 
 
 def image_verifies(flash: VirtualFlash) -> bool:

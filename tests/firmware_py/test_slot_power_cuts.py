@@ -13,8 +13,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_py.flash_layout import page_address
-from firmware_py.hal import Hal
-from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
@@ -22,21 +20,13 @@ from firmware_py.sim.virtual_hal import PAGE_WRITE_US, VirtualFlash, VirtualHal
 from firmware_py.slot_swap import SwapRecord, read_record, secondary_check
 from protocol.image import FLASH, BoardType, make_image
 from protocol.messages.slots import SlotState
+from tests.firmware_py.stand_ins import TinyApp
 
 #: Long enough for any swap of the test images plus the jump (µs), far less than the window.
 SETTLE_US = 400_000
 #: Time after which a node without a swap to do has booted: the autoboot window (µs).
 WINDOW_US = 4_600_000
 
-
-class TinyApp(HandNode):
-    node_kind = "fmcb"
-
-    def __init__(self, hal: Hal, mcu: Mcu) -> None:
-        super().__init__(hal)
-
-    def start(self) -> None:
-        self.listen(self.hal.uart("pogo"))
 
 
 def _image(version: str, pages: int) -> bytes:

@@ -11,7 +11,6 @@ import pytest
 
 from firmware_py.flash_layout import page_address
 from firmware_py.hal import Hal
-from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
@@ -30,22 +29,12 @@ from protocol.messages.slots import (
     SlotState,
 )
 from protocol.stream import decode_all
+from tests.firmware_py.stand_ins import TinyApp
 
 ADDRESS = 10
 #: Enough for a swap of the test images and the jump, far less than the autoboot window.
 SWAP_RUN_US = 300_000
 
-
-class TinyApp(HandNode):
-    """A stand-in fmcb application on the pogo UART."""
-
-    node_kind = "fmcb"
-
-    def __init__(self, hal: Hal, mcu: Mcu) -> None:
-        super().__init__(hal)
-
-    def start(self) -> None:
-        self.listen(self.hal.uart("pogo"))
 
 
 class CrashingApp(TinyApp):
