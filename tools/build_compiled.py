@@ -23,6 +23,7 @@ import contextlib
 import os
 import shutil
 import sys
+import sysconfig
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -106,11 +107,45 @@ def loaded_compiled() -> list[str]:
     return loaded
 
 
+def _site_packages() -> Path:
+    """The running interpreter's site-packages (the set-up runs as the venv's python)."""
+    return Path(sysconfig.get_paths()["platlib"])
+
+
+def link_shared_libraries(root: Path = ROOT, site: Path | None = None) -> list[Path]:
+    """Make mypyc's shared library of the group importable from every process of this
+    interpreter: the compiled modules import it as a top-level module, which the editable
+    install's finder does not map (it maps only the packages), so an installed command
+    (``armctl``, ``hil-emulator``) started outside the repository would not find it.  A
+    symbolic link in site-packages for each, old links into ``root`` removed; returns the
+    links."""
+    site = site if site is not None else _site_packages()
+    _unlink_shared_libraries(root, site)
+    links = []
+    for lib in sorted(root.glob("*__mypyc.*.so")):
+        link = site / lib.name
+        link.symlink_to(lib.resolve())
+        links.append(link)
+    return links
+
+
+def _unlink_shared_libraries(root: Path, site: Path) -> list[Path]:
+    """Remove the links :func:`link_shared_libraries` made into ``root`` (dangling ones too)."""
+    removed = []
+    for link in sorted(site.glob("*__mypyc.*.so")):
+        if link.is_symlink() and Path(os.readlink(link)).parent == root.resolve():
+            link.unlink()
+            removed.append(link)
+    return removed
+
+
 def clean(root: Path = ROOT, build_dir: Path | None = None) -> list[Path]:
-    """Remove the built extensions and the build directory; returns what was removed."""
+    """Remove the built extensions, their links in site-packages and the build directory;
+    returns what was removed."""
     removed = compiled_files(root)
     for path in removed:
         path.unlink()
+    removed += _unlink_shared_libraries(root, _site_packages())
     build = build_dir if build_dir is not None else root / "build"
     if build.is_dir():
         shutil.rmtree(build)
@@ -206,6 +241,7 @@ def setup(root: Path = ROOT, build_dir: Path | None = None,
         clean(root, build_dir)
         line = f"compiled core: not built ({PURE_PYTHON_ENV} is set): the emulator runs pure Python"
     elif is_built(root) and not stale(root):
+        link_shared_libraries(root)
         line = "compiled core: built already and up to date"
     else:
         print("compiled core: building it with mypyc (once; a few minutes on 2 cores; "
@@ -221,6 +257,7 @@ def setup(root: Path = ROOT, build_dir: Path | None = None,
             line = (f"compiled core: cannot be built here ({reason}; see {log}): the emulator "
                     "runs pure Python")
         else:
+            link_shared_libraries(root)
             line = (f"compiled core: built in {time.monotonic() - started:.0f} s; the emulator "
                     "uses it")
     print(line, flush=True)

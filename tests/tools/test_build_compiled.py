@@ -208,3 +208,37 @@ def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
         cwd=copy, env=env, capture_output=True, text=True, check=True).stdout.strip()
     assert loaded == str(len(SMOKE_MODULES))
     assert _digest_of(copy) == pure
+
+
+def test_the_shared_library_is_linked_into_site_packages_and_unlinked_by_clean(
+        tmp_path: Path) -> None:
+    """mypyc's shared library is a top-level module the editable install does not map: the
+    set-up links it into site-packages, replacing an old link into the same root."""
+    root, site = tmp_path / "root", tmp_path / "site"
+    root.mkdir()
+    site.mkdir()
+    old = site / "0ld__mypyc.cpython-311-x86_64-linux-gnu.so"
+    old.symlink_to(root / "0ld__mypyc.cpython-311-x86_64-linux-gnu.so")  # dangling
+    foreign = site / "other__mypyc.cpython-311-x86_64-linux-gnu.so"
+    foreign.write_bytes(b"not ours")
+    lib = root / "abc__mypyc.cpython-311-x86_64-linux-gnu.so"
+    lib.write_bytes(b"\x7fELF")
+    links = build_compiled.link_shared_libraries(root, site)
+    assert links == [site / lib.name]
+    assert links[0].resolve() == lib.resolve()
+    assert not old.is_symlink() and foreign.exists()
+    build_compiled._unlink_shared_libraries(root, site)
+    assert not (site / lib.name).exists() and foreign.exists()
+
+
+def test_an_installed_command_runs_outside_the_repository(tmp_path: Path) -> None:
+    """``armctl --help`` from another directory with no PYTHONPATH: whichever build is in
+    use (the compiled core's shared library included), the console script finds it all."""
+    script = Path(sys.executable).parent / "armctl"
+    if not script.exists():
+        pytest.skip("armctl is not installed beside this interpreter")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run([str(script), "--help"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "usage: armctl" in done.stdout
