@@ -197,6 +197,12 @@ class Encoder(ABC):
     def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
         """Called at each index pulse with the encoder count at that instant."""
 
+    def set_change_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the count changes (the quadrature decoder's
+        count-change interrupt; None: off).  False on a board without one (the callback is
+        never called: the firmware must poll :meth:`count`)."""
+        return False
+
 
 CanReceiveCallback = Callable[[int, bytes, int], None]
 """Called with a CAN identifier, the data (≤ 8 bytes) and the arrival time (µs)."""
@@ -247,6 +253,12 @@ class Sensors(ABC):
         of waking at each one.  False where the inputs change unannounced (real hardware):
         the program must read them when due.
         """
+        return False
+
+    def watch_channel(self, channel: str, on_change: Callable[[], None] | None) -> bool:
+        """Call ``on_change`` whenever scalar ``channel`` may read differently from before
+        (an ADC window comparator's interrupt; None: stop).  False where the board has no
+        such interrupt: the program must poll :meth:`read`."""
         return False
 
 

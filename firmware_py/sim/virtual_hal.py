@@ -454,31 +454,49 @@ class VirtualStepper(hal.Stepper):
 
 class VirtualEncoder(hal.Encoder):
     """An encoder whose count the plant sets (:meth:`set_count`); :meth:`pulse_index` fires
-    the index."""
+    the index.  A change of the count (by the plant or a test setting :attr:`value`) raises
+    the count-change interrupt."""
 
     def __init__(self) -> None:
-        self.value = 0
+        self._value = 0
         self._callback: Callable[[int], None] | None = None
+        self._on_change: Callable[[], None] | None = None
 
     def count(self) -> int:
-        return self.value
+        return self._value
 
     def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
         self._callback = callback
 
+    def set_change_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_change = callback
+        return True
+
     # --- plant side
+
+    @property
+    def value(self) -> int:
+        """The count now; setting it is :meth:`set_count`."""
+        return self._value
+
+    @value.setter
+    def value(self, count: int) -> None:
+        self.set_count(count)
 
     def set_count(self, count: int) -> None:
         """The reader's count now (counts since power-up)."""
-        self.value = count
+        if count != self._value:
+            self._value = count
+            if self._on_change is not None:
+                self._on_change()
 
     def pulse_index(self, count: int | None = None) -> None:
         """The index mark passes the reader now, at ``count`` (which becomes the count;
         None: the present count); the firmware's index callback gets it."""
         if count is not None:
-            self.value = count
+            self.set_count(count)
         if self._callback is not None:
-            self._callback(self.value)
+            self._callback(self._value)
 
 
 #: Channel names of numbered series (``taxel0`` …), longer than any board's series.
@@ -501,6 +519,9 @@ class VirtualSensors(hal.Sensors):
     #: Per series prefix, what to call before the plant side sets the series
     #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
     watchers: dict[str, Callable[[], None]] = field(default_factory=dict)
+    #: Per scalar channel, what to call after it changes (:meth:`watch_channel`).  Writing
+    #: :attr:`values` directly calls nothing.
+    channel_watchers: dict[str, Callable[[], None]] = field(default_factory=dict)
 
     def read(self, channel: str) -> int | tuple[int, ...]:
         try:
@@ -529,7 +550,11 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if channel not in values:
             _no_channel(channel)
-        values[channel] = value
+        if self.channel_watchers and values[channel] != value:
+            values[channel] = value
+            self._changed(channel)
+        else:
+            values[channel] = value
 
     def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
         if before_change is None:
@@ -538,9 +563,25 @@ class VirtualSensors(hal.Sensors):
             self.watchers[prefix] = before_change
         return True
 
+    def watch_channel(self, channel: str, on_change: Callable[[], None] | None) -> bool:
+        if on_change is None:
+            self.channel_watchers.pop(channel, None)
+        else:
+            self.channel_watchers[channel] = on_change
+        return True
+
+    def _changed(self, channel: str) -> None:
+        """Scalar ``channel`` reads differently now: its watcher (:meth:`watch_channel`)."""
+        on_change = self.channel_watchers.get(channel)
+        if on_change is not None:
+            on_change()
+
     def announce_change(self, channel: str) -> None:
         """``channel`` is about to read differently (a fault switched on or off): whoever
-        watches its series (:meth:`watch_series`) reads what is due first."""
+        watches its series (:meth:`watch_series`) reads what is due first, and its channel
+        watcher (:meth:`watch_channel`) is told."""
+        if self.channel_watchers:
+            self._changed(channel)
         if self.watchers:
             before_change = self.watchers.get(channel.rstrip("0123456789"))
             if before_change is not None:
@@ -586,14 +627,22 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if "strain" not in values:
             _no_channel("strain")
-        values["strain"] = counts
+        if self.channel_watchers and values["strain"] != counts:
+            values["strain"] = counts
+            self._changed("strain")
+        else:
+            values["strain"] = counts
 
     def set_temperature(self, decidegrees: int) -> None:
         """The board's one temperature sensor ``temperature`` (0.1 °C; the arm nodes)."""
         values = self.values
         if "temperature" not in values:
             _no_channel("temperature")
-        values["temperature"] = decidegrees
+        if self.channel_watchers and values["temperature"] != decidegrees:
+            values["temperature"] = decidegrees
+            self._changed("temperature")
+        else:
+            values["temperature"] = decidegrees
 
     def set_temperatures(self, decidegrees: Sequence[int]) -> None:
         """Every temperature channel ``temperature0`` … of the board, in order (0.1 °C)."""
@@ -608,21 +657,33 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if "supply_mv" not in values:
             _no_channel("supply_mv")
-        values["supply_mv"] = millivolts
+        if self.channel_watchers and values["supply_mv"] != millivolts:
+            values["supply_mv"] = millivolts
+            self._changed("supply_mv")
+        else:
+            values["supply_mv"] = millivolts
 
     def set_pot(self, units: int) -> None:
         """Servo potentiometer (0..1023 over 300°)."""
         values = self.values
         if "pot" not in values:
             _no_channel("pot")
-        values["pot"] = units
+        if self.channel_watchers and values["pot"] != units:
+            values["pot"] = units
+            self._changed("pot")
+        else:
+            values["pot"] = units
 
     def set_load(self, units: int) -> None:
         """Servo load (1/1023 of the maximum torque, signed, + = counter-clockwise)."""
         values = self.values
         if "load" not in values:
             _no_channel("load")
-        values["load"] = units
+        if self.channel_watchers and values["load"] != units:
+            values["load"] = units
+            self._changed("load")
+        else:
+            values["load"] = units
 
 
 def _no_channel(channel: str) -> None:
@@ -737,11 +798,13 @@ class VirtualHal(hal.Hal):
         for switch in self.power_switches.values():
             switch.set_current_interrupt(None)
         self.sensors.watchers.clear()
+        self.sensors.channel_watchers.clear()
         if self._stepper is not None:
             self._stepper.set_step_rate(0.0)
             self._stepper.set_current(0)
         if self._encoder is not None:
             self._encoder.set_index_callback(None)
+            self._encoder.set_change_interrupt(None)
         if self._can is not None:
             self._can.set_receiver(None)
         self.watchdog.timeout_us = 0
