@@ -31,6 +31,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
+from typing import ClassVar
 
 from mypy_extensions import mypyc_attr
 
@@ -175,7 +176,7 @@ class VirtualCan(hal.CanController):
     """A CAN controller: ``sent`` records (id, data, time µs); :meth:`deliver` injects."""
 
     #: Time one 8-byte standard frame occupies a 1 Mbit/s bus, roughly (µs).
-    FRAME_US = 111
+    FRAME_US: ClassVar[int] = 111
 
     def __init__(self, scheduler: Scheduler) -> None:
         self.scheduler = scheduler
