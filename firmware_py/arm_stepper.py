@@ -172,10 +172,20 @@ class StepperNodeApp(DynamixelSlave):
         #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
         #: the least since; 0 once back within it (see the module docs)
         self._allowance = 0
+        #: The tick sleeps (see :meth:`_tick`) only on a board whose encoder and
+        #: temperature and supply inputs interrupt on a change.
+        self._can_sleep = False
+        #: True while a tick would change nothing: it returns at once until woken.
+        self.asleep = False
+        #: Wake-ups so far (a wake-up during a tick keeps it from going to sleep after it).
+        self._wakes = 0
+        #: The last tick's encoder, step counter, temperature and supply readings.
+        self._last_inputs = (0, 0, 0, 0)
 
     # ------------------------------------------------------------------ hooks
 
     def reload_registers(self) -> None:
+        self._wake()  # a register the tick reads may have changed
         get = self.get
         self._mpc = (get("gear_reduction_x100") * get("steps_per_rev")
                      * get("microstepping") / _X100_COUNTS_PER_REV)
@@ -199,6 +209,12 @@ class StepperNodeApp(DynamixelSlave):
         self._watchdog_timeout = get("watchdog_timeout")
 
     def power_up(self) -> None:
+        wake = self._wake
+        sensors = self.hal.sensors
+        self._can_sleep = all([self.encoder.set_change_interrupt(wake),
+                               sensors.watch_channel("temperature", wake),
+                               sensors.watch_channel("supply_mv", wake)])
+        self._wake()
         self._hw_steps0 = self._step_offset = self.stepper.step_count()
         self._enc0 = self.encoder.count()
         self._velocity = 0.0
@@ -220,6 +236,7 @@ class StepperNodeApp(DynamixelSlave):
         self._quiet_ticks = 0
 
     def after_write(self, touched: list[Register]) -> None:
+        self._wake()
         names = {r.name for r in touched}
         if "command_goal" in names or "goal_position" in names:
             self._flags &= ~_WATCHDOG  # a new goal: the host is back in charge
@@ -286,6 +303,7 @@ class StepperNodeApp(DynamixelSlave):
     # ------------------------------------------------------------------ events
 
     def _on_index(self, encoder_count: int) -> None:
+        self._wake()
         if self._flags & _INDEX_SEEN:
             return
         self._flags |= _INDEX_SEEN
@@ -293,6 +311,12 @@ class StepperNodeApp(DynamixelSlave):
         self.set("index_encoder_count", encoder_count)
         self.set("index_seen", 1)
         self._refresh()
+
+    def _wake(self) -> None:
+        """An encoder count change, a temperature or supply change, a host write, an index
+        pulse: the next tick runs."""
+        self.asleep = False
+        self._wakes += 1
 
     def _clear(self, bits: int) -> None:
         if bits & (_CLEAR_SLIP | _CLEAR_STALL) and self._torque_enable:
@@ -331,7 +355,22 @@ class StepperNodeApp(DynamixelSlave):
         """The 1 kHz control tick: alarms, trajectory, step rate, current, registers.
 
         One reading of the encoder, the step counter and the sensors serves the whole tick
-        (nothing else runs within it, and setting the step rate leaves the count as it is)."""
+        (nothing else runs within it, and setting the step rate leaves the count as it is).
+
+        It goes to sleep (returns at once from the next tick on, counting only the
+        watchdog's quiet ticks) when a tick changed nothing: the motor at rest before and
+        after it, the same readings as the tick before, the velocity window full of one
+        count, the latches, the allowance and the torque as they were; the next ticks would
+        then read the same inputs and write the same outputs and registers, until an
+        encoder count change, a temperature or supply change (the HAL's interrupts), a host
+        write or an index pulse wakes it.  The timer keeps its phase meanwhile, so a woken
+        tick runs exactly when it would have.  A node at rest ignores the watchdog count."""
+        if self.asleep:
+            self._quiet_ticks += 1
+            return
+        wakes = self._wakes
+        flags_before, allowance_before = self._flags, self._allowance
+        torque_before, velocity_before = self._torque_enable, self._velocity
         stepper = self.stepper
         enc = self.encoder.count()
         self._enc_history.append(enc)
@@ -393,6 +432,14 @@ class StepperNodeApp(DynamixelSlave):
             stepper.set_step_rate(0.0)
             stepper.set_current(0)
         self._publish(enc, hw_steps, deflection, errors, velocity, temperature, supply_mv)
+        inputs = (enc, hw_steps, temperature, supply_mv)
+        if (self._can_sleep and velocity == 0.0 and velocity_before == 0.0
+                and inputs == self._last_inputs and self._wakes == wakes
+                and self._flags == flags_before and self._allowance == allowance_before
+                and self._torque_enable == torque_before
+                and self._enc_history.count(enc) == VELOCITY_WINDOW + 1):
+            self.asleep = True
+        self._last_inputs = inputs
 
     def _watchdog_stop(self, hw_steps: int, mpc: float) -> None:
         """No instruction within ``watchdog_timeout`` while moving: the goal becomes where

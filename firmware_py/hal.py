@@ -17,6 +17,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Protocol
 
+from mypy_extensions import mypyc_attr
+
 from firmware_py.errors import HalError
 from protocol.image import FLASH
 
@@ -35,6 +37,7 @@ class Timer(Protocol):
         """Still scheduled."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Clock(ABC):
     """Monotonic time and timers (a periodic tick, one-shot timeouts)."""
 
@@ -51,6 +54,7 @@ class Clock(ABC):
         """Periodic timer (the 1 kHz control tick is ``call_every(1000, …)``)."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Uart(ABC):
     """A UART on an RS-485 transceiver whose transmit-enable follows the transmitter.
 
@@ -80,6 +84,7 @@ class Uart(ABC):
         """True while bytes are still on their way out."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class PowerSwitch(ABC):
     """A switched supply for a downstream bus (finger power, phalange power).
 
@@ -106,6 +111,7 @@ class PowerSwitch(ABC):
         return False
 
 
+@mypyc_attr(native_class=False, allow_interpreted_subclasses=True)  # its emulation is a plain Python class
 class Flash(ABC):
     """Flash with SAM3S rules: 256-byte pages, erase before write, lockable regions.
 
@@ -140,6 +146,7 @@ class Flash(ABC):
         """Lock pages against writing until power is removed (the SAM3S lock bits)."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class MotorDriver(ABC):
     """One brushless motor's bridge (L6229-like), commanded by signed PWM duty."""
 
@@ -170,6 +177,7 @@ class MotorDriver(ABC):
         return False
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Stepper(ABC):
     """A stepper driver fed by a hardware pulse generator with a hardware step counter."""
 
@@ -186,6 +194,7 @@ class Stepper(ABC):
         """Phase current (mA); 0 de-energises the motor."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Encoder(ABC):
     """A joint encoder with an index pulse whose event the hardware timestamps."""
 
@@ -197,11 +206,18 @@ class Encoder(ABC):
     def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
         """Called at each index pulse with the encoder count at that instant."""
 
+    def set_change_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        """Call ``callback`` whenever the count changes (the quadrature decoder's
+        count-change interrupt; None: off).  False on a board without one (the callback is
+        never called: the firmware must poll :meth:`count`)."""
+        return False
+
 
 CanReceiveCallback = Callable[[int, bytes, int], None]
 """Called with a CAN identifier, the data (≤ 8 bytes) and the arrival time (µs)."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class CanController(ABC):
     """A CAN 2.0 controller (standard 11-bit identifiers, ≤ 8 data bytes)."""
 
@@ -214,6 +230,7 @@ class CanController(ABC):
         """Deliver received CAN frames to ``callback``."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Sensors(ABC):
     """Analog and digital sensors, read on demand."""
 
@@ -249,7 +266,14 @@ class Sensors(ABC):
         """
         return False
 
+    def watch_channel(self, channel: str, on_change: Callable[[], None] | None) -> bool:
+        """Call ``on_change`` whenever scalar ``channel`` may read differently from before
+        (an ADC window comparator's interrupt; None: stop).  False where the board has no
+        such interrupt: the program must poll :meth:`read`."""
+        return False
 
+
+@mypyc_attr(allow_interpreted_subclasses=True)
 class Watchdog(ABC):
     """Resets the node when not kicked in time."""
 
@@ -262,6 +286,7 @@ class Watchdog(ABC):
         """Restart the timeout."""
 
 
+@mypyc_attr(native_class=False, allow_interpreted_subclasses=True)  # implementations narrow its attributes' types
 class Hal(ABC):
     """Everything a node's firmware may touch.  Peripherals a board lacks raise HalError."""
 

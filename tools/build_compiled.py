@@ -36,8 +36,10 @@ from tools.errors import BuildError
 #: Not protocol/manchester.py: its work is numpy's, and its public functions take what numpy
 #: takes (array-likes, truthy flags), which a compiled signature would refuse with TypeError.
 COMPILED_MODULES: Final[tuple[str, ...]] = (
-    # the clock and the wire formats
+    # the clock, the HAL and its in-memory implementation, and the wire formats
     "firmware_py/scheduler.py",
+    "firmware_py/hal.py",
+    "firmware_py/sim/virtual_hal.py",
     "protocol/crc.py",
     "protocol/framing.py",
     "protocol/stream.py",

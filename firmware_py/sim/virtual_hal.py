@@ -29,7 +29,11 @@ bind them once (``set_hall = motor.set_hall_state``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import partial
+from typing import ClassVar
+
+from mypy_extensions import mypyc_attr
 
 from firmware_py import hal
 from firmware_py.errors import FlashMemoryError, HalError
@@ -40,6 +44,7 @@ from protocol.topology import wire_time_us
 PAGE_WRITE_US = 2_000
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualClock(hal.Clock):
     """Node-local time on a shared scheduler; ``cancel_all`` stops the node's timers."""
 
@@ -93,6 +98,7 @@ def line_delivers(data: bytes, t_us: int) -> None:
     :meth:`VirtualUart.send` schedules no arrival for it."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualUart(hal.Uart):
     """A UART whose output reaches ``peer`` after the wire time; ``sent`` records it all."""
 
@@ -165,11 +171,12 @@ def connect(a: VirtualUart, b: VirtualUart) -> None:
     a.peer, b.peer = b, a
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualCan(hal.CanController):
     """A CAN controller: ``sent`` records (id, data, time µs); :meth:`deliver` injects."""
 
     #: Time one 8-byte standard frame occupies a 1 Mbit/s bus, roughly (µs).
-    FRAME_US = 111
+    FRAME_US: ClassVar[int] = 111
 
     def __init__(self, scheduler: Scheduler) -> None:
         self.scheduler = scheduler
@@ -202,6 +209,7 @@ class VirtualCan(hal.CanController):
             self._receiver(arbitration_id, bytes(data), self.scheduler.now_us())
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualPowerSwitch(hal.PowerSwitch):
     """A power switch; ``on_change`` callbacks power the downstream boards."""
 
@@ -254,6 +262,8 @@ class VirtualPowerSwitch(hal.PowerSwitch):
                 self._on_current()
 
 
+# Faults and tests replace write_page on an instance: a plain Python class in the compiled core.
+@mypyc_attr(native_class=False, allow_interpreted_subclasses=True)
 class VirtualFlash(hal.Flash):
     """Flash memory as a bytearray, erased to 0xFF, with timed page writes and lock bits."""
 
@@ -289,19 +299,23 @@ class VirtualFlash(hal.Flash):
         if self._pending is not None:
             raise FlashMemoryError("flash is busy")
         if page in self.locked:
-            self.scheduler.call_later(1, lambda: done(False))
+            self.scheduler.call_later(1, partial(done, False))
             return
         off = page * self.page_size
         self.memory[off : off + self.page_size] = b"\xff" * self.page_size  # erase
         payload = bytes(data)
+        # (partial, not a closure: the compiled core cannot compile closures in a plain
+        # Python class's methods)
+        self._pending = (page, payload, self.scheduler.call_later(
+            self.page_write_us, partial(self._finish_write, page, payload, done)))
 
-        def finish() -> None:
-            self.memory[off : off + self.page_size] = payload
-            self._pending = None
-            self.writes.append(page)
-            done(True)
-
-        self._pending = (page, payload, self.scheduler.call_later(self.page_write_us, finish))
+    def _finish_write(self, page: int, payload: bytes, done: Callable[[bool], None]) -> None:
+        """The page write started by :meth:`write_page` is done."""
+        off = page * self.page_size
+        self.memory[off : off + self.page_size] = payload
+        self._pending = None
+        self.writes.append(page)
+        done(True)
 
     @property
     def busy(self) -> bool:
@@ -327,6 +341,7 @@ class VirtualFlash(hal.Flash):
         self.memory[off : off + len(data)] = data
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualMotor(hal.MotorDriver):
     """Records the commands; hall state and current are set by the test or the plant."""
 
@@ -412,6 +427,7 @@ class VirtualMotor(hal.MotorDriver):
         self.current = milliamps
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualStepper(hal.Stepper):
     """A pulse generator whose counter integrates the commanded rate exactly over time."""
 
@@ -452,33 +468,57 @@ class VirtualStepper(hal.Stepper):
         return self.current
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualEncoder(hal.Encoder):
     """An encoder whose count the plant sets (:meth:`set_count`); :meth:`pulse_index` fires
-    the index."""
+    the index.  A change of the count (by the plant or a test setting :attr:`value`) raises
+    the count-change interrupt.  With :attr:`index_blind` (a dirty code wheel: a fault) the
+    index pulses do not reach the firmware; :attr:`missed` counts them."""
 
     def __init__(self) -> None:
-        self.value = 0
+        self._value = 0
         self._callback: Callable[[int], None] | None = None
+        self._on_change: Callable[[], None] | None = None
+        self.index_blind = False
+        self.missed = 0
 
     def count(self) -> int:
-        return self.value
+        return self._value
 
     def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
         self._callback = callback
 
+    def set_change_interrupt(self, callback: Callable[[], None] | None) -> bool:
+        self._on_change = callback
+        return True
+
     # --- plant side
+
+    @property
+    def value(self) -> int:
+        """The count now; setting it is :meth:`set_count`."""
+        return self._value
+
+    @value.setter
+    def value(self, count: int) -> None:
+        self.set_count(count)
 
     def set_count(self, count: int) -> None:
         """The reader's count now (counts since power-up)."""
-        self.value = count
+        if count != self._value:
+            self._value = count
+            if self._on_change is not None:
+                self._on_change()
 
     def pulse_index(self, count: int | None = None) -> None:
         """The index mark passes the reader now, at ``count`` (which becomes the count;
         None: the present count); the firmware's index callback gets it."""
         if count is not None:
-            self.value = count
-        if self._callback is not None:
-            self._callback(self.value)
+            self.set_count(count)
+        if self.index_blind:
+            self.missed += 1
+        elif self._callback is not None:
+            self._callback(self._value)
 
 
 #: Channel names of numbered series (``taxel0`` …), longer than any board's series.
@@ -488,30 +528,52 @@ _TEMPERATURE_KEYS = tuple(f"temperature{k}" for k in range(_SERIES_LENGTH + 1))
 _THERMISTOR_KEYS = tuple(f"thermistor{k}" for k in range(_SERIES_LENGTH + 1))
 
 
-@dataclass
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualSensors(hal.Sensors):
     """Sensor values by channel name, set by the test or the plant.
 
     The plant side sets only channels the board has (else :class:`HalError`), in the counts
     :meth:`firmware_py.hal.Sensors.read` documents; a numbered series (taxels,
     temperatures, thermistors) is set whole, exactly as many values as the board has.
+    :attr:`faults` (the emulator's sensor faults) changes what :meth:`read` returns for
+    some channels while the plant keeps setting the true values.  (A plain class, not a
+    dataclass: the compiled core cannot compile a dataclass Python subclasses.)
     """
 
-    values: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
-    #: Per series prefix, what to call before the plant side sets the series
-    #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
-    watchers: dict[str, Callable[[], None]] = field(default_factory=dict)
+    def __init__(self, values: dict[str, int | tuple[int, ...]] | None = None) -> None:
+        #: The value of each channel the board has.
+        self.values: dict[str, int | tuple[int, ...]] = {} if values is None else values
+        #: Per series prefix, what to call before the plant side sets the series
+        #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
+        self.watchers: dict[str, Callable[[], None]] = {}
+        #: Per scalar channel, what to call after it changes (:meth:`watch_channel`).
+        #: Writing :attr:`values` directly calls nothing.
+        self.channel_watchers: dict[str, Callable[[], None]] = {}
+        #: Per faulty channel, what a read returns for the true value.  A faulty channel may
+        #: read differently at every read (noise): its channel watcher hears of a change at
+        #: each, so no program sleeps on it.
+        self.faults: dict[str, Callable[[int | tuple[int, ...]], int | tuple[int, ...]]] = {}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(values={self.values!r})"
 
     def read(self, channel: str) -> int | tuple[int, ...]:
         try:
-            return self.values[channel]
+            value = self.values[channel]
         except KeyError:
             raise HalError(f"this board has no sensor channel {channel!r}") from None
+        if self.faults:
+            fault = self.faults.get(channel)
+            if fault is not None:
+                self._changed(channel)
+                return fault(value)
+        return value
 
     def read_burst(self, channel: str, count: int) -> int:
         """The plant holds one value per channel, so a burst is ``count`` times it (a
-        subclass that overrides :meth:`read` gets one :meth:`read` per conversion)."""
-        if type(self).read is not VirtualSensors.read:
+        subclass that overrides :meth:`read`, or a fault, gets one :meth:`read` per
+        conversion)."""
+        if type(self).read is not VirtualSensors.read or self.faults:
             return super().read_burst(channel, count)
         try:
             value = self.values[channel]  # what read() does, without the call
@@ -529,7 +591,11 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if channel not in values:
             _no_channel(channel)
-        values[channel] = value
+        if self.channel_watchers and values[channel] != value:
+            values[channel] = value
+            self._changed(channel)
+        else:
+            values[channel] = value
 
     def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
         if before_change is None:
@@ -538,9 +604,25 @@ class VirtualSensors(hal.Sensors):
             self.watchers[prefix] = before_change
         return True
 
+    def watch_channel(self, channel: str, on_change: Callable[[], None] | None) -> bool:
+        if on_change is None:
+            self.channel_watchers.pop(channel, None)
+        else:
+            self.channel_watchers[channel] = on_change
+        return True
+
+    def _changed(self, channel: str) -> None:
+        """Scalar ``channel`` reads differently now: its watcher (:meth:`watch_channel`)."""
+        on_change = self.channel_watchers.get(channel)
+        if on_change is not None:
+            on_change()
+
     def announce_change(self, channel: str) -> None:
         """``channel`` is about to read differently (a fault switched on or off): whoever
-        watches its series (:meth:`watch_series`) reads what is due first."""
+        watches its series (:meth:`watch_series`) reads what is due first, and its channel
+        watcher (:meth:`watch_channel`) is told."""
+        if self.channel_watchers:
+            self._changed(channel)
         if self.watchers:
             before_change = self.watchers.get(channel.rstrip("0123456789"))
             if before_change is not None:
@@ -586,14 +668,22 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if "strain" not in values:
             _no_channel("strain")
-        values["strain"] = counts
+        if self.channel_watchers and values["strain"] != counts:
+            values["strain"] = counts
+            self._changed("strain")
+        else:
+            values["strain"] = counts
 
     def set_temperature(self, decidegrees: int) -> None:
         """The board's one temperature sensor ``temperature`` (0.1 °C; the arm nodes)."""
         values = self.values
         if "temperature" not in values:
             _no_channel("temperature")
-        values["temperature"] = decidegrees
+        if self.channel_watchers and values["temperature"] != decidegrees:
+            values["temperature"] = decidegrees
+            self._changed("temperature")
+        else:
+            values["temperature"] = decidegrees
 
     def set_temperatures(self, decidegrees: Sequence[int]) -> None:
         """Every temperature channel ``temperature0`` … of the board, in order (0.1 °C)."""
@@ -608,27 +698,40 @@ class VirtualSensors(hal.Sensors):
         values = self.values
         if "supply_mv" not in values:
             _no_channel("supply_mv")
-        values["supply_mv"] = millivolts
+        if self.channel_watchers and values["supply_mv"] != millivolts:
+            values["supply_mv"] = millivolts
+            self._changed("supply_mv")
+        else:
+            values["supply_mv"] = millivolts
 
     def set_pot(self, units: int) -> None:
         """Servo potentiometer (0..1023 over 300°)."""
         values = self.values
         if "pot" not in values:
             _no_channel("pot")
-        values["pot"] = units
+        if self.channel_watchers and values["pot"] != units:
+            values["pot"] = units
+            self._changed("pot")
+        else:
+            values["pot"] = units
 
     def set_load(self, units: int) -> None:
         """Servo load (1/1023 of the maximum torque, signed, + = counter-clockwise)."""
         values = self.values
         if "load" not in values:
             _no_channel("load")
-        values["load"] = units
+        if self.channel_watchers and values["load"] != units:
+            values["load"] = units
+            self._changed("load")
+        else:
+            values["load"] = units
 
 
 def _no_channel(channel: str) -> None:
     raise HalError(f"this board has no sensor channel {channel!r}")
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class VirtualWatchdog(hal.Watchdog):
     """Calls ``on_expire`` when not kicked within the timeout."""
 
@@ -654,6 +757,7 @@ class VirtualWatchdog(hal.Watchdog):
         self.on_expire()
 
 
+@mypyc_attr(native_class=False, allow_interpreted_subclasses=True)  # a plain Python class, as Hal
 class VirtualHal(hal.Hal):
     """A whole board's HAL in memory.
 
@@ -737,11 +841,13 @@ class VirtualHal(hal.Hal):
         for switch in self.power_switches.values():
             switch.set_current_interrupt(None)
         self.sensors.watchers.clear()
+        self.sensors.channel_watchers.clear()
         if self._stepper is not None:
             self._stepper.set_step_rate(0.0)
             self._stepper.set_current(0)
         if self._encoder is not None:
             self._encoder.set_index_callback(None)
+            self._encoder.set_change_interrupt(None)
         if self._can is not None:
             self._can.set_receiver(None)
         self.watchdog.timeout_us = 0

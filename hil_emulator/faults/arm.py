@@ -10,7 +10,6 @@ They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`,
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -47,23 +46,6 @@ class ArmPush(Fault):
         _arm_plant(emulator).push(self.joint, 0.0)
 
 
-class _BlindIndexEncoder(VirtualEncoder):
-    """An encoder whose index pulses do not reach the firmware (``missed`` counts them)."""
-
-    missed: int
-
-    @property  # type: ignore[override]
-    def _callback(self) -> Callable[[int], None] | None:
-        def swallow(count: int) -> None:
-            self.missed += 1
-
-        return swallow if self.__dict__.get("_callback") is not None else None
-
-    @_callback.setter
-    def _callback(self, callback: Callable[[int], None] | None) -> None:
-        self.__dict__["_callback"] = callback
-
-
 @dataclass
 class MissedIndex(Fault):
     """Stepper joint ``joint`` (0..3 = J1..J4) misses its index pulses (dirty code wheel):
@@ -83,13 +65,11 @@ class MissedIndex(Fault):
 
     def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
         encoder = self._encoder(emulator)
-        encoder.__class__ = _BlindIndexEncoder
-        assert isinstance(encoder, _BlindIndexEncoder)
+        encoder.index_blind = True
         encoder.missed = 0
 
     def clear(self, emulator: Emulator) -> None:
-        encoder = self._encoder(emulator)
-        encoder.__class__ = VirtualEncoder
+        self._encoder(emulator).index_blind = False
 
 
 @dataclass

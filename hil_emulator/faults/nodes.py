@@ -24,19 +24,6 @@ if TYPE_CHECKING:
 SensorValue = int | tuple[int, ...]
 
 
-class FaultySensors(VirtualSensors):
-    """A board's sensors with faults on some channels: what :meth:`read` returns passes the
-    channel's fault function.  The sensors of a faulty node are switched to this class (and
-    back when its last sensor fault clears); the plant keeps writing the true values."""
-
-    sensor_faults: dict[str, Callable[[SensorValue], SensorValue]]
-
-    def read(self, channel: str) -> SensorValue:
-        value = super().read(channel)
-        fault = self.sensor_faults.get(channel)
-        return value if fault is None else fault(value)
-
-
 @dataclass
 class NodeHang(Fault):
     """Node ``node`` hangs: its program stops (timers, receivers, motors off) with no
@@ -141,21 +128,13 @@ class SensorFault(Fault):
             return shift(value, lambda: int(round(rng.normal(0.0, self.sigma))))
 
         sensors.announce_change(self.channel)  # a program reading it late reads it as it was
-        if type(sensors) is VirtualSensors:
-            sensors.__class__ = FaultySensors
-            assert isinstance(sensors, FaultySensors)
-            sensors.sensor_faults = {}
-        assert isinstance(sensors, FaultySensors)
-        sensors.sensor_faults[self.channel] = fault
+        sensors.faults[self.channel] = fault
 
     def clear(self, emulator: Emulator) -> None:
         sensors: VirtualSensors = targets.node(emulator, self.node).hal.sensors
-        if isinstance(sensors, FaultySensors):
+        if self.channel in sensors.faults:
             sensors.announce_change(self.channel)
-            sensors.sensor_faults.pop(self.channel, None)
-            if not sensors.sensor_faults:
-                del sensors.sensor_faults
-                sensors.__class__ = VirtualSensors  # type: ignore[assignment]
+            del sensors.faults[self.channel]
 
 
 def rotation_matrix(axis: str, angle_deg: float) -> tuple[tuple[float, float, float], ...]:

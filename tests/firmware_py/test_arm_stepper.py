@@ -208,11 +208,11 @@ def test_an_unpowered_joint_moved_by_hand_latches_nothing(node):
 
 def test_voltage_and_temperature_from_sensors(node):
     sched, hal, _ = node
-    hal.sensors.values["supply_mv"] = 23700
-    hal.sensors.values["temperature"] = 415
+    hal.sensors.set_supply_mv(23700)  # the plant side: the node's interrupts hear it
+    hal.sensors.set_temperature(415)
     assert read(sched, hal, "present_voltage") == 237
     assert read(sched, hal, "present_temperature") == 41
-    hal.sensors.values["temperature"] = 900
+    hal.sensors.set_temperature(900)
     sched.run_for(2_000)
     assert status_error(sched, hal) & ErrorBit.OVERHEATING
     assert read(sched, hal, "hardware_error_status") == ErrorBit.OVERHEATING

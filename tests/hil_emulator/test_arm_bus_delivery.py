@@ -35,13 +35,14 @@ def count_deliveries(rig: ArmRig) -> dict[int, list[bytes]]:
     got: dict[int, list[bytes]] = defaultdict(list)
     for dxl_id, (hal, _app) in rig.nodes.items():
         uart = hal.uart("bus")
-        deliver = uart.deliver
+        receiver = uart._receiver
+        assert receiver is not None
 
-        def spy(data: bytes, dxl_id: int = dxl_id, deliver=deliver) -> None:  # type: ignore[no-untyped-def]
+        def spy(data: bytes, t_us: int, dxl_id: int = dxl_id, receiver=receiver) -> None:  # type: ignore[no-untyped-def]
             got[dxl_id].append(bytes(data))
-            deliver(data)
+            receiver(data, t_us)
 
-        uart.deliver = spy  # type: ignore[method-assign]
+        uart.set_receiver(spy)
     return got
 
 

@@ -43,7 +43,7 @@ def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
     hal, app = emu.arm.nodes[2]  # type: ignore[union-attr]
     entry = emu.faults.inject("missed_index", {"joint": 1})
     hal.encoder().pulse_index(1234)
-    assert app.get("index_seen") == 0 and hal.encoder().missed == 1  # type: ignore[attr-defined]
+    assert app.get("index_seen") == 0 and hal.encoder().missed == 1
     emu.faults.clear(entry)
     hal.encoder().pulse_index(1234)
     assert app.get("index_seen") == 1 and app.get("index_encoder_count") == 1234

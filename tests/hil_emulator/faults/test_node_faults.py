@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from hil_emulator.faults.nodes import FaultySensors
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, host_of
 
 
@@ -34,10 +33,10 @@ def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: FaultyEmulator) -> No
                           ({"mode": "noisy", "sigma": 50.0}, lambda v: v != true)):
         entry = hand.faults.inject("sensor_fault", {"node": "finger0.f2", "channel": "strain",
                                                     **params})
-        assert isinstance(sensors, FaultySensors)
+        assert "strain" in sensors.faults
         assert any(check(sensors.read("strain")) for _ in range(5)), params
         hand.faults.clear(entry)
-        assert type(sensors).__name__ == "VirtualSensors" and sensors.read("strain") == true
+        assert not sensors.faults and sensors.read("strain") == true
     with pytest.raises(Exception, match="no sensor channel"):
         hand.faults.inject("sensor_fault", {"node": "finger0.f2", "channel": "pressure"})
 
