@@ -14,7 +14,10 @@ to hold where it is:
   the coupling offset of the joints as they are now (``deflection_offset``, see
   :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
   not the belt and cable routes' coupling, with no host feeding goals any longer;
-* a servo's goal := its present angle.
+* a servo's goal := where it is driving to: its present angle plus the position error its
+  compliance needs for the torque it applies (``present_load``, the RX-64's compliance
+  registers at their defaults; :func:`servo_setpoint`).  Its present angle alone let the
+  servo give way by that error (a loaded wrist sagged 1.5°).
 
 The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
 and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
@@ -32,17 +35,18 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
-from math import pi
+from math import copysign, pi
 from typing import Final
 
 from host.arm_gate import describe_latches, latches
 from host.arm_interface import CyclingArm
 from host.arm_rest import RestWatch
-from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command, JointInfo
+from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command, JointInfo, ServoState
 from host.errors import JointAlarmError, NodeError, ReplyTimeout
-from protocol.control_tables import STEPPER_TABLE, StepperFlag
-from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, ARM_JOINT_SPEED_LIMITS
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, StepperFlag
+from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, ARM_JOINT_SPEED_LIMITS, RX64_RAD_PER_UNIT
 
+_R = RX64_TABLE
 #: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
 ALARM_SETTLE_S: Final = 3.0
 #: Tries of a hold whose exchange failed (a late reply of an interrupted one in the way).
@@ -104,14 +108,31 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
                joints: tuple[JointInfo, ...] = ()) -> dict[int, float]:
     """Where to hold each joint of ``state`` (rad): a stepper where its motor stops, braking
     at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
-    (:func:`motor_speeds`; at its angle without them), a servo at its angle; a stepper its
-    node stopped (STALLED, a hardware error) is left out."""
+    (:func:`motor_speeds`; at its angle without them), a servo where it drives to
+    (:func:`servo_setpoint`); a stepper its node stopped (STALLED, a hardware error) is left
+    out."""
     speeds = motor_speeds(state, before, joints)
     goals = {s.joint: s.motor_angle + speeds[s.joint] * abs(speeds[s.joint])
              / (2 * STEPPER_BRAKING_RAD_S2) for s in state.steppers
              if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
-    goals.update({v.joint: v.angle for v in state.servos})
+    goals.update({v.joint: servo_setpoint(v) for v in state.servos})
     return goals
+
+
+def servo_setpoint(servo: ServoState) -> float:
+    """Where the RX-64 of ``servo`` drives to (rad): its angle plus the error (setpoint −
+    present) its compliance needs for the torque it applies, ``load`` (counter-clockwise
+    > 0, the way the angle grows): torque = punch + (limit − punch)·(|e| − margin)/slope,
+    the registers at their defaults.  Its angle when it applies no more than ``punch``."""
+    torque = abs(servo.load) * 1023  # present_load: 1/1023 of the maximum torque
+    punch, limit = float(_R["punch"].default), float(_R["torque_limit"].default)
+    if torque <= punch or limit <= punch:
+        return servo.angle
+    side = "cw" if servo.load > 0 else "ccw"  # e > 0 (CCW torque) uses the CW margin
+    margin = float(_R[f"{side}_compliance_margin"].default)
+    slope = float(_R[f"{side}_compliance_slope"].default)
+    error = margin + slope * min(torque - punch, limit - punch) / (limit - punch)
+    return servo.angle + copysign(error * RX64_RAD_PER_UNIT, servo.load)
 
 
 def motor_speeds(state: ArmState, before: ArmState | None,

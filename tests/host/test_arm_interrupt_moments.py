@@ -89,3 +89,21 @@ def test_ctrl_c_at_any_moment_of_the_first_half_second_holds_the_arm() -> None:
     """Every fourth cycle of the move's first 0.45 s, where the links still swing about
     their motors after the start."""
     assert interrupt_moves(list(range(5, 46, 4))) == []
+
+
+def test_a_hold_leaves_a_loaded_wrist_where_it_is() -> None:
+    """An RX-64 under load sits off its goal by the error its compliance needs for that
+    torque: a hold at its present angle let it give way by that much (J6 about 1°); the hold
+    at its setpoint (angle plus that error, from its load) keeps it there."""
+    forget_shared_emulators()
+    with Arm.open("emu://full/arm?ready=0&name=wrist-hold") as arm:
+        emulator = emulator_of(arm)
+        arm.torque(True, hold=True)
+        arm.move(LOADED, duration=3.0)
+        state = arm.state()
+        assert abs(state.servos[1].load) > 0.1  # J6 carries the hand
+        at = arm_joints(arm)
+        arm.hold()
+        emulator.step(1_000_000)
+        assert abs(arm_joints(arm)[5] - at[5]) <= math.radians(0.3)
+    forget_shared_emulators()
