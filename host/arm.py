@@ -518,7 +518,9 @@ class Arm:
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
         caps every joint's instead; while the arm is not homed (its stops unknown) a
         stepper joint goes no faster than ``unhomed_speed`` (rad/s, None: no such cap; the
-        nodes keep that speed limit for later commands without a speed).  Returns the last
+        nodes keep that speed limit for later commands without a speed).  The steppers'
+        speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s
+        (:func:`ramped_speeds`), so they arrive about half that later.  Returns the last
         state and whether the move settled.
 
         Before anything moves, the gate (:mod:`host.arm_gate`) raises
