@@ -104,6 +104,13 @@ FAST_RETURN_DELAY: Final = 0
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
+#: How long (s) :meth:`Arm.move` takes to bring its steppers up to speed: it raises their
+#: speed limits with every cycle over this time (:func:`ramped_speeds`) instead of letting
+#: the nodes jump to speed in a few ms, which set the elastic links ringing (the elbow's
+#: own mode at about 5 Hz, the shoulder and elbow together at 1.5 Hz) for the whole move:
+#: a move stopped while a link swung ahead of its motor (Ctrl-C 0.1-0.4 s into a move)
+#: could wind the spring past the nodes' stall limit.
+MOVE_RAMP_S: Final = 0.3
 #: The most speed (rad/s) :meth:`Arm.move` gives a stepper joint of an arm that is not homed:
 #: the host does not know where its stops are then, and a shoulder that meets its stop at
 #: the nodes' full speed jolts the forearm hard enough that the elbow's spring deflects past
@@ -137,6 +144,9 @@ class Arm:
         self._owns_view = False
         #: The last state a cycle read (None before any): what a hold starts from.
         self.last_state: ArmState | None = None
+        #: The state the cycle before read: with :attr:`last_state`, the motors' speeds
+        #: (where a hold lets each motor stop).
+        self.previous_state: ArmState | None = None
         #: Cycles run; every :data:`SLOW_READ_EVERY`-th from the first reads the slow registers.
         self.cycles = 0
         #: The cycles' bytes, and what encoding them remembers between cycles.
@@ -379,7 +389,7 @@ class Arm:
         self.wire.took_torque(commands, state)  # which steppers are unpowered, since where
         if calibration is not None:
             state = calibration.state_from_node(state)
-        self.last_state = state
+        self.previous_state, self.last_state = self.last_state, state
         for tap in self.state_taps:
             tap(state)
         return state
@@ -508,7 +518,9 @@ class Arm:
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
         caps every joint's instead; while the arm is not homed (its stops unknown) a
         stepper joint goes no faster than ``unhomed_speed`` (rad/s, None: no such cap; the
-        nodes keep that speed limit for later commands without a speed).  Returns the last
+        nodes keep that speed limit for later commands without a speed).  The steppers'
+        speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s
+        (:func:`ramped_speeds`), so they arrive about half that later.  Returns the last
         state and whether the move settled.
 
         Before anything moves, the gate (:mod:`host.arm_gate`) raises
@@ -543,7 +555,9 @@ class Arm:
         watch.reset()
         clock = self.bus.transport
         start = clock.now()
-        state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0), speeds)
+        state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0),
+                                   ramped_speeds(speeds, period, servos=True))
+        ramping = any(s is not None for s in speeds[:N_STEPPERS])
         deadline = start + timeout
         while True:
             stop_for_alarms(self, state, before)
@@ -554,8 +568,10 @@ class Arm:
                 return state, False
             clock.sleep(period)
             # the goals again, with the coupling offsets of the joints as they are now
-            state = self.set_positions(servo_lead(now.joints, angles, speeds,
-                                                  clock.now() - start))
+            elapsed = clock.now() - start
+            ramp = ramped_speeds(speeds, elapsed + period) if ramping else None
+            ramping = ramping and elapsed + period < MOVE_RAMP_S
+            state = self.set_positions(servo_lead(now.joints, angles, speeds, elapsed), ramp)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
@@ -571,10 +587,22 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
+def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
+                  servos: bool = False) -> list[float | None]:
+    """The speed limits (rad/s) a move sends ``elapsed`` s after it began: each stepper's
+    of ``speeds`` scaled by ``elapsed`` / :data:`MOVE_RAMP_S` (at most 1), the servos'
+    as they are with ``servos`` (the first command), else None (not sent again: an RX-64
+    keeps its moving speed, and the move's goals lead it along its way)."""
+    scale = min(1.0, max(elapsed, 0.0) / MOVE_RAMP_S)
+    return [(None if s is None else s * scale) if i < N_STEPPERS else (s if servos else None)
+            for i, s in enumerate(speeds)]
+
+
 #: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
 #: in) the free functions and types its users import from here.
 __all__ = [
     "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS", "MOVE_MIN_SPEED",
+    "MOVE_RAMP_S", "ramped_speeds",
     "RESYNC_MIN_COUNTS", "SERVO_GOAL_LEAD_S", "servo_lead", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
     "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
     # moved out, importable here as before

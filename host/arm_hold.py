@@ -4,14 +4,20 @@
 Ctrl-C included) reads the arm and, in the next cycle, sets every joint whose torque is on
 to hold where it is:
 
-* a stepper node's goal := its motor's present angle (the node plans every goal as a stop:
-  a motor still turning brakes at its ``acceleration_limit`` and comes back to it).  Its
-  motor, not its joint: under load the joint sags off the motor by the spring's deflection,
-  and a goal at the joint angle would let the arm drop by that much.  The goal goes with
+* a stepper node's goal := where its motor comes to a stop braking at its
+  ``acceleration_limit`` from the speed it turns at (from the step counts of the last two
+  states read; :func:`hold_goals`).  Its motor, not its joint: under load the joint sags off
+  the motor by the spring's deflection, and a goal at the joint angle would let the arm
+  drop by that much.  Its stopping point, not its present angle: the node would brake past
+  that and come back, winding the spring up against a link that still moves on, which is
+  what made a Ctrl-C early in a move latch STALLED on a loaded elbow.  The goal goes with
   the coupling offset of the joints as they are now (``deflection_offset``, see
   :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
   not the belt and cable routes' coupling, with no host feeding goals any longer;
-* a servo's goal := its present angle.
+* a servo's goal := where it is driving to: its present angle plus the position error its
+  compliance needs for the torque it applies (``present_load``, the RX-64's compliance
+  registers at their defaults; :func:`servo_setpoint`).  Its present angle alone let the
+  servo give way by that error (a loaded wrist sagged 1.5°).
 
 The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
 and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
@@ -29,19 +35,28 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
+from math import copysign, pi
 from typing import Final
 
 from host.arm_gate import describe_latches, latches
 from host.arm_interface import CyclingArm
 from host.arm_rest import RestWatch
-from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command
+from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command, JointInfo, ServoState
 from host.errors import JointAlarmError, NodeError, ReplyTimeout
-from protocol.control_tables import StepperFlag
+from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, StepperFlag
+from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, ARM_JOINT_SPEED_LIMITS, RX64_RAD_PER_UNIT
 
+_R = RX64_TABLE
 #: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
 ALARM_SETTLE_S: Final = 3.0
 #: Tries of a hold whose exchange failed (a late reply of an interrupted one in the way).
 HOLD_ATTEMPTS: Final = 3
+#: How hard a stepper node brakes towards a goal (rad/s² at the joint): its
+#: ``acceleration_limit`` at power-up, which this library leaves as it is.
+STEPPER_BRAKING_RAD_S2: Final = (STEPPER_TABLE["acceleration_limit"].default * 2 * pi
+                                 / ARM_ENCODER_COUNTS_PER_REV)
+#: Two states further apart than this (s) tell nothing of how fast a motor turns now.
+SPEED_SPAN_MAX_S: Final = 0.05
 
 
 @dataclass(frozen=True)
@@ -76,7 +91,8 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     goals: dict[int, float] = {}
     last = arm.last_state
     if last is not None:  # at once, from the last state read: nothing to read first
-        goals = {i: q for i, q in hold_goals(last).items() if i not in arm.unpowered_steppers}
+        goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints).items()
+                 if i not in arm.unpowered_steppers}
         arm.send([arm.make_position(i, q) for i, q in goals.items()])
     for attempt in range(HOLD_ATTEMPTS):
         drain(arm)
@@ -88,13 +104,53 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     raise AssertionError("unreachable")
 
 
-def hold_goals(state: ArmState) -> dict[int, float]:
-    """Where to hold each joint of ``state`` (rad): a stepper at its motor's angle, a servo
-    at its angle; a stepper its node stopped (STALLED, a hardware error) is left out."""
-    goals = {s.joint: s.motor_angle for s in state.steppers
+def hold_goals(state: ArmState, before: ArmState | None = None,
+               joints: tuple[JointInfo, ...] = ()) -> dict[int, float]:
+    """Where to hold each joint of ``state`` (rad): a stepper where its motor stops, braking
+    at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
+    (:func:`motor_speeds`; at its angle without them), a servo where it drives to
+    (:func:`servo_setpoint`); a stepper its node stopped (STALLED, a hardware error) is left
+    out."""
+    speeds = motor_speeds(state, before, joints)
+    goals = {s.joint: s.motor_angle + speeds[s.joint] * abs(speeds[s.joint])
+             / (2 * STEPPER_BRAKING_RAD_S2) for s in state.steppers
              if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
-    goals.update({v.joint: v.angle for v in state.servos})
+    goals.update({v.joint: servo_setpoint(v) for v in state.servos})
     return goals
+
+
+def servo_setpoint(servo: ServoState) -> float:
+    """Where the RX-64 of ``servo`` drives to (rad): its angle plus the error (setpoint −
+    present) its compliance needs for the torque it applies, ``load`` (counter-clockwise
+    > 0, the way the angle grows): torque = punch + (limit − punch)·(|e| − margin)/slope,
+    the registers at their defaults.  Its angle when it applies no more than ``punch``."""
+    torque = abs(servo.load) * 1023  # present_load: 1/1023 of the maximum torque
+    punch, limit = float(_R["punch"].default), float(_R["torque_limit"].default)
+    if torque <= punch or limit <= punch:
+        return servo.angle
+    side = "cw" if servo.load > 0 else "ccw"  # e > 0 (CCW torque) uses the CW margin
+    margin = float(_R[f"{side}_compliance_margin"].default)
+    slope = float(_R[f"{side}_compliance_slope"].default)
+    error = margin + slope * min(torque - punch, limit - punch) / (limit - punch)
+    return servo.angle + copysign(error * RX64_RAD_PER_UNIT, servo.load)
+
+
+def motor_speeds(state: ArmState, before: ArmState | None,
+                 joints: tuple[JointInfo, ...]) -> list[float]:
+    """Each stepper motor's speed (rad/s at the joint) between the states ``before`` and
+    ``state`` of ``joints``, from their step counts (microsteps: the motor angles are whole
+    encoder counts, 0.06 rad/s a count over a 10 ms cycle); 0 for all without ``before``
+    or ``joints``, or with the states more than :data:`SPEED_SPAN_MAX_S` apart, and for
+    a motor faster than its joint can go (its step count zeroed or re-synced between)."""
+    span = state.t - before.t if before is not None else 0.0
+    if before is None or len(joints) < N_STEPPERS or not 0 < span <= SPEED_SPAN_MAX_S:
+        return [0.0] * N_STEPPERS
+    speeds = []
+    for i, (now, then) in enumerate(zip(state.steppers, before.steppers, strict=True)):
+        steps = now.step_count - then.step_count
+        speed = joints[i].counts_to_rad(steps / joints[i].microsteps_per_count) / span
+        speeds.append(speed if abs(speed) <= ARM_JOINT_SPEED_LIMITS[i] else 0.0)
+    return speeds
 
 
 def drain(arm: CyclingArm) -> None:

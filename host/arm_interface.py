@@ -77,6 +77,17 @@ class CyclingArm(ArmReader, WatchedArm, Protocol):
         ...
 
     @property
+    def previous_state(self) -> ArmState | None:
+        """The state the cycle before the last read (None before two): with
+        :attr:`last_state`, how fast each motor was turning."""
+        ...
+
+    @property
+    def joints(self) -> tuple[JointInfo, ...]:
+        """J1..J7 as discovered."""
+        ...
+
+    @property
     def unpowered_steppers(self) -> frozenset[int]:
         """The stepper joints whose torque the arm turned off, or found off."""
         ...
