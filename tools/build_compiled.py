@@ -301,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     except BuildError as exc:
         print(f"build_compiled: {exc}", file=sys.stderr)
         return 1
+    link_shared_libraries(args.root)  # installed commands find the shared library too
     for path in built:
         print(f"built {path}")
     return 0
