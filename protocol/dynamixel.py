@@ -61,11 +61,8 @@ class ErrorBit(IntFlag):
     INSTRUCTION = 0x40
 
 
-_INSTRUCTION_CODES = frozenset(i.value for i in Instruction)
-
-
-def _as_instruction(code: int) -> int:
-    return Instruction(code) if code in _INSTRUCTION_CODES else code
+#: The known instruction codes' members (an unknown code stays a plain int).
+_INSTRUCTIONS: dict[int, Instruction] = {i.value: i for i in Instruction}
 
 
 def checksum(body: BytesLike) -> int:
@@ -142,7 +139,9 @@ class InstructionPacket:
     codes are kept as plain ints (a servo answers them with :attr:`ErrorBit.INSTRUCTION`)."""
 
     id: int
-    instruction: int
+    # Not plain ``int``: compiled (mypyc), an ``int`` attribute would store a member as a
+    # bare int and lose its :class:`Instruction` type.
+    instruction: Instruction | int
     params: bytes = b""
 
     def __post_init__(self) -> None:
@@ -151,7 +150,11 @@ class InstructionPacket:
         if not 0 <= self.instruction <= 0xFF:
             raise DynamixelError(f"instruction {self.instruction} is not a byte")
         object.__setattr__(self, "params", _params(self.params))
-        object.__setattr__(self, "instruction", _as_instruction(self.instruction))
+        # The member is stored as the object it is: compiled (mypyc), a value typed ``int``
+        # on its way would be unboxed and lose its Instruction type.
+        member = _INSTRUCTIONS.get(self.instruction)
+        if member is not None:
+            object.__setattr__(self, "instruction", member)
 
     @property
     def is_broadcast(self) -> bool:

@@ -43,6 +43,11 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     "protocol/crc.py",
     "protocol/framing.py",
     "protocol/stream.py",
+    "protocol/dynamixel.py",
+    "protocol/flat_codec.py",
+    "protocol/catalogue.py",
+    "protocol/topology.py",
+    "protocol/sensor_counts.py",
     # the hand nodes' firmware (HandNode and every program built on it)
     "firmware_py/hand_node.py",
     "firmware_py/node_request.py",
