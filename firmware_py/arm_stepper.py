@@ -60,6 +60,13 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   element keeps the deflection that carries the load, and the route coupling is not taken for
   deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
   on.  A node at rest is left alone whatever the count.
+* Settling after a watchdog stop (:mod:`firmware_py.stepper_settle`): the link swings on
+  about the hold on its elastic element.  For :data:`SETTLE_TICKS` after the stop, at most
+  ``STEPPER_SETTLE_CORRECTIONS`` times, when the encoder says the link is about to turn, the
+  node moves its goal so the element carries at the turn the deflection that holds the link
+  still there (a posicast): within ``STEPPER_SETTLE_MAX_CHANGE_COUNTS`` of the hold, at
+  ``STEPPER_SETTLE_ACCEL_COUNTS_S2`` and up to the maximum step rate
+  (:mod:`protocol.robot`).  A goal, a latch, an alarm's torque-off or torque off ends it.
 
 Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
 the step counter and the sensors once and derives everything from those readings; the
