@@ -64,9 +64,13 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   about the hold on its elastic element.  For :data:`SETTLE_TICKS` after the stop, at most
   ``STEPPER_SETTLE_CORRECTIONS`` times, when the encoder says the link is about to turn, the
   node moves its goal so the element carries at the turn the deflection that holds the link
-  still there (a posicast): within ``STEPPER_SETTLE_MAX_CHANGE_COUNTS`` of the hold, at
+  still there (a posicast): within ``STEPPER_SETTLE_MAX_CHANGE_COUNTS`` of the hold
+  (``STEPPER_SETTLE_MAX_BACK_COUNTS`` against the way it went), at
   ``STEPPER_SETTLE_ACCEL_COUNTS_S2`` and up to the maximum step rate
   (:mod:`protocol.robot`).  A goal, a latch, an alarm's torque-off or torque off ends it.
+  Only a stop that cut a move short settles (the goal further on than the braking's end by
+  more than that bound): a node still finishing a short way to its goal when its host went
+  quiet (a host's hold, then the host's exit) holds as before.
 
 Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
 the step counter and the sensors once and derives everything from those readings; the
@@ -98,6 +102,7 @@ from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
     STEPPER_MAX_STEP_RATE,
     STEPPER_SETTLE_ACCEL_COUNTS_S2,
+    STEPPER_SETTLE_MAX_BACK_COUNTS,
     STEPPER_SETTLE_MAX_CHANGE_COUNTS,
 )
 
@@ -112,6 +117,9 @@ _DT = TICK_US / 1e6  # tick period (s)
 _X100_COUNTS_PER_REV = 100 * ARM_ENCODER_COUNTS_PER_REV
 #: Ticks after a watchdog stop during which the node settles its link (3 s).
 SETTLE_TICKS = 3_000
+#: A correction's goal keeps the deflection at the link's present position within this share
+#: of ``deflection_limit``.
+SETTLE_DEFLECTION_SHARE = 0.75
 
 # Plain-int bits for the hot path (IntFlag arithmetic is slow).
 _MOVING = int(StepperFlag.MOVING)
@@ -476,12 +484,19 @@ class StepperNodeApp(DynamixelSlave):
         velocity = self._velocity
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         accel = float(self._acceleration_limit)
-        self._hold_at(motor + math.copysign(velocity * velocity / (2.0 * accel), velocity))
+        stop = motor + math.copysign(velocity * velocity / (2.0 * accel), velocity)
+        cut_short = (self._goal - stop) * velocity > STEPPER_SETTLE_MAX_CHANGE_COUNTS * abs(velocity)
+        self._hold_at(stop)
         self._flags |= _WATCHDOG
+        if not cut_short:
+            # the goal lay within the settling's reach: the node was finishing a short way
+            # (a host's hold); it holds as it always did
+            return
         self._settler = SwingSettler(self._goal, motor - self._enc_history[-1],
                                      float(STEPPER_SETTLE_MAX_CHANGE_COUNTS),
                                      float(STEPPER_SETTLE_ACCEL_COUNTS_S2),
-                                     STEPPER_MAX_STEP_RATE / mpc)
+                                     STEPPER_MAX_STEP_RATE / mpc, velocity,
+                                     float(STEPPER_SETTLE_MAX_BACK_COUNTS))
         self._settle_ticks = SETTLE_TICKS
 
     def _settle(self, enc: int, hw_steps: int, mpc: float) -> None:
@@ -496,7 +511,11 @@ class StepperNodeApp(DynamixelSlave):
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         target = settler.feed(enc, motor, self._velocity)
         if target is not None:
-            self._hold_at(target)
+            # never a goal whose deflection at the link's present position would come near
+            # deflection_limit: a correction must not latch STALLED
+            reach = SETTLE_DEFLECTION_SHARE * self._deflection_limit
+            centre = enc + self._deflection_offset
+            self._hold_at(min(centre + reach, max(centre - reach, target)))
             self._settling_move = True
 
     def _end_settling(self) -> None:

@@ -96,12 +96,17 @@ class SwingSettler:
 
     ``hold`` is the watchdog's hold goal, ``deflection`` the node's deflection (motor −
     link, counts) when it fired, ``max_change`` the most a correction may move the goal from
-    ``hold`` (counts), ``accel`` and ``speed`` the correcting move's profile (counts/s², s⁻¹
-    counts)."""
+    ``hold`` (counts; against ``travel``, the sign of the motor's velocity when the watchdog
+    fired, at most ``max_back``), ``accel`` and ``speed`` the correcting move's profile
+    (counts/s², counts/s)."""
 
     def __init__(self, hold: float, deflection: float, max_change: float, accel: float,
-                 speed: float) -> None:
+                 speed: float, travel: float = 0.0, max_back: float | None = None) -> None:
         self.hold = hold
+        # the goal's range: ``max_change`` either way, only ``max_back`` against ``travel``
+        back = max_change if max_back is None or travel == 0.0 else min(max_change, max_back)
+        self.low = hold - (back if travel > 0.0 else max_change)
+        self.high = hold + (back if travel < 0.0 else max_change)
         self.goal = hold
         self.fallback_deflection = deflection
         self.max_change = max_change
@@ -184,7 +189,7 @@ class SwingSettler:
         duration = self._move_duration(abs(change))
         if turn_in > duration / 2.0 + _DT:
             return None
-        target = min(self.hold + self.max_change, max(self.hold - self.max_change, target))
+        target = min(self.high, max(self.low, target))
         self.goal = target
         self.left -= 1
         self.last_deflection = d_s

@@ -14,7 +14,7 @@ from firmware_py.stepper_settle import SETTLE_CORRECTIONS, SwingSettler
 DT = 1e-3
 ACCEL = 20_000.0  # counts/s² (the correcting move's)
 SPEED = 2_300.0  # counts/s
-MAX_CHANGE = 83.0
+MAX_CHANGE = 83.0  # counts: room for the whole first correction of these swings
 
 
 def swing(settle: bool, omega: float = 2 * math.pi * 1.5, zeta: float = 0.05,
@@ -65,13 +65,15 @@ def test_a_single_spring_mass_is_at_rest_after_its_first_turn():
        amplitude=st.floats(0.0, 3_000.0), hz=st.floats(0.2, 25.0),
        phase=st.floats(0.0, 2 * math.pi), drift=st.floats(-2_000.0, 2_000.0),
        noise=st.lists(st.integers(-3, 3), min_size=1, max_size=50),
-       motor_wander=st.floats(-500.0, 500.0))
+       motor_wander=st.floats(-500.0, 500.0), travel=st.sampled_from([-1.0, 0.0, 1.0]),
+       max_back=st.floats(0.0, 100.0))
 def test_no_correction_leaves_its_bound(hold, deflection, amplitude, hz, phase, drift, noise,
-                                        motor_wander):
+                                        motor_wander, travel, max_back):
     """Any swing (up to 3000 counts, 0.2-25 Hz, drifting, jittering by a few counts) and a
-    motor anywhere: every goal the settler gives is within ``max_change`` of the hold,
-    finite, and there are at most SETTLE_CORRECTIONS of them."""
-    settler = SwingSettler(hold, deflection, MAX_CHANGE, ACCEL, SPEED)
+    motor anywhere: every goal the settler gives is within ``max_change`` of the hold, and
+    within ``max_back`` of it against the way the motor was going, finite, and there are at
+    most SETTLE_CORRECTIONS of them."""
+    settler = SwingSettler(hold, deflection, MAX_CHANGE, ACCEL, SPEED, travel, max_back)
     centre = hold - deflection
     targets = []
     for k in range(1500):
@@ -84,7 +86,8 @@ def test_no_correction_leaves_its_bound(hold, deflection, amplitude, hz, phase, 
     assert len(targets) <= SETTLE_CORRECTIONS
     for target in targets:
         assert math.isfinite(target)
-        assert abs(target - hold) <= MAX_CHANGE
+        assert abs(target - hold) <= MAX_CHANGE + 1e-9
+        assert (target - hold) * travel >= -max_back - 1e-9
 
 
 def test_a_link_at_rest_is_left_alone():
