@@ -25,7 +25,8 @@ sample, which is far too noisy (one count in 10 ms is 0.06 rad/s):
   turn.
 
 Bounded: a correction never moves the motor's goal more than ``max_change`` (counts) from the
-watchdog's hold, the static deflection used is within the deflections seen since the stop,
+watchdog's hold (``max_back`` against the way the motor was going), the static deflection
+used is within the deflections seen since the stop,
 and at most :data:`SETTLE_CORRECTIONS` corrections are made.  The target is the position the
 link itself reaches at its turn plus a deflection it has carried, so it never asks the link
 to go anywhere it was not already going.  The numbers are in :mod:`protocol.robot`.
