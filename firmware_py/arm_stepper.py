@@ -60,6 +60,17 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   element keeps the deflection that carries the load, and the route coupling is not taken for
   deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
   on.  A node at rest is left alone whatever the count.
+* Settling after a watchdog stop (:mod:`firmware_py.stepper_settle`): the link swings on
+  about the hold on its elastic element.  For :data:`SETTLE_TICKS` after the stop, at most
+  ``STEPPER_SETTLE_CORRECTIONS`` times, when the encoder says the link is about to turn, the
+  node moves its goal so the element carries at the turn the deflection that holds the link
+  still there (a posicast): within ``STEPPER_SETTLE_MAX_CHANGE_COUNTS`` of the hold
+  (``STEPPER_SETTLE_MAX_BACK_COUNTS`` against the way it went), at
+  ``STEPPER_SETTLE_ACCEL_COUNTS_S2`` and up to the maximum step rate
+  (:mod:`protocol.robot`).  A goal, a latch, an alarm's torque-off or torque off ends it.
+  Only a stop that cut a move short settles (the goal further on than the braking's end by
+  more than that bound): a node still finishing a short way to its goal when its host went
+  quiet (a host's hold, then the host's exit) holds as before.
 
 Implementation notes (the emulator runs four of these at 1 kHz): the tick reads the encoder,
 the step counter and the sensors once and derives everything from those readings; the
@@ -78,6 +89,7 @@ from collections import deque
 
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
+from firmware_py.stepper_settle import SwingSettler
 from protocol.control_tables import (
     GOAL_FINE_PER_COUNT,
     STEPPER_TABLE,
@@ -86,7 +98,13 @@ from protocol.control_tables import (
     StepperFlag,
 )
 from protocol.dynamixel import ErrorBit
-from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, STEPPER_MAX_STEP_RATE
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    STEPPER_MAX_STEP_RATE,
+    STEPPER_SETTLE_ACCEL_COUNTS_S2,
+    STEPPER_SETTLE_MAX_BACK_COUNTS,
+    STEPPER_SETTLE_MAX_CHANGE_COUNTS,
+)
 
 #: Control tick period (µs): 1 kHz.
 TICK_US = 1_000
@@ -97,6 +115,11 @@ _INT16_MIN = -32768
 _DT = TICK_US / 1e6  # tick period (s)
 #: gear_reduction_x100 × steps × microsteps over this = microsteps per joint encoder count.
 _X100_COUNTS_PER_REV = 100 * ARM_ENCODER_COUNTS_PER_REV
+#: Ticks after a watchdog stop during which the node settles its link (3 s).
+SETTLE_TICKS = 3_000
+#: A correction's goal keeps the deflection at the link's present position within this share
+#: of ``deflection_limit``.
+SETTLE_DEFLECTION_SHARE = 0.75
 
 # Plain-int bits for the hot path (IntFlag arithmetic is slow).
 _MOVING = int(StepperFlag.MOVING)
@@ -181,6 +204,10 @@ class StepperNodeApp(DynamixelSlave):
         self._wakes = 0
         #: The last tick's encoder, step counter, temperature and supply readings.
         self._last_inputs = (0, 0, 0, 0)
+        #: after a watchdog stop: what settles the link's swing (None: nothing to settle)
+        self._settler: SwingSettler | None = None
+        self._settle_ticks = 0  # ticks the settler has still to run
+        self._settling_move = False  # the motor moves with the settling profile
 
     # ------------------------------------------------------------------ hooks
 
@@ -221,6 +248,7 @@ class StepperNodeApp(DynamixelSlave):
         self._flags = 0
         self._quiet_ticks = 0
         self._allowance = 0
+        self._end_settling()
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
         self._set_goal_counts(self._enc0)
         self.stepper.set_step_rate(0.0)
@@ -240,6 +268,7 @@ class StepperNodeApp(DynamixelSlave):
         names = {r.name for r in touched}
         if "command_goal" in names or "goal_position" in names:
             self._flags &= ~_WATCHDOG  # a new goal: the host is back in charge
+            self._end_settling()
         if "command_goal" in names:
             fine = self.get("command_goal")
             self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
@@ -250,6 +279,7 @@ class StepperNodeApp(DynamixelSlave):
             self._clear(self.get("clear_flags"))
             self.set("clear_flags", 0)
         if "torque_enable" in names and not self._torque_enable:
+            self._end_settling()
             self._velocity = 0.0
             self.stepper.set_step_rate(0.0)
         self._refresh()
@@ -326,6 +356,7 @@ class StepperNodeApp(DynamixelSlave):
         if bits & _CLEAR_SLIP:
             self._flags &= ~_SLIP
         if bits & _CLEAR_STALL and self._flags & _STALLED:
+            self._end_settling()
             self._flags &= ~_STALLED
             if self._torque_enable:  # hold where the motor stands: clearing starts no move
                 self._hold_at(self.motor_position())
@@ -399,6 +430,7 @@ class StepperNodeApp(DynamixelSlave):
                     and not self._flags & _STALLED):
                 self._flags |= _STALLED
                 if self._torque_enable:  # stop stepping: hold the motor where it is
+                    self._end_settling()
                     self._velocity = 0.0
                     self._hold_at(self._enc0 + (hw_steps - self._hw_steps0) / mpc)
         # live alarms; a shutdown one turns the torque off
@@ -412,6 +444,7 @@ class StepperNodeApp(DynamixelSlave):
         errors = self._errors(temperature, supply_mv)
         if errors & self._alarm_shutdown and self._torque_enable:
             self.set("torque_enable", 0)
+            self._end_settling()
         quiet = self._quiet_ticks + 1
         self._quiet_ticks = quiet
         if self._torque_enable:
@@ -419,6 +452,8 @@ class StepperNodeApp(DynamixelSlave):
             if (timeout and quiet > timeout and self._velocity != 0.0
                     and not self._flags & _WATCHDOG):
                 self._watchdog_stop(hw_steps, mpc)
+            if self._settler is not None:
+                self._settle(enc, hw_steps, mpc)
             if self._flags & _STALLED:  # held until the host clears the latch
                 velocity = self._velocity = 0.0
             else:
@@ -434,6 +469,7 @@ class StepperNodeApp(DynamixelSlave):
         self._publish(enc, hw_steps, deflection, errors, velocity, temperature, supply_mv)
         inputs = (enc, hw_steps, temperature, supply_mv)
         if (self._can_sleep and velocity == 0.0 and velocity_before == 0.0
+                and self._settler is None  # settling reads every tick's encoder
                 and inputs == self._last_inputs and self._wakes == wakes
                 and self._flags == flags_before and self._allowance == allowance_before
                 and self._torque_enable == torque_before
@@ -448,8 +484,45 @@ class StepperNodeApp(DynamixelSlave):
         velocity = self._velocity
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         accel = float(self._acceleration_limit)
-        self._hold_at(motor + math.copysign(velocity * velocity / (2.0 * accel), velocity))
+        stop = motor + math.copysign(velocity * velocity / (2.0 * accel), velocity)
+        cut_short = (self._goal - stop) * velocity > STEPPER_SETTLE_MAX_CHANGE_COUNTS * abs(velocity)
+        self._hold_at(stop)
         self._flags |= _WATCHDOG
+        if not cut_short:
+            # the goal lay within the settling's reach: the node was finishing a short way
+            # (a host's hold); it holds as it always did
+            return
+        self._settler = SwingSettler(self._goal, motor - self._enc_history[-1],
+                                     float(STEPPER_SETTLE_MAX_CHANGE_COUNTS),
+                                     float(STEPPER_SETTLE_ACCEL_COUNTS_S2),
+                                     STEPPER_MAX_STEP_RATE / mpc, velocity,
+                                     float(STEPPER_SETTLE_MAX_BACK_COUNTS))
+        self._settle_ticks = SETTLE_TICKS
+
+    def _settle(self, enc: int, hw_steps: int, mpc: float) -> None:
+        """One tick of settling the link after a watchdog stop (:mod:`firmware_py.stepper_settle`):
+        a correction moves the goal, with the settling profile."""
+        settler = self._settler
+        assert settler is not None
+        self._settle_ticks -= 1
+        if self._settle_ticks <= 0 or (settler.done and self._velocity == 0.0):
+            self._end_settling()
+            return
+        motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
+        target = settler.feed(enc, motor, self._velocity)
+        if target is not None:
+            # never a goal whose deflection at the link's present position would come near
+            # deflection_limit: a correction must not latch STALLED
+            reach = SETTLE_DEFLECTION_SHARE * self._deflection_limit
+            centre = enc + self._deflection_offset
+            self._hold_at(min(centre + reach, max(centre - reach, target)))
+            self._settling_move = True
+
+    def _end_settling(self) -> None:
+        """Settling over (time up, a new goal, a latch, torque off): normal profile again."""
+        self._settler = None
+        self._settling_move = False
+        self._settle_ticks = 0
 
     def _hold_at(self, counts: float) -> None:
         """The goal (``command_goal``, ``goal_position`` and the step generator's) becomes
@@ -471,9 +544,12 @@ class StepperNodeApp(DynamixelSlave):
         resolution = 0.5 / mpc  # half a microstep, in counts: goals round to microsteps
         dt = _DT
         v_max = float(self._velocity_limit)
+        accel = float(self._acceleration_limit)
+        if self._settling_move:
+            v_max = STEPPER_MAX_STEP_RATE / mpc
+            accel = float(STEPPER_SETTLE_ACCEL_COUNTS_S2)
         if v_max * mpc > STEPPER_MAX_STEP_RATE:
             v_max = STEPPER_MAX_STEP_RATE / mpc
-        accel = float(self._acceleration_limit)
         velocity = self._velocity
         size = abs(error)
         if size < resolution and abs(velocity) <= accel * dt:

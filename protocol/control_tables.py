@@ -389,7 +389,9 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: while the node is stepping, the node stops: it brakes at ``acceleration_limit`` and holds
 #: its motor where it stopped (the goal registers say where), torque on, nothing latched, and
 #: sets StepperFlag.WATCHDOG until the next goal (``goal_position`` or ``command_goal``) moves
-#: it again.  Nodes report firmware_version >= :data:`STEPPER_WATCHDOG_FIRMWARE` when they
+#: it again.  Then, for 3 s, it settles the joint: at up to three turns of the link's swing it
+#: moves the motor (by at most ``protocol.robot.STEPPER_SETTLE_MAX_CHANGE_COUNTS`` from the
+#: hold) so that the elastic element holds the link still where it turns.  Nodes report firmware_version >= :data:`STEPPER_WATCHDOG_FIRMWARE` when they
 #: have it.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
@@ -464,7 +466,8 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
          signed=True),
     # the command watchdog (see above)
     _ram(98, 2, "RW", STEPPER_WATCHDOG_DEFAULT_MS, "watchdog_timeout",
-         "ms without an instruction to the node after which a move stops and holds; 0 = off",
+         "ms without an instruction to the node after which a move stops, holds and settles "
+         "the joint's swing; 0 = off",
          0, 60_000),
 ])
 

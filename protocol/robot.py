@@ -286,6 +286,23 @@ STEPPER_DEFAULT_CURRENT_MA: Final = 2000
 #: Joint encoder counts per joint revolution (0.036° per count).
 ARM_ENCODER_COUNTS_PER_REV: Final = 10_000
 
+# --- the stepper nodes' settling after a watchdog stop (firmware_py/stepper_settle.py) ------
+
+#: Corrections a node makes at the turns of its link's swing after one watchdog stop.
+STEPPER_SETTLE_CORRECTIONS: Final = 3
+#: Encoder readings (1 ms ticks) in each least-squares fit of the link's motion.
+STEPPER_SETTLE_WINDOW_TICKS: Final = 40
+#: A predicted swing smaller than this (joint encoder counts) is left alone.
+STEPPER_SETTLE_MIN_SWING_COUNTS: Final = 2.0
+#: The most a correction moves the motor's goal from the watchdog's hold (joint counts; 40 = 1.44°).
+STEPPER_SETTLE_MAX_CHANGE_COUNTS: Final = 40
+#: ... and against the way the joint was going when the watchdog fired (joint counts; 0.36°):
+#: a correction must not let a joint fall back.
+STEPPER_SETTLE_MAX_BACK_COUNTS: Final = 10
+#: Acceleration of a correcting move (joint encoder counts/s²); its speed is the node's
+#: maximum step rate.
+STEPPER_SETTLE_ACCEL_COUNTS_S2: Final = 20_000
+
 
 def reduction_x100(reduction: float) -> int:
     """A reduction as the stepper node's ``gear_reduction_x100`` register holds it."""

@@ -61,6 +61,7 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     # the arm nodes' firmware
     "firmware_py/dynamixel_slave.py",
     "firmware_py/arm_stepper.py",
+    "firmware_py/stepper_settle.py",
     "firmware_py/rx64.py",
     # the buses and the plant
     "hil_emulator/rs485_bus.py",

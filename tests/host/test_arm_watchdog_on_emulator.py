@@ -11,8 +11,13 @@ import pytest
 
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm import HOST_WATCHDOG_MS, MOVE_MIN_SPEED, SERVO_GOAL_LEAD_S, Arm, servo_lead
-from protocol.control_tables import StepperFlag
+from protocol.control_tables import GOAL_FINE_PER_COUNT, StepperFlag
 from protocol.dynamixel import rx64_position_to_radians
+from protocol.robot import (
+    STEPPER_SETTLE_MAX_BACK_COUNTS,
+    STEPPER_SETTLE_MAX_CHANGE_COUNTS,
+    microsteps_per_encoder_count,
+)
 
 GOALS = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]  # the 6 s move of armctl's example
 DURATION_S = 6.0
@@ -21,6 +26,10 @@ FALL_LIMIT = math.radians(2.0)
 DRIVE_ON_LIMIT = math.radians(8.0)
 #: A stepper joint at rest (rad/s).
 REST_SPEED = 0.02
+#: What the nodes' settling reaches in process (ms after the host's last cycle; measured
+#: 0.6-1.5 s over 20 stop moments, docs/decisions/watchdog-default.md): the 0.5 s bound's
+#: stand-in until the hold reaches it.
+SETTLED_MS = 1_500
 
 
 def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.ndarray]:
@@ -43,13 +52,17 @@ def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.nda
         apps = [emu.arm.app(i) for i in range(1, 5)]
         steppers = [hal.stepper() for hal in emu.arm.stepper_hals]
         q0 = plant.joint_angles().copy()
-        q, qd, rates = [], [], []
+        q, qd, rates, goals, stopped = [], [], [], [], []
+        watchdog = int(StepperFlag.WATCHDOG)
         for _ in range(2000):  # 2 s, one sample a millisecond
             emu.step(1_000)
             q.append(plant.joint_angles().copy())
             qd.append(plant.joint_velocities()[:4].copy())
             rates.append([s.rate for s in steppers])
+            goals.append([a.get("command_goal") / GOAL_FINE_PER_COUNT for a in apps])
+            stopped.append([bool(a.get("status_flags") & watchdog) for a in apps])
         return {"q0": q0, "q": np.array(q), "qd": np.array(qd), "rates": np.array(rates),
+                "goals": np.array(goals), "stopped": np.array(stopped),
                 "flags": np.array([a.get("status_flags") for a in apps]),
                 "torque": np.array([a.get("torque_enable") for a in apps]),
                 "slips": plant.slips().copy(), "goal_flags": state.steppers[1].flags}
@@ -61,9 +74,10 @@ def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
     q0, q = run["q0"], run["q"]
     moving = np.sign(np.round(np.array(GOALS) - q0, 2))  # J2, J4 rise, J6 turns; the rest stay
     along = (q - q0) * np.where(moving == 0, 1, moving)
-    # the motors stop within 0.5 s of the host's last cycle and stay stopped
+    # the motors stop within 0.5 s of the host's last cycle (braking, and the settling's
+    # first corrections at the links' first turns) and stay stopped once settled
     still = ~np.any(run["rates"] != 0.0, axis=1)
-    assert still[500:].all()
+    assert still[SETTLED_MS:].all()
     # no joint falls back more than 2° (nor, not moving, strays 2°); a stepper's driving on
     # is bounded; the RX-64s (no watchdog, as their real firmware) go on to the goal last
     # sent, which the move keeps a short lead ahead of their way: 2° at most
@@ -82,18 +96,61 @@ def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
     assert run["flags"][1] & StepperFlag.WATCHDOG and run["flags"][3] & StepperFlag.WATCHDOG
 
 
+def _rest_ms(run: dict[str, np.ndarray]) -> int:
+    """Milliseconds after the host's last cycle from which every stepper joint stays below
+    REST_SPEED (plant's truth)."""
+    fast = np.nonzero((np.abs(run["qd"]) >= REST_SPEED).any(axis=1))[0]
+    return 0 if fast.size == 0 else int(fast[-1]) + 1
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the elastic joints ring on after the watchdog hold "
-                   "(about 2-3 s to below 0.02 rad/s): the node's hold does not damp them "
-                   "(docs/decisions/watchdog-default.md says why not yet)")
+@pytest.mark.xfail(strict=True, reason="the nodes' settling at the links' turns brings the "
+                   "joints to rest 0.6-1.5 s after the host's last cycle, not 0.5 s: the "
+                   "coupled J2/J4 modes and the elements' hysteresis leave a residual swing "
+                   "(docs/decisions/watchdog-default.md)")
 @pytest.mark.parametrize("after_s", [0.7, 1.5, 3.7])
 def test_a_host_killed_mid_move_leaves_the_stepper_joints_at_rest_within_half_a_second(
         after_s):
     """The acceptance bound: every stepper joint below REST_SPEED (plant's truth) from 0.5 s
     after the host's last cycle on."""
+    rest = _rest_ms(vanish_mid_move(HOST_WATCHDOG_MS, after_s))
+    assert rest <= 500, f"moving until {rest} ms"
+
+
+@pytest.mark.parametrize("after_s", [0.7, 1.5, 3.7])
+def test_the_nodes_settle_the_joints_after_a_host_killed_mid_move(after_s):
+    """The nodes' settling after the watchdog stop: every stepper joint below REST_SPEED
+    within SETTLED_MS of the host's last cycle (the bare hold: 2.1-2.6 s at these moments)."""
+    rest = _rest_ms(vanish_mid_move(HOST_WATCHDOG_MS, after_s))
+    assert rest <= SETTLED_MS, f"moving until {rest} ms"
+
+
+@pytest.mark.parametrize("after_s", [0.15, 0.4, 2.2, 5.6, 7.0])
+def test_a_settling_correction_never_moves_a_motor_beyond_its_bound(after_s):
+    """Whatever the moment (the move still accelerating, at speed, braking into its goal,
+    or over): no node moves its goal further than STEPPER_SETTLE_MAX_CHANGE_COUNTS from the
+    watchdog's hold, nor more than STEPPER_SETTLE_MAX_BACK_COUNTS back against the way it
+    was going; nothing latches, no joint falls back more than 2°."""
     run = vanish_mid_move(HOST_WATCHDOG_MS, after_s)
-    fast = np.nonzero((np.abs(run["qd"]) >= REST_SPEED).any(axis=1))[0]
-    assert fast.size == 0 or fast[-1] < 500, f"moving until {fast[-1] + 1} ms"
+    for node in range(4):
+        stopped = np.nonzero(run["stopped"][:, node])[0]
+        if stopped.size == 0:
+            continue  # not moving when the host went: the watchdog leaves it alone
+        hold = run["goals"][stopped[0], node]
+        change = run["goals"][stopped[0]:, node] - hold
+        # goals fall on whole microsteps, in 1/16 counts
+        rounding = 0.5 / microsteps_per_encoder_count(node) + 1 / GOAL_FINE_PER_COUNT
+        assert np.abs(change).max() <= STEPPER_SETTLE_MAX_CHANGE_COUNTS + rounding, f"J{node + 1}"
+        way = np.sign(run["rates"][0, node])  # the motor's way when the host went
+        if way:
+            assert (change * way).min() >= -STEPPER_SETTLE_MAX_BACK_COUNTS - rounding, \
+                f"J{node + 1}"
+    latches = int(StepperFlag.SLIP | StepperFlag.STALLED)
+    assert not any(int(f) & latches for f in run["flags"])
+    assert run["torque"].all() and not run["slips"].any()
+    ways = np.sign(run["rates"][0])
+    back = (run["q0"][:4] - run["q"][:, :4]) * ways
+    assert back.max() <= FALL_LIMIT  # the steppers that moved: none fell back
 
 
 def test_a_move_sends_the_wrist_its_goal_only_a_short_lead_ahead():
@@ -187,3 +244,43 @@ def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
         for _ in range(5):
             state = reader.state()
             assert state.steppers[1].watchdog
+
+
+def test_after_a_hold_the_nodes_hold_without_settling():
+    """A host that holds the arm mid-move (Ctrl-C: goals at the present positions) and then
+    exits: the nodes, still finishing the short way to those goals, are stopped by the
+    watchdog too, and hold there as before - no settling move (it is for a move cut short;
+    after a hold it moved the joints on and, through the ptys, latched J4)."""
+
+    class Interrupted(BaseException):
+        """Ctrl-C between two cycles."""
+
+    arm = Arm.open("emu://full/arm?ready=0&name=hold-no-settle")
+    try:
+        emu = arm.transport.emulator
+        arm.torque(True, hold=True)
+        start = arm.transport.now()
+
+        def interrupt(_state: object) -> None:
+            if arm.transport.now() - start >= 1.15:
+                raise Interrupted
+
+        arm.state_taps.append(interrupt)
+        with pytest.raises(Interrupted):
+            arm.move(GOALS, duration=DURATION_S)
+        arm.state_taps.clear()
+        arm.hold()
+        apps = [emu.arm.app(i) for i in range(1, 5)]
+        watchdog = int(StepperFlag.WATCHDOG)
+        held: dict[int, float] = {}
+        for _ in range(2000):
+            emu.step(1_000)
+            for node, app in enumerate(apps):
+                goal = app.get("command_goal") / GOAL_FINE_PER_COUNT
+                if app.get("status_flags") & watchdog:
+                    assert held.setdefault(node, goal) == goal, f"J{node + 1} moved on"
+        assert held, "the watchdog did not stop a node after the hold"
+        latches = int(StepperFlag.SLIP | StepperFlag.STALLED)
+        assert not any(app.get("status_flags") & latches for app in apps)
+    finally:
+        arm.close()
