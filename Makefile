@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml
 ## compiled one takes about 1.7x less CPU per simulated second (docs/EMULATOR.md).
 COMPILED_CORE ?= yes
 PURE_PYTHON := $(filter-out 0,$(LOWCOST_PURE_PYTHON))
-COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(PYTHON) -m tools.build_compiled --list 2>/dev/null))
+COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(PYTHON) -m tools.build_compiled --sources 2>/dev/null))
 CORE := $(VENV)/.compiled-core-$(if $(PURE_PYTHON),pure,$(COMPILED_CORE))
 
 $(CORE): $(STAMP) $(COMPILED_SOURCES)

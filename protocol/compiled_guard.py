@@ -7,8 +7,8 @@ any of them is imported) makes every module of :data:`PACKAGES` load from its so
 when
 
 * :data:`PURE_PYTHON_ENV` is set to anything but ``""`` or ``0`` (pure Python on request), or
-* any extension is older than its source (a stale build: the edit must count), in which
-  case it says so once on standard error.
+* any extension is older than its source, or than any source of :data:`INLINED` (a stale
+  build: the edit must count), in which case it says so once on standard error.
 
 All or nothing: compiled modules check the types of each other's objects, so a mix of a
 compiled and a source module of one build could fail.
@@ -30,6 +30,10 @@ PURE_PYTHON_ENV: Final = "LOWCOST_PURE_PYTHON"
 #: The packages whose modules may be compiled.
 PACKAGES: Final = ("protocol", "firmware_py", "hil_emulator")
 ROOT: Final = Path(__file__).resolve().parent.parent
+#: Packages whose ``Final`` constants mypyc copies into the compiled modules that use them
+#: (robot numbers, addresses, control tables): an edit there makes the whole build stale,
+#: compiled or not.
+INLINED: Final = ("protocol",)
 
 
 def pure_python_requested() -> bool:
@@ -52,9 +56,16 @@ def extensions(root: Path = ROOT) -> list[tuple[Path, Path]]:
 
 
 def stale(root: Path = ROOT) -> list[Path]:
-    """Sources edited since their extension was built."""
-    return [source for ext, source in extensions(root)
-            if source.stat().st_mtime > ext.stat().st_mtime]
+    """Sources edited since their extension was built, and sources of :data:`INLINED`
+    edited since the oldest extension was."""
+    found = extensions(root)
+    edited = [source for ext, source in found if source.stat().st_mtime > ext.stat().st_mtime]
+    if found:
+        oldest = min(ext.stat().st_mtime for ext, _ in found)
+        compiled = {source for _, source in found}
+        edited += [source for package in INLINED for source in sorted((root / package).rglob("*.py"))
+                   if source not in compiled and source.stat().st_mtime > oldest]
+    return edited
 
 
 class SourceFirst:

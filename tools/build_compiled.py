@@ -207,6 +207,16 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     return built
 
 
+def build_sources(root: Path = ROOT) -> list[str]:
+    """The compiled modules and the sources of :data:`~protocol.compiled_guard.INLINED`
+    (relative to ``root``): an edit to any of them calls for a new build."""
+    from protocol.compiled_guard import INLINED
+
+    inlined = [str(path.relative_to(root)) for package in INLINED
+               for path in sorted((root / package).rglob("*.py"))]
+    return sorted(set(COMPILED_MODULES) | set(inlined))
+
+
 def is_built(root: Path = ROOT) -> bool:
     """True when every module of :data:`COMPILED_MODULES` has its extension."""
     for module in COMPILED_MODULES:
@@ -280,6 +290,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="as the set-up does: build where possible, else say so and "
                              "go on (exit 0)")
     parser.add_argument("--list", action="store_true", help="print the compiled modules")
+    parser.add_argument("--sources", action="store_true",
+                        help="print every source the build depends on: the compiled modules "
+                             "and the sources whose constants it copies (make's prerequisites)")
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root")
     parser.add_argument("--build-dir", type=Path, default=None,
                         help="intermediate files (default: ROOT/build)")
@@ -294,6 +307,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.list:
         print("\n".join(COMPILED_MODULES))
+        return 0
+    if args.sources:
+        print("\n".join(build_sources(args.root)))
         return 0
     if args.setup:
         setup(args.root, args.build_dir)

@@ -91,6 +91,24 @@ def test_a_build_older_than_its_source_is_ignored(tmp_path: Path) -> None:
     assert compiled_guard.stale(tmp_path) == [source]
 
 
+def test_a_build_older_than_a_constant_it_copies_is_ignored(tmp_path: Path) -> None:
+    """mypyc copies ``Final`` constants (protocol/robot.py's numbers) into the compiled
+    modules: an edited constant must count although robot.py itself is not compiled."""
+    source = tmp_path / "firmware_py" / "arm_stepper.py"
+    constants = tmp_path / "protocol" / "robot.py"
+    for path in (source, constants):
+        path.parent.mkdir()
+        path.write_text("")
+    extension = source.with_name("arm_stepper.cpython-311-x86_64-linux-gnu.so")
+    extension.write_bytes(b"")
+    for path, t in ((source, 1_000_000), (constants, 1_000_000), (extension, 2_000_000)):
+        os.utime(path, (t, t))
+    assert compiled_guard.stale(tmp_path) == []
+    os.utime(constants, (3_000_000, 3_000_000))  # a robot number edited after the build
+    assert compiled_guard.stale(tmp_path) == [constants]
+    assert "protocol/robot.py" in build_compiled.build_sources(tmp_path)
+
+
 def test_setup_with_pure_python_requested_removes_the_build_and_says_so(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     module = tmp_path / COMPILED_MODULES[0]
