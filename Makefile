@@ -23,7 +23,7 @@ $(STAMP): pyproject.toml
 ## line, or says in one line that the emulator runs pure Python (no compiler, a failed build).
 ## COMPILED_CORE=no skips it; LOWCOST_PURE_PYTHON=1 removes a build at set-up and makes a
 ## process import the sources although a build exists.  Both builds behave the same; the
-## compiled one takes about 1.7x less CPU per simulated second (docs/EMULATOR.md).
+## compiled one takes about 1.8x less CPU per simulated second (docs/EMULATOR.md).
 COMPILED_CORE ?= yes
 PURE_PYTHON := $(filter-out 0,$(LOWCOST_PURE_PYTHON))
 COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(PYTHON) -m tools.build_compiled --sources 2>/dev/null))
