@@ -138,6 +138,12 @@ class PtyBacked:
             self.port.open()
         except OSError as exc:
             raise PortError(f"cannot create a pty for {name}: {exc}") from exc
+        self.port.on_host_flush = self._host_flushed
+        #: Times the host flushed its output on this port (bytes it wrote may be lost).
+        self.host_flushes = 0
+        #: Told once (one line of text) the first time the host flushes its output; the
+        #: ``hil-emulator`` command prints it.
+        self.on_notice: Callable[[str], None] | None = None
         self.on_emit: EmitObserver | None = None
         self.schedule_input: InputScheduler = _apply_now
         self._leftover: list[tuple[float, bytes]] = []
@@ -159,6 +165,15 @@ class PtyBacked:
             return self.reader.fileno()
         return self.port.fileno() if self.port.is_open else -1
 
+    def _host_flushed(self) -> None:
+        """The host flushed its output (``tcflush(TCOFLUSH)``): count it; say it once."""
+        self.host_flushes += 1
+        if self.host_flushes == 1 and self.on_notice is not None:
+            self.on_notice(f"the host program flushed its output on the {self.name} port "
+                           "(tcflush / reset_output_buffer() after writing): Linux's pty may "
+                           "have thrown away bytes it wrote that a USB adapter would have "
+                           "sent; leave out that flush (--stats counts host_flushes)")
+
     def room(self) -> int:
         """Host bytes the link accepts now (its reader's bound)."""
         return 1 << 30
@@ -167,7 +182,8 @@ class PtyBacked:
         """Read the pty on a :class:`PortReader` thread from now on (real time)."""
         self._reading = True
         if self.reader is None and self.port.is_open:
-            self.reader = PortReader(self.port.fileno(), self.room, self.name)
+            self.reader = PortReader(self.port.fileno(), self.room, self.name,
+                                     self.port.unpacket)
 
     def stop_reader(self) -> None:
         """Back to reading the pty when polled (idempotent); what the reader queued is
@@ -229,6 +245,7 @@ class PtyBacked:
         if self.port.is_open:
             return
         self.port = PtyPort(self.port.baud)
+        self.port.on_host_flush = self._host_flushed
         try:
             self.port.open()
             if self._link_dir is not None and self._link_name is not None:
@@ -295,7 +312,7 @@ class SerialLink(PtyBacked):
         fifo = self.fifo.stats()
         fifo["overrun"] += self.input_overrun()
         return {"bytes_in": self.bytes_in, "bytes_out": self.bytes_out,
-                "dropped_out": self.port.dropped, **fifo}
+                "dropped_out": self.port.dropped, "host_flushes": self.host_flushes, **fifo}
 
     def emit(self, data: bytes, t_us: int) -> None:
         """A device's bytes, complete at simulation time ``t_us``, go to the host."""
@@ -360,7 +377,8 @@ class SlcanLink(PtyBacked):
         the FIFO refused; ``overrun_bytes``: SLCAN text the reader could not hold), for
         ``--stats``."""
         return {"errors": self.adapter.errors, "dropped_out": self.port.dropped,
-                **self.fifo.stats(), "overrun_bytes": self.input_overrun()}
+                **self.fifo.stats(), "overrun_bytes": self.input_overrun(),
+                "host_flushes": self.host_flushes}
 
     def _deliver(self, frames: list[tuple[int, bytes]]) -> None:
         for arbitration_id, data in frames:

@@ -104,6 +104,13 @@ class Pacer:
         link.on_emit = self._record_lateness
         link.schedule_input = self._schedule_input
         link.input_clock = self.input_time_us
+        if isinstance(link, PtyBacked):
+            link.on_notice = self._tell
+
+    def _tell(self, text: str) -> None:
+        """Pass one line to :attr:`on_notice` (if set)."""
+        if self.on_notice is not None:
+            self.on_notice(text)
 
     def poll(self) -> int:
         """Take what arrived on every port; returns how much."""

@@ -13,7 +13,9 @@ an adapter's buffer); bytes beyond it are an overrun, counted in :attr:`PortRead
 The simulation thread waits on :meth:`PortReader.fileno` (a pipe the reader writes one byte
 to per chunk) instead of the pty.  Linux itself still throws away what a program flushes
 before the kernel has moved it from its pty buffer to the emulator's end (a few µs after
-``write()``, done by a kernel worker thread); no reader can take bytes before that.
+``write()``, done by a kernel worker thread); no reader can take bytes before that.  The
+pty is in packet mode, so such a flush is seen (``decode``: the port's
+:meth:`~hil_emulator.pty_port.PtyPort.unpacket`, which counts it).
 """
 
 from __future__ import annotations
@@ -34,11 +36,14 @@ class PortReader:
     """Reads the pty master ``fd`` on its own thread until :meth:`stop`.
 
     ``room()`` says how many more bytes the link accepts now (the adapter buffer's free
-    space); called on the reader's thread.
+    space); called on the reader's thread.  ``decode`` turns what one read returned into
+    the client's bytes (a packet-mode pty's :meth:`~hil_emulator.pty_port.PtyPort.unpacket`).
     """
 
-    def __init__(self, fd: int, room: Callable[[], int], name: str = "port") -> None:
+    def __init__(self, fd: int, room: Callable[[], int], name: str = "port",
+                 decode: Callable[[bytes], bytes] | None = None) -> None:
         self._fd = fd
+        self._decode = decode
         self._room = room
         self._lock = threading.Lock()
         self._queue: deque[tuple[float, bytes]] = deque()
@@ -90,6 +95,8 @@ class PortReader:
                     time.sleep(0.001)
                     continue
                 return
+            if self._decode is not None:
+                data = self._decode(data)
             if not data:
                 continue
             self.bytes_read += len(data)

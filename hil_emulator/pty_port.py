@@ -9,6 +9,11 @@ slave device; the emulator reads and writes the master end.  Notes:
 * a pty does not enforce a baud rate, so pacing is done here: :meth:`PtyPort.write_paced`
   computes when the bytes would have finished on a real line and :class:`PacedWriter` holds
   bytes back and releases them as (injected) time passes;
+* the master is in packet mode (``TIOCPKT``), so a client's ``tcflush(TCOFLUSH)``
+  (pyserial's ``reset_output_buffer()``) is seen: Linux throws away what the client wrote
+  and its kernel worker has not yet moved to the emulator's end, which a USB adapter would
+  have sent.  No reader can take those bytes first; :attr:`PtyPort.host_flushes` counts the
+  flushes and :attr:`PtyPort.on_host_flush` is told of each, so the loss is never silent;
 * a pty cannot refuse a second client: ``TIOCEXCL`` would also lock out the first one
   (the emulator holds the slave open itself) and root ignores it.  Two programs that open
   one port both receive part of its replies; ``serial.Serial(path, exclusive=True)`` in
@@ -18,9 +23,13 @@ slave device; the emulator reads and writes the master end.  Notes:
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
+import struct
+import termios
 import tty
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 
@@ -28,6 +37,9 @@ from protocol.topology import BITS_PER_CHAR
 
 #: Most bytes :meth:`PtyPort.read_available` takes in one call (a pty holds about 20 kB).
 READ_LIMIT = 65_536
+#: Packet mode: the first byte of every read from the master says what follows.
+_TIOCPKT_DATA = 0x00
+_TIOCPKT_FLUSHWRITE = 0x02
 
 
 def byte_time_s(baud: int) -> float:
@@ -48,6 +60,12 @@ class PtyPort:
         self._path: str | None = None
         self._line_free_at = 0.0
         self.dropped = 0  # bytes discarded because the pty buffer was full
+        #: Times the client was seen to flush its output (``tcflush(TCOFLUSH)``; Linux
+        #: reports the flushes between two reads of the master as one): bytes it had
+        #: written may have been discarded before the emulator could read them.
+        self.host_flushes = 0
+        #: Told (on whichever thread reads the port) of each such flush, or None.
+        self.on_host_flush: Callable[[], None] | None = None
 
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> PtyPort:
@@ -57,6 +75,7 @@ class PtyPort:
         try:
             tty.setraw(master)
             tty.setraw(slave)
+            fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
             os.set_blocking(master, False)
             path = os.ttyname(slave)
         except BaseException:
@@ -112,6 +131,20 @@ class PtyPort:
         return self._master
 
     # -- I/O ---------------------------------------------------------------------------------
+    def unpacket(self, packet: bytes) -> bytes:
+        """The client's bytes in one read of the master (packet mode): a data packet's
+        payload, or ``b""`` for a status packet (a flush of the client's output is counted
+        in :attr:`host_flushes` and told to :attr:`on_host_flush`)."""
+        if not packet:
+            return b""
+        if packet[0] == _TIOCPKT_DATA:
+            return packet[1:]
+        if packet[0] & _TIOCPKT_FLUSHWRITE:
+            self.host_flushes += 1
+            if self.on_host_flush is not None:
+                self.on_host_flush()
+        return b""
+
     def read_available(self, max_bytes: int = READ_LIMIT) -> bytes:
         """What the client has written so far, at most ``max_bytes``; ``b""`` when nothing
         (never blocks).  The limit keeps one call short however fast a client writes."""
@@ -120,15 +153,16 @@ class PtyPort:
         left = max_bytes
         while left > 0:
             try:
-                chunk = os.read(fd, min(4096, left))
+                packet = os.read(fd, min(4096, left) + 1)
             except BlockingIOError:
                 break
             except OSError as exc:
                 if exc.errno == errno.EIO:  # no slave open at all; cannot happen while we hold one
                     break
                 raise
-            if not chunk:
+            if not packet:
                 break
+            chunk = self.unpacket(packet)
             chunks.append(chunk)
             left -= len(chunk)
         return b"".join(chunks)

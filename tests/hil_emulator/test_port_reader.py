@@ -124,3 +124,33 @@ def test_beyond_the_adapter_buffer_bytes_are_an_overrun_counted() -> None:
     stats = link.stats()
     assert stats["overrun"] == len(flood) - ADAPTER_BUFFER_BYTES
     assert stats["bytes_in"] == ADAPTER_BUFFER_BYTES
+
+
+@pytest.mark.parametrize("name", ["arm", "palm"])
+def test_a_host_that_flushes_its_output_is_told_once_and_counted(name: str) -> None:
+    """Linux may throw away what a client flushes right after writing (its pty buffer, before
+    the kernel hands the bytes over): the loss is never silent.  Flushes are counted (Linux
+    reports the ones between two reads of the port as one), the first is said in one line, and the bytes that did arrive are the client's own (the
+    packet-mode header of each read is not among them)."""
+    emulator = _emulator(name)
+    told: list[str] = []
+    emulator.pacer.on_notice = told.append
+    packet = dxl.make_ping(0xFE).encode()
+    with serving(emulator):
+        link = emulator.links[name]
+        assert isinstance(link, PtyBacked)
+        _wait(lambda: link.reader is not None, "the reader starts")
+        with serial.Serial(link.path, 1_000_000, timeout=0) as port:
+            for _ in range(20):
+                port.write(packet)
+                port.reset_output_buffer()
+            _wait(lambda: link.host_flushes >= 1, "the flushes are seen")
+            port.write(packet)  # a last one, not flushed: it arrives
+            _wait(lambda: link.stats()["bytes_in"] % len(packet) == 0
+                  and link.stats()["bytes_in"] > 0 and _reader_bytes(link) > 0,
+                  "the last write arrives")
+        _wait(lambda: link.stats()["bytes_in"] == _reader_bytes(link), "every byte enters")
+    assert 1 <= link.stats()["host_flushes"] <= 20
+    flushed = [line for line in told if "flushed its output" in line]
+    assert len(flushed) == 1 and f"on the {name} port" in flushed[0] and "\n" not in flushed[0]
+    assert _reader_bytes(link) % len(packet) == 0  # whole pings only: no header byte kept
