@@ -135,11 +135,16 @@ class McapFile:
             seq = self._sequence[topic.name]
             self._sequence[topic.name] = seq + 1
             try:
+                before = self._stream.tell()
                 self._writer.add_message(self._channels[topic.name], log_time_ns, data,
                                          link_ns(link_time_s), sequence=seq)
                 self.messages += 1
                 self._unflushed = True
-                if time.monotonic() - self._last_flush >= self._interval:
+                if self._stream.tell() != before:
+                    # The writer closed a full chunk (CHUNK_BYTES), this message in it: on
+                    # disk once the stream is flushed, so a later failure keeps it counted.
+                    self._flush()
+                elif time.monotonic() - self._last_flush >= self._interval:
                     self._flush()
             except OSError as exc:
                 self._fail(exc)

@@ -18,8 +18,11 @@ from pathlib import Path
 from typing import Final
 
 #: Descriptors a library keeps open for the life of the process once first used, not a
-#: test's to close (their targets, by regular expression): matplotlib's font cache.
-PROCESS_WIDE: Final = (re.compile(r"/matplotlib/mpl-data/fonts/"),)
+#: test's to close (their targets, by regular expression): matplotlib's font cache, which
+#: holds its own fonts or the system's (``/usr/share/fonts``, where a package such as
+#: Chromium brought them) open.
+PROCESS_WIDE: Final = (re.compile(r"/matplotlib/mpl-data/fonts/"),
+                       re.compile(r"\.(ttf|otf|ttc|pfb)$", re.IGNORECASE))
 
 #: How long (s of wall time) threads and child processes that are on their way out get to
 #: finish before they count as leaked: never a timing bound, only a busy machine's margin.
