@@ -85,12 +85,12 @@ class McapFile:
     taken, ``saved`` those in chunks written to the file."""
 
     def __init__(self, path: str | Path, *, library: str,
-                 flush_interval_s: float = FLUSH_INTERVAL_S) -> None:
+                 flush_interval_s: float | None = None) -> None:
         self.path = Path(path)
         self.error: OSError | None = None
         self.messages = 0
         self.saved = 0
-        self._interval = flush_interval_s
+        self._interval = FLUSH_INTERVAL_S if flush_interval_s is None else flush_interval_s
         self._lock = threading.Lock()
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}

@@ -50,6 +50,14 @@ def stalled(emulator: Emulator) -> Iterator[None]:
         release.set()
 
 
+def _read_at_once(emulator: Emulator, name: str) -> PtyBacked:
+    """The pty link ``name`` of a serving emulator, once its reader thread runs."""
+    link = emulator.links[name]
+    assert isinstance(link, PtyBacked)
+    _wait(lambda: link.reader is not None, "the reader starts")
+    return link
+
+
 def _reader_bytes(link: PtyBacked) -> int:
     return link.reader.bytes_read if link.reader is not None else 0
 
@@ -61,9 +69,7 @@ def test_bytes_are_taken_at_once_while_the_simulation_thread_is_busy(name: str) 
     output cannot lose it, and it all enters the simulation afterwards."""
     emulator = _emulator(name)
     with serving(emulator):
-        link = emulator.links[name]
-        assert isinstance(link, PtyBacked)
-        _wait(lambda: link.reader is not None, "the reader starts")
+        link = _read_at_once(emulator, name)
         packet = dxl.make_ping(0xFE).encode()  # broadcast: nobody answers
         with stalled(emulator), serial.Serial(link.path, 1_000_000, timeout=0) as port:
             for k in range(100):
@@ -83,9 +89,7 @@ def test_a_thousand_writes_each_flushed_once_handed_over_lose_nothing(name: str)
     emulator = _emulator(name)
     packet = dxl.make_ping(0xFE).encode()
     with serving(emulator):
-        link = emulator.links[name]
-        assert isinstance(link, PtyBacked)
-        _wait(lambda: link.reader is not None, "the reader starts")
+        link = _read_at_once(emulator, name)
         with serial.Serial(link.path, 1_000_000, timeout=0) as port:
             for k in range(1000):
                 port.write(packet)
@@ -130,16 +134,14 @@ def test_beyond_the_adapter_buffer_bytes_are_an_overrun_counted() -> None:
 def test_a_host_that_flushes_its_output_is_told_once_and_counted(name: str) -> None:
     """Linux may throw away what a client flushes right after writing (its pty buffer, before
     the kernel hands the bytes over): the loss is never silent.  Flushes are counted (Linux
-    reports the ones between two reads of the port as one), the first is said in one line, and the bytes that did arrive are the client's own (the
-    packet-mode header of each read is not among them)."""
+    reports the ones between two reads of the port as one), the first is said in one line,
+    and the bytes that did arrive are the client's own (no packet-mode header among them)."""
     emulator = _emulator(name)
     told: list[str] = []
     emulator.pacer.on_notice = told.append
     packet = dxl.make_ping(0xFE).encode()
     with serving(emulator):
-        link = emulator.links[name]
-        assert isinstance(link, PtyBacked)
-        _wait(lambda: link.reader is not None, "the reader starts")
+        link = _read_at_once(emulator, name)
         with serial.Serial(link.path, 1_000_000, timeout=0) as port:
             for _ in range(20):
                 port.write(packet)

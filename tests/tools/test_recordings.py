@@ -15,10 +15,11 @@ import pytest
 from mcap.reader import make_reader
 
 from hil_emulator.inprocess import forget_shared_emulators
+from host import recording
 from host.errors import RecordingError
 from host.hand import Hand
 from host.hand_recording import HandRecorder
-from host.recording import FLUSH_INTERVAL_S, McapFile
+from host.recording import FLUSH_INTERVAL_S
 from tests.tools.mcap_check import check_recording
 from tools.cli import armctl, handbus, handctl
 from tools.cli.mcap_capture import read_recording
@@ -36,8 +37,7 @@ def hand_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     time, and the cut tests need several chunks to cut between."""
     path = tmp_path_factory.mktemp("rec") / "hand.mcap"
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(McapFile.__init__, "__kwdefaults__",
-                      {"flush_interval_s": FLUSH_INTERVAL_S / 10})
+        patch.setattr(recording, "FLUSH_INTERVAL_S", FLUSH_INTERVAL_S / 10)
         try:
             assert handctl.main(["--port", HAND_URL, "record", str(path), "--seconds", "3"]) == 0
         finally:
