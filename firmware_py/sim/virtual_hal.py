@@ -91,6 +91,12 @@ class SentChunk:
     start_us: int
     end_us: int
 
+    # Written out: a dataclass's generated __init__ stays interpreted in the compiled core.
+    def __init__(self, data: bytes, start_us: int, end_us: int) -> None:
+        self.data = data
+        self.start_us = start_us
+        self.end_us = end_us
+
 
 def line_delivers(data: bytes, t_us: int) -> None:
     """The ``sink`` of a UART on a line model that delivers its frames itself (a bus seeing
