@@ -324,8 +324,8 @@ class DynamixelSlave:
                 self._reply(ErrorBit.INSTRUCTION, b"", level=2, broadcast=broadcast)
         except RegisterError as exc:
             self._reply(exc.error_bit, b"", level=1 if code == _READ else 2, broadcast=broadcast)
-        except _Rejected as exc:
-            self._reply(exc.bits, b"", level=2, broadcast=broadcast)
+        except _Rejected as rejected:  # its own name: compiled, one name has one type
+            self._reply(rejected.bits, b"", level=2, broadcast=broadcast)
         except DynamixelError:  # malformed parameters
             self._reply(ErrorBit.INSTRUCTION, b"", level=1 if code == _READ else 2,
                         broadcast=broadcast)

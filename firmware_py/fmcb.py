@@ -293,7 +293,12 @@ class FmcbApp(HandNode):
     @property
     def hall_pos(self) -> list[int]:
         """Motor positions relative to the homing offsets (hall counts)."""
-        return [h.count - o for h, o in zip(self.hall, self.offsets, strict=True)]
+        # Indexed, not zip(strict=True), which compiled (mypyc) is a generic Python call;
+        # the status refresh takes it 200 times a second.
+        hall, offsets = self.hall, self.offsets
+        if len(offsets) != len(hall):
+            raise ValueError(f"{len(offsets)} homing offsets for {len(hall)} motors")
+        return [hall[i].count - offsets[i] for i in range(len(hall))]
 
     @property
     def pb_current(self) -> int:

@@ -203,7 +203,7 @@ class Rs485Bus:
         start = start_us if start_us > free else free
         end = start + self.wire_time_us(len(data))
         node.free_us = end
-        tx = Transmission(node.name, start, end, bytes(data))
+        tx = Transmission(node.name, start, end, data if type(data) is bytes else bytes(data))
         on_air = self._on_air
         if on_air:
             now = self.scheduler.now_us()
