@@ -47,7 +47,7 @@ from __future__ import annotations
 import struct
 import zlib
 from collections.abc import Callable, Mapping
-from typing import ClassVar
+from typing import ClassVar, Final
 
 from mypy_extensions import mypyc_attr
 
@@ -77,20 +77,25 @@ EEPROM_MAGIC = b"DXL1"
 _EEPROM_HEADER = struct.Struct("<4sHB")  # magic, model number, length
 #: Fallback time allowed per earlier node of a BULK_READ whose reply was not heard (µs):
 #: the largest return delay (254 × 2 µs) plus margin.
-BULK_SLOT_US = 600
+BULK_SLOT_US: Final = 600
 #: Retry interval when the flash is busy with another write (µs).
-FLASH_RETRY_US = 500
+FLASH_RETRY_US: Final = 500
 #: A partial packet older than this is dropped before new bytes are decoded (µs).  Without
 #: it, a false header inside a corrupted packet (``FF FF id LEN`` with a large LEN) kept the
 #: node deaf until LEN more bytes had passed: every following instruction was swallowed.
-PACKET_GAP_US = 10_000
+PACKET_GAP_US: Final = 10_000
 
 # Instruction codes as plain ints for the dispatch (InstructionPacket keeps unknown codes
 # as int, and an enum member read off its class costs ~0.4 µs).
-_PING, _READ, _WRITE, _REG_WRITE, _ACTION, _RESET, _SYNC_WRITE, _BULK_READ = (
-    int(Instruction.PING), int(Instruction.READ), int(Instruction.WRITE),
-    int(Instruction.REG_WRITE), int(Instruction.ACTION), int(Instruction.RESET),
-    int(Instruction.SYNC_WRITE), int(Instruction.BULK_READ))
+# Final: compiled (mypyc), a module constant that is not Final is a dict lookup per use.
+_PING: Final = int(Instruction.PING)
+_READ: Final = int(Instruction.READ)
+_WRITE: Final = int(Instruction.WRITE)
+_REG_WRITE: Final = int(Instruction.REG_WRITE)
+_ACTION: Final = int(Instruction.ACTION)
+_RESET: Final = int(Instruction.RESET)
+_SYNC_WRITE: Final = int(Instruction.SYNC_WRITE)
+_BULK_READ: Final = int(Instruction.BULK_READ)
 
 
 def baud_from_register(value: int) -> int:
@@ -262,11 +267,17 @@ class DynamixelSlave:
         # firmware, look at the ID byte and let the packet pass (a BULK_READ in progress
         # only needs to know, from a packet with a good checksum, whose turn has passed).
         if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
-                and data[3] + 4 == len(data) and data[2] != self.bus_id
-                and data[2] != BROADCAST_ID and not self._decoder.pending):
-            if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
-                self._bulk_heard(data[2])
-            return
+                and data[3] + 4 == len(data) and not self._decoder.pending):
+            if data[2] != self.bus_id and data[2] != BROADCAST_ID:
+                if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
+                    self._bulk_heard(data[2])
+                return
+            # One whole packet for this node: decoded once for every node it reaches.
+            whole = self._decoder.take_whole(data, t_us / 1e6)
+            if whole is not None:
+                self._bulk_heard(whole.id)
+                self.handle(whole)
+                return
         for decoded in self._decoder.feed(data, t_us / 1e6):
             packet = decoded.packet
             assert isinstance(packet, InstructionPacket)
@@ -313,8 +324,8 @@ class DynamixelSlave:
                 self._reply(ErrorBit.INSTRUCTION, b"", level=2, broadcast=broadcast)
         except RegisterError as exc:
             self._reply(exc.error_bit, b"", level=1 if code == _READ else 2, broadcast=broadcast)
-        except _Rejected as exc:
-            self._reply(exc.bits, b"", level=2, broadcast=broadcast)
+        except _Rejected as rejected:  # its own name: compiled, one name has one type
+            self._reply(rejected.bits, b"", level=2, broadcast=broadcast)
         except DynamixelError:  # malformed parameters
             self._reply(ErrorBit.INSTRUCTION, b"", level=1 if code == _READ else 2,
                         broadcast=broadcast)

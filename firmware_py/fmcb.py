@@ -145,6 +145,11 @@ class _Pending:
     message: Message
     timer: Timer
 
+    # Written out: a dataclass's generated __init__ stays interpreted in the compiled core.
+    def __init__(self, message: Message, timer: Timer) -> None:
+        self.message = message
+        self.timer = timer
+
 
 # The compiled core (mypyc) lets a program written in Python subclass it, as the source does.
 @mypyc_attr(allow_interpreted_subclasses=True)
@@ -163,6 +168,7 @@ class FmcbApp(HandNode):
         self._p_kp, self._p_kd, self._p_deadband = index("kp"), index("kd"), index("deadband")
         self._p_max_effort = index("max_effort")
         self._p_breaker_ma, self._p_breaker_ms = index("breaker_ma"), index("breaker_ms")
+        self._p_tendon_timeout = index("tendon_timeout_us")  # read by every poll
         self.params_valid = self.params.load_page(hal.flash.read_page(PARAM_PAGE))
         self.pogo = hal.uart("pogo")
         self.tendon = hal.uart("tendon")
@@ -287,7 +293,12 @@ class FmcbApp(HandNode):
     @property
     def hall_pos(self) -> list[int]:
         """Motor positions relative to the homing offsets (hall counts)."""
-        return [h.count - o for h, o in zip(self.hall, self.offsets, strict=True)]
+        # Indexed, not zip(strict=True), which compiled (mypyc) is a generic Python call;
+        # the status refresh takes it 200 times a second.
+        hall, offsets = self.hall, self.offsets
+        if len(offsets) != len(hall):
+            raise ValueError(f"{len(offsets)} homing offsets for {len(hall)} motors")
+        return [hall[i].count - offsets[i] for i in range(len(hall))]
 
     @property
     def pb_current(self) -> int:
@@ -577,7 +588,7 @@ class FmcbApp(HandNode):
         if data is None:
             data = msg.request_frame(NODE_ADDRESS[NodeKind(msg.node)])
         timeout = (wire_time_us(len(data), int(self.tendon.baud))
-                   + int(self.params["tendon_timeout_us"]))
+                   + int(self.params.values[self._p_tendon_timeout]))
         self._pending = _Pending(msg, self.hal.clock.call_later(timeout, self._on_timeout))
         self.tendon_counters.requests += 1
         self.tendon.send(data)

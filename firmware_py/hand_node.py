@@ -111,11 +111,11 @@ class HandNode:
             # A whole frame for another node (a bus delivers frame by frame): count it as
             # on_frame would, without building it.
             address = data[1] if len(data) > 1 else broadcast
-            if (address != self.address and address != broadcast
-                    and decoder.pass_frame(data, t_us / 1e6)):
+            t = t_us / 1e6
+            if address != self.address and address != broadcast and decoder.pass_frame(data, t):
                 counters.not_for_me += 1
                 return
-            for frame in decoder.feed(data, t_us / 1e6):
+            for frame in decoder.feed(data, t):
                 self.on_frame(frame, uart)
 
         uart.set_receiver(on_bytes)

@@ -32,6 +32,16 @@ class Request:
     uart: Uart
     _send: Callable[[bytes | None, int], None] = field(repr=False)
 
+    # Written out: a dataclass's generated __init__ stays interpreted in the compiled core
+    # (mypyc), and every request a node handles makes one.
+    def __init__(self, message: Message, fields: dict[str, Any], frame: Frame, uart: Uart,
+                 _send: Callable[[bytes | None, int], None]) -> None:
+        self.message = message
+        self.fields = fields
+        self.frame = frame
+        self.uart = uart
+        self._send = _send
+
     def respond(self, reply: dict[str, Any] | bytes | None, status: int = TxnStatus.OK) -> None:
         """Send the reply now (fields, raw payload, or None for an error status)."""
         if isinstance(reply, dict):

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import struct
 from collections import deque
+from typing import Final
 
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.hal import Hal
@@ -44,28 +45,39 @@ from protocol.dynamixel import RX64_RPM_PER_UNIT, ErrorBit
 from protocol.robot import RX64_POSITION_UNITS, RX64_RANGE_DEG
 
 #: Control tick period (µs): 1 kHz.
-TICK_US = 1_000
+TICK_US: Final = 1_000
 #: Time the load must stay at or beyond the torque limit before OVERLOAD latches (ms).
-OVERLOAD_MS = 200
+OVERLOAD_MS: Final = 200
 #: Half period of the alarm LED blink (ticks).
-LED_BLINK_TICKS = 250
+LED_BLINK_TICKS: Final = 250
 #: Position units per second per moving-speed unit (0.111 rpm = 0.666 deg/s; 300/1024 deg).
-UNITS_PER_S_PER_SPEED = RX64_RPM_PER_UNIT * 6.0 * RX64_POSITION_UNITS / RX64_RANGE_DEG
+UNITS_PER_S_PER_SPEED: Final = RX64_RPM_PER_UNIT * 6.0 * RX64_POSITION_UNITS / RX64_RANGE_DEG
 #: Window over which present_speed is measured (ticks).
-SPEED_WINDOW = 10
-_CW_BIT = 0x400
+SPEED_WINDOW: Final = 10
+_CW_BIT: Final = 0x400
 
 # Plain-int alarm bits for the hot path (IntFlag arithmetic is slow).
-_OVERHEATING = int(ErrorBit.OVERHEATING)
-_INPUT_VOLTAGE = int(ErrorBit.INPUT_VOLTAGE)
-_OVERLOAD = int(ErrorBit.OVERLOAD)
+_OVERHEATING: Final = int(ErrorBit.OVERHEATING)
+_INPUT_VOLTAGE: Final = int(ErrorBit.INPUT_VOLTAGE)
+_OVERLOAD: Final = int(ErrorBit.OVERLOAD)
 
 #: present_position, present_speed, present_load, present_voltage, present_temperature.
-_PRESENT = struct.Struct("<HHHBB")
-_PRESENT_AT = RX64_TABLE["present_position"].address
-_MOVING = struct.Struct("<B")
-_MOVING_AT = RX64_TABLE["moving"].address
+_PRESENT: Final = struct.Struct("<HHHBB")
+_PRESENT_AT: Final = RX64_TABLE["present_position"].address
+_MOVING: Final = struct.Struct("<B")
+_MOVING_AT: Final = RX64_TABLE["moving"].address
 assert RX64_TABLE["present_temperature"].end == _PRESENT_AT + _PRESENT.size
+
+
+def _round_nonnegative(x: float) -> int:
+    """``round(x)`` (half to even) of a finite ``x >= 0``, without the builtin's generic
+    dispatch (compiled, ``round`` of a float looks up ``__round__`` on every call).
+    ``x - int(x)`` is exact for a double, so the halfway test is too."""
+    n = int(x)
+    frac = x - n
+    if frac > 0.5 or (frac == 0.5 and n & 1):
+        n += 1
+    return n
 
 
 class Rx64ServoApp(DynamixelSlave):
@@ -267,12 +279,12 @@ class Rx64ServoApp(DynamixelSlave):
         readings, oldest first)."""
         span = len(pots) - 1
         rate = (pots[-1] - pots[0]) * 1_000_000 / (span * TICK_US) if span else 0.0
-        speed = round((-rate if rate < 0 else rate) / UNITS_PER_S_PER_SPEED)
+        speed = _round_nonnegative((-rate if rate < 0 else rate) / UNITS_PER_S_PER_SPEED)
         if speed > 0x3FF:
             speed = 0x3FF
         if rate < 0 and speed:
             speed |= _CW_BIT
-        load = round((-duty if duty < 0 else duty) * 1023)
+        load = _round_nonnegative((-duty if duty < 0 else duty) * 1023)
         if load > 0x3FF:
             load = 0x3FF
         if duty < 0 and load:

@@ -14,10 +14,10 @@ its own entry.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import sys
 from collections.abc import Callable
+from heapq import heappop, heappush, heapreplace  # by name: compiled, heapq.x is a lookup
 from typing import Final
 
 Callback = Callable[[], None]
@@ -134,7 +134,7 @@ class _TickGroup:
         """Queue the group's entry (popped, so out of the queue: :meth:`run` is running)."""
         entry = self.entry
         entry.t_us, entry.seq, entry.callback = t_us, seq, self.run
-        heapq.heappush(self.scheduler._queue, (t_us, seq, entry))
+        heappush(self.scheduler._queue, (t_us, seq, entry))
 
     def join(self, timer: TimerHandle) -> bool:
         """Add ``timer`` (its sequence number the newest) if the group can take it where
@@ -178,7 +178,7 @@ class Scheduler:
             t = self._now
         seq = next(self._seq)
         ev = TimerHandle(t, seq, callback)
-        heapq.heappush(self._queue, (t, seq, ev))
+        heappush(self._queue, (t, seq, ev))
         return ev
 
     def call_later(self, delay_us: float, callback: Callback) -> TimerHandle:
@@ -203,7 +203,7 @@ class Scheduler:
             return ev
         else:
             self._ticks[key] = ev
-        heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
+        heappush(self._queue, (ev.t_us, ev.seq, ev))
         return ev
 
     def _group(self, key: tuple[int, int], lone: TimerHandle, ev: TimerHandle) -> bool:
@@ -238,7 +238,7 @@ class Scheduler:
     def next_due_us(self) -> int | None:
         """Time of the next pending event, or None."""
         while self._queue and self._queue[0][2].callback is None:
-            heapq.heappop(self._queue)
+            heappop(self._queue)
         return self._queue[0][0] if self._queue else None
 
     def run_until(self, t_us: float) -> int:
@@ -259,7 +259,7 @@ class Scheduler:
         ran = 0
         limit = int(t_us)  # whole µs
         queue = self._queue
-        pop, replace, seq = heapq.heappop, heapq.heapreplace, self._seq
+        pop, replace, seq = heappop, heapreplace, self._seq
         while ran < max_events and queue:
             when, _, ev = queue[0]
             if when > limit:

@@ -67,6 +67,17 @@ class Transmission:
     collided: bool = False
     received: bytes | None = None
 
+    # Written out: the __init__ a dataclass generates stays interpreted Python in the
+    # compiled core (mypyc), and the buses make one Transmission per frame.
+    def __init__(self, name: str, start_us: int, end_us: int, data: bytes,
+                 collided: bool = False, received: bytes | None = None) -> None:
+        self.name = name
+        self.start_us = start_us
+        self.end_us = end_us
+        self.data = data
+        self.collided = collided
+        self.received = received
+
 
 #: Whether a receiver acts on a frame (see :meth:`Rs485Bus.attach`).
 Hears = Callable[[bytes], bool]
@@ -124,6 +135,7 @@ class Rs485Bus:
         self._rng = np.random.default_rng(seed)
         self._nodes: list[_Node] = []
         self._on_air: list[Transmission] = []  # frames not yet past their end time
+        self._on_air_until = 0  # the latest end of the frames in _on_air (µs)
 
     # ---------------------------------------------------------------------------- set-up
 
@@ -191,18 +203,25 @@ class Rs485Bus:
         start = start_us if start_us > free else free
         end = start + self.wire_time_us(len(data))
         node.free_us = end
-        tx = Transmission(node.name, start, end, bytes(data))
+        tx = Transmission(node.name, start, end, data if type(data) is bytes else bytes(data))
         on_air = self._on_air
         if on_air:
             now = self.scheduler.now_us()
-            on_air = self._on_air = [t for t in on_air if t.end_us > now]
-            overlapping = [t for t in on_air if t.start_us < end and start < t.end_us]
-            if overlapping:
-                self.collisions += 1
-                tx.collided = True
-                for t in overlapping:
-                    t.collided = True
+            if self._on_air_until <= (start if start < now else now):
+                # Every frame on the line ended before this one starts: nothing overlaps
+                # (the common case, without scanning the list).
+                on_air = self._on_air = []
+            else:
+                on_air = self._on_air = [t for t in on_air if t.end_us > now]
+                overlapping = [t for t in on_air if t.start_us < end and start < t.end_us]
+                if overlapping:
+                    self.collisions += 1
+                    tx.collided = True
+                    for t in overlapping:
+                        t.collided = True
         on_air.append(tx)
+        if end > self._on_air_until:
+            self._on_air_until = end
         self.log.append(tx)
         self.scheduler.call_at(end + self.turnaround_us, lambda: self._deliver(node, tx))
 

@@ -14,7 +14,7 @@ import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntFlag
-from typing import Final, Literal
+from typing import ClassVar, Final, Literal
 
 from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError
@@ -42,7 +42,9 @@ class RegisterError(DynamixelError):
     """A control-table read or write is not allowed; ``error_bit`` is the status error bit a
     servo reports for it."""
 
-    error_bit: ErrorBit = ErrorBit.RANGE
+    # ClassVar: compiled (mypyc), an annotated class attribute would be an instance
+    # attribute, which an exception raised without it does not have.
+    error_bit: ClassVar[ErrorBit] = ErrorBit.RANGE
 
 
 class RegisterRangeError(RegisterError):

@@ -7,6 +7,7 @@ Poly 0x1021, init 0x0000, MSB first, no reflection, no final XOR; the check valu
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import crcmod.predefined
 
@@ -18,5 +19,15 @@ def crc16_xmodem(data: bytes | bytearray | memoryview) -> int:
     return _crc16_xmodem(bytes(data) if isinstance(data, memoryview) else data)
 
 
-#: The raw crcmod function (accepts bytes and bytearray), for hot loops.
-crc16_xmodem_fast: Callable[[bytes | bytearray], int] = _crc16_xmodem
+# crcmod's function is a Python wrapper, ``crcfun(data, crc=init, table=..., fun=...)``,
+# around its C routine ``fun(data, crc, table)``: the hot path calls the routine itself.
+_DEFAULTS: Any = getattr(_crc16_xmodem, "__defaults__")  # noqa: B009 - typed as Any
+_INIT: int = _DEFAULTS[0]
+_TABLE: Any = _DEFAULTS[1]
+_ROUTINE: Callable[[bytes | bytearray, int, Any], int] = _DEFAULTS[2]
+
+
+def crc16_xmodem_fast(data: bytes | bytearray) -> int:
+    """CRC-16/XMODEM of bytes or a bytearray (no memoryview), for hot loops: crcmod's C
+    routine called without its Python wrapper (xmodem has no final XOR)."""
+    return _ROUTINE(data, _INIT, _TABLE)

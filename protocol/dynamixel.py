@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum, IntEnum, IntFlag
 from functools import partial
-from typing import Literal
+from typing import Final, Literal
 
 import construct as cs
 from construct import this
@@ -28,12 +28,12 @@ from protocol.errors import DynamixelChecksumError, DynamixelError, wrap_constru
 from protocol.robot import RX64_POSITION_CENTRE, RX64_POSITION_MAX, RX64_RAD_PER_UNIT
 
 BytesLike = bytes | bytearray | memoryview
-HEADER = b"\xff\xff"
-BROADCAST_ID = 0xFE  #: every servo executes the instruction, none replies
-MAX_ID = 0xFD  #: highest ID of one servo (a status packet never carries 0xFE or 0xFF)
-MAX_LENGTH = 250  #: largest LEN byte accepted (dynamixel-sdk's RXPACKET_MAX_LEN); smallest 2
-MAX_PARAMS = MAX_LENGTH - 2  #: most parameter bytes one packet can carry
-MIN_PACKET_SIZE = 6  #: header, ID, LEN, INST/ERR and checksum: a packet without parameters
+HEADER: Final = b"\xff\xff"
+BROADCAST_ID: Final = 0xFE  #: every servo executes the instruction, none replies
+MAX_ID: Final = 0xFD  #: highest ID of one servo (a status packet never carries 0xFE or 0xFF)
+MAX_LENGTH: Final = 250  #: largest LEN byte accepted (dynamixel-sdk's RXPACKET_MAX_LEN); smallest 2
+MAX_PARAMS: Final = MAX_LENGTH - 2  #: most parameter bytes one packet can carry
+MIN_PACKET_SIZE: Final = 6  #: header, ID, LEN, INST/ERR and checksum: a packet without parameters
 
 
 class Instruction(IntEnum):
@@ -456,6 +456,11 @@ class BadChecksumPacket:
     t: float | None = None
 
 
+#: The instruction packet :meth:`DynamixelStreamDecoder.take_whole` decoded last, with its
+#: bytes (every node on a bus is handed the same packet).
+_last_instruction: tuple[bytes, InstructionPacket] | None = None
+
+
 class DynamixelStreamDecoder:
     """Turns a byte stream (in chunks of any size) into packets, counting what it drops.
 
@@ -547,6 +552,36 @@ class DynamixelStreamDecoder:
         self._base += pos
         return out
 
+    def take_whole(self, data: bytes, t: float | None = None) -> InstructionPacket | None:
+        """The instruction packet ``data`` is, if it is exactly one whole packet with a good
+        checksum, this decoder reads instructions and nothing is held: the decoder ends as
+        :meth:`feed` would leave it (counters, stream offset, arrival time).  Returns None,
+        having done nothing, in every other case (then call :meth:`feed`).
+
+        For the arm's nodes, which each get every instruction on their bus as one whole
+        packet: the packet is decoded once for all of them (the last one decoded is kept,
+        and packets are immutable), not once per node.
+        """
+        if type(data) is not bytes or self._buf or self.direction != "instruction":
+            return None
+        global _last_instruction
+        last = _last_instruction
+        if last is not None and last[0] == data:
+            packet = last[1]
+        else:
+            n = len(data)
+            if (n < MIN_PACKET_SIZE or data[0] != 0xFF or data[1] != 0xFF or data[2] == 0xFF
+                    or not 2 <= data[3] <= MAX_LENGTH or data[3] + 4 != n
+                    or ~sum(data[2:-1]) & 0xFF != data[-1]):
+                return None
+            packet = InstructionPacket(data[2], data[4], data[5:-1])
+            _last_instruction = (data, packet)
+        if t is not None:
+            self._last_t = t  # nothing is held: no gap can discard anything
+        self.packets += 1
+        self._base += len(data)
+        return packet
+
     def _make_packet(self, raw: bytes) -> InstructionPacket | StatusPacket | None:
         direction = self.direction
         if direction == "auto":
@@ -563,7 +598,7 @@ class DynamixelStreamDecoder:
 
 # The position range (300 degrees over 1024 units, centre 512) is in protocol.robot.
 RX64_RPM_PER_UNIT = 0.111  #: revolutions per minute per speed unit
-_DIRECTION_BIT = 0x400  # bit 10 of present speed / present load: set = clockwise
+_DIRECTION_BIT: Final = 0x400  # bit 10 of present speed / present load: set = clockwise
 
 
 def rx64_position_to_radians(units: float) -> float:

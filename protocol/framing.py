@@ -157,12 +157,13 @@ class Frame:
 
 
 _FRAME_SLOTS: Any = Frame
-_set_address = _FRAME_SLOTS.address.__set__
-_set_type = _FRAME_SLOTS.type.__set__
-_set_payload = _FRAME_SLOTS.payload.__set__
-_set_offset = _FRAME_SLOTS.offset.__set__
-_set_crc_ok = _FRAME_SLOTS.crc_ok.__set__
-_set_t = _FRAME_SLOTS.t.__set__
+# Final: compiled (mypyc), a module name that is not Final is a dict lookup per use.
+_set_address: Final[Any] = _FRAME_SLOTS.address.__set__
+_set_type: Final[Any] = _FRAME_SLOTS.type.__set__
+_set_payload: Final[Any] = _FRAME_SLOTS.payload.__set__
+_set_offset: Final[Any] = _FRAME_SLOTS.offset.__set__
+_set_crc_ok: Final[Any] = _FRAME_SLOTS.crc_ok.__set__
+_set_t: Final[Any] = _FRAME_SLOTS.t.__set__
 
 
 def encode_frame(address: int, msg_type: int,

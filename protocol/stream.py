@@ -177,7 +177,6 @@ class StreamDecoder:
         """
         maxp = self.max_payload
         counters = self.counters
-        crc = crc16_xmodem_fast
         base = self._base
         copy = type(buf) is not bytes  # a bytearray's slices must become bytes
         out: list[Any] = []
@@ -202,7 +201,9 @@ class StreamDecoder:
                     continue
                 body_end = pos + HEADER_SIZE + length
                 if body_end + CRC_SIZE <= end:
-                    if crc(buf[pos:body_end]) == buf[body_end] | (buf[body_end + 1] << 8):
+                    # Called by name: compiled, a local alias is a Python-level call.
+                    if (crc16_xmodem_fast(buf[pos:body_end])
+                            == buf[body_end] | (buf[body_end + 1] << 8)):
                         payload = buf[pos + HEADER_SIZE : body_end]
                         if copy:
                             payload = bytes(payload)

@@ -48,6 +48,7 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     "protocol/catalogue.py",
     "protocol/topology.py",
     "protocol/sensor_counts.py",
+    "protocol/control_tables.py",
     # the hand nodes' firmware (HandNode and every program built on it)
     "firmware_py/hand_node.py",
     "firmware_py/node_request.py",

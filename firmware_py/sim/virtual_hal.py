@@ -91,6 +91,12 @@ class SentChunk:
     start_us: int
     end_us: int
 
+    # Written out: a dataclass's generated __init__ stays interpreted in the compiled core.
+    def __init__(self, data: bytes, start_us: int, end_us: int) -> None:
+        self.data = data
+        self.start_us = start_us
+        self.end_us = end_us
+
 
 def line_delivers(data: bytes, t_us: int) -> None:
     """The ``sink`` of a UART on a line model that delivers its frames itself (a bus seeing
@@ -131,7 +137,8 @@ class VirtualUart(hal.Uart):
         start = now if now > free else free
         end = start + self.wire_time_us(len(data))
         self._line_free_us = end
-        chunk = bytes(data)
+        # bytes(data) is data for bytes, but compiled (mypyc) it is a generic call.
+        chunk = data if type(data) is bytes else bytes(data)
         record = SentChunk(chunk, start, end)
         if self.keep_sent:
             self.sent.append(record)
@@ -150,7 +157,8 @@ class VirtualUart(hal.Uart):
     def deliver(self, data: bytes) -> None:
         """Bytes arriving from the line now (what a peer or a test injects)."""
         if self._receiver is not None and self.enabled:
-            self._receiver(bytes(data), self.scheduler.now_us())
+            self._receiver(data if type(data) is bytes else bytes(data),
+                           self.scheduler.now_us())
 
     def set_receiver(self, callback: hal.ReceiveCallback | None) -> None:
         self._receiver = callback

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from firmware_py.rx64 import OVERLOAD_MS, UNITS_PER_S_PER_SPEED, Rx64ServoApp
+from firmware_py.rx64 import OVERLOAD_MS, UNITS_PER_S_PER_SPEED, Rx64ServoApp, _round_nonnegative
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
 from firmware_py.sim.virtual_hal import VirtualHal
@@ -179,3 +181,11 @@ def test_eeprom_persists_ram_resets(servo):
     assert read(sched, hal, "max_torque") == 600
     assert read(sched, hal, "torque_limit") == 600
     assert read(sched, hal, "cw_compliance_margin") == 1
+
+
+@settings(deadline=None)
+@given(st.floats(min_value=0.0, max_value=1e9, allow_nan=False)
+       | st.integers(min_value=0, max_value=4000).map(lambda k: k / 2))
+def test_publish_rounding_is_round(x: float) -> None:
+    """The registers' rounding is the builtin's, halves to even included."""
+    assert _round_nonnegative(x) == round(x)

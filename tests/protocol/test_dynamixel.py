@@ -29,6 +29,7 @@ from protocol.dynamixel import (
     bps_to_baud_register,
     check_packet,
     decode_packet,
+    encode_packet,
     fraction_to_rx64_load,
     guess_direction,
     make_action,
@@ -603,3 +604,64 @@ def test_hand_written_encoder_matches_the_declaration(id_: int, code: int, param
 
     body = {"value": {"id": id_, "code": code, "params": params}}
     assert encode_packet(id_, code, params) == PACKET.build({"body": body})
+
+
+def _state(decoder: DynamixelStreamDecoder) -> tuple[object, ...]:
+    return (decoder.packets, decoder.checksum_failures, decoder.resyncs,
+            decoder.bytes_discarded, decoder.rejected, decoder.gap_drops, decoder.offset,
+            decoder.pending)
+
+
+def test_take_whole_decodes_a_whole_instruction_as_feed_does() -> None:
+    fed, taken = (DynamixelStreamDecoder("instruction", gap_timeout=0.01) for _ in range(2))
+    for k, wire in enumerate((WRITE_EMANUAL, PING_1, SYNC_WRITE_EMANUAL)):
+        (decoded,) = fed.feed(wire, t=k * 1.0)
+        packet = taken.take_whole(wire, t=k * 1.0)
+        assert packet == decoded.packet and _state(taken) == _state(fed)
+    # the arrival time counts as feed's: a half packet after it is dropped on the same gap
+    for decoder in (fed, taken):
+        decoder.feed(PING_1[:3], t=2.5)
+        assert decoder.feed(PING_1, t=2.6)[0].raw == PING_1 and decoder.gap_drops == 1
+
+
+def test_take_whole_shares_one_decoded_packet_between_decoders() -> None:
+    first, second = DynamixelStreamDecoder("instruction"), DynamixelStreamDecoder("instruction")
+    wire = make_bulk_read([(2, 5, 36), (2, 6, 36)]).encode()
+    assert first.take_whole(wire) is second.take_whole(bytes(bytearray(wire)))
+
+
+@pytest.mark.parametrize("wire", [
+    PING_1[:-1] + bytes([PING_1[-1] ^ 1]),  # bad checksum
+    PING_1 + PING_1,  # two packets
+    PING_1[:5],  # half a packet
+    b"\x00" + PING_1,  # a byte before the header
+    bytes.fromhex("FF FF FF 02 01 FB"),  # ID 0xFF: a header byte
+])
+def test_take_whole_leaves_anything_but_one_whole_good_packet_to_feed(wire: bytes) -> None:
+    decoder = DynamixelStreamDecoder("instruction")
+    before = _state(decoder)
+    assert decoder.take_whole(wire) is None and _state(decoder) == before
+
+
+def test_take_whole_only_with_nothing_held_and_instructions() -> None:
+    held = DynamixelStreamDecoder("instruction")
+    held.feed(PING_1[:2])
+    assert held.take_whole(PING_1) is None and held.pending == 2
+    assert DynamixelStreamDecoder("status").take_whole(STATUS_1) is None
+
+
+_PACKETS = st.builds(encode_packet, st.integers(0, 0xFE), st.integers(0, 0xFF),
+                     st.binary(max_size=12))
+
+
+@settings(deadline=None)
+@given(st.binary(max_size=12) | _PACKETS, st.binary(max_size=40) | _PACKETS)
+def test_take_whole_agrees_with_feed(first: bytes, wire: bytes) -> None:
+    """Whatever came before, take_whole gives feed's one packet and state, or does nothing."""
+    fed, taken = (DynamixelStreamDecoder("instruction") for _ in range(2))
+    fed.feed(first)
+    taken.feed(first)
+    packet = taken.take_whole(wire, t=1.0)
+    found = fed.feed(wire, t=1.0)
+    if packet is not None:
+        assert [d.packet for d in found] == [packet] and _state(taken) == _state(fed)
