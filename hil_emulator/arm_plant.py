@@ -62,17 +62,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
-from typing import Final, cast
+from collections.abc import Sequence
+from typing import Final
 
 import mujoco
 import numpy as np
 
-from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, FRICTION_SOLIMP
 from hil_emulator.errors import EmulatorConfigError, PlantError
-from hil_emulator.plant import TICK_US
+from hil_emulator.plant import TICK_US, rint
 from protocol.robot import RX64_POSITION_CENTRE, RX64_UNITS_PER_RAD
 
 __all__ = ["ArmParams", "ArmPlant", "POT_CENTRE", "POT_UNITS_PER_RAD"]
@@ -140,13 +140,13 @@ class ArmPlant:
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
         self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
-        #: Per stepper, the tick's constants and its plant side (exact position, commanded
-        #: rate and current) in one tuple (one unpacking per joint per tick); the coupling
-        #: terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
+        #: Per stepper, its plant side (exact position, commanded rate and current) and the
+        #: tick's constants in one tuple (one unpacking per joint per tick); the coupling
+        #: terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.  The HAL objects, not
+        #: their bound methods: the compiled core calls their methods as C.
         self._stepper_rows = [
-            (i, s.position_steps, s.commanded_rate, s.commanded_current_ma, self._microstep[i],
-             self._c_rows[i], self._k[i], self._c[i], self._h[i], self._travel[i],
-             self._k_solid[i], self._hold_per_ma[i], self._detent[i])
+            (i, s, self._microstep[i], self._c_rows[i], self._k[i], self._c[i], self._h[i],
+             self._travel[i], self._k_solid[i], self._hold_per_ma[i], self._detent[i])
             for i, s in enumerate(self._steppers)]
         self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
                          for i, cij in column]
@@ -156,15 +156,10 @@ class ArmPlant:
         self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
         self._amps_per_nm = p.rx64_stall_current_a / self._stall
         self._load_scale = 1023.0 / self._stall
-        #: Per servo: its pot, load and current inputs.
-        self._servo_rows = [(s, self._servo_sensors[s].set_pot, self._servo_sensors[s].set_load,
-                             self._motors[s].set_current_ma) for s in _SERVOS]
-        #: Per servo: bridge enabled and commanded duty.
-        self._servo_commands = [(m.bridge_enabled, m.commanded_duty) for m in self._motors]
-        #: Per encoder (set in bind): joint, set_count, pulse_index, start angle, index angle,
-        #: index count.
-        self._encoder_rows: list[tuple[int, Callable[[int], None], Callable[[int], None],
-                                       float, float, int]] = []
+        #: Per servo: its sensors (pot, load) and its motor (current).
+        self._servo_rows = [(s, self._servo_sensors[s], self._motors[s]) for s in _SERVOS]
+        #: Per encoder (set in bind): joint, encoder, start angle, index angle, index count.
+        self._encoder_rows: list[tuple[int, VirtualEncoder, float, float, int]] = []
         # Physical state (set in bind).
         self._q_start = [0.0] * 7
         self._phi_offset = [0.0] * _N_STEPPERS
@@ -268,8 +263,8 @@ class ArmPlant:
         self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
         cpr = self._counts_per_rad
         self._encoder_rows = [
-            (i, self._encoders[i].set_count, self._encoders[i].pulse_index, self._q_start[i],
-             self._index[i], math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5))
+            (i, self._encoders[i], self._q_start[i], self._index[i],
+             math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5))
             for i in _STEPPERS]
         for sensors in self._stepper_sensors:
             sensors.set_supply_mv(p.stepper_supply_mv)
@@ -372,7 +367,7 @@ class ArmPlant:
         self._k[joint] = k
         self._k_solid[joint] = k * (p.stop_stiffness_factor - 1.0)
         row = list(self._stepper_rows[joint])
-        row[6], row[10] = self._k[joint], self._k_solid[joint]
+        row[4], row[8] = self._k[joint], self._k_solid[joint]
         self._stepper_rows[joint] = tuple(row)  # type: ignore[assignment]
         if self._bound:
             self.model.jnt_stiffness[self._stepper_jids[joint]] = k
@@ -390,23 +385,24 @@ class ArmPlant:
         """Firmware commands → capstan references, coupling and servo forces for ``dt_s``."""
         if not self._bound:
             self._check_bound()
-        q = cast("list[float]", self._q_mv.tolist())
-        qd = cast("list[float]", self._qd_mv.tolist())
+        # Float64 views (typeshed's memoryview.tolist() gives ints; no cast() call per tick).
+        q: list[float] = self._q_mv.tolist()  # type: ignore[assignment]
+        qd: list[float] = self._qd_mv.tolist()  # type: ignore[assignment]
         q_start = self._q_start
         dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
         z_all, push, deflections = self._z, self._push, self._deflection
         phi_offset, slip_rad, slipping = self._phi_offset, self._slip_rad, self._slipping
         heat, margin, corner = self._heat_stepper, self._margin, self._corner
-        inv_width, exp = 1.0 / self._width, math.exp
+        inv_width = 1.0 / self._width
         half_dt = 0.5 * dt_s
         torques = self._coupling_torque
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
-        for (i, position_steps, commanded_rate, commanded_current, micro, row, k, c, h, travel,
-             k_solid, hold_per_ma, detent) in self._stepper_rows:
-            rate = commanded_rate()
-            current = float(commanded_current())
-            phi = phi_offset[i] + position_steps() * micro + slip_rad[i]
+        for (i, stepper, micro, row, k, c, h, travel, k_solid, hold_per_ma,
+             detent) in self._stepper_rows:
+            rate = stepper.commanded_rate()
+            current = float(stepper.commanded_current_ma())
+            phi = phi_offset[i] + stepper.position_steps() * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
             for j, cij in row:
@@ -417,7 +413,7 @@ class ArmPlant:
             change = deflection - deflections[i]
             if change:  # Dahl hysteresis, exact for a monotone change
                 sign = 1.0 if change > 0 else -1.0
-                z = sign - (sign - z) * exp(-abs(change) * inv_width)
+                z = sign - (sign - z) * math.exp(-abs(change) * inv_width)
             viscous = c * (phi_rate - qdi)
             solid = 0.0
             if deflection > travel:
@@ -460,11 +456,11 @@ class ArmPlant:
         stall, emf, enabled_now = self._stall, self._emf, self._servo_enabled
         inv_noload, amps_per_nm = self._inv_noload, self._amps_per_nm
         servo_torque, heat = self._servo_torque, self._heat_servo
-        for s, (bridge_enabled, commanded_duty) in enumerate(self._servo_commands):
-            enabled = bridge_enabled()
+        for s, motor in enumerate(self._motors):
+            enabled = motor.bridge_enabled()
             omega = qd[4 + s]
             if enabled:
-                drive = commanded_duty() - omega * inv_noload
+                drive = motor.commanded_duty() - omega * inv_noload
                 drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
                 forces[4 + s] = drive + emf * omega + push[4 + s]
             else:
@@ -484,17 +480,17 @@ class ArmPlant:
         if not self._bound:
             self._check_bound()
         self._ticks += 1
-        q = cast("list[float]", self._q_mv.tolist())
+        q: list[float] = self._q_mv.tolist()  # type: ignore[assignment]
         # The encoders (as _write_encoders with index pulses), inlined for the tick.
-        cpr, floor, above_index = self._counts_per_rad, math.floor, self._above_index
-        for i, set_count, pulse_index, q0, index_q, index_count in self._encoder_rows:
+        cpr, above_index = self._counts_per_rad, self._above_index
+        for i, encoder, q0, index_q, index_count in self._encoder_rows:
             qi = q[i]
-            count = floor((qi - q0) * cpr + 0.5)
+            count = math.floor((qi - q0) * cpr + 0.5)
             above = qi >= index_q
             if above != above_index[i]:
                 above_index[i] = above
-                pulse_index(index_count)
-            set_count(count)
+                encoder.pulse_index(index_count)
+            encoder.set_count(count)
         # The servos (as _write_servo_sensors).
         if self._noise_at >= len(self._noise):
             self._draw_pot_noise()
@@ -503,17 +499,17 @@ class ArmPlant:
         self._noise_at = at + _N_SERVOS
         pot_per_rad, scale, amps_per_nm = self._pot_per_rad, self._load_scale, self._amps_per_nm
         servo_torque = self._servo_torque
-        for s, set_pot, set_load, set_current in self._servo_rows:
-            pot = round(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
-            set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
+        for s, sensors, motor in self._servo_rows:
+            pot = rint(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
+            sensors.set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
             torque = servo_torque[s]
             if torque:
-                load = round(torque * scale)
-                set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
-                set_current(round(abs(torque) * amps_per_nm * 1000.0))
+                load = rint(torque * scale)
+                sensors.set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
+                motor.set_current_ma(rint(abs(torque) * amps_per_nm * 1000.0))
             else:
-                set_load(0)
-                set_current(0)
+                sensors.set_load(0)
+                motor.set_current_ma(0)
         every = self.params.thermal_every_ticks
         if self._ticks % every == 0:
             self._update_temperatures(every * dt_s)
@@ -638,12 +634,12 @@ class ArmPlant:
         ambient = p.ambient_c
         per_tick = 1.0 / p.thermal_every_ticks
         temps = self._stepper_temp
-        for i in _STEPPERS:  # two phases at the set current
+        for i in range(_N_STEPPERS):  # two phases at the set current
             power = 2.0 * self._phase_ohm[i] * self._heat_stepper[i] * per_tick
             temps[i] += span_s / self._stepper_cap[i] * (
                 power - (temps[i] - ambient) / self._stepper_rth[i])
         temps = self._servo_temp
-        for s in _SERVOS:
+        for s in range(_N_SERVOS):
             power = p.rx64_winding_ohm * self._heat_servo[s] * per_tick
             temps[s] += span_s / p.rx64_thermal_capacity * (
                 power - (temps[s] - ambient) / p.rx64_thermal_resistance)
@@ -651,10 +647,11 @@ class ArmPlant:
         self._heat_servo = [0.0] * _N_SERVOS
 
     def _write_temperatures(self) -> None:
-        for sensors, t in zip(self._stepper_sensors, self._stepper_temp, strict=True):
-            sensors.set_temperature(round(t * 10))
-        for sensors, t in zip(self._servo_sensors, self._servo_temp, strict=True):
-            sensors.set_temperature(round(t * 10))
+        stepper_temp, servo_temp = self._stepper_temp, self._servo_temp
+        for i, sensors in enumerate(self._stepper_sensors):
+            sensors.set_temperature(rint(stepper_temp[i] * 10.0))
+        for s, sensors in enumerate(self._servo_sensors):
+            sensors.set_temperature(rint(servo_temp[s] * 10.0))
 
 
 def _beyond(deflection: float, travel: float) -> float:

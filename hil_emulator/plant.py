@@ -49,6 +49,17 @@ class PlantPart(Protocol):
         """Write sensor readings for the firmware after ``dt_s`` seconds of physics."""
 
 
+def rint(value: float) -> int:
+    """``value`` rounded to the nearest integer, ties to even (as ``round`` and ``np.rint``;
+    finite values only): written out because the compiled core calls ``round`` as a Python
+    function but ``math.floor`` as C."""
+    whole = math.floor(value)
+    rest = value - whole  # exact
+    if rest > 0.5 or (rest == 0.5 and whole & 1):
+        return whole + 1
+    return whole
+
+
 def new_spec(name: str = "hil") -> mujoco.MjSpec:
     """An empty world: 1 ms step (implicitfast), gravity −9.81 m/s² along z, a floor, a light."""
     spec = mujoco.MjSpec()
