@@ -72,36 +72,44 @@ class LinearCounts:
     One instance converts every slowly refreshed channel of a part in one loop, in plain
     Python floats: at a few tens of elements numpy's per-call cost (with the caches cold
     from the firmware) was most of a refresh, and the compiled core runs this loop as C.
-    The same IEEE operations in the same order as numpy's ``raw * scale + offset + noise *
-    sigma``, and round-half-even as ``np.rint``: the same integers.  Build it with
-    :meth:`imu` and :meth:`taxels` and join with :meth:`join`.
+    The elements come in *runs* sharing their constants (an IMU's 3-vector, a pad's
+    taxels), unpacked once per run.  The same IEEE operations in the same order as numpy's
+    ``raw * scale + offset + noise * sigma``, and round-half-even as ``np.rint``: the same
+    integers.  Build it with :meth:`imu` and :meth:`taxels` and join with :meth:`join`.
     """
 
-    def __init__(self, rows: list[tuple[float, float, float, float, float]]) -> None:
-        #: Per element: (scale, offset, σ, lo, hi).
-        self.rows = rows
-        self.size = len(rows)
+    def __init__(self, runs: list[tuple[int, float, float, float, float, float]]) -> None:
+        #: Per run: (length, scale, offset, σ, lo, hi).
+        self.runs = runs
+        self.size = sum(run[0] for run in runs)
 
     @classmethod
     def imu(cls, channels: list[tuple[str, float]]) -> LinearCounts:
         """Consecutive 3-vectors of ``(kind, noise σ counts)``, kind ``"accel"`` (raw in
         m/s², proper acceleration), ``"mag"`` (gauss) or ``"gyro"`` (rad/s)."""
-        rows = []
+        runs = []
         for kind, sigma in channels:
             scale, clamp = IMU_SCALES[kind]
-            rows += [(float(scale), 0.0, float(sigma), -float(clamp), float(clamp))] * 3
-        return cls(rows)
+            runs.append((3, float(scale), 0.0, float(sigma), -float(clamp), float(clamp)))
+        return cls(runs)
 
     @classmethod
     def taxels(cls, model: TactileModel, n: int) -> LinearCounts:
         """``n`` taxels whose raw value is the layer's relative compression δ/δ_max (0..1)."""
-        return cls([(float(model.full_counts - model.unloaded_counts),
+        return cls([(n, float(model.full_counts - model.unloaded_counts),
                      float(model.unloaded_counts), float(model.noise_counts), 0.0,
-                     float(0xFFFF))] * n)
+                     float(0xFFFF))])
 
     def join(self, other: LinearCounts) -> LinearCounts:
-        """This conversion followed by ``other`` (concatenated elements)."""
-        return LinearCounts(self.rows + other.rows)
+        """This conversion followed by ``other`` (concatenated elements; runs of equal
+        constants merged)."""
+        runs = list(self.runs)
+        for run in other.runs:
+            if runs and runs[-1][1:] == run[1:]:
+                runs[-1] = (runs[-1][0] + run[0], *run[1:])
+            else:
+                runs.append(run)
+        return LinearCounts(runs)
 
     def counts(self, raw: list[float], noise: list[float], at: int = 0) -> list[int]:
         """Counts (Python ints) for ``raw`` values and the standard normal draws
@@ -112,17 +120,18 @@ class LinearCounts:
         Values are clamped to the integral bounds before rounding (the same integers as
         after; NaN reads as the low bound).
         """
-        out: list[int] = []
-        rows = self.rows
+        out = [0] * self.size
         n = len(raw)
-        for j in range(n):
-            scale, offset, sigma, lo, hi = rows[j]
-            v = raw[j] * scale + offset + noise[at + j] * sigma
-            out.append(rint(v) if lo <= v <= hi else _clamped(v, lo, hi))
-        for j in range(n, self.size):
-            _, offset, sigma, lo, hi = rows[j]
-            v = offset + noise[at + j] * sigma
-            out.append(rint(v) if lo <= v <= hi else _clamped(v, lo, hi))
+        k = 0
+        for length, scale, offset, sigma, lo, hi in self.runs:
+            end = k + length
+            for j in range(k, n if n < end else end):
+                v = raw[j] * scale + offset + noise[at + j] * sigma
+                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
+            for j in range(n if n > k else k, end):
+                v = offset + noise[at + j] * sigma
+                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
+            k = end
         return out
 
 
