@@ -443,12 +443,12 @@ class ArmPlant:
             z_all[i] = z
             deflections[i] = deflection
             torques[i] = torque
-            heat[i] += current * current * 1e-6
+            heat[i] = heat[i] + current * current * 1e-6  # (not +=: a C add when compiled)
             # MuJoCo: k·(φ_mid − q) − c·q̇; here the rest (c·φ̇, hysteresis, solid tubes).
             refs[i] = phi + phi_rate * half_dt
             forces[i] = c * phi_rate + extra + push[i]
         for j, i, cij in self._c_terms:
-            forces[j] -= cij * torques[i]
+            forces[j] = forces[j] - cij * torques[i]
         spring = self._spring_mv
         spring[0], spring[1], spring[2], spring[3] = refs
 
@@ -471,7 +471,7 @@ class ArmPlant:
                 self._damping[4 + s] = self._gear_damping[s] + (emf if enabled else 0.0)
             servo_torque[s] = drive
             amps = drive * amps_per_nm
-            heat[s] += amps * amps
+            heat[s] = heat[s] + amps * amps
         force = self._force_mv
         force[0], force[1], force[2], force[3], force[4], force[5], force[6] = forces
 
@@ -636,12 +636,12 @@ class ArmPlant:
         temps = self._stepper_temp
         for i in range(_N_STEPPERS):  # two phases at the set current
             power = 2.0 * self._phase_ohm[i] * self._heat_stepper[i] * per_tick
-            temps[i] += span_s / self._stepper_cap[i] * (
+            temps[i] = temps[i] + span_s / self._stepper_cap[i] * (
                 power - (temps[i] - ambient) / self._stepper_rth[i])
         temps = self._servo_temp
         for s in range(_N_SERVOS):
             power = p.rx64_winding_ohm * self._heat_servo[s] * per_tick
-            temps[s] += span_s / p.rx64_thermal_capacity * (
+            temps[s] = temps[s] + span_s / p.rx64_thermal_capacity * (
                 power - (temps[s] - ambient) / p.rx64_thermal_resistance)
         self._heat_stepper = [0.0] * _N_STEPPERS
         self._heat_servo = [0.0] * _N_SERVOS

@@ -330,7 +330,7 @@ class FingerPlant:
                 elif duty < 0.0 and current < -lim:
                     current = -lim
             currents[i] = current
-            i2[i] += current * current
+            i2[i] = i2[i] + current * current  # not +=: the compiled core adds floats as C
             motor.set_hall_and_current(hall, rint(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
