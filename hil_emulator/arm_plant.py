@@ -68,7 +68,7 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal
+from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal, VirtualStepper
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, FRICTION_SOLIMP
 from hil_emulator.errors import EmulatorConfigError, PlantError
@@ -96,6 +96,25 @@ def _doubles(array: np.ndarray) -> memoryview[float]:
     """A memoryview of a contiguous float64 view into the MjData/MjModel buffers: it reads
     and writes Python floats exactly, without numpy's per-call cost (a tick's few values)."""
     return array.data.cast("B").cast("d")
+
+
+class _Coupling:
+    """One stepper joint's series-elastic coupling in the tick: the stepper's plant side, the
+    joint's constants (microstep angle, coupling row of (joint, C), k, c, h, travel, solid
+    stiffness, holding torque per mA, detent torque) and state (hysteresis z, deflection,
+    torque, Σ I² since the last thermal update).  Attributes of a class, not items of lists:
+    the compiled core keeps a class's floats unboxed."""
+
+    def __init__(self, joint: int, stepper: VirtualStepper, microstep: float,
+                 row: list[tuple[int, float]], k: float, c: float, h: float, travel: float,
+                 k_solid: float, hold_per_ma: float, detent: float) -> None:
+        self.joint, self.stepper, self.microstep, self.row = joint, stepper, microstep, row
+        self.k, self.c, self.h, self.travel, self.k_solid = k, c, h, travel, k_solid
+        self.hold_per_ma, self.detent = hold_per_ma, detent
+        self.z = 0.0
+        self.deflection = 0.0
+        self.torque = 0.0
+        self.heat = 0.0
 
 
 class ArmPlant:
@@ -140,13 +159,12 @@ class ArmPlant:
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
         self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
-        #: Per stepper, its plant side (exact position, commanded rate and current) and the
-        #: tick's constants in one tuple (one unpacking per joint per tick); the coupling
-        #: terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.  The HAL objects, not
-        #: their bound methods: the compiled core calls their methods as C.
-        self._stepper_rows = [
-            (i, s, self._microstep[i], self._c_rows[i], self._k[i], self._c[i], self._h[i],
-             self._travel[i], self._k_solid[i], self._hold_per_ma[i], self._detent[i])
+        #: Per stepper joint: its plant side, the tick's constants and state (_Coupling);
+        #: the coupling terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
+        self._couplings = [
+            _Coupling(i, s, self._microstep[i], self._c_rows[i], self._k[i], self._c[i],
+                      self._h[i], self._travel[i], self._k_solid[i], self._hold_per_ma[i],
+                      self._detent[i])
             for i, s in enumerate(self._steppers)]
         self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
                          for i, cij in column]
@@ -169,9 +187,6 @@ class ArmPlant:
         self._slip_events = [0] * _N_STEPPERS
         self._last_slip_tick = [-(10 ** 9)] * _N_STEPPERS
         self._event_gap_ticks = round(p.slip_event_gap_s * 1e6 / TICK_US)
-        self._z = [0.0] * _N_STEPPERS
-        self._deflection = [0.0] * _N_STEPPERS
-        self._coupling_torque = [0.0] * _N_STEPPERS
         self._above_index = [False] * _N_STEPPERS
         self._push = [0.0] * len(ARM_JOINTS)
         self._servo_torque = [0.0] * _N_SERVOS
@@ -181,7 +196,6 @@ class ArmPlant:
         self._stepper_cap = _floats(p.stepper_thermal_capacity)
         self._stepper_temp = [p.ambient_c] * _N_STEPPERS  # °C
         self._servo_temp = [p.ambient_c] * _N_SERVOS
-        self._heat_stepper = [0.0] * _N_STEPPERS  # Σ I² (A²) since the last thermal update
         self._heat_servo = [0.0] * _N_SERVOS
         self._noise: list[float] = []
         self._noise_at = 0
@@ -254,10 +268,10 @@ class ArmPlant:
                                 for i in _STEPPERS])
         phi0 = q_start[:4] + deflection0
         self._phi_offset = _floats(phi0 - self._rotor_command())
-        self._deflection = _floats(deflection0)
-        self._coupling_torque = _floats(torque0)
+        for coupling, deflection, torque in zip(self._couplings, _floats(deflection0),
+                                                _floats(torque0), strict=True):
+            coupling.deflection, coupling.torque, coupling.z = deflection, torque, 0.0
         self._spring_ref[:] = phi0
-        self._z = [0.0] * _N_STEPPERS
         self._slip_rad = [0.0] * _N_STEPPERS
         self._slipping = [False] * _N_STEPPERS
         self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
@@ -299,7 +313,7 @@ class ArmPlant:
 
     def coupling_torques(self) -> np.ndarray:
         """Torques the couplings of J1..J4 applied over the last tick (N·m on the joint)."""
-        return np.array(self._coupling_torque)
+        return np.array([coupling.torque for coupling in self._couplings])
 
     def holding_torques(self) -> np.ndarray:
         """What each stepper resists now before slipping (N·m at the joint)."""
@@ -366,9 +380,8 @@ class ArmPlant:
         self.params = p = dataclasses.replace(p, stiffness=values)
         self._k[joint] = k
         self._k_solid[joint] = k * (p.stop_stiffness_factor - 1.0)
-        row = list(self._stepper_rows[joint])
-        row[4], row[8] = self._k[joint], self._k_solid[joint]
-        self._stepper_rows[joint] = tuple(row)  # type: ignore[assignment]
+        coupling = self._couplings[joint]
+        coupling.k, coupling.k_solid = self._k[joint], self._k_solid[joint]
         if self._bound:
             self.model.jnt_stiffness[self._stepper_jids[joint]] = k
 
@@ -390,27 +403,28 @@ class ArmPlant:
         qd: list[float] = self._qd_mv.tolist()  # type: ignore[assignment]
         q_start = self._q_start
         dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
-        z_all, push, deflections = self._z, self._push, self._deflection
+        push = self._push
         phi_offset, slip_rad, slipping = self._phi_offset, self._slip_rad, self._slipping
-        heat, margin, corner = self._heat_stepper, self._margin, self._corner
+        margin, corner = self._margin, self._corner
         inv_width = 1.0 / self._width
         half_dt = 0.5 * dt_s
-        torques = self._coupling_torque
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
-        for (i, stepper, micro, row, k, c, h, travel, k_solid, hold_per_ma,
-             detent) in self._stepper_rows:
+        for coupling in self._couplings:
+            i, stepper, micro = coupling.joint, coupling.stepper, coupling.microstep
+            k, c, h, travel, k_solid = (coupling.k, coupling.c, coupling.h, coupling.travel,
+                                        coupling.k_solid)
             rate = stepper.commanded_rate()
             current = float(stepper.commanded_current_ma())
             phi = phi_offset[i] + stepper.position_steps() * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
-            for j, cij in row:
+            for j, cij in coupling.row:
                 phi += cij * dq[j]
                 phi_rate += cij * qd[j]
             deflection = phi - qi
-            z = z_all[i]
-            change = deflection - deflections[i]
+            z = coupling.z
+            change = deflection - coupling.deflection
             if change:  # Dahl hysteresis, exact for a monotone change
                 sign = 1.0 if change > 0 else -1.0
                 z = sign - (sign - z) * math.exp(-abs(change) * inv_width)
@@ -422,14 +436,14 @@ class ArmPlant:
                 solid = k_solid * (deflection + travel)
             extra = h * z + solid
             torque = k * deflection + extra + viscous
-            capacity = hold_per_ma * current
+            capacity = coupling.hold_per_ma * current
             if rate:
                 capacity /= margin  # pull-out torque while stepping: the curve
                 speed = rate if rate > 0 else -rate
                 if speed > corner:
                     capacity *= corner / speed
-            if capacity < detent:
-                capacity = detent
+            if capacity < coupling.detent:
+                capacity = coupling.detent
             over = torque > capacity or torque < -capacity
             if over or (slipping[i] and current > 0.0):
                 if over:
@@ -440,15 +454,16 @@ class ArmPlant:
                 extra = h * z + k_solid * _beyond(deflection, travel)
                 torque = k * deflection + extra + viscous
                 phi = deflection + qi
-            z_all[i] = z
-            deflections[i] = deflection
-            torques[i] = torque
-            heat[i] = heat[i] + current * current * 1e-6  # (not +=: a C add when compiled)
+            coupling.z = z
+            coupling.deflection = deflection
+            coupling.torque = torque
+            coupling.heat += current * current * 1e-6
             # MuJoCo: k·(φ_mid − q) − c·q̇; here the rest (c·φ̇, hysteresis, solid tubes).
             refs[i] = phi + phi_rate * half_dt
             forces[i] = c * phi_rate + extra + push[i]
+        couplings = self._couplings
         for j, i, cij in self._c_terms:
-            forces[j] = forces[j] - cij * torques[i]
+            forces[j] = forces[j] - cij * couplings[i].torque  # (not -=: a C subtraction)
         spring = self._spring_mv
         spring[0], spring[1], spring[2], spring[3] = refs
 
@@ -635,7 +650,7 @@ class ArmPlant:
         per_tick = 1.0 / p.thermal_every_ticks
         temps = self._stepper_temp
         for i in range(_N_STEPPERS):  # two phases at the set current
-            power = 2.0 * self._phase_ohm[i] * self._heat_stepper[i] * per_tick
+            power = 2.0 * self._phase_ohm[i] * self._couplings[i].heat * per_tick
             temps[i] = temps[i] + span_s / self._stepper_cap[i] * (
                 power - (temps[i] - ambient) / self._stepper_rth[i])
         temps = self._servo_temp
@@ -643,7 +658,8 @@ class ArmPlant:
             power = p.rx64_winding_ohm * self._heat_servo[s] * per_tick
             temps[s] = temps[s] + span_s / p.rx64_thermal_capacity * (
                 power - (temps[s] - ambient) / p.rx64_thermal_resistance)
-        self._heat_stepper = [0.0] * _N_STEPPERS
+        for coupling in self._couplings:
+            coupling.heat = 0.0
         self._heat_servo = [0.0] * _N_SERVOS
 
     def _write_temperatures(self) -> None:

@@ -140,6 +140,25 @@ def _stagger(prefix: str, period: int) -> int:
     return zlib.crc32(prefix.encode()) % period
 
 
+class _Winding:
+    """One finger motor in the plant: its HAL plant side, its row of ``M_rad`` and hall phase
+    (hall states), and the tick's state: bridge mode, duty sign (the current limit set),
+    duty, winding current (A) and Σ I² (A²) since the last thermal update.  Attributes of a
+    class, not items of lists: the compiled core keeps a class's floats unboxed."""
+
+    def __init__(self, hal: VirtualMotor, a0: float, a1: float, a2: float,
+                 phase: float) -> None:
+        self.hal = hal
+        self.a0, self.a1, self.a2 = a0, a1, a2
+        self.phase = phase
+        self.act = -1  # its actuator in the model (bind)
+        self.mode = _COAST
+        self.sign = 0
+        self.duty = 0.0
+        self.current = 0.0
+        self.i2_sum = 0.0
+
+
 class FingerPlant:
     """One finger module's physics ↔ its fmcb, f2 and f3 (a :class:`~hil_emulator.plant.PlantPart`).
 
@@ -159,22 +178,16 @@ class FingerPlant:
         motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
         if len(motors) != 3:
             raise PlantError("an fmcb drives three motors")
-        #: The motors' plant side (commands read, hall state and current written).
-        self._motors = motors
         self._fmcb_sensors: VirtualSensors = _virtual_hal(fmcb, "fmcb").sensors
         self._f2_sensors: VirtualSensors = _virtual_hal(f2, "f2").sensors
         self._f3_sensors: VirtualSensors = _virtual_hal(f3, "f3").sensors
         #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
         self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
         self._m_rad = motor_coupling_rad()
-        #: Per motor: its motor, its row of M_rad, its hall phase.
-        self._hall_rows = [(m, float(row[0]), float(row[1]), float(row[2]), phase)
-                           for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
-                                                    strict=True)]
-        self._mode = [_COAST, _COAST, _COAST]
-        self._duty = [0.0, 0.0, 0.0]
-        self._current_a = [0.0, 0.0, 0.0]
-        self._i2_sum = [0.0, 0.0, 0.0]
+        #: Per motor: its plant side, constants and state of the tick.
+        self._windings = [_Winding(m, float(row[0]), float(row[1]), float(row[2]), phase)
+                          for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
+                                                   strict=True)]
         self._i2_ticks = 0
         self._presses: dict[str, float] = {}
         self._press_dirty = False
@@ -188,7 +201,6 @@ class FingerPlant:
         self._torque_limit = motor.torque_limit_nm
         #: A force bound never reached (4 × the unlimited stall torque): "no limit".
         self._torque_open = 4.0 * motor.gain_nm_per_duty
-        self._drive_sign = [0, 0, 0]
         self.thermal = WindingThermal(3, p.ambient_c, p.thermal_resistance_k_per_w,
                                       p.thermal_time_constant_s)
         self.tip_temperature_c = p.ambient_c
@@ -250,8 +262,9 @@ class FingerPlant:
             model.actuator_biasprm[a, :3] = (0.0, 0.0, 0.0)
             model.tendon_armature[t] = motor.rotor_inertia_kg_m2
             model.tendon_frictionloss[t] = motor.friction_nm
-        self._mode = [_COAST, _COAST, _COAST]
-        for i in range(3):
+        for i, winding in enumerate(self._windings):
+            winding.act = self._act[i]
+            winding.mode = _COAST
             self._set_drive_sign(i, 0)
         self._pads = PadContacts(model, data, pads)
         self._f3_root = int(model.body_rootid[self._body["F3"]])
@@ -267,10 +280,9 @@ class FingerPlant:
     def before_step(self, dt_s: float) -> None:
         """Motor commands → actuator controls (duty) and bridge state; press forces."""
         powered = self.attached and self.fmcb.powered
-        ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
-        duties = self._duty
-        for i, motor in enumerate(self._motors):
-            braking, bridge_enabled, commanded_duty = motor.drive_command()
+        ctrl = self._ctrl
+        for i, winding in enumerate(self._windings):
+            braking, bridge_enabled, commanded_duty = winding.hal.drive_command()
             if not powered:
                 mode = _COAST
             elif braking:
@@ -279,15 +291,15 @@ class FingerPlant:
                 mode = _DRIVE
             else:
                 mode = _COAST
-            if mode != modes[i]:
+            if mode != winding.mode:
                 self._set_mode(i, mode)
             duty = commanded_duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
-            if sign != signs[i]:
+            if sign != winding.sign:
                 self._set_drive_sign(i, sign)
-            duties[i] = duty
+            winding.duty = duty
             # Written every tick: one store costs less than telling whether it changed.
-            ctrl[act[i]] = duty
+            ctrl[winding.act] = duty
         if self._press_dirty or self._presses:
             self._apply_presses()
 
@@ -300,12 +312,12 @@ class FingerPlant:
         lim, open_ = self._torque_limit, self._torque_open
         self.model.actuator_forcerange[self._act[i]] = (-lim if sign < 0 else -open_,
                                                         lim if sign > 0 else open_)
-        self._drive_sign[i] = sign
+        self._windings[i].sign = sign
 
     def _set_mode(self, i: int, mode: int) -> None:
         damping = 0.0 if mode == _COAST else self.params.motor.emf_damping_nm_s
         self.model.actuator_biasprm[self._act[i], 2] = -damping
-        self._mode[i] = mode
+        self._windings[i].mode = mode
 
     def after_step(self, dt_s: float) -> None:
         """Halls and currents every tick; IMUs, taxels, strain and temperatures when due."""
@@ -315,23 +327,24 @@ class FingerPlant:
         q0, q1, q2 = q
         w0, w1, w2 = w
         v, ke, r, lim = self._electrical
-        currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
         k_hall, sequence = _HALL_STATES_PER_RAD, _HALL_SEQUENCE
-        for i, (motor, a0, a1, a2, phase) in enumerate(self._hall_rows):
+        for winding in self._windings:
+            a0, a1, a2 = winding.a0, winding.a1, winding.a2
             # math.floor and rint called by name: the compiled core makes them C calls.
-            hall = sequence[math.floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
-            if modes[i] == _COAST:
+            hall = sequence[math.floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall
+                                       + winding.phase) % 6]
+            if winding.mode == _COAST:
                 current = 0.0
             else:
-                duty = duties[i]
+                duty = winding.duty
                 current = (duty * v - ke * (a0 * w0 + a1 * w1 + a2 * w2)) / r
                 if duty > 0.0 and current > lim:
                     current = lim
                 elif duty < 0.0 and current < -lim:
                     current = -lim
-            currents[i] = current
-            i2[i] = i2[i] + current * current  # not +=: the compiled core adds floats as C
-            motor.set_hall_and_current(hall, rint(current * 1000.0))
+            winding.current = current
+            winding.i2_sum += current * current
+            winding.hal.set_hall_and_current(hall, rint(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:
@@ -398,7 +411,7 @@ class FingerPlant:
 
     def motor_currents_a(self) -> np.ndarray:
         """Signed winding currents of the last tick (A); 0 while coasting."""
-        return np.array(self._current_a)
+        return np.array([winding.current for winding in self._windings])
 
     def capstan_torques_nm(self) -> np.ndarray:
         """Each motor's pull on its tendon as the torque at its capstan (N·m, signed): the
@@ -495,8 +508,9 @@ class FingerPlant:
     def _update_thermal(self, interval_s: float) -> None:
         p = self.params
         scale = p.motor.resistance_ohm / max(1, self._i2_ticks)
-        temps = self.thermal.update([i2 * scale for i2 in self._i2_sum], interval_s)
-        self._i2_sum = [0.0, 0.0, 0.0]
+        temps = self.thermal.update([w.i2_sum * scale for w in self._windings], interval_s)
+        for winding in self._windings:
+            winding.i2_sum = 0.0
         self._i2_ticks = 0
         rise = sum(temps) / len(temps) - p.ambient_c
         target = p.ambient_c + p.tip_coupling * rise
