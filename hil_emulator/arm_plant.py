@@ -62,17 +62,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
-from typing import Final, cast
+from collections.abc import Sequence
+from typing import Final
 
 import mujoco
 import numpy as np
 
-from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal, VirtualStepper
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, FRICTION_SOLIMP
 from hil_emulator.errors import EmulatorConfigError, PlantError
-from hil_emulator.plant import TICK_US
+from hil_emulator.plant import TICK_US, rint
 from protocol.robot import RX64_POSITION_CENTRE, RX64_UNITS_PER_RAD
 
 __all__ = ["ArmParams", "ArmPlant", "POT_CENTRE", "POT_UNITS_PER_RAD"]
@@ -96,6 +96,25 @@ def _doubles(array: np.ndarray) -> memoryview[float]:
     """A memoryview of a contiguous float64 view into the MjData/MjModel buffers: it reads
     and writes Python floats exactly, without numpy's per-call cost (a tick's few values)."""
     return array.data.cast("B").cast("d")
+
+
+class _Coupling:
+    """One stepper joint's series-elastic coupling in the tick: the stepper's plant side, the
+    joint's constants (microstep angle, coupling row of (joint, C), k, c, h, travel, solid
+    stiffness, holding torque per mA, detent torque) and state (hysteresis z, deflection,
+    torque, Σ I² since the last thermal update).  Attributes of a class, not items of lists:
+    the compiled core keeps a class's floats unboxed."""
+
+    def __init__(self, joint: int, stepper: VirtualStepper, microstep: float,
+                 row: list[tuple[int, float]], k: float, c: float, h: float, travel: float,
+                 k_solid: float, hold_per_ma: float, detent: float) -> None:
+        self.joint, self.stepper, self.microstep, self.row = joint, stepper, microstep, row
+        self.k, self.c, self.h, self.travel, self.k_solid = k, c, h, travel, k_solid
+        self.hold_per_ma, self.detent = hold_per_ma, detent
+        self.z = 0.0
+        self.deflection = 0.0
+        self.torque = 0.0
+        self.heat = 0.0
 
 
 class ArmPlant:
@@ -140,13 +159,12 @@ class ArmPlant:
         self._c_rows = [[(j, float(c[i, j])) for j in _STEPPERS if c[i, j]] for i in _STEPPERS]
         self._c_cols = [[(i, float(c[i, j])) for i in _STEPPERS if c[i, j]] for j in _STEPPERS]
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
-        #: Per stepper, the tick's constants and its plant side (exact position, commanded
-        #: rate and current) in one tuple (one unpacking per joint per tick); the coupling
-        #: terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
-        self._stepper_rows = [
-            (i, s.position_steps, s.commanded_rate, s.commanded_current_ma, self._microstep[i],
-             self._c_rows[i], self._k[i], self._c[i], self._h[i], self._travel[i],
-             self._k_solid[i], self._hold_per_ma[i], self._detent[i])
+        #: Per stepper joint: its plant side, the tick's constants and state (_Coupling);
+        #: the coupling terms −Cᵀτ as (joint j, capstan i, C[i, j]) in column order.
+        self._couplings = [
+            _Coupling(i, s, self._microstep[i], self._c_rows[i], self._k[i], self._c[i],
+                      self._h[i], self._travel[i], self._k_solid[i], self._hold_per_ma[i],
+                      self._detent[i])
             for i, s in enumerate(self._steppers)]
         self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
                          for i, cij in column]
@@ -156,15 +174,10 @@ class ArmPlant:
         self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
         self._amps_per_nm = p.rx64_stall_current_a / self._stall
         self._load_scale = 1023.0 / self._stall
-        #: Per servo: its pot, load and current inputs.
-        self._servo_rows = [(s, self._servo_sensors[s].set_pot, self._servo_sensors[s].set_load,
-                             self._motors[s].set_current_ma) for s in _SERVOS]
-        #: Per servo: bridge enabled and commanded duty.
-        self._servo_commands = [(m.bridge_enabled, m.commanded_duty) for m in self._motors]
-        #: Per encoder (set in bind): joint, set_count, pulse_index, start angle, index angle,
-        #: index count.
-        self._encoder_rows: list[tuple[int, Callable[[int], None], Callable[[int], None],
-                                       float, float, int]] = []
+        #: Per servo: its sensors (pot, load) and its motor (current).
+        self._servo_rows = [(s, self._servo_sensors[s], self._motors[s]) for s in _SERVOS]
+        #: Per encoder (set in bind): joint, encoder, start angle, index angle, index count.
+        self._encoder_rows: list[tuple[int, VirtualEncoder, float, float, int]] = []
         # Physical state (set in bind).
         self._q_start = [0.0] * 7
         self._phi_offset = [0.0] * _N_STEPPERS
@@ -174,9 +187,6 @@ class ArmPlant:
         self._slip_events = [0] * _N_STEPPERS
         self._last_slip_tick = [-(10 ** 9)] * _N_STEPPERS
         self._event_gap_ticks = round(p.slip_event_gap_s * 1e6 / TICK_US)
-        self._z = [0.0] * _N_STEPPERS
-        self._deflection = [0.0] * _N_STEPPERS
-        self._coupling_torque = [0.0] * _N_STEPPERS
         self._above_index = [False] * _N_STEPPERS
         self._push = [0.0] * len(ARM_JOINTS)
         self._servo_torque = [0.0] * _N_SERVOS
@@ -186,7 +196,6 @@ class ArmPlant:
         self._stepper_cap = _floats(p.stepper_thermal_capacity)
         self._stepper_temp = [p.ambient_c] * _N_STEPPERS  # °C
         self._servo_temp = [p.ambient_c] * _N_SERVOS
-        self._heat_stepper = [0.0] * _N_STEPPERS  # Σ I² (A²) since the last thermal update
         self._heat_servo = [0.0] * _N_SERVOS
         self._noise: list[float] = []
         self._noise_at = 0
@@ -259,17 +268,17 @@ class ArmPlant:
                                 for i in _STEPPERS])
         phi0 = q_start[:4] + deflection0
         self._phi_offset = _floats(phi0 - self._rotor_command())
-        self._deflection = _floats(deflection0)
-        self._coupling_torque = _floats(torque0)
+        for coupling, deflection, torque in zip(self._couplings, _floats(deflection0),
+                                                _floats(torque0), strict=True):
+            coupling.deflection, coupling.torque, coupling.z = deflection, torque, 0.0
         self._spring_ref[:] = phi0
-        self._z = [0.0] * _N_STEPPERS
         self._slip_rad = [0.0] * _N_STEPPERS
         self._slipping = [False] * _N_STEPPERS
         self._above_index = [bool(q_start[i] >= self._index[i]) for i in _STEPPERS]
         cpr = self._counts_per_rad
         self._encoder_rows = [
-            (i, self._encoders[i].set_count, self._encoders[i].pulse_index, self._q_start[i],
-             self._index[i], math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5))
+            (i, self._encoders[i], self._q_start[i], self._index[i],
+             math.floor((self._index[i] - self._q_start[i]) * cpr + 0.5))
             for i in _STEPPERS]
         for sensors in self._stepper_sensors:
             sensors.set_supply_mv(p.stepper_supply_mv)
@@ -304,7 +313,7 @@ class ArmPlant:
 
     def coupling_torques(self) -> np.ndarray:
         """Torques the couplings of J1..J4 applied over the last tick (N·m on the joint)."""
-        return np.array(self._coupling_torque)
+        return np.array([coupling.torque for coupling in self._couplings])
 
     def holding_torques(self) -> np.ndarray:
         """What each stepper resists now before slipping (N·m at the joint)."""
@@ -371,9 +380,8 @@ class ArmPlant:
         self.params = p = dataclasses.replace(p, stiffness=values)
         self._k[joint] = k
         self._k_solid[joint] = k * (p.stop_stiffness_factor - 1.0)
-        row = list(self._stepper_rows[joint])
-        row[6], row[10] = self._k[joint], self._k_solid[joint]
-        self._stepper_rows[joint] = tuple(row)  # type: ignore[assignment]
+        coupling = self._couplings[joint]
+        coupling.k, coupling.k_solid = self._k[joint], self._k_solid[joint]
         if self._bound:
             self.model.jnt_stiffness[self._stepper_jids[joint]] = k
 
@@ -390,34 +398,36 @@ class ArmPlant:
         """Firmware commands → capstan references, coupling and servo forces for ``dt_s``."""
         if not self._bound:
             self._check_bound()
-        q = cast("list[float]", self._q_mv.tolist())
-        qd = cast("list[float]", self._qd_mv.tolist())
+        # Float64 views (typeshed's memoryview.tolist() gives ints; no cast() call per tick).
+        q: list[float] = self._q_mv.tolist()  # type: ignore[assignment]
+        qd: list[float] = self._qd_mv.tolist()  # type: ignore[assignment]
         q_start = self._q_start
         dq = [q[0] - q_start[0], q[1] - q_start[1], q[2] - q_start[2], q[3] - q_start[3]]
-        z_all, push, deflections = self._z, self._push, self._deflection
+        push = self._push
         phi_offset, slip_rad, slipping = self._phi_offset, self._slip_rad, self._slipping
-        heat, margin, corner = self._heat_stepper, self._margin, self._corner
-        inv_width, exp = 1.0 / self._width, math.exp
+        margin, corner = self._margin, self._corner
+        inv_width = 1.0 / self._width
         half_dt = 0.5 * dt_s
-        torques = self._coupling_torque
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
-        for (i, position_steps, commanded_rate, commanded_current, micro, row, k, c, h, travel,
-             k_solid, hold_per_ma, detent) in self._stepper_rows:
-            rate = commanded_rate()
-            current = float(commanded_current())
-            phi = phi_offset[i] + position_steps() * micro + slip_rad[i]
+        for coupling in self._couplings:
+            i, stepper, micro = coupling.joint, coupling.stepper, coupling.microstep
+            k, c, h, travel, k_solid = (coupling.k, coupling.c, coupling.h, coupling.travel,
+                                        coupling.k_solid)
+            rate = stepper.commanded_rate()
+            current = float(stepper.commanded_current_ma())
+            phi = phi_offset[i] + stepper.position_steps() * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
-            for j, cij in row:
+            for j, cij in coupling.row:
                 phi += cij * dq[j]
                 phi_rate += cij * qd[j]
             deflection = phi - qi
-            z = z_all[i]
-            change = deflection - deflections[i]
+            z = coupling.z
+            change = deflection - coupling.deflection
             if change:  # Dahl hysteresis, exact for a monotone change
                 sign = 1.0 if change > 0 else -1.0
-                z = sign - (sign - z) * exp(-abs(change) * inv_width)
+                z = sign - (sign - z) * math.exp(-abs(change) * inv_width)
             viscous = c * (phi_rate - qdi)
             solid = 0.0
             if deflection > travel:
@@ -426,14 +436,14 @@ class ArmPlant:
                 solid = k_solid * (deflection + travel)
             extra = h * z + solid
             torque = k * deflection + extra + viscous
-            capacity = hold_per_ma * current
+            capacity = coupling.hold_per_ma * current
             if rate:
                 capacity /= margin  # pull-out torque while stepping: the curve
                 speed = rate if rate > 0 else -rate
                 if speed > corner:
                     capacity *= corner / speed
-            if capacity < detent:
-                capacity = detent
+            if capacity < coupling.detent:
+                capacity = coupling.detent
             over = torque > capacity or torque < -capacity
             if over or (slipping[i] and current > 0.0):
                 if over:
@@ -444,15 +454,16 @@ class ArmPlant:
                 extra = h * z + k_solid * _beyond(deflection, travel)
                 torque = k * deflection + extra + viscous
                 phi = deflection + qi
-            z_all[i] = z
-            deflections[i] = deflection
-            torques[i] = torque
-            heat[i] += current * current * 1e-6
+            coupling.z = z
+            coupling.deflection = deflection
+            coupling.torque = torque
+            coupling.heat += current * current * 1e-6
             # MuJoCo: k·(φ_mid − q) − c·q̇; here the rest (c·φ̇, hysteresis, solid tubes).
             refs[i] = phi + phi_rate * half_dt
             forces[i] = c * phi_rate + extra + push[i]
+        couplings = self._couplings
         for j, i, cij in self._c_terms:
-            forces[j] -= cij * torques[i]
+            forces[j] = forces[j] - cij * couplings[i].torque  # (not -=: a C subtraction)
         spring = self._spring_mv
         spring[0], spring[1], spring[2], spring[3] = refs
 
@@ -460,11 +471,11 @@ class ArmPlant:
         stall, emf, enabled_now = self._stall, self._emf, self._servo_enabled
         inv_noload, amps_per_nm = self._inv_noload, self._amps_per_nm
         servo_torque, heat = self._servo_torque, self._heat_servo
-        for s, (bridge_enabled, commanded_duty) in enumerate(self._servo_commands):
-            enabled = bridge_enabled()
+        for s, motor in enumerate(self._motors):
+            enabled = motor.bridge_enabled()
             omega = qd[4 + s]
             if enabled:
-                drive = commanded_duty() - omega * inv_noload
+                drive = motor.commanded_duty() - omega * inv_noload
                 drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
                 forces[4 + s] = drive + emf * omega + push[4 + s]
             else:
@@ -475,7 +486,7 @@ class ArmPlant:
                 self._damping[4 + s] = self._gear_damping[s] + (emf if enabled else 0.0)
             servo_torque[s] = drive
             amps = drive * amps_per_nm
-            heat[s] += amps * amps
+            heat[s] = heat[s] + amps * amps
         force = self._force_mv
         force[0], force[1], force[2], force[3], force[4], force[5], force[6] = forces
 
@@ -484,17 +495,17 @@ class ArmPlant:
         if not self._bound:
             self._check_bound()
         self._ticks += 1
-        q = cast("list[float]", self._q_mv.tolist())
+        q: list[float] = self._q_mv.tolist()  # type: ignore[assignment]
         # The encoders (as _write_encoders with index pulses), inlined for the tick.
-        cpr, floor, above_index = self._counts_per_rad, math.floor, self._above_index
-        for i, set_count, pulse_index, q0, index_q, index_count in self._encoder_rows:
+        cpr, above_index = self._counts_per_rad, self._above_index
+        for i, encoder, q0, index_q, index_count in self._encoder_rows:
             qi = q[i]
-            count = floor((qi - q0) * cpr + 0.5)
+            count = math.floor((qi - q0) * cpr + 0.5)
             above = qi >= index_q
             if above != above_index[i]:
                 above_index[i] = above
-                pulse_index(index_count)
-            set_count(count)
+                encoder.pulse_index(index_count)
+            encoder.set_count(count)
         # The servos (as _write_servo_sensors).
         if self._noise_at >= len(self._noise):
             self._draw_pot_noise()
@@ -503,17 +514,17 @@ class ArmPlant:
         self._noise_at = at + _N_SERVOS
         pot_per_rad, scale, amps_per_nm = self._pot_per_rad, self._load_scale, self._amps_per_nm
         servo_torque = self._servo_torque
-        for s, set_pot, set_load, set_current in self._servo_rows:
-            pot = round(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
-            set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
+        for s, sensors, motor in self._servo_rows:
+            pot = rint(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
+            sensors.set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
             torque = servo_torque[s]
             if torque:
-                load = round(torque * scale)
-                set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
-                set_current(round(abs(torque) * amps_per_nm * 1000.0))
+                load = rint(torque * scale)
+                sensors.set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
+                motor.set_current_ma(rint(abs(torque) * amps_per_nm * 1000.0))
             else:
-                set_load(0)
-                set_current(0)
+                sensors.set_load(0)
+                motor.set_current_ma(0)
         every = self.params.thermal_every_ticks
         if self._ticks % every == 0:
             self._update_temperatures(every * dt_s)
@@ -638,23 +649,25 @@ class ArmPlant:
         ambient = p.ambient_c
         per_tick = 1.0 / p.thermal_every_ticks
         temps = self._stepper_temp
-        for i in _STEPPERS:  # two phases at the set current
-            power = 2.0 * self._phase_ohm[i] * self._heat_stepper[i] * per_tick
-            temps[i] += span_s / self._stepper_cap[i] * (
+        for i in range(_N_STEPPERS):  # two phases at the set current
+            power = 2.0 * self._phase_ohm[i] * self._couplings[i].heat * per_tick
+            temps[i] = temps[i] + span_s / self._stepper_cap[i] * (
                 power - (temps[i] - ambient) / self._stepper_rth[i])
         temps = self._servo_temp
-        for s in _SERVOS:
+        for s in range(_N_SERVOS):
             power = p.rx64_winding_ohm * self._heat_servo[s] * per_tick
-            temps[s] += span_s / p.rx64_thermal_capacity * (
+            temps[s] = temps[s] + span_s / p.rx64_thermal_capacity * (
                 power - (temps[s] - ambient) / p.rx64_thermal_resistance)
-        self._heat_stepper = [0.0] * _N_STEPPERS
+        for coupling in self._couplings:
+            coupling.heat = 0.0
         self._heat_servo = [0.0] * _N_SERVOS
 
     def _write_temperatures(self) -> None:
-        for sensors, t in zip(self._stepper_sensors, self._stepper_temp, strict=True):
-            sensors.set_temperature(round(t * 10))
-        for sensors, t in zip(self._servo_sensors, self._servo_temp, strict=True):
-            sensors.set_temperature(round(t * 10))
+        stepper_temp, servo_temp = self._stepper_temp, self._servo_temp
+        for i, sensors in enumerate(self._stepper_sensors):
+            sensors.set_temperature(rint(stepper_temp[i] * 10.0))
+        for s, sensors in enumerate(self._servo_sensors):
+            sensors.set_temperature(rint(servo_temp[s] * 10.0))
 
 
 def _beyond(deflection: float, travel: float) -> float:

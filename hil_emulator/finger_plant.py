@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, field
-from typing import Final, cast
+from typing import Final
 
 import mujoco
 import numpy as np
@@ -64,6 +64,7 @@ from hil_emulator.hand_model import (
 from hil_emulator.hand_sensors import (
     DEFAULT_TACTILE,
     LinearCounts,
+    NormalStream,
     PadContacts,
     TactileModel,
     WindingThermal,
@@ -71,9 +72,17 @@ from hil_emulator.hand_sensors import (
     taxel_forces,
     thermistor_counts,
 )
+from hil_emulator.plant import rint
 from protocol.robot import FINGER_GEAR_RATIOS, HALL_SEQUENCE, HALL_STATES_PER_RAD
 
-_DRIVE, _BRAKE, _COAST = 0, 1, 2
+#: Bridge modes (Final: the compiled core inlines them instead of a lookup per use).
+_DRIVE: Final = 0
+_BRAKE: Final = 1
+_COAST: Final = 2
+#: The hall pattern and its scale as this module's own constants (the compiled core reads a
+#: Final of a compiled module as C, another module's through its dictionary).
+_HALL_SEQUENCE: Final[tuple[int, ...]] = tuple(HALL_SEQUENCE)
+_HALL_STATES_PER_RAD: Final[float] = float(HALL_STATES_PER_RAD)
 #: Where :meth:`FingerPlant.press` pushes: the pad centre (m, body frame) of each segment.
 PRESS_POINTS: Final = {"F2": (F2_LENGTH / 2, 0.0, F2_PAD_Z), "F3": (F3_LENGTH / 2, 0.0, F3_PAD_Z)}
 
@@ -131,6 +140,25 @@ def _stagger(prefix: str, period: int) -> int:
     return zlib.crc32(prefix.encode()) % period
 
 
+class _Winding:
+    """One finger motor in the plant: its HAL plant side, its row of ``M_rad`` and hall phase
+    (hall states), and the tick's state: bridge mode, duty sign (the current limit set),
+    duty, winding current (A) and Σ I² (A²) since the last thermal update.  Attributes of a
+    class, not items of lists: the compiled core keeps a class's floats unboxed."""
+
+    def __init__(self, hal: VirtualMotor, a0: float, a1: float, a2: float,
+                 phase: float) -> None:
+        self.hal = hal
+        self.a0, self.a1, self.a2 = a0, a1, a2
+        self.phase = phase
+        self.act = -1  # its actuator in the model (bind)
+        self.mode = _COAST
+        self.sign = 0
+        self.duty = 0.0
+        self.current = 0.0
+        self.i2_sum = 0.0
+
+
 class FingerPlant:
     """One finger module's physics ↔ its fmcb, f2 and f3 (a :class:`~hil_emulator.plant.PlantPart`).
 
@@ -150,24 +178,16 @@ class FingerPlant:
         motors: list[VirtualMotor] = _virtual_hal(fmcb, "fmcb").motors[:3]
         if len(motors) != 3:
             raise PlantError("an fmcb drives three motors")
-        #: Per motor, its plant side bound once: (braking, bridge enabled, commanded duty).
-        self._motor_commands = [m.drive_command for m in motors]
         self._fmcb_sensors: VirtualSensors = _virtual_hal(fmcb, "fmcb").sensors
         self._f2_sensors: VirtualSensors = _virtual_hal(f2, "f2").sensors
         self._f3_sensors: VirtualSensors = _virtual_hal(f3, "f3").sensors
         #: Rotor phase at power-up (hall states, 0..6): where the hall pattern starts.
         self.hall_phase = [float(v) for v in rng.uniform(0.0, 6.0, 3)]
         self._m_rad = motor_coupling_rad()
-        #: Per motor: its hall state and current input (one setter), its row of M_rad, its
-        #: hall phase.
-        self._hall_rows = [(m.set_hall_and_current, float(row[0]), float(row[1]),
-                            float(row[2]), phase)
-                           for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
-                                                    strict=True)]
-        self._mode = [_COAST, _COAST, _COAST]
-        self._duty = [0.0, 0.0, 0.0]
-        self._current_a = [0.0, 0.0, 0.0]
-        self._i2_sum = [0.0, 0.0, 0.0]
+        #: Per motor: its plant side, constants and state of the tick.
+        self._windings = [_Winding(m, float(row[0]), float(row[1]), float(row[2]), phase)
+                          for m, row, phase in zip(motors, self._m_rad, self.hall_phase,
+                                                   strict=True)]
         self._i2_ticks = 0
         self._presses: dict[str, float] = {}
         self._press_dirty = False
@@ -181,7 +201,6 @@ class FingerPlant:
         self._torque_limit = motor.torque_limit_nm
         #: A force bound never reached (4 × the unlimited stall torque): "no limit".
         self._torque_open = 4.0 * motor.gain_nm_per_duty
-        self._drive_sign = [0, 0, 0]
         self.thermal = WindingThermal(3, p.ambient_c, p.thermal_resistance_k_per_w,
                                       p.thermal_time_constant_s)
         self.tip_temperature_c = p.ambient_c
@@ -195,12 +214,9 @@ class FingerPlant:
         ).join(LinearCounts.taxels(p.tactile, n2 + n3))
         self._n_f2 = n2
         self._zeros_f2, self._zeros_f3 = np.zeros(n2), np.zeros(n3)
-        # Buffers of the slow refresh: raw IMU readings (SI) then taxel compression; noise.
-        self._raw = np.zeros(self._counts.size)
-        self._raw_imu, self._raw_taxels = self._raw[:18], self._raw[18:]
-        self._taxels_loaded = False
-        self._noise = np.zeros(self._counts.size + 1)
-        self._noise_counts = self._noise[:-1]
+        #: Every random number after the hall phases, in the order they were drawn one
+        #: refresh at a time (the slow sensors' size + 1, the thermistors' 4).
+        self._normals = NormalStream(rng)
 
     # --- binding ----------------------------------------------------------------------------
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -236,18 +252,19 @@ class FingerPlant:
         self._qvel = data.qvel[dadr[0]:dadr[0] + 3]
         self._ctrl = _doubles(data.ctrl)
         self._q_mv, self._w_mv = _doubles(self._qpos), _doubles(self._qvel)
-        self._ctrl_written = [math.nan] * 3  # what data.ctrl holds (NaN: write it)
         self._imu_idx = np.concatenate(
             [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
-        self._imu_view = _block_view(data.sensordata, self._imu_idx)
+        view = _block_view(data.sensordata, self._imu_idx)
+        self._imu_mv = None if view is None else _doubles(view)
         motor = self.params.motor
         for a, t in zip(self._act, tendons, strict=True):
             model.actuator_gainprm[a, 0] = motor.gain_nm_per_duty
             model.actuator_biasprm[a, :3] = (0.0, 0.0, 0.0)
             model.tendon_armature[t] = motor.rotor_inertia_kg_m2
             model.tendon_frictionloss[t] = motor.friction_nm
-        self._mode = [_COAST, _COAST, _COAST]
-        for i in range(3):
+        for i, winding in enumerate(self._windings):
+            winding.act = self._act[i]
+            winding.mode = _COAST
             self._set_drive_sign(i, 0)
         self._pads = PadContacts(model, data, pads)
         self._f3_root = int(model.body_rootid[self._body["F3"]])
@@ -263,10 +280,9 @@ class FingerPlant:
     def before_step(self, dt_s: float) -> None:
         """Motor commands → actuator controls (duty) and bridge state; press forces."""
         powered = self.attached and self.fmcb.powered
-        ctrl, act, modes, signs = self._ctrl, self._act, self._mode, self._drive_sign
-        duties, written, copysign = self._duty, self._ctrl_written, math.copysign
-        for i, drive_command in enumerate(self._motor_commands):
-            braking, bridge_enabled, commanded_duty = drive_command()
+        ctrl = self._ctrl
+        for i, winding in enumerate(self._windings):
+            braking, bridge_enabled, commanded_duty = winding.hal.drive_command()
             if not powered:
                 mode = _COAST
             elif braking:
@@ -275,21 +291,15 @@ class FingerPlant:
                 mode = _DRIVE
             else:
                 mode = _COAST
-            if mode != modes[i]:
+            if mode != winding.mode:
                 self._set_mode(i, mode)
             duty = commanded_duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
-            if sign != signs[i]:
+            if sign != winding.sign:
                 self._set_drive_sign(i, sign)
-            duties[i] = duty
-            last = written[i]
-            # data.ctrl keeps what was written (no one else writes these entries): write only
-            # a changed duty, bit for bit (the same object, or equal with the same sign: equal
-            # floats can differ in sign only at zero; NaN is never equal, so always written).
-            if duty is not last and (duty != last or (
-                    duty == 0.0 and copysign(1.0, duty) != copysign(1.0, last))):
-                ctrl[act[i]] = duty
-                written[i] = duty
+            winding.duty = duty
+            # Written every tick: one store costs less than telling whether it changed.
+            ctrl[winding.act] = duty
         if self._press_dirty or self._presses:
             self._apply_presses()
 
@@ -302,34 +312,39 @@ class FingerPlant:
         lim, open_ = self._torque_limit, self._torque_open
         self.model.actuator_forcerange[self._act[i]] = (-lim if sign < 0 else -open_,
                                                         lim if sign > 0 else open_)
-        self._drive_sign[i] = sign
+        self._windings[i].sign = sign
 
     def _set_mode(self, i: int, mode: int) -> None:
         damping = 0.0 if mode == _COAST else self.params.motor.emf_damping_nm_s
         self.model.actuator_biasprm[self._act[i], 2] = -damping
-        self._mode[i] = mode
+        self._windings[i].mode = mode
 
     def after_step(self, dt_s: float) -> None:
         """Halls and currents every tick; IMUs, taxels, strain and temperatures when due."""
-        q0, q1, q2 = cast("list[float]", self._q_mv.tolist())
-        w0, w1, w2 = cast("list[float]", self._w_mv.tolist())
+        # Float64 views (typeshed's memoryview.tolist() gives ints; no cast() call per tick).
+        q: list[float] = self._q_mv.tolist()  # type: ignore[assignment]
+        w: list[float] = self._w_mv.tolist()  # type: ignore[assignment]
+        q0, q1, q2 = q
+        w0, w1, w2 = w
         v, ke, r, lim = self._electrical
-        currents, i2, modes, duties = self._current_a, self._i2_sum, self._mode, self._duty
-        floor, k_hall, sequence = math.floor, HALL_STATES_PER_RAD, HALL_SEQUENCE
-        for i, (set_hall_and_current, a0, a1, a2, phase) in enumerate(self._hall_rows):
-            hall = sequence[floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
-            if modes[i] == _COAST:
+        k_hall, sequence = _HALL_STATES_PER_RAD, _HALL_SEQUENCE
+        for winding in self._windings:
+            a0, a1, a2 = winding.a0, winding.a1, winding.a2
+            # math.floor and rint called by name: the compiled core makes them C calls.
+            hall = sequence[math.floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall
+                                       + winding.phase) % 6]
+            if winding.mode == _COAST:
                 current = 0.0
             else:
-                duty = duties[i]
+                duty = winding.duty
                 current = (duty * v - ke * (a0 * w0 + a1 * w1 + a2 * w2)) / r
                 if duty > 0.0 and current > lim:
                     current = lim
                 elif duty < 0.0 and current < -lim:
                     current = -lim
-            currents[i] = current
-            i2[i] += current * current
-            set_hall_and_current(hall, round(current * 1000.0))
+            winding.current = current
+            winding.i2_sum += current * current
+            winding.hal.set_hall_and_current(hall, rint(current * 1000.0))
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:
@@ -396,7 +411,7 @@ class FingerPlant:
 
     def motor_currents_a(self) -> np.ndarray:
         """Signed winding currents of the last tick (A); 0 while coasting."""
-        return np.array(self._current_a)
+        return np.array([winding.current for winding in self._windings])
 
     def capstan_torques_nm(self) -> np.ndarray:
         """Each motor's pull on its tendon as the torque at its capstan (N·m, signed): the
@@ -423,12 +438,14 @@ class FingerPlant:
     def _update_sensors(self) -> None:
         """IMUs (accel, mag) of the three boards, f2/f3 taxels, f2 strain.
 
-        As few numpy calls as it takes (views and buffers made once): this runs every 10 ms,
-        with the caches cold from the firmware, where each call costs microseconds.
+        Plain Python floats, no numpy call unless a pad is loaded: this runs every 10 ms per
+        finger, with the caches cold from the firmware, where each numpy call costs
+        microseconds.
         """
         p = self.params
-        view = self._imu_view
-        self._raw_imu[:] = view if view is not None else self.data.sensordata[self._imu_idx]
+        mv = self._imu_mv
+        raw: list[float] = (mv.tolist() if mv is not None  # type: ignore[assignment]
+                            else self.data.sensordata[self._imu_idx].tolist())
         loads = self._pads.collect()
         if self._presses:
             for k, segment in enumerate(("F2", "F3")):
@@ -438,19 +455,16 @@ class FingerPlant:
                     extra = np.array([[x, y, force]])
                     old = loads[k]
                     loads[k] = extra if old is None else np.vstack((old, extra))
-        if loads[0] is None and loads[1] is None:
-            if self._taxels_loaded:  # else they are still 0 from the last refresh
-                self._raw_taxels[:] = 0.0
-                self._taxels_loaded = False
-        else:
+        if loads[0] is not None or loads[1] is not None:  # else the taxels read 0
             tactile = p.tactile
             f2 = taxel_forces(loads[0], self._f2_taxels_xy, tactile.spread_m)
             f3 = taxel_forces(loads[1], self._f3_taxels_xy, tactile.spread_m)
-            self._raw_taxels[:] = tactile.compression(np.concatenate(
-                (self._zeros_f2 if f2 is None else f2, self._zeros_f3 if f3 is None else f3)))
-            self._taxels_loaded = True
-        noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size + 1)
-        counts = self._counts.counts(self._raw, self._noise_counts)
+            raw += tactile.compression(np.concatenate(
+                (self._zeros_f2 if f2 is None else f2,
+                 self._zeros_f3 if f3 is None else f3))).tolist()
+        size = self._counts.size
+        noise, at = self._normals.take(size + 1)  # the last one: the strain gauge's
+        counts = self._counts.counts(raw, noise, at)
         fmcb_in, f2_in, f3_in = self._fmcb_sensors, self._f2_sensors, self._f3_sensors
         fmcb_in.set_accel(counts[0], counts[1], counts[2])
         fmcb_in.set_mag(counts[3], counts[4], counts[5])
@@ -462,7 +476,7 @@ class FingerPlant:
         f2_in.set_taxels(counts[18:18 + n2])
         f3_in.set_taxels(counts[18 + n2:])
         moment = self.gauge_moment_nm(loads[0])
-        f2_in.set_strain(strain_counts(moment, p.strain_noise_counts * noise.item(-1)))
+        f2_in.set_strain(strain_counts(moment, p.strain_noise_counts * noise[at + size]))
 
     def gauge_moment_nm(self, f2_loads: np.ndarray | None = None) -> float:
         """Bending moment at the F2 gauge about F2's flexion axis (N·m), + for palmar loads.
@@ -473,10 +487,13 @@ class FingerPlant:
         Small-vector arithmetic is plain Python: numpy's per-call cost dominates at n = 3.
         """
         cfrc, com, site_pos, site_mat = self._gauge_rows
-        tx, ty, tz, fx, fy, fz = cast("list[float]", cfrc.tolist())
-        cx, cy, cz = cast("list[float]", com.tolist())
-        gx, gy, gz = cast("list[float]", site_pos.tolist())
-        rot = cast("list[float]", site_mat.tolist())
+        wrench: list[float] = cfrc.tolist()  # type: ignore[assignment]
+        centre: list[float] = com.tolist()  # type: ignore[assignment]
+        gauge: list[float] = site_pos.tolist()  # type: ignore[assignment]
+        rot: list[float] = site_mat.tolist()  # type: ignore[assignment]
+        tx, ty, tz, fx, fy, fz = wrench
+        cx, cy, cz = centre
+        gx, gy, gz = gauge
         rx, ry, rz = cx - gx, cy - gy, cz - gz
         # torque about the gauge = τ_c + (c − g) × f; its component along F2's y axis.
         mx = tx + ry * fz - rz * fy
@@ -491,8 +508,9 @@ class FingerPlant:
     def _update_thermal(self, interval_s: float) -> None:
         p = self.params
         scale = p.motor.resistance_ohm / max(1, self._i2_ticks)
-        temps = self.thermal.update([i2 * scale for i2 in self._i2_sum], interval_s)
-        self._i2_sum = [0.0, 0.0, 0.0]
+        temps = self.thermal.update([w.i2_sum * scale for w in self._windings], interval_s)
+        for winding in self._windings:
+            winding.i2_sum = 0.0
         self._i2_ticks = 0
         rise = sum(temps) / len(temps) - p.ambient_c
         target = p.ambient_c + p.tip_coupling * rise
@@ -502,11 +520,11 @@ class FingerPlant:
 
     def _write_temperatures(self) -> None:
         self._fmcb_sensors.set_temperatures([round(t * 10.0) for t in self.thermal.temperature_c])
-        noise = self.rng.standard_normal(4).tolist()
+        noise, at = self._normals.take(4)
         sigma = self.params.thermistor_noise_counts
         ideal = thermistor_counts(self.tip_temperature_c)
         self._f3_sensors.set_thermistors(
-            [max(0, min(0xFFFF, round(ideal + sigma * n))) for n in noise])
+            [max(0, min(0xFFFF, round(ideal + sigma * n))) for n in noise[at:at + 4]])
 
 
 #: The palm's taxels are further apart (11 × 20 mm) than the fingers' (≈ 9 mm): a wider
@@ -550,10 +568,7 @@ class PalmPlant:
         self._counts = LinearCounts.imu(
             [("accel", p.accel_noise_counts), ("gyro", p.gyro_noise_counts),
              ("mag", p.mag_noise_counts)]).join(LinearCounts.taxels(p.tactile, len(PALM_TAXELS)))
-        self._raw = np.zeros(self._counts.size)  # IMU readings (SI), taxel compression
-        self._raw_imu, self._raw_taxels = self._raw[:9], self._raw[9:]
-        self._taxels_loaded = False
-        self._noise = np.zeros(self._counts.size)
+        self._normals = NormalStream(rng)
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Resolve the palm's names; write the constant channels; take a first sample."""
@@ -567,7 +582,8 @@ class PalmPlant:
             raise PlantError(f"palm {self.prefix!r} is not in the model: {exc}") from exc
         self._imu_idx = np.concatenate(
             [np.arange(model.sensor_adr[s], model.sensor_adr[s] + 3) for s in imu_sensors])
-        self._imu_view = _block_view(data.sensordata, self._imu_idx)
+        view = _block_view(data.sensordata, self._imu_idx)
+        self._imu_mv = None if view is None else _doubles(view)
         self._pads = PadContacts(model, data, [pad])
         self._sensors.set_temperatures([self.params.temperature_decic] * 7)
         self._sensors.set_supply_mv(self.params.supply_mv)
@@ -584,19 +600,16 @@ class PalmPlant:
             self._update_sensors()
 
     def _update_sensors(self) -> None:
-        """As the fingers': views and buffers made once, few numpy calls."""
+        """As the fingers': plain floats, no numpy call unless the pad is loaded."""
         p = self.params
-        view = self._imu_view
-        self._raw_imu[:] = view if view is not None else self.data.sensordata[self._imu_idx]
+        mv = self._imu_mv
+        raw: list[float] = (mv.tolist() if mv is not None  # type: ignore[assignment]
+                            else self.data.sensordata[self._imu_idx].tolist())
         forces = taxel_forces(self._pads.collect()[0], self._taxels_xy, p.tactile.spread_m)
-        if forces is not None:
-            self._raw_taxels[:] = p.tactile.compression(forces)
-            self._taxels_loaded = True
-        elif self._taxels_loaded:  # else they are still 0 from the last refresh
-            self._raw_taxels[:] = 0.0
-            self._taxels_loaded = False
-        noise = self.rng.standard_normal(out=self._noise)  # = standard_normal(size)
-        counts = self._counts.counts(self._raw, noise)
+        if forces is not None:  # else the taxels read 0
+            raw += p.tactile.compression(forces).tolist()
+        noise, at = self._normals.take(self._counts.size)
+        counts = self._counts.counts(raw, noise, at)
         sensors = self._sensors
         sensors.set_accel(counts[0], counts[1], counts[2])
         sensors.set_gyro(counts[3], counts[4], counts[5])

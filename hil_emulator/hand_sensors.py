@@ -36,6 +36,7 @@ from typing import Final
 import mujoco
 import numpy as np
 
+from hil_emulator.plant import rint
 from protocol.robot import ACCEL_COUNTS_PER_G
 
 #: Standard gravity (m/s²) for the accelerometer scale.
@@ -66,60 +67,104 @@ IMU_SCALES: Final = {
 
 
 class LinearCounts:
-    """Vectorised ``counts = clamp(rint(raw·scale + offset + σ·noise), lo, hi)`` per element.
+    """``counts = clamp(round(raw·scale + offset + σ·noise), lo, hi)`` per element.
 
-    One instance converts every slowly refreshed channel of a part in a single numpy pass
-    (numpy's per-call overhead, not the arithmetic, is the cost at these sizes).  Build it
-    with :meth:`imu` and :meth:`taxels` and join with :meth:`join`.
+    One instance converts every slowly refreshed channel of a part in one loop, in plain
+    Python floats: at a few tens of elements numpy's per-call cost (with the caches cold
+    from the firmware) was most of a refresh, and the compiled core runs this loop as C.
+    The elements come in *runs* sharing their constants (an IMU's 3-vector, a pad's
+    taxels), unpacked once per run.  The same IEEE operations in the same order as numpy's
+    ``raw * scale + offset + noise * sigma``, and round-half-even as ``np.rint``: the same
+    integers.  Build it with :meth:`imu` and :meth:`taxels` and join with :meth:`join`.
     """
 
-    def __init__(self, scale: np.ndarray, offset: np.ndarray, sigma: np.ndarray,
-                 lo: np.ndarray, hi: np.ndarray) -> None:
-        self.scale, self.offset, self.sigma, self.lo, self.hi = scale, offset, sigma, lo, hi
-        self.size = int(scale.size)
-        self._ints = np.zeros(self.size, dtype=np.int64)
+    def __init__(self, runs: list[tuple[int, float, float, float, float, float]]) -> None:
+        #: Per run: (length, scale, offset, σ, lo, hi).
+        self.runs = runs
+        self.size = sum(run[0] for run in runs)
 
     @classmethod
     def imu(cls, channels: list[tuple[str, float]]) -> LinearCounts:
         """Consecutive 3-vectors of ``(kind, noise σ counts)``, kind ``"accel"`` (raw in
         m/s², proper acceleration), ``"mag"`` (gauss) or ``"gyro"`` (rad/s)."""
-        scale = np.repeat([IMU_SCALES[kind][0] for kind, _ in channels], 3)
-        hi = np.repeat([float(IMU_SCALES[kind][1]) for kind, _ in channels], 3)
-        sigma = np.repeat([float(sigma) for _, sigma in channels], 3)
-        return cls(scale, np.zeros_like(scale), sigma, -hi, hi)
+        runs = []
+        for kind, sigma in channels:
+            scale, clamp = IMU_SCALES[kind]
+            runs.append((3, float(scale), 0.0, float(sigma), -float(clamp), float(clamp)))
+        return cls(runs)
 
     @classmethod
     def taxels(cls, model: TactileModel, n: int) -> LinearCounts:
         """``n`` taxels whose raw value is the layer's relative compression δ/δ_max (0..1)."""
-        def full(v: float) -> np.ndarray:
-            return np.full(n, float(v))
-        return cls(full(model.full_counts - model.unloaded_counts), full(model.unloaded_counts),
-                   full(model.noise_counts), full(0.0), full(0xFFFF))
+        return cls([(n, float(model.full_counts - model.unloaded_counts),
+                     float(model.unloaded_counts), float(model.noise_counts), 0.0,
+                     float(0xFFFF))])
 
     def join(self, other: LinearCounts) -> LinearCounts:
-        """This conversion followed by ``other`` (concatenated elements)."""
-        def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-            return np.concatenate((a, b))
-        return LinearCounts(cat(self.scale, other.scale), cat(self.offset, other.offset),
-                            cat(self.sigma, other.sigma), cat(self.lo, other.lo),
-                            cat(self.hi, other.hi))
+        """This conversion followed by ``other`` (concatenated elements; runs of equal
+        constants merged)."""
+        runs = list(self.runs)
+        for run in other.runs:
+            if runs and runs[-1][1:] == run[1:]:
+                runs[-1] = (runs[-1][0] + run[0], *run[1:])
+            else:
+                runs.append(run)
+        return LinearCounts(runs)
 
-    def counts(self, raw: np.ndarray, noise: np.ndarray) -> list[int]:
-        """Counts (Python ints) for ``raw`` values and standard normal ``noise``.
+    def counts(self, raw: list[float], noise: list[float], at: int = 0) -> list[int]:
+        """Counts (Python ints) for ``raw`` values and the standard normal draws
+        ``noise[at:at + size]``.
 
-        Few numpy calls, in place after the first: a refresh runs every 10 ms with cold
-        caches, where each call costs microseconds.
+        Elements past the end of ``raw`` read a raw value of 0 (unloaded taxels):
+        ``0·scale + offset`` is ``offset`` exactly, so only their noise is converted.
+        Values are clamped to the integral bounds before rounding (the same integers as
+        after; NaN reads as the low bound).
         """
-        value = raw * self.scale
-        value += self.offset
-        value += noise * self.sigma
-        # Clamping to the integral bounds before rounding gives the same integers as after
-        # (non-finite values too); rounding then casts straight into the int64 buffer.
-        np.maximum(value, self.lo, out=value)
-        np.minimum(value, self.hi, out=value)
-        np.rint(value, out=self._ints, casting="unsafe")
-        out: list[int] = self._ints.tolist()
+        out = [0] * self.size
+        n = len(raw)
+        k = 0
+        for length, scale, offset, sigma, lo, hi in self.runs:
+            end = k + length
+            for j in range(k, n if n < end else end):
+                v = raw[j] * scale + offset + noise[at + j] * sigma
+                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
+            for j in range(n if n > k else k, end):
+                v = offset + noise[at + j] * sigma
+                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
+            k = end
         return out
+
+
+def _clamped(value: float, lo: float, hi: float) -> int:
+    """``value`` outside ``lo..hi`` (or NaN: ``lo``) as the nearer bound's integer."""
+    return round(hi) if value > lo else round(lo)
+
+
+class NormalStream:
+    """Standard normal draws of one generator, drawn in blocks and handed out in order.
+
+    ``Generator.standard_normal`` draws each number from the bit stream in turn, so handing
+    out a block's numbers in order gives exactly what drawing each request from the
+    generator would: the same sensors for the same seed, without a numpy call (and its
+    cold-cache cost) per refresh.  The generator must be this stream's alone once it draws.
+    """
+
+    def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
+        self.rng = rng
+        self.block = block
+        self._buffer: list[float] = []
+        self._at = 0
+
+    def take(self, n: int) -> tuple[list[float], int]:
+        """The next ``n`` draws: ``buffer[at:at + n]`` of the returned (buffer, at)."""
+        at = self._at
+        buffer = self._buffer
+        if at + n > len(buffer):
+            fresh: list[float] = self.rng.standard_normal(max(self.block, n)).tolist()
+            buffer = self._buffer = buffer[at:] + fresh
+            at = 0
+        self._at = at + n
+        return buffer, at
 
 
 def strain_counts(moment_nm: float, noise: float) -> int:

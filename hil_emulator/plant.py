@@ -49,6 +49,24 @@ class PlantPart(Protocol):
         """Write sensor readings for the firmware after ``dt_s`` seconds of physics."""
 
 
+def rint(value: float) -> int:
+    """``value`` rounded to the nearest integer, ties to even: ``round(value)`` (and
+    ``np.rint``), and the same errors for NaN and infinities.  Written out because the
+    compiled core calls ``round`` as a Python function but ``math.floor`` as C; run from
+    source, ``rint`` *is* ``round`` (below), the faster there."""
+    whole = math.floor(value)
+    rest = value - whole  # exact
+    if rest > 0.5 or (rest == 0.5 and whole & 1):
+        return whole + 1
+    return whole
+
+
+#: True when this module runs from its source (pure Python), not compiled by mypyc.
+_FROM_SOURCE: Final = __file__.endswith(".py")
+if _FROM_SOURCE:
+    rint = round  # type: ignore[assignment]  # noqa: F811
+
+
 def new_spec(name: str = "hil") -> mujoco.MjSpec:
     """An empty world: 1 ms step (implicitfast), gravity −9.81 m/s² along z, a floor, a light."""
     spec = mujoco.MjSpec()
