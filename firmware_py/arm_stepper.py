@@ -68,6 +68,9 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   (``STEPPER_SETTLE_MAX_BACK_COUNTS`` against the way it went), at
   ``STEPPER_SETTLE_ACCEL_COUNTS_S2`` and up to the maximum step rate
   (:mod:`protocol.robot`).  A goal, a latch, an alarm's torque-off or torque off ends it.
+  The deflection that holds the link still there is the host's ``rest_deflection`` (its
+  model, written with every goal; −32768 = not given), clamped to the deflections seen since
+  the stop, else identified from the swing.
   Only a stop that cut a move short settles (the goal further on than the braking's end by
   more than that bound): a node still finishing a short way to its goal when its host went
   quiet (a host's hold, then the host's exit) holds as before.
@@ -92,6 +95,7 @@ from firmware_py.hal import Hal
 from firmware_py.stepper_settle import SwingSettler
 from protocol.control_tables import (
     GOAL_FINE_PER_COUNT,
+    REST_DEFLECTION_UNKNOWN,
     STEPPER_TABLE,
     Register,
     StepperClear,
@@ -169,7 +173,7 @@ class StepperNodeApp(DynamixelSlave):
         "min_voltage_limit", "max_voltage_limit", "max_current", "alarm_shutdown",
         "torque_enable", "goal_position", "velocity_limit", "acceleration_limit",
         "slip_threshold", "deflection_limit", "run_current", "holding_current",
-        "command_goal", "deflection_offset", "watchdog_timeout",
+        "command_goal", "deflection_offset", "watchdog_timeout", "rest_deflection",
     })
 
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
@@ -191,6 +195,7 @@ class StepperNodeApp(DynamixelSlave):
         self._slip_threshold = self._deflection_limit = self._deflection_offset = 0
         self._run_current = self._holding_current = 0
         self._watchdog_timeout = 0  # ms (ticks); 0 = off
+        self._rest_deflection = REST_DEFLECTION_UNKNOWN  # counts, the host's model
         self._quiet_ticks = 0  # ticks since the last instruction addressed to the node
         #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
         #: the least since; 0 once back within it (see the module docs)
@@ -234,6 +239,7 @@ class StepperNodeApp(DynamixelSlave):
         self._run_current = get("run_current")
         self._holding_current = get("holding_current")
         self._watchdog_timeout = get("watchdog_timeout")
+        self._rest_deflection = get("rest_deflection")
 
     def power_up(self) -> None:
         wake = self._wake
@@ -492,11 +498,13 @@ class StepperNodeApp(DynamixelSlave):
             # the goal lay within the settling's reach: the node was finishing a short way
             # (a host's hold); it holds as it always did
             return
+        model = self._rest_deflection
         self._settler = SwingSettler(self._goal, motor - self._enc_history[-1],
                                      float(STEPPER_SETTLE_MAX_CHANGE_COUNTS),
                                      float(STEPPER_SETTLE_ACCEL_COUNTS_S2),
                                      STEPPER_MAX_STEP_RATE / mpc, velocity,
-                                     float(STEPPER_SETTLE_MAX_BACK_COUNTS))
+                                     float(STEPPER_SETTLE_MAX_BACK_COUNTS),
+                                     None if model == REST_DEFLECTION_UNKNOWN else float(model))
         self._settle_ticks = SETTLE_TICKS
 
     def _settle(self, enc: int, hw_steps: int, mpc: float) -> None:

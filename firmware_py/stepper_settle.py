@@ -102,8 +102,11 @@ class SwingSettler:
     (counts/s², counts/s)."""
 
     def __init__(self, hold: float, deflection: float, max_change: float, accel: float,
-                 speed: float, travel: float = 0.0, max_back: float | None = None) -> None:
+                 speed: float, travel: float = 0.0, max_back: float | None = None,
+                 model: float | None = None) -> None:
         self.hold = hold
+        #: the host's static deflection (counts), if it gave one
+        self.model = model
         # the goal's range: ``max_change`` either way, only ``max_back`` against ``travel``
         back = max_change if max_back is None or travel == 0.0 else min(max_change, max_back)
         self.low = hold - (back if travel > 0.0 else max_change)
@@ -131,8 +134,13 @@ class SwingSettler:
         return not self.left and not self._quiet
 
     def static_deflection(self) -> float:
-        """The deflection (counts) that holds the link still, as identified so far (the
-        deflection at the stop while too few readings say otherwise), within those seen."""
+        """The deflection (counts) that holds the link still: the host's model once it lies
+        within the deflections seen since the stop (the swing goes about it), else as
+        identified so far (the deflection at the stop while too few readings say
+        otherwise), within those seen."""
+        model = self.model
+        if model is not None:
+            return min(self._d_high, max(self._d_low, model))
         if self._samples >= _N:
             p = _solve3(self._m, self._r)
             if p is not None and p[0] > 0.0:  # a = w²·(d − d_s) + b·ḋ: w² = p0 > 0

@@ -86,12 +86,22 @@ from host.arm_state import (
     StepperState,
     TorqueCommand,
 )
+from host.arm_stop_model import (
+    REST_AHEAD_S,
+    rest_deflection_packet,
+    rest_deflections,
+)
 from host.arm_trajectory import SERVO_GOAL_LEAD_S, Vector, servo_lead
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
-from protocol.control_tables import STEPPER_TABLE, STEPPER_WATCHDOG_FIRMWARE, StepperClear
+from protocol.control_tables import (
+    STEPPER_TABLE,
+    STEPPER_WATCHDOG_DEFAULT_MS,
+    STEPPER_WATCHDOG_FIRMWARE,
+    StepperClear,
+)
 from protocol.dynamixel import InstructionPacket, make_reset
 from protocol.robot import ARM_JOINT_SPEED_LIMITS
 
@@ -151,6 +161,12 @@ class Arm:
         self.cycles = 0
         #: The cycles' bytes, and what encoding them remembers between cycles.
         self.wire = CycleWire(self.joints)
+        #: The hand is on the flange: its weight counts in the model of the arm at rest
+        #: that the stepper nodes get with every goal (:mod:`host.arm_stop_model`).
+        self.hand = True
+        #: The stepper nodes' command watchdog (s) as this arm set it (the nodes' default
+        #: until it does).
+        self.watchdog_s = STEPPER_WATCHDOG_DEFAULT_MS / 1000
 
     # ------------------------------------------------------------------ opening
 
@@ -287,6 +303,7 @@ class Arm:
                  if j.firmware_version >= STEPPER_WATCHDOG_FIRMWARE}
         if nodes:
             self.bus.sync_write(reg.address, reg.size, nodes)
+        self.watchdog_s = timeout_ms / 1000
 
     def read_goals(self) -> None:
         """Learn each stepper node's goal (``command_goal``, 1/16 counts) with one
@@ -380,7 +397,8 @@ class Arm:
         if calibration is not None:
             commands = calibration.commands_to_node(commands)
         slow = int(self.cycles % SLOW_READ_EVERY == 0)
-        packets = [*self.packets_for(commands), self.bulk_reads[slow]]
+        packets = [*self.packets_for(commands), *self._rest_model(commands),
+                   self.bulk_reads[slow]]
         replies = self.bus.exchange(packets, self.expected_replies[slow])
         self.cycles += 1
         self.wire.took_goals(commands)  # the nodes took the goals: the state reports them
@@ -393,6 +411,19 @@ class Arm:
         for tap in self.state_taps:
             tap(state)
         return state
+
+    def _rest_model(self, commands: list[Command]) -> list[InstructionPacket]:
+        """With stepper goals, once homed: the nodes' ``rest_deflection`` from the last
+        state (:mod:`host.arm_stop_model`)."""
+        state = self.last_state
+        if (state is None or self.calibration is None
+                or not any(isinstance(c, PositionCommand) and c.joint < N_STEPPERS
+                           for c in commands)):
+            return []
+        values = rest_deflections(self.steppers, state, self.wire.deflection_offsets(),
+                                  hand=self.hand, ahead_s=self.watchdog_s + REST_AHEAD_S)
+        packet = rest_deflection_packet(self.steppers, values, frozenset(self.wire.unpowered))
+        return [] if packet is None else [packet]
 
     @property
     def unpowered_steppers(self) -> frozenset[int]:

@@ -341,8 +341,13 @@ STEPPER_ROTOR_RESYNC_FIRMWARE = 3
 #: The first stepper node firmware version with the command watchdog (``watchdog_timeout``,
 #: StepperFlag.WATCHDOG).
 STEPPER_WATCHDOG_FIRMWARE = 4
+#: The first stepper node firmware version that takes the host's ``rest_deflection``.
+STEPPER_REST_DEFLECTION_FIRMWARE = 5
 #: The stepper node's firmware version.
-STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_FIRMWARE
+STEPPER_FIRMWARE_VERSION = STEPPER_REST_DEFLECTION_FIRMWARE
+#: ``rest_deflection`` meaning "not given" (its power-up value): the node identifies the
+#: deflection that holds its link at rest from the swing itself.
+REST_DEFLECTION_UNKNOWN: Final = -32768
 #: The stepper node's factory ``alarm_shutdown``: OVERHEATING only.  A STALLED latch (the
 #: OVERLOAD bit) stops the node's stepping and holds its motor, torque on, instead of cutting
 #: the coils: a gravity-loaded joint that lost its torque falls, and its swing overloads the
@@ -395,6 +400,13 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: moves the motor (by at most ``protocol.robot.STEPPER_SETTLE_MAX_CHANGE_COUNTS`` from the
 #: hold) so that the elastic element holds the link still where it turns.  Nodes report firmware_version >= :data:`STEPPER_WATCHDOG_FIRMWARE` when they
 #: have it.
+#: Address 100, ``rest_deflection`` (counts, the node's frame as ``deflection`` reads): the
+#: deflection that holds the link at rest where a watchdog stop would leave it, as the host's
+#: model of the arm (gravity, the routes' coupling) says; a host that knows it writes it
+#: with every goal.  The settling then uses it instead of identifying it from the swing, once
+#: the swing has shown it plausible (within the deflections seen since the stop); −32768
+#: (power-up) = not given.  Nodes report firmware_version >=
+#: :data:`STEPPER_REST_DEFLECTION_FIRMWARE` when they have it.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
 #: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
@@ -471,6 +483,10 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
          "ms without an instruction to the node after which a move stops, holds and settles "
          "the joint's swing; 0 = off",
          0, 60_000),
+    # the host's model of the link at rest, for the settling (see above)
+    _ram(100, 2, "RW", REST_DEFLECTION_UNKNOWN, "rest_deflection",
+         "counts of deflection holding the link at rest where a watchdog stop leaves it "
+         "(host's model; -32768 = not given: identified from the swing)", signed=True),
 ])
 
 #: The stepper node's command block: its first and last register (see :data:`STEPPER_TABLE`).

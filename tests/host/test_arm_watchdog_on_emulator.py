@@ -11,7 +11,7 @@ import pytest
 
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm import HOST_WATCHDOG_MS, MOVE_MIN_SPEED, SERVO_GOAL_LEAD_S, Arm, servo_lead
-from protocol.control_tables import GOAL_FINE_PER_COUNT, StepperFlag
+from protocol.control_tables import GOAL_FINE_PER_COUNT, REST_DEFLECTION_UNKNOWN, StepperFlag
 from protocol.dynamixel import rx64_position_to_radians
 from protocol.robot import (
     STEPPER_SETTLE_MAX_BACK_COUNTS,
@@ -284,3 +284,26 @@ def test_after_a_hold_the_nodes_hold_without_settling():
         assert not any(app.get("status_flags") & latches for app in apps)
     finally:
         arm.close()
+
+
+def test_a_homed_arm_tells_the_stepper_nodes_the_deflection_that_holds_them_at_rest():
+    """With every goal a homed arm writes each stepper node's ``rest_deflection`` from its
+    model (gravity, the hand, the routes' coupling): at rest it is what the node's own
+    deflection reads there, within a few counts; an arm not homed (angles from power-up)
+    leaves it "not given", and the node identifies it from the swing as before."""
+    with Arm.open("emu://full/arm?ready=0&name=rest-model") as arm:
+        emu = arm.transport.emulator
+        apps = [emu.arm.app(i) for i in range(1, 5)]
+        arm.torque(True, hold=True)
+        goals = list(arm.state().joints)
+        goals[1] += 0.2
+        arm.move(goals, duration=1.0)
+        assert all(a.get("rest_deflection") == REST_DEFLECTION_UNKNOWN for a in apps)
+        arm.home()
+        state, settled = arm.move(GOALS, duration=4.0)
+        assert settled
+        state = arm.set_positions(GOALS)
+        for node, app in enumerate(apps):
+            told = app.get("rest_deflection")
+            assert told != REST_DEFLECTION_UNKNOWN
+            assert abs(told - state.steppers[node].deflection) <= 3, f"J{node + 1}"

@@ -13,10 +13,12 @@ from hypothesis import strategies as st
 
 from protocol.control_tables import (
     RAM_START,
+    REST_DEFLECTION_UNKNOWN,
     RX64_TABLE,
     STEPPER_CYCLE_BLOCK,
     STEPPER_CYCLE_BLOCK_FIRMWARE,
     STEPPER_MODEL_NUMBER,
+    STEPPER_REST_DEFLECTION_FIRMWARE,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
     STEPPER_WATCHDOG_FIRMWARE,
@@ -332,9 +334,12 @@ def test_stepper_cycle_block_addresses() -> None:
         ("command_goal", 92, 4, "RW", True),
         ("deflection_offset", 96, 2, "RW", True),
         ("watchdog_timeout", 98, 2, "RW", False),
+        ("rest_deflection", 100, 2, "RW", True),
     ]
-    assert STEPPER_TABLE.size == 100
+    assert STEPPER_TABLE.size == 102
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
     assert STEPPER_ROTOR_RESYNC_FIRMWARE == 3
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_FIRMWARE == 4
+    assert STEPPER_WATCHDOG_FIRMWARE == 4
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_REST_DEFLECTION_FIRMWARE == 5
+    assert STEPPER_TABLE["rest_deflection"].default == REST_DEFLECTION_UNKNOWN == -32768
