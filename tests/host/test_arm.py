@@ -11,7 +11,7 @@ import pytest
 from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
-from protocol.control_tables import STEPPER_TABLE, StepperFlag
+from protocol.control_tables import STEPPER_FIRMWARE_VERSION, STEPPER_TABLE, StepperFlag
 from protocol.dynamixel import ErrorBit
 from tools.cli import armctl
 
@@ -25,7 +25,7 @@ def test_discovery_finds_seven_joints_from_their_registers(arm: Arm) -> None:
     assert [j.reduction for j in arm.steppers] == [6.0, 10.0, 13.0, 13.0]
     assert {(j.steps_per_rev, j.microstepping) for j in arm.steppers} == {(200, 10)}
     assert [j.stiffness for j in arm.steppers] == list(DEFAULT_STIFFNESS_NM_PER_RAD)
-    assert all(j.firmware_version == 4 for j in arm.steppers)
+    assert all(j.firmware_version == STEPPER_FIRMWARE_VERSION for j in arm.steppers)
 
 
 def test_open_sets_the_fast_return_delay(arm: Arm) -> None:
