@@ -32,8 +32,8 @@ MAX_SLEEP_S: Final = 0.02
 #: The real-time loop sleeps until this long before the next event and spins from there
 #: (s): with :data:`TIMER_SLACK_NS` a sleeper wakes within tens of µs of its deadline.
 SPIN_S: Final = 0.00005
-#: While it is not asleep, the real-time loop reads its ports at least this often (s); asleep,
-#: host input wakes it at once.
+#: While it is not asleep, the real-time loop looks at its ports' descriptors at least this
+#: often (s) and reads those that have something; asleep, host input wakes it at once.
 POLL_S: Final = 0.0002
 #: Timer slack (ns) the real-time loop asks of Linux for its own sleeps: the default 50 µs
 #: would wake it up to that late.
@@ -267,12 +267,17 @@ class Pacer:
                 self.step(fast_chunk_us)
                 continue
             if readable or now >= next_poll:
-                self.poll()  # input is scheduled at the simulation time of "now"
                 # Descriptors each time: a port that vanished and came back has a new one.
                 fds = [fd for port in self.ports.values() if (fd := port.fileno()) >= 0]
+                # A port is read only when its descriptor says something arrived (one
+                # select instead of a read per port), or always when it has none to wait on.
+                if readable or len(fds) < len(self.ports) or (
+                        fds and select.select(fds, [], [], 0)[0]):
+                    self.poll()  # input is scheduled at the simulation time of "now"
+                    fds = [fd for port in self.ports.values() if (fd := port.fileno()) >= 0]
+                    now = time.monotonic()
                 next_poll = now + POLL_S
                 readable = False
-                now = time.monotonic()
             target = self._wall_us(now)
             deadline = now + CATCH_UP_BUDGET_S
             while scheduler.run_some(target, CATCH_UP_EVENTS) == CATCH_UP_EVENTS:
@@ -305,6 +310,8 @@ class Pacer:
             else:
                 time.sleep(wait - self.spin_s)
             slept_at = time.monotonic()
+            if not readable and len(fds) == len(self.ports):
+                next_poll = slept_at + POLL_S  # the sleep was a look at every port
         if realtime:  # how far behind it was when told to stop counts too
             now = time.monotonic()
             behind_us = _behind_us(scheduler.next_due_us(), self._wall_us(now))
