@@ -32,8 +32,8 @@ MAX_SLEEP_S: Final = 0.02
 #: The real-time loop sleeps until this long before the next event and spins from there
 #: (s): with :data:`TIMER_SLACK_NS` a sleeper wakes within tens of µs of its deadline.
 SPIN_S: Final = 0.00005
-#: While it is not asleep, the real-time loop reads its ports at least this often (s); asleep,
-#: host input wakes it at once.
+#: While it is not asleep, the real-time loop looks at its ports' descriptors at least this
+#: often (s) and reads those that have something; asleep, host input wakes it at once.
 POLL_S: Final = 0.0002
 #: Timer slack (ns) the real-time loop asks of Linux for its own sleeps: the default 50 µs
 #: would wake it up to that late.
@@ -245,6 +245,18 @@ class Pacer:
                 except OSError:
                     pass
 
+    def _descriptors(self) -> tuple[list[int], bool]:
+        """The ports' descriptors to wait on, and whether they tell of everything that
+        arrives: true when every port is a host link with a descriptor (its reader's
+        wake-up pipe or its pty), so that a port whose descriptor is not readable has
+        nothing to read; false with any other port (the fault control channel's listening
+        socket does not tell of its clients' requests; an in-process CAN channel has no
+        descriptor), which is then read on every pass."""
+        fds = [fd for port in self.ports.values() if (fd := port.fileno()) >= 0]
+        exact = bool(fds) and len(fds) == len(self.ports) and all(
+            isinstance(port, PtyBacked) for port in self.ports.values())
+        return fds, exact
+
     def _run_loop(self, stop: threading.Event, realtime: bool,
                   on_idle: Callable[[], None] | None, fast_chunk_us: int) -> None:
         """The loop of :meth:`run`."""
@@ -257,6 +269,7 @@ class Pacer:
         next_poll = 0.0
         readable = True  # look at the ports first
         fds: list[int] = []
+        exact = False
         scheduler = self.scheduler
         while not stop.is_set():
             now = time.monotonic()
@@ -267,12 +280,16 @@ class Pacer:
                 self.step(fast_chunk_us)
                 continue
             if readable or now >= next_poll:
-                self.poll()  # input is scheduled at the simulation time of "now"
                 # Descriptors each time: a port that vanished and came back has a new one.
-                fds = [fd for port in self.ports.values() if (fd := port.fileno()) >= 0]
+                fds, exact = self._descriptors()
+                # Host links are read only when their descriptors say something arrived
+                # (one select instead of a read per port); with any other port, every time.
+                if readable or not exact or select.select(fds, [], [], 0)[0]:
+                    self.poll()  # input is scheduled at the simulation time of "now"
+                    fds, exact = self._descriptors()
+                    now = time.monotonic()
                 next_poll = now + POLL_S
                 readable = False
-                now = time.monotonic()
             target = self._wall_us(now)
             deadline = now + CATCH_UP_BUDGET_S
             while scheduler.run_some(target, CATCH_UP_EVENTS) == CATCH_UP_EVENTS:
@@ -305,6 +322,8 @@ class Pacer:
             else:
                 time.sleep(wait - self.spin_s)
             slept_at = time.monotonic()
+            if not readable and exact:
+                next_poll = slept_at + POLL_S  # the sleep was a look at every port
         if realtime:  # how far behind it was when told to stop counts too
             now = time.monotonic()
             behind_us = _behind_us(scheduler.next_due_us(), self._wall_us(now))

@@ -4,7 +4,9 @@ is, it says when it is late, and its stats are strict JSON."""
 from __future__ import annotations
 
 import json
+import socket
 import time
+from pathlib import Path
 
 import serial
 
@@ -13,6 +15,7 @@ from hil_emulator.emulator import Emulator
 from hil_emulator.pacing import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S
 from protocol.dynamixel import make_ping
 from tests.hil_emulator.emulator_thread import serving
+from tests.hil_emulator.faults.probes import FaultyEmulator
 
 
 def test_stop_takes_effect_at_once_when_far_behind() -> None:
@@ -121,3 +124,52 @@ def test_run_some_stops_after_max_events_and_carries_on() -> None:
     assert seen == [10, 20] and scheduler.now_us() == 20  # time stays at the last event
     assert scheduler.run_some(100, 5) == 2
     assert seen == [10, 20, 30, 40] and scheduler.now_us() == 100
+
+
+def test_a_real_time_run_reads_a_port_only_when_something_arrived() -> None:
+    """Between events the loop sleeps on the ports' descriptors; a sleep that ends with none
+    readable was a look at every port, so it does not read them again (the arm's firmware
+    wakes the loop about a thousand times a simulated second: a read of every port per wake
+    was most of the loop's own work).  Host input is still read, and answered."""
+    emulator = Emulator("arm", physics=False)
+    with serving(emulator) as run:
+        link = run.emulator.links["arm"]
+        polls = [0]
+        poll = link.poll
+
+        def counting_poll() -> int:
+            polls[0] += 1
+            return poll()
+
+        link.poll = counting_poll  # type: ignore[method-assign]
+        sim0 = emulator.scheduler.now_us()
+        time.sleep(0.5)
+        idle_polls, sim_us = polls[0], emulator.scheduler.now_us() - sim0
+        with serial.Serial(run.ports["arm"], 1_000_000, timeout=0) as port:
+            port.write(make_ping(5).encode())
+            got = b""
+            deadline = time.monotonic() + 10.0  # a hang guard, not a timing bound
+            while len(got) < 6 and time.monotonic() < deadline:
+                got += port.read(64)
+                time.sleep(0.001)
+    assert sim_us > 100_000  # it ran: hundreds of wake-ups for the arm's 1 ms ticks
+    assert idle_polls <= 5, idle_polls  # no host input: (almost) never read
+    assert got[:3] == b"\xff\xff\x05", got
+    assert polls[0] > idle_polls
+
+
+def test_a_real_time_run_answers_a_connected_control_client(tmp_path: Path) -> None:
+    """The control channel's descriptor is its listening socket, which does not become
+    readable when a connected client sends a request: with such a port the loop reads every
+    port on every pass, so a second request on the same connection is answered too."""
+    emulator = FaultyEmulator("arm", physics=False)
+    path = emulator.open_control(str(tmp_path / "control"))
+    with serving(emulator), socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
+        client.settimeout(10.0)  # a hang guard, not a timing bound
+        client.connect(path)
+        answers = []
+        for _ in range(3):
+            client.sendall(b'{"op": "status"}\n')
+            answers.append(json.loads(client.recv(65536)))
+    assert [a["ok"] for a in answers] == [True, True, True]
+    assert answers[0]["t_us"] < answers[2]["t_us"]  # read while the simulation ran
