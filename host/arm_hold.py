@@ -57,6 +57,9 @@ STEPPER_BRAKING_RAD_S2: Final = (STEPPER_TABLE["acceleration_limit"].default * 2
                                  / ARM_ENCODER_COUNTS_PER_REV)
 #: Two states further apart than this (s) tell nothing of how fast a motor turns now.
 SPEED_SPAN_MAX_S: Final = 0.05
+#: The longest (s) a hold's goals look ahead of the state they start from (the motors
+#: turning on at their speed meanwhile): a Ctrl-C's wait for a cut exchange's replies.
+EXTRAPOLATE_MAX_S: Final = 0.1
 
 
 @dataclass(frozen=True)
@@ -89,9 +92,13 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     last exchange may still be answering (its replies, late, do not fit the hold's reads),
     so what is on the line is let through and dropped before each attempt."""
     goals: dict[int, float] = {}
+    # not into the replies of an exchange Ctrl-C cut short: the write would collide with
+    # them on the line and be lost, and the nodes drive on
+    arm.bus.wait_out_replies()
     last = arm.last_state
     if last is not None:  # at once, from the last state read: nothing to read first
-        goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints).items()
+        goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints,
+                                             at=arm.transport.now()).items()
                  if i not in arm.unpowered_steppers}
         arm.send([arm.make_position(i, q) for i, q in goals.items()])
     for attempt in range(HOLD_ATTEMPTS):
@@ -105,16 +112,28 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
 
 
 def hold_goals(state: ArmState, before: ArmState | None = None,
-               joints: tuple[JointInfo, ...] = ()) -> dict[int, float]:
+               joints: tuple[JointInfo, ...] = (), at: float | None = None
+               ) -> dict[int, float]:
     """Where to hold each joint of ``state`` (rad): a stepper where its motor stops, braking
     at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
-    (:func:`motor_speeds`; at its angle without them), a servo where it drives to
-    (:func:`servo_setpoint`); a stepper its node stopped (STALLED, a hardware error) is left
-    out."""
+    (:func:`motor_speeds`; at its angle without them) once the goal reaches it at ``at``
+    (s, the clock of the states' ``t``; at most :data:`EXTRAPOLATE_MAX_S` after ``state``:
+    it turns on at that speed until then), and never beyond the goal it was going to; a
+    servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
+    (STALLED, a hardware error) is left out.  A goal short of where the motor stops would
+    brake it past the goal and drive it back against a link that swings on: the spring
+    winds up."""
     speeds = motor_speeds(state, before, joints)
-    goals = {s.joint: s.motor_angle + speeds[s.joint] * abs(speeds[s.joint])
-             / (2 * STEPPER_BRAKING_RAD_S2) for s in state.steppers
-             if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
+    ahead = 0.0 if at is None else min(max(at - state.t, 0.0), EXTRAPOLATE_MAX_S)
+    goals: dict[int, float] = {}
+    for s in state.steppers:
+        if s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR):
+            continue
+        v = speeds[s.joint]
+        stop = s.motor_angle + v * ahead + v * abs(v) / (2 * STEPPER_BRAKING_RAD_S2)
+        if (s.goal - s.motor_angle) * v > 0:  # not beyond the goal it was heading for
+            stop = min(stop, s.goal) if v > 0 else max(stop, s.goal)
+        goals[s.joint] = stop
     goals.update({v.joint: servo_setpoint(v) for v in state.servos})
     return goals
 
@@ -171,7 +190,16 @@ def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
     is off may fall to its stop, turning the capstans of the joints after it through the
     routes, which a goal sent only once would let the nodes read as deflection."""
     enabled = arm.torque_enabled()
+    clock = arm.transport
+    before = arm.cycle()
+    clock.sleep(period)
     state = arm.cycle()
+    # where each motor stops from how it turns now: where the first hold left it, at rest,
+    # or (that write lost) on its way
+    fresh = hold_goals(state, before, arm.joints, at=clock.now())
+    if not 0 < state.t - before.t <= SPEED_SPAN_MAX_S:  # how fast they turn is not known
+        fresh = {i: q for i, q in fresh.items() if i >= N_STEPPERS}
+    goals = {**(goals or {}), **fresh}
     found = latches(state)
     commands: list[Command] = []
     held: list[str] = []
@@ -182,11 +210,10 @@ def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
             skipped[name] = "torque off" + (f" ({why.removeprefix(name + ' ')})" if why else "")
             continue
         angle = state.motor_joints[i] if i < N_STEPPERS else state.joints[i]
-        commands.append(arm.make_position(i, (goals or {}).get(i, angle)))
+        commands.append(arm.make_position(i, goals.get(i, angle)))
         held.append(name)
     if commands:
         now = arm.cycle(commands)
-        clock = arm.transport
         end = clock.now() + settle_s
         rest = RestWatch()
         while clock.now() < end and not rest.update(now):
