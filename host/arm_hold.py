@@ -60,6 +60,14 @@ SPEED_SPAN_MAX_S: Final = 0.05
 #: The longest (s) a hold's goals look ahead of the state they start from (the motors
 #: turning on at their speed meanwhile): a Ctrl-C's wait for a cut exchange's replies.
 EXTRAPOLATE_MAX_S: Final = 0.1
+#: How far a motor speed from two states' step counts may be off (a share of it), and a
+#: state's time (s): each state is stamped when its replies were decoded, which on a
+#: serial port or a pty can be a few ms after the nodes read their step counters.  A hold
+#: sets each stepper's goal that much further on than the estimate says braking ends
+#: (:func:`hold_goals`): a goal short of it brakes the motor past the goal and drives it
+#: back while the link swings on, and the spring winds up.
+SPEED_ERROR: Final = 0.3
+TIME_ERROR_S: Final = 0.005
 
 
 @dataclass(frozen=True)
@@ -118,8 +126,9 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
     at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
     (:func:`motor_speeds`; at its angle without them) once the goal reaches it at ``at``
     (s, the clock of the states' ``t``; at most :data:`EXTRAPOLATE_MAX_S` after ``state``:
-    it turns on at that speed until then), and never beyond the goal it was going to; a
-    servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
+    it turns on at that speed until then), plus what the estimate may be off by
+    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`), and never beyond the goal it was going
+    to; a servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
     (STALLED, a hardware error) is left out.  A goal short of where the motor stops would
     brake it past the goal and drive it back against a link that swings on: the spring
     winds up."""
@@ -130,7 +139,8 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
         if s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR):
             continue
         v = speeds[s.joint]
-        stop = s.motor_angle + v * ahead + v * abs(v) / (2 * STEPPER_BRAKING_RAD_S2)
+        braking = (1 + 2 * SPEED_ERROR) * v * v / (2 * STEPPER_BRAKING_RAD_S2)
+        stop = s.motor_angle + v * ahead + copysign(braking + TIME_ERROR_S * abs(v), v)
         if (s.goal - s.motor_angle) * v > 0:  # not beyond the goal it was heading for
             stop = min(stop, s.goal) if v > 0 else max(stop, s.goal)
         goals[s.joint] = stop
