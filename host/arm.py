@@ -244,9 +244,9 @@ class Arm:
 
     def hold(self) -> Held:
         """Stop every joint whose torque is on where it is, torque left on
-        (:func:`host.arm_hold.hold`: a stepper's goal := its motor's present angle, with the
-        coupling offset of the joints as they are; a servo's := its present angle); what
-        was held, and what not."""
+        (:func:`host.arm_hold.hold`: a stepper's goal := where its motor stops, with the
+        coupling offset of the joints as they are; a servo's := its setpoint); what was
+        held, and what not."""
         return hold(self)
 
     @property
@@ -393,6 +393,12 @@ class Arm:
         for tap in self.state_taps:
             tap(state)
         return state
+
+    @property
+    def stepper_speed_limits(self) -> list[float | None]:
+        """Each stepper node's speed limit (rad/s) as this arm last wrote it (None: not
+        written since it opened): how fast its motor may turn at most."""
+        return self.wire.stepper_speed_limits
 
     @property
     def unpowered_steppers(self) -> frozenset[int]:

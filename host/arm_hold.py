@@ -10,7 +10,9 @@ to hold where it is:
   the motor by the spring's deflection, and a goal at the joint angle would let the arm
   drop by that much.  Its stopping point, not its present angle: the node would brake past
   that and come back, winding the spring up against a link that still moves on, which is
-  what made a Ctrl-C early in a move latch STALLED on a loaded elbow.  The goal goes with
+  what made a Ctrl-C early in a move latch STALLED on a loaded elbow; for the same reason
+  the goal lies a margin beyond the estimated stopping point (the speed's and the states'
+  timestamps' errors), never short of it.  The goal goes with
   the coupling offset of the joints as they are now (``deflection_offset``, see
   :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
   not the belt and cable routes' coupling, with no host feeding goals any longer;
@@ -19,10 +21,16 @@ to hold where it is:
   registers at their defaults; :func:`servo_setpoint`).  Its present angle alone let the
   servo give way by that error (a loaded wrist sagged 1.5°).
 
-The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
-and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
-exchange short whose late replies would not fit a read.  Then the line is drained, the
-torque and the state read, and the same goals sent again with fresh coupling offsets.
+The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`,
+looked ahead to the moment they are sent) and sent by :meth:`host.arm.Arm.send`, a write
+waiting for no reply: Ctrl-C may have cut an exchange short whose late replies would not fit
+a read.  Not into those replies, though: on the half-duplex line a write collides with them
+and is lost (the nodes then drove on for the drain's 100 ms, and the goals sent after it lay
+behind the motors: J2 or J4 drove back and latched), so the bus first lets them pass
+(:meth:`host.dynamixel_bus.DynamixelBus.wait_out_replies`).  Then the line is drained, the
+torque and two states a cycle apart read, and each joint's goal sent again from how it moves
+then, with fresh coupling offsets: a motor the first write stopped is at rest there, one it
+never reached is stopped where it stops now, not driven back.
 
 Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
 or the host did) is left alone and named.  Nothing is latched by holding.
@@ -33,7 +41,7 @@ then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from math import copysign, pi
 from typing import Final
@@ -60,13 +68,14 @@ SPEED_SPAN_MAX_S: Final = 0.05
 #: The longest (s) a hold's goals look ahead of the state they start from (the motors
 #: turning on at their speed meanwhile): a Ctrl-C's wait for a cut exchange's replies.
 EXTRAPOLATE_MAX_S: Final = 0.1
-#: How far a motor speed from two states' step counts may be off (a share of it), and a
-#: state's time (s): each state is stamped when its replies were decoded, which on a
-#: serial port or a pty can be a few ms after the nodes read their step counters.  A hold
-#: sets each stepper's goal that much further on than the estimate says braking ends
-#: (:func:`hold_goals`): a goal short of it brakes the motor past the goal and drives it
-#: back while the link swings on, and the spring winds up.
-SPEED_ERROR: Final = 0.3
+#: How far a motor speed from two states' step counts may be off (a share of it), and how
+#: late a state's time (s) may be: each state is stamped when its replies were decoded,
+#: on a serial port or a pty a few ms after the nodes read their step counters (through
+#: the ptys the speeds came out up to 12 % off).  A hold sets each stepper's goal where the
+#: motor stops if it turns that much faster, that much longer (:func:`hold_goals`): a goal
+#: short of where it stops brakes the motor past the goal and drives it back while the
+#: link swings on, and the spring winds up.
+SPEED_ERROR: Final = 0.25
 TIME_ERROR_S: Final = 0.005
 
 
@@ -106,7 +115,8 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     last = arm.last_state
     if last is not None:  # at once, from the last state read: nothing to read first
         goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints,
-                                             at=arm.transport.now()).items()
+                                             at=arm.transport.now(),
+                                             limits=arm.stepper_speed_limits).items()
                  if i not in arm.unpowered_steppers}
         arm.send([arm.make_position(i, q) for i, q in goals.items()])
     for attempt in range(HOLD_ATTEMPTS):
@@ -120,14 +130,15 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
 
 
 def hold_goals(state: ArmState, before: ArmState | None = None,
-               joints: tuple[JointInfo, ...] = (), at: float | None = None
-               ) -> dict[int, float]:
+               joints: tuple[JointInfo, ...] = (), at: float | None = None,
+               limits: Sequence[float | None] = ()) -> dict[int, float]:
     """Where to hold each joint of ``state`` (rad): a stepper where its motor stops, braking
     at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
     (:func:`motor_speeds`; at its angle without them) once the goal reaches it at ``at``
     (s, the clock of the states' ``t``; at most :data:`EXTRAPOLATE_MAX_S` after ``state``:
     it turns on at that speed until then), plus what the estimate may be off by
-    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`), and never beyond the goal it was going
+    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`; a speed no faster than the node's speed
+    limit in ``limits``, rad/s, None: not known), and never beyond the goal it was going
     to; a servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
     (STALLED, a hardware error) is left out.  A goal short of where the motor stops would
     brake it past the goal and drive it back against a link that swings on: the spring
@@ -138,9 +149,12 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
     for s in state.steppers:
         if s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR):
             continue
-        v = speeds[s.joint]
-        braking = (1 + 2 * SPEED_ERROR) * v * v / (2 * STEPPER_BRAKING_RAD_S2)
-        stop = s.motor_angle + v * ahead + copysign(braking + TIME_ERROR_S * abs(v), v)
+        v = speeds[s.joint] / (1 - SPEED_ERROR)  # as fast as it may turn
+        limit = limits[s.joint] if s.joint < len(limits) else None
+        if limit is not None and abs(v) > limit:  # the node turns it no faster
+            v = copysign(limit, v)
+        stop = (s.motor_angle + v * (ahead + TIME_ERROR_S)
+                + v * abs(v) / (2 * STEPPER_BRAKING_RAD_S2))
         if (s.goal - s.motor_angle) * v > 0:  # not beyond the goal it was heading for
             stop = min(stop, s.goal) if v > 0 else max(stop, s.goal)
         goals[s.joint] = stop
@@ -193,8 +207,10 @@ def drain(arm: CyclingArm) -> None:
 
 def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
               goals: dict[int, float] | None = None) -> Held:
-    """Hold every joint whose torque is on where it is (see the module docs).  With
-    ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
+    """Hold every joint whose torque is on where it is (see the module docs): each where
+    it stops from how it moves between two states read ``period`` (s) apart; a stepper
+    whose speed they do not give (too far apart) at its goal in ``goals`` (the first
+    write's) or else its motor's angle.  With ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
     at rest (:class:`~host.arm_rest.RestWatch`) or that time has passed, each time with the
     coupling offsets of the joints as they are by then: after an alarm a joint whose torque
     is off may fall to its stop, turning the capstans of the joints after it through the
@@ -206,7 +222,8 @@ def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
     state = arm.cycle()
     # where each motor stops from how it turns now: where the first hold left it, at rest,
     # or (that write lost) on its way
-    fresh = hold_goals(state, before, arm.joints, at=clock.now())
+    fresh = hold_goals(state, before, arm.joints, at=clock.now(),
+                       limits=arm.stepper_speed_limits)
     if not 0 < state.t - before.t <= SPEED_SPAN_MAX_S:  # how fast they turn is not known
         fresh = {i: q for i, q in fresh.items() if i >= N_STEPPERS}
     goals = {**(goals or {}), **fresh}
