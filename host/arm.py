@@ -260,9 +260,9 @@ class Arm:
 
     def hold(self) -> Held:
         """Stop every joint whose torque is on where it is, torque left on
-        (:func:`host.arm_hold.hold`: a stepper's goal := its motor's present angle, with the
-        coupling offset of the joints as they are; a servo's := its present angle); what
-        was held, and what not."""
+        (:func:`host.arm_hold.hold`: a stepper's goal := where its motor stops, with the
+        coupling offset of the joints as they are; a servo's := its setpoint); what was
+        held, and what not."""
         return hold(self)
 
     @property
@@ -424,6 +424,12 @@ class Arm:
                                   hand=self.hand, ahead_s=self.watchdog_s + REST_AHEAD_S)
         packet = rest_deflection_packet(self.steppers, values, frozenset(self.wire.unpowered))
         return [] if packet is None else [packet]
+
+    @property
+    def stepper_speed_limits(self) -> list[float | None]:
+        """Each stepper node's speed limit (rad/s) as this arm last wrote it (None: not
+        written since it opened): how fast its motor may turn at most."""
+        return self.wire.stepper_speed_limits
 
     @property
     def unpowered_steppers(self) -> frozenset[int]:

@@ -138,6 +138,9 @@ class CycleWire:
         self.encoder_at_power_up = [0] * N_STEPPERS
         #: Last commanded RX-64 moving speeds (register units; 0 = maximum).
         self._servo_speed = [0, 0, 0]
+        #: Each stepper node's ``velocity_limit`` as this arm last wrote it (rad/s; None:
+        #: not written): no motor turns faster.
+        self.stepper_speed_limits: list[float | None] = [None] * N_STEPPERS
         #: Stepper joints whose torque is off: joint -> (encoder count, latched
         #: SLIP/STALLED flags) in the state read with that command.
         #: Those found unpowered when the arm opened have no count (None): any move counts.
@@ -227,6 +230,7 @@ class CycleWire:
                     counts = min(max(j.rad_to_counts(c.speed), 1), _S["velocity_limit"].maximum
                                  or 1_000_000)
                     stepper_speed[j.dxl_id] = _S["velocity_limit"].encode(counts)
+                    self.stepper_speed_limits[c.joint] = j.counts_to_rad(counts)
             else:
                 servo[j.dxl_id] = c
         for joint in self._watchdog_stopped & self._goals_sent:

@@ -10,7 +10,9 @@ to hold where it is:
   the motor by the spring's deflection, and a goal at the joint angle would let the arm
   drop by that much.  Its stopping point, not its present angle: the node would brake past
   that and come back, winding the spring up against a link that still moves on, which is
-  what made a Ctrl-C early in a move latch STALLED on a loaded elbow.  The goal goes with
+  what made a Ctrl-C early in a move latch STALLED on a loaded elbow; for the same reason
+  the goal lies a margin beyond the estimated stopping point (the speed's and the states'
+  timestamps' errors), never short of it.  The goal goes with
   the coupling offset of the joints as they are now (``deflection_offset``, see
   :mod:`host.arm`), so the node's SLIP/STALLED watch keeps seeing the elastic element and
   not the belt and cable routes' coupling, with no host feeding goals any longer;
@@ -19,10 +21,16 @@ to hold where it is:
   registers at their defaults; :func:`servo_setpoint`).  Its present angle alone let the
   servo give way by that error (a loaded wrist sagged 1.5°).
 
-The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`)
-and sent by :meth:`host.arm.Arm.send`, a write waiting for no reply: Ctrl-C may have cut an
-exchange short whose late replies would not fit a read.  Then the line is drained, the
-torque and the state read, and the same goals sent again with fresh coupling offsets.
+The goals go out at once, computed from the last state read (:attr:`host.arm.Arm.last_state`,
+looked ahead to the moment they are sent) and sent by :meth:`host.arm.Arm.send`, a write
+waiting for no reply: Ctrl-C may have cut an exchange short whose late replies would not fit
+a read.  Not into those replies, though: on the half-duplex line a write collides with them
+and is lost (the nodes then drove on for the drain's 100 ms, and the goals sent after it lay
+behind the motors: J2 or J4 drove back and latched), so the bus first lets them pass
+(:meth:`host.dynamixel_bus.DynamixelBus.wait_out_replies`).  Then the line is drained, the
+torque and two states a cycle apart read, and each joint's goal sent again from how it moves
+then, with fresh coupling offsets: a motor the first write stopped is at rest there, one it
+never reached is stopped where it stops now, not driven back.
 
 Torque stays as it is: a joint whose torque is off (its node turned it off after an alarm,
 or the host did) is left alone and named.  Nothing is latched by holding.
@@ -33,7 +41,7 @@ then raise :class:`~host.errors.JointAlarmError` naming the joint and the latch.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from math import copysign, pi
 from typing import Final
@@ -57,6 +65,18 @@ STEPPER_BRAKING_RAD_S2: Final = (STEPPER_TABLE["acceleration_limit"].default * 2
                                  / ARM_ENCODER_COUNTS_PER_REV)
 #: Two states further apart than this (s) tell nothing of how fast a motor turns now.
 SPEED_SPAN_MAX_S: Final = 0.05
+#: The longest (s) a hold's goals look ahead of the state they start from (the motors
+#: turning on at their speed meanwhile): a Ctrl-C's wait for a cut exchange's replies.
+EXTRAPOLATE_MAX_S: Final = 0.1
+#: How far a motor speed from two states' step counts may be off (a share of it), and how
+#: late a state's time (s) may be: each state is stamped when its replies were decoded,
+#: on a serial port or a pty a few ms after the nodes read their step counters (through
+#: the ptys the speeds came out up to 12 % off).  A hold sets each stepper's goal where the
+#: motor stops if it turns that much faster, that much longer (:func:`hold_goals`): a goal
+#: short of where it stops brakes the motor past the goal and drives it back while the
+#: link swings on, and the spring winds up.
+SPEED_ERROR: Final = 0.25
+TIME_ERROR_S: Final = 0.005
 
 
 @dataclass(frozen=True)
@@ -89,9 +109,14 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
     last exchange may still be answering (its replies, late, do not fit the hold's reads),
     so what is on the line is let through and dropped before each attempt."""
     goals: dict[int, float] = {}
+    # not into the replies of an exchange Ctrl-C cut short: the write would collide with
+    # them on the line and be lost, and the nodes drive on
+    arm.bus.wait_out_replies()
     last = arm.last_state
     if last is not None:  # at once, from the last state read: nothing to read first
-        goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints).items()
+        goals = {i: q for i, q in hold_goals(last, arm.previous_state, arm.joints,
+                                             at=arm.transport.now(),
+                                             limits=arm.stepper_speed_limits).items()
                  if i not in arm.unpowered_steppers}
         arm.send([arm.make_position(i, q) for i, q in goals.items()])
     for attempt in range(HOLD_ATTEMPTS):
@@ -105,16 +130,34 @@ def hold(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01) -> Held:
 
 
 def hold_goals(state: ArmState, before: ArmState | None = None,
-               joints: tuple[JointInfo, ...] = ()) -> dict[int, float]:
+               joints: tuple[JointInfo, ...] = (), at: float | None = None,
+               limits: Sequence[float | None] = ()) -> dict[int, float]:
     """Where to hold each joint of ``state`` (rad): a stepper where its motor stops, braking
     at :data:`STEPPER_BRAKING_RAD_S2` from its speed between ``before`` and ``state``
-    (:func:`motor_speeds`; at its angle without them), a servo where it drives to
-    (:func:`servo_setpoint`); a stepper its node stopped (STALLED, a hardware error) is left
-    out."""
+    (:func:`motor_speeds`; at its angle without them) once the goal reaches it at ``at``
+    (s, the clock of the states' ``t``; at most :data:`EXTRAPOLATE_MAX_S` after ``state``:
+    it turns on at that speed until then), plus what the estimate may be off by
+    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`; a speed no faster than the node's speed
+    limit in ``limits``, rad/s, None: not known), and never beyond the goal it was going
+    to; a servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
+    (STALLED, a hardware error) is left out.  A goal short of where the motor stops would
+    brake it past the goal and drive it back against a link that swings on: the spring
+    winds up."""
     speeds = motor_speeds(state, before, joints)
-    goals = {s.joint: s.motor_angle + speeds[s.joint] * abs(speeds[s.joint])
-             / (2 * STEPPER_BRAKING_RAD_S2) for s in state.steppers
-             if not s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)}
+    ahead = 0.0 if at is None else min(max(at - state.t, 0.0), EXTRAPOLATE_MAX_S)
+    goals: dict[int, float] = {}
+    for s in state.steppers:
+        if s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR):
+            continue
+        v = speeds[s.joint] / (1 - SPEED_ERROR)  # as fast as it may turn
+        limit = limits[s.joint] if s.joint < len(limits) else None
+        if limit is not None and abs(v) > limit:  # the node turns it no faster
+            v = copysign(limit, v)
+        stop = (s.motor_angle + v * (ahead + TIME_ERROR_S)
+                + v * abs(v) / (2 * STEPPER_BRAKING_RAD_S2))
+        if (s.goal - s.motor_angle) * v > 0:  # not beyond the goal it was heading for
+            stop = min(stop, s.goal) if v > 0 else max(stop, s.goal)
+        goals[s.joint] = stop
     goals.update({v.joint: servo_setpoint(v) for v in state.servos})
     return goals
 
@@ -164,14 +207,26 @@ def drain(arm: CyclingArm) -> None:
 
 def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
               goals: dict[int, float] | None = None) -> Held:
-    """Hold every joint whose torque is on where it is (see the module docs).  With
-    ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
+    """Hold every joint whose torque is on where it is (see the module docs): each where
+    it stops from how it moves between two states read ``period`` (s) apart; a stepper
+    whose speed they do not give (too far apart) at its goal in ``goals`` (the first
+    write's) or else its motor's angle.  With ``settle_s`` (s) the same goals are sent again every ``period`` (s) until the arm is
     at rest (:class:`~host.arm_rest.RestWatch`) or that time has passed, each time with the
     coupling offsets of the joints as they are by then: after an alarm a joint whose torque
     is off may fall to its stop, turning the capstans of the joints after it through the
     routes, which a goal sent only once would let the nodes read as deflection."""
     enabled = arm.torque_enabled()
+    clock = arm.transport
+    before = arm.cycle()
+    clock.sleep(period)
     state = arm.cycle()
+    # where each motor stops from how it turns now: where the first hold left it, at rest,
+    # or (that write lost) on its way
+    fresh = hold_goals(state, before, arm.joints, at=clock.now(),
+                       limits=arm.stepper_speed_limits)
+    if not 0 < state.t - before.t <= SPEED_SPAN_MAX_S:  # how fast they turn is not known
+        fresh = {i: q for i, q in fresh.items() if i >= N_STEPPERS}
+    goals = {**(goals or {}), **fresh}
     found = latches(state)
     commands: list[Command] = []
     held: list[str] = []
@@ -182,11 +237,10 @@ def hold_once(arm: CyclingArm, settle_s: float = 0.0, period: float = 0.01,
             skipped[name] = "torque off" + (f" ({why.removeprefix(name + ' ')})" if why else "")
             continue
         angle = state.motor_joints[i] if i < N_STEPPERS else state.joints[i]
-        commands.append(arm.make_position(i, (goals or {}).get(i, angle)))
+        commands.append(arm.make_position(i, goals.get(i, angle)))
         held.append(name)
     if commands:
         now = arm.cycle(commands)
-        clock = arm.transport
         end = clock.now() + settle_s
         rest = RestWatch()
         while clock.now() < end and not rest.update(now):

@@ -92,6 +92,11 @@ class CyclingArm(ArmReader, WatchedArm, Protocol):
         """The stepper joints whose torque the arm turned off, or found off."""
         ...
 
+    @property
+    def stepper_speed_limits(self) -> list[float | None]:
+        """Each stepper's speed limit (rad/s) as the arm last wrote it (None: not written)."""
+        ...
+
     def send(self, commands: Iterable[Command]) -> None:
         """Send position ``commands`` without reading anything back."""
         ...

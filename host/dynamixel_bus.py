@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final
 
-from host.errors import NodeError, ReplyTimeout, UsageError
+from host.errors import HostError, NodeError, ReplyTimeout, UsageError
 from host.transport import Transport, url_scheme
 from protocol.dynamixel import (
     MIN_PACKET_SIZE,
@@ -58,6 +58,9 @@ ARM_BUS_BAUD: Final = 1_000_000
 FACTORY_RETURN_DELAY_US: Final = 500
 #: Transceiver turnaround allowed per reply (µs): line settling between two packets.
 TURNAROUND_US: Final = 2
+#: Within an exchange's replies, a silence this long (s) after some arrived ends them: the
+#: nodes answer back to back, and the adapter passes them on within its latency.
+REPLY_GAP_S: Final = 0.005
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
                          | ErrorBit.CHECKSUM)
@@ -131,6 +134,10 @@ class DynamixelBus:
         #: When (s, the transport's clock) what this client last sent has left the wire: a
         #: write that expects no reply returns at once, and the next request queues behind it.
         self._line_free_at = 0.0
+        #: The replies still due of an exchange cut short while its nodes answered (Ctrl-C:
+        #: a KeyboardInterrupt out of the wait): their deadline (s, the transport's clock)
+        #: and how many; None when no exchange was cut short (see :meth:`wait_out_replies`).
+        self._due: tuple[float, int] | None = None
 
     # ------------------------------------------------------------------ timing
 
@@ -192,11 +199,26 @@ class DynamixelBus:
         self.stats.bytes_sent += len(raw)
         self._emit("tx", raw)
         start = max(transport.now(), self._line_free_at)  # behind what is still going out
-        transport.send(raw)
         self._line_free_at = start + self.wire_time(len(raw))
+        deadline = self._line_free_at + self.reply_time(expected) + self.latency_s
+        # due until collected: an exception other than the bus's own (Ctrl-C) leaves it set
+        self._due = (deadline, len(expected)) if expected else None
+        transport.send(raw)
         if not expected:
             return []
-        deadline = self._line_free_at + self.reply_time(expected) + self.latency_s
+        try:
+            replies = self._collect(expected, deadline)
+        except HostError:
+            self._due = None
+            raise
+        self._due = None
+        return replies
+
+    def _collect(self, expected: Sequence[Expect], deadline: float
+                 ) -> list[StatusPacket] | None:
+        """The status packets ``expected`` arriving by ``deadline`` (see :meth:`exchange`);
+        None when some did not."""
+        transport = self.transport
         replies: list[StatusPacket] = []
         want = 0
         misfit: StatusPacket | None = None
@@ -225,8 +247,39 @@ class DynamixelBus:
                 replies.append(status)
                 want += 1
                 misfit = None
+                self._due = (deadline, len(expected) - want)
                 if want == len(expected):
                     return replies
+
+    def wait_out_replies(self) -> bool:
+        """Let the replies of an exchange that was cut short pass: a Ctrl-C while the
+        nodes answered leaves their status packets on the half-duplex line for a few more
+        wire times, and whatever is written meanwhile collides with them and is lost (a
+        hold written at once did not arrive, and the nodes drove on).  Receives until the
+        packets still due have arrived, or bytes came and then none for
+        :data:`REPLY_GAP_S` (what the interruption took of them is lost with it), or their
+        deadline has passed (the exchange's own: wire time, return delays and
+        :attr:`latency_s`), and drops them.  True when they all came, or none was due."""
+        due, self._due = self._due, None
+        if due is None:
+            return True
+        deadline, left = due
+        transport = self.transport
+        heard = False
+        while left > 0:
+            remaining = deadline - transport.now()
+            if remaining <= 0:
+                return False
+            data = transport.recv(min(remaining, REPLY_GAP_S) if heard else remaining)
+            if not data:
+                if heard:
+                    return False
+                continue
+            heard = True
+            self.stats.bytes_received += len(data)
+            self._emit("rx", data)
+            left -= sum(isinstance(d.packet, StatusPacket) for d in self._decoder.feed(data))
+        return True
 
     def _check(self, status: StatusPacket) -> None:
         refused = status.error & REQUEST_ERRORS

@@ -247,10 +247,12 @@ def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
 
 
 def test_after_a_hold_the_nodes_hold_without_settling():
-    """A host that holds the arm mid-move (Ctrl-C: goals at the present positions) and then
-    exits: the nodes, still finishing the short way to those goals, are stopped by the
-    watchdog too, and hold there as before - no settling move (it is for a move cut short;
-    after a hold it moved the joints on and, through the ptys, latched J4)."""
+    """A host that holds the arm mid-move (Ctrl-C) and then exits: the hold leaves the
+    motors at rest where they stop (its second write from how they turn then), so the
+    watchdog has nothing to stop.  A node still finishing a short way when the host goes
+    quiet (a program's last short goal) is stopped by the watchdog and holds there as
+    before - no settling move (it is for a move cut short; after a hold it moved the joints
+    on and, through the ptys, latched J4)."""
 
     class Interrupted(BaseException):
         """Ctrl-C between two cycles."""
@@ -272,6 +274,13 @@ def test_after_a_hold_the_nodes_hold_without_settling():
         arm.hold()
         apps = [emu.arm.app(i) for i in range(1, 5)]
         watchdog = int(StepperFlag.WATCHDOG)
+        for _ in range(500):
+            emu.step(1_000)
+            assert not any(app.get("status_flags") & watchdog for app in apps)
+        # a short way (20 counts at 0.05 rad/s, 0.25 s) left to go when the host goes quiet
+        state = arm.state()
+        arm.cycle([arm.make_position(s.joint, s.motor_angle + 0.0126, 0.05)
+                   for s in state.steppers])
         held: dict[int, float] = {}
         for _ in range(2000):
             emu.step(1_000)
@@ -279,7 +288,7 @@ def test_after_a_hold_the_nodes_hold_without_settling():
                 goal = app.get("command_goal") / GOAL_FINE_PER_COUNT
                 if app.get("status_flags") & watchdog:
                     assert held.setdefault(node, goal) == goal, f"J{node + 1} moved on"
-        assert held, "the watchdog did not stop a node after the hold"
+        assert held, "the watchdog did not stop a node finishing a short way"
         latches = int(StepperFlag.SLIP | StepperFlag.STALLED)
         assert not any(app.get("status_flags") & latches for app in apps)
     finally:

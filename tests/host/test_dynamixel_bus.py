@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from host.arm import Arm
 from host.arm_state import JointInfo
-from host.dynamixel_bus import DynamixelBus, DynamixelNodeError, Expect
+from host.dynamixel_bus import REPLY_GAP_S, DynamixelBus, DynamixelNodeError, Expect
 from host.errors import NodeError, ReplyTimeout
 from host.transport import Transport
 from protocol.dynamixel import ErrorBit, make_read
@@ -155,6 +155,64 @@ def test_a_late_reply_to_an_earlier_request_is_dropped() -> None:
     bus.transport.sleep(10e-3)  # the first reply arrives now, long after its deadline
     (status,) = bus.exchange([make_read(1, 0, 2)], [Expect(1, 2)])
     assert status.errors == ErrorBit.OVERHEATING  # the fresh reply, not the stale one
+
+
+class CtrlCInTheWait(ScriptedTransport):
+    """Ctrl-C while the host waits for replies: the first wait raises KeyboardInterrupt
+    (nothing received by then, or, with ``taking``, the first chunk, lost with it)."""
+
+    def __init__(self, script: list[list[tuple[float, bytes]]], taking: bool = False) -> None:
+        super().__init__(script)
+        self.interrupted = False
+        self.taking = taking
+
+    def _recv(self, timeout: float | None) -> bytes:
+        if timeout and not self.interrupted:
+            self.interrupted = True
+            if self.taking:
+                super()._recv(timeout)
+            raise KeyboardInterrupt
+        return super()._recv(timeout)
+
+
+BULK_1_2 = [(2, 1, 0), (2, 2, 0)]  # model number of ids 1 and 2
+
+
+def test_a_write_after_an_exchange_cut_short_waits_for_its_replies() -> None:
+    """A write into the replies still on the half-duplex line would collide with them:
+    after a Ctrl-C cut the exchange short, :meth:`wait_out_replies` lets them arrive."""
+    transport = CtrlCInTheWait([[(1e-3, STATUS_1_MODEL), (2e-3, STATUS_2_MODEL)], []])
+    bus = DynamixelBus(transport, 1_000_000, latency_s=0.1)
+    with pytest.raises(KeyboardInterrupt):
+        bus.bulk_read(BULK_1_2)
+    assert bus.wait_out_replies()
+    assert transport.now() == pytest.approx(2e-3)  # both replies came: not the deadline
+    bus.sync_write(30, 2, {1: b"\x00\x00"})
+    assert transport.sent[-1][0] == pytest.approx(2e-3)
+    assert bus.wait_out_replies() and transport.now() == pytest.approx(2e-3)  # none due
+
+
+def test_replies_lost_with_the_interruption_end_the_wait_at_a_silence() -> None:
+    """The first reply went with the interrupted read: the second one and a silence of
+    REPLY_GAP_S end the wait, not the deadline (the link's 100 ms latency)."""
+    transport = CtrlCInTheWait([[(1e-3, STATUS_1_MODEL), (2e-3, STATUS_2_MODEL)]],
+                               taking=True)
+    bus = DynamixelBus(transport, 1_000_000, latency_s=0.1)
+    with pytest.raises(KeyboardInterrupt):
+        bus.bulk_read(BULK_1_2)
+    assert not bus.wait_out_replies()
+    assert transport.now() == pytest.approx(2e-3 + REPLY_GAP_S)
+
+
+def test_an_exchange_that_ended_leaves_no_replies_due() -> None:
+    for script in ([[(100e-6, STATUS_1_MODEL)]], []):  # answered, and timed out
+        bus = bus_on(script, retries=0)
+        try:
+            bus.read(1, 0, 2)
+        except ReplyTimeout:
+            pass
+        before = bus.transport.now()
+        assert bus.wait_out_replies() and bus.transport.now() == before
 
 
 def test_refusal_bits_raise_by_name_and_alarm_bits_are_returned() -> None:

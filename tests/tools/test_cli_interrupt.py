@@ -114,3 +114,18 @@ def test_the_entry_module_imports_only_the_standard_library() -> None:
          "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))"],
         capture_output=True, text=True, check=True).stdout.split()
     assert heavy.isdisjoint(out), heavy & set(out)
+
+
+def test_a_ctrl_c_after_the_command_finished_does_not_end_it_by_the_signal(
+        tmp_path: Path) -> None:
+    """A Ctrl-C between ``main`` returning and the process exiting (``armctl move`` whose
+    move had just settled) ended it by SIGINT: status -2 and a traceback, though its work
+    was done.  The installed command (``argv`` None) now exits with ``main``'s status."""
+    (tmp_path / "finished.py").write_text("def main(argv):\n    return 0\n")
+    code = ("import os, signal, sys, time, tools.cli.launch as launch; "
+            f"sys.path.insert(0, {str(tmp_path)!r}); "
+            "status = launch.launch('finished', 'finished'); "
+            "os.kill(os.getpid(), signal.SIGINT); time.sleep(0.2); sys.exit(status)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60)
+    assert (done.returncode, done.stderr) == (0, "")

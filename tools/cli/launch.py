@@ -37,7 +37,9 @@ def launch(prog: str, module: str, argv: list[str] | None = None) -> int:
     holds the robot on Ctrl-C) and restores these when it returns. Returns the exit
     status: ``main``'s, or :data:`EXIT_INTERRUPTED` with ``PROG: interrupted`` on stderr.
     When ``main`` returns, the handlers found on entry are back (a caller in the same
-    process, such as a test, keeps its own)."""
+    process, such as a test, keeps its own), except for the installed command itself
+    (``argv`` None), which exits next: a Ctrl-C that late is ignored (it used to end the
+    finished program by the signal, as if its work had been cut short)."""
     interrupted = False
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
@@ -63,7 +65,10 @@ def launch(prog: str, module: str, argv: list[str] | None = None) -> int:
             _restore(previous)
             raise
     else:
-        _restore(previous)
+        if argv is None:  # the command's own process, which exits with this status next
+            interrupted = True  # a Ctrl-C now finds the work done: ignored, not a kill
+        else:
+            _restore(previous)
         return status
     print(f"{prog}: interrupted", file=sys.stderr)
     return EXIT_INTERRUPTED
