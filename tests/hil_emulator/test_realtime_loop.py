@@ -18,6 +18,17 @@ from tests.hil_emulator.emulator_thread import serving
 from tests.hil_emulator.faults.probes import FaultyEmulator
 
 
+def _ping_node_5(path: str) -> bytes:
+    """Ping node 5 over the pty at ``path``; what came back (up to its 6-byte status)."""
+    with serial.Serial(path, 1_000_000, timeout=0) as port:
+        port.write(make_ping(5).encode())
+        got = b""
+        deadline = time.monotonic() + 10.0  # a hang guard, not a timing bound
+        while len(got) < 6 and time.monotonic() < deadline:
+            got += port.read(64)
+            time.sleep(0.001)
+    return got
+
 def test_stop_takes_effect_at_once_when_far_behind() -> None:
     """Every simulated 100 µs costs 1 ms of wall time: the loop can never catch up.  Once
     ``stop`` is set it runs at most one more batch of :data:`CATCH_UP_EVENTS` events (each
@@ -77,13 +88,7 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
     link.on_emit = on_emit
     with serving(emulator, ports=False):
         time.sleep(0.3)  # far behind by now: the clock has slipped
-        with serial.Serial(link.path, 1_000_000, timeout=0) as port:
-            port.write(make_ping(5).encode())
-            got = b""
-            deadline = time.monotonic() + 10.0  # a hang guard, not a timing bound
-            while len(got) < 6 and time.monotonic() < deadline:
-                got += port.read(64)
-                time.sleep(0.001)
+        got = _ping_node_5(link.path)
     assert got[:3] == b"\xff\xff\x05", got
     t_in, sim_at_read = entered[0]
     assert t_in == sim_at_read  # at the present simulation time, not ahead of a backlog
@@ -145,13 +150,7 @@ def test_a_real_time_run_reads_a_port_only_when_something_arrived() -> None:
         sim0 = emulator.scheduler.now_us()
         time.sleep(0.5)
         idle_polls, sim_us = polls[0], emulator.scheduler.now_us() - sim0
-        with serial.Serial(run.ports["arm"], 1_000_000, timeout=0) as port:
-            port.write(make_ping(5).encode())
-            got = b""
-            deadline = time.monotonic() + 10.0  # a hang guard, not a timing bound
-            while len(got) < 6 and time.monotonic() < deadline:
-                got += port.read(64)
-                time.sleep(0.001)
+        got = _ping_node_5(run.ports["arm"])
     assert sim_us > 100_000  # it ran: hundreds of wake-ups for the arm's 1 ms ticks
     assert idle_polls <= 5, idle_polls  # no host input: (almost) never read
     assert got[:3] == b"\xff\xff\x05", got
