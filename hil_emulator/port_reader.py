@@ -28,6 +28,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from hil_emulator.scheduling import Scheduling, adopt, current
+
 #: Most bytes read from the pty in one go.
 READ_CHUNK = 65_536
 
@@ -38,6 +40,9 @@ class PortReader:
     ``room()`` says how many more bytes the link accepts now (the adapter buffer's free
     space); called on the reader's thread.  ``decode`` turns what one read returned into
     the client's bytes (a packet-mode pty's :meth:`~hil_emulator.pty_port.PtyPort.unpacket`).
+    The thread takes the real-time scheduling of the thread that creates it
+    (:func:`~hil_emulator.scheduling.adopt`): it holds the interpreter's lock while it
+    queues, and the pacing thread must not wait behind it for a normal process's slice.
     """
 
     def __init__(self, fd: int, room: Callable[[], int], name: str = "port",
@@ -54,6 +59,8 @@ class PortReader:
         self._stop_r, self._stop_w = os.pipe()
         for fd_ in (self._wake_r, self._wake_w):
             os.set_blocking(fd_, False)
+        self._scheduling: Scheduling = current()
+        self.scheduling: Scheduling | None = None  #: what the reader thread got (once started)
         self._thread = threading.Thread(target=self._run, name=f"port-reader-{name}",
                                         daemon=True)
         self._thread.start()
@@ -77,6 +84,7 @@ class PortReader:
         return chunks
 
     def _run(self) -> None:
+        self.scheduling = adopt(self._scheduling)
         fd = self._fd
         while True:
             try:

@@ -5,7 +5,8 @@ and its replies come late.  :func:`request_priority` asks Linux for ``SCHED_RR``
 priority (:data:`RT_PRIORITY`) for the calling thread only, where that is allowed (root,
 ``CAP_SYS_NICE`` — ``setcap cap_sys_nice+ep`` on the interpreter —, or an ``rtprio`` limit
 from ``/etc/security/limits.d``); where it is not, the thread runs on as it was.  Children
-never inherit it (``SCHED_RESET_ON_FORK``).  The real-time loop sleeps between events and
+never inherit it (``SCHED_RESET_ON_FORK``), and neither do the threads it starts: a thread
+that shares the interpreter's lock with the pacing thread takes it with :func:`adopt`.  The real-time loop sleeps between events and
 yields the CPU when it has been busy for long (:data:`RT_BUSY_LIMIT_S`), so a real-time
 emulator never takes a core from the machine for good.
 """
@@ -126,4 +127,24 @@ def request_priority(priority: str = "realtime", rt_priority: int = RT_PRIORITY
                                             "limit")
     except OSError as exc:
         return Scheduling("SCHED_OTHER", 0, f"refused: {exc.strerror or exc}")
+    return current()
+
+
+def adopt(scheduling: Scheduling) -> Scheduling:
+    """Give the calling thread ``scheduling`` when it is real-time (what the thread that
+    started it got: ``SCHED_RESET_ON_FORK`` keeps new threads from inheriting it); returns
+    what the calling thread has afterwards.
+
+    A helper thread of the real-time loop (a port's reader) holds the interpreter's lock
+    while it queues bytes; left at normal priority, a CPU-bound process can preempt it
+    there, and the pacing thread then waits for the lock for a scheduler slice (several ms)
+    however high its own priority.  Refused (no privilege any more), the thread runs on as
+    it is."""
+    if not scheduling.realtime or not hasattr(os, "SCHED_RR"):
+        return current()
+    policy = getattr(os, scheduling.policy) | getattr(os, "SCHED_RESET_ON_FORK", 0)
+    try:
+        os.sched_setscheduler(0, policy, os.sched_param(scheduling.priority))
+    except OSError:
+        pass
     return current()

@@ -9,11 +9,13 @@ import shutil
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 
 from hil_emulator.emulator import Emulator
-from hil_emulator.scheduling import RT_PRIORITY, current, request_priority, rtprio_limit
+from hil_emulator.port_reader import PortReader
+from hil_emulator.scheduling import RT_PRIORITY, Scheduling, current, request_priority, rtprio_limit
 from tests.hil_emulator.emulator_process import ROOT
 
 ALLOWED = os.geteuid() == 0 or rtprio_limit() > 0
@@ -98,3 +100,35 @@ def test_without_the_right_it_says_why_and_runs_on_normally() -> None:
         "limit)"), told
     assert "docs/EMULATOR.md" in told[0]
     assert stats["scheduling"] == "SCHED_OTHER" and stats["sim_s"] > 0
+
+
+@pytest.mark.skipif(not ALLOWED, reason="real-time scheduling is not allowed here")
+def test_a_port_reader_started_by_the_real_time_thread_runs_real_time_too() -> None:
+    """Linux does not pass SCHED_RR on to new threads (SCHED_RESET_ON_FORK); a reader left at
+    normal priority could be preempted while it holds the interpreter's lock, and the pacing
+    thread would wait behind it."""
+    r, w = os.pipe()
+    try:
+        def start() -> tuple[Scheduling, Scheduling | None]:
+            asked = request_priority("realtime")
+            reader = PortReader(r, lambda: 4096, "test")
+            os.write(w, b"x")
+            deadline = time.monotonic() + 5.0
+            while reader.queued == 0 and time.monotonic() < deadline:
+                time.sleep(0.001)
+            reader.stop()
+            return asked, reader.scheduling
+
+        asked, got = _in_thread(start)  # type: ignore[misc]
+        assert asked.realtime
+        assert got == asked
+        normal = PortReader(r, lambda: 4096, "normal")  # started by a normal thread
+        os.write(w, b"y")
+        deadline = time.monotonic() + 5.0
+        while normal.queued == 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        normal.stop()
+        assert normal.scheduling is not None and not normal.scheduling.realtime
+    finally:
+        os.close(r)
+        os.close(w)

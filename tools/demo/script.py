@@ -632,6 +632,16 @@ def _final_stats(proc: subprocess.Popen[str]) -> dict[str, Any]:
     return {}
 
 
+def _lateness(stats: Mapping[str, Any]) -> str:
+    """How well the emulator kept the wall clock, from its ``--stats`` (one phrase): a
+    late robot is the first suspect when an elastic joint stalls in real time."""
+    if stats.get("p99_ms") is None:
+        return "reported no lateness"
+    return (f"{stats.get('scheduling', '?')}, late by {stats['p99_ms']:.2f} ms at the 99th "
+            f"percentile, {stats['max_ms']:.1f} ms at most, {stats.get('slipped_s', 0.0):.2f} s "
+            "slipped behind the wall clock")
+
+
 def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
     """Identify the thirteen hand MCUs; ping the arm's seven joints with dynamixel-sdk."""
     from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
@@ -704,6 +714,8 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
                 proc.send_signal(signal.SIGINT)
                 proc.wait(timeout=20)
                 stats = _final_stats(proc)
+                print(f"[wall {time.monotonic() - wall0:6.1f} s] emulator: "
+                      f"{_lateness(stats)}", flush=True)
                 summary = stats.get("scene", {}).get("mug")
                 demo.log.result["mug"] = summary or {}
                 _write_report(demo, out)
