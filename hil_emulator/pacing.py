@@ -233,7 +233,7 @@ class Pacer:
             self.on_notice(got.describe())
         ported = [port for port in self.ports.values() if isinstance(port, PtyBacked)]
         try:
-            for link in ported:  # on this thread: the readers share its scheduling
+            for link in ported:  # on this thread: the readers adopt its scheduling
                 link.start_reader()
             self._run_loop(stop, True, on_idle, fast_chunk_us)
         finally:

@@ -42,7 +42,10 @@ PALM_AXES_AT_MUG: Final = ((0.0, 0.0, -1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
 #: before any pad touches it.)
 MUG_AXIS_IN_PALM_M: Final = (0.036, 0.0575)
 #: Height of the palm's centre above the table top at the grasp (m; the mug is 0.10 m tall).
-GRASP_HEIGHT_M: Final = 0.06
+#: The open hand's lowest finger (its distal link) then clears the table top by about 10 mm
+#: on the way in; at 60 mm it dragged on the table, the controller pushed J3 against it and
+#: its node latched STALLED in about one real-time run in four.
+GRASP_HEIGHT_M: Final = 0.07
 #: Pre-grasp: the palm this far back from the grasp along its normal (m).
 APPROACH_M: Final = 0.08
 #: Ready pose: the palm this far back from the grasp (m, along its normal) and up (m), in
