@@ -30,3 +30,10 @@ def arm_joints(arm: Arm) -> np.ndarray:
     plant = emulator_of(arm).arm_plant
     assert plant is not None, "the arm's emulator runs without physics"
     return np.array(plant.joint_angles())
+
+
+def arm_velocities(arm: Arm) -> np.ndarray:
+    """The arm plant's seven joint velocities (rad/s)."""
+    plant = emulator_of(arm).arm_plant
+    assert plant is not None, "the arm's emulator runs without physics"
+    return np.array(plant.joint_velocities())

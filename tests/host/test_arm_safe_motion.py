@@ -27,7 +27,7 @@ from protocol.robot import (
     ARM_JOINT_SPEED_LIMITS,
     RX64_RAD_PER_UNIT,
 )
-from tests.ground_truth import arm_joints
+from tests.ground_truth import arm_joints, arm_velocities
 
 #: The issue's move: shoulder and elbow lifted over 6 s.
 LIFT = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]
@@ -278,3 +278,25 @@ def test_any_path_slowed_down_as_the_gate_says_passes_it(
     q = np.array(points)
     scale = slowdown(times, q)
     check_path(times * scale * (1 + 1e-6), q, q[0], homed=True)
+
+
+@pytest.mark.parametrize("after_s", [0.6, 2.5])
+def test_a_move_started_at_once_after_a_ctrl_c_hold_latches_nothing(url: str,
+                                                                      after_s: float) -> None:
+    """The user's next command comes while the held arm still rings (the hold stops the
+    motors within about 0.2 s; the elastic joints swing on for a second or two): the new
+    move must start from the swinging arm without latching a stall, and get there."""
+    seen: dict[str, np.ndarray] = {}
+    arm = Arm.open(url)
+    arm.torque(True, hold=True)
+    _interrupt_after(arm, after_s, seen)
+    with pytest.raises(KeyboardInterrupt), arm:
+        arm.move(LIFT, duration=6.0)
+    back = [0.0, 0.3, 0.0, 0.4, 0.0, 0.0, 0.0]
+    with Arm.open(url) as again:  # a new program, at once
+        moving = max(abs(v) for v in arm_velocities(again)[:4])
+        again.move(back, duration=6.0)
+        state = again.state()
+    assert moving > 0.02, "the arm was at rest already: nothing was tested"
+    assert not any(s.stalled or s.slip for s in state.steppers) and state.errors == {}
+    assert float(np.max(np.abs(arm_joints(arm)[:4] - np.array(back[:4])))) < 0.05
