@@ -15,6 +15,7 @@ from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.inprocess import forget_shared_emulators
 from hil_emulator.scene_model import MUG_HEIGHT_M, MUG_MASS_KG, MUG_RADIUS_M, TABLE_TOP_Z_M
 from tests.tools.mcap_check import check_recording
+from tools.demo import command
 from tools.demo import script as demo
 from tools.demo.watch import SLIP_M
 
@@ -55,7 +56,7 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
         raise demo.DemoFailed("grasp", "no finger felt the mug")
 
     monkeypatch.setattr(demo, "run_inprocess", broken)
-    assert demo.main(["--out", str(tmp_path)]) == 1
+    assert command.main(["--out", str(tmp_path)]) == 1
     out = capsys.readouterr().out
     assert out.strip().splitlines()[-1] == "demo: FAILED (grasp: no finger felt the mug)"
     assert "Traceback" not in out
@@ -67,7 +68,7 @@ def test_demo_lifts_the_mug_and_writes_report_and_recordings(
         capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     forget_shared_emulators()
     try:
-        status = demo.main(["--out", str(tmp_path)])
+        status = command.main(["--out", str(tmp_path)])
     finally:
         forget_shared_emulators()
     out = capsys.readouterr().out

@@ -1,5 +1,5 @@
-"""``python -m tools.demo``: run :func:`tools.demo.script.main`."""
+"""``python -m tools.demo``: run :func:`tools.demo.command.main`."""
 
-from tools.demo.script import main
+from tools.demo.command import main
 
 raise SystemExit(main())

@@ -56,12 +56,10 @@ slow (:data:`JOINT_SPEED_RAD_S`, :data:`NEAR_SPEED_RAD_S`), so dynamics add litt
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
 import math
-import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -85,9 +83,6 @@ from host.view import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGER_BOARDS, FINGERS
-from tools.cli.numeric import read_negative_numbers
-from tools.cli.output import guard_output
-from tools.cli.view import add_view_arguments
 from tools.demo.plan import (
     APPROACH_M,
     FW_VERSION,
@@ -603,34 +598,3 @@ def _write_report(demo: Demo, out: Path) -> None:
     print(f"report: {path}", flush=True)
     print(f"recordings: {out / 'hand.mcap'}, {out / 'arm.mcap'} "
           f"(decode: handbus decode {out / 'hand.mcap'})", flush=True)
-
-
-@guard_output("demo")
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("demo-output"),
-                        help="where the report and recordings go (default ./demo-output)")
-    parser.add_argument("--seed", type=int, default=0, help="the emulator's seed")
-    parser.add_argument("--realtime", action="store_true",
-                        help="run against a hil-emulator subprocess through its ptys, "
-                             "paced to the wall clock")
-    add_view_arguments(parser)
-    args = read_negative_numbers(parser).parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-    try:
-        from tools.demo.realtime import run_realtime  # it builds on this module
-
-        ok, text = (run_realtime if args.realtime else run_inprocess)(
-            args.out, args.seed, args.view_port if args.view else None)
-    except DemoFailed as exc:
-        ok, text = False, f"{exc.step}: {exc}"
-    except KeyboardInterrupt:
-        ok, text = False, "interrupted"
-    except Exception as exc:  # noqa: BLE001 - a demo reports, it does not crash
-        ok, text = False, f"{type(exc).__name__}: {exc}"
-    print(f"demo: OK ({text})" if ok else f"demo: FAILED ({text})", flush=True)
-    return 0 if ok else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
