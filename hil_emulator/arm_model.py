@@ -65,6 +65,8 @@ from protocol.robot import (
     ARM_JOINT_LIMITS,
     ARM_JOINT_NAMES,
     ARM_JOINT_OFFSETS_M,
+    ARM_LINK_INERTIAS_KGM2,
+    STEPPER_HUB_ARMATURE_KGM2,
 )
 
 Vec3 = tuple[float, float, float]
@@ -108,8 +110,9 @@ RX64_GEAR_FRICTION_NM: Final = 0.3
 #: Impedance of the friction constraints: close to hard, so the geared servo holds at rest.
 FRICTION_SOLIMP: Final = (0.998, 0.9995, 0.001, 0.5, 2.0)
 #: Output hub of the series-elastic joints J1–J4 (capstan bearing, cable pulleys riding
-#: along), as armature (kg·m²); the capstans themselves are on the motor side of the spring.
-SEA_HUB_ARMATURE: Final = (0.004, 0.004, 0.004, 0.002)
+#: along), as armature (kg·m²; :data:`protocol.robot.STEPPER_HUB_ARMATURE_KGM2`); the
+#: capstans themselves are on the motor side of the spring.
+SEA_HUB_ARMATURE: Final = STEPPER_HUB_ARMATURE_KGM2
 
 #: Contact bits of arm geoms (see the module docstring).
 ARM_CONTYPE: Final = 0
@@ -250,7 +253,7 @@ def add_arm(spec: mujoco.MjSpec, parent: mujoco.MjsBody, prefix: str = "arm/",
     link1 = link(base, "link1")
     link1.mass = LINK1_MASS
     link1.ipos = [-0.06, 0.0, 0.09]
-    link1.inertia = [0.019, 0.021, 0.024]
+    link1.inertia = list(ARM_LINK_INERTIAS_KGM2[0])
     link1.explicitinertial = True
     _geom(link1, f"{prefix}link1_box", mujoco.mjtGeom.mjGEOM_BOX, (0.10, 0.09, 0.08),
           _LINK_RGBA, pos=(-0.04, 0.0, 0.09))

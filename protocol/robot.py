@@ -470,6 +470,25 @@ ARM_LINK_MASS_PROPERTIES: Final[tuple[tuple[float, Vec3], ...]] = (
     (0.05, (0.0, 0.0, -0.02)))
 #: The flange disc's mass (kg) and centre of mass in the flange frame (m).
 ARM_FLANGE_MASS_PROPERTIES: Final[tuple[float, Vec3]] = (0.025, (0.0, 0.0, -0.002))
+#: Principal moments of inertia (kg·m², about the centre of mass, along the body's own axes)
+#: of the same bodies (:data:`ARM_LINK_MASS_PROPERTIES`): link 1 as measured, the others
+#: uniform cylinders along each link (the emulator's model builds them from their parts; a
+#: test keeps the two equal): the host's mass matrix of the arm (:mod:`host.arm_dynamics`).
+ARM_LINK_INERTIAS_KGM2: Final[tuple[Vec3, ...]] = (
+    (0.019, 0.021, 0.024),
+    (0.000376458333, 0.000376458333, 0.00040625),
+    (0.0187254167, 0.0187254167, 0.0006),
+    (0.000172395833, 0.000172395833, 7.8125e-05),
+    (0.0035528125, 0.0035528125, 9.6875e-05),
+    (5.46875e-05, 5.46875e-05, 4.6875e-05),
+    (1.5e-05, 1.5e-05, 2.25e-05))
+#: The flange disc's principal moments of inertia (kg·m², flange axes).
+ARM_FLANGE_INERTIA_KGM2: Final[Vec3] = (1.00333333e-05, 1.00333333e-05, 2e-05)
+#: The output hub of each series-elastic joint J1..J4 (capstan bearing, cable pulleys riding
+#: along) as an inertia about the joint's axis (kg·m², MuJoCo's armature): the capstans
+#: themselves are on the motor side of the spring.
+STEPPER_HUB_ARMATURE_KGM2: Final[tuple[float, float, float, float]] = (0.004, 0.004, 0.004,
+                                                                        0.002)
 #: The hand's mass (kg: palm, four finger modules and their boards) and its centre of mass
 #: in the flange frame (m) when mounted as :data:`HAND_ON_FLANGE_POSITION_M` /
 #: :data:`HAND_ON_FLANGE_QUAT` say, the fingers extended (every finger joint at 0; curling

@@ -33,7 +33,9 @@ from hil_emulator.plant import Plant, new_spec
 from protocol.control_tables import StepperFlag
 from protocol.image import BoardType
 from protocol.robot import (
+    ARM_FLANGE_INERTIA_KGM2,
     ARM_FLANGE_MASS_PROPERTIES,
+    ARM_LINK_INERTIAS_KGM2,
     ARM_LINK_MASS_PROPERTIES,
     HAND_COM_ON_FLANGE_M,
     HAND_MASS_KG,
@@ -422,7 +424,8 @@ _MOVING_BODIES = ("link1", "shoulder", "upper_arm", "forearm", "forearm_roll", "
 
 @pytest.mark.parametrize("config", ["arm", "full"])
 def test_mass_properties_the_host_uses_are_the_models(config: str) -> None:
-    """protocol.robot's per-body masses and centres of mass (the host's gravity model) equal
+    """protocol.robot's per-body masses, centres of mass and inertias (the host's gravity
+    model and mass matrix) equal
     the MuJoCo model's, and with the hand mounted its mass and centre of mass on the flange
     (fingers extended) too: the two cannot drift apart."""
     model = Emulator(config, seed=0, can="none").arm_plant.model  # type: ignore[union-attr]
@@ -431,10 +434,13 @@ def test_mass_properties_the_host_uses_are_the_models(config: str) -> None:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
 
     declared = (*ARM_LINK_MASS_PROPERTIES, ARM_FLANGE_MASS_PROPERTIES)
-    for name, (mass, com) in zip((*_MOVING_BODIES, "flange"), declared, strict=True):
+    inertias = (*ARM_LINK_INERTIAS_KGM2, ARM_FLANGE_INERTIA_KGM2)
+    for name, (mass, com), inertia in zip((*_MOVING_BODIES, "flange"), declared, inertias,
+                                          strict=True):
         b = body(f"arm/{name}")
         assert model.body_mass[b] == pytest.approx(mass, abs=1e-9), name
         assert model.body_ipos[b] == pytest.approx(com, abs=1e-9), name
+        assert model.body_inertia[b] == pytest.approx(inertia, rel=1e-8), name
     flange = body("arm/flange")
     hand = [b for b in range(model.nbody) if model.body_rootid[b] == model.body_rootid[flange]
             and b != flange and _descends_from(model, b, flange)]
