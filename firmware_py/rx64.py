@@ -143,6 +143,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._punch = get("punch")
 
     def power_up(self) -> None:
+        self._unpublished = None  # a fresh image: nothing from before is owed to it
         present = self._pot()
         self._alarms = 0
         self.shutdown = False
