@@ -186,6 +186,13 @@ class DynamixelSlave:
         """Latched alarm bits (ErrorBit) reported in every status packet."""
         return 0
 
+    def sync_image(self) -> None:
+        """Write into the image what the application has published but left unwritten (a
+        servo's present-value registers after each tick), so that the image reads as if
+        everything had been written when published.  Called before the image is read or
+        written (:meth:`get`, :meth:`set`, a host write); whoever reads :attr:`image`
+        directly calls it first.  Nothing is left unwritten by default."""
+
     def host_heard(self) -> None:
         """An instruction addressed to this node arrived (its ID or broadcast; a SYNC_WRITE
         with an entry for it, a BULK_READ naming it), before it is executed: a host is
@@ -195,10 +202,12 @@ class DynamixelSlave:
 
     def get(self, name: str) -> int:
         """The value of register ``name``."""
+        self.sync_image()
         return self.table.value(self.image, name)
 
     def set(self, name: str, value: int) -> None:
         """Store ``value`` in register ``name`` (the node's own access, no limits)."""
+        self.sync_image()
         self.table.set_value(self.image, name, value)
         if name in self.CACHED_REGISTERS:
             self.reload_registers()
@@ -331,6 +340,7 @@ class DynamixelSlave:
                         broadcast=broadcast)
 
     def _check_write(self, address: int, data: bytes) -> tuple[bytearray, list[Register]]:
+        self.sync_image()
         trial = bytearray(self.image)
         touched = self.table.write(trial, address, data)
         if "lock" in self.table and self.get("lock"):

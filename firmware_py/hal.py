@@ -14,7 +14,7 @@ accelerometer counts (≈ 1 mg), positions in the sensor's own counts.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from mypy_extensions import mypyc_attr
@@ -254,6 +254,10 @@ class Sensors(ABC):
                 raise HalError(f"sensor {channel!r} is not a scalar")
             total += value
         return total
+
+    def read_bursts(self, channels: Sequence[str], count: int) -> list[int]:
+        """:meth:`read_burst` of each of ``channels`` in turn (a scan of several inputs)."""
+        return [self.read_burst(channel, count) for channel in channels]
 
     def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
         """Call ``before_change`` just before the numbered series ``prefix`` (``"taxel"``:

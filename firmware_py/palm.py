@@ -72,7 +72,12 @@ _EVENT = CATALOGUE.by_name("palm.finger_event")
 
 
 def _clamp(value: int, lo: int, hi: int) -> int:
-    return max(lo, min(hi, int(value)))
+    v = int(value)
+    return lo if v < lo else hi if v > hi else v
+
+
+#: The taxel channels, named once (one is read every millisecond).
+_TAXEL_CHANNELS: Final = tuple(f"taxel{i}" for i in range(PALM_TAXELS))
 
 
 class CanLink(Uart):
@@ -183,7 +188,7 @@ class PalmApp(HandNode):
 
     def _scan_taxel(self) -> None:
         i = self._taxel_next
-        self.taxels[i] = self._scalar(f"taxel{i}")
+        self.taxels[i] = self._scalar(_TAXEL_CHANNELS[i])
         self._taxel_next = (i + 1) % PALM_TAXELS
 
     def _rebuild_state(self) -> None:

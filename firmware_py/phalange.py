@@ -34,6 +34,7 @@ returns.  :func:`supply_interrupted` (one glitch of known length) and :class:`Po
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, ClassVar, Final, Protocol
 
 from mypy_extensions import mypyc_attr
@@ -121,7 +122,7 @@ class _PhalangeApp(HandNode):
         """Send the reply after the bus turnaround (:data:`TURNAROUND_US`)."""
         self.counters.replies += 1
         frame = encode_frame(ADDR_HOST, msg_type, payload)
-        self.hal.clock.call_later(TURNAROUND_US, lambda: uart.send(frame))
+        self.hal.clock.call_later(TURNAROUND_US, partial(uart.send, frame))
 
     # --- sensors --------------------------------------------------------------------------
     def _read_int(self, channel: str) -> int:
@@ -175,13 +176,17 @@ class _PhalangeApp(HandNode):
     def _read_taxels(self, end: int) -> None:
         """Read taxels ``_next_taxel`` … ``end - 1`` into the scan buffer (as
         :meth:`read_taxel`)."""
-        burst, channels, buffer = self.hal.sensors.read_burst, self._taxel_channels, \
-            self._scan_buffer
-        for i in range(self._next_taxel, end):
-            value = (burst(channels[i], ADC_SAMPLES) + ADC_SAMPLES // 2) // ADC_SAMPLES
+        start = self._next_taxel
+        if end <= start:
+            return
+        buffer = self._scan_buffer
+        totals = self.hal.sensors.read_bursts(self._taxel_channels[start:end], ADC_SAMPLES)
+        i = start
+        for total in totals:
+            value = (total + ADC_SAMPLES // 2) // ADC_SAMPLES
             buffer[i] = 0 if value < 0 else _U16_MAX if value > _U16_MAX else value
-        if end > self._next_taxel:
-            self._next_taxel = end
+            i += 1
+        self._next_taxel = end
 
     def _sample_imu(self) -> None:
         if not self.imu_powered:

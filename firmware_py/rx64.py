@@ -26,10 +26,11 @@ The servo exposes the full :data:`RX64_TABLE`.  A 1 kHz tick runs its position l
 
 Implementation notes (the emulator runs three of these at 1 kHz): the tick reads each sensor
 once; the registers it needs are kept in attributes (:meth:`reload_registers`); the
-read-only registers are packed into the image with precompiled structs at the same moments
-as before (every tick and before every READ/BULK_READ), so the image - and :meth:`get` -
-are what they always were; alarms are plain ints inside (:attr:`alarms` still reads as an
-:class:`~protocol.dynamixel.ErrorBit`).
+read-only registers are packed into the image with precompiled structs, before every
+READ/BULK_READ and, for a tick's readings, when the image is next read or written
+(:meth:`sync_image`: most ticks are followed by the next before anything looks), so the
+image - and :meth:`get` - read as if every tick had written them; alarms are plain ints
+inside (:attr:`alarms` still reads as an :class:`~protocol.dynamixel.ErrorBit`).
 """
 
 from __future__ import annotations
@@ -80,6 +81,10 @@ def _round_nonnegative(x: float) -> int:
     return n
 
 
+if __file__.endswith(".py"):  # run from source (pure Python): the builtin is the faster
+    _round_nonnegative = round  # type: ignore[assignment]  # noqa: F811
+
+
 class Rx64ServoApp(DynamixelSlave):
     """The RX-64's firmware on ``hal`` (factory bus ID ``dxl_id``, 1 Mbaud)."""
 
@@ -100,6 +105,9 @@ class Rx64ServoApp(DynamixelSlave):
         self._ticks = 0
         self._pots: deque[int] = deque(maxlen=SPEED_WINDOW + 1)
         self._duty = 0.0
+        #: The last tick's readings (pot, duty, temperature, supply) whose registers are not
+        #: written into the image yet (:meth:`sync_image`), or None.
+        self._unpublished: tuple[int, float, int, int] | None = None
         # Registers kept in attributes (reload_registers: from the image at every boot).
         self._temperature_limit = self._min_voltage = self._max_voltage = 0
         self._alarm_led = self._alarm_shutdown = self._torque_enable = 0
@@ -135,6 +143,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._punch = get("punch")
 
     def power_up(self) -> None:
+        self._unpublished = None  # a fresh image: nothing from before is owed to it
         present = self._pot()
         self._alarms = 0
         self.shutdown = False
@@ -206,7 +215,13 @@ class Rx64ServoApp(DynamixelSlave):
         return int(limit if limit < torque else punch if torque < punch else torque)
 
     def _tick(self) -> None:
-        """The 1 kHz tick: alarms, setpoint, compliance, duty, registers."""
+        """The 1 kHz tick: alarms, setpoint, compliance, duty, registers.
+
+        The read-only registers are published, not written: the image gets them when it is
+        next read or written (:meth:`sync_image`), from this tick's readings and the state
+        as it is now (whatever would change that state syncs first).  Most ticks are
+        followed by another before anything reads them (a READ refreshes them anyway)."""
+        self._unpublished = None  # this tick writes them all anew
         self._ticks += 1
         read = self.hal.sensors.read
         present = read("pot")
@@ -265,7 +280,14 @@ class Rx64ServoApp(DynamixelSlave):
         if alarms & self._alarm_led:
             if self._ticks % LED_BLINK_TICKS == 0:
                 self.set("led", 1 - self.get("led"))
-        self._publish(present, duty, temperature, supply_mv, self._pots)
+        self._unpublished = (present, duty, temperature, supply_mv)
+
+    def sync_image(self) -> None:
+        """Write the last tick's read-only registers into the image if not yet done."""
+        pending = self._unpublished
+        if pending is not None:
+            present, duty, temperature, supply_mv = pending
+            self._publish(present, duty, temperature, supply_mv, self._pots)
 
     def _refresh(self, duty: float) -> None:
         """Bring the read-only registers up to date (``duty`` is the applied duty)."""
@@ -277,6 +299,7 @@ class Rx64ServoApp(DynamixelSlave):
                  pots: deque[int] | tuple[int]) -> None:
         """Write the read-only registers from these readings (``pots``: the pot's recent
         readings, oldest first)."""
+        self._unpublished = None
         span = len(pots) - 1
         rate = (pots[-1] - pots[0]) * 1_000_000 / (span * TICK_US) if span else 0.0
         speed = _round_nonnegative((-rate if rate < 0 else rate) / UNITS_PER_S_PER_SPEED)

@@ -97,30 +97,36 @@ class _TickGroup:
         t = sched._now
         period = self.period_us
         members = self.members
-        if self.next_index >= len(members):  # a new firing (not the rest of one)
-            self.next_index = 0
+        i = self.next_index
+        if i >= len(members):  # a new firing (not the rest of one)
+            i = self.next_index = 0
             self.ahead = 0
             self.next_t = t + period
-        while self.next_index < len(members):
-            i = self.next_index
+        next_t = t + period
+        # ``i`` is the member's index; ``next_index`` is kept up to date whenever anything
+        # else may run (a callback may join the group, which reads it).
+        while i < len(members):
             m = members[i]
             cb = m.callback
             if cb is None:  # cancelled: leaves the group
                 del members[i]
                 continue
             if m.t_us != t:  # joined for the next firing
-                self.next_index = i + 1
+                i += 1
                 continue
             if queue:
                 head = queue[0]
                 if head[0] == t and head[1] < m.seq:
                     # An event scheduled before this member's turn comes first.
+                    self.next_index = i
                     self._push(t, m.seq)
                     return
-            m.t_us = t + period
+            m.t_us = next_t
             m.seq = next(seq)
-            self.next_index = i + 1
+            i += 1
+            self.next_index = i
             cb()
+            i = self.next_index
         self.next_index = len(members)
         if members:
             # The entry's key: the first member due at the next firing (those ahead, which

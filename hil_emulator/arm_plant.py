@@ -414,8 +414,9 @@ class ArmPlant:
             i, stepper, micro = coupling.joint, coupling.stepper, coupling.microstep
             k, c, h, travel, k_solid = (coupling.k, coupling.c, coupling.h, coupling.travel,
                                         coupling.k_solid)
-            rate = stepper.commanded_rate()
-            current = float(stepper.commanded_current_ma())
+            # commanded_rate() and commanded_current_ma(), read without the calls.
+            rate = stepper.rate
+            current = float(stepper.current)
             phi = phi_offset[i] + stepper.position_steps() * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
@@ -472,10 +473,10 @@ class ArmPlant:
         inv_noload, amps_per_nm = self._inv_noload, self._amps_per_nm
         servo_torque, heat = self._servo_torque, self._heat_servo
         for s, motor in enumerate(self._motors):
-            enabled = motor.bridge_enabled()
+            enabled = motor.enabled  # bridge_enabled() and commanded_duty(), without calls
             omega = qd[4 + s]
             if enabled:
-                drive = motor.commanded_duty() - omega * inv_noload
+                drive = motor.duty - omega * inv_noload
                 drive = stall * (1.0 if drive > 1.0 else -1.0 if drive < -1.0 else drive)
                 forces[4 + s] = drive + emf * omega + push[4 + s]
             else:
@@ -505,7 +506,8 @@ class ArmPlant:
             if above != above_index[i]:
                 above_index[i] = above
                 encoder.pulse_index(index_count)
-            encoder.set_count(count)
+            if count != encoder._value:  # else the call would store the same count
+                encoder.set_count(count)
         # The servos (as _write_servo_sensors).
         if self._noise_at >= len(self._noise):
             self._draw_pot_noise()
@@ -520,11 +522,16 @@ class ArmPlant:
             torque = servo_torque[s]
             if torque:
                 load = rint(torque * scale)
-                sensors.set_load(-1023 if load < -1023 else 1023 if load > 1023 else load)
-                motor.set_current_ma(rint(abs(torque) * amps_per_nm * 1000.0))
+                load = -1023 if load < -1023 else 1023 if load > 1023 else load
+                milliamps = rint(abs(torque) * amps_per_nm * 1000.0)
             else:
-                sensors.set_load(0)
-                motor.set_current_ma(0)
+                load = milliamps = 0
+            # Set only when they change (a servo within its margin drives nothing): the
+            # setters would store the same values and tell no watcher.
+            if load != sensors.values["load"]:
+                sensors.set_load(load)
+            if milliamps != motor.current:
+                motor.set_current_ma(milliamps)
         every = self.params.thermal_every_ticks
         if self._ticks % every == 0:
             self._update_temperatures(every * dt_s)

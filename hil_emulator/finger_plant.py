@@ -282,18 +282,19 @@ class FingerPlant:
         powered = self.attached and self.fmcb.powered
         ctrl = self._ctrl
         for i, winding in enumerate(self._windings):
-            braking, bridge_enabled, commanded_duty = winding.hal.drive_command()
+            # What drive_command() returns, read without the call (twelve motors a tick).
+            motor = winding.hal
             if not powered:
                 mode = _COAST
-            elif braking:
+            elif motor.brake:
                 mode = _BRAKE
-            elif bridge_enabled:
+            elif motor.enabled:
                 mode = _DRIVE
             else:
                 mode = _COAST
             if mode != winding.mode:
                 self._set_mode(i, mode)
-            duty = commanded_duty if mode == _DRIVE else 0.0
+            duty = motor.duty if mode == _DRIVE else 0.0
             sign = (duty > 0.0) - (duty < 0.0)
             if sign != winding.sign:
                 self._set_drive_sign(i, sign)
@@ -344,7 +345,12 @@ class FingerPlant:
                     current = -lim
             winding.current = current
             winding.i2_sum += current * current
-            winding.hal.set_hall_and_current(hall, rint(current * 1000.0))
+            milliamps = rint(current * 1000.0)
+            motor = winding.hal
+            # Written only when it changes (a holding finger's never do): the call would
+            # store the same values and raise no interrupt.
+            if hall != motor._hall or milliamps != motor.current:
+                motor.set_hall_and_current(hall, milliamps)
         self._i2_ticks += 1
         self._sensor_countdown -= 1
         if self._sensor_countdown <= 0:

@@ -120,17 +120,18 @@ class LinearCounts:
         Values are clamped to the integral bounds before rounding (the same integers as
         after; NaN reads as the low bound).
         """
-        out = [0] * self.size
+        out: list[int] = []
         n = len(raw)
         k = 0
+        # Comprehensions, not loops storing by index: a run's values, then its counts.
         for length, scale, offset, sigma, lo, hi in self.runs:
             end = k + length
-            for j in range(k, n if n < end else end):
-                v = raw[j] * scale + offset + noise[at + j] * sigma
-                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
-            for j in range(n if n > k else k, end):
-                v = offset + noise[at + j] * sigma
-                out[j] = rint(v) if lo <= v <= hi else _clamped(v, lo, hi)
+            split = n if n < end else end  # raw values up to here, unloaded after
+            values = [raw[j] * scale + offset + noise[at + j] * sigma for j in range(k, split)]
+            if split < end:
+                start = split if split > k else k
+                values += [offset + noise[j] * sigma for j in range(at + start, at + end)]
+            out += [rint(v) if lo <= v <= hi else _clamped(v, lo, hi) for v in values]
             k = end
         return out
 

@@ -103,6 +103,7 @@ class EmulatorIntrospection:
             digest.update(flash.read(FLASH.flash_base, FLASH.page_size * FLASH.page_count))
         if self.emulator.arm is not None:
             for dxl_id, (_hal, app) in sorted(self.emulator.arm.nodes.items()):
+                app.sync_image()
                 digest.update(bytes([dxl_id]) + bytes(app.image))
         digest.update(",".join(self.motors_driven()).encode())
         return digest.digest()

@@ -31,6 +31,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Final, Literal
 
 import numpy as np
@@ -153,8 +154,9 @@ class Rs485Bus:
         self._nodes.append(node)
         uart.peer = None
         uart.sink = line_delivers  # the bus delivers the frame, not the UART
-        # The bus must know a frame from its first bit to find collisions.
-        uart.on_transmit = lambda chunk: self._transmit(node, chunk.data, chunk.start_us)
+        # The bus must know a frame from its first bit to find collisions.  (partial, not
+        # a lambda: no Python frame of its own per frame.)
+        uart.on_transmit = partial(self._transmit, node)
 
     def detach(self, uart: VirtualUart) -> None:
         """Take ``uart`` off the line (a node unplugged): it neither sends nor hears from
@@ -223,7 +225,7 @@ class Rs485Bus:
         if end > self._on_air_until:
             self._on_air_until = end
         self.log.append(tx)
-        self.scheduler.call_at(end + self.turnaround_us, lambda: self._deliver(node, tx))
+        self.scheduler.call_at(end + self.turnaround_us, partial(self._deliver, node, tx))
 
     def _deliver(self, sender: _Node, tx: Transmission) -> None:
         if self.line_cut or (

@@ -39,16 +39,19 @@ class FlatCodec:
     codec: struct.Struct
     _to_dict: Callable[[tuple[Any, ...]], dict[str, Any]] = field(
         init=False, repr=False, compare=False)
+    _buildable: bool = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_to_dict", _dict_maker(self.fields))
+        # Once, not at every build (the phalanges build a reply every 5 ms each).
+        object.__setattr__(self, "_buildable", not any(
+            path and any(isinstance(p, int) for p in path) for path, _, _, _ in self.fields))
 
     @property
     def buildable(self) -> bool:
         """False when the record holds arrays of Structs: :meth:`build` leaves those to
         construct (it would have to check each list's length), :meth:`parse` does them."""
-        return not any(path and any(isinstance(p, int) for p in path)
-                       for path, _, _, _ in self.fields)
+        return self._buildable
 
     @property
     def size(self) -> int:
@@ -64,7 +67,7 @@ class FlatCodec:
     def build(self, values: Mapping[str, Any]) -> bytes | None:
         """The record's bytes, or None when ``values`` does not fit (missing field, wrong
         array length, out of range): the caller asks construct, which says why."""
-        if not self.buildable:
+        if not self._buildable:
             return None
         flat: list[Any] = []
         try:

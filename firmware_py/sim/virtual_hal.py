@@ -23,7 +23,11 @@ recording attributes.
 
 They run in the emulator's 1 kHz tick for every node: each is one attribute read or write
 behind a method (the sensors' also check that the board has the channel), and a plant may
-bind them once (``set_hall = motor.set_hall_state``).
+bind them once (``set_hall = motor.set_hall_state``).  Run from source, a call costs more
+than that work, so the plant's per-tick hooks may read instead the attribute such a method
+returns (a motor's ``duty``, ``enabled``, ``brake``, ``current`` and ``_hall``, a stepper's
+``rate`` and ``current``, an encoder's ``_value``, a channel's ``sensors.values``) and skip
+a setter whose value is already there (it would store the same and tell no one).
 """
 
 from __future__ import annotations
@@ -120,8 +124,9 @@ class VirtualUart(hal.Uart):
         self.enabled = True
         #: Record every transmission in :attr:`sent` (tests); the emulator turns it off.
         self.keep_sent = True
-        #: Called with each chunk when its first bit leaves (a bus model sees frames start).
-        self.on_transmit: Callable[[SentChunk], None] | None = None
+        #: Called with each chunk's bytes and the time its first bit leaves (µs): a bus
+        #: model sees frames start.
+        self.on_transmit: Callable[[bytes, int], None] | None = None
 
     def wire_time_us(self, n_bytes: int) -> int:
         """Time ``n_bytes`` occupy the line (µs, rounded up)."""
@@ -139,11 +144,10 @@ class VirtualUart(hal.Uart):
         self._line_free_us = end
         # bytes(data) is data for bytes, but compiled (mypyc) it is a generic call.
         chunk = data if type(data) is bytes else bytes(data)
-        record = SentChunk(chunk, start, end)
         if self.keep_sent:
-            self.sent.append(record)
+            self.sent.append(SentChunk(chunk, start, end))
         if self.on_transmit is not None:
-            self.on_transmit(record)
+            self.on_transmit(chunk, start)
         sink = self.sink
         if self.peer is not None or (sink is not None and sink is not line_delivers):
             self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
@@ -590,6 +594,23 @@ class VirtualSensors(hal.Sensors):
         if isinstance(value, tuple):
             raise HalError(f"sensor {channel!r} is not a scalar")
         return value * count
+
+    def read_bursts(self, channels: Sequence[str], count: int) -> list[int]:
+        """:meth:`read_burst` of each channel, in one call (the phalanges' taxel scans)."""
+        if (type(self).read is not VirtualSensors.read
+                or type(self).read_burst is not VirtualSensors.read_burst or self.faults):
+            return super().read_bursts(channels, count)
+        values = self.values
+        totals = []
+        for channel in channels:
+            try:
+                value = values[channel]
+            except KeyError:
+                raise HalError(f"this board has no sensor channel {channel!r}") from None
+            if isinstance(value, tuple):
+                raise HalError(f"sensor {channel!r} is not a scalar")
+            totals.append(value * count)
+        return totals
 
     # --- plant side (each named setter checks and stores itself, without a nested call:
     # the arm plant calls some every tick)

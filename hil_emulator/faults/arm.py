@@ -219,6 +219,7 @@ class DuplicateServoId(Fault):
         original = targets.node(emulator, f"arm.{self.servo}")
         assert emulator.arm is not None and original.app is not None
         hal, app = make_arm_node(emulator.scheduler, BoardType.RX64, self.servo)
+        original.app.sync_image()
         app.image[:] = original.app.image  # configured exactly as the servo it duplicates
         app.reload_registers()
         app._apply_bus_settings()

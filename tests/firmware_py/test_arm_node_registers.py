@@ -213,6 +213,24 @@ def test_servo_read_only_registers_hold_their_formulas(servo):
         assert app.get("moving") == int(moving)
 
 
+def test_servo_tick_registers_reach_the_image_when_it_is_next_read_or_written(servo):
+    """A tick's read-only registers are owed to the image until something reads or writes
+    it (get, set, a host write, sync_image), and then read as that tick left them."""
+    sched, hal, app = servo
+    write(sched, hal, 6, RX64_TABLE, "torque_enable", 1)
+    present = RX64_TABLE["present_position"]
+    for pot, reader in ((300, lambda: app.get("present_position")),
+                        (310, lambda: app.set("led", 1)),
+                        (320, lambda: write(sched, hal, 6, RX64_TABLE, "goal_position", 400)),
+                        (330, app.sync_image)):
+        hal.sensors.values["pot"] = pot
+        sched.run_for(1_000)
+        assert present.decode(app.image[present.address:present.end]) != pot  # owed
+        reader()
+        assert present.decode(app.image[present.address:present.end]) == pot
+        assert app.get("present_position") == pot
+
+
 def test_bulk_read_sees_fresh_values():
     sched = Scheduler()
     hal1, _ = make_arm_node(sched, BoardType.ARM_STEPPER, 1)

@@ -203,3 +203,21 @@ def test_power_switch_load_and_state(load: int, state: int) -> None:
     switch.set(state)  # the firmware switches it on
     assert switch.state == state  # what the plant (the rig) reads
     assert switch.current_ma() == load
+
+
+def test_read_bursts_reads_each_channel_as_read_burst_does() -> None:
+    """One call for a scan of channels: each total what read_burst gives, in order; a
+    faulty channel still goes through its fault (and tells its watcher) at every read."""
+    sensors = VirtualSensors({"taxel0": 7, "taxel1": -3, "taxel2": 40000, "accel": (1, 2, 3)})
+    channels = ("taxel0", "taxel1", "taxel2")
+    assert sensors.read_bursts(channels, 4) == [sensors.read_burst(c, 4) for c in channels]
+    assert sensors.read_bursts(channels, 4) == [28, -12, 160000]
+    with pytest.raises(HalError, match="no sensor channel 'taxel9'"):
+        sensors.read_bursts(("taxel0", "taxel9"), 4)
+    with pytest.raises(HalError, match="not a scalar"):
+        sensors.read_bursts(("accel",), 4)
+    heard: list[str] = []
+    sensors.watch_channel("taxel1", lambda: heard.append("taxel1"))
+    sensors.faults["taxel1"] = lambda value: 100
+    assert sensors.read_bursts(channels, 4) == [28, 400, 160000]
+    assert heard == ["taxel1"] * 4
