@@ -61,7 +61,7 @@ def drive(emulator: Emulator, sim_s: float) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def _timed_run_until(acc: collections.Counter[str], calls: collections.Counter[str]
+def _timed_run_until(acc: collections.defaultdict[str, float], calls: collections.Counter[str]
                      ) -> Callable[[Scheduler, int], int]:
     """A :meth:`Scheduler.run_until` that times each callback (same event order)."""
     clock = time.perf_counter
@@ -79,7 +79,7 @@ def _timed_run_until(acc: collections.Counter[str], calls: collections.Counter[s
     return run_until
 
 
-def _time_group_members(scheduler: Scheduler, acc: collections.Counter[str],
+def _time_group_members(scheduler: Scheduler, acc: collections.defaultdict[str, float],
                         calls: collections.Counter[str]) -> None:
     """Time each member of the scheduler's tick groups (timers of one period and phase
     sharing a queue entry) as a kind of its own; the group's entry is then what the sharing
@@ -104,9 +104,9 @@ def _time_group_members(scheduler: Scheduler, acc: collections.Counter[str],
 def breakdown(physics: bool, sim_s: float) -> list[str]:
     """Lines: real-time factor, callbacks by kind, the plant tick's split."""
     emulator = booted(physics)
-    acc: collections.Counter[str] = collections.Counter()
+    acc: collections.defaultdict[str, float] = collections.defaultdict(float)
     calls: collections.Counter[str] = collections.Counter()
-    plant_acc: collections.Counter[str] = collections.Counter()
+    plant_acc: collections.defaultdict[str, float] = collections.defaultdict(float)
     scheduler = emulator.scheduler
     try:
         scheduler.run_until = _timed_run_until(acc, calls).__get__(scheduler)  # type: ignore[method-assign]
@@ -140,10 +140,10 @@ def breakdown(physics: bool, sim_s: float) -> list[str]:
     lines = [f"{'with' if physics else 'without'} plant: {sim_s / wall:.2f} sim-s per wall s, "
              f"{sim_s / cpu:.2f} per CPU s (timed: the timing itself costs some)",
              f"{'ms/sim-s':>9s} {'calls/s':>8s} {'µs/call':>8s}  callback"]
-    for key, spent in acc.most_common(20):
+    for key, spent in sorted(acc.items(), key=lambda kv: -kv[1])[:20]:
         lines.append(f"{spent / sim_s * 1e3:9.1f} {calls[key] / sim_s:8.0f} "
                      f"{spent / calls[key] * 1e6:8.1f}  {key}")
-    for key, spent in plant_acc.most_common():
+    for key, spent in sorted(plant_acc.items(), key=lambda kv: -kv[1]):
         lines.append(f"{spent / sim_s * 1e3:9.1f} {'':8s} {'':8s}    plant: {key}")
     return lines
 

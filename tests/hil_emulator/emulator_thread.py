@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -21,7 +21,7 @@ class Serving:
     when it serves none), the ``stop`` flag and the ``thread``."""
 
     emulator: Emulator
-    ports: dict[str, Any]
+    ports: Mapping[str, Any]
     stop: threading.Event
     thread: threading.Thread
 
