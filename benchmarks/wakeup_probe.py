@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from typing import Final
 
-from hil_emulator.scheduling import request_priority
+from hil_emulator.scheduling import priority_for
 
 #: The probe's sleep (s): about the emulator's gap between events.
 SLEEP_S: Final = 0.0002
@@ -27,10 +26,8 @@ SLEEP_S: Final = 0.0002
 def probe(seconds: float) -> dict[str, float | int | str]:
     """Sleep :data:`SLEEP_S` at a time for ``seconds`` (s); wake-up delays in ms.  The
     calling thread gets its own scheduling back at the end."""
-    was = os.sched_getscheduler(0), os.sched_getparam(0)
-    got = request_priority("realtime")
     delays: list[float] = []
-    try:
+    with priority_for("realtime") as got:
         end = time.monotonic() + seconds
         before = time.monotonic()
         while before < end:
@@ -38,9 +35,6 @@ def probe(seconds: float) -> dict[str, float | int | str]:
             now = time.monotonic()
             delays.append(max(0.0, now - before - SLEEP_S))
             before = now
-    finally:
-        if (os.sched_getscheduler(0), os.sched_getparam(0)) != was:
-            os.sched_setscheduler(0, *was)
     delays.sort()
     return {"count": len(delays), "p99_ms": delays[int(0.99 * (len(delays) - 1))] * 1e3,
             "max_ms": delays[-1] * 1e3, "scheduling": got.policy}

@@ -12,7 +12,6 @@ up (:attr:`Pacer.on_late`).  It knows nothing of what the scheduler runs.
 from __future__ import annotations
 
 import ctypes
-import os
 import select
 import threading
 import time
@@ -24,7 +23,7 @@ import numpy as np
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.host_links import HostLink, Port, PtyBacked
-from hil_emulator.scheduling import RT_BUSY_LIMIT_S, RT_YIELD_S, Scheduling, request_priority
+from hil_emulator.scheduling import RT_BUSY_LIMIT_S, RT_YIELD_S, Scheduling, priority_for
 
 #: Longest the real-time loop sleeps without looking at its stop flag (s); host input and
 #: signals wake it earlier.
@@ -219,7 +218,7 @@ class Pacer:
         Fast: the simulation runs ``fast_chunk_us`` at a time as fast as it can, polling the
         ports between chunks.  ``on_idle`` is called about every 16 ms of wall time (the
         viewer's sync).  ``priority`` ``"realtime"`` asks for real-time scheduling of the
-        calling thread for the run (:func:`~hil_emulator.scheduling.request_priority`; real
+        calling thread for the run (:func:`~hil_emulator.scheduling.priority_for`; real
         time only), told to :attr:`on_notice` and kept in :attr:`scheduling`; the thread
         gets its own scheduling back when the run ends."""
         self._realtime = realtime
@@ -227,23 +226,18 @@ class Pacer:
             self._run_loop(stop, False, on_idle, fast_chunk_us)
             return
         tighten_timer_slack()
-        before = os.sched_getscheduler(0), os.sched_getparam(0)
-        self.scheduling = got = request_priority(priority)
-        if self.on_notice is not None:
-            self.on_notice(got.describe())
-        ported = [port for port in self.ports.values() if isinstance(port, PtyBacked)]
-        try:
-            for link in ported:  # on this thread: the readers adopt its scheduling
-                link.start_reader()
-            self._run_loop(stop, True, on_idle, fast_chunk_us)
-        finally:
-            for link in ported:
-                link.stop_reader()
-            if (os.sched_getscheduler(0), os.sched_getparam(0)) != before:
-                try:
-                    os.sched_setscheduler(0, *before)
-                except OSError:
-                    pass
+        with priority_for(priority) as got:
+            self.scheduling = got
+            if self.on_notice is not None:
+                self.on_notice(got.describe())
+            ported = [port for port in self.ports.values() if isinstance(port, PtyBacked)]
+            try:
+                for link in ported:  # on this thread: the readers adopt its scheduling
+                    link.start_reader()
+                self._run_loop(stop, True, on_idle, fast_chunk_us)
+            finally:
+                for link in ported:
+                    link.stop_reader()
 
     def _descriptors(self) -> tuple[list[int], bool]:
         """The ports' descriptors to wait on, and whether they tell of everything that

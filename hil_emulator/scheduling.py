@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import os
 import resource
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Final
 
@@ -148,3 +150,18 @@ def adopt(scheduling: Scheduling) -> Scheduling:
     except OSError:
         pass
     return current()
+
+
+@contextmanager
+def priority_for(priority: str = "realtime") -> Iterator[Scheduling]:
+    """:func:`request_priority` for the ``with`` block, yielding what the calling thread
+    got; it has its own scheduling back afterwards (where it may still set it)."""
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        yield request_priority(priority)
+    finally:
+        if (os.sched_getscheduler(0), os.sched_getparam(0)) != before:
+            try:
+                os.sched_setscheduler(0, *before)
+            except OSError:
+                pass

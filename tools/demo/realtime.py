@@ -22,7 +22,7 @@ from typing import Any
 from host.arm import Arm
 from host.hand import Hand
 from tools.build_compiled import ROOT
-from tools.demo.script import Demo, _watch, _write_report, judge, run_session
+from tools.demo.script import Demo, judge, open_watch, run_session, write_run_report
 from tools.errors import DemoFailed
 
 
@@ -121,7 +121,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
             over_the_wire(ports, say)
             hand = Hand.open(ports["palm"])
             arm = Arm.open(ports["arm"])
-            view = _watch(hand, arm, view_port)
+            view = open_watch(hand, arm, view_port)
 
             def reopen_hand() -> Hand:  # the view follows the hand opened again
                 reopened = Hand.open(ports["palm"])
@@ -144,7 +144,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
                       f"{_lateness(stats)}", flush=True)
                 summary = stats.get("scene", {}).get("mug")
                 demo.log.result["mug"] = summary or {}
-                _write_report(demo, out)
+                write_run_report(demo, out)
         if not summary:
             raise DemoFailed("report", "hil-emulator reported no ground truth of the mug")
         return judge(summary)

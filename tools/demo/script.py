@@ -543,7 +543,7 @@ def judge(summary: Mapping[str, float]) -> tuple[bool, str]:
 # ---------------------------------------------------------------------------- in process
 
 
-def _watch(hand: Hand, arm: Arm, view_port: int | None) -> RobotView | None:
+def open_watch(hand: Hand, arm: Arm, view_port: int | None) -> RobotView | None:
     """One browser view of both (the hand drawn on the arm's flange) if asked for."""
     view = open_view(view_port)
     if view is not None:
@@ -561,7 +561,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[b
           f"process on the simulation clock ({url.format('palm')})", flush=True)
     hand = Hand.open(url.format("palm"))
     arm = Arm.open(url.format("arm"))
-    view = _watch(hand, arm, view_port)
+    view = open_watch(hand, arm, view_port)
     transport = hand.session.transport
     assert isinstance(transport, EmulatorTransport)
     emulator = transport.emulator
@@ -583,11 +583,11 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[b
         arm.close()
         if view is not None:
             view.close()
-        _write_report(demo, out)
+        write_run_report(demo, out)
     return judge(summary)
 
 
-def _write_report(demo: Demo, out: Path) -> None:
+def write_run_report(demo: Demo, out: Path) -> None:
 
     try:
         path = write_report(demo.log, out)
