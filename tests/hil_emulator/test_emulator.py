@@ -11,6 +11,7 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.host_links import SerialLink
 from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
@@ -95,12 +96,16 @@ def test_a_148_byte_status_takes_its_wire_time_on_the_simulation_clock() -> None
     arrives after 35 µs, the 155-byte framed status (148-byte payload) after 775 µs more."""
     emu = Emulator("loose-finger", physics=False)
     ports = emu.open_ports()
-    fd = os.open(ports["fingers"][0], os.O_RDWR | os.O_NOCTTY)
+    finger_port = ports["fingers"][0]
+    assert finger_port is not None
+    fd = os.open(finger_port, os.O_RDWR | os.O_NOCTTY)
     try:
         tty.setraw(fd)
         emu.step(BOOT_US)  # bootloader window, then the fmcb application
         emitted: list[int] = []
-        emu.links["finger0"].on_emit = emitted.append
+        link = emu.links["finger0"]
+        assert isinstance(link, SerialLink)
+        link.on_emit = emitted.append
         request = _frame("fmcb.status")
         os.write(fd, request)
         t0 = emu.scheduler.now_us()
@@ -201,16 +206,20 @@ def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
 
 def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() -> None:
     from firmware_py.flash_layout import BOOT_CONTROL_PAGE, page_address
+    from firmware_py.sim.virtual_hal import VirtualFlash
     from hil_emulator.errors import EmulatorError
 
     emu = Emulator("loose-finger", physics=False)
     bring_up(emu)
-    finger = emu.loose.finger  # type: ignore[union-attr]
+    assert emu.loose is not None
+    finger = emu.loose.finger
     assert [m.program_name for m in (finger.fmcb, finger.f2, finger.f3)] == ["fmcb", "f2", "f3"]
 
     broken = Emulator("loose-finger", physics=False)
-    f3 = broken.loose.finger.f3  # type: ignore[union-attr]
-    f3.hal.flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)  # type: ignore[attr-defined]
+    assert broken.loose is not None
+    flash = broken.loose.finger.f3.hal.flash
+    assert isinstance(flash, VirtualFlash)
+    flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)
     with pytest.raises(EmulatorError, match="uid"):
         bring_up(broken)  # f3's image is not activated: it stays in its bootloader
 

@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -116,11 +117,11 @@ def test_a_full_queue_drops_states_and_never_waits(tmp_path: Path) -> None:
     release = threading.Event()
     drawing = view.renderer.message
 
-    def slow(*args: Any) -> None:  # the logging thread is stuck
+    def slow(topic: str, t: float, payload: Mapping[str, Any]) -> None:  # the logging thread is stuck
         release.wait(30)
-        drawing(*args)
+        drawing(topic, t, payload)
 
-    view.renderer.message = slow  # type: ignore[method-assign]
+    view.renderer.message = slow  # type: ignore[method-assign]  # the test stalls this instance's
     for k in range(20):
         view.sample("/arm/bus/stats", float(k), {"requests": k})
     assert view.offered == 20

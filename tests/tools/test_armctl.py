@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -18,7 +19,7 @@ from tools.cli import armctl
 URL = "emu://arm/arm?name=test_armctl"
 
 
-def run(*argv: str) -> tuple[int, dict[str, object]]:
+def run(*argv: str) -> tuple[int, dict[str, Any]]:
     out = io.StringIO()
     code = armctl.main(["--port", URL, "--json", *argv], out=out)
     return code, json.loads(out.getvalue()) if out.getvalue() else {}

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from protocol.dynamixel import make_ping
+from tests.ground_truth import arm_plant_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator
 
 
@@ -73,7 +74,7 @@ def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -
         assert truth["ok"] and truth["t_us"] == 20 * MS
         arm = truth["arm"]
         assert isinstance(arm, dict)
-        assert arm["joints"] == pytest.approx(list(emu.arm_plant.joint_angles()), abs=1e-3)
+        assert arm["joints"] == pytest.approx(list(arm_plant_of(emu).joint_angles()), abs=1e-3)
         assert len(arm["velocities"]) == 7 and len(arm["deflections"]) == 4
         assert sorted(arm["nodes"], key=int) == [str(i) for i in range(1, 8)]
         assert all(n["torque_enable"] == 0 for n in arm["nodes"].values())  # comes up off

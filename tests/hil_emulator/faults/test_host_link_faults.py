@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from hil_emulator.host_links import SerialLink
 from host.errors import TransportError
 from protocol.dynamixel import make_ping
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, arm_ping_answered, host_of
@@ -149,6 +150,8 @@ def test_port_vanish_recreates_the_pty_at_the_same_link_path(tmp_path: Path) -> 
             assert os.read(fd, 64)[:3] == b"\xff\xff\x05"
         finally:
             os.close(fd)
-        assert os.path.realpath(link) != before or emu.links["arm"].port.is_open
+        arm_link = emu.links["arm"]
+        assert isinstance(arm_link, SerialLink)
+        assert os.path.realpath(link) != before or arm_link.port.is_open
     finally:
         emu.close()

@@ -7,6 +7,7 @@ import pytest
 
 from hil_emulator.errors import EmulatorConfigError, FaultPlanError
 from hil_emulator.faults import make_fault
+from hil_emulator.faults.line import BurstDropout
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand import Hand
 from host.hand_session import HandSession
@@ -50,6 +51,7 @@ def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_fin
         plant = emu.finger_plants[1]
         fault = make_fault("burst_dropout", {"bus": "tendon1", "p_enter": 0.2, "p_leave": 0.3,
                                              "tendon_torque_nm": 0.5})
+        assert isinstance(fault, BurstDropout)
         emu.faults.inject(fault)
 
         def loss_rate_over_500_ms() -> tuple[float, float]:
