@@ -8,6 +8,7 @@ import numpy as np
 from hil_emulator.arm_plant import ArmPlant
 from hil_emulator.arm_rig import ArmRig
 from hil_emulator.emulator import Emulator
+from hil_emulator.hand_rig import HandRig
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm import Arm
 from host.hand import Hand
@@ -25,6 +26,12 @@ def arm_rig_of(emulator: Emulator) -> ArmRig:
     """The arm's nodes on ``emulator`` (its configuration has an arm)."""
     assert emulator.arm is not None, "this emulator has no arm"
     return emulator.arm
+
+
+def hand_rig_of(emulator: Emulator) -> HandRig:
+    """The hand's nodes on ``emulator`` (its configuration has a hand)."""
+    assert emulator.hand is not None, "this emulator has no hand"
+    return emulator.hand
 
 
 def arm_plant_of(emulator: Emulator) -> ArmPlant:

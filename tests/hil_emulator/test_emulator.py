@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.host_links import SerialLink
@@ -16,6 +17,7 @@ from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from tests.ground_truth import hand_rig_of
 
 S = 1_000_000
 
@@ -79,10 +81,13 @@ def test_same_seed_same_frames_and_physics_other_seed_other_noise() -> None:
         for k in range(4):
             _routed(emu, out, k, 0, "fmcb.imu")
         out.clear()
-        emu.hand.send_from_host(_route(2, 0, "fmcb.imu"))  # type: ignore[union-attr]
+        hand_rig_of(emu).send_from_host(_route(2, 0, "fmcb.imu"))
         emu.step(40_000)
         assert emu.plant is not None
-        accel = emu.hand.fingers[0].f3.hal.sensors.values["accel"]  # type: ignore[union-attr,attr-defined]
+        sensors = hand_rig_of(emu).fingers[0].f3.hal.sensors
+        assert isinstance(sensors, VirtualSensors)
+        accel = sensors.values["accel"]
+        assert isinstance(accel, tuple)  # 3-axis counts
         return bytes(out), emu.plant.data.qpos.copy(), tuple(accel)
 
     a, b, c = run(5), run(5), run(6)
@@ -124,7 +129,7 @@ def test_breakaway_is_reported_and_a_bouncing_reattach_comes_back() -> None:
     emu = Emulator("hand", seed=2, can="none")
     out = _boot_hand(emu)
     assert _routed(emu, out, 2, 0, "identify") is not None
-    emu.hand.send_from_host(_frame("palm.poll", rate_hz=100))  # type: ignore[union-attr]
+    hand_rig_of(emu).send_from_host(_frame("palm.poll", rate_hz=100))
     emu.step(100_000)
     out.clear()
     emu.break_away(2)
@@ -239,7 +244,7 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
     monkeypatch.setattr(HandSession, "start", spy)
     emu = Emulator("hand", seed=2, can="none", physics=False)
     recorded: list[bytes] = []
-    emu.hand.on_host_bytes = lambda data, t_us: recorded.append(data)  # type: ignore[union-attr]
+    hand_rig_of(emu).on_host_bytes = lambda data, t_us: recorded.append(data)
     bring_up(emu)
     assert sent == ([("palm.finger_power", None, False)]
                     + [("fmcb.phalange_power", k, False) for k in range(4)]
@@ -252,4 +257,4 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
         found = hand.discover()
     assert len(found) == 13
     assert all(n.answered and n.running == "application" for n in found), found
-    emu.hand.on_host_bytes = None  # type: ignore[union-attr]
+    hand_rig_of(emu).on_host_bytes = None

@@ -8,7 +8,7 @@ import pytest
 
 from hil_emulator.inprocess import EmulatorTransport
 from protocol.dynamixel import ErrorBit
-from tests.ground_truth import arm_plant_of
+from tests.ground_truth import arm_plant_of, arm_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, arm_ping_answered
 
 
@@ -41,7 +41,7 @@ def test_servo_overheat_overload_and_supply_sag_latch_alarms() -> None:
 
 def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
     emu = FaultyEmulator("arm", seed=1, physics=False)
-    hal, app = emu.arm.nodes[2]  # type: ignore[union-attr]
+    hal, app = arm_rig_of(emu).nodes[2]
     entry = emu.faults.inject("missed_index", {"joint": 1})
     hal.encoder().pulse_index(1234)
     assert app.get("index_seen") == 0 and hal.encoder().missed == 1
@@ -114,7 +114,7 @@ def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
 
 def test_a_duplicate_servo_id_garbles_that_servos_replies_until_unplugged() -> None:
     emu = FaultyEmulator("arm", seed=1, physics=False)
-    bus = emu.arm.bus  # type: ignore[union-attr]
+    bus = arm_rig_of(emu).bus
     assert arm_ping_answered(emu, 5)
     entry = emu.faults.inject("duplicate_servo_id", {"servo": 5})
     collisions = bus.collisions

@@ -6,12 +6,13 @@ from __future__ import annotations
 import pytest
 
 from firmware_py.sim.virtual_sensors import VirtualSensors
+from tests.ground_truth import hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, host_of
 
 
 def test_node_hang_reset_and_reset_storm(hand: FaultyEmulator) -> None:
     host = host_of(hand)
-    fmcb = hand.hand.fingers[2].fmcb  # type: ignore[union-attr]
+    fmcb = hand_rig_of(hand).fingers[2].fmcb
     entry = hand.faults.inject("node_hang", {"node": "finger2.fmcb"})
     assert not answers(host.fingers[2].motor)
     hand.faults.clear(entry)
