@@ -40,7 +40,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check $(PACKAGES) tests benchmarks
 
 typecheck: $(STAMP)
-	$(VENV)/bin/mypy $(PACKAGES) benchmarks
+	$(VENV)/bin/mypy $(PACKAGES) benchmarks tests
 
 ## make test: lint, type check, then every test but the longest campaigns (marked long; the
 ## slot update's 200 cases: make test-long), slow ones included, on TEST_WORKERS pytest-xdist

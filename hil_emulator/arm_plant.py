@@ -68,7 +68,8 @@ from typing import Final
 import mujoco
 import numpy as np
 
-from firmware_py.sim.virtual_hal import VirtualEncoder, VirtualHal, VirtualStepper
+from firmware_py.sim.virtual_drives import VirtualEncoder, VirtualStepper
+from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.arm_actuators import ArmParams, deflection_at_torque, spring_torque
 from hil_emulator.arm_model import ARM_JOINTS, FRICTION_SOLIMP
 from hil_emulator.errors import EmulatorConfigError, PlantError

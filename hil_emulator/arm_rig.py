@@ -16,7 +16,8 @@ from typing import Final
 from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
-from firmware_py.sim.virtual_hal import VirtualHal, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_ports import VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType

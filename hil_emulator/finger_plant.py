@@ -44,7 +44,9 @@ import mujoco
 import numpy as np
 
 from firmware_py.mcu import Mcu
-from firmware_py.sim.virtual_hal import VirtualHal, VirtualMotor, VirtualSensors
+from firmware_py.sim.virtual_drives import VirtualMotor
+from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from hil_emulator.errors import EmulatorConfigError, PlantError
 from hil_emulator.hand_model import (
     DEFAULT_MOTOR,

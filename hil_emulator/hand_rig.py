@@ -19,7 +19,8 @@ from firmware_py.mcu import Mcu
 from firmware_py.phalange import HOLD_UP_US
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
-from firmware_py.sim.virtual_hal import VirtualCan, VirtualHal, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_ports import VirtualCan, VirtualUart
 from hil_emulator.host_side import HostSide
 from hil_emulator.rs485_bus import Rs485Bus
 from protocol.image import BoardType

@@ -30,7 +30,7 @@ from collections.abc import Callable
 from functools import partial
 from typing import Any, Final, Protocol
 
-from firmware_py.sim.virtual_hal import VirtualCan, VirtualUart
+from firmware_py.sim.virtual_ports import VirtualCan, VirtualUart
 from hil_emulator.errors import PortError
 from hil_emulator.link_tap import LinkTap
 from hil_emulator.port_reader import PortReader

@@ -1,9 +1,9 @@
 """A multidrop half-duplex RS-485 line on the simulation :class:`~firmware_py.scheduler.Scheduler`.
 
-Every node is a :class:`~firmware_py.sim.virtual_hal.VirtualUart` handed to :meth:`Rs485Bus.attach`.
+Every node is a :class:`~firmware_py.sim.virtual_ports.VirtualUart` handed to :meth:`Rs485Bus.attach`.
 A frame a node sends occupies the line for its wire time (``bits_per_char`` x bytes / ``baud``;
 twice that with the Manchester line code) and reaches every *other* node, in one
-:meth:`~firmware_py.sim.virtual_hal.VirtualUart.deliver` call per frame, ``turnaround_us`` after
+:meth:`~firmware_py.sim.virtual_ports.VirtualUart.deliver` call per frame, ``turnaround_us`` after
 its last bit.  Frames that overlap in time collide: every receiver gets garbage for both.
 
 Faults (all drawn from one seeded :class:`numpy.random.Generator`, so a run is repeatable):
@@ -38,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_py.scheduler import Scheduler
-from firmware_py.sim.virtual_hal import VirtualUart, line_delivers
+from firmware_py.sim.virtual_ports import VirtualUart, line_delivers
 from protocol import manchester
 from protocol.topology import BITS_PER_CHAR, wire_time_us
 

@@ -18,7 +18,7 @@ targets pass the hand's :class:`~host.joint_limits.JointLimits` (clamp or refuse
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -323,7 +323,7 @@ class Hand:
         self.palm.request("palm.poll", {"rate_hz": max(0, min(MAX_POLL_HZ, int(rate_hz)))})
 
     def states(self, rate_hz: float, seconds: float | None = None, *,
-               fingers: bool = True) -> Iterator[HandState]:
+               fingers: bool = True) -> Generator[HandState, None, None]:
         """Yield the hand's state ``rate_hz`` times a second (the link's clock) for
         ``seconds`` (None: forever).  ``fingers`` False reads only the palm's summary (the
         palm polls the fingers at that rate, and goes back to the rate it had when the

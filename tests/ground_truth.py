@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from hil_emulator.arm_plant import ArmPlant
+from hil_emulator.arm_rig import ArmRig
 from hil_emulator.emulator import Emulator
+from hil_emulator.hand_rig import HandRig
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm import Arm
 from host.hand import Hand
@@ -19,6 +22,24 @@ def emulator_of(robot: Hand | Arm) -> Emulator:
     return transport.emulator
 
 
+def arm_rig_of(emulator: Emulator) -> ArmRig:
+    """The arm's nodes on ``emulator`` (its configuration has an arm)."""
+    assert emulator.arm is not None, "this emulator has no arm"
+    return emulator.arm
+
+
+def hand_rig_of(emulator: Emulator) -> HandRig:
+    """The hand's nodes on ``emulator`` (its configuration has a hand)."""
+    assert emulator.hand is not None, "this emulator has no hand"
+    return emulator.hand
+
+
+def arm_plant_of(emulator: Emulator) -> ArmPlant:
+    """The arm's MuJoCo plant on ``emulator`` (built with physics)."""
+    assert emulator.arm_plant is not None, "the arm's emulator runs without physics"
+    return emulator.arm_plant
+
+
 def finger_joints(hand: Hand) -> np.ndarray:
     """Every finger plant's joint angles (rad), one row per finger (J0, J1, J2)."""
     emulator = emulator_of(hand)
@@ -27,13 +48,9 @@ def finger_joints(hand: Hand) -> np.ndarray:
 
 def arm_joints(arm: Arm) -> np.ndarray:
     """The arm plant's seven joint angles (rad)."""
-    plant = emulator_of(arm).arm_plant
-    assert plant is not None, "the arm's emulator runs without physics"
-    return np.array(plant.joint_angles())
+    return np.array(arm_plant_of(emulator_of(arm)).joint_angles())
 
 
 def arm_velocities(arm: Arm) -> np.ndarray:
     """The arm plant's seven joint velocities (rad/s)."""
-    plant = emulator_of(arm).arm_plant
-    assert plant is not None, "the arm's emulator runs without physics"
-    return np.array(plant.joint_velocities())
+    return np.array(arm_plant_of(emulator_of(arm)).joint_velocities())

@@ -31,7 +31,7 @@ def _modules(package: str) -> list[str]:
 
 
 def _defined_exceptions(package: str) -> list[type[BaseException]]:
-    found = []
+    found: list[type[BaseException]] = []
     for name in _modules(package):
         try:
             module = importlib.import_module(name)

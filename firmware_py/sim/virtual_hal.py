@@ -28,21 +28,52 @@ than that work, so the plant's per-tick hooks may read instead the attribute suc
 returns (a motor's ``duty``, ``enabled``, ``brake``, ``current`` and ``_hall``, a stepper's
 ``rate`` and ``current``, an encoder's ``_value``, a channel's ``sensors.values``) and skip
 a setter whose value is already there (it would store the same and tell no one).
+
+**Where each part is.**  This module holds the board (:class:`VirtualHal`) and the MCU's own
+parts every board has: its clock and timers (:class:`VirtualClock`, times in µs since the
+node's power-up), its watchdog (:class:`VirtualWatchdog`) and its flash
+(:class:`VirtualFlash`, page writes of ``PAGE_WRITE_US`` µs).  The rest is declared by what
+it is, and importable from here as well:
+
+* :mod:`firmware_py.sim.virtual_ports`: UARTs and CAN controllers (``VirtualUart``,
+  ``VirtualCan``, ``SentChunk``, ``connect``, ``line_delivers``);
+* :mod:`firmware_py.sim.virtual_drives`: ``VirtualMotor``, ``VirtualStepper``,
+  ``VirtualEncoder``, ``VirtualPowerSwitch``;
+* :mod:`firmware_py.sim.virtual_sensors`: ``VirtualSensors``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from functools import partial
-from typing import ClassVar
 
 from mypy_extensions import mypyc_attr
 
 from firmware_py import hal
 from firmware_py.errors import FlashMemoryError, HalError
 from firmware_py.scheduler import Scheduler, TimerHandle
-from protocol.topology import wire_time_us
+from firmware_py.sim.virtual_drives import (
+    VirtualEncoder,
+    VirtualMotor,
+    VirtualPowerSwitch,
+    VirtualStepper,
+)
+from firmware_py.sim.virtual_ports import (
+    SentChunk,
+    VirtualCan,
+    VirtualUart,
+    connect,
+    line_delivers,
+)
+from firmware_py.sim.virtual_sensors import VirtualSensors
+
+__all__ = [
+    "PAGE_WRITE_US", "VirtualClock", "VirtualFlash", "VirtualHal", "VirtualWatchdog",
+    # declared by what they are, and offered here too (the import users know)
+    "SentChunk", "VirtualCan", "VirtualUart", "connect", "line_delivers",
+    "VirtualEncoder", "VirtualMotor", "VirtualPowerSwitch", "VirtualStepper",
+    "VirtualSensors",
+]
 
 #: Time to erase and program one flash page (µs); SAM3S datasheet order of magnitude.
 PAGE_WRITE_US = 2_000
@@ -85,193 +116,6 @@ class VirtualClock(hal.Clock):
         """Power-up: time starts again from zero."""
         self.cancel_all()
         self.epoch_us = self.scheduler.now_us()
-
-
-@dataclass(slots=True)
-class SentChunk:
-    """Bytes a UART transmitted: when the first bit left and when the last arrived (µs)."""
-
-    data: bytes
-    start_us: int
-    end_us: int
-
-    # Written out: a dataclass's generated __init__ stays interpreted in the compiled core.
-    def __init__(self, data: bytes, start_us: int, end_us: int) -> None:
-        self.data = data
-        self.start_us = start_us
-        self.end_us = end_us
-
-
-def line_delivers(data: bytes, t_us: int) -> None:
-    """The ``sink`` of a UART on a line model that delivers its frames itself (a bus seeing
-    them through ``on_transmit``): nothing happens at the frame's end, so
-    :meth:`VirtualUart.send` schedules no arrival for it."""
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualUart(hal.Uart):
-    """A UART whose output reaches ``peer`` after the wire time; ``sent`` records it all."""
-
-    def __init__(self, scheduler: Scheduler, baud: int = 2_000_000, name: str = "") -> None:
-        self.scheduler = scheduler
-        self.baud = baud
-        self.name = name
-        self.sent: list[SentChunk] = []
-        self.peer: VirtualUart | None = None
-        self.sink: Callable[[bytes, int], None] | None = None
-        self._receiver: hal.ReceiveCallback | None = None
-        self._line_free_us = 0
-        self.enabled = True
-        #: Record every transmission in :attr:`sent` (tests); the emulator turns it off.
-        self.keep_sent = True
-        #: Called with each chunk's bytes and the time its first bit leaves (µs): a bus
-        #: model sees frames start.
-        self.on_transmit: Callable[[bytes, int], None] | None = None
-
-    def wire_time_us(self, n_bytes: int) -> int:
-        """Time ``n_bytes`` occupy the line (µs, rounded up)."""
-        return wire_time_us(n_bytes, self.baud)
-
-    def send(self, data: bytes) -> None:
-        """Transmit ``data``; it arrives (``sink``, ``peer``) after its wire time.  A UART
-        with no peer whose sink is :func:`line_delivers` (or None) schedules no arrival."""
-        if not data or not self.enabled:
-            return
-        now = self.scheduler.now_us()
-        free = self._line_free_us
-        start = now if now > free else free
-        end = start + self.wire_time_us(len(data))
-        self._line_free_us = end
-        # bytes(data) is data for bytes, but compiled (mypyc) it is a generic call.
-        chunk = data if type(data) is bytes else bytes(data)
-        if self.keep_sent:
-            self.sent.append(SentChunk(chunk, start, end))
-        if self.on_transmit is not None:
-            self.on_transmit(chunk, start)
-        sink = self.sink
-        if self.peer is not None or (sink is not None and sink is not line_delivers):
-            self.scheduler.call_at(end, lambda: self._arrive(chunk, end))
-
-    def _arrive(self, data: bytes, t_us: int) -> None:
-        if self.sink is not None:
-            self.sink(data, t_us)
-        if self.peer is not None:
-            self.peer.deliver(data)
-
-    def deliver(self, data: bytes) -> None:
-        """Bytes arriving from the line now (what a peer or a test injects)."""
-        if self._receiver is not None and self.enabled:
-            self._receiver(data if type(data) is bytes else bytes(data),
-                           self.scheduler.now_us())
-
-    def set_receiver(self, callback: hal.ReceiveCallback | None) -> None:
-        self._receiver = callback
-
-    @property
-    def tx_busy(self) -> bool:
-        return self.scheduler.now_us() < self._line_free_us
-
-    def take_sent(self) -> list[bytes]:
-        """The chunks sent so far (and forget them)."""
-        out = [c.data for c in self.sent]
-        self.sent.clear()
-        return out
-
-
-def connect(a: VirtualUart, b: VirtualUart) -> None:
-    """Wire two UARTs point to point (full duplex, no collisions)."""
-    a.peer, b.peer = b, a
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualCan(hal.CanController):
-    """A CAN controller: ``sent`` records (id, data, time µs); :meth:`deliver` injects."""
-
-    #: Time one 8-byte standard frame occupies a 1 Mbit/s bus, roughly (µs).
-    FRAME_US: ClassVar[int] = 111
-
-    def __init__(self, scheduler: Scheduler) -> None:
-        self.scheduler = scheduler
-        self.sent: list[tuple[int, bytes, int]] = []
-        #: Record every frame in :attr:`sent` (tests); the emulator turns it off.
-        self.keep_sent = True
-        self.sink: Callable[[int, bytes, int], None] | None = None
-        self._receiver: hal.CanReceiveCallback | None = None
-        self._free_us = 0
-
-    def send(self, arbitration_id: int, data: bytes) -> None:
-        if len(data) > 8:
-            raise HalError(f"a CAN frame carries at most 8 bytes, got {len(data)}")
-        start = max(self.scheduler.now_us(), self._free_us)
-        end = start + self.FRAME_US
-        self._free_us = end
-        frame = (arbitration_id, bytes(data), end)
-        if self.keep_sent:
-            self.sent.append(frame)
-        if self.sink is not None:
-            sink = self.sink
-            self.scheduler.call_at(end, lambda: sink(frame[0], frame[1], end))
-
-    def set_receiver(self, callback: hal.CanReceiveCallback | None) -> None:
-        self._receiver = callback
-
-    def deliver(self, arbitration_id: int, data: bytes) -> None:
-        """A CAN frame arriving now."""
-        if self._receiver is not None:
-            self._receiver(arbitration_id, bytes(data), self.scheduler.now_us())
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualPowerSwitch(hal.PowerSwitch):
-    """A power switch; ``on_change`` callbacks power the downstream boards."""
-
-    def __init__(self, load_ma: int = 0) -> None:
-        self._state = 0
-        self._load_ma = load_ma
-        self._on_current: Callable[[], None] | None = None
-        self.on_change: list[Callable[[int], None]] = []
-        self.history: list[int] = []
-
-    def set(self, state: int) -> None:
-        if state not in (0, 1, 2):
-            raise HalError(f"power state {state} is not 0, 1 or 2")
-        if state != self._state:
-            self._state = state
-            self.history.append(state)
-            for cb in list(self.on_change):
-                cb(state)
-
-    @property
-    def state(self) -> int:
-        return self._state
-
-    def current_ma(self) -> int:
-        return self._load_ma if self._state else 0
-
-    def set_current_interrupt(self, callback: Callable[[], None] | None) -> bool:
-        self._on_current = callback
-        return True
-
-    @property
-    def load_ma(self) -> int:
-        """What the downstream load draws whenever the switch is on (mA); setting it is
-        :meth:`set_load_ma`."""
-        return self._load_ma
-
-    @load_ma.setter
-    def load_ma(self, milliamps: int) -> None:
-        self.set_load_ma(milliamps)
-
-    # --- plant side
-
-    def set_load_ma(self, milliamps: int) -> None:
-        """The downstream load draws ``milliamps`` (mA) whenever the switch is on; a change
-        raises the current interrupt (switching state changes are the firmware's own)."""
-        milliamps = int(milliamps)
-        if milliamps != self._load_ma:
-            self._load_ma = milliamps
-            if self._on_current is not None:
-                self._on_current()
 
 
 # Faults and tests replace write_page on an instance: a plain Python class in the compiled core.
@@ -351,413 +195,6 @@ class VirtualFlash(hal.Flash):
         """Put bytes into flash directly (factory programming over JTAG)."""
         off = self._offset(address, len(data))
         self.memory[off : off + len(data)] = data
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualMotor(hal.MotorDriver):
-    """Records the commands; hall state and current are set by the test or the plant."""
-
-    def __init__(self) -> None:
-        self.duty = 0.0
-        self.enabled = False
-        self.brake = False
-        self._hall = 0
-        self._on_hall: Callable[[], None] | None = None
-        self.current = 0
-
-    def set_duty(self, duty: float) -> None:
-        # max(-1.0, min(1.0, duty)) written out (the fmcbs call it 12 000 times a second);
-        # NaN gives 1.0 as there.
-        d = float(duty)
-        d = d if d < 1.0 else 1.0
-        self.duty = d if d > -1.0 else -1.0
-
-    def set_enabled(self, enabled: bool) -> None:
-        self.enabled = bool(enabled)
-
-    def set_brake(self, brake: bool) -> None:
-        self.brake = bool(brake)
-
-    def hall_state(self) -> int:
-        return self._hall
-
-    def current_ma(self) -> int:
-        return self.current
-
-    def set_hall_interrupt(self, callback: Callable[[], None] | None) -> bool:
-        self._on_hall = callback
-        return True
-
-    @property
-    def hall(self) -> int:
-        """The hall state the sensors give now (0..7); setting it is :meth:`set_hall_state`
-        (a test's way of turning the rotor)."""
-        return self._hall
-
-    @hall.setter
-    def hall(self, state: int) -> None:
-        self.set_hall_state(state)
-
-    # --- plant side
-
-    def commanded_duty(self) -> float:
-        """The signed duty the firmware commands, −1..1 (whether or not the bridge is on)."""
-        return self.duty
-
-    def bridge_enabled(self) -> bool:
-        """The bridge drives the windings (else they coast, unless :meth:`braking`)."""
-        return self.enabled
-
-    def braking(self) -> bool:
-        """The windings are shorted (braking wins over the duty)."""
-        return self.brake
-
-    def drive_command(self) -> tuple[bool, bool, float]:
-        """:meth:`braking`, :meth:`bridge_enabled` and :meth:`commanded_duty` in one call
-        (the finger plant reads twelve motors every tick)."""
-        return self.brake, self.enabled, self.duty
-
-    def set_hall_state(self, state: int) -> None:
-        """The three hall sensor bits the rotor angle gives now, 0..7; a change raises the
-        hall interrupt."""
-        if state != self._hall:
-            self._hall = state
-            if self._on_hall is not None:
-                self._on_hall()
-
-    def set_current_ma(self, milliamps: int) -> None:
-        """The winding current the current sense measures (mA, signed)."""
-        self.current = milliamps
-
-    def set_hall_and_current(self, state: int, milliamps: int) -> None:
-        """:meth:`set_hall_state` and :meth:`set_current_ma` in one call (the finger plant
-        writes twelve motors every tick)."""
-        if state != self._hall:
-            self._hall = state
-            if self._on_hall is not None:
-                self._on_hall()
-        self.current = milliamps
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualStepper(hal.Stepper):
-    """A pulse generator whose counter integrates the commanded rate exactly over time."""
-
-    def __init__(self, scheduler: Scheduler) -> None:
-        self.scheduler = scheduler
-        self.rate = 0.0
-        self.current = 0
-        self._count0 = 0.0
-        self._t0 = scheduler.now_us()
-
-    # set_step_rate and step_count run every tick of every stepper node: position_steps()
-    # is written out in both.
-    def set_step_rate(self, steps_per_s: float) -> None:
-        now = self.scheduler.now_us()
-        self._count0 = self._count0 + self.rate * (now - self._t0) / 1e6
-        self._t0 = now
-        self.rate = float(steps_per_s)
-
-    def step_count(self) -> int:
-        return int(self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6)
-
-    def set_current(self, milliamps: int) -> None:
-        self.current = int(milliamps)
-
-    # --- plant side
-
-    def position_steps(self) -> float:
-        """Microsteps emitted so far, exactly (fractional): the rotor's commanded position,
-        which :meth:`step_count` truncates.  Positive steps turn the shaft positive."""
-        return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
-
-    def commanded_rate(self) -> float:
-        """The signed step rate the firmware commands (microsteps/s)."""
-        return self.rate
-
-    def commanded_current_ma(self) -> int:
-        """The phase current the firmware commands (mA; 0: de-energised)."""
-        return self.current
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualEncoder(hal.Encoder):
-    """An encoder whose count the plant sets (:meth:`set_count`); :meth:`pulse_index` fires
-    the index.  A change of the count (by the plant or a test setting :attr:`value`) raises
-    the count-change interrupt.  With :attr:`index_blind` (a dirty code wheel: a fault) the
-    index pulses do not reach the firmware; :attr:`missed` counts them."""
-
-    def __init__(self) -> None:
-        self._value = 0
-        self._callback: Callable[[int], None] | None = None
-        self._on_change: Callable[[], None] | None = None
-        self.index_blind = False
-        self.missed = 0
-
-    def count(self) -> int:
-        return self._value
-
-    def set_index_callback(self, callback: Callable[[int], None] | None) -> None:
-        self._callback = callback
-
-    def set_change_interrupt(self, callback: Callable[[], None] | None) -> bool:
-        self._on_change = callback
-        return True
-
-    # --- plant side
-
-    @property
-    def value(self) -> int:
-        """The count now; setting it is :meth:`set_count`."""
-        return self._value
-
-    @value.setter
-    def value(self, count: int) -> None:
-        self.set_count(count)
-
-    def set_count(self, count: int) -> None:
-        """The reader's count now (counts since power-up)."""
-        if count != self._value:
-            self._value = count
-            if self._on_change is not None:
-                self._on_change()
-
-    def pulse_index(self, count: int | None = None) -> None:
-        """The index mark passes the reader now, at ``count`` (which becomes the count;
-        None: the present count); the firmware's index callback gets it."""
-        if count is not None:
-            self.set_count(count)
-        if self.index_blind:
-            self.missed += 1
-        elif self._callback is not None:
-            self._callback(self._value)
-
-
-#: Channel names of numbered series (``taxel0`` …), longer than any board's series.
-_SERIES_LENGTH = 64
-_TAXEL_KEYS = tuple(f"taxel{k}" for k in range(_SERIES_LENGTH + 1))
-_TEMPERATURE_KEYS = tuple(f"temperature{k}" for k in range(_SERIES_LENGTH + 1))
-_THERMISTOR_KEYS = tuple(f"thermistor{k}" for k in range(_SERIES_LENGTH + 1))
-
-
-@mypyc_attr(allow_interpreted_subclasses=True)
-class VirtualSensors(hal.Sensors):
-    """Sensor values by channel name, set by the test or the plant.
-
-    The plant side sets only channels the board has (else :class:`HalError`), in the counts
-    :meth:`firmware_py.hal.Sensors.read` documents; a numbered series (taxels,
-    temperatures, thermistors) is set whole, exactly as many values as the board has.
-    :attr:`faults` (the emulator's sensor faults) changes what :meth:`read` returns for
-    some channels while the plant keeps setting the true values.  (A plain class, not a
-    dataclass: the compiled core cannot compile a dataclass Python subclasses.)
-    """
-
-    def __init__(self, values: dict[str, int | tuple[int, ...]] | None = None) -> None:
-        #: The value of each channel the board has.
-        self.values: dict[str, int | tuple[int, ...]] = {} if values is None else values
-        #: Per series prefix, what to call before the plant side sets the series
-        #: (:meth:`watch_series`).  Writing :attr:`values` directly announces nothing.
-        self.watchers: dict[str, Callable[[], None]] = {}
-        #: Per scalar channel, what to call after it changes (:meth:`watch_channel`).
-        #: Writing :attr:`values` directly calls nothing.
-        self.channel_watchers: dict[str, Callable[[], None]] = {}
-        #: Per faulty channel, what a read returns for the true value.  A faulty channel may
-        #: read differently at every read (noise): its channel watcher hears of a change at
-        #: each, so no program sleeps on it.
-        self.faults: dict[str, Callable[[int | tuple[int, ...]], int | tuple[int, ...]]] = {}
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(values={self.values!r})"
-
-    def read(self, channel: str) -> int | tuple[int, ...]:
-        try:
-            value = self.values[channel]
-        except KeyError:
-            raise HalError(f"this board has no sensor channel {channel!r}") from None
-        if self.faults:
-            fault = self.faults.get(channel)
-            if fault is not None:
-                self._changed(channel)
-                return fault(value)
-        return value
-
-    def read_burst(self, channel: str, count: int) -> int:
-        """The plant holds one value per channel, so a burst is ``count`` times it (a
-        subclass that overrides :meth:`read`, or a fault, gets one :meth:`read` per
-        conversion)."""
-        if type(self).read is not VirtualSensors.read or self.faults:
-            return super().read_burst(channel, count)
-        try:
-            value = self.values[channel]  # what read() does, without the call
-        except KeyError:
-            raise HalError(f"this board has no sensor channel {channel!r}") from None
-        if isinstance(value, tuple):
-            raise HalError(f"sensor {channel!r} is not a scalar")
-        return value * count
-
-    def read_bursts(self, channels: Sequence[str], count: int) -> list[int]:
-        """:meth:`read_burst` of each channel, in one call (the phalanges' taxel scans)."""
-        if (type(self).read is not VirtualSensors.read
-                or type(self).read_burst is not VirtualSensors.read_burst or self.faults):
-            return super().read_bursts(channels, count)
-        values = self.values
-        totals = []
-        for channel in channels:
-            try:
-                value = values[channel]
-            except KeyError:
-                raise HalError(f"this board has no sensor channel {channel!r}") from None
-            if isinstance(value, tuple):
-                raise HalError(f"sensor {channel!r} is not a scalar")
-            totals.append(value * count)
-        return totals
-
-    # --- plant side (each named setter checks and stores itself, without a nested call:
-    # the arm plant calls some every tick)
-
-    def set_input(self, channel: str, value: int | tuple[int, ...]) -> None:
-        """Channel ``channel`` reads ``value`` from now on (the board must have it)."""
-        values = self.values
-        if channel not in values:
-            _no_channel(channel)
-        if self.channel_watchers and values[channel] != value:
-            values[channel] = value
-            self._changed(channel)
-        else:
-            values[channel] = value
-
-    def watch_series(self, prefix: str, before_change: Callable[[], None] | None) -> bool:
-        if before_change is None:
-            self.watchers.pop(prefix, None)
-        else:
-            self.watchers[prefix] = before_change
-        return True
-
-    def watch_channel(self, channel: str, on_change: Callable[[], None] | None) -> bool:
-        if on_change is None:
-            self.channel_watchers.pop(channel, None)
-        else:
-            self.channel_watchers[channel] = on_change
-        return True
-
-    def _changed(self, channel: str) -> None:
-        """Scalar ``channel`` reads differently now: its watcher (:meth:`watch_channel`)."""
-        on_change = self.channel_watchers.get(channel)
-        if on_change is not None:
-            on_change()
-
-    def announce_change(self, channel: str) -> None:
-        """``channel`` is about to read differently (a fault switched on or off): whoever
-        watches its series (:meth:`watch_series`) reads what is due first, and its channel
-        watcher (:meth:`watch_channel`) is told."""
-        if self.channel_watchers:
-            self._changed(channel)
-        if self.watchers:
-            before_change = self.watchers.get(channel.rstrip("0123456789"))
-            if before_change is not None:
-                before_change()
-
-    def _set_series(self, keys: tuple[str, ...], counts: Sequence[int]) -> None:
-        values, n = self.values, len(counts)
-        if n > _SERIES_LENGTH or (n and keys[n - 1] not in values) or keys[n] in values:
-            raise HalError(f"this board has no series of {n} {keys[0][:-1]!r} channels")
-        if self.watchers:
-            before_change = self.watchers.get(keys[0][:-1])
-            if before_change is not None:
-                before_change()
-        values.update(zip(keys, counts, strict=False))  # keys run past the series
-
-    def set_accel(self, x: int, y: int, z: int) -> None:
-        """Accelerometer, board axes (counts, ≈ 1 mg each)."""
-        values = self.values
-        if "accel" not in values:
-            _no_channel("accel")
-        values["accel"] = (x, y, z)
-
-    def set_mag(self, x: int, y: int, z: int) -> None:
-        """Magnetometer, board axes (counts)."""
-        values = self.values
-        if "mag" not in values:
-            _no_channel("mag")
-        values["mag"] = (x, y, z)
-
-    def set_gyro(self, x: int, y: int, z: int) -> None:
-        """Gyroscope, board axes (counts, 0.01 °/s each)."""
-        values = self.values
-        if "gyro" not in values:
-            _no_channel("gyro")
-        values["gyro"] = (x, y, z)
-
-    def set_taxels(self, counts: Sequence[int]) -> None:
-        """Every taxel ``taxel0`` … of the board, in order (ADC counts)."""
-        self._set_series(_TAXEL_KEYS, counts)
-
-    def set_strain(self, counts: int) -> None:
-        """Strain gauge bridge (24-bit signed ADC counts)."""
-        values = self.values
-        if "strain" not in values:
-            _no_channel("strain")
-        if self.channel_watchers and values["strain"] != counts:
-            values["strain"] = counts
-            self._changed("strain")
-        else:
-            values["strain"] = counts
-
-    def set_temperature(self, decidegrees: int) -> None:
-        """The board's one temperature sensor ``temperature`` (0.1 °C; the arm nodes)."""
-        values = self.values
-        if "temperature" not in values:
-            _no_channel("temperature")
-        if self.channel_watchers and values["temperature"] != decidegrees:
-            values["temperature"] = decidegrees
-            self._changed("temperature")
-        else:
-            values["temperature"] = decidegrees
-
-    def set_temperatures(self, decidegrees: Sequence[int]) -> None:
-        """Every temperature channel ``temperature0`` … of the board, in order (0.1 °C)."""
-        self._set_series(_TEMPERATURE_KEYS, decidegrees)
-
-    def set_thermistors(self, counts: Sequence[int]) -> None:
-        """Every thermistor ``thermistor0`` … of the board, in order (ADC counts)."""
-        self._set_series(_THERMISTOR_KEYS, counts)
-
-    def set_supply_mv(self, millivolts: int) -> None:
-        """The board's supply (bus) voltage (mV)."""
-        values = self.values
-        if "supply_mv" not in values:
-            _no_channel("supply_mv")
-        if self.channel_watchers and values["supply_mv"] != millivolts:
-            values["supply_mv"] = millivolts
-            self._changed("supply_mv")
-        else:
-            values["supply_mv"] = millivolts
-
-    def set_pot(self, units: int) -> None:
-        """Servo potentiometer (0..1023 over 300°)."""
-        values = self.values
-        if "pot" not in values:
-            _no_channel("pot")
-        if self.channel_watchers and values["pot"] != units:
-            values["pot"] = units
-            self._changed("pot")
-        else:
-            values["pot"] = units
-
-    def set_load(self, units: int) -> None:
-        """Servo load (1/1023 of the maximum torque, signed, + = counter-clockwise)."""
-        values = self.values
-        if "load" not in values:
-            _no_channel("load")
-        if self.channel_watchers and values["load"] != units:
-            values["load"] = units
-            self._changed("load")
-        else:
-            values["load"] = units
-
-
-def _no_channel(channel: str) -> None:
-    raise HalError(f"this board has no sensor channel {channel!r}")
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)

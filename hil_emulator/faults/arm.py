@@ -3,7 +3,7 @@ overheat and overload, a duplicate servo ID, a sagging supply.
 
 They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`,
 :meth:`~hil_emulator.arm_plant.ArmPlant.set_stiffness`), the joint encoders' index line
-(:class:`~firmware_py.sim.virtual_hal.VirtualEncoder`), the nodes' sensors
+(:class:`~firmware_py.sim.virtual_drives.VirtualEncoder`), the nodes' sensors
 (:class:`~hil_emulator.faults.nodes.SensorFault`) and the arm's line
 (:meth:`~hil_emulator.rs485_bus.Rs485Bus.attach`: a second node).
 """
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import hil_emulator.faults.targets as targets
-from firmware_py.sim.virtual_hal import VirtualEncoder
+from firmware_py.sim.virtual_drives import VirtualEncoder
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.faults.base import Fault
 from hil_emulator.faults.nodes import SensorFault

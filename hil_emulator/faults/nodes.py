@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 import hil_emulator.faults.targets as targets
-from firmware_py.sim.virtual_hal import VirtualSensors
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.faults.base import Fault
 

@@ -117,20 +117,22 @@ def test_alarm_shutdown_written_by_the_host_is_used(stepper):
     assert read(sched, hal, 2, STEPPER_TABLE, "torque_enable") == 0
 
 
-def _stepper_expected(app: StepperNodeApp, hal: VirtualHal, history: list[int]) -> dict:
+def _stepper_expected(app: StepperNodeApp, hal: VirtualHal, history: list[int]) -> dict[str, int]:
     """The read-only registers from the module docstring's formulas and the HAL's state."""
     k = (app.get("gear_reduction_x100") * app.get("steps_per_rev") * app.get("microstepping")
          / 1_000_000)
     enc, steps = hal.encoder().count(), hal.stepper().step_count()
     deflection = round((steps - app._hw_steps0) / k) - (enc - app._enc0)
     span = len(history) - 1
+    supply_mv, decidegrees = hal.sensors.values["supply_mv"], hal.sensors.values["temperature"]
+    assert isinstance(supply_mv, int) and isinstance(decidegrees, int)  # scalar channels
     return {
         "present_position": enc,
         "present_velocity": (history[-1] - history[0]) * 1000 // span if span else 0,
         "step_count": steps - app._step_offset,
         "deflection": max(-32768, min(32767, deflection)),
-        "present_voltage": max(0, min(255, hal.sensors.values["supply_mv"] // 100)),
-        "present_temperature": max(0, min(255, hal.sensors.values["temperature"] // 10)),
+        "present_voltage": max(0, min(255, supply_mv // 100)),
+        "present_temperature": max(0, min(255, decidegrees // 10)),
     }
 
 

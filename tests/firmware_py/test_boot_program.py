@@ -23,7 +23,8 @@ from firmware_py.hand_node import HandNode
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import default_image, install_image, make_node, provision_key
-from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal
+from firmware_py.sim.virtual_ports import VirtualUart
 from protocol.image import (
     MAX_PAYLOAD,
     BoardType,

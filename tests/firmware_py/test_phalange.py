@@ -21,7 +21,8 @@ from firmware_py.phalange import (
 )
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import APP_PROGRAMS, load_program, make_hal, make_node
-from firmware_py.sim.virtual_hal import VirtualHal, VirtualSensors
+from firmware_py.sim.virtual_hal import VirtualHal
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from protocol.framing import Frame, encode_frame
 from protocol.image import BoardType
 from protocol.messages import CATALOGUE

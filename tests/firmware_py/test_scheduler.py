@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 import random
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from hypothesis import given, settings
@@ -72,7 +73,7 @@ def test_shared_entries_keep_the_order_of_one_entry_per_timer(seed: int, actors:
 def test_ticks_in_phase_share_one_queue_entry() -> None:
     sched = Scheduler()
     seen: list[str] = []
-    ticks = [sched.call_every(PERIOD, lambda k=k: seen.append(f"t{k}")) for k in range(5)]
+    ticks = [sched.call_every(PERIOD, partial(seen.append, f"t{k}")) for k in range(5)]
     sched.call_every(PERIOD, lambda: seen.append("off"), first_us=PERIOD // 2)
     assert len(sched._queue) == 2  # five ticks behind one entry, the one out of phase
     sched.run_until(2 * PERIOD)
@@ -101,9 +102,13 @@ def test_an_event_scheduled_between_two_ticks_runs_between_them() -> None:
 def test_a_tick_started_just_before_the_group_fires_runs_first_from_then_on() -> None:
     sched = Scheduler()
     seen: list[str] = []
+
+    def start_b() -> None:
+        sched.call_every(PERIOD, lambda: seen.append("b"))
+
     # At 1000, before a's turn: the new tick b is due at 2000, with an older sequence number
     # than the one a takes when it runs at 1000.
-    sched.call_at(PERIOD, lambda: sched.call_every(PERIOD, lambda: seen.append("b")))
+    sched.call_at(PERIOD, start_b)
     sched.call_every(PERIOD, lambda: seen.append("a"))
     sched.run_until(3 * PERIOD)
     assert seen == ["a", "b", "a", "b", "a"]

@@ -13,7 +13,7 @@ from firmware_py.errors import HalError
 from firmware_py.hal import Hal
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_hal
-from firmware_py.sim.virtual_hal import VirtualSensors
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from protocol.image import BoardType
 
 counts16 = st.integers(-32768, 32767)
@@ -221,3 +221,17 @@ def test_read_bursts_reads_each_channel_as_read_burst_does() -> None:
     sensors.faults["taxel1"] = lambda value: 100
     assert sensors.read_bursts(channels, 4) == [28, 400, 160000]
     assert heard == ["taxel1"] * 4
+
+
+def test_the_virtual_hal_module_still_offers_every_part() -> None:
+    """``from firmware_py.sim.virtual_hal import VirtualUart`` (the import before the virtual
+    HAL was split by peripheral) gives the class its own module declares."""
+    from firmware_py.sim import virtual_drives, virtual_hal, virtual_ports, virtual_sensors
+
+    for part in (virtual_ports, virtual_drives, virtual_sensors):
+        public = [name for name, value in vars(part).items()
+                  if not name.startswith("_") and getattr(value, "__module__", None) == part.__name__]
+        assert public, part.__name__
+        for name in public:
+            assert name in virtual_hal.__all__, name
+            assert getattr(virtual_hal, name) is getattr(part, name), name

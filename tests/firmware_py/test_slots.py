@@ -14,7 +14,8 @@ from firmware_py.hal import Hal
 from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_node
-from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal, VirtualUart
+from firmware_py.sim.virtual_hal import VirtualFlash, VirtualHal
+from firmware_py.sim.virtual_ports import VirtualUart
 from firmware_py.slot_service import SELF_CHECK_US
 from firmware_py.slot_swap import SwapRecord, read_record
 from protocol.image import FLASH, SLOT_MAX_PAYLOAD, BoardType, make_image, split_pages

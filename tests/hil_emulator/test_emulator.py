@@ -9,12 +9,15 @@ from typing import Any
 import numpy as np
 import pytest
 
+from firmware_py.sim.virtual_sensors import VirtualSensors
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.host_links import SerialLink
 from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
+from tests.ground_truth import hand_rig_of
 
 S = 1_000_000
 
@@ -78,10 +81,13 @@ def test_same_seed_same_frames_and_physics_other_seed_other_noise() -> None:
         for k in range(4):
             _routed(emu, out, k, 0, "fmcb.imu")
         out.clear()
-        emu.hand.send_from_host(_route(2, 0, "fmcb.imu"))  # type: ignore[union-attr]
+        hand_rig_of(emu).send_from_host(_route(2, 0, "fmcb.imu"))
         emu.step(40_000)
         assert emu.plant is not None
-        accel = emu.hand.fingers[0].f3.hal.sensors.values["accel"]  # type: ignore[union-attr,attr-defined]
+        sensors = hand_rig_of(emu).fingers[0].f3.hal.sensors
+        assert isinstance(sensors, VirtualSensors)
+        accel = sensors.values["accel"]
+        assert isinstance(accel, tuple)  # 3-axis counts
         return bytes(out), emu.plant.data.qpos.copy(), tuple(accel)
 
     a, b, c = run(5), run(5), run(6)
@@ -95,12 +101,16 @@ def test_a_148_byte_status_takes_its_wire_time_on_the_simulation_clock() -> None
     arrives after 35 µs, the 155-byte framed status (148-byte payload) after 775 µs more."""
     emu = Emulator("loose-finger", physics=False)
     ports = emu.open_ports()
-    fd = os.open(ports["fingers"][0], os.O_RDWR | os.O_NOCTTY)
+    finger_port = ports["fingers"][0]
+    assert finger_port is not None
+    fd = os.open(finger_port, os.O_RDWR | os.O_NOCTTY)
     try:
         tty.setraw(fd)
         emu.step(BOOT_US)  # bootloader window, then the fmcb application
         emitted: list[int] = []
-        emu.links["finger0"].on_emit = emitted.append
+        link = emu.links["finger0"]
+        assert isinstance(link, SerialLink)
+        link.on_emit = emitted.append
         request = _frame("fmcb.status")
         os.write(fd, request)
         t0 = emu.scheduler.now_us()
@@ -119,7 +129,7 @@ def test_breakaway_is_reported_and_a_bouncing_reattach_comes_back() -> None:
     emu = Emulator("hand", seed=2, can="none")
     out = _boot_hand(emu)
     assert _routed(emu, out, 2, 0, "identify") is not None
-    emu.hand.send_from_host(_frame("palm.poll", rate_hz=100))  # type: ignore[union-attr]
+    hand_rig_of(emu).send_from_host(_frame("palm.poll", rate_hz=100))
     emu.step(100_000)
     out.clear()
     emu.break_away(2)
@@ -201,16 +211,20 @@ def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
 
 def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() -> None:
     from firmware_py.flash_layout import BOOT_CONTROL_PAGE, page_address
+    from firmware_py.sim.virtual_hal import VirtualFlash
     from hil_emulator.errors import EmulatorError
 
     emu = Emulator("loose-finger", physics=False)
     bring_up(emu)
-    finger = emu.loose.finger  # type: ignore[union-attr]
+    assert emu.loose is not None
+    finger = emu.loose.finger
     assert [m.program_name for m in (finger.fmcb, finger.f2, finger.f3)] == ["fmcb", "f2", "f3"]
 
     broken = Emulator("loose-finger", physics=False)
-    f3 = broken.loose.finger.f3  # type: ignore[union-attr]
-    f3.hal.flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)  # type: ignore[attr-defined]
+    assert broken.loose is not None
+    flash = broken.loose.finger.f3.hal.flash
+    assert isinstance(flash, VirtualFlash)
+    flash.load(page_address(BOOT_CONTROL_PAGE), b"\xff" * 256)
     with pytest.raises(EmulatorError, match="uid"):
         bring_up(broken)  # f3's image is not activated: it stays in its bootloader
 
@@ -230,7 +244,7 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
     monkeypatch.setattr(HandSession, "start", spy)
     emu = Emulator("hand", seed=2, can="none", physics=False)
     recorded: list[bytes] = []
-    emu.hand.on_host_bytes = lambda data, t_us: recorded.append(data)  # type: ignore[union-attr]
+    hand_rig_of(emu).on_host_bytes = lambda data, t_us: recorded.append(data)
     bring_up(emu)
     assert sent == ([("palm.finger_power", None, False)]
                     + [("fmcb.phalange_power", k, False) for k in range(4)]
@@ -243,4 +257,4 @@ def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering
         found = hand.discover()
     assert len(found) == 13
     assert all(n.answered and n.running == "application" for n in found), found
-    emu.hand.on_host_bytes = None  # type: ignore[union-attr]
+    hand_rig_of(emu).on_host_bytes = None

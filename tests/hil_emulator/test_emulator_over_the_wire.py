@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -73,11 +74,11 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
         sdk = PacketHandler(1.0)
         try:
             for dxl_id in range(1, 8):
-                model, result, error = _retried(lambda i=dxl_id: sdk.ping(port, i))
+                model, result, error = _retried(partial(sdk.ping, port, dxl_id))
                 assert result == COMM_SUCCESS and error == 0, (dxl_id, result, error)
                 expected = STEPPER_MODEL_NUMBER if dxl_id <= 4 else RX64_TABLE.model_number
                 assert model == expected
-                value, result, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(port, i, 0))
+                value, result, _ = _retried(partial(sdk.read2ByteTxRx, port, dxl_id, 0))
                 assert result == COMM_SUCCESS and value == expected
             _, result, _ = sdk.ping(port, 9)
             assert result != COMM_SUCCESS  # nobody at 9: a timeout, as on the real bus
@@ -87,16 +88,16 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
             start: dict[int, int] = {}
             for dxl_id in range(1, 8):
                 if dxl_id <= 4:
-                    start[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read4ByteTxRx(
-                        port, i, STEPPER_TABLE["present_position"].address))
+                    start[dxl_id], res, _ = _retried(partial(
+                        sdk.read4ByteTxRx, port, dxl_id, STEPPER_TABLE["present_position"].address))
                     start[dxl_id] = _signed32(start[dxl_id])
                 else:
-                    start[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(
-                        port, i, RX64_TABLE["present_position"].address))
+                    start[dxl_id], res, _ = _retried(partial(
+                        sdk.read2ByteTxRx, port, dxl_id, RX64_TABLE["present_position"].address))
                 assert res == COMM_SUCCESS
                 torque = STEPPER_TABLE if dxl_id <= 4 else RX64_TABLE
-                res, err = _retried(lambda i=dxl_id, t=torque: sdk.write1ByteTxRx(
-                    port, i, t["torque_enable"].address, 1))
+                res, err = _retried(partial(
+                    sdk.write1ByteTxRx, port, dxl_id, torque["torque_enable"].address, 1))
                 assert res == COMM_SUCCESS and err == 0, (dxl_id, res, err)
 
             # Joint 1 (no coupling into it) and the wrist servos; joints 2-4 hold.
@@ -115,12 +116,12 @@ def test_stock_dynamixel_sdk_drives_the_arm_through_the_physics(tmp_path: Path) 
             present: dict[int, int] = {}
             for dxl_id in range(1, 8):
                 if dxl_id <= 4:
-                    value, res, _ = _retried(lambda i=dxl_id: sdk.read4ByteTxRx(
-                        port, i, STEPPER_TABLE["present_position"].address))
+                    value, res, _ = _retried(partial(
+                        sdk.read4ByteTxRx, port, dxl_id, STEPPER_TABLE["present_position"].address))
                     present[dxl_id] = _signed32(value)
                 else:
-                    present[dxl_id], res, _ = _retried(lambda i=dxl_id: sdk.read2ByteTxRx(
-                        port, i, RX64_TABLE["present_position"].address))
+                    present[dxl_id], res, _ = _retried(partial(
+                        sdk.read2ByteTxRx, port, dxl_id, RX64_TABLE["present_position"].address))
                 assert res == COMM_SUCCESS
             for dxl_id, delta in moves.items():
                 moved = present[dxl_id] - start[dxl_id]
@@ -201,19 +202,23 @@ def _signed32(value: int) -> int:
 def test_every_hand_node_answers_over_the_palm_port() -> None:
     with running_emulator("--config", "full") as info, \
             HandSession(open_transport(info["palm"]), timeouts=PTY_LINK) as hand:
-        palm = _until(lambda: _running(hand.request("identify")), info, 10)
+
+        def identify(to: Target | None = None) -> dict[str, Any] | None:
+            """The node's ``identify`` reply once it runs its application, else None."""
+            return _running(hand.request("identify", to=to))
+
+        palm = _until(identify, info, 10)
         assert palm["board"] == 1
         uids = {palm["uid"]}
         hand.request("palm.finger_power", {"finger": 0xFF, "state": FingerPower.FULL, "stagger_ms": 5})
         for k in range(4):
-            fmcb = _until(lambda k=k: _running(hand.request("identify", to=Target(k, Hop.FMCB))), info, 10)
+            fmcb = _until(partial(identify, Target(k, Hop.FMCB)), info, 10)
             assert fmcb["board"] == 2
             uids.add(fmcb["uid"])
             hand.request("fmcb.phalange_power", {"on": 1}, to=Target(k, Hop.FMCB))
         for k in range(4):
             for hop, board in ((1, 3), (2, 4)):
-                node = _until(lambda k=k, hop=hop: _running(
-                    hand.request("identify", to=Target(k, hop))), info, 10)
+                node = _until(partial(identify, Target(k, hop)), info, 10)
                 assert node["board"] == board
                 uids.add(node["uid"])
         assert len(uids) == 13  # palm, four fmcbs, eight phalanges

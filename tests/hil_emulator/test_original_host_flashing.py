@@ -9,11 +9,13 @@ from collections.abc import Iterator
 
 import pytest
 
+from firmware_py.hand_node import HandNode
 from firmware_py.sim.boards import default_image
 from hil_emulator.inprocess import EmulatorTransport, forget_shared_emulators
 from host.transport import open_transport
 from protocol.image import BoardType
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
+from tests.ground_truth import hand_rig_of
 from tests.hil_emulator.original_host import OriginalHost
 
 #: A new version, so a successful burn is visible in identify.
@@ -54,8 +56,13 @@ def _program(host: OriginalHost, hop: str) -> str | None:
 def _version(host: OriginalHost, hop: str) -> tuple[int, int, int]:
     assert isinstance(host.transport, EmulatorTransport)
     emu = host.transport.emulator
-    mcu = emu.hand.palm if hop == "palm" else getattr(emu.loose.finger, hop)  # type: ignore[union-attr]
-    return tuple(mcu.program.fw_version)  # type: ignore[union-attr]
+    if hop == "palm":
+        mcu = hand_rig_of(emu).palm
+    else:
+        assert emu.loose is not None
+        mcu = getattr(emu.loose.finger, hop)
+    assert isinstance(mcu.program, HandNode)
+    return tuple(mcu.program.fw_version)
 
 
 def test_motor_module_burn_halts_3_02_s_after_the_reset_and_boots(loose: OriginalHost) -> None:

@@ -13,7 +13,7 @@ import pytest
 import serial
 
 from hil_emulator.emulator import Emulator
-from hil_emulator.host_links import ADAPTER_BUFFER_BYTES, PtyBacked
+from hil_emulator.host_links import ADAPTER_BUFFER_BYTES, PtyBacked, SerialLink
 from protocol import dynamixel as dxl
 from tests.hil_emulator.emulator_thread import serving
 
@@ -50,10 +50,10 @@ def stalled(emulator: Emulator) -> Iterator[None]:
         release.set()
 
 
-def _read_at_once(emulator: Emulator, name: str) -> PtyBacked:
+def _read_at_once(emulator: Emulator, name: str) -> SerialLink:
     """The pty link ``name`` of a serving emulator, once its reader thread runs."""
     link = emulator.links[name]
-    assert isinstance(link, PtyBacked)
+    assert isinstance(link, SerialLink)
     _wait(lambda: link.reader is not None, "the reader starts")
     return link
 
@@ -105,6 +105,7 @@ def test_a_client_that_writes_and_closes_loses_nothing() -> None:
     packet = dxl.make_ping(0xFE).encode()
     with serving(emulator):
         link = emulator.links["arm"]
+        assert isinstance(link, SerialLink)
         for _ in range(300):
             with serial.Serial(link.path, 1_000_000, timeout=0) as port:
                 port.write(packet)

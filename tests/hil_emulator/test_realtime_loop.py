@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 import socket
 import time
+from functools import partial
 from pathlib import Path
 
 import serial
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.emulator import Emulator
+from hil_emulator.host_links import SerialLink
 from hil_emulator.pacing import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S
 from protocol.dynamixel import make_ping
 from tests.hil_emulator.emulator_thread import serving
@@ -68,6 +70,7 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
     emulator.scheduler.call_every(100, lambda: time.sleep(0.001))
     emulator.open_ports()
     link = emulator.links["arm"]
+    assert isinstance(link, SerialLink)
     entered: list[tuple[int, int]] = []  # (input time, simulation time when read), µs
     clock = link.input_clock
 
@@ -80,6 +83,7 @@ def test_host_input_skips_the_backlog_of_a_run_that_is_behind() -> None:
     link.input_clock = recording_clock
     replies: list[int] = []
     emitted = link.on_emit
+    assert emitted is not None  # the pacer attached at open_ports measures deliveries
 
     def on_emit(t_us: int) -> None:
         replies.append(t_us)
@@ -124,7 +128,7 @@ def test_run_some_stops_after_max_events_and_carries_on() -> None:
     scheduler = Scheduler()
     seen: list[int] = []
     for t in (10, 20, 30, 40):
-        scheduler.call_at(t, lambda t=t: seen.append(t))
+        scheduler.call_at(t, partial(seen.append, t))
     assert scheduler.run_some(100, 2) == 2
     assert seen == [10, 20] and scheduler.now_us() == 20  # time stays at the last event
     assert scheduler.run_some(100, 5) == 2

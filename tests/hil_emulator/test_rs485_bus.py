@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from firmware_py.scheduler import Scheduler
-from firmware_py.sim.virtual_hal import VirtualUart
+from firmware_py.sim.virtual_ports import VirtualUart
 from hil_emulator.rs485_bus import Rs485Bus
 
 Received = dict[str, list[tuple[bytes, int]]]

@@ -10,6 +10,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import pytest
 
@@ -22,9 +24,13 @@ ALLOWED = os.geteuid() == 0 or rtprio_limit() > 0
 SETPRIV = shutil.which("setpriv")
 
 
-def _in_thread(fn: object) -> object:
-    out: list[object] = []
-    thread = threading.Thread(target=lambda: out.append(fn()))  # type: ignore[operator]
+T = TypeVar("T")
+
+
+def _in_thread(fn: Callable[[], T]) -> T:
+    """What ``fn`` returns, called in a new thread (scheduling is per thread)."""
+    out: list[T] = []
+    thread = threading.Thread(target=lambda: out.append(fn()))
     thread.start()
     thread.join()
     return out[0]
@@ -32,8 +38,8 @@ def _in_thread(fn: object) -> object:
 
 def test_normal_leaves_the_thread_as_it_is() -> None:
     got = _in_thread(lambda: request_priority("normal"))
-    assert got == current() and not got.realtime  # type: ignore[attr-defined]
-    assert got.describe() == "normal scheduling (--priority normal)"  # type: ignore[attr-defined]
+    assert got == current() and not got.realtime
+    assert got.describe() == "normal scheduling (--priority normal)"
     with pytest.raises(ValueError, match="realtime, normal"):
         request_priority("urgent")
 
@@ -41,7 +47,7 @@ def test_normal_leaves_the_thread_as_it_is() -> None:
 @pytest.mark.skipif(not ALLOWED, reason="real-time scheduling is not allowed here")
 def test_realtime_where_allowed_is_round_robin_for_that_thread_only() -> None:
     got = _in_thread(lambda: (request_priority("realtime"), current()))
-    asked, seen = got  # type: ignore[misc]
+    asked, seen = got
     assert (asked.policy, asked.priority) == ("SCHED_RR", RT_PRIORITY)
     assert seen == asked and asked.describe().startswith("real-time scheduling: SCHED_RR")
     assert not current().realtime  # this thread never asked
@@ -60,13 +66,13 @@ def test_a_run_gives_the_thread_its_scheduling_back_and_says_which_it_had() -> N
         emulator.run(stop, priority="realtime")
         return current().policy, bool(emulator.pacer.scheduling and emulator.pacer.scheduling.realtime)
 
-    after, had = _in_thread(run)  # type: ignore[misc]
+    after, had = _in_thread(run)
     assert had and after == "SCHED_OTHER"
     assert said == [f"real-time scheduling: SCHED_RR priority {RT_PRIORITY} for the "
                     "simulation thread"]
 
 
-def _command(*args: str, prefix: tuple[str, ...] = ()) -> tuple[list[str], dict[str, object]]:
+def _command(*args: str, prefix: tuple[str, ...] = ()) -> tuple[list[str], dict[str, Any]]:
     proc = subprocess.run([*prefix, sys.executable, "-m", "tools.cli.serve_emulator", "--config",
                            "arm", "--no-physics", "--duration", "0.5", "--stats", *args],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,
@@ -119,7 +125,7 @@ def test_a_port_reader_started_by_the_real_time_thread_runs_real_time_too() -> N
             reader.stop()
             return asked, reader.scheduling
 
-        asked, got = _in_thread(start)  # type: ignore[misc]
+        asked, got = _in_thread(start)
         assert asked.realtime
         assert got == asked
         normal = PortReader(r, lambda: 4096, "normal")  # started by a normal thread

@@ -8,11 +8,13 @@ import math
 
 import pytest
 
+from firmware_py.arm_stepper import StepperNodeApp
 from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
 from protocol.control_tables import STEPPER_FIRMWARE_VERSION, STEPPER_TABLE, StepperFlag
 from protocol.dynamixel import ErrorBit
+from tests.ground_truth import arm_rig_of, emulator_of
 from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_arm"
@@ -66,7 +68,8 @@ def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
 def test_servo_voltage_and_temperature_are_read_one_cycle_in_ten(arm: Arm) -> None:
     """They drift over seconds: the ordinary cycle reads 6 bytes per RX-64, the slow one 8,
     and every state reports the last values read."""
-    sensors = arm.transport.emulator.arm.app(5).hal.sensors.values  # type: ignore[attr-defined]
+    hal, _servo = arm_rig_of(emulator_of(arm)).nodes[5]
+    sensors = hal.sensors.values
     supply = sensors["supply_mv"]
     while arm.cycles % SLOW_READ_EVERY:
         arm.cycle()
@@ -101,7 +104,7 @@ def test_the_cycle_block_reports_the_nodes_scattered_registers(arm: Arm) -> None
 
 
 def test_a_node_without_the_cycle_block_is_refused(arm: Arm) -> None:
-    app = arm.transport.emulator.arm.app(2)  # type: ignore[attr-defined]
+    app = arm_rig_of(emulator_of(arm)).app(2)
     app.set("firmware_version", 1)
     try:
         with pytest.raises(NodeError, match=r"\(J2\) runs stepper firmware 1"):
@@ -125,7 +128,8 @@ def test_flags_and_error_bits_decode_by_name(arm: Arm) -> None:
 
 
 def test_clear_errors_clears_a_latched_slip(arm: Arm) -> None:
-    app = arm.transport.emulator.arm.app(3)  # type: ignore[attr-defined]
+    app = arm_rig_of(emulator_of(arm)).app(3)
+    assert isinstance(app, StepperNodeApp)
     app._flags |= int(StepperFlag.SLIP)  # what the node latches when steps are lost
     assert arm.cycle().slip == [False, False, True, False]
     arm.clear_errors()

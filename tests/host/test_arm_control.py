@@ -30,6 +30,7 @@ from host.arm_trajectory import MIN_JERK_PEAK, Trajectory, Waypoint, timed_path
 from host.arm_waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 from host.errors import LimitError, StallError, UsageError
 from protocol.robot import ARM_INDEX_ANGLES
+from tests.ground_truth import arm_plant_of, emulator_of
 from tools.cli import armctl
 
 # ----------------------------------------------------------------------------- math
@@ -112,7 +113,7 @@ CLI_URL = "emu://arm/arm?name=test_arm_control_cli"
 
 def flange_truth(arm: Arm) -> np.ndarray:
     """The MuJoCo flange body's position in the arm's base frame (m)."""
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     model, data = plant.model, plant.data
     flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/flange")
     base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/base")
@@ -158,7 +159,7 @@ def test_arm_moveto_is_refused_before_homing(arm: Arm) -> None:
 def test_home_finds_every_index_and_fixes_absolute_angles(arm: Arm) -> None:
     calibration = arm.home()
     assert arm.homed
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     counts_per_rad = 10_000 / (2 * np.pi)
     # the plant's encoders count from the power-up pose (0 here): the index's count
     assert calibration.index_encoder_counts == tuple(
@@ -181,7 +182,7 @@ def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
 def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     if not arm.homed:
         arm.home()
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     # record from the hanging pose: with torque off an arm held elsewhere falls, and its
     # unpowered rotors turn with it, which the step counts cannot follow
     arm.torque(True)
@@ -241,7 +242,7 @@ def test_the_controller_gives_up_on_a_joint_that_stays_held() -> None:
     leaves it held (the node stops and holds a STALLED joint) instead of driving it again
     and again."""
     with Arm.open("emu://arm/arm?name=test_stall_gives_up") as held:
-        plant = held.transport.emulator.arm_plant  # type: ignore[attr-defined]
+        plant = arm_plant_of(emulator_of(held))
         try:
             control = JointController(held)
             start = np.array(control.start().joints)
@@ -274,7 +275,7 @@ def test_waypoints_recorded_by_one_program_play_back_in_another(tmp_path: Path) 
             first.home()
             first.torque(True)
             first.move([0.0] * 7, timeout=5.0)
-            plant = first.transport.emulator.arm_plant  # type: ignore[attr-defined]
+            plant = arm_plant_of(emulator_of(first))
             t0 = first.transport.now()
 
             def hand(state: object) -> None:  # a hand turning the base one way

@@ -17,6 +17,7 @@ from host.arm_cartesian import MOVETO_LOAD_LIMIT, choose_ik
 from host.arm_joint_loop import JointController, TrackingLog, elastic_deflections
 from host.errors import UsageError
 from protocol.robot import SERIES_ELASTIC_STIFFNESS_NM_PER_RAD
+from tests.ground_truth import arm_plant_of, emulator_of
 
 #: The user's target: reachable, but one IK solution bends the elbow into a heavy load.
 TARGET = (0.25, -0.08, -0.52)
@@ -119,7 +120,7 @@ def test_moveto_with_the_hand_reaches_without_stalling(full_arm: Arm) -> None:
     log = TrackingLog()
     result = full_arm.moveto(TARGET, log=log)
     assert result.reached
-    plant = full_arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(full_arm))
     model, data = plant.model, plant.data
     flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/flange")
     base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "arm/base")

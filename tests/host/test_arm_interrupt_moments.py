@@ -25,7 +25,7 @@ from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
 from host.dynamixel_bus import SERIAL_LATENCY_S
 from protocol.control_tables import StepperFlag
-from tests.ground_truth import arm_joints, emulator_of
+from tests.ground_truth import arm_joints, arm_rig_of, arm_velocities, emulator_of
 
 #: The loaded pose the moves start from, and where they go.
 LOADED = [0.0, 0.625, 0.0, 0.71, 0.0, -0.05, 0.0]
@@ -48,14 +48,14 @@ def interrupt_moves(cycles: list[int], *, start: list[float] = LOADED,
     latency = SERIAL_LATENCY_S if in_exchange or first_write_lost else None
     with Arm.open("emu://full/arm?name=interrupt-moments", latency_s=latency) as arm:
         emulator = emulator_of(arm)
-        nodes = [emulator.arm.app(i) for i in range(1, 8)]
+        nodes = [arm_rig_of(emulator).app(i) for i in range(1, 8)]
         arm.torque(True, hold=True)
         arm.home()  # as armctl moves: homed
         transport = arm.transport
         real_recv = transport.recv
         for count in cycles:
             arm.move(start, duration=3.0)
-            while np.max(np.abs(emulator.arm_plant.joint_velocities()[:4])) >= 0.02:
+            while np.max(np.abs(arm_velocities(arm)[:4])) >= 0.02:
                 emulator.step(10_000)  # from rest
             seen: list[np.ndarray] = []
             first = arm.cycles
@@ -83,7 +83,7 @@ def interrupt_moves(cycles: list[int], *, start: list[float] = LOADED,
                 arm.state_taps.remove(ctrl_c)
                 transport.recv = real_recv  # type: ignore[method-assign]
             if first_write_lost:
-                arm.send = lambda _commands: None  # type: ignore[method-assign]
+                arm.send = lambda commands: None  # type: ignore[method-assign]  # this arm's write is lost
             try:
                 arm.hold()
             finally:

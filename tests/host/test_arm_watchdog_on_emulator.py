@@ -5,6 +5,7 @@ on the plant's ground truth."""
 from __future__ import annotations
 
 import math
+from typing import TypedDict
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from protocol.robot import (
     STEPPER_SETTLE_MAX_CHANGE_COUNTS,
     microsteps_per_encoder_count,
 )
+from tests.ground_truth import arm_plant_of, arm_rig_of, emulator_of
 
 GOALS = [0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0]  # the 6 s move of armctl's example
 DURATION_S = 6.0
@@ -32,12 +34,30 @@ REST_SPEED = 0.02
 SETTLED_MS = 1_500
 
 
-def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.ndarray]:
+class VanishRun(TypedDict):
+    """What :func:`vanish_mid_move` saw: the plant's angles when the host vanished and every
+    ms after (rad), the steppers' speeds (rad/s), rates (microsteps/s) and goals (counts),
+    their WATCHDOG flag each ms, their flags and torque at the end, slips, and the flags of
+    J2's goal as the host last read them."""
+
+    q0: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    rates: np.ndarray
+    goals: np.ndarray
+    stopped: np.ndarray
+    flags: np.ndarray
+    torque: np.ndarray
+    slips: np.ndarray
+    goal_flags: StepperFlag
+
+
+def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> VanishRun:
     """Open the arm (torque on, held), start the 6 s move as :meth:`Arm.move` runs it,
     stop cycling after ``after_s`` (the host killed), then watch the plant for 2 s."""
     with Arm.open(f"emu://full/arm?ready=0&name=watchdog-{watchdog_ms}-{after_s}",
                   watchdog_ms=watchdog_ms) as arm:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         state = arm.torque(True, hold=True)
         speeds = [max(abs(a - b) / DURATION_S, MOVE_MIN_SPEED)
                   for a, b in zip(GOALS, state.joints, strict=True)]
@@ -48,9 +68,9 @@ def vanish_mid_move(watchdog_ms: int | None, after_s: float) -> dict[str, np.nda
         while clock.now() < end:
             clock.sleep(0.01)
             arm.set_positions(servo_lead(state.joints, GOALS, speeds, clock.now() - start))
-        plant = emu.arm_plant
-        apps = [emu.arm.app(i) for i in range(1, 5)]
-        steppers = [hal.stepper() for hal in emu.arm.stepper_hals]
+        plant, rig = arm_plant_of(emu), arm_rig_of(emu)
+        apps = [rig.app(i) for i in range(1, 5)]
+        steppers = [hal.stepper() for hal in rig.stepper_hals]
         q0 = plant.joint_angles().copy()
         q, qd, rates, goals, stopped = [], [], [], [], []
         watchdog = int(StepperFlag.WATCHDOG)
@@ -96,7 +116,7 @@ def test_a_host_killed_mid_move_leaves_the_arm_held(after_s):
     assert run["flags"][1] & StepperFlag.WATCHDOG and run["flags"][3] & StepperFlag.WATCHDOG
 
 
-def _rest_ms(run: dict[str, np.ndarray]) -> int:
+def _rest_ms(run: VanishRun) -> int:
     """Milliseconds after the host's last cycle from which every stepper joint stays below
     REST_SPEED (plant's truth)."""
     fast = np.nonzero((np.abs(run["qd"]) >= REST_SPEED).any(axis=1))[0]
@@ -163,9 +183,9 @@ def test_a_move_sends_the_wrist_its_goal_only_a_short_lead_ahead():
 
     arm = Arm.open("emu://full/arm?ready=0&name=servo-lead")
     try:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         start = arm.torque(True, hold=True).joints[5]
-        cycles = []
+        cycles: list[None] = []
 
         def vanish(_state: object) -> None:
             cycles.append(None)
@@ -175,11 +195,11 @@ def test_a_move_sends_the_wrist_its_goal_only_a_short_lead_ahead():
         arm.state_taps.append(vanish)
         with pytest.raises(Vanished):
             arm.move(GOALS, duration=DURATION_S)
-        left = emu.arm_plant.joint_angles()[5]
-        goal = rx64_position_to_radians(emu.arm.app(6).get("goal_position"))
+        left = arm_plant_of(emu).joint_angles()[5]
+        goal = rx64_position_to_radians(arm_rig_of(emu).app(6).get("goal_position"))
         assert 0.0 < goal - start <= MOVE_MIN_SPEED * (0.31 + SERVO_GOAL_LEAD_S) + 0.01
         emu.step(1_000_000)
-        assert abs(emu.arm_plant.joint_angles()[5] - left) <= FALL_LIMIT
+        assert abs(arm_plant_of(emu).joint_angles()[5] - left) <= FALL_LIMIT
     finally:
         arm.close()
 
@@ -196,7 +216,7 @@ def test_an_idle_host_with_torque_on_is_not_disturbed():
     """Torque on, then nothing for 3 s (a program waiting for its user): a joint at rest is
     left alone - no WATCHDOG, no motion - and a move afterwards runs as usual."""
     with Arm.open("emu://arm/arm?name=watchdog-idle") as arm:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         before = arm.torque(True, hold=True)
         emu.step(3_000_000)
         state = arm.state()
@@ -213,7 +233,7 @@ def test_a_late_host_that_sent_its_goal_once_is_resumed_by_the_next_cycle():
     once by more than the watchdog's timeout: the node stops and holds, and the cycle after
     the one that saw WATCHDOG sends this arm's goal again, so the move goes on."""
     with Arm.open("emu://arm/arm?name=watchdog-late") as arm:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         state = arm.torque(True, hold=True)
         goal = state.joints[1] + 0.4
         arm.cycle([arm.make_position(1, goal, 0.2)])  # 2 s at 0.2 rad/s
@@ -236,7 +256,7 @@ def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
     """After the host vanished, another program that only reads (armctl status) sees
     WATCHDOG and changes nothing: only goals this arm sent are sent again."""
     with Arm.open("emu://arm/arm?name=watchdog-reader") as arm:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         state = arm.torque(True, hold=True)
         arm.cycle([arm.make_position(1, state.joints[1] + 0.4, 0.2)])
         emu.step(500_000)  # gone mid-move
@@ -259,7 +279,7 @@ def test_after_a_hold_the_nodes_hold_without_settling():
 
     arm = Arm.open("emu://full/arm?ready=0&name=hold-no-settle")
     try:
-        emu = arm.transport.emulator
+        emu = emulator_of(arm)
         arm.torque(True, hold=True)
         start = arm.transport.now()
 
@@ -272,7 +292,7 @@ def test_after_a_hold_the_nodes_hold_without_settling():
             arm.move(GOALS, duration=DURATION_S)
         arm.state_taps.clear()
         arm.hold()
-        apps = [emu.arm.app(i) for i in range(1, 5)]
+        apps = [arm_rig_of(emu).app(i) for i in range(1, 5)]
         watchdog = int(StepperFlag.WATCHDOG)
         for _ in range(500):
             emu.step(1_000)
@@ -301,8 +321,8 @@ def test_a_homed_arm_tells_the_stepper_nodes_the_deflection_that_holds_them_at_r
     deflection reads there, within a few counts; an arm not homed (angles from power-up)
     leaves it "not given", and the node identifies it from the swing as before."""
     with Arm.open("emu://full/arm?ready=0&name=rest-model") as arm:
-        emu = arm.transport.emulator
-        apps = [emu.arm.app(i) for i in range(1, 5)]
+        emu = emulator_of(arm)
+        apps = [arm_rig_of(emu).app(i) for i in range(1, 5)]
         arm.torque(True, hold=True)
         goals = list(arm.state().joints)
         goals[1] += 0.2

@@ -10,6 +10,7 @@ import pytest
 
 from host.errors import RouteError
 from host.hand import FALLBACK_DEADBAND_HALL, Hand
+from host.hand_session import FingerEvent
 from protocol.messages.palm import RouteStatus
 from tests.ground_truth import emulator_of
 
@@ -77,7 +78,7 @@ def test_a_finger_switched_off_reports_an_event_and_refuses_commands(hand: Hand)
 
 
 def test_a_finger_that_breaks_away_is_reported_lost_and_its_routes_fail(hand: Hand) -> None:
-    seen = []
+    seen: list[FingerEvent] = []
     hand.subscribe(seen.append)
     hand.set_poll_rate(100)
     hand.session.sleep(0.05)

@@ -15,6 +15,7 @@ import pytest
 from host import hand_session
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
 from host.hand_session import (
+    FingerEvent,
     HandSession,
     Target,
     Timeouts,
@@ -104,7 +105,7 @@ IDENTIFY = {"board": 2, "address": 10, "running": 1, "hw_version": 0xBEEF0041,
 def test_replies_are_matched_by_sequence_number_in_any_order_around_events() -> None:
     link = ScriptedTransport()
     session = HandSession(link)
-    seen = []
+    seen: list[FingerEvent] = []
     session.subscribe(seen.append)
     first = session.start("palm.poll", {"rate_hz": 10})
     second = session.start("identify", to=Target(2, 0))
@@ -120,7 +121,8 @@ def test_replies_are_matched_by_sequence_number_in_any_order_around_events() -> 
     assert session.wait(first) == {}
     assert session.wait(third)["hall_pos"] == [11, 22, 33]
     assert [(e.finger, e.event) for e in seen] == [(1, "lost")]
-    assert session.next_event().event == "lost"  # also kept in the queue
+    kept = session.next_event()
+    assert kept is not None and kept.event == "lost"  # also kept in the queue
     assert session.next_event() is None
 
 

@@ -308,7 +308,7 @@ def test_ekf_believes_accelerometers_that_keep_disagreeing_with_the_halls() -> N
     r = predict_readings(q, UP_ALONG_X)
     counts = {b: np.round(v * 1000) for b, v in r.items()}
     wrong = q + np.radians([12.0, 12.0, 0.0])
-    hall = [round(m) for m in joint_to_motor(wrong)]
+    hall = [round(m) for m in joint_to_motor(wrong.tolist())]
     ekf = JointEkf(q0=wrong, q0_sigma=0.05)
     for k in range(10):  # 0.2 s of status at 50 Hz, a fresh IMU sample every 40 ms
         ekf.update_status(0.02 * k, {b: v + (k // 2) % 2 for b, v in counts.items()}, hall)

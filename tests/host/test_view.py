@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,7 @@ from host.robot_geometry import (  # noqa: E402
 )
 from host.view import RobotView  # noqa: E402
 from protocol.robot import FINGER_LINK_LENGTHS_M, HAND_LAYOUTS  # noqa: E402
+from tests.ground_truth import emulator_of  # noqa: E402
 from tools.cli import robot_view  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -116,11 +118,11 @@ def test_a_full_queue_drops_states_and_never_waits(tmp_path: Path) -> None:
     release = threading.Event()
     drawing = view.renderer.message
 
-    def slow(*args: Any) -> None:  # the logging thread is stuck
+    def slow(topic: str, t: float, payload: Mapping[str, Any]) -> None:  # the logging thread is stuck
         release.wait(30)
-        drawing(*args)
+        drawing(topic, t, payload)
 
-    view.renderer.message = slow  # type: ignore[method-assign]
+    view.renderer.message = slow  # type: ignore[method-assign]  # the test stalls this instance's
     for k in range(20):
         view.sample("/arm/bus/stats", float(k), {"requests": k})
     assert view.offered == 20
@@ -134,7 +136,7 @@ def test_an_injected_fault_appears_as_an_alarm_when_it_acts(arm: Arm, tmp_path: 
     """servo_overheat through the control channel's request handling: J5's OVERHEATING
     alarm comes over the wire in its status packets and is drawn at that time."""
     rrd = tmp_path / "fault.rrd"
-    emulator = arm.transport.emulator  # type: ignore[attr-defined]
+    emulator = emulator_of(arm)
     control = ControlChannel(emulator, str(tmp_path / "control"))
     with RobotView(serve=False, save=rrd, max_rate_hz=1000.0, queue_size=4096) as view:
         arm.watch(view)
@@ -237,7 +239,7 @@ def test_a_breakaway_injected_on_the_control_channel_shows_as_the_fingers_alarm(
     try:
         with RobotView(serve=False, save=rrd, max_rate_hz=1000.0) as view, \
                 Hand.open("emu://hand/palm?name=test_view_hand", view=view) as hand:
-            emulator = hand.session.transport.emulator  # type: ignore[attr-defined]
+            emulator = emulator_of(hand)
             control = ControlChannel(emulator, str(tmp_path / "control"))
             hand.set_poll_rate(100)
             hand.session.sleep(0.05)

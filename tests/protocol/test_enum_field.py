@@ -180,7 +180,7 @@ def test_every_member_round_trips(case: Case, data: st.DataObject) -> None:
             ControlMode.JOINT_FIXED: {"target": [1000, -1, 0]},
             ControlMode.JOINT_EFFORT: {"target": [0.5, 0.0, 1.0], "max_effort": [1, 2, 3]},
             ControlMode.RELATIVE: {"target": [0.5, 0.0, 1.0], "max_effort": [1, 2, 3]},
-        }[member]
+        }[ControlMode(member)]
     msg = _msg(case)
     payload = msg.build(case.direction, fields)
     assert payload[case.offset] == int(member)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -13,12 +14,13 @@ from host.arm import Arm
 from host.errors import HomingError, TransportError, UsageError
 from protocol.control_tables import STEPPER_TABLE
 from protocol.dynamixel import ErrorBit
+from tests.ground_truth import arm_plant_of, emulator_of
 from tools.cli import armctl
 
 URL = "emu://arm/arm?name=test_armctl"
 
 
-def run(*argv: str) -> tuple[int, dict[str, object]]:
+def run(*argv: str) -> tuple[int, dict[str, Any]]:
     out = io.StringIO()
     code = armctl.main(["--port", URL, "--json", *argv], out=out)
     return code, json.loads(out.getvalue()) if out.getvalue() else {}
@@ -70,7 +72,7 @@ def test_a_goal_outside_a_joints_range_is_refused_naming_it(
 
 def test_a_joint_its_node_turned_off_is_named_by_torque_on_and_cleared_by_clear(
         arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     shutdown = STEPPER_TABLE["alarm_shutdown"]
     # a node told to cut its coils on OVERLOAD (the factory setting holds a STALLED joint)
     arm.bus.write(4, shutdown.address, bytes([int(ErrorBit.OVERLOAD | ErrorBit.OVERHEATING)]))
@@ -97,7 +99,7 @@ def test_a_joint_its_node_turned_off_is_named_by_torque_on_and_cleared_by_clear(
 def test_homing_stops_with_the_joint_named_when_its_node_stops_it(
         arm: Arm, capsys: pytest.CaptureFixture[str]) -> None:
     """A held joint used to keep the search waiting for it forever."""
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     plant.push(3, -40.0)
     t0 = arm.transport.now()
     with pytest.raises(HomingError, match="J4: the node stopped the joint") as caught:
@@ -248,7 +250,7 @@ def test_a_file_that_holds_no_waypoints_says_so(arm: Arm, tmp_path: Path,
 def test_a_stalled_joint_is_held_and_clear_says_so(arm: Arm) -> None:
     """With the factory alarm_shutdown a STALLED node stops and holds its joint, torque on:
     the forearm does not fall, and clear leaves it held."""
-    plant = arm.transport.emulator.arm_plant  # type: ignore[attr-defined]
+    plant = arm_plant_of(emulator_of(arm))
     arm.torque(True, hold=True)
     plant.push(3, -25.0)
     arm.cycle([arm.make_position(3, arm.state().joints[3] + 0.6)])

@@ -32,6 +32,15 @@ def test_every_compiled_module_is_a_source_file_of_ours() -> None:
         assert module.split("/", 1)[0] in PACKAGES
 
 
+def test_every_part_of_the_virtual_hal_is_compiled() -> None:
+    """The virtual HAL is split by peripheral; a part left out of the list would run from
+    source beside compiled callers (slower, and its classes interpreted)."""
+    parts = sorted(p.relative_to(ROOT).as_posix()
+                   for p in (ROOT / "firmware_py" / "sim").glob("virtual_*.py"))
+    assert len(parts) > 1
+    assert set(parts) <= set(COMPILED_MODULES)
+
+
 def test_clean_removes_the_extensions_and_the_build_directory(tmp_path: Path) -> None:
     built = []
     for module in COMPILED_MODULES:

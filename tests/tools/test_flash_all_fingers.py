@@ -21,7 +21,7 @@ from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand_session import HandSession
-from protocol.image import BoardType, FirmwareImage, ImageHeader
+from protocol.image import BoardType, FirmwareImage, ImageHeader, Version
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, ImageStatus
 from tools.cli import flash_all_fingers
 
@@ -52,12 +52,12 @@ class Hand:
     def _watch(self, name: str, mcu: Mcu) -> None:
         original = mcu.boot
 
-        def boot(app: str, version: Any = None) -> None:
+        def boot(app_name: str, version: Version | None = None) -> None:
             check = inspect_image(mcu.hal.flash, mcu.identity.board_type)
             self.boots.append((name, check.status, check.header))
-            original(app, version)
+            original(app_name, version)
 
-        mcu.boot = boot  # type: ignore[method-assign]
+        mcu.boot = boot  # type: ignore[method-assign]  # this node's boots are watched
 
     def session(self) -> HandSession:
         return HandSession(EmulatorTransport(self.emu, "palm"))
@@ -381,11 +381,13 @@ def test_phalanges_of_an_unpowered_finger_are_flashed_after_powering_it(
 def test_a_node_refusing_the_signature_says_which_key_to_sign_with(tmp_path: Path) -> None:
     from bootloader.signing import generate_key_pair, load_private_key, sign_image
     from firmware_py.sim.boards import install_image, provision_key
+    from firmware_py.sim.virtual_hal import VirtualHal
     hand = Hand()
     try:
         node_key = generate_key_pair(tmp_path / "node", tmp_path / "node.pub")
         generate_key_pair(tmp_path / "other", tmp_path / "other.pub")
         f2 = hand.rig.fingers[0].f2
+        assert isinstance(f2.hal, VirtualHal)
         provision_key(f2.hal, node_key)
         # It runs an image signed with its key (version 2.3.3) …
         old = sign_image(images("2.3.3")[BoardType.F2], load_private_key(tmp_path / "node"))

@@ -131,7 +131,12 @@ def test_experiments_dispatches_or_says_the_module_is_missing(
 
     fake = types.ModuleType("tools.experiments.dissertation")
     seen: list[list[str]] = []
-    fake.main = lambda argv: seen.append(argv) or 0  # type: ignore[attr-defined]
+
+    def fake_main(argv: list[str]) -> int:
+        seen.append(argv)
+        return 0
+
+    fake.main = fake_main  # type: ignore[attr-defined]  # a module built at run time
     monkeypatch.setitem(sys.modules, "tools.experiments.dissertation", fake)
     assert hil_bench.main(["experiments", "sweep", "--x", "1"]) == 0
     # its own options first, as a user types them (argparse's REMAINDER refused these)

@@ -141,9 +141,8 @@ def test_a_recording_reaches_the_disk_while_it_runs_with_no_further_message(tmp_
 def test_an_output_that_cannot_be_written_is_refused_before_the_port_is_opened(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     missing = tmp_path / "no-such-dir" / "run.mcap"
-    for main, argv in ((handctl.main, []), (armctl.main, [])):
-        code = main(["--port", "/dev/no-such-port", "record", str(missing), "--seconds", "1",
-                     *argv])
+    for main in (handctl.main, armctl.main):
+        code = main(["--port", "/dev/no-such-port", "record", str(missing), "--seconds", "1"])
         err = capsys.readouterr().err
         assert code == 2, err
         assert f"cannot write the recording to {missing}" in err and "no-such-port" not in err

@@ -9,11 +9,24 @@ a serial path (1 Mbaud unless ``?baud=N``).
 from __future__ import annotations
 
 import sys
+from typing import TypedDict
 
 from host.arm import Arm
 
 
-def main(url: str = "emu://arm/arm") -> dict[str, object]:
+class Seen(TypedDict):
+    """What the tour saw: the joints' names, homed, the move settled, the steppers' angles
+    after it (rad), the moveto's position error (m) and whether it reached."""
+
+    joints: list[str]
+    homed: bool
+    settled: bool
+    angles: list[float]
+    moveto_error_m: float
+    reached: bool
+
+
+def main(url: str = "emu://arm/arm") -> Seen:
     """Run the tour on ``url``; returns what it saw."""
     with Arm.open(url) as arm:
         # Seven joints: J1-J4 series-elastic steppers, J5-J7 RX-64 servos.

@@ -10,13 +10,31 @@ URL defaults to the emulator in process (``emu://hand/palm``); give ``/dev/ttyAC
 from __future__ import annotations
 
 import sys
+from typing import TypedDict
 
+from host.finger_params import Value
 from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.hand_session import FingerEvent
 
 
-def main(url: str = "emu://hand/palm", mcap_path: str = "hand_tour.mcap") -> dict[str, object]:
+class Seen(TypedDict):
+    """What the tour saw: nodes found and answering, ``(finger, event)`` pairs, finger 0's
+    deadband (hall counts), finger 1's move (settled, joints in rad), the stream's times (s
+    on the link's clock), frames and states recorded."""
+
+    nodes: int
+    answered: int
+    events: list[tuple[int, str]]
+    deadband: Value
+    settled: bool
+    joints: list[float]
+    stream: list[float]
+    frames: int
+    states: int
+
+
+def main(url: str = "emu://hand/palm", mcap_path: str = "hand_tour.mcap") -> Seen:
     """Run the tour on ``url``; returns what it saw (the test checks it)."""
     with Hand.open(url) as hand:
         # Who answers: the palm, then each finger's fmcb, f2, f3 (13 nodes).

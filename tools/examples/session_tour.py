@@ -7,14 +7,26 @@ requests by catalogue name, routed through the palm, several in flight at once.
 from __future__ import annotations
 
 import sys
+from typing import Any, TypedDict
 
 from host.errors import RouteError
-from host.hand_session import HandSession, Target
+from host.hand_session import HandSession, SessionCounters, Target
 from host.transport import open_transport
 from protocol.messages.palm import FingerPower
 
 
-def main(url: str = "emu://hand/palm") -> dict[str, object]:
+class Seen(TypedDict):
+    """What the tour saw: two ``identify`` replies (fields by name), the fmcbs' hall
+    positions (counts), finger 0's refusal while off, the session's counters."""
+
+    palm: dict[str, Any]
+    f3: dict[str, Any]
+    halls: list[int]
+    refused: str
+    counters: SessionCounters
+
+
+def main(url: str = "emu://hand/palm") -> Seen:
     """Run the tour on ``url``; returns what it saw."""
     with HandSession(open_transport(url)) as session:
         # The palm itself: every request travels in a txn envelope, matched by sequence.

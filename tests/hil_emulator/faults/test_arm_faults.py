@@ -8,6 +8,7 @@ import pytest
 
 from hil_emulator.inprocess import EmulatorTransport
 from protocol.dynamixel import ErrorBit
+from tests.ground_truth import arm_plant_of, arm_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, arm_ping_answered
 
 
@@ -40,7 +41,7 @@ def test_servo_overheat_overload_and_supply_sag_latch_alarms() -> None:
 
 def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
     emu = FaultyEmulator("arm", seed=1, physics=False)
-    hal, app = emu.arm.nodes[2]  # type: ignore[union-attr]
+    hal, app = arm_rig_of(emu).nodes[2]
     entry = emu.faults.inject("missed_index", {"joint": 1})
     hal.encoder().pulse_index(1234)
     assert app.get("index_seen") == 0 and hal.encoder().missed == 1
@@ -51,7 +52,7 @@ def test_a_missed_index_pulse_is_never_latched_until_cleared() -> None:
 
 def test_an_arm_push_moves_the_joint_and_stops_when_cleared() -> None:
     emu = FaultyEmulator("arm", seed=1)
-    plant = emu.arm_plant
+    plant = arm_plant_of(emu)
     emu.step(300 * MS)
     q0 = plant.joint_angles()[4]
     entry = emu.faults.inject("arm_push", {"joint": 4, "torque_nm": 3.0})
@@ -66,7 +67,7 @@ def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared()
     from host.arm import Arm
 
     emu = FaultyEmulator("arm", seed=1)
-    plant = emu.arm_plant
+    plant = arm_plant_of(emu)
     arm = Arm.open(EmulatorTransport(emu, "arm"))
     arm.torque(True)
 
@@ -99,7 +100,7 @@ def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared()
 
 def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
     emu = FaultyEmulator("arm", seed=1)
-    plant = emu.arm_plant
+    plant = arm_plant_of(emu)
     entry = emu.faults.inject("spring_drift", {"joint": 2, "final_fraction": 1.5,
                                                "drift_s": 0.01, "update_us": 5_000})
     emu.step(20 * MS)
@@ -113,7 +114,7 @@ def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
 
 def test_a_duplicate_servo_id_garbles_that_servos_replies_until_unplugged() -> None:
     emu = FaultyEmulator("arm", seed=1, physics=False)
-    bus = emu.arm.bus  # type: ignore[union-attr]
+    bus = arm_rig_of(emu).bus
     assert arm_ping_answered(emu, 5)
     entry = emu.faults.inject("duplicate_servo_id", {"servo": 5})
     collisions = bus.collisions

@@ -4,11 +4,12 @@ observable, and gone once cleared."""
 from __future__ import annotations
 
 from hil_emulator.inprocess import BOOT_US
+from tests.ground_truth import hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, host_of
 
 
 def test_break_away_and_its_clear_a_cold_booting_reattach(hand: FaultyEmulator) -> None:
-    finger = hand.hand.fingers[3]  # type: ignore[union-attr]
+    finger = hand_rig_of(hand).fingers[3]
     boots = finger.fmcb.boots
     entry = hand.faults.inject("break_away", {"finger": 3})
     assert not finger.attached and not finger.fmcb.powered
@@ -19,7 +20,7 @@ def test_break_away_and_its_clear_a_cold_booting_reattach(hand: FaultyEmulator) 
 
 
 def test_reattach_and_pogo_chatter_power_cycle_the_fmcb(hand: FaultyEmulator) -> None:
-    finger = hand.hand.fingers[1]  # type: ignore[union-attr]
+    finger = hand_rig_of(hand).fingers[1]
     hand.break_away(1)
     hand.faults.inject("reattach", {"finger": 1, "bounce": False})
     assert finger.attached and finger.fmcb.in_bootloader
@@ -33,7 +34,7 @@ def test_reattach_and_pogo_chatter_power_cycle_the_fmcb(hand: FaultyEmulator) ->
 
 def test_partial_contact_powers_the_finger_but_carries_no_data(hand: FaultyEmulator) -> None:
     host = host_of(hand)
-    finger = hand.hand.fingers[0]  # type: ignore[union-attr]
+    finger = hand_rig_of(hand).fingers[0]
     entry = hand.faults.inject("partial_contact", {"finger": 0})
     assert not answers(host.fingers[0].motor)
     assert finger.fmcb.powered and finger.fmcb.program_name == "fmcb"
@@ -43,7 +44,7 @@ def test_partial_contact_powers_the_finger_but_carries_no_data(hand: FaultyEmula
 
 def test_a_shorted_tendon_trips_the_phalange_breaker_until_cleared(hand: FaultyEmulator) -> None:
     host = host_of(hand)
-    finger = hand.hand.fingers[2]  # type: ignore[union-attr]
+    finger = hand_rig_of(hand).fingers[2]
     entry = hand.faults.inject("shorted_tendon", {"finger": 2})
     hand.step(200 * MS)
     assert finger.fmcb.program.breaker_tripped  # type: ignore[union-attr]
@@ -61,7 +62,7 @@ def test_a_shorted_tendon_trips_the_phalange_breaker_until_cleared(hand: FaultyE
 def test_node_power_cut_triggered_in_the_middle_of_a_flash_write(hand: FaultyEmulator) -> None:
     from hil_emulator.faults import Schedule
 
-    fmcb = hand.hand.fingers[1].fmcb  # type: ignore[union-attr]
+    fmcb = hand_rig_of(hand).fingers[1].fmcb
     flash = fmcb.hal.flash
     hand.faults.inject("node_power_cut", {"node": "finger1.fmcb"},
                        schedule=Schedule(after_flash_bytes=2 * flash.page_size,

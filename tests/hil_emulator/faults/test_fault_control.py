@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from protocol.dynamixel import make_ping
+from tests.ground_truth import arm_plant_of, arm_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator
 
 
@@ -27,13 +28,13 @@ def test_the_control_channel_injects_into_a_running_emulator(tmp_path: Path) -> 
         answers = [json.loads(line) for line in client.recv(4096).splitlines()]
         assert answers[0]["ok"] and answers[0]["id"] == 0
         assert not answers[1]["ok"] and "params.wire" in answers[1]["error"]
-        assert emu.arm.bus.line_cut  # type: ignore[union-attr]
+        assert arm_rig_of(emu).bus.line_cut
         client.sendall(b'{"op": "clear", "id": 0}\n{"op": "timeline"}\n')
         emu.step(1 * MS)
         lines = client.recv(65536).splitlines()
         assert json.loads(lines[0]) == {"ok": True}
         assert [e["action"] for e in json.loads(lines[1])["events"]] == ["apply", "clear"]
-        assert not emu.arm.bus.line_cut  # type: ignore[union-attr]
+        assert not arm_rig_of(emu).bus.line_cut
         client.sendall(b'{"op": "status"}\n')
         t_us = emu.scheduler.now_us()
         emu.step(1 * MS)
@@ -73,7 +74,7 @@ def test_the_control_channel_tells_the_arm_plants_ground_truth(tmp_path: Path) -
         assert truth["ok"] and truth["t_us"] == 20 * MS
         arm = truth["arm"]
         assert isinstance(arm, dict)
-        assert arm["joints"] == pytest.approx(list(emu.arm_plant.joint_angles()), abs=1e-3)
+        assert arm["joints"] == pytest.approx(list(arm_plant_of(emu).joint_angles()), abs=1e-3)
         assert len(arm["velocities"]) == 7 and len(arm["deflections"]) == 4
         assert sorted(arm["nodes"], key=int) == [str(i) for i in range(1, 8)]
         assert all(n["torque_enable"] == 0 for n in arm["nodes"].values())  # comes up off

@@ -12,6 +12,7 @@ import pytest
 from hil_emulator.errors import FaultPlanError
 from hil_emulator.faults import parse_plan
 from protocol.dynamixel import make_ping
+from tests.ground_truth import arm_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, arm_ping_answered
 
 
@@ -54,9 +55,9 @@ def _run(seed: int, replay: list[dict[str, object]] | None = None
         emu.faults.replay(replay)  # type: ignore[arg-type]
     replies = bytearray()
     for _ in range(120):
-        emu.arm.send_from_host(make_ping(6).encode())  # type: ignore[union-attr]
+        arm_rig_of(emu).send_from_host(make_ping(6).encode())
         emu.step(2 * MS)
-        replies += emu.arm.take_host_bytes()  # type: ignore[union-attr]
+        replies += arm_rig_of(emu).take_host_bytes()
     return emu.faults.timeline_dicts(), bytes(replies)
 
 

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from tests.ground_truth import hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator
 
 
 def test_a_flash_page_that_fails_to_write(hand: FaultyEmulator) -> None:
-    flash = hand.hand.fingers[0].f3.hal.flash  # type: ignore[union-attr]
+    flash = hand_rig_of(hand).fingers[0].f3.hal.flash
     entry = hand.faults.inject("flash_page_fail", {"node": "finger0.f3", "page": 700})
     results: list[bool] = []
     page = b"\x55" * flash.page_size

@@ -8,8 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from hil_emulator.host_links import SerialLink
 from host.errors import TransportError
 from protocol.dynamixel import make_ping
+from tests.ground_truth import arm_rig_of, hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, arm_ping_answered, host_of
 
 
@@ -50,7 +52,7 @@ def test_a_stuck_host_transmitter_blocks_the_link_until_cleared(hand: FaultyEmul
     tap = hand.link_tap("palm")
     tap.record = True
     palm_received: list[bytes] = []
-    palm_uart = hand.hand.host_uart  # type: ignore[union-attr]
+    palm_uart = hand_rig_of(hand).host_uart
     receiver = palm_uart._receiver
     assert receiver is not None
 
@@ -78,7 +80,7 @@ def test_a_stuck_host_transmitter_on_the_arm_link_jams_until_cleared() -> None:
     entry = emu.faults.inject("serial_driver_stuck", {"link": "arm", "mode": "noise"})
     emu.step(5 * MS)
     assert tap.down(make_ping(5).encode()) == b""  # the host's frames never reach the line
-    sent = [t for t in emu.arm.bus.log if t.name == "host"]  # type: ignore[union-attr]
+    sent = [t for t in arm_rig_of(emu).bus.log if t.name == "host"]
     assert sum(len(t.data) for t in sent) >= 500  # 1 Mbaud: 100 characters a ms
     emu.faults.clear(entry)
     emu.step(2 * MS)
@@ -149,6 +151,8 @@ def test_port_vanish_recreates_the_pty_at_the_same_link_path(tmp_path: Path) -> 
             assert os.read(fd, 64)[:3] == b"\xff\xff\x05"
         finally:
             os.close(fd)
-        assert os.path.realpath(link) != before or emu.links["arm"].port.is_open
+        arm_link = emu.links["arm"]
+        assert isinstance(arm_link, SerialLink)
+        assert os.path.realpath(link) != before or arm_link.port.is_open
     finally:
         emu.close()

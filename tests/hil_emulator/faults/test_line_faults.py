@@ -7,15 +7,17 @@ import pytest
 
 from hil_emulator.errors import EmulatorConfigError, FaultPlanError
 from hil_emulator.faults import make_fault
+from hil_emulator.faults.line import BurstDropout
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.hand import Hand
 from host.hand_session import HandSession
+from tests.ground_truth import arm_rig_of, hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, arm_ping_answered, host_of
 
 
 def test_arm_bus_bit_errors_loss_bursts_jam_and_cut_each_clear() -> None:
     emu = FaultyEmulator("arm", seed=1, physics=False)
-    bus = emu.arm.bus  # type: ignore[union-attr]
+    bus = arm_rig_of(emu).bus
     assert arm_ping_answered(emu)
     for name, params in (("bus_bit_errors", {"rate": 0.5}), ("bus_frame_loss",
                          {"probability": 1.0}), ("line_cut", {}), ("stuck_driver", {}),
@@ -50,6 +52,7 @@ def test_a_tendon_load_driven_burst_dropout_loses_more_frames_the_harder_the_fin
         plant = emu.finger_plants[1]
         fault = make_fault("burst_dropout", {"bus": "tendon1", "p_enter": 0.2, "p_leave": 0.3,
                                              "tendon_torque_nm": 0.5})
+        assert isinstance(fault, BurstDropout)
         emu.faults.inject(fault)
 
         def loss_rate_over_500_ms() -> tuple[float, float]:
@@ -83,11 +86,12 @@ def test_a_tendon_load_driven_burst_dropout_needs_a_tendon_bus_and_physics(hand:
         make_fault("burst_dropout", {"bus": "tendon0", "tendon_torque_nm": 0.0})
     with pytest.raises(EmulatorConfigError, match="no physics"):
         hand.faults.inject("burst_dropout", {"bus": "tendon2", "tendon_torque_nm": 0.5})
-    assert hand.hand.fingers[2].tendon_bus.fault_filter is None  # type: ignore[union-attr]
+    bus = hand_rig_of(hand).fingers[2].tendon_bus
+    assert bus is not None and bus.fault_filter is None
 
 
 def test_tendon_chip_errors_garble_characters_until_cleared(hand: FaultyEmulator) -> None:
-    bus = hand.hand.fingers[1].tendon_bus  # type: ignore[union-attr]
+    bus = hand_rig_of(hand).fingers[1].tendon_bus
     assert bus is not None
     before = bus.manchester_bad_characters
     entry = hand.faults.inject("tendon_chip_errors", {"finger": 1, "rate": 0.02})
@@ -110,7 +114,7 @@ def test_a_cut_tendon_line_silences_the_phalanges_only(hand: FaultyEmulator) -> 
 
 def test_tendon_glitch_within_hold_up_is_ridden_through_beyond_it_reboots(hand: FaultyEmulator
                                                                            ) -> None:
-    f2 = hand.hand.fingers[0].f2  # type: ignore[union-attr]
+    f2 = hand_rig_of(hand).fingers[0].f2
     boots = f2.boots
     hand.faults.inject("tendon_glitch", {"finger": 0, "duration_us": 1_500})
     hand.step(20 * MS)

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import pytest
 
+from firmware_py.sim.virtual_sensors import VirtualSensors
+from tests.ground_truth import hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, host_of
 
 
 def test_node_hang_reset_and_reset_storm(hand: FaultyEmulator) -> None:
     host = host_of(hand)
-    fmcb = hand.hand.fingers[2].fmcb  # type: ignore[union-attr]
+    fmcb = hand_rig_of(hand).fingers[2].fmcb
     entry = hand.faults.inject("node_hang", {"node": "finger2.fmcb"})
     assert not answers(host.fingers[2].motor)
     hand.faults.clear(entry)
@@ -25,7 +27,9 @@ def test_node_hang_reset_and_reset_storm(hand: FaultyEmulator) -> None:
 
 
 def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: FaultyEmulator) -> None:
-    sensors = hand.hand.fingers[0].f2.hal.sensors  # type: ignore[union-attr]
+    assert hand.hand is not None
+    sensors = hand.hand.fingers[0].f2.hal.sensors
+    assert isinstance(sensors, VirtualSensors)
     true = sensors.read("strain")
     assert isinstance(true, int)
     for params, check in (({"mode": "stuck", "value": 1234}, lambda v: v == 1234),
@@ -43,7 +47,9 @@ def test_a_sensor_stuck_biased_or_noisy_and_restored(hand: FaultyEmulator) -> No
 
 def test_a_misaligned_accelerometer_reads_the_vector_rotated_and_is_restored(hand: FaultyEmulator
                                                                             ) -> None:
-    sensors = hand.hand.fingers[1].f3.hal.sensors  # type: ignore[union-attr]
+    assert hand.hand is not None
+    sensors = hand.hand.fingers[1].f3.hal.sensors
+    assert isinstance(sensors, VirtualSensors)
     sensors.set_accel(0, 0, 1000)  # 1 g along its z axis
     entry = hand.faults.inject("sensor_fault", {"node": "finger1.f3", "channel": "accel",
                                                 "mode": "misaligned", "angle_deg": 90.0,
