@@ -18,7 +18,8 @@ from protocol.compiled_guard import PURE_PYTHON_ENV
 from tools import build_compiled
 from tools.build_compiled import COMPILED_MODULES, ROOT, clean, compiled_files, is_built
 
-#: What the slow test compiles: the scheduler, the CRCs and the frame codec (every frame and tick).
+#: What the slow test compiles: the scheduler, the HAL's interfaces and the virtual board
+#: (every tick and every peripheral call goes through them).
 SMOKE_MODULES = COMPILED_MODULES[:3]
 #: What a compiled traffic record needs besides the compiled modules themselves.
 PACKAGES = ("protocol", "firmware_py", "hil_emulator", "tools")
@@ -208,7 +209,7 @@ def test_the_default_build_and_pure_python_send_the_same_traffic() -> None:
 def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
     """Build into a copy of the packages, then compare the traffic digest with pure Python.
 
-    The clock, the CRCs and the frame codec only (:data:`SMOKE_MODULES`): building all of
+    The scheduler, the HAL and the virtual board only (:data:`SMOKE_MODULES`): building all of
     ``COMPILED_MODULES`` takes about five minutes, too long for ``make test``; the same
     build path compiles the rest (``make compiled``)."""
     if shutil.which("cc") is None and shutil.which("gcc") is None:
