@@ -48,7 +48,7 @@ from benchmarks import wakeup_probe
 from benchmarks.harness import Result
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import bring_up
-from hil_emulator.scheduling import request_priority
+from host.scheduling import request_priority
 from protocol import dynamixel as dxl
 from protocol.compiled_guard import PURE_PYTHON_ENV
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, TABLES_BY_MODEL

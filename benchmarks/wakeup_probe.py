@@ -17,7 +17,7 @@ import json
 import time
 from typing import Final
 
-from hil_emulator.scheduling import priority_for
+from host.scheduling import priority_for
 
 #: The probe's sleep (s): about the emulator's gap between events.
 SLEEP_S: Final = 0.0002

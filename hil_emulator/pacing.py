@@ -23,7 +23,7 @@ import numpy as np
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.host_links import HostLink, Port, PtyBacked
-from hil_emulator.scheduling import RT_BUSY_LIMIT_S, RT_YIELD_S, Scheduling, priority_for
+from host.scheduling import Scheduling, priority_for
 
 #: Longest the real-time loop sleeps without looking at its stop flag (s); host input and
 #: signals wake it earlier.
@@ -52,6 +52,11 @@ LATE_EPISODE_END_S: Final = 1.0
 MAX_BEHIND_S: Final = 0.02
 #: Lateness samples kept for :meth:`Pacer.lateness_stats`.
 LATENESS_SAMPLES: Final = 200_000
+#: A real-time loop busy this long (s) without sleeping (the simulation cannot keep up)
+#: sleeps :data:`RT_YIELD_S` before it goes on: at least a tenth of its core stays free.
+RT_BUSY_LIMIT_S: Final = 0.05
+#: How long (s) such a loop gives the CPU away.
+RT_YIELD_S: Final = 0.005
 
 
 def tighten_timer_slack(slack_ns: int = TIMER_SLACK_NS) -> bool:
@@ -83,7 +88,7 @@ class Pacer:
         #: it has caught up; the ``hil-emulator`` command prints it on standard error.
         self.on_late: Callable[[str], None] | None = None
         #: Told (one line of text) when the real-time loop starts: the scheduling it got
-        #: (:mod:`hil_emulator.scheduling`); the ``hil-emulator`` command prints it.
+        #: (:mod:`host.scheduling`); the ``hil-emulator`` command prints it.
         self.on_notice: Callable[[str], None] | None = None
         #: The pacing thread's scheduling during the last real-time :meth:`run`.
         self.scheduling: Scheduling | None = None
@@ -218,7 +223,7 @@ class Pacer:
         Fast: the simulation runs ``fast_chunk_us`` at a time as fast as it can, polling the
         ports between chunks.  ``on_idle`` is called about every 16 ms of wall time (the
         viewer's sync).  ``priority`` ``"realtime"`` asks for real-time scheduling of the
-        calling thread for the run (:func:`~hil_emulator.scheduling.priority_for`; real
+        calling thread for the run (:func:`~host.scheduling.priority_for`; real
         time only), told to :attr:`on_notice` and kept in :attr:`scheduling`; the thread
         gets its own scheduling back when the run ends."""
         self._realtime = realtime

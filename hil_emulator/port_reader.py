@@ -28,7 +28,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from hil_emulator.scheduling import Scheduling, adopt, current
+from host.scheduling import Scheduling, adopt, current
 
 #: Most bytes read from the pty in one go.
 READ_CHUNK = 65_536
@@ -41,7 +41,7 @@ class PortReader:
     space); called on the reader's thread.  ``decode`` turns what one read returned into
     the client's bytes (a packet-mode pty's :meth:`~hil_emulator.pty_port.PtyPort.unpacket`).
     The thread takes the real-time scheduling of the thread that creates it
-    (:func:`~hil_emulator.scheduling.adopt`): it holds the interpreter's lock while it
+    (:func:`~host.scheduling.adopt`): it holds the interpreter's lock while it
     queues, and the pacing thread must not wait behind it for a normal process's slice.
     """
 

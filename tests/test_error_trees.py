@@ -46,6 +46,8 @@ def _defined_exceptions(package: str) -> list[type[BaseException]]:
     return found
 
 
+@pytest.mark.process_wide("importing host's view modules starts rerun's runtime, kept for the "
+                          "process")
 @pytest.mark.parametrize("package", sorted(BASES))
 def test_every_exception_of_a_package_is_in_its_tree_and_listed(package: str) -> None:
     base = getattr(importlib.import_module(f"{package}.errors"), BASES[package])

@@ -17,7 +17,7 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.port_reader import PortReader
-from hil_emulator.scheduling import RT_PRIORITY, Scheduling, current, request_priority, rtprio_limit
+from host.scheduling import RT_PRIORITY, Scheduling, current, request_priority, rtprio_limit
 from tests.hil_emulator.emulator_process import ROOT
 
 ALLOWED = os.geteuid() == 0 or rtprio_limit() > 0

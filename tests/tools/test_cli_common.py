@@ -1,8 +1,10 @@
-"""The robot CLIs share one --port/--json/--timeout and one error-to-exit-status mapping."""
+"""The robot CLIs share one --port/--json/--timeout/--priority and one error-to-exit-status
+mapping."""
 
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Callable
 
 import pytest
@@ -17,6 +19,7 @@ from host.errors import (
 )
 from host.hand import Hand
 from host.hand_session import LINK_BUDGET_S, HandSession, Timeouts
+from host.scheduling import Scheduling, current, rtprio_limit
 from host.transport import open_transport, schemes
 from protocol.messages.common import TxnStatus
 from tools.cli import armctl, flash_all_fingers, handctl
@@ -184,3 +187,48 @@ def test_a_timeout_of_ping_itself_does_not_say_try_ping() -> None:
                                                                   "status")
     text = cli_common.advice(exc, "./robot/arm", "armctl", "ping")
     assert "ping`" not in text and "power and cabling" in text
+
+
+def _scheduling_seen(argv: list[str]) -> tuple[int, Scheduling]:
+    """Run a command line of the common options with a body that records the scheduling
+    its thread has; the exit status and what it saw."""
+    parser = argparse.ArgumentParser(prog="probe")
+    cli_common.add_common_arguments(parser, what="a port")
+    seen: list[Scheduling] = []
+
+    def body(args: argparse.Namespace) -> int:
+        seen.append(current())
+        return 0
+
+    return cli_common.run_cli(parser, argv, body), seen[0]
+
+
+@pytest.mark.skipif(not (os.geteuid() == 0 or rtprio_limit() > 0),
+                    reason="real-time scheduling is not allowed here")
+@pytest.mark.parametrize("port", ["/dev/pts/99", "can://slcan//dev/ttyACM0"])
+def test_a_command_on_a_real_link_runs_real_time_and_gives_it_back(port: str) -> None:
+    before = current()
+    if before.realtime:
+        pytest.skip("the tests themselves run real-time (started under chrt)")
+    status, seen = _scheduling_seen(["--port", port])
+    assert status == 0
+    assert seen.realtime and seen.policy == "SCHED_RR"
+    assert current() == before  # the thread has its own scheduling back
+
+
+@pytest.mark.parametrize("argv", [["--port", "emu://arm/arm"],
+                                  ["--port", "/dev/pts/99", "--priority", "normal"]])
+def test_in_process_links_and_priority_normal_leave_the_scheduling(argv: list[str]) -> None:
+    before = current()
+    status, seen = _scheduling_seen(argv)
+    assert status == 0
+    assert seen == before and not seen.realtime
+
+
+@pytest.mark.parametrize("name", sorted(CLIS))
+def test_every_cli_takes_priority_and_refuses_another_word(
+        name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert CLIS[name](["--help"]) == 0
+    assert "--priority {realtime,normal}" in " ".join(capsys.readouterr().out.split())
+    assert CLIS[name](["--port", "loop://", "--priority", "high", *COMMAND[name]]) == 2
+    assert "invalid choice: 'high'" in capsys.readouterr().err

@@ -33,8 +33,10 @@ def _help(entry: str, argv: list[str], capsys: pytest.CaptureFixture[str]) -> st
 def test_every_command_and_subcommand_answers_help(
         command: str, capsys: pytest.CaptureFixture[str]) -> None:
     text = _help(SCRIPTS[command], [], capsys)
-    choices = re.search(r"\{([a-z0-9_,-]+)\}", text)
-    subcommands = choices.group(1).split(",") if choices else []
+    # the subcommands' choices: the first {a,b,...} that is not an option's (--priority {..})
+    choices = [m.group(2) for m in re.finditer(r"(--[\w-]+ )?\{([a-z0-9_,-]+)\}", text)
+               if m.group(1) is None]
+    subcommands = choices[0].split(",") if choices else []
     for sub in subcommands:
         if command == "hil-bench" and sub == "experiments":
             continue  # hands its words to tools.experiments.dissertation, tested with hil-bench

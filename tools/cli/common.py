@@ -1,5 +1,6 @@
-"""What every robot command line shares: ``--port``, ``--json``, ``--timeout``, and one
-mapping from errors to a message saying what to do next and an exit status.
+"""What every robot command line shares: ``--port``, ``--json``, ``--timeout``,
+``--priority``, and one mapping from errors to a message saying what to do next and an exit
+status.
 
 Exit statuses (every CLI built on :func:`run_cli`):
 
@@ -19,6 +20,12 @@ simulation clock makes wire times exact; 100 ms over a serial port or pty, where
 adapter's 16 ms latency timer and a busy machine add up; 100 ms on CAN; 250 ms over the
 network).  On the arm's bus it is the adapter latency added to each exchange's computed
 wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 100 ms otherwise).
+
+``--priority realtime`` (the default) runs the command with real-time scheduling where Linux
+allows it (root, ``CAP_SYS_NICE``, an ``rtprio`` limit: :mod:`host.scheduling`), silently
+running on as it was where not: on a busy machine a normally scheduled host's 10 ms cycles
+come 30-70 ms apart.  A command on an in-process link (``emu://``, the simulation clock,
+which runs as fast as the CPU allows) never asks for it; ``--priority normal`` leaves it.
 """
 
 from __future__ import annotations
@@ -43,6 +50,7 @@ from host.errors import (
     UsageError,
 )
 from host.hand_session import Timeouts
+from host.scheduling import PRIORITIES, priority_for
 from host.transport import link_kind, schemes
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
@@ -55,8 +63,8 @@ EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
 EXIT_USAGE: Final = 2
 __all__ = ["EXIT_BROKEN_PIPE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE",
-           "add_common_arguments", "advice", "hand_timeouts", "parse", "port_help", "run",
-           "run_cli", "unwritable"]
+           "add_common_arguments", "advice", "command_priority", "hand_timeouts", "parse",
+           "port_help", "run", "run_cli", "unwritable"]
 
 
 def port_help(what: str) -> str:
@@ -84,14 +92,18 @@ def unwritable(path: str) -> str | None:
 
 def add_common_arguments(parser: argparse.ArgumentParser, *, what: str,
                          timeout_default: str = "by link kind") -> None:
-    """``--port`` (required), ``--json`` and ``--timeout`` (dest ``link_timeout``, so a
-    sub-command may have its own ``--timeout``)."""
+    """``--port`` (required), ``--json``, ``--timeout`` (dest ``link_timeout``, so a
+    sub-command may have its own ``--timeout``) and ``--priority``."""
     parser.add_argument("--port", required=True, metavar="P", help=port_help(what))
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
     parser.add_argument("--timeout", dest="link_timeout", type=number_above(0, what="a time"),
                         default=None, metavar="S",
                         help="link budget (s) on top of wire times; raise it for slow USB "
                              f"adapters or a busy machine (default: {timeout_default})")
+    parser.add_argument("--priority", choices=PRIORITIES, default="realtime",
+                        help="real-time scheduling for the command where allowed (root, "
+                             "CAP_SYS_NICE, an rtprio limit), never on emu://: steady cycles "
+                             "on a busy machine (default: realtime)")
 
 
 def hand_timeouts(args: argparse.Namespace) -> Timeouts:
@@ -216,5 +228,13 @@ def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
     args = parse(parser, argv)
     if isinstance(args, int):
         return args
-    return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint,
-               command=getattr(args, "command", None))
+    with priority_for(command_priority(args.port, args.priority)):
+        return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint,
+                   command=getattr(args, "command", None))
+
+
+def command_priority(port: str, priority: str) -> str:
+    """The scheduling a command on ``port`` asks for with ``--priority`` ``priority``:
+    ``"normal"`` on an in-process link (simulated time, as fast as the CPU allows: real time
+    there would take a core from the machine and gain nothing), else ``priority``."""
+    return "normal" if link_kind(port) == "in-process" else priority

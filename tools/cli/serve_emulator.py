@@ -53,7 +53,7 @@ from hil_emulator.faults.control import ControlChannel
 from hil_emulator.inprocess import bring_up
 from hil_emulator.robot import CONFIGS
 from hil_emulator.scene_model import SCENES
-from hil_emulator.scheduling import PRIORITIES
+from host.scheduling import PRIORITIES
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
 

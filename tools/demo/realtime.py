@@ -21,6 +21,7 @@ from typing import Any
 
 from host.arm import Arm
 from host.hand import Hand
+from host.scheduling import priority_for
 from tools.build_compiled import ROOT
 from tools.demo.script import Demo, judge, open_watch, run_session, write_run_report
 from tools.errors import DemoFailed
@@ -131,7 +132,9 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
             demo = Demo(hand, arm, out, palm_port=ports["palm"], reopen_hand=reopen_hand)
             demo.wall0 = wall0
             try:
-                run_session(demo, out)
+                with priority_for("realtime") as got:  # steady host cycles on a busy machine
+                    say(got.describe("the demo's control loop"))
+                    run_session(demo, out)
             finally:
                 demo.hand.close()
                 arm.close()

@@ -1,14 +1,17 @@
-"""Real-time scheduling for the thread that paces the simulation to the wall clock.
+"""Real-time scheduling for a thread the robot's timing hangs on: a host's control loop
+(the robot CLIs' ``--priority``), the emulator's pacing thread.
 
-On a busy machine a normally scheduled emulator waits for the CPU behind other processes,
-and its replies come late.  :func:`request_priority` asks Linux for ``SCHED_RR`` at a modest
+On a busy machine a normally scheduled process waits for the CPU behind other processes: a
+host's 10 ms cycles come 30-70 ms apart and its node watchdogs come near their timeout, an
+emulator's replies come late.  :func:`request_priority` asks Linux for ``SCHED_RR`` at a modest
 priority (:data:`RT_PRIORITY`) for the calling thread only, where that is allowed (root,
 ``CAP_SYS_NICE`` — ``setcap cap_sys_nice+ep`` on the interpreter —, or an ``rtprio`` limit
 from ``/etc/security/limits.d``); where it is not, the thread runs on as it was.  Children
 never inherit it (``SCHED_RESET_ON_FORK``), and neither do the threads it starts: a thread
-that shares the interpreter's lock with the pacing thread takes it with :func:`adopt`.  The real-time loop sleeps between events and
-yields the CPU when it has been busy for long (:data:`RT_BUSY_LIMIT_S`), so a real-time
-emulator never takes a core from the machine for good.
+that shares the interpreter's lock with the real-time thread takes it with :func:`adopt`.
+A real-time thread must sleep between its cycles (the host's waits on its link, the
+emulator's between events, with a yield when busy for long), so it never takes a core from
+the machine for good.
 """
 
 from __future__ import annotations
@@ -25,16 +28,11 @@ PRIORITIES: Final = ("realtime", "normal")
 #: The real-time priority asked for (1 lowest … 99 highest): above every normal process,
 #: below the kernel's own real-time threads (50) and audio servers.
 RT_PRIORITY: Final = 10
-#: A real-time loop busy this long (s) without sleeping (the simulation cannot keep up)
-#: sleeps :data:`RT_YIELD_S` before it goes on: at least a tenth of its core stays free.
-RT_BUSY_LIMIT_S: Final = 0.05
-#: How long (s) such a loop gives the CPU away.
-RT_YIELD_S: Final = 0.005
 
 
 @dataclass(frozen=True)
 class Scheduling:
-    """What the pacing thread got: ``policy`` (``SCHED_RR``, ``SCHED_FIFO`` or
+    """What a thread got: ``policy`` (``SCHED_RR``, ``SCHED_FIFO`` or
     ``SCHED_OTHER``), its ``priority`` (0 for ``SCHED_OTHER``) and, when it asked for
     real time and did not get it, ``why`` not."""
 
@@ -47,13 +45,13 @@ class Scheduling:
         """True with a real-time policy."""
         return self.policy != "SCHED_OTHER"
 
-    def describe(self) -> str:
-        """One line for standard error."""
+    def describe(self, thread: str = "the simulation thread") -> str:
+        """One line for standard error, ``thread`` naming what got it."""
         if self.realtime:
-            return (f"real-time scheduling: {self.policy} priority {self.priority} for the "
-                    "simulation thread")
+            return (f"real-time scheduling: {self.policy} priority {self.priority} for "
+                    f"{thread}")
         if self.why:
-            return (f"normal scheduling ({self.why}); replies may come late on a busy "
+            return (f"normal scheduling ({self.why}); {thread} may run late on a busy "
                     "machine: see 'Real-time scheduling' in docs/EMULATOR.md to allow it")
         return "normal scheduling (--priority normal)"
 
@@ -137,9 +135,9 @@ def adopt(scheduling: Scheduling) -> Scheduling:
     started it got: ``SCHED_RESET_ON_FORK`` keeps new threads from inheriting it); returns
     what the calling thread has afterwards.
 
-    A helper thread of the real-time loop (a port's reader) holds the interpreter's lock
+    A helper thread of a real-time loop (an emulator port's reader) holds the interpreter's lock
     while it queues bytes; left at normal priority, a CPU-bound process can preempt it
-    there, and the pacing thread then waits for the lock for a scheduler slice (several ms)
+    there, and the real-time thread then waits for the lock for a scheduler slice (several ms)
     however high its own priority.  Refused (no privilege any more), the thread runs on as
     it is."""
     if not scheduling.realtime or not hasattr(os, "SCHED_RR"):
