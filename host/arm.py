@@ -24,7 +24,8 @@ RS-485 bus; the emulator honours it); ``return_delay=None`` leaves the nodes as 
 The register is in EEPROM: it persists.
 
 **The command watchdog.**  :meth:`open` sets the stepper nodes' ``watchdog_timeout``
-(:data:`HOST_WATCHDOG_MS`): a node that hears nothing from this host for that long while it
+(:data:`HOST_WATCHDOG_MS`; the robot CLIs, which run real-time where allowed, give
+:func:`host_watchdog_ms`, 50 ms then): a node that hears nothing from this host for that long while it
 moves stops and holds (:meth:`set_watchdog`); a cycle that finds one stopped so while this
 arm is still cycling sends it its goal again with the next cycle.
 
@@ -94,6 +95,7 @@ from host.arm_stop_model import (
 from host.arm_trajectory import SERVO_GOAL_LEAD_S, Vector, servo_lead
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
+from host.scheduling import Scheduling
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
@@ -132,6 +134,19 @@ UNHOMED_STEPPER_SPEED: Final = 0.5
 #: after this long, their motors still within about 0.2 s; ten of the 10 ms cycles a move
 #: runs.
 HOST_WATCHDOG_MS: Final = 100
+#: The watchdog (ms) for a host whose cycles run with real-time scheduling
+#: (:func:`host_watchdog_ms`): they come within a few ms of their 10 ms even beside
+#: CPU-bound processes (through the emulator's ptys beside three: at most 24 ms apart in
+#: 5 499 cycles, against 72 ms normally scheduled), so five cycles leave room, and a host
+#: that vanishes leaves the steppers braking 50 ms sooner.
+HOST_WATCHDOG_REALTIME_MS: Final = 50
+
+
+def host_watchdog_ms(scheduling: Scheduling) -> int:
+    """The stepper watchdog (ms) for a host whose cycles run with ``scheduling``
+    (:func:`host.scheduling.current` of the thread that cycles):
+    :data:`HOST_WATCHDOG_REALTIME_MS` real-time, else :data:`HOST_WATCHDOG_MS`."""
+    return HOST_WATCHDOG_REALTIME_MS if scheduling.realtime else HOST_WATCHDOG_MS
 
 
 class Arm:
@@ -638,7 +653,8 @@ def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
 #: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
 #: in) the free functions and types its users import from here.
 __all__ = [
-    "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS", "MOVE_MIN_SPEED",
+    "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS",
+    "HOST_WATCHDOG_REALTIME_MS", "host_watchdog_ms", "MOVE_MIN_SPEED",
     "MOVE_RAMP_S", "ramped_speeds",
     "RESYNC_MIN_COUNTS", "SERVO_GOAL_LEAD_S", "servo_lead", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
     "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",

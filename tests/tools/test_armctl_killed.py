@@ -16,7 +16,10 @@ from typing import Any
 
 import pytest
 
-from protocol.control_tables import StepperFlag
+from host.arm import HOST_WATCHDOG_MS, HOST_WATCHDOG_REALTIME_MS
+from host.arm_state import JOINT_IDS, N_STEPPERS
+from host.scheduling import rtprio_limit
+from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from tests.hil_emulator.emulator_process import (
     HANG_GUARD_S,
     ROOT,
@@ -89,3 +92,37 @@ def test_armctl_killed_mid_move_leaves_the_arm_held() -> None:
             assert not node["status_flags"] & latches and not node["alarms"], dxl_id
         code, second = armctl(port, "status")
         assert code == 0 and second["torque"] == [True] * 7 and second["watchdog"][1]
+
+
+def _watchdog_ms(port: str) -> list[int]:
+    """The stepper nodes' ``watchdog_timeout`` (ms) as the stock dynamixel-sdk reads it."""
+    import dynamixel_sdk as sdk
+
+    reg = STEPPER_TABLE["watchdog_timeout"]
+    handler = sdk.PortHandler(port)
+    assert handler.openPort() and handler.setBaudRate(1_000_000)
+    try:
+        packets = sdk.PacketHandler(1.0)
+        values = []
+        for dxl_id in JOINT_IDS[:N_STEPPERS]:
+            value, result, error = packets.read2ByteTxRx(handler, dxl_id, reg.address)
+            assert result == sdk.COMM_SUCCESS and error == 0, (dxl_id, result, error)
+            values.append(value)
+        return values
+    finally:
+        handler.closePort()
+
+
+@pytest.mark.slow
+def test_armctl_gives_the_nodes_the_watchdog_its_scheduling_keeps() -> None:
+    """A real-time armctl (its default where allowed) cycles within a few ms of its 10 ms on
+    a busy machine, so it gives the stepper nodes the shorter watchdog; with ``--priority
+    normal`` the longer one."""
+    with running_emulator("--config", "arm", "--can", "none") as info:
+        port = info["arm"]
+        assert armctl(port, "--priority", "normal", "status")[0] == 0
+        assert _watchdog_ms(port) == [HOST_WATCHDOG_MS] * N_STEPPERS
+        if not (os.geteuid() == 0 or rtprio_limit() > 0):
+            return  # real time not allowed here: the default is the normal case above
+        assert armctl(port, "status")[0] == 0
+        assert _watchdog_ms(port) == [HOST_WATCHDOG_REALTIME_MS] * N_STEPPERS

@@ -50,12 +50,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from host.arm import Arm, off_goal, open_bus
+from host.arm import Arm, host_watchdog_ms, off_goal, open_bus
 from host.arm_gate import check_cartesian, check_finite, require_torque
 from host.arm_homing import restore
 from host.arm_rest import RestWatch
 from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
+from host.scheduling import current
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
 from tools.cli.commands import Commands
@@ -460,7 +461,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         if not COMMANDS[args.command].opens:
             return COMMANDS.run_alone(args, stream)
         arm = Arm.open(args.port, return_delay=None if args.keep_return_delay else 0,
-                       latency_s=args.link_timeout, view=view_spec(args))
+                       latency_s=args.link_timeout, view=view_spec(args),
+                       watchdog_ms=host_watchdog_ms(current()))  # real-time: 50 ms
         with arm:
             return COMMANDS.run(arm, args, stream)
 

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from host.arm import Arm
+from host.arm import Arm, host_watchdog_ms
 from host.hand import Hand
 from host.scheduling import priority_for
 from tools.build_compiled import ROOT
@@ -134,6 +134,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
             try:
                 with priority_for("realtime") as got:  # steady host cycles on a busy machine
                     say(got.describe("the demo's control loop"))
+                    arm.set_watchdog(host_watchdog_ms(got))
                     run_session(demo, out)
             finally:
                 demo.hand.close()
