@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -159,7 +160,7 @@ def test_a_second_signal_does_not_cut_the_hold_short() -> None:
 # ----------------------------------------------------------------------------- over ptys
 
 
-def _truth_over_control(info: dict[str, object]) -> dict[str, object]:
+def _truth_over_control(info: dict[str, object]) -> dict[str, Any]:
     return dict(ask(info, "truth")["arm"])
 
 
@@ -180,7 +181,7 @@ def test_ctrl_c_of_armctl_over_a_pty_holds_the_arm_where_it_was() -> None:
                                 stderr=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + HANG_GUARD_S
-            while _truth_over_control(info)["joints"][1] < 0.3:  # type: ignore[index]
+            while _truth_over_control(info)["joints"][1] < 0.3:
                 assert time.monotonic() < deadline and move.poll() is None
                 time.sleep(0.02)
             move.send_signal(signal.SIGINT)
@@ -188,14 +189,14 @@ def test_ctrl_c_of_armctl_over_a_pty_holds_the_arm_where_it_was() -> None:
         finally:
             if move.poll() is None:
                 move.kill()
-        at = np.array(_truth_over_control(info)["joints"])  # type: ignore[arg-type]
+        at = np.array(_truth_over_control(info)["joints"])
         assert move.returncode == 130, err
         assert err.strip().startswith("armctl: interrupted; the arm: held where they were, "
                                       "torque on: J1 "), err
         wait_simulated(info, 2.0)
         truth = _truth_over_control(info)
-        moved = np.abs(np.array(truth["joints"]) - at)  # type: ignore[arg-type]
+        moved = np.abs(np.array(truth["joints"]) - at)
         assert float(moved.max()) <= math.radians(2.0), moved
         nodes = truth["nodes"]
-        assert all(n["torque_enable"] == 1 and n["alarms"] == 0  # type: ignore[index]
-                   for n in nodes.values()), nodes  # type: ignore[attr-defined]
+        assert all(n["torque_enable"] == 1 and n["alarms"] == 0
+                   for n in nodes.values()), nodes
