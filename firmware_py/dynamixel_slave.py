@@ -263,20 +263,22 @@ class DynamixelSlave:
         half-received, and not the status packet a BULK_READ turn waits for).  A bus model
         may leave such a packet undelivered (:meth:`hil_emulator.rs485_bus.Rs485Bus.attach`).
         """
-        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
-                and data[3] + 4 == len(data) and data[2] != self.bus_id
-                and data[2] != BROADCAST_ID and not self._decoder.pending):
-            wait = self._bulk_wait
-            return (wait is not None and wait[0] == data[2]
-                    and ~sum(data[2:-1]) & 0xFF == data[-1])
+        n = len(data)
+        if n >= 6 and data[3] + 4 == n and data[0] == 0xFF and data[1] == 0xFF:
+            target = data[2]
+            if target != self.bus_id and target != BROADCAST_ID and not self._decoder.held:
+                wait = self._bulk_wait
+                return (wait is not None and wait[0] == target
+                        and ~sum(data[2:-1]) & 0xFF == data[-1])
         return True
 
     def _on_bytes(self, data: bytes, t_us: int) -> None:
         # One whole packet for another node and nothing half-received: like the real
         # firmware, look at the ID byte and let the packet pass (a BULK_READ in progress
         # only needs to know, from a packet with a good checksum, whose turn has passed).
-        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
-                and data[3] + 4 == len(data) and not self._decoder.pending):
+        n = len(data)
+        if (n >= 6 and data[3] + 4 == n and data[0] == 0xFF and data[1] == 0xFF
+                and not self._decoder.held):
             if data[2] != self.bus_id and data[2] != BROADCAST_ID:
                 if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
                     self._bulk_heard(data[2])

@@ -97,8 +97,9 @@ class _TickGroup:
         t = sched.now
         period = self.period_us
         members = self.members
+        n = len(members)
         i = self.next_index
-        if i >= len(members):  # a new firing (not the rest of one)
+        if i >= n:  # a new firing (not the rest of one)
             i = self.next_index = 0
             self.ahead = 0
             self.next_t = t + period
@@ -109,17 +110,14 @@ class _TickGroup:
         # (their sequence numbers are older).
         first_seq = queue[0][1] if queue and queue[0][0] == t else _UNBOUNDED
         # ``i`` is the member's index; ``next_index`` is kept up to date whenever anything
-        # else may run (a callback may join the group, which reads it).  The loop ends at
-        # the end of the list (an IndexError: costs nothing until raised, unlike a len()
-        # call per member; a callback may add members).
-        while True:
-            try:
-                m = members[i]
-            except IndexError:
-                break
+        # else may run (a callback may join the group, which reads it and moves it on:
+        # then ``n``, the number of members, is counted again).
+        while i < n:
+            m = members[i]
             cb = m.callback
             if cb is None:  # cancelled: leaves the group
                 del members[i]
+                n -= 1
                 continue
             if m.t_us != t:  # joined for the next firing
                 i += 1
@@ -134,12 +132,14 @@ class _TickGroup:
             i += 1
             self.next_index = i
             cb()
-            i = self.next_index
-        self.next_index = len(members)
-        if members:
+            if self.next_index != i:  # a timer joined during the callback
+                i = self.next_index
+                n = len(members)
+        self.next_index = n
+        if n:
             # The entry's key: the first member due at the next firing (those ahead, which
             # joined during this one, sit it out), or, if none is, the first of them.
-            first = members[self.ahead] if self.ahead < len(members) else members[0]
+            first = members[self.ahead] if self.ahead < n else members[0]
             self._push(first.t_us, first.seq)
         else:
             sched._forget_group(self)

@@ -204,7 +204,8 @@ class NormalStream:
 def strain_counts(moment_nm: float, noise: float) -> int:
     """Strain ADC counts for a bending moment (N·m), clamped to the 24-bit signed range."""
     counts = round(moment_nm * STRAIN_COUNTS_PER_NM + noise)
-    return max(-STRAIN_MAX - 1, min(STRAIN_MAX, counts))
+    low = -STRAIN_MAX - 1
+    return low if counts < low else STRAIN_MAX if counts > STRAIN_MAX else counts
 
 
 def thermistor_counts(temperature_c: float) -> float:
