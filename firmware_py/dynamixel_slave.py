@@ -410,12 +410,17 @@ class DynamixelSlave:
 
     def _bulk_read(self, entries: list[tuple[int, int, int]]) -> None:
         bus_id = self.bus_id
-        # This node's (first) entry: the node answers k-th.
-        k = next((i for i, entry in enumerate(entries) if entry[1] == bus_id), -1)
-        if k < 0:
+        # This node's (first) entry: the node answers k-th, after ``earlier`` bytes of data.
+        k = earlier = 0
+        for entry in entries:
+            if entry[1] == bus_id:
+                break
+            earlier += entry[0]
+            k += 1
+        else:
             return
+        length, _, address = entry
         self.host_heard()
-        length, _, address = entries[k]
         self.before_read()
         try:
             data = self.table.read(self.image, address, length)
@@ -436,8 +441,7 @@ class DynamixelSlave:
             self._send_later(delay, raw, None)
 
         # Bytes of the earlier replies: 6 per status packet plus its data.
-        earlier = sum(entry[0] for entry in entries[:k]) + 6 * k
-        fallback = self.uart.wire_time_us(earlier) + k * BULK_SLOT_US
+        fallback = self.uart.wire_time_us(earlier + 6 * k) + k * BULK_SLOT_US
         timer = self.hal.clock.call_later(fallback, go)
         self._bulk_wait = (entries[k - 1][1], go, timer)
 

@@ -325,13 +325,25 @@ def parse_sync_write(params: bytes) -> tuple[int, int, dict[int, bytes]]:
     return address, length, result
 
 
+#: The last BULK_READ parameters parsed and their entries (every node on the bus parses
+#: each BULK_READ: the first does the work).
+_last_bulk_read: tuple[bytes, list[tuple[int, int, int]]] | None = None
+
+
 def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
-    """BULK_READ parameters -> ``[(length, id, address), ...]``."""
+    """BULK_READ parameters -> ``[(length, id, address), ...]`` (the same list for the same
+    parameters as the call before: do not change it)."""
+    global _last_bulk_read
+    last = _last_bulk_read
+    if last is not None and last[0] == params:
+        return last[1]
     if not params or params[0] != 0 or (len(params) - 1) % 3:
         parsed = wrap_construct(lambda: _BULK_READ.parse(params), "bulk read", DynamixelError)
         return [(int(e.length), int(e.id), int(e.address)) for e in parsed.entries]
-    # Fast path (every node parses every BULK_READ on the bus), checked against _BULK_READ.
-    return [(params[i], params[i + 1], params[i + 2]) for i in range(1, len(params), 3)]
+    # Fast path, checked against _BULK_READ.
+    entries = [(params[i], params[i + 1], params[i + 2]) for i in range(1, len(params), 3)]
+    _last_bulk_read = (bytes(params), entries)
+    return entries
 
 
 class FrameKind(Enum):
