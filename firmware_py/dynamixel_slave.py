@@ -263,20 +263,22 @@ class DynamixelSlave:
         half-received, and not the status packet a BULK_READ turn waits for).  A bus model
         may leave such a packet undelivered (:meth:`hil_emulator.rs485_bus.Rs485Bus.attach`).
         """
-        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
-                and data[3] + 4 == len(data) and data[2] != self.bus_id
-                and data[2] != BROADCAST_ID and not self._decoder.pending):
-            wait = self._bulk_wait
-            return (wait is not None and wait[0] == data[2]
-                    and ~sum(data[2:-1]) & 0xFF == data[-1])
+        n = len(data)
+        if n >= 6 and data[3] + 4 == n and data[0] == 0xFF and data[1] == 0xFF:
+            target = data[2]
+            if target != self.bus_id and target != BROADCAST_ID and not self._decoder.held:
+                wait = self._bulk_wait
+                return (wait is not None and wait[0] == target
+                        and ~sum(data[2:-1]) & 0xFF == data[-1])
         return True
 
     def _on_bytes(self, data: bytes, t_us: int) -> None:
         # One whole packet for another node and nothing half-received: like the real
         # firmware, look at the ID byte and let the packet pass (a BULK_READ in progress
         # only needs to know, from a packet with a good checksum, whose turn has passed).
-        if (len(data) >= 6 and data[0] == 0xFF and data[1] == 0xFF
-                and data[3] + 4 == len(data) and not self._decoder.pending):
+        n = len(data)
+        if (n >= 6 and data[3] + 4 == n and data[0] == 0xFF and data[1] == 0xFF
+                and not self._decoder.held):
             if data[2] != self.bus_id and data[2] != BROADCAST_ID:
                 if self._bulk_wait is not None and ~sum(data[2:-1]) & 0xFF == data[-1]:
                     self._bulk_heard(data[2])
@@ -408,12 +410,17 @@ class DynamixelSlave:
 
     def _bulk_read(self, entries: list[tuple[int, int, int]]) -> None:
         bus_id = self.bus_id
-        # This node's (first) entry: the node answers k-th.
-        k = next((i for i, entry in enumerate(entries) if entry[1] == bus_id), -1)
-        if k < 0:
+        # This node's (first) entry: the node answers k-th, after ``earlier`` bytes of data.
+        k = earlier = 0
+        for entry in entries:
+            if entry[1] == bus_id:
+                break
+            earlier += entry[0]
+            k += 1
+        else:
             return
+        length, _, address = entry
         self.host_heard()
-        length, _, address = entries[k]
         self.before_read()
         try:
             data = self.table.read(self.image, address, length)
@@ -434,8 +441,7 @@ class DynamixelSlave:
             self._send_later(delay, raw, None)
 
         # Bytes of the earlier replies: 6 per status packet plus its data.
-        earlier = sum(entry[0] for entry in entries[:k]) + 6 * k
-        fallback = self.uart.wire_time_us(earlier) + k * BULK_SLOT_US
+        fallback = self.uart.wire_time_us(earlier + 6 * k) + k * BULK_SLOT_US
         timer = self.hal.clock.call_later(fallback, go)
         self._bulk_wait = (entries[k - 1][1], go, timer)
 

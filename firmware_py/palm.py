@@ -188,7 +188,13 @@ class PalmApp(HandNode):
 
     def _scan_taxel(self) -> None:
         i = self._taxel_next
-        self.taxels[i] = self._scalar(_TAXEL_CHANNELS[i])
+        # self._scalar(_TAXEL_CHANNELS[i]), written out: it runs every millisecond.
+        try:
+            value = self.hal.sensors.read(_TAXEL_CHANNELS[i])
+        except HalError:
+            value = 0
+        v = int(value[0] if isinstance(value, tuple) else value)
+        self.taxels[i] = 0 if v < 0 else 0xFFFF if v > 0xFFFF else v
         self._taxel_next = (i + 1) % PALM_TAXELS
 
     def _rebuild_state(self) -> None:

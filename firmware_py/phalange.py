@@ -135,9 +135,12 @@ class _PhalangeApp(HandNode):
         value = self.hal.sensors.read(channel)
         if not isinstance(value, tuple) or len(value) != 3:
             raise HalError(f"sensor {channel!r} is not a 3-vector")
-        x, y, z = value
-        return (_clamp(int(x), _I16_MIN, _I16_MAX), _clamp(int(y), _I16_MIN, _I16_MAX),
-                _clamp(int(z), _I16_MIN, _I16_MAX))
+        # _clamp(int(v), _I16_MIN, _I16_MAX) of each, without the calls (eight phalanges,
+        # 100 times a second).
+        x, y, z = int(value[0]), int(value[1]), int(value[2])
+        return (_I16_MIN if x < _I16_MIN else _I16_MAX if x > _I16_MAX else x,
+                _I16_MIN if y < _I16_MIN else _I16_MAX if y > _I16_MAX else y,
+                _I16_MIN if z < _I16_MIN else _I16_MAX if z > _I16_MAX else z)
 
     def read_taxel(self, index: int) -> int:
         """Light taxel ``index`` and average :data:`ADC_SAMPLES` conversions (ADC counts)."""
@@ -163,7 +166,8 @@ class _PhalangeApp(HandNode):
         """The taxel inputs are about to change: read, as they are, the taxels of this
         scan due by now (those read in their own millisecond would have seen this)."""
         due = (self.hal.clock.now_us() - self._scan_start_us) // TAXEL_PERIOD_US
-        self._read_taxels(min(due, self.n_taxels))
+        n = self.n_taxels
+        self._read_taxels(due if due < n else n)
 
     def _end_scan(self) -> None:
         """The last taxel's millisecond: read the taxels not read yet, publish the scan."""

@@ -94,44 +94,52 @@ class _TickGroup:
         """One firing (or the rest of one the group gave way in): each due member in turn."""
         sched = self.scheduler
         queue, seq = sched._queue, sched._seq
-        t = sched._now
+        t = sched.now
         period = self.period_us
         members = self.members
+        n = len(members)
         i = self.next_index
-        if i >= len(members):  # a new firing (not the rest of one)
+        if i >= n:  # a new firing (not the rest of one)
             i = self.next_index = 0
             self.ahead = 0
             self.next_t = t + period
         next_t = t + period
+        # The events that must run before a member are those due now and scheduled before
+        # its turn: the queue's head (the earliest of them) is the one to look at, and it
+        # stays so, as whatever a callback schedules comes after every member still to run
+        # (their sequence numbers are older).
+        first_seq = queue[0][1] if queue and queue[0][0] == t else _UNBOUNDED
         # ``i`` is the member's index; ``next_index`` is kept up to date whenever anything
-        # else may run (a callback may join the group, which reads it).
-        while i < len(members):
+        # else may run (a callback may join the group, which reads it and moves it on:
+        # then ``n``, the number of members, is counted again).
+        while i < n:
             m = members[i]
             cb = m.callback
             if cb is None:  # cancelled: leaves the group
                 del members[i]
+                n -= 1
                 continue
             if m.t_us != t:  # joined for the next firing
                 i += 1
                 continue
-            if queue:
-                head = queue[0]
-                if head[0] == t and head[1] < m.seq:
-                    # An event scheduled before this member's turn comes first.
-                    self.next_index = i
-                    self._push(t, m.seq)
-                    return
+            if first_seq < m.seq:
+                # An event scheduled before this member's turn comes first.
+                self.next_index = i
+                self._push(t, m.seq)
+                return
             m.t_us = next_t
             m.seq = next(seq)
             i += 1
             self.next_index = i
             cb()
-            i = self.next_index
-        self.next_index = len(members)
-        if members:
+            if self.next_index != i:  # a timer joined during the callback
+                i = self.next_index
+                n = len(members)
+        self.next_index = n
+        if n:
             # The entry's key: the first member due at the next firing (those ahead, which
             # joined during this one, sit it out), or, if none is, the first of them.
-            first = members[self.ahead] if self.ahead < len(members) else members[0]
+            first = members[self.ahead] if self.ahead < n else members[0]
             self._push(first.t_us, first.seq)
         else:
             sched._forget_group(self)
@@ -167,7 +175,9 @@ class Scheduler:
     """Discrete-event scheduler with integer-microsecond time."""
 
     def __init__(self, start_us: int = 0) -> None:
-        self._now = start_us
+        #: Current simulation time (µs), read-only: what :meth:`now_us` returns, read by
+        #: the emulator's per-frame paths without the call.
+        self.now = start_us
         self._queue: list[tuple[int, int, TimerHandle]] = []
         self._seq = itertools.count()
         #: Per (period, phase): the tick group, or the one periodic timer with its own entry.
@@ -175,13 +185,13 @@ class Scheduler:
 
     def now_us(self) -> int:
         """Current simulation time (µs)."""
-        return self._now
+        return self.now
 
     def call_at(self, t_us: float, callback: Callback) -> TimerHandle:
         """Run ``callback`` at time ``t_us`` (µs, whole µs taken; not earlier than now)."""
         t = int(t_us)
-        if t < self._now:
-            t = self._now
+        if t < self.now:
+            t = self.now
         seq = next(self._seq)
         ev = TimerHandle(t, seq, callback)
         heappush(self._queue, (t, seq, ev))
@@ -189,8 +199,13 @@ class Scheduler:
 
     def call_later(self, delay_us: float, callback: Callback) -> TimerHandle:
         """Run ``callback`` once, ``delay_us`` µs from now."""
+        # call_at(now + delay), written out: the firmware's timers come this way.
         delay = int(delay_us)
-        return self.call_at(self._now + delay if delay > 0 else self._now, callback)
+        t = self.now + delay if delay > 0 else self.now
+        seq = next(self._seq)
+        ev = TimerHandle(t, seq, callback)
+        heappush(self._queue, (t, seq, ev))
+        return ev
 
     def call_every(self, period_us: float, callback: Callback, first_us: float | None = None
                    ) -> TimerHandle:
@@ -199,7 +214,7 @@ class Scheduler:
             raise ValueError("period must be positive")
         delay = period_us if first_us is None else first_us
         period = int(period_us)
-        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback, period)
+        ev = TimerHandle(self.now + max(0, int(delay)), next(self._seq), callback, period)
         key = (period, ev.t_us % period)
         shared = self._ticks.get(key)
         if isinstance(shared, _TickGroup):
@@ -274,7 +289,7 @@ class Scheduler:
             if cb is None:
                 pop(queue)
                 continue
-            self._now = when
+            self.now = when
             period = ev.period_us
             if period:
                 # Pop and re-push in one sift (the order popped is that of (t, seq) alone).
@@ -286,10 +301,10 @@ class Scheduler:
                 ev.callback = None
             cb()
             ran += 1
-        if ran < max_events and limit > self._now:
-            self._now = limit
+        if ran < max_events and limit > self.now:
+            self.now = limit
         return ran
 
     def run_for(self, duration_us: float) -> int:
         """Run for ``duration_us`` µs of simulation time."""
-        return self.run_until(self._now + int(duration_us))
+        return self.run_until(self.now + int(duration_us))

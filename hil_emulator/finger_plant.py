@@ -157,6 +157,10 @@ class _Winding:
         self.mode = _COAST
         self.sign = 0
         self.duty = 0.0
+        # The commands the tick's state was set from (before_step), None: not yet.
+        self.commanded: float | None = None
+        self.enabled = False
+        self.brake = False
         self.current = 0.0
         self.i2_sum = 0.0
 
@@ -264,6 +268,7 @@ class FingerPlant:
             model.actuator_biasprm[a, :3] = (0.0, 0.0, 0.0)
             model.tendon_armature[t] = motor.rotor_inertia_kg_m2
             model.tendon_frictionloss[t] = motor.friction_nm
+        self._powered: bool | None = None  # before_step sets every winding anew
         for i, winding in enumerate(self._windings):
             winding.act = self._act[i]
             winding.mode = _COAST
@@ -282,10 +287,27 @@ class FingerPlant:
     def before_step(self, dt_s: float) -> None:
         """Motor commands → actuator controls (duty) and bridge state; press forces."""
         powered = self.attached and self.fmcb.powered
+        if powered == self._powered:
+            # The commands of the last tick (a holding finger's fmcb sleeps): the modes,
+            # limits and controls set then stand (nothing else writes them).  ``!=`` on the
+            # duty, not ``is`` (compiled, the attribute is a C double): ±0.0 read alike,
+            # and drive alike (0·gain plus a bias that is never −0.0).
+            for winding in self._windings:
+                motor = winding.hal
+                if (motor.duty != winding.commanded or motor.enabled != winding.enabled
+                        or motor.brake != winding.brake):
+                    break
+            else:
+                if self._press_dirty or self._presses:
+                    self._apply_presses()
+                return
+        self._powered = powered
         ctrl = self._ctrl
         for i, winding in enumerate(self._windings):
             # What drive_command() returns, read without the call (twelve motors a tick).
             motor = winding.hal
+            winding.commanded, winding.enabled, winding.brake = (motor.duty, motor.enabled,
+                                                                 motor.brake)
             if not powered:
                 mode = _COAST
             elif motor.brake:

@@ -56,6 +56,8 @@ NTC_B_K: Final = 3950.0
 NTC_PULLUP_OHM: Final = 10_000.0
 THERMISTOR_FULL_SCALE: Final = 4096
 KELVIN: Final = 273.15
+#: True when this module runs from its source (pure Python), not compiled by mypyc.
+_FROM_SOURCE: Final = __file__.endswith(".py")
 
 
 #: Per IMU channel kind: counts per SI unit (m/s², gauss, rad/s) and the clamp (±counts).
@@ -82,6 +84,8 @@ class LinearCounts:
         #: Per run: (length, scale, offset, σ, lo, hi).
         self.runs = runs
         self.size = sum(run[0] for run in runs)
+        #: Per element: (scale, offset, σ, lo, hi) (:meth:`_counts_flat`).
+        self._constants = [run[1:] for run in runs for _ in range(run[0])]
 
     @classmethod
     def imu(cls, channels: list[tuple[str, float]]) -> LinearCounts:
@@ -120,6 +124,13 @@ class LinearCounts:
         Values are clamped to the integral bounds before rounding (the same integers as
         after; NaN reads as the low bound).
         """
+        if _FROM_SOURCE:
+            return self._counts_flat(raw, noise, at)
+        return self._counts_by_run(raw, noise, at)
+
+    def _counts_by_run(self, raw: list[float], noise: list[float], at: int) -> list[int]:
+        """:meth:`counts` a run at a time: the compiled core's loops keep the constants
+        unboxed."""
         out: list[int] = []
         n = len(raw)
         k = 0
@@ -133,6 +144,28 @@ class LinearCounts:
                 values += [offset + noise[j] * sigma for j in range(at + start, at + end)]
             out += [rint(v) if lo <= v <= hi else _clamped(v, lo, hi) for v in values]
             k = end
+        return out
+
+    def _counts_flat(self, raw: list[float], noise: list[float], at: int) -> list[int]:
+        """:meth:`counts` in one comprehension over the elements with raw values, then one
+        per run of unloaded elements (usually the one run of taxels): from source, a
+        comprehension's own cost, paid per run, was most of a refresh.  The same
+        operations in the same order as :meth:`_counts_by_run`."""
+        size = self.size
+        out = [rint(v) if lo <= (v := r * scale + offset + x * sigma) <= hi
+               else _clamped(v, lo, hi)
+               for r, x, (scale, offset, sigma, lo, hi)
+               in zip(raw, noise[at:at + size], self._constants, strict=False)]
+        n = len(out)
+        if n < size:
+            k = 0
+            for length, _, offset, sigma, lo, hi in self.runs:
+                end = k + length
+                if end > n:
+                    out += [rint(v) if lo <= (v := offset + x * sigma) <= hi
+                            else _clamped(v, lo, hi)
+                            for x in noise[at + (n if n > k else k):at + end]]
+                k = end
         return out
 
 
@@ -171,7 +204,8 @@ class NormalStream:
 def strain_counts(moment_nm: float, noise: float) -> int:
     """Strain ADC counts for a bending moment (N·m), clamped to the 24-bit signed range."""
     counts = round(moment_nm * STRAIN_COUNTS_PER_NM + noise)
-    return max(-STRAIN_MAX - 1, min(STRAIN_MAX, counts))
+    low = -STRAIN_MAX - 1
+    return low if counts < low else STRAIN_MAX if counts > STRAIN_MAX else counts
 
 
 def thermistor_counts(temperature_c: float) -> float:

@@ -203,12 +203,15 @@ class Rs485Bus:
     def _transmit(self, node: _Node, data: bytes, start_us: int) -> None:
         free = node.free_us
         start = start_us if start_us > free else free
-        end = start + self.wire_time_us(len(data))
+        # self.wire_time_us(), one call less per frame.
+        end = start + wire_time_us(len(data), self.baud,
+                                   manchester=self.line_code == "manchester",
+                                   bits_per_char=self.bits_per_char)
         node.free_us = end
         tx = Transmission(node.name, start, end, data if type(data) is bytes else bytes(data))
         on_air = self._on_air
         if on_air:
-            now = self.scheduler.now_us()
+            now = self.scheduler.now
             if self._on_air_until <= (start if start < now else now):
                 # Every frame on the line ended before this one starts: nothing overlaps
                 # (the common case, without scanning the list).

@@ -325,13 +325,25 @@ def parse_sync_write(params: bytes) -> tuple[int, int, dict[int, bytes]]:
     return address, length, result
 
 
+#: The last BULK_READ parameters parsed and their entries (every node on the bus parses
+#: each BULK_READ: the first does the work).
+_last_bulk_read: tuple[bytes, list[tuple[int, int, int]]] | None = None
+
+
 def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
-    """BULK_READ parameters -> ``[(length, id, address), ...]``."""
+    """BULK_READ parameters -> ``[(length, id, address), ...]`` (the same list for the same
+    parameters as the call before: do not change it)."""
+    global _last_bulk_read
+    last = _last_bulk_read
+    if last is not None and last[0] == params:
+        return last[1]
     if not params or params[0] != 0 or (len(params) - 1) % 3:
         parsed = wrap_construct(lambda: _BULK_READ.parse(params), "bulk read", DynamixelError)
         return [(int(e.length), int(e.id), int(e.address)) for e in parsed.entries]
-    # Fast path (every node parses every BULK_READ on the bus), checked against _BULK_READ.
-    return [(params[i], params[i + 1], params[i + 2]) for i in range(1, len(params), 3)]
+    # Fast path, checked against _BULK_READ.
+    entries = [(params[i], params[i + 1], params[i + 2]) for i in range(1, len(params), 3)]
+    _last_bulk_read = (bytes(params), entries)
+    return entries
 
 
 class FrameKind(Enum):
@@ -489,8 +501,10 @@ class DynamixelStreamDecoder:
             raise ValueError(f"gap_timeout must be >= 0 seconds, not {gap_timeout}")
         self.direction: Direction = direction
         self.gap_timeout = gap_timeout
-        self._buf = bytearray()
-        self._base = 0  # stream offset of self._buf[0]
+        #: The bytes held back as the start of a possible packet (read-only; a node asks
+        #: whether anything is, without :attr:`pending`'s call, for every packet it sees).
+        self.held = bytearray()
+        self._base = 0  # stream offset of self.held[0]
         self._last_t: float | None = None
         self.packets = self.checksum_failures = self.resyncs = 0  # counters: see the class doc
         self.bytes_discarded = self.rejected = self.gap_drops = 0
@@ -501,28 +515,28 @@ class DynamixelStreamDecoder:
     @property
     def pending(self) -> int:
         """Bytes held back as the start of a possible packet."""
-        return len(self._buf)
+        return len(self.held)
 
     @property
     def offset(self) -> int:
         """Total bytes fed so far (the stream offset of the next byte)."""
-        return self._base + len(self._buf)
+        return self._base + len(self.held)
 
     def reset(self) -> None:
         """Drop any pending partial packet (counted as discarded)."""
-        self.bytes_discarded += len(self._buf)
-        self._base += len(self._buf)
-        self._buf.clear()
+        self.bytes_discarded += len(self.held)
+        self._base += len(self.held)
+        self.held.clear()
 
     def feed(self, data: BytesLike, t: float | None = None) -> list[DecodedPacket]:
         """Add ``data`` (arriving at time ``t``, seconds) and return the packets it completes."""
         if t is not None:
             last, self._last_t = self._last_t, t
             gap = self.gap_timeout
-            if gap is not None and last is not None and self._buf and t - last > gap:
+            if gap is not None and last is not None and self.held and t - last > gap:
                 self.gap_drops += 1
                 self.reset()
-        buf = self._buf
+        buf = self.held
         buf += data
         out: list[DecodedPacket] = []
         pos = 0
@@ -562,7 +576,7 @@ class DynamixelStreamDecoder:
         packet: the packet is decoded once for all of them (the last one decoded is kept,
         and packets are immutable), not once per node.
         """
-        if type(data) is not bytes or self._buf or self.direction != "instruction":
+        if type(data) is not bytes or self.held or self.direction != "instruction":
             return None
         global _last_instruction
         last = _last_instruction

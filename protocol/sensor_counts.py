@@ -35,7 +35,8 @@ TEMP_V_PER_C: Final = 0.010
 
 
 def _counts(volts: float) -> int:
-    return max(0, min(ADC_MAX, round(volts / ADC_VREF_V * ADC_MAX)))
+    counts = round(volts / ADC_VREF_V * ADC_MAX)
+    return 0 if counts < 0 else ADC_MAX if counts > ADC_MAX else counts  # min/max: calls
 
 
 def _volts(counts: int) -> float:

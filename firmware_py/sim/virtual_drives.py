@@ -183,13 +183,13 @@ class VirtualStepper(hal.Stepper):
     # set_step_rate and step_count run every tick of every stepper node: position_steps()
     # is written out in both.
     def set_step_rate(self, steps_per_s: float) -> None:
-        now = self.scheduler.now_us()
+        now = self.scheduler.now
         self._count0 = self._count0 + self.rate * (now - self._t0) / 1e6
         self._t0 = now
         self.rate = float(steps_per_s)
 
     def step_count(self) -> int:
-        return int(self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6)
+        return int(self._count0 + self.rate * (self.scheduler.now - self._t0) / 1e6)
 
     def set_current(self, milliamps: int) -> None:
         self.current = int(milliamps)
@@ -199,7 +199,7 @@ class VirtualStepper(hal.Stepper):
     def position_steps(self) -> float:
         """Microsteps emitted so far, exactly (fractional): the rotor's commanded position,
         which :meth:`step_count` truncates.  Positive steps turn the shaft positive."""
-        return self._count0 + self.rate * (self.scheduler.now_us() - self._t0) / 1e6
+        return self._count0 + self.rate * (self.scheduler.now - self._t0) / 1e6
 
     def commanded_rate(self) -> float:
         """The signed step rate the firmware commands (microsteps/s)."""

@@ -90,18 +90,28 @@ class VirtualClock(hal.Clock):
         self._prune_at = 16
 
     def now_us(self) -> int:
-        return self.scheduler.now_us() - self.epoch_us
+        return self.scheduler.now - self.epoch_us
 
     def _track(self, handle: TimerHandle) -> TimerHandle:
         timers = self._timers
         timers.append(handle)
-        if len(timers) > self._prune_at:  # forget finished timers, amortised O(1)
-            self._timers = timers = [t for t in timers if t.active]
-            self._prune_at = max(16, 2 * len(timers))
+        if len(timers) > self._prune_at:
+            self._prune()
         return handle
 
+    def _prune(self) -> None:
+        """Forget finished timers (amortised O(1): the list doubles between prunes)."""
+        self._timers = timers = [t for t in self._timers if t.callback is not None]
+        self._prune_at = max(16, 2 * len(timers))
+
     def call_later(self, delay_us: int, callback: Callable[[], None]) -> TimerHandle:
-        return self._track(self.scheduler.call_later(delay_us, callback))
+        # _track(), written out: every frame the firmware sends comes this way.
+        handle = self.scheduler.call_later(delay_us, callback)
+        timers = self._timers
+        timers.append(handle)
+        if len(timers) > self._prune_at:
+            self._prune()
+        return handle
 
     def call_every(self, period_us: int, callback: Callable[[], None]) -> TimerHandle:
         return self._track(self.scheduler.call_every(period_us, callback))

@@ -74,10 +74,10 @@ class VirtualUart(hal.Uart):
         with no peer whose sink is :func:`line_delivers` (or None) schedules no arrival."""
         if not data or not self.enabled:
             return
-        now = self.scheduler.now_us()
+        now = self.scheduler.now
         free = self._line_free_us
         start = now if now > free else free
-        end = start + self.wire_time_us(len(data))
+        end = start + wire_time_us(len(data), self.baud)  # self.wire_time_us(), one call less
         self._line_free_us = end
         # bytes(data) is data for bytes, but compiled (mypyc) it is a generic call.
         chunk = data if type(data) is bytes else bytes(data)
@@ -99,7 +99,7 @@ class VirtualUart(hal.Uart):
         """Bytes arriving from the line now (what a peer or a test injects)."""
         if self._receiver is not None and self.enabled:
             self._receiver(data if type(data) is bytes else bytes(data),
-                           self.scheduler.now_us())
+                           self.scheduler.now)
 
     def set_receiver(self, callback: hal.ReceiveCallback | None) -> None:
         self._receiver = callback

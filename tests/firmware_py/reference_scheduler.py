@@ -19,7 +19,7 @@ from firmware_py.scheduler import TimerHandle
 def run_due(sched: Any, t_us: int,
             call: Callable[[Callable[[], None]], None] | None = None) -> int:
     """Run every event of ``sched``'s heap (``_queue`` of ``(t, seq, event)``, ``_seq``,
-    ``_now``: µs) due by ``t_us``, each through ``call`` if given; then time is ``t_us``.
+    ``now``: µs) due by ``t_us``, each through ``call`` if given; then time is ``t_us``.
     Returns the number of callbacks run."""
     queue = sched._queue
     ran = 0
@@ -28,7 +28,7 @@ def run_due(sched: Any, t_us: int,
         cb = ev.callback
         if cb is None:
             continue
-        sched._now = when
+        sched.now = when
         if ev.period_us:
             ev.t_us = when + ev.period_us
             ev.seq = next(sched._seq)
@@ -40,7 +40,7 @@ def run_due(sched: Any, t_us: int,
         else:
             call(cb)
         ran += 1
-    sched._now = max(sched._now, t_us)
+    sched.now = max(sched.now, t_us)
     return ran
 
 
@@ -48,26 +48,26 @@ class ReferenceScheduler:
     """One heap entry per timer (the order the shared entries must reproduce)."""
 
     def __init__(self) -> None:
-        self._now = 0
+        self.now = 0
         self._queue: list[tuple[int, int, TimerHandle]] = []
         self._seq = itertools.count()
 
     def now_us(self) -> int:
-        return self._now
+        return self.now
 
     def call_at(self, t_us: int, callback: Callable[[], None]) -> TimerHandle:
-        t = max(int(t_us), self._now)
+        t = max(int(t_us), self.now)
         ev = TimerHandle(t, next(self._seq), callback)
         heapq.heappush(self._queue, (t, ev.seq, ev))
         return ev
 
     def call_later(self, delay_us: int, callback: Callable[[], None]) -> TimerHandle:
-        return self.call_at(self._now + max(0, int(delay_us)), callback)
+        return self.call_at(self.now + max(0, int(delay_us)), callback)
 
     def call_every(self, period_us: int, callback: Callable[[], None],
                    first_us: int | None = None) -> TimerHandle:
         delay = period_us if first_us is None else first_us
-        ev = TimerHandle(self._now + max(0, int(delay)), next(self._seq), callback, period_us)
+        ev = TimerHandle(self.now + max(0, int(delay)), next(self._seq), callback, period_us)
         heapq.heappush(self._queue, (ev.t_us, ev.seq, ev))
         return ev
 

@@ -123,6 +123,44 @@ def test_an_unpowered_or_detached_board_gets_no_torque() -> None:
     assert rig.part.joint_angles()[2] > 0.02
 
 
+def test_every_tick_drives_the_motors_as_commanded_then_even_when_commands_repeat() -> None:
+    """A tick whose commands equal the last one's leaves the actuators as they are (a
+    holding finger's fmcb sleeps): whatever changes between ticks (a duty, a bridge, a
+    brake, the board's power, the module's attachment) must still reach them."""
+    rig = OneFinger()
+    rig.fmcb.power_on()
+    model, data, motor = rig.plant.model, rig.plant.data, DEFAULT_MOTOR
+    rng = np.random.default_rng(3)
+    for _ in range(400):
+        m = rig.motors[int(rng.integers(3))]
+        roll = rng.random()
+        if roll < 0.3:
+            m.set_duty(float(rng.choice([0.0, -0.0, 0.4, -0.7, 1.0])))
+        elif roll < 0.45:
+            m.set_enabled(not m.enabled)
+        elif roll < 0.55:
+            m.set_brake(not m.brake)
+        elif roll < 0.6:
+            rig.part.attached = not rig.part.attached
+        elif roll < 0.62:
+            if rig.fmcb.powered:
+                rig.fmcb.power_off()
+            else:
+                rig.fmcb.power_on()
+        rig.run_ms(1)  # the other 38 %: nothing changes
+        powered = rig.part.attached and rig.fmcb.powered
+        for i, (mo, act) in enumerate(zip(rig.motors, rig.part._act, strict=True)):
+            drive = powered and mo.enabled and not mo.brake
+            duty = mo.duty if drive else 0.0
+            assert data.ctrl[act] == duty, i
+            coasting = not powered or not (mo.brake or mo.enabled)
+            assert model.actuator_biasprm[act, 2] == (-0.0 if coasting
+                                                      else -motor.emf_damping_nm_s)
+            lo, hi = model.actuator_forcerange[act]
+            assert (lo == -motor.torque_limit_nm) == (duty < 0.0)
+            assert (hi == motor.torque_limit_nm) == (duty > 0.0)
+
+
 # --- closed loop through the real fmcb application ----------------------------------------
 def send_fmcb(fmcb: Mcu, name: str, fields: dict[str, Any]) -> None:
     vhal(fmcb).uart("pogo").deliver(CATALOGUE[name].request_frame(ADDR_FMCB, fields))

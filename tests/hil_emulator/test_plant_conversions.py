@@ -71,11 +71,16 @@ def test_counts_equal_the_numpy_formula_clamps_included(data: st.DataObject) -> 
     full = np.array(raw[:head] + [0.0] * (size - head))
     expected = _numpy_counts(FINGER, full, np.array(noise[at:at + size]))
     assert FINGER.counts(raw[:head], noise, at) == expected
+    # Both ways, whichever this build takes (run by run compiled, flat from source).
+    assert FINGER._counts_by_run(raw[:head], noise, at) == expected
+    assert FINGER._counts_flat(raw[:head], noise, at) == expected
 
 
 def test_counts_clamp_and_read_nan_as_the_low_bound() -> None:
     accel = LinearCounts.imu([("accel", 0.0)])
     assert accel.counts([1e3, -1e3, math.nan], [0.0] * 3) == [2000, -2000, -2000]
+    for way in (accel._counts_by_run, accel._counts_flat):
+        assert way([1e3, -1e3, math.nan], [0.0] * 3, 0) == [2000, -2000, -2000]
 
 
 @settings(deadline=None)
