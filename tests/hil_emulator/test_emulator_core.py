@@ -28,8 +28,21 @@ def test_importing_the_core_imports_no_fault_and_no_host_library(module: str) ->
     assert module in imported  # the probe sees the import at all
     above = sorted(m for m in imported
                    if m.startswith(("hil_emulator.faults", "hil_emulator.inprocess", "host",
-                                    "tools")))
+                                    "tools")) and m not in SHARED_HOST_MODULES)
     assert above == []
+
+
+#: The host modules the emulator's core may import: the real-time scheduling both sides'
+#: threads ask for, a leaf of the standard library (and the empty package above it).
+SHARED_HOST_MODULES = frozenset({"host", "host.scheduling"})
+
+
+def test_the_host_modules_the_core_shares_import_nothing_of_ours() -> None:
+    imported = _imported_by("host.scheduling")
+    assert "host.scheduling" in imported
+    ours = sorted(m for m in imported if m.split(".")[0] in
+                  {"protocol", "firmware_py", "host", "bootloader", "hil_emulator", "tools"})
+    assert ours == sorted(SHARED_HOST_MODULES)
 
 
 def test_the_emulator_is_a_robot_with_ports_served_by_its_pacer() -> None:
