@@ -28,6 +28,11 @@ PRIORITIES: Final = ("realtime", "normal")
 #: The real-time priority asked for (1 lowest … 99 highest): above every normal process,
 #: below the kernel's own real-time threads (50) and audio servers.
 RT_PRIORITY: Final = 10
+#: The real-time priority a host's control loop asks for (the robot CLIs, the demo): above
+#: every normal process, below the emulator's pacing thread (:data:`RT_PRIORITY`), so that on
+#: a machine running both the robot's clock comes first (two equal round-robin threads
+#: would wait up to a 100 ms slice for each other).
+HOST_RT_PRIORITY: Final = 5
 
 
 @dataclass(frozen=True)
@@ -151,12 +156,14 @@ def adopt(scheduling: Scheduling) -> Scheduling:
 
 
 @contextmanager
-def priority_for(priority: str = "realtime") -> Iterator[Scheduling]:
-    """:func:`request_priority` for the ``with`` block, yielding what the calling thread
-    got; it has its own scheduling back afterwards (where it may still set it)."""
+def priority_for(priority: str = "realtime", rt_priority: int = RT_PRIORITY
+                 ) -> Iterator[Scheduling]:
+    """:func:`request_priority` (``priority``, ``rt_priority``) for the ``with`` block,
+    yielding what the calling thread got; it has its own scheduling back afterwards (where
+    it may still set it)."""
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        yield request_priority(priority)
+        yield request_priority(priority, rt_priority)
     finally:
         if (os.sched_getscheduler(0), os.sched_getparam(0)) != before:
             try:

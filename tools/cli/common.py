@@ -22,7 +22,8 @@ network).  On the arm's bus it is the adapter latency added to each exchange's c
 wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 100 ms otherwise).
 
 ``--priority realtime`` (the default) runs the command with real-time scheduling where Linux
-allows it (root, ``CAP_SYS_NICE``, an ``rtprio`` limit: :mod:`host.scheduling`), silently
+allows it (root, ``CAP_SYS_NICE``, an ``rtprio`` limit: :mod:`host.scheduling`; priority
+:data:`~host.scheduling.HOST_RT_PRIORITY`, below an emulator's pacing thread), silently
 running on as it was where not: on a busy machine a normally scheduled host's 10 ms cycles
 come 30-70 ms apart.  A command on an in-process link (``emu://``, the simulation clock,
 which runs as fast as the CPU allows) never asks for it; ``--priority normal`` leaves it.
@@ -50,7 +51,7 @@ from host.errors import (
     UsageError,
 )
 from host.hand_session import Timeouts
-from host.scheduling import PRIORITIES, priority_for
+from host.scheduling import HOST_RT_PRIORITY, PRIORITIES, priority_for
 from host.transport import link_kind, schemes
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
@@ -228,7 +229,7 @@ def run_cli(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
     args = parse(parser, argv)
     if isinstance(args, int):
         return args
-    with priority_for(command_priority(args.port, args.priority)):
+    with priority_for(command_priority(args.port, args.priority), HOST_RT_PRIORITY):
         return run(parser.prog, args.port, lambda: body(args), usage=usage, hint=hint,
                    command=getattr(args, "command", None))
 

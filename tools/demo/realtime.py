@@ -21,7 +21,7 @@ from typing import Any
 
 from host.arm import Arm, host_watchdog_ms
 from host.hand import Hand
-from host.scheduling import priority_for
+from host.scheduling import HOST_RT_PRIORITY, priority_for
 from tools.build_compiled import ROOT
 from tools.demo.script import Demo, judge, open_watch, run_session, write_run_report
 from tools.errors import DemoFailed
@@ -132,7 +132,8 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bo
             demo = Demo(hand, arm, out, palm_port=ports["palm"], reopen_hand=reopen_hand)
             demo.wall0 = wall0
             try:
-                with priority_for("realtime") as got:  # steady host cycles on a busy machine
+                # steady host cycles on a busy machine, below the emulator's own priority
+                with priority_for("realtime", HOST_RT_PRIORITY) as got:
                     say(got.describe("the demo's control loop"))
                     arm.set_watchdog(host_watchdog_ms(got))
                     run_session(demo, out)
