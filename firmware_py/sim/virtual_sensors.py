@@ -178,6 +178,10 @@ class VirtualSensors(hal.Sensors):
         """Every taxel ``taxel0`` … of the board, in order (ADC counts)."""
         self._set_series(_TAXEL_KEYS, counts)
 
+    # The one-channel setters below are written out each, not through a shared helper: the
+    # plant calls them every few ms per board, and in pure Python a call costs more than
+    # the work (docs/decisions/emulator-performance-history.md).
+
     def set_strain(self, counts: int) -> None:
         """Strain gauge bridge (24-bit signed ADC counts)."""
         values = self.values

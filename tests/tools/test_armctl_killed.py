@@ -14,6 +14,7 @@ import sys
 import time
 from typing import Any
 
+import dynamixel_sdk as sdk
 import pytest
 
 from host.arm import HOST_WATCHDOG_MS, HOST_WATCHDOG_REALTIME_MS
@@ -96,8 +97,6 @@ def test_armctl_killed_mid_move_leaves_the_arm_held() -> None:
 
 def _watchdog_ms(port: str) -> list[int]:
     """The stepper nodes' ``watchdog_timeout`` (ms) as the stock dynamixel-sdk reads it."""
-    import dynamixel_sdk as sdk
-
     reg = STEPPER_TABLE["watchdog_timeout"]
     handler = sdk.PortHandler(port)
     assert handler.openPort() and handler.setBaudRate(1_000_000)
