@@ -14,7 +14,10 @@ serial port), and every JSON message carries the same as its field ``t`` (s).
 
 Written as it goes.  :class:`McapFile` closes the chunk in progress and writes it to the file
 at least every :data:`FLUSH_INTERVAL_S` of wall time (a thread does it when no message comes),
-so a process killed with ``kill -9`` loses at most the last second; such a file has no summary
+so a process killed with ``kill -9`` loses at most the last second (that thread takes the
+real-time scheduling of the thread that opens the file, :func:`~host.scheduling.adopt`: it
+holds the file's lock while it writes, and a real-time control loop logging through the
+same lock must not wait behind it for a normal process's slice); such a file has no summary
 section and ``handbus decode`` reads it up to its cut.  A write that fails (a full disk) stops
 the file where it is: nothing more is written, what was written stays, and the recorder's
 next :meth:`Recording.check` raises :class:`~host.errors.RecordingError` saying why.  A sink
@@ -35,6 +38,7 @@ from typing import IO, Any, Final, Protocol
 from mcap.writer import CompressionType, Writer
 
 from host.errors import RecordingError
+from host.scheduling import Scheduling, adopt, current
 
 #: The longest wall time (s) a logged message waits in memory before its chunk is written.
 FLUSH_INTERVAL_S: Final = 0.5
@@ -110,6 +114,9 @@ class McapFile:
         except OSError as exc:
             self._fail(exc)
         self._stop = threading.Event()
+        self._opener: Scheduling = current()
+        #: the scheduling the flushing thread got (once it runs)
+        self.flusher_scheduling: Scheduling | None = None
         self._flusher = threading.Thread(target=self._flush_loop, daemon=True,
                                          name=f"mcap-flush {self.path.name}")
         self._flusher.start()
@@ -185,6 +192,7 @@ class McapFile:
             self.error = exc
 
     def _flush_loop(self) -> None:
+        self.flusher_scheduling = adopt(self._opener)
         while not self._stop.wait(self._interval / 2):
             with self._lock:
                 if (self._unflushed and self.error is None and not self._closed

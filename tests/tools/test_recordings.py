@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from host.errors import RecordingError
 from host.hand import Hand
 from host.hand_recording import HandRecorder
 from host.recording import FLUSH_INTERVAL_S
+from host.scheduling import HOST_RT_PRIORITY, Scheduling, priority_for, rtprio_limit
 from tests.tools.mcap_check import check_recording
 from tools.cli import armctl, handbus, handctl
 from tools.cli.mcap_capture import read_recording
@@ -136,6 +138,36 @@ def test_a_recording_reaches_the_disk_while_it_runs_with_no_further_message(tmp_
         assert sum(m.channel == "/hand/state" for m in contents.messages) == 5
         assert contents.stopped and recorder.error is None  # no summary yet
     forget_shared_emulators()
+
+
+@pytest.mark.skipif(not (os.geteuid() == 0 or rtprio_limit() > 0),
+                    reason="real-time scheduling is not allowed here")
+def test_the_flushing_thread_of_a_file_opened_by_a_real_time_loop_runs_real_time_too(
+        tmp_path: Path) -> None:
+    """It holds the file's lock while it writes: left at normal priority, a CPU-bound process
+    could preempt it there and the real-time loop logging through the same lock would wait
+    behind it (Linux does not pass SCHED_RR on to new threads)."""
+    def open_and_wait(name: str) -> Scheduling | None:
+        sink = recording.McapFile(tmp_path / name, library="test")
+        deadline = time.monotonic() + 30
+        while sink.flusher_scheduling is None and time.monotonic() < deadline:
+            time.sleep(0.001)
+        sink.close()
+        return sink.flusher_scheduling
+
+    got: list[Scheduling | None] = []
+
+    def real_time() -> None:
+        with priority_for("realtime", HOST_RT_PRIORITY) as asked:
+            assert asked.realtime
+            got.append(open_and_wait("rt.mcap"))
+
+    thread = threading.Thread(target=real_time)
+    thread.start()
+    thread.join()
+    assert got[0] is not None and got[0].realtime and got[0].priority == HOST_RT_PRIORITY
+    normal = open_and_wait("normal.mcap")  # opened by a normally scheduled thread
+    assert normal is not None and not normal.realtime
 
 
 def test_an_output_that_cannot_be_written_is_refused_before_the_port_is_opened(
