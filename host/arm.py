@@ -116,6 +116,13 @@ FAST_RETURN_DELAY: Final = 0
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
+#: The speed (rad/s) :meth:`Arm.move` gives every joint when it is given neither a
+#: ``duration`` nor a ``speed``.  The nodes' own limits (the controllers' full step rate at
+#: π rad/s²) wind the shoulder's and elbow's elastic elements to their stall limit: homed at
+#: zero, a move to ``[0, 0.3, 0, 0.4, 0, 0, 0]`` took J2 to 147 of its 150 counts (through the
+#: ptys it latched STALLED), to the outstretched ``[0, 1.5, 0, 1.5, 0, 0, 0]`` J2 latched
+#: at 211; at 1 rad/s J4 latched there; at 0.5 rad/s 68-118 counts.
+MOVE_DEFAULT_SPEED: Final = 0.5
 #: How long (s) :meth:`Arm.move` takes to bring its steppers up to speed: it raises their
 #: speed limits with every cycle over this time (:func:`ramped_speeds`) instead of letting
 #: the nodes jump to speed in a few ms, which set the elastic links ringing (the elbow's
@@ -559,7 +566,7 @@ class Arm:
              unhomed_speed: float | None = UNHOMED_STEPPER_SPEED) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
         (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
-        until the move settled or ``timeout`` (s) passed.  Settled: every stepper node
+        until the move settled or ``timeout`` (s) passed after the move's own time.  Settled: every stepper node
         stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
         sits off it by the elastic deflection under load) and its joint slower than
         ``settle_speed`` (rad/s), every servo within ``tolerance`` of its goal, and the
@@ -568,12 +575,16 @@ class Arm:
         it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
         so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
-        caps every joint's instead; while the arm is not homed (its stops unknown) a
-        stepper joint goes no faster than ``unhomed_speed`` (rad/s, None: no such cap; the
-        nodes keep that speed limit for later commands without a speed).  The steppers'
+        caps every joint's instead, :data:`MOVE_DEFAULT_SPEED` when neither is given;
+        while the arm is not homed (its stops unknown) a stepper joint goes no faster
+        than ``unhomed_speed`` (rad/s, None: no such cap; the nodes keep that speed
+        limit for later commands without a speed).  The steppers'
         speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s
         (:func:`ramped_speeds`), so they arrive about half that later.  Returns the last
         state and whether the move settled.
+
+        ``timeout`` counts from when the slowest joint should have arrived at its speed
+        (the move's own time), so a long move at a modest speed is not cut short.
 
         Before anything moves, the gate (:mod:`host.arm_gate`) raises
         :class:`~host.errors.LimitError` (a :class:`~host.errors.UsageError`) for a goal
@@ -593,7 +604,9 @@ class Arm:
             check_speeds(angles, now.joints, duration)
             speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
                       for a, b in zip(angles, now.joints, strict=True)]
-        elif speed is not None:
+        else:
+            if speed is None:
+                speed = MOVE_DEFAULT_SPEED
             if not (math.isfinite(speed) and speed > 0):
                 raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
             speeds = [min(speed, limit) for limit in ARM_JOINT_SPEED_LIMITS]
@@ -610,7 +623,7 @@ class Arm:
         state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0),
                                    ramped_speeds(speeds, period, servos=True))
         ramping = any(s is not None for s in speeds[:N_STEPPERS])
-        deadline = start + timeout
+        deadline = start + timeout + travel_time(now.joints, angles, speeds)
         while True:
             stop_for_alarms(self, state, before)
             still = watch.update(state)
@@ -639,6 +652,18 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
+def travel_time(start: Sequence[float], goals: Sequence[float],
+                speeds: Sequence[float | None]) -> float:
+    """The time (s) the slowest joint needs from ``start`` to ``goals`` (rad) at its speed
+    of ``speeds`` (rad/s; None: the node's own, taken as the joint's speed limit), with the
+    steppers' speed ramp (:data:`MOVE_RAMP_S`, about half of it lost)."""
+    worst = 0.0
+    for i, (a, b, s) in enumerate(zip(start, goals, speeds, strict=True)):
+        limit = ARM_JOINT_SPEED_LIMITS[i]
+        worst = max(worst, abs(b - a) / (min(s, limit) if s else limit))
+    return worst + MOVE_RAMP_S / 2
+
+
 def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
                   servos: bool = False) -> list[float | None]:
     """The speed limits (rad/s) a move sends ``elapsed`` s after it began: each stepper's
@@ -654,8 +679,8 @@ def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
 #: in) the free functions and types its users import from here.
 __all__ = [
     "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS",
-    "HOST_WATCHDOG_REALTIME_MS", "host_watchdog_ms", "MOVE_MIN_SPEED",
-    "MOVE_RAMP_S", "ramped_speeds",
+    "HOST_WATCHDOG_REALTIME_MS", "host_watchdog_ms", "MOVE_DEFAULT_SPEED", "MOVE_MIN_SPEED",
+    "MOVE_RAMP_S", "ramped_speeds", "travel_time",
     "RESYNC_MIN_COUNTS", "SERVO_GOAL_LEAD_S", "servo_lead", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
     "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
     # moved out, importable here as before

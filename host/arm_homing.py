@@ -9,8 +9,11 @@ power-up or after ``clear_flags`` REARM_INDEX (``index_seen``, ``index_encoder_c
 
 :func:`home` re-arms the latches, enables the steppers' torque and drives J1..J4 slowly
 together, each in a widening search about where it started (``+s, −s, +2s, −2s`` … until the
-search has covered the joint's whole range) until every joint has latched its index; then it
-reads the latches and drives the joints back where they started.  The joint's offset (rad,
+search has covered the joint's whole range) until every joint has latched its index, sending
+every node its goal with each cycle (the goal carries the routes' coupling offset, which
+must follow the other joints' search); then it reads the latches and drives the joints back
+where they started, at the search's speed.  An arm homed already is homed again the same
+way, from wherever it is held.  The joint's offset (rad,
 absolute angle = node angle + offset) is ``index angle − index_encoder_count`` in rad; the
 latched step count is the motor's position at the mark (``index_step_count``), recorded for
 force-sensing calibration.  The RX-64 servos measure absolute angles already: offset 0.
@@ -34,7 +37,6 @@ from host.arm_state import (
     N_JOINTS,
     N_STEPPERS,
     ArmState,
-    Command,
     JointCalibration,
 )
 from host.errors import HomingError, UsageError
@@ -163,21 +165,24 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     found = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
     clock = arm.transport
     deadline = clock.now() + search_time(plans, speed)
-    commands: list[Command] = [arm.make_position(i, start[i] + plans[i][0], speed)
-                               for i in range(N_STEPPERS) if not found[i]]
+    # each joint's goal: its search leg's target, or where it found its index (held)
+    targets = [start[i] if found[i] else start[i] + plans[i][0] for i in range(N_STEPPERS)]
     while not all(found):
-        state = arm.cycle(commands)
-        commands = []
+        # every stepper its goal with every cycle, not only when it changes: the goal
+        # carries the node's coupling offset, which must follow the other joints as they
+        # search (the routes turn J4's capstan by 0.18 of J2's travel; left stale over
+        # J2's search from an extended pose, the elbow's node saw a stall that was not)
+        state = arm.cycle([arm.make_position(i, targets[i], None if found[i] else speed)
+                           for i in range(N_STEPPERS)])
         _check_search(arm, state, found, start, speed, clock.now() >= deadline)
         for i, s in enumerate(state.steppers):
             if found[i]:
                 continue
             if s.flags & StepperFlag.INDEX_SEEN:
                 found[i] = True
-                commands.append(arm.make_position(i, s.motor_angle))  # hold here
+                targets[i] = s.motor_angle  # hold here
                 continue
-            target = start[i] + plans[i][leg[i]]
-            if not s.moving and abs(s.motor_angle - target) <= tolerance:
+            if not s.moving and abs(s.motor_angle - targets[i]) <= tolerance:
                 leg[i] += 1
                 if leg[i] == len(plans[i]):
                     arm.cycle([arm.make_position(k, start[k], speed)
@@ -187,7 +192,7 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
                         f"({plans[i][-2]:+.2f} … {plans[i][-1]:+.2f} rad about where it "
                         f"started); check the encoder's index channel and that the joint "
                         f"moves freely", joint=JOINT_NAMES[i])
-                commands.append(arm.make_position(i, start[i] + plans[i][leg[i]], speed))
+                targets[i] = start[i] + plans[i][leg[i]]
         if not all(found):
             clock.sleep(period)
     seen, encoder, steps = read_latches(arm)
@@ -196,8 +201,12 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
         raise HomingError(f"{', '.join(missing)}: the index latch was lost after the search "
                           "(a node restarted?); home again", joint=missing[0])
     back = arm.steppers[0].counts_to_rad(DEFAULT_VELOCITY_COUNTS)
-    # back over the ground the search just covered: no stop to meet, no unhomed speed cap
-    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], timeout=10.0, unhomed_speed=None)
+    # back over the ground the search just covered, at its speed: no stop to meet, but
+    # from an extended pose the elbow's element carries most of what it can statically
+    # (at J2 0.73, J4 1.05 rad with the hand, 112 of its 150 counts) and a faster move's
+    # dynamics latched it
+    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], speed=speed, timeout=10.0,
+                        unhomed_speed=None)
     arm.cycle([arm.make_position(i, start[i], back) for i in range(N_STEPPERS)])
     arm.calibration = calibration_from_latches(arm, encoder, steps)
     return arm.calibration

@@ -50,7 +50,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from host.arm import Arm, host_watchdog_ms, off_goal, open_bus
+from host.arm import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
 from host.arm_gate import check_cartesian, check_finite, require_torque
 from host.arm_homing import restore
 from host.arm_rest import RestWatch
@@ -252,8 +252,13 @@ def _move_arguments(p: argparse.ArgumentParser) -> None:
                         "comma-separated list")
     p.add_argument("--duration", type=_TIME, default=None, metavar="S",
                    help="take this long (s): speeds set so every joint arrives together")
+    p.add_argument("--speed", type=number_above(0, what="a speed (rad/s)"), default=None,
+                   metavar="RAD_S",
+                   help=f"no joint faster than this (rad/s; default {MOVE_DEFAULT_SPEED} "
+                        "without --duration)")
     p.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
-                   help="give up waiting after this long (s, default 10)")
+                   help="give up waiting this long (s, default 10) after the joints should "
+                        "have arrived")
     p.add_argument("--unhomed", action="store_true",
                    help="move although the arm is not homed (angles from power-up)")
 
@@ -262,10 +267,13 @@ def _move_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     goals = _joint_values(args.joints)
     check_finite(goals, "goal")
+    if args.duration is not None and args.speed is not None:
+        raise UsageError("give --duration or --speed, not both")
     _require_homed(arm, args, "move")
     _require_torque(arm, "move")
     rest = RestWatch()
-    state, ok = arm.move(goals, duration=args.duration, timeout=args.timeout, rest=rest)
+    state, ok = arm.move(goals, duration=args.duration, speed=args.speed,
+                         timeout=args.timeout, rest=rest)
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:

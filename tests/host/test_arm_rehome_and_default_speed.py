@@ -1,0 +1,122 @@
+"""Homing an arm that is homed already, from wherever it was left (moved, extended, stopped
+by its nodes' watchdog when its host vanished), and moves given neither a duration nor a
+speed: the nodes' coupling offsets follow the search, and a move goes at a speed the
+elastic shoulder and elbow take."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hil_emulator.inprocess import forget_shared_emulators
+from host.arm import MOVE_DEFAULT_SPEED, MOVE_RAMP_S, Arm, travel_time
+from protocol.robot import ARM_JOINT_SPEED_LIMITS
+from tests.ground_truth import arm_plant_of, emulator_of
+
+HOME = [0.0, 0.3, 0.0, 0.4, 0.0, 0.0, 0.0]
+EXTENDED = [0.0, 0.8, 0.0, 1.0, 0.0, 0.0, 0.0]
+OUTSTRETCHED = [0.0, 1.5, 0.0, 1.5, 0.0, 0.0, 0.0]
+
+
+class _Gone(BaseException):
+    """The host vanishing mid-move (nothing more is sent)."""
+
+
+def _homed_arm(name: str) -> Arm:
+    arm = Arm.open(f"emu://full/arm?ready=0&name={name}")
+    arm.torque(True, hold=True)
+    arm.home()
+    return arm
+
+
+def _latched(arm: Arm) -> list[str]:
+    state = arm.state()
+    return [f"J{i + 1}" for i, s in enumerate(state.steppers) if s.stalled or s.slip]
+
+
+def test_travel_time_is_the_slowest_joint_at_its_speed_plus_half_the_ramp() -> None:
+    start = [0.0] * 7
+    goals = [0.0, 1.0, 0.0, -0.5, 0.0, 0.0, 0.0]
+    assert travel_time(start, goals, [0.5] * 7) == pytest.approx(2.0 + MOVE_RAMP_S / 2)
+    # a joint without a speed goes at its limit
+    assert travel_time(start, goals, [None] * 7) == pytest.approx(
+        max(1.0 / ARM_JOINT_SPEED_LIMITS[1], 0.5 / ARM_JOINT_SPEED_LIMITS[3]) + MOVE_RAMP_S / 2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pose", [HOME, EXTENDED], ids=["home-pose", "extended"])
+def test_an_arm_homed_again_where_it_was_moved_finds_its_indexes_and_latches_nothing(
+        pose: list[float]) -> None:
+    """The search drives J2 over up to ±0.7 rad about where it starts; a node whose goal (and
+    with it the routes' coupling offset) was sent only when its own search leg changed saw
+    the elbow's element wound past its stall limit (J4 latched STALLED on every second
+    homing); from an extended pose the return at the nodes' full speed latched it too."""
+    arm = _homed_arm(f"rehome-{pose[1]}")
+    try:
+        first = arm.calibration
+        assert first is not None
+        arm.move(pose, duration=4.0)
+        again = arm.home()
+        assert again.index_encoder_counts == first.index_encoder_counts
+        assert _latched(arm) == []
+        # back where the search started
+        truth = arm_plant_of(emulator_of(arm)).joint_angles()[:4]
+        assert np.abs(truth - np.array(pose[:4])).max() < 0.1
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
+@pytest.mark.slow
+def test_an_arm_homed_again_after_its_host_vanished_mid_move_latches_nothing() -> None:
+    arm = _homed_arm("rehome-gone")
+    try:
+        start = arm.transport.now()
+
+        def vanish(_: object) -> None:
+            if arm.transport.now() - start >= 2.6:
+                raise _Gone
+
+        arm.state_taps.append(vanish)
+        with pytest.raises(_Gone):
+            arm.move(OUTSTRETCHED, duration=6.0)
+        arm.state_taps.remove(vanish)
+        emulator_of(arm).step(2_000_000)  # the nodes' watchdog stops and settles the arm
+        arm.close()
+        arm = Arm.open("emu://full/arm?ready=0&name=rehome-gone")  # a new host
+        arm.torque(True, hold=True)
+        arm.home()
+        assert _latched(arm) == []
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
+@pytest.mark.slow
+def test_a_move_given_no_duration_or_speed_goes_at_the_default_speed_and_latches_nothing(
+        ) -> None:
+    """At the nodes' own limits (full step rate, π rad/s²) J2 latched STALLED on the way to
+    the outstretched pose (211 counts of its 150)."""
+    arm = _homed_arm("default-speed")
+    try:
+        plant = arm_plant_of(emulator_of(arm))
+        peak = np.zeros(4)
+
+        def watch(_: object) -> None:
+            np.maximum(peak, np.abs(plant.joint_velocities()[:4]), out=peak)
+
+        arm.state_taps.append(watch)
+        state, settled = arm.move(OUTSTRETCHED, timeout=10.0)
+        assert settled
+        assert _latched(arm) == []
+        # the shoulder at about that speed (its full speed is 1.45 rad/s): the link swings
+        # about its motor, 0.68 rad/s at most here
+        assert 0.8 * MOVE_DEFAULT_SPEED < peak[1] < 1.5 * MOVE_DEFAULT_SPEED
+        # a move as long as its timeout at that speed is not cut short: J1 over 1.5 rad
+        # takes 3 s, and the outstretched arm swings on its base about 3 s more; the
+        # timeout counts from its arrival
+        _, settled = arm.move([1.5, *OUTSTRETCHED[1:]], timeout=5.0)
+        assert settled
+    finally:
+        arm.close()
+        forget_shared_emulators()
