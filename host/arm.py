@@ -116,12 +116,14 @@ FAST_RETURN_DELAY: Final = 0
 #: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
 #: later command without a speed does not crawl.
 MOVE_MIN_SPEED: Final = 0.2
-#: The speed (rad/s) :meth:`Arm.move` gives every joint when it is given neither a
-#: ``duration`` nor a ``speed``.  The nodes' own limits (the controllers' full step rate at
-#: π rad/s²) wind the shoulder's and elbow's elastic elements to their stall limit: homed at
-#: zero, a move to ``[0, 0.3, 0, 0.4, 0, 0, 0]`` took J2 to 147 of its 150 counts (through the
-#: ptys it latched STALLED), to the outstretched ``[0, 1.5, 0, 1.5, 0, 0, 0]`` J2 latched
-#: at 211; at 1 rad/s J4 latched there; at 0.5 rad/s 68-118 counts.
+#: The speed (rad/s) of the joint that moves furthest in an :meth:`Arm.move` given neither
+#: a ``duration`` nor a ``speed``; the others arrive with it.  The nodes' own limits (the
+#: controllers' full step rate at π rad/s², the hardware's) wind the shoulder's and elbow's
+#: elastic elements to their stall limit (150 counts): homed at zero, J2 latched STALLED on
+#: the way to the outstretched ``[0, 1.5, 0, 1.5, 0, 0, 0]`` (211 counts) and came within 3
+#: counts of it to ``[0, 0.3, 0, 0.4, 0, 0, 0]``.  Each joint at 0.5 rad/s on its own time
+#: still latched J4 to ``[0, 0.5, 0, 0.8, 0, 0, 0]`` (157: joints that stop one after the
+#: other set the shoulder and elbow ringing together); arriving together 107-125.
 MOVE_DEFAULT_SPEED: Final = 0.5
 #: How long (s) :meth:`Arm.move` takes to bring its steppers up to speed: it raises their
 #: speed limits with every cycle over this time (:func:`ramped_speeds`) instead of letting
@@ -575,8 +577,8 @@ class Arm:
         it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
         so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
-        caps every joint's instead, :data:`MOVE_DEFAULT_SPEED` when neither is given;
-        while the arm is not homed (its stops unknown) a stepper joint goes no faster
+        caps every joint's instead; given neither, the joint that moves furthest goes at
+        :data:`MOVE_DEFAULT_SPEED` and the others arrive with it; while the arm is not homed (its stops unknown) a stepper joint goes no faster
         than ``unhomed_speed`` (rad/s, None: no such cap; the nodes keep that speed
         limit for later commands without a speed).  The steppers'
         speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s
@@ -600,13 +602,14 @@ class Arm:
         now = self.state()
         check_goals(angles, now.joints, homed=self.homed, tolerance=tolerance)
         speeds: list[float | None] = [None] * N_JOINTS
+        if duration is None and speed is None:  # together, the furthest at the default
+            duration = max(max(abs(a - b) for a, b in zip(angles, now.joints, strict=True))
+                           / MOVE_DEFAULT_SPEED, MOVE_RAMP_S)
         if duration is not None:
             check_speeds(angles, now.joints, duration)
             speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
                       for a, b in zip(angles, now.joints, strict=True)]
-        else:
-            if speed is None:
-                speed = MOVE_DEFAULT_SPEED
+        elif speed is not None:
             if not (math.isfinite(speed) and speed > 0):
                 raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
             speeds = [min(speed, limit) for limit in ARM_JOINT_SPEED_LIMITS]

@@ -19,7 +19,8 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Final
 
-from host.arm_state import JOINT_NAMES, ArmState
+from host.arm_state import JOINT_NAMES, ArmState, ServoState
+from protocol.control_tables import RX64_TABLE
 from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, RX64_RAD_PER_UNIT
 
 #: How long (s, the link's clock) the arm must have stayed still to count as at rest.
@@ -31,6 +32,18 @@ REST_SPREAD_COUNTS: Final = 2
 #: (an RX-64 at rest hunts across its compliance margin by a unit).
 REST_SERVO_SPREAD_RAD: Final = 2.05 * RX64_RAD_PER_UNIT
 _COUNT_RAD: Final = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
+#: An RX-64's compliance as it comes (position units; the host leaves it): no torque within
+#: the margin, then the torque rises over the slope.
+_MARGIN_UNITS: Final = int(RX64_TABLE["cw_compliance_margin"].default)
+_SLOPE_UNITS: Final = int(RX64_TABLE["cw_compliance_slope"].default)
+
+
+def servo_sag(servo: ServoState) -> float:
+    """How far (rad) an RX-64 holding ``servo.load`` (fraction of its torque) sits off its
+    goal by its compliance: the margin, then the share of the slope over which its torque
+    rises to that load (0.005 rad + 0.16 rad × load as it comes).  Holding the hand's weight
+    on J6 in an extended pose, 0.026 rad: the servo is where it holds, not on its way."""
+    return (_MARGIN_UNITS + abs(servo.load) * _SLOPE_UNITS) * RX64_RAD_PER_UNIT
 
 
 class RestWatch:
@@ -92,8 +105,9 @@ def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str |
             return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
                     "rad off its goal")
     for v in state.servos:
-        if abs(v.angle - goals[v.joint]) > tolerance:
-            return f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal"
+        if abs(v.angle - goals[v.joint]) > tolerance + servo_sag(v):
+            return (f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal "
+                    f"(its compliance at its load allows {servo_sag(v):.3f})")
     return None
 
 
@@ -101,9 +115,10 @@ def settled(state: ArmState, goals: Sequence[float], tolerance: float,
             settle_speed: float = math.inf) -> bool:
     """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
     ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
-    is within ``tolerance`` of its goal."""
+    is within ``tolerance`` of its goal beyond what its compliance sags by at its load
+    (:func:`servo_sag`)."""
     for s in state.steppers:
         if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
                 or abs(s.velocity) > settle_speed):
             return False
-    return all(abs(s.angle - goals[s.joint]) <= tolerance for s in state.servos)
+    return all(abs(s.angle - goals[s.joint]) <= tolerance + servo_sag(s) for s in state.servos)

@@ -1,7 +1,8 @@
 """Homing an arm that is homed already, from wherever it was left (moved, extended, stopped
 by its nodes' watchdog when its host vanished), and moves given neither a duration nor a
-speed: the nodes' coupling offsets follow the search, and a move goes at a speed the
-elastic shoulder and elbow take."""
+speed: the nodes' coupling offsets follow the search, a move goes at a speed the elastic
+shoulder and elbow take, and a wrist servo that sags by its compliance under the hand's
+weight is where it holds, not on its way."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import MOVE_DEFAULT_SPEED, MOVE_RAMP_S, Arm, travel_time
+from host.arm_rest import servo_sag, settled
+from host.arm_state import ArmState, ServoState
+from protocol.dynamixel import ErrorBit
 from protocol.robot import ARM_JOINT_SPEED_LIMITS
 from tests.ground_truth import arm_plant_of, emulator_of
 
@@ -41,6 +45,23 @@ def test_travel_time_is_the_slowest_joint_at_its_speed_plus_half_the_ramp() -> N
     # a joint without a speed goes at its limit
     assert travel_time(start, goals, [None] * 7) == pytest.approx(
         max(1.0 / ARM_JOINT_SPEED_LIMITS[1], 0.5 / ARM_JOINT_SPEED_LIMITS[3]) + MOVE_RAMP_S / 2)
+
+
+def _servo(joint: int, angle: float, load: float) -> ServoState:
+    return ServoState(joint=joint, angle=angle, velocity=0.0, load=load, temperature=25.0,
+                      voltage=18.0, errors=ErrorBit(0))
+
+
+def test_a_servo_counts_as_arrived_within_what_its_compliance_sags_by_at_its_load() -> None:
+    """An RX-64 as it comes (margin 1, slope 32 position units of 0.29°) holds a load that
+    takes 13 % of its torque 1 + 0.13·32 units off its goal."""
+    assert servo_sag(_servo(5, 0.0, 0.13)) == pytest.approx(5.16 * 0.00511, rel=0.01)
+    assert servo_sag(_servo(5, 0.0, -0.13)) == servo_sag(_servo(5, 0.0, 0.13))
+    goals = [0.0] * 7
+    for load, expected in ((0.13, True), (0.0, False)):
+        state = ArmState(t=0.0, steppers=(), servos=(
+            _servo(4, 0.0, 0.0), _servo(5, -0.045, load), _servo(6, 0.0, 0.0)))
+        assert settled(state, goals, 0.02) is expected
 
 
 @pytest.mark.slow
@@ -87,6 +108,23 @@ def test_an_arm_homed_again_after_its_host_vanished_mid_move_latches_nothing() -
         arm.torque(True, hold=True)
         arm.home()
         assert _latched(arm) == []
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
+@pytest.mark.slow
+def test_a_move_given_no_duration_or_speed_brings_the_joints_together_and_latches_nothing(
+        ) -> None:
+    """Each joint at 0.5 rad/s on its own time latched J4 (157 counts of its 150): J2 arrived
+    first and its stop set the shoulder and elbow ringing together."""
+    arm = _homed_arm("default-together")
+    try:
+        _, settled = arm.move([0.0, 0.5, 0.0, 0.8, 0.0, 0.0, 0.0], timeout=10.0)
+        assert _latched(arm) == []
+        # the wrist holds the hand there 0.026 rad off its goal, as its compliance gives at
+        # that load: settled all the same (it said "J6 is -0.026 rad off its goal")
+        assert settled
     finally:
         arm.close()
         forget_shared_emulators()

@@ -254,8 +254,9 @@ def _move_arguments(p: argparse.ArgumentParser) -> None:
                    help="take this long (s): speeds set so every joint arrives together")
     p.add_argument("--speed", type=number_above(0, what="a speed (rad/s)"), default=None,
                    metavar="RAD_S",
-                   help=f"no joint faster than this (rad/s; default {MOVE_DEFAULT_SPEED} "
-                        "without --duration)")
+                   help="every joint at most this (rad/s), each on its own time; without "
+                        f"--duration or --speed the furthest goes at {MOVE_DEFAULT_SPEED} "
+                        "and the others arrive with it")
     p.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
                    help="give up waiting this long (s, default 10) after the joints should "
                         "have arrived")
