@@ -13,7 +13,9 @@ search has covered the joint's whole range) until every joint has latched its in
 every node its goal with each cycle (the goal carries the routes' coupling offset, which
 must follow the other joints' search); then it reads the latches and drives the joints back
 where they started, at the search's speed.  An arm homed already is homed again the same
-way, from wherever it is held.  The joint's offset (rad,
+way, from wherever it is held.  A joint whose elastic element is wound past its node's stall
+limit when the search starts (driven into a stop, its latch cleared) searches only the other
+way and returns to where the joint, not its motor, was.  The joint's offset (rad,
 absolute angle = node angle + offset) is ``index angle − index_encoder_count`` in rad; the
 latched step count is the motor's position at the mark (``index_step_count``), recorded for
 force-sensing calibration.  The RX-64 servos measure absolute angles already: offset 0.
@@ -55,6 +57,11 @@ SEARCH_STEP_RAD: Final = 0.12
 #: target for it to count as reached.
 SEARCH_PERIOD_S: Final = 0.01
 SEARCH_TOLERANCE_RAD: Final = 0.01
+#: A joint whose elastic element is wound this far (its node's stall limit, counts) when
+#: the search starts is pressed against something that way (a stop it was driven into, its
+#: latch cleared): the search goes the other way only (searching into the stop latched it
+#: again, every time).
+WOUND_COUNTS: Final = int(_S["deflection_limit"].default)
 #: The stepper node's default velocity limit (counts/s), restored after the search.
 DEFAULT_VELOCITY_COUNTS: Final = int(_S["velocity_limit"].default)
 
@@ -115,6 +122,15 @@ def search_time(plans: Sequence[Sequence[float]], speed: float) -> float:
     return 2 * longest / speed + 5.0
 
 
+def next_leg(plan: Sequence[float], leg: int, blocked: set[int]) -> int:
+    """The leg of ``plan`` (search offsets, rad) after ``leg`` whose target is not on a
+    side in ``blocked`` (+1, −1); ``len(plan)`` when none is left."""
+    k = leg + 1
+    while k < len(plan) and (1 if plan[k] > 0 else -1) in blocked:
+        k += 1
+    return k
+
+
 def _check_search(arm: DrivenArm, state: ArmState, found: Sequence[bool], start: Sequence[float],
                   speed: float, late: bool) -> None:
     """Raise :class:`~host.errors.HomingError` for a joint still searching that its node
@@ -160,13 +176,25 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     arm.bus.sync_write(_S["clear_flags"].address, 1, {j.dxl_id: clear for j in arm.steppers})
     state = arm.torque(True, range(N_STEPPERS))
     start = [s.motor_angle for s in state.steppers]
+    joint_start = [s.angle for s in state.steppers]
     plans = [search_targets(hi - lo, step) for lo, hi in ARM_JOINT_LIMITS[:N_STEPPERS]]
-    leg = [0] * N_STEPPERS
     found = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
     clock = arm.transport
     deadline = clock.now() + search_time(plans, speed)
     # each joint's goal: its search leg's target, or where it found its index (held)
-    targets = [start[i] if found[i] else start[i] + plans[i][0] for i in range(N_STEPPERS)]
+    # the sides a joint cannot search: pressed against something that way (the motor beyond
+    # the joint by a stall's worth)
+    offsets = arm.deflection_offsets()
+    blocked = [{1 if s.deflection - offsets[i] > 0 else -1}
+               if abs(s.deflection - offsets[i]) >= WOUND_COUNTS else set()
+               for i, s in enumerate(state.steppers)]
+    leg = [0 if not blocked[i] else next_leg(plans[i], -1, blocked[i])
+           for i in range(N_STEPPERS)]
+    # where the search returns the joints: where they started; one that started pressed
+    # against something to where the joint was, its element relaxed (its motor's start would
+    # wind it up again)
+    back_to = [joint_start[i] if blocked[i] else start[i] for i in range(N_STEPPERS)]
+    targets = [start[i] if found[i] else start[i] + plans[i][leg[i]] for i in range(N_STEPPERS)]
     while not all(found):
         # every stepper its goal with every cycle, not only when it changes: the goal
         # carries the node's coupling offset, which must follow the other joints as they
@@ -174,7 +202,7 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
         # J2's search from an extended pose, the elbow's node saw a stall that was not)
         state = arm.cycle([arm.make_position(i, targets[i], None if found[i] else speed)
                            for i in range(N_STEPPERS)])
-        _check_search(arm, state, found, start, speed, clock.now() >= deadline)
+        _check_search(arm, state, found, back_to, speed, clock.now() >= deadline)
         for i, s in enumerate(state.steppers):
             if found[i]:
                 continue
@@ -182,17 +210,21 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
                 found[i] = True
                 targets[i] = s.motor_angle  # hold here
                 continue
-            if not s.moving and abs(s.motor_angle - targets[i]) <= tolerance:
-                leg[i] += 1
-                if leg[i] == len(plans[i]):
-                    arm.cycle([arm.make_position(k, start[k], speed)
-                               for k in range(N_STEPPERS)])
-                    raise HomingError(
-                        f"{JOINT_NAMES[i]}: no index pulse within its range "
-                        f"({plans[i][-2]:+.2f} … {plans[i][-1]:+.2f} rad about where it "
-                        f"started); check the encoder's index channel and that the joint "
-                        f"moves freely", joint=JOINT_NAMES[i])
-                targets[i] = start[i] + plans[i][leg[i]]
+            if s.moving or abs(s.motor_angle - targets[i]) > tolerance:
+                continue
+            leg[i] = next_leg(plans[i], leg[i], blocked[i])
+            if leg[i] == len(plans[i]):
+                arm.cycle([arm.make_position(k, back_to[k], speed) for k in range(N_STEPPERS)])
+                sides = " and ".join("+" if d > 0 else "-" for d in sorted(blocked[i],
+                                                                          reverse=True))
+                where = (f"; pressed against something going {sides}, searched the other way"
+                         if blocked[i] else "")
+                raise HomingError(
+                    f"{JOINT_NAMES[i]}: no index pulse within its range "
+                    f"({plans[i][-2]:+.2f} … {plans[i][-1]:+.2f} rad about where it "
+                    f"started{where}); check the encoder's index channel and that the joint "
+                    f"moves freely", joint=JOINT_NAMES[i])
+            targets[i] = start[i] + plans[i][leg[i]]
         if not all(found):
             clock.sleep(period)
     seen, encoder, steps = read_latches(arm)
@@ -205,7 +237,7 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     # from an extended pose the elbow's element carries most of what it can statically
     # (at J2 0.73, J4 1.05 rad with the hand, 112 of its 150 counts) and a faster move's
     # dynamics latched it
-    state, _ = arm.move([*start, *state.joints[N_STEPPERS:]], speed=speed, timeout=10.0,
+    state, _ = arm.move([*back_to, *state.joints[N_STEPPERS:]], speed=speed, timeout=10.0,
                         unhomed_speed=None)
     arm.cycle([arm.make_position(i, start[i], back) for i in range(N_STEPPERS)])
     arm.calibration = calibration_from_latches(arm, encoder, steps)

@@ -128,6 +128,11 @@ class DrivenArm(CyclingArm, Protocol):
         """Each stepper node's encoder count at its power-up."""
         ...
 
+    def deflection_offsets(self) -> list[int]:
+        """What each stepper node's deflection differs from its elastic element's by, now
+        (counts: the routes' coupling)."""
+        ...
+
     def torque(self, on: bool, joints: Iterable[int | str] | None = None, *,
                hold: bool = False) -> ArmState:
         """Enable or disable the torque of ``joints`` (default: all)."""

@@ -11,6 +11,7 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import MOVE_DEFAULT_SPEED, MOVE_RAMP_S, Arm, travel_time
+from host.arm_homing import next_leg, search_targets
 from host.arm_rest import servo_sag, settled
 from host.arm_state import ArmState, ServoState
 from protocol.dynamixel import ErrorBit
@@ -155,6 +156,34 @@ def test_a_move_given_no_duration_or_speed_goes_at_the_default_speed_and_latches
         # timeout counts from its arrival
         _, settled = arm.move([1.5, *OUTSTRETCHED[1:]], timeout=5.0)
         assert settled
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
+def test_a_search_skips_the_legs_on_a_blocked_side() -> None:
+    plan = search_targets(1.0, 0.12)  # +0.12, -0.12, +0.24, -0.24 ...
+    assert next_leg(plan, -1, {-1}) == 0 and next_leg(plan, 0, {-1}) == 2
+    assert next_leg(plan, 0, set()) == 1
+    assert next_leg(plan, 0, {1}) == 1 and next_leg(plan, 1, {1}) == 3
+    assert next_leg(plan, 0, {1, -1}) == len(plan)
+
+
+@pytest.mark.slow
+def test_an_arm_driven_into_a_stop_unhomed_and_cleared_is_homed() -> None:
+    """The user's way out of a latch, as the messages say it (clear, torque on, home): J2
+    against its lower stop with its element wound past the stall limit searched into the
+    stop and latched again, every time, then went back to its wound start."""
+    arm = Arm.open("emu://full/arm?ready=0&name=rehome-stop")
+    try:
+        arm.torque(True, hold=True)
+        with pytest.raises(Exception, match="J2 latched STALLED"):
+            arm.move([0.0, -0.5, 0.0, 0.0, 0.0, 0.0, 0.0])
+        arm.clear_errors()
+        arm.torque(True)
+        arm.home()
+        assert arm.homed and _latched(arm) == []
+        assert arm.state().joints[1] == pytest.approx(-0.3, abs=0.08)  # off the stop, held
     finally:
         arm.close()
         forget_shared_emulators()
