@@ -29,7 +29,7 @@ bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip ra
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from functools import partial
 from typing import Final, Literal
@@ -84,13 +84,19 @@ class Transmission:
 Hears = Callable[[bytes], bool]
 
 
+#: Which of a set of receivers act on a frame, in one call (see :meth:`Rs485Bus.set_audience`).
+Audience = Callable[[bytes], Collection[object]]
+
+
 class _Node:
-    __slots__ = ("free_us", "hears", "name", "uart")
+    __slots__ = ("by_audience", "free_us", "hears", "name", "uart")
 
     def __init__(self, uart: VirtualUart, name: str, hears: Hears | None) -> None:
         self.uart = uart
         self.name = name
         self.hears = hears
+        #: The bus's audience says whether it acts on a frame (not ``hears``).
+        self.by_audience = False
         self.free_us = 0  # when this node's transmitter is done with the line
 
 
@@ -135,6 +141,7 @@ class Rs485Bus:
         self.log: deque[Transmission] = deque(maxlen=LOG_LENGTH)
         self._rng = np.random.default_rng(seed)
         self._nodes: list[_Node] = []
+        self._audience: Audience | None = None
         self._on_air: list[Transmission] = []  # frames not yet past their end time
         self._on_air_until = 0  # the latest end of the frames in _on_air (µs)
 
@@ -157,6 +164,19 @@ class Rs485Bus:
         # The bus must know a frame from its first bit to find collisions.  (partial, not
         # a lambda: no Python frame of its own per frame.)
         uart.on_transmit = partial(self._transmit, node)
+
+    def set_audience(self, uarts: list[VirtualUart], audience: Audience) -> None:
+        """Ask ``audience`` once per frame, instead of each node's ``hears``, which of the
+        attached ``uarts`` act on it: it returns those of them that would (the frame's
+        bytes as ``hears`` gets them), and only those get it.  It must answer exactly as
+        the nodes' ``hears`` would."""
+        nodes = {id(n.uart): n for n in self._nodes}
+        for uart in uarts:
+            if id(uart) not in nodes:
+                raise ValueError(f"UART {uart.name!r} is not on this bus")
+        for uart in uarts:
+            nodes[id(uart)].by_audience = True
+        self._audience = audience
 
     def detach(self, uart: VirtualUart) -> None:
         """Take ``uart`` off the line (a node unplugged): it neither sends nor hears from
@@ -263,9 +283,15 @@ class Rs485Bus:
         tx.received = received
         if not received:
             return
+        audience = self._audience
+        picked = audience(received) if audience is not None else ()
         for node in self._nodes:
-            if node is not sender and (node.hears is None or node.hears(received)):
-                node.uart.deliver(received)
+            if node is not sender:
+                if node.by_audience:
+                    if node.uart in picked:
+                        node.uart.deliver(received)
+                elif node.hears is None or node.hears(received):
+                    node.uart.deliver(received)
 
     def _error_mask(self, n_bits: int, rate: float) -> npt.NDArray[np.uint8]:
         """Packed (little bit order) mask with each of ``n_bits`` set with ``rate``."""

@@ -2,7 +2,8 @@
 
 A whole packet for another node is let pass by an arm node without a look beyond its ID
 byte, except the status packet a BULK_READ turn waits for; the bus leaves such packets
-undelivered (``Rs485Bus.attach(..., hears=DynamixelSlave.acts_on)``).  What the host gets,
+undelivered (``Rs485Bus.attach(..., hears=DynamixelSlave.acts_on)``, all nodes asked at once
+through ``Rs485Bus.set_audience`` and ``LineAudience``).  What the host gets,
 and when, is checked equal to a line that delivers everything to everyone under random
 traffic, garbage and packets split across writes included.
 """
@@ -10,6 +11,7 @@ traffic, garbage and packets split across writes included.
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Collection
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -93,6 +95,20 @@ def host_view(traffic: list[tuple[bytes, int, int]], every_node_hears_all: bool
     if every_node_hears_all:
         for node in rig.bus._nodes:
             node.hears = None
+            node.by_audience = False
+    else:
+        # The line asks all nodes at once (LineAudience): each time, what every node's
+        # own acts_on says.
+        picked = rig.bus._audience
+        assert picked is not None
+
+        def checked(data: bytes) -> Collection[object]:
+            keys = picked(data)
+            assert list(keys) == [hal.uart("bus") for hal, app in rig.nodes.values()
+                                  if app.acts_on(data)]
+            return keys
+
+        rig.bus._audience = checked
     seen: list[tuple[bytes, int]] = []
     rig.on_host_bytes = lambda data, t: seen.append((bytes(data), t))
     for packet, split, gap_us in traffic:
