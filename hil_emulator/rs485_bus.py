@@ -29,7 +29,7 @@ bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip ra
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Final, Literal
@@ -85,7 +85,8 @@ Hears = Callable[[bytes], bool]
 
 
 #: Which of a set of receivers act on a frame, in one call (see :meth:`Rs485Bus.set_audience`).
-Audience = Callable[[bytes], Collection[object]]
+Audience = Callable[[bytes], Sequence[object]]
+_NOBODY: Final[Sequence[object]] = ()
 
 
 class _Node:
@@ -167,15 +168,18 @@ class Rs485Bus:
 
     def set_audience(self, uarts: list[VirtualUart], audience: Audience) -> None:
         """Ask ``audience`` once per frame, instead of each node's ``hears``, which of the
-        attached ``uarts`` act on it: it returns those of them that would (the frame's
-        bytes as ``hears`` gets them), and only those get it.  It must answer exactly as
-        the nodes' ``hears`` would."""
-        nodes = {id(n.uart): n for n in self._nodes}
-        for uart in uarts:
-            if id(uart) not in nodes:
-                raise ValueError(f"UART {uart.name!r} is not on this bus")
-        for uart in uarts:
-            nodes[id(uart)].by_audience = True
+        attached ``uarts`` (given in the order they were attached) act on it: it returns
+        those of them that would, in that order (the frame's bytes as ``hears`` gets
+        them), and only those get it.  It must answer exactly as the nodes' ``hears``
+        would.  Detaching one of them ends it: each node's ``hears`` decides again."""
+        order = [id(n.uart) for n in self._nodes]
+        at = [order.index(id(uart)) if id(uart) in order else -1 for uart in uarts]
+        if -1 in at:
+            raise ValueError(f"UART {uarts[at.index(-1)].name!r} is not on this bus")
+        if at != sorted(at):
+            raise ValueError("the audience's UARTs must be given in the order attached")
+        for i in at:
+            self._nodes[i].by_audience = True
         self._audience = audience
 
     def detach(self, uart: VirtualUart) -> None:
@@ -185,6 +189,10 @@ class Rs485Bus:
         if node is None:
             raise ValueError(f"UART {uart.name!r} is not on this bus")
         self._nodes.remove(node)
+        if node.by_audience:
+            self._audience = None
+            for other in self._nodes:
+                other.by_audience = False
         uart.on_transmit = None
         uart.sink = None
 
@@ -284,14 +292,18 @@ class Rs485Bus:
         if not received:
             return
         audience = self._audience
-        picked = audience(received) if audience is not None else ()
+        picked = audience(received) if audience is not None else _NOBODY
+        # The audience's picks come in attach order: the next one is the only candidate
+        # (compared by identity: a membership test would call __eq__).
+        k, n_picked = 0, len(picked)
         for node in self._nodes:
-            if node is not sender:
-                if node.by_audience:
-                    if node.uart in picked:
+            if node.by_audience:
+                if k < n_picked and picked[k] is node.uart:
+                    k += 1
+                    if node is not sender:
                         node.uart.deliver(received)
-                elif node.hears is None or node.hears(received):
-                    node.uart.deliver(received)
+            elif node is not sender and (node.hears is None or node.hears(received)):
+                node.uart.deliver(received)
 
     def _error_mask(self, n_bits: int, rate: float) -> npt.NDArray[np.uint8]:
         """Packed (little bit order) mask with each of ``n_bits`` set with ``rate``."""
