@@ -114,6 +114,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._alarm_led = self._alarm_shutdown = self._torque_enable = 0
         self._cw_margin = self._ccw_margin = self._cw_slope = self._ccw_slope = 0
         self._goal = self._moving_speed = self._torque_limit = self._punch = 0
+        self._goal_f = 0.0  # the goal as the setpoint's float (converted once per write)
 
     @property
     def alarms(self) -> ErrorBit | int:
@@ -139,6 +140,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._cw_slope = get("cw_compliance_slope")
         self._ccw_slope = get("ccw_compliance_slope")
         self._goal = get("goal_position")
+        self._goal_f = float(self._goal)
         self._moving_speed = get("moving_speed")
         self._torque_limit = get("torque_limit")
         self._punch = get("punch")
@@ -260,7 +262,7 @@ class Rx64ServoApp(DynamixelSlave):
             self.shutdown = True
             self.set("torque_limit", 0)
         # setpoint
-        goal = float(self._goal)
+        goal = self._goal_f
         speed = self._moving_speed
         if speed == 0:
             self.setpoint = goal

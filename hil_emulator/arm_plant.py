@@ -429,7 +429,9 @@ class ArmPlant:
             # commanded_rate(), commanded_current_ma() and position_steps(), read and
             # computed without the calls (the same operations).
             rate = stepper.rate
-            current = float(stepper.current)
+            # The commanded current (int mA): every use below (products with floats, its
+            # square, comparisons) is exact as it is, as after float() (|I|² < 2⁵³).
+            current = stepper.current
             steps = stepper._count0 + rate * (stepper.scheduler.now - stepper._t0) / 1e6
             phi = phi_offset[i] + steps * micro + slip_rad[i]
             phi_rate = rate * micro
