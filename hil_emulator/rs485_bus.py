@@ -80,6 +80,12 @@ class Transmission:
         self.received = received
 
 
+#: Run from source (not the compiled core): a frame's :class:`Transmission` is made with
+#: ``__new__`` and six stores, a third cheaper than through ``__init__`` (compiled, the
+#: constructor is the cheaper).
+_FROM_SOURCE: Final = __file__.endswith(".py")
+_new_transmission: Final = Transmission.__new__
+
 #: Whether a receiver acts on a frame (see :meth:`Rs485Bus.attach`).
 Hears = Callable[[bytes], bool]
 
@@ -236,7 +242,18 @@ class Rs485Bus:
                                    manchester=self.line_code == "manchester",
                                    bits_per_char=self.bits_per_char)
         node.free_us = end
-        tx = Transmission(node.name, start, end, data if type(data) is bytes else bytes(data))
+        if type(data) is not bytes:
+            data = bytes(data)
+        if _FROM_SOURCE:  # Transmission(node.name, start, end, data), a third cheaper
+            tx = _new_transmission(Transmission)
+            tx.name = node.name
+            tx.start_us = start
+            tx.end_us = end
+            tx.data = data
+            tx.collided = False
+            tx.received = None
+        else:
+            tx = Transmission(node.name, start, end, data)
         on_air = self._on_air
         if on_air:
             now = self.scheduler.now
