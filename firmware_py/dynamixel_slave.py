@@ -453,6 +453,47 @@ class DynamixelSlave:
             wait[1]()
 
 
+class LineAudience:
+    """The nodes of one line asked together which act on a frame: :meth:`picked` gives
+    the ``key`` of each node whose :meth:`DynamixelSlave.acts_on` is True, in order, in
+    one call per frame instead of one per node (a bus model delivers to those only).
+
+    ``members`` are ``(node, key)`` pairs; a node whose class replaces ``acts_on`` is asked
+    through it."""
+
+    def __init__(self, members: list[tuple[DynamixelSlave, object]]) -> None:
+        self._members = members
+        self._all = [key for _, key in members]
+        self._own_verdict = [type(node).acts_on is not DynamixelSlave.acts_on
+                             for node, _ in members]
+        self._plain = not any(self._own_verdict)
+
+    def picked(self, data: bytes) -> list[object]:
+        """The keys of the nodes that act on ``data`` (what each one's ``acts_on`` says)."""
+        n = len(data)
+        if not (self._plain and n >= 6 and data[3] + 4 == n and data[0] == 0xFF
+                and data[1] == 0xFF):
+            if self._plain:  # not one whole packet: every node acts on it
+                return self._all
+            return [key for (node, key) in self._members if node.acts_on(data)]
+        # One whole packet: acts_on's test for each node, the packet read once.
+        target = data[2]
+        broadcast = target == BROADCAST_ID
+        good: bool | None = None  # the checksum, computed only if a BULK_READ turn asks
+        out = []
+        for node, key in self._members:
+            if broadcast or target == node.bus_id or node._decoder.held:
+                out.append(key)
+                continue
+            wait = node._bulk_wait
+            if wait is not None and wait[0] == target:
+                if good is None:
+                    good = ~sum(data[2:-1]) & 0xFF == data[-1]
+                if good:
+                    out.append(key)
+        return out
+
+
 class _Rejected(Exception):
     """A write refused with these status error bits."""
 

@@ -637,8 +637,10 @@ class FmcbApp(HandNode):
         if name.endswith(".tactile"):
             tactile, imu_key, time_key = _TACTILE_KEYS[prefix]
             imu = fields["imu"]
-            ph[tactile] = _clamped(fields["taxels"], 0, 0xFFFF)
-            ph[imu_key] = _clamped((*imu["accel"], *imu["mag"]), -0x8000, 0x7FFF)
+            # The reply's fields are u16 taxels and i16 IMU counts, the status fields'
+            # own types: copied, not clamped (a test checks the two catalogues agree).
+            ph[tactile] = list(fields["taxels"])
+            ph[imu_key] = [*imu["accel"], *imu["mag"]]
             ph[time_key] = now
         elif name.endswith(".temperatures"):
             ph[f"{prefix}_temp"] = [_u16(v) for v in fields["temp"]]

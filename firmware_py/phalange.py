@@ -136,8 +136,11 @@ class _PhalangeApp(HandNode):
         if not isinstance(value, tuple) or len(value) != 3:
             raise HalError(f"sensor {channel!r} is not a 3-vector")
         # _clamp(int(v), _I16_MIN, _I16_MAX) of each, without the calls (eight phalanges,
-        # 100 times a second).
-        x, y, z = int(value[0]), int(value[1]), int(value[2])
+        # 100 times a second); int() only for what is not an int already (it costs more
+        # than the rest of this from source).
+        x, y, z = value
+        if type(x) is not int or type(y) is not int or type(z) is not int:
+            x, y, z = int(x), int(y), int(z)
         return (_I16_MIN if x < _I16_MIN else _I16_MAX if x > _I16_MAX else x,
                 _I16_MIN if y < _I16_MIN else _I16_MAX if y > _I16_MAX else y,
                 _I16_MIN if z < _I16_MIN else _I16_MAX if z > _I16_MAX else z)

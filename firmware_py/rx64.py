@@ -105,6 +105,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._ticks = 0
         self._pots: deque[int] = deque(maxlen=SPEED_WINDOW + 1)
         self._duty = 0.0
+        self._bridge_on = False  # what the tick last wrote to the motor's enable
         #: The last tick's readings (pot, duty, temperature, supply) whose registers are not
         #: written into the image yet (:meth:`sync_image`), or None.
         self._unpublished: tuple[int, float, int, int] | None = None
@@ -113,6 +114,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._alarm_led = self._alarm_shutdown = self._torque_enable = 0
         self._cw_margin = self._ccw_margin = self._cw_slope = self._ccw_slope = 0
         self._goal = self._moving_speed = self._torque_limit = self._punch = 0
+        self._goal_f = 0.0  # the goal as the setpoint's float (converted once per write)
 
     @property
     def alarms(self) -> ErrorBit | int:
@@ -138,6 +140,7 @@ class Rx64ServoApp(DynamixelSlave):
         self._cw_slope = get("cw_compliance_slope")
         self._ccw_slope = get("ccw_compliance_slope")
         self._goal = get("goal_position")
+        self._goal_f = float(self._goal)
         self._moving_speed = get("moving_speed")
         self._torque_limit = get("torque_limit")
         self._punch = get("punch")
@@ -155,6 +158,7 @@ class Rx64ServoApp(DynamixelSlave):
         self.motor.set_duty(0.0)
         self.motor.set_enabled(False)
         self._duty = 0.0
+        self._bridge_on = False
         self._refresh(0.0)
         self.hal.clock.call_every(TICK_US, self._tick)
 
@@ -258,7 +262,7 @@ class Rx64ServoApp(DynamixelSlave):
             self.shutdown = True
             self.set("torque_limit", 0)
         # setpoint
-        goal = float(self._goal)
+        goal = self._goal_f
         speed = self._moving_speed
         if speed == 0:
             self.setpoint = goal
@@ -266,16 +270,22 @@ class Rx64ServoApp(DynamixelSlave):
             step = speed * UNITS_PER_S_PER_SPEED * TICK_US / 1e6
             self.setpoint += max(-step, min(step, goal - self.setpoint))
         # output
-        motor = self.motor
         if self._torque_enable and not self.shutdown:
             error = self.setpoint - present
             torque = self._compliance(error, self._torque_limit)
             duty = torque / 1023 if error > 0 else -torque / 1023
-            motor.set_enabled(True)
+            bridge_on = True
         else:
             duty = 0.0
-            motor.set_enabled(False)
-        motor.set_duty(duty)
+            bridge_on = False
+        # The driver holds what was last written and this program is its only writer
+        # (power_up writes both; a halt stops this tick): write only what changed.  A
+        # zero duty's sign drives alike (0·stall), so ±0.0 count as the same.
+        if bridge_on is not self._bridge_on:
+            self.motor.set_enabled(bridge_on)
+            self._bridge_on = bridge_on
+        if duty != self._duty:
+            self.motor.set_duty(duty)
         self._duty = duty
         if alarms & self._alarm_led:
             if self._ticks % LED_BLINK_TICKS == 0:

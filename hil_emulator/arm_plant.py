@@ -104,7 +104,11 @@ class _Coupling:
     joint's constants (microstep angle, coupling row of (joint, C), k, c, h, travel, solid
     stiffness, holding torque per mA, detent torque) and state (hysteresis z, deflection,
     torque, Σ I² since the last thermal update).  Attributes of a class, not items of lists:
-    the compiled core keeps a class's floats unboxed."""
+    the compiled core keeps a class's floats unboxed.
+
+    The tick reads the constants as one tuple, :attr:`constants` (from source, unpacking
+    it costs a fifth of reading eleven attributes; compiled, a fixed tuple is unboxed too):
+    change them with :meth:`set_stiffness`, which keeps the two alike."""
 
     def __init__(self, joint: int, stepper: VirtualStepper, microstep: float,
                  row: list[tuple[int, float]], k: float, c: float, h: float, travel: float,
@@ -112,10 +116,19 @@ class _Coupling:
         self.joint, self.stepper, self.microstep, self.row = joint, stepper, microstep, row
         self.k, self.c, self.h, self.travel, self.k_solid = k, c, h, travel, k_solid
         self.hold_per_ma, self.detent = hold_per_ma, detent
+        self.constants: tuple[int, VirtualStepper, float, list[tuple[int, float]], float,
+                              float, float, float, float, float, float] = (
+            joint, stepper, microstep, row, k, c, h, travel, k_solid, hold_per_ma, detent)
         self.z = 0.0
         self.deflection = 0.0
         self.torque = 0.0
         self.heat = 0.0
+
+    def set_stiffness(self, k: float, k_solid: float) -> None:
+        """New spring and end-stop stiffness (N·m/rad) in the attributes and :attr:`constants`."""
+        self.k, self.k_solid = k, k_solid
+        self.constants = (self.joint, self.stepper, self.microstep, self.row, k, self.c, self.h,
+                          self.travel, k_solid, self.hold_per_ma, self.detent)
 
 
 class ArmPlant:
@@ -381,8 +394,7 @@ class ArmPlant:
         self.params = p = dataclasses.replace(p, stiffness=values)
         self._k[joint] = k
         self._k_solid[joint] = k * (p.stop_stiffness_factor - 1.0)
-        coupling = self._couplings[joint]
-        coupling.k, coupling.k_solid = self._k[joint], self._k_solid[joint]
+        self._couplings[joint].set_stiffness(self._k[joint], self._k_solid[joint])
         if self._bound:
             self.model.jnt_stiffness[self._stepper_jids[joint]] = k
 
@@ -412,16 +424,19 @@ class ArmPlant:
         refs = [0.0] * _N_STEPPERS
         forces = [0.0] * 7
         for coupling in self._couplings:
-            i, stepper, micro = coupling.joint, coupling.stepper, coupling.microstep
-            k, c, h, travel, k_solid = (coupling.k, coupling.c, coupling.h, coupling.travel,
-                                        coupling.k_solid)
-            # commanded_rate() and commanded_current_ma(), read without the calls.
+            (i, stepper, micro, row, k, c, h, travel, k_solid, hold_per_ma,
+             detent) = coupling.constants
+            # commanded_rate(), commanded_current_ma() and position_steps(), read and
+            # computed without the calls (the same operations).
             rate = stepper.rate
-            current = float(stepper.current)
-            phi = phi_offset[i] + stepper.position_steps() * micro + slip_rad[i]
+            # The commanded current (int mA): every use below (products with floats, its
+            # square, comparisons) is exact as it is, as after float() (|I|² < 2⁵³).
+            current = stepper.current
+            steps = stepper._count0 + rate * (stepper.scheduler.now - stepper._t0) / 1e6
+            phi = phi_offset[i] + steps * micro + slip_rad[i]
             phi_rate = rate * micro
             qi, qdi = q[i], qd[i]
-            for j, cij in coupling.row:
+            for j, cij in row:
                 phi += cij * dq[j]
                 phi_rate += cij * qd[j]
             deflection = phi - qi
@@ -438,14 +453,14 @@ class ArmPlant:
                 solid = k_solid * (deflection + travel)
             extra = h * z + solid
             torque = k * deflection + extra + viscous
-            capacity = coupling.hold_per_ma * current
+            capacity = hold_per_ma * current
             if rate:
                 capacity /= margin  # pull-out torque while stepping: the curve
                 speed = rate if rate > 0 else -rate
                 if speed > corner:
                     capacity *= corner / speed
-            if capacity < coupling.detent:
-                capacity = coupling.detent
+            if capacity < detent:
+                capacity = detent
             over = torque > capacity or torque < -capacity
             if over or (slipping[i] and current > 0.0):
                 if over:
@@ -519,7 +534,13 @@ class ArmPlant:
         servo_torque = self._servo_torque
         for s, sensors, motor in self._servo_rows:
             pot = rint(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
-            sensors.set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
+            pot = 0 if pot < 0 else 1023 if pot > 1023 else pot
+            # set_pot(pot) without the call when no one watches the channel (it changes
+            # every tick; bind checked the board has it): what the setter stores.
+            if sensors.channel_watchers:
+                sensors.set_pot(pot)
+            else:
+                sensors.values["pot"] = pot
             torque = servo_torque[s]
             if torque:
                 load = rint(torque * scale)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Final
 
-from firmware_py.dynamixel_slave import DynamixelSlave
+from firmware_py.dynamixel_slave import DynamixelSlave, LineAudience
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import make_arm_node
 from firmware_py.sim.virtual_hal import VirtualHal
@@ -53,6 +53,11 @@ class ArmRig(HostSide):
         self.host_uart = VirtualUart(self.scheduler, baud, name="host")
         self.host_uart.keep_sent = False
         self.bus.attach(self.host_uart, "host")
+        # The nodes' verdicts on a packet in one call per packet, not one per node.
+        uarts = [hal.uart("bus") for hal, _ in self.nodes.values()]
+        self.bus.set_audience(uarts, LineAudience(
+            [(app, uart) for (_, app), uart in zip(self.nodes.values(), uarts, strict=True)]
+        ).picked)
         self.host_uart.set_receiver(self._to_host)
 
     def _attach(self, dxl_id: int, hal: VirtualHal, app: DynamixelSlave) -> None:

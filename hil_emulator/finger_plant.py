@@ -146,13 +146,18 @@ class _Winding:
     """One finger motor in the plant: its HAL plant side, its row of ``M_rad`` and hall phase
     (hall states), and the tick's state: bridge mode, duty sign (the current limit set),
     duty, winding current (A) and Σ I² (A²) since the last thermal update.  Attributes of a
-    class, not items of lists: the compiled core keeps a class's floats unboxed."""
+    class, not items of lists: the compiled core keeps a class's floats unboxed.  The tick
+    reads the constants as one tuple, :attr:`constants` (from source, unpacking it costs
+    less than five attribute reads; compiled, a fixed tuple is unboxed too)."""
 
     def __init__(self, hal: VirtualMotor, a0: float, a1: float, a2: float,
                  phase: float) -> None:
         self.hal = hal
         self.a0, self.a1, self.a2 = a0, a1, a2
         self.phase = phase
+        #: ``(a0, a1, a2, phase, hal)``, fixed.
+        self.constants: tuple[float, float, float, float, VirtualMotor] = (a0, a1, a2, phase,
+                                                                             hal)
         self.act = -1  # its actuator in the model (bind)
         self.mode = _COAST
         self.sign = 0
@@ -354,10 +359,9 @@ class FingerPlant:
         v, ke, r, lim = self._electrical
         k_hall, sequence = _HALL_STATES_PER_RAD, _HALL_SEQUENCE
         for winding in self._windings:
-            a0, a1, a2 = winding.a0, winding.a1, winding.a2
+            a0, a1, a2, phase, motor = winding.constants
             # math.floor and rint called by name: the compiled core makes them C calls.
-            hall = sequence[math.floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall
-                                       + winding.phase) % 6]
+            hall = sequence[math.floor((a0 * q0 + a1 * q1 + a2 * q2) * k_hall + phase) % 6]
             if winding.mode == _COAST:
                 current = 0.0
             else:
@@ -370,7 +374,6 @@ class FingerPlant:
             winding.current = current
             winding.i2_sum += current * current
             milliamps = rint(current * 1000.0)
-            motor = winding.hal
             # Written only when it changes (a holding finger's never do): the call would
             # store the same values and raise no interrupt.
             if hall != motor._hall or milliamps != motor.current:

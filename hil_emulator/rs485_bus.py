@@ -29,7 +29,7 @@ bytes.  ``baud`` is always the *data* bit rate; on a Manchester line the chip ra
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Final, Literal
@@ -80,17 +80,30 @@ class Transmission:
         self.received = received
 
 
+#: Run from source (not the compiled core): a frame's :class:`Transmission` is made with
+#: ``__new__`` and six stores, a third cheaper than through ``__init__`` (compiled, the
+#: constructor is the cheaper).
+_FROM_SOURCE: Final = __file__.endswith(".py")
+_new_transmission: Final = Transmission.__new__
+
 #: Whether a receiver acts on a frame (see :meth:`Rs485Bus.attach`).
 Hears = Callable[[bytes], bool]
 
 
+#: Which of a set of receivers act on a frame, in one call (see :meth:`Rs485Bus.set_audience`).
+Audience = Callable[[bytes], Sequence[object]]
+_NOBODY: Final[Sequence[object]] = ()
+
+
 class _Node:
-    __slots__ = ("free_us", "hears", "name", "uart")
+    __slots__ = ("by_audience", "free_us", "hears", "name", "uart")
 
     def __init__(self, uart: VirtualUart, name: str, hears: Hears | None) -> None:
         self.uart = uart
         self.name = name
         self.hears = hears
+        #: The bus's audience says whether it acts on a frame (not ``hears``).
+        self.by_audience = False
         self.free_us = 0  # when this node's transmitter is done with the line
 
 
@@ -135,6 +148,7 @@ class Rs485Bus:
         self.log: deque[Transmission] = deque(maxlen=LOG_LENGTH)
         self._rng = np.random.default_rng(seed)
         self._nodes: list[_Node] = []
+        self._audience: Audience | None = None
         self._on_air: list[Transmission] = []  # frames not yet past their end time
         self._on_air_until = 0  # the latest end of the frames in _on_air (µs)
 
@@ -158,6 +172,22 @@ class Rs485Bus:
         # a lambda: no Python frame of its own per frame.)
         uart.on_transmit = partial(self._transmit, node)
 
+    def set_audience(self, uarts: list[VirtualUart], audience: Audience) -> None:
+        """Ask ``audience`` once per frame, instead of each node's ``hears``, which of the
+        attached ``uarts`` (given in the order they were attached) act on it: it returns
+        those of them that would, in that order (the frame's bytes as ``hears`` gets
+        them), and only those get it.  It must answer exactly as the nodes' ``hears``
+        would.  Detaching one of them ends it: each node's ``hears`` decides again."""
+        order = [id(n.uart) for n in self._nodes]
+        at = [order.index(id(uart)) if id(uart) in order else -1 for uart in uarts]
+        if -1 in at:
+            raise ValueError(f"UART {uarts[at.index(-1)].name!r} is not on this bus")
+        if at != sorted(at):
+            raise ValueError("the audience's UARTs must be given in the order attached")
+        for i in at:
+            self._nodes[i].by_audience = True
+        self._audience = audience
+
     def detach(self, uart: VirtualUart) -> None:
         """Take ``uart`` off the line (a node unplugged): it neither sends nor hears from
         now on; frames it already put on the line still arrive."""
@@ -165,6 +195,10 @@ class Rs485Bus:
         if node is None:
             raise ValueError(f"UART {uart.name!r} is not on this bus")
         self._nodes.remove(node)
+        if node.by_audience:
+            self._audience = None
+            for other in self._nodes:
+                other.by_audience = False
         uart.on_transmit = None
         uart.sink = None
 
@@ -208,7 +242,18 @@ class Rs485Bus:
                                    manchester=self.line_code == "manchester",
                                    bits_per_char=self.bits_per_char)
         node.free_us = end
-        tx = Transmission(node.name, start, end, data if type(data) is bytes else bytes(data))
+        if type(data) is not bytes:
+            data = bytes(data)
+        if _FROM_SOURCE:  # Transmission(node.name, start, end, data), a third cheaper
+            tx = _new_transmission(Transmission)
+            tx.name = node.name
+            tx.start_us = start
+            tx.end_us = end
+            tx.data = data
+            tx.collided = False
+            tx.received = None
+        else:
+            tx = Transmission(node.name, start, end, data)
         on_air = self._on_air
         if on_air:
             now = self.scheduler.now
@@ -263,8 +308,18 @@ class Rs485Bus:
         tx.received = received
         if not received:
             return
+        audience = self._audience
+        picked = audience(received) if audience is not None else _NOBODY
+        # The audience's picks come in attach order: the next one is the only candidate
+        # (compared by identity: a membership test would call __eq__).
+        k, n_picked = 0, len(picked)
         for node in self._nodes:
-            if node is not sender and (node.hears is None or node.hears(received)):
+            if node.by_audience:
+                if k < n_picked and picked[k] is node.uart:
+                    k += 1
+                    if node is not sender:
+                        node.uart.deliver(received)
+            elif node is not sender and (node.hears is None or node.hears(received)):
                 node.uart.deliver(received)
 
     def _error_mask(self, n_bits: int, rate: float) -> npt.NDArray[np.uint8]:

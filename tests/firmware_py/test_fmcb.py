@@ -11,6 +11,8 @@ import struct
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_py.flash_layout import PARAM_PAGE, page_address
 from firmware_py.fmcb import TUNNEL_QUEUE, FmcbApp
@@ -489,3 +491,23 @@ def test_make_node_boots_fmcb_app_and_it_answers_on_pogo() -> None:
     sched.run_for(1_000)
     frames = decode_all(b"".join(pogo.take_sent()))
     assert len(frames) == 1 and len(frames[0].payload) == 148
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.sampled_from(["f2.tactile", "f3.tactile"]), st.data())
+def test_a_tactile_reply_fits_the_status_fields_it_is_copied_into(name: str,
+                                                                  data: st.DataObject) -> None:
+    """The fmcb copies a phalange's taxels and IMU counts into its status unclamped: any
+    reply the catalogue parses must hold values its status fields can carry."""
+    message = CATALOGUE[name]
+    assert message.reply is not None
+    size = message.reply.sizeof()
+    fields = message.parse_reply(data.draw(st.binary(min_size=size, max_size=size)))
+    status = CATALOGUE["fmcb.status"]
+    assert status.reply is not None
+    prefix = "pp" if name.startswith("f2.") else "dp"
+    zeros = status.parse_reply(bytes(status.reply.sizeof()))
+    assert len(fields["taxels"]) == len(zeros[f"{prefix}_tactile"])
+    assert all(0 <= v <= 0xFFFF for v in fields["taxels"])
+    imu = [*fields["imu"]["accel"], *fields["imu"]["mag"]]
+    assert len(imu) == 6 and all(-0x8000 <= v <= 0x7FFF for v in imu)

@@ -189,3 +189,36 @@ def test_eeprom_persists_ram_resets(servo):
 def test_publish_rounding_is_round(x: float) -> None:
     """The registers' rounding is the builtin's, halves to even included."""
     assert _round_nonnegative(x) == round(x)
+
+
+RX64_ACTIONS = st.one_of(
+    st.tuples(st.just("goal_position"), st.integers(0, 1023)),
+    st.tuples(st.just("torque_enable"), st.integers(0, 1)),
+    st.tuples(st.just("torque_limit"), st.sampled_from([0, 1, 300, 1023])),
+    st.tuples(st.just("cw_compliance_margin"), st.integers(0, 40)),
+    st.tuples(st.just("pot"), st.integers(-5, 1030)),
+    st.tuples(st.just("temperature"), st.sampled_from([250, 900])),  # 90 °C: overheating
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(RX64_ACTIONS, min_size=1, max_size=12))
+def test_after_every_tick_the_motor_holds_what_the_tick_commanded(
+        actions: list[tuple[str, int]]) -> None:
+    """The tick writes the motor's enable and duty only when they change: the driver must
+    still hold, after every tick, what a tick writing both every time would leave."""
+    sched = Scheduler()
+    hal, app = make_arm_node(sched, BoardType.RX64, ID)
+    assert isinstance(app, Rx64ServoApp)
+    motor = hal.motor(0)
+    for name, value in actions:
+        if name == "pot":
+            hal.sensors.set_pot(value)
+        elif name == "temperature":
+            hal.sensors.set_temperature(value)
+        else:
+            write(sched, hal, name, value)
+        for _ in range(5):
+            sched.run_for(1_000)
+            assert motor.enabled == (bool(app.get("torque_enable")) and not app.shutdown)
+            assert motor.duty == app.motor_duty  # ±0.0 alike

@@ -129,3 +129,19 @@ def test_times_given_as_floats_are_taken_in_whole_microseconds() -> None:
     timer.cancel()
     assert ran == [1500, 2000, 2500]
     assert sched.now_us() == 3000 and type(sched.now_us()) is int
+
+
+def test_a_one_shot_timer_is_complete_however_it_was_made() -> None:
+    """From source call_at and call_later make their timers without __init__: every slot
+    is set as the constructor sets it, and the timer runs, reports and cancels alike."""
+    sched = Scheduler()
+    ran: list[str] = []
+    at = sched.call_at(30, lambda: ran.append("at"))
+    later = sched.call_later(20, lambda: ran.append("later"))
+    gone = sched.call_later(10, lambda: ran.append("gone"))
+    for handle, due in ((at, 30), (later, 20), (gone, 10)):
+        assert (handle.t_us, handle.period_us, handle.due_us, handle.active) == (due, 0, due, True)
+    assert later.seq == at.seq + 1 and gone.seq == later.seq + 1
+    gone.cancel()
+    sched.run_for(100)
+    assert ran == ["later", "at"] and not at.active and not later.active

@@ -2,7 +2,8 @@
 
 A whole packet for another node is let pass by an arm node without a look beyond its ID
 byte, except the status packet a BULK_READ turn waits for; the bus leaves such packets
-undelivered (``Rs485Bus.attach(..., hears=DynamixelSlave.acts_on)``).  What the host gets,
+undelivered (``Rs485Bus.attach(..., hears=DynamixelSlave.acts_on)``, all nodes asked at once
+through ``Rs485Bus.set_audience`` and ``LineAudience``).  What the host gets,
 and when, is checked equal to a line that delivers everything to everyone under random
 traffic, garbage and packets split across writes included.
 """
@@ -10,7 +11,9 @@ traffic, garbage and packets split across writes included.
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -93,6 +96,20 @@ def host_view(traffic: list[tuple[bytes, int, int]], every_node_hears_all: bool
     if every_node_hears_all:
         for node in rig.bus._nodes:
             node.hears = None
+            node.by_audience = False
+    else:
+        # The line asks all nodes at once (LineAudience): each time, what every node's
+        # own acts_on says.
+        picked = rig.bus._audience
+        assert picked is not None
+
+        def checked(data: bytes) -> Sequence[object]:
+            keys = picked(data)
+            assert list(keys) == [hal.uart("bus") for hal, app in rig.nodes.values()
+                                  if app.acts_on(data)]
+            return keys
+
+        rig.bus._audience = checked
     seen: list[tuple[bytes, int]] = []
     rig.on_host_bytes = lambda data, t: seen.append((bytes(data), t))
     for packet, split, gap_us in traffic:
@@ -111,3 +128,26 @@ def test_the_host_sees_the_same_as_on_a_line_that_delivers_everything(
         traffic: list[tuple[bytes, int, int]]) -> None:
     assert host_view(traffic, every_node_hears_all=False) == host_view(
         traffic, every_node_hears_all=True)
+
+
+def test_unplugging_a_node_the_audience_asks_for_hands_the_verdicts_back_to_each_node() -> None:
+    rig = ArmRig(seed=1)
+    host: list[bytes] = []
+    rig.on_host_bytes = lambda data, t: host.append(data)
+    rig.bus.detach(rig.nodes[7][0].uart("bus"))
+    assert rig.bus._audience is None
+    assert not any(node.by_audience for node in rig.bus._nodes)
+    got = count_deliveries(rig)
+    ping = dxl.make_ping(3).encode()
+    rig.send_from_host(ping)
+    rig.run_for(2_000)
+    assert [dxl.decode_packet(p)[0] for p in host] == [3]
+    # Each node's acts_on: the ping reaches node 3 only, its status the host only.
+    assert dict(got) == {3: [ping]}
+
+
+def test_an_audience_takes_the_uarts_in_the_order_attached() -> None:
+    rig = ArmRig(seed=1)
+    uarts = [rig.nodes[i][0].uart("bus") for i in (2, 1)]
+    with pytest.raises(ValueError, match="order attached"):
+        rig.bus.set_audience(uarts, lambda data: uarts)

@@ -52,6 +52,9 @@ def test_frames_reach_all_others_not_the_sender_at_end_plus_turnaround() -> None
     assert got["n2"] == [(b"hello", end_a + 3), (b"reply!", 1_033)]
     assert bus.collisions == 0
     assert [(t.name, t.collided) for t in bus.log] == [("n0", False), ("n1", False)]
+    # Every field of the log's transmissions (made without __init__ from source).
+    assert [(t.start_us, t.end_us, t.data, t.received) for t in bus.log] == [
+        (0, 25, b"hello", b"hello"), (1_000, 1_030, b"reply!", b"reply!")]
     assert a.peer is None and a.sink is not None
 
 

@@ -106,7 +106,10 @@ def test_spring_drift_sets_every_use_of_the_stiffness() -> None:
     emu.step(20 * MS)
     jid = plant._stepper_jids[2]
     assert plant.model.jnt_stiffness[jid] == pytest.approx(165.0)
-    assert plant._couplings[2].k == pytest.approx(165.0)  # the tick's
+    coupling = plant._couplings[2]
+    assert coupling.k == pytest.approx(165.0)
+    k, k_solid = coupling.constants[4], coupling.constants[8]  # what the tick reads
+    assert k == pytest.approx(165.0) and k_solid == coupling.k_solid
     assert plant._k_solid[2] == pytest.approx(165.0 * (plant.params.stop_stiffness_factor - 1))
     emu.faults.clear(entry)
     assert plant.model.jnt_stiffness[jid] == 110.0 and plant.params.stiffness[2] == 110.0
