@@ -48,11 +48,11 @@ from typing import Final
 
 from host.arm_gate import describe_latches, latches
 from host.arm_interface import CyclingArm
-from host.arm_rest import RestWatch
-from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command, JointInfo, ServoState
+from host.arm_rest import RestWatch, servo_setpoint
+from host.arm_state import JOINT_NAMES, N_STEPPERS, ArmState, Command, JointInfo
 from host.errors import JointAlarmError, NodeError, ReplyTimeout
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE, StepperFlag
-from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, ARM_JOINT_SPEED_LIMITS, RX64_RAD_PER_UNIT
+from protocol.robot import ARM_ENCODER_COUNTS_PER_REV, ARM_JOINT_SPEED_LIMITS
 
 _R = RX64_TABLE
 #: After an alarm, how long (s) the hold goals are sent again while the arm comes to rest.
@@ -160,22 +160,6 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
         goals[s.joint] = stop
     goals.update({v.joint: servo_setpoint(v) for v in state.servos})
     return goals
-
-
-def servo_setpoint(servo: ServoState) -> float:
-    """Where the RX-64 of ``servo`` drives to (rad): its angle plus the error (setpoint −
-    present) its compliance needs for the torque it applies, ``load`` (counter-clockwise
-    > 0, the way the angle grows): torque = punch + (limit − punch)·(|e| − margin)/slope,
-    the registers at their defaults.  Its angle when it applies no more than ``punch``."""
-    torque = abs(servo.load) * 1023  # present_load: 1/1023 of the maximum torque
-    punch, limit = float(_R["punch"].default), float(_R["torque_limit"].default)
-    if torque <= punch or limit <= punch:
-        return servo.angle
-    side = "cw" if servo.load > 0 else "ccw"  # e > 0 (CCW torque) uses the CW margin
-    margin = float(_R[f"{side}_compliance_margin"].default)
-    slope = float(_R[f"{side}_compliance_slope"].default)
-    error = margin + slope * min(torque - punch, limit - punch) / (limit - punch)
-    return servo.angle + copysign(error * RX64_RAD_PER_UNIT, servo.load)
 
 
 def motor_speeds(state: ArmState, before: ArmState | None,

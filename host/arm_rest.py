@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
+from math import copysign
 from typing import Final
 
 from host.arm_state import JOINT_NAMES, ArmState, ServoState
@@ -32,18 +33,23 @@ REST_SPREAD_COUNTS: Final = 2
 #: (an RX-64 at rest hunts across its compliance margin by a unit).
 REST_SERVO_SPREAD_RAD: Final = 2.05 * RX64_RAD_PER_UNIT
 _COUNT_RAD: Final = 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
-#: An RX-64's compliance as it comes (position units; the host leaves it): no torque within
-#: the margin, then the torque rises over the slope.
-_MARGIN_UNITS: Final = int(RX64_TABLE["cw_compliance_margin"].default)
-_SLOPE_UNITS: Final = int(RX64_TABLE["cw_compliance_slope"].default)
+_R = RX64_TABLE
 
 
-def servo_sag(servo: ServoState) -> float:
-    """How far (rad) an RX-64 holding ``servo.load`` (fraction of its torque) sits off its
-    goal by its compliance: the margin, then the share of the slope over which its torque
-    rises to that load (0.005 rad + 0.16 rad × load as it comes).  Holding the hand's weight
-    on J6 in an extended pose, 0.026 rad: the servo is where it holds, not on its way."""
-    return (_MARGIN_UNITS + abs(servo.load) * _SLOPE_UNITS) * RX64_RAD_PER_UNIT
+def servo_setpoint(servo: ServoState) -> float:
+    """Where the RX-64 of ``servo`` drives to (rad): its angle plus the error (setpoint −
+    present) its compliance needs for the torque it applies, ``load`` (counter-clockwise
+    > 0, the way the angle grows): torque = punch + (limit − punch)·(|e| − margin)/slope,
+    the registers at their defaults.  Its angle when it applies no more than ``punch``."""
+    torque = abs(servo.load) * 1023  # present_load: 1/1023 of the maximum torque
+    punch, limit = float(_R["punch"].default), float(_R["torque_limit"].default)
+    if torque <= punch or limit <= punch:
+        return servo.angle
+    side = "cw" if servo.load > 0 else "ccw"  # e > 0 (CCW torque) uses the CW margin
+    margin = float(_R[f"{side}_compliance_margin"].default)
+    slope = float(_R[f"{side}_compliance_slope"].default)
+    error = margin + slope * min(torque - punch, limit - punch) / (limit - punch)
+    return servo.angle + copysign(error * RX64_RAD_PER_UNIT, servo.load)
 
 
 class RestWatch:
@@ -105,20 +111,21 @@ def off_goal(state: ArmState, goals: Sequence[float], tolerance: float) -> str |
             return (f"{JOINT_NAMES[s.joint]}'s motor is {s.motor_angle - goals[s.joint]:+.3f} "
                     "rad off its goal")
     for v in state.servos:
-        if abs(v.angle - goals[v.joint]) > tolerance + servo_sag(v):
+        if abs(servo_setpoint(v) - goals[v.joint]) > tolerance:
             return (f"{JOINT_NAMES[v.joint]} is {v.angle - goals[v.joint]:+.3f} rad off its goal "
-                    f"(its compliance at its load allows {servo_sag(v):.3f})")
+                    f"(its setpoint {servo_setpoint(v) - goals[v.joint]:+.3f})")
     return None
 
 
 def settled(state: ArmState, goals: Sequence[float], tolerance: float,
             settle_speed: float = math.inf) -> bool:
     """True if every stepper node stopped with its motor within ``tolerance`` (rad) of
-    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo's joint
-    is within ``tolerance`` of its goal beyond what its compliance sags by at its load
-    (:func:`servo_sag`)."""
+    ``goals`` and its joint slower than ``settle_speed`` (rad/s), and every servo drives to
+    within ``tolerance`` of its goal (:func:`servo_setpoint`: its joint sits off the goal by
+    what its compliance needs for the load it holds, 0.026 rad for J6 holding the hand in an
+    extended pose)."""
     for s in state.steppers:
         if (s.moving or abs(s.motor_angle - goals[s.joint]) > tolerance
                 or abs(s.velocity) > settle_speed):
             return False
-    return all(abs(s.angle - goals[s.joint]) <= tolerance + servo_sag(s) for s in state.servos)
+    return all(abs(servo_setpoint(s) - goals[s.joint]) <= tolerance for s in state.servos)
