@@ -129,23 +129,28 @@ def link_shared_libraries(root: Path = ROOT, site: Path | None = None) -> list[P
     interpreter: the compiled modules import it as a top-level module, which the editable
     install's finder does not map (it maps only the packages), so an installed command
     (``armctl``, ``hil-emulator``) started outside the repository would not find it.  A
-    symbolic link in site-packages for each, old links into ``root`` removed; returns the
-    links."""
+    symbolic link in site-packages for each (replacing a link of the same name), old links
+    into ``root`` and links to libraries that are gone removed; returns the links."""
     site = site if site is not None else _site_packages()
     _unlink_shared_libraries(root, site)
     links = []
     for lib in sorted(root.glob("*__mypyc.*.so")):
         link = site / lib.name
+        if link.is_symlink():  # the same group built elsewhere (another checkout): this one
+            link.unlink()
         link.symlink_to(lib.resolve())
         links.append(link)
     return links
 
 
 def _unlink_shared_libraries(root: Path, site: Path) -> list[Path]:
-    """Remove the links :func:`link_shared_libraries` made into ``root`` (dangling ones too)."""
+    """Remove the links :func:`link_shared_libraries` made into ``root``, and any such link
+    whose library is gone (a build in a directory since deleted, a run interrupted before it
+    cleaned up: its link would block a build of the same group anywhere else)."""
     removed = []
     for link in sorted(site.glob("*__mypyc.*.so")):
-        if link.is_symlink() and Path(os.readlink(link)).parent == root.resolve():
+        if link.is_symlink() and (Path(os.readlink(link)).parent == root.resolve()
+                                  or not link.exists()):
             link.unlink()
             removed.append(link)
     return removed

@@ -206,7 +206,8 @@ def test_the_default_build_and_pure_python_send_the_same_traffic() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(2400)
-def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
+def test_compiled_build_sends_the_same_traffic(tmp_path: Path,
+                                              request: pytest.FixtureRequest) -> None:
     """Build into a copy of the packages, then compare the traffic digest with pure Python.
 
     The scheduler, the HAL and the virtual board only (:data:`SMOKE_MODULES`): building all of
@@ -227,6 +228,10 @@ def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "tools.build_compiled",
                            "--build-dir", str(tmp_path / "build"), "--only", *SMOKE_MODULES],
                           cwd=copy, env=env, capture_output=True, text=True)
+    # the build linked its shared library into this interpreter's site-packages: not left
+    # there, pointing into a directory pytest deletes
+    request.addfinalizer(lambda: build_compiled._unlink_shared_libraries(
+        copy, build_compiled._site_packages()))
     assert done.returncode == 0, f"the compiled core did not build: {done.stderr[-2000:]}"
     built = compiled_files(copy)
     assert len([p for p in built if "__mypyc" not in p.name]) == len(SMOKE_MODULES)
@@ -241,7 +246,8 @@ def test_compiled_build_sends_the_same_traffic(tmp_path: Path) -> None:
 def test_the_shared_library_is_linked_into_site_packages_and_unlinked_by_clean(
         tmp_path: Path) -> None:
     """mypyc's shared library is a top-level module the editable install does not map: the
-    set-up links it into site-packages, replacing an old link into the same root."""
+    set-up links it into site-packages, replacing an old link into the same root, a link of
+    the same name into another, and links whose library is gone."""
     root, site = tmp_path / "root", tmp_path / "site"
     root.mkdir()
     site.mkdir()
@@ -251,10 +257,18 @@ def test_the_shared_library_is_linked_into_site_packages_and_unlinked_by_clean(
     foreign.write_bytes(b"not ours")
     lib = root / "abc__mypyc.cpython-311-x86_64-linux-gnu.so"
     lib.write_bytes(b"\x7fELF")
+    # a run interrupted before it cleaned up left a link to a build directory since deleted,
+    # and another checkout's build of the same group links the same name
+    gone = site / "g0ne__mypyc.cpython-311-x86_64-linux-gnu.so"
+    gone.symlink_to(tmp_path / "deleted" / gone.name)
+    elsewhere = tmp_path / "other-checkout" / lib.name
+    elsewhere.parent.mkdir()
+    elsewhere.write_bytes(b"\x7fELF")
+    (site / lib.name).symlink_to(elsewhere)
     links = build_compiled.link_shared_libraries(root, site)
     assert links == [site / lib.name]
     assert links[0].resolve() == lib.resolve()
-    assert not old.is_symlink() and foreign.exists()
+    assert not old.is_symlink() and not gone.is_symlink() and foreign.exists()
     build_compiled._unlink_shared_libraries(root, site)
     assert not (site / lib.name).exists() and foreign.exists()
 
