@@ -92,7 +92,16 @@ from host.arm_stop_model import (
     rest_deflection_packet,
     rest_deflections,
 )
-from host.arm_trajectory import SERVO_GOAL_LEAD_S, Vector, servo_lead
+from host.arm_trajectory import (
+    MOVE_BRAKE_FLOOR,
+    MOVE_RAMP_S,
+    SERVO_GOAL_LEAD_S,
+    Vector,
+    move_speed_limits,
+    ramped_speeds,
+    servo_lead,
+    travel_time,
+)
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
 from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
 from host.scheduling import Scheduling
@@ -125,13 +134,6 @@ MOVE_MIN_SPEED: Final = 0.2
 #: still latched J4 to ``[0, 0.5, 0, 0.8, 0, 0, 0]`` (157: joints that stop one after the
 #: other set the shoulder and elbow ringing together); arriving together 107-125.
 MOVE_DEFAULT_SPEED: Final = 0.5
-#: How long (s) :meth:`Arm.move` takes to bring its steppers up to speed: it raises their
-#: speed limits with every cycle over this time (:func:`ramped_speeds`) instead of letting
-#: the nodes jump to speed in a few ms, which set the elastic links ringing (the elbow's
-#: own mode at about 5 Hz, the shoulder and elbow together at 1.5 Hz) for the whole move:
-#: a move stopped while a link swung ahead of its motor (Ctrl-C 0.1-0.4 s into a move)
-#: could wind the spring past the nodes' stall limit.
-MOVE_RAMP_S: Final = 0.3
 #: The most speed (rad/s) :meth:`Arm.move` gives a stepper joint of an arm that is not homed:
 #: the host does not know where its stops are then, and a shoulder that meets its stop at
 #: the nodes' full speed jolts the forearm hard enough that the elbow's spring deflects past
@@ -581,9 +583,10 @@ class Arm:
         :data:`MOVE_DEFAULT_SPEED` and the others arrive with it; while the arm is not homed (its stops unknown) a stepper joint goes no faster
         than ``unhomed_speed`` (rad/s, None: no such cap; the nodes keep that speed
         limit for later commands without a speed).  The steppers'
-        speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s
-        (:func:`ramped_speeds`), so they arrive about half that later.  Returns the last
-        state and whether the move settled.
+        speed limits are raised to those speeds over the first :data:`MOVE_RAMP_S` s and
+        lowered again over the last, as each motor nears its goal
+        (:func:`move_speed_limits`), so they arrive about that much later than at a
+        constant speed.  Returns the last state and whether the move settled.
 
         ``timeout`` counts from when the slowest joint should have arrived at its speed
         (the move's own time), so a long move at a modest speed is not cut short.
@@ -624,8 +627,7 @@ class Arm:
         clock = self.bus.transport
         start = clock.now()
         state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0),
-                                   ramped_speeds(speeds, period, servos=True))
-        ramping = any(s is not None for s in speeds[:N_STEPPERS])
+                                   move_speed_limits(speeds, period, servos=True))
         deadline = start + timeout + travel_time(now.joints, angles, speeds)
         while True:
             stop_for_alarms(self, state, before)
@@ -637,9 +639,10 @@ class Arm:
             clock.sleep(period)
             # the goals again, with the coupling offsets of the joints as they are now
             elapsed = clock.now() - start
-            ramp = ramped_speeds(speeds, elapsed + period) if ramping else None
-            ramping = ramping and elapsed + period < MOVE_RAMP_S
-            state = self.set_positions(servo_lead(now.joints, angles, speeds, elapsed), ramp)
+            left = [abs(s.goal - s.motor_angle) for s in state.steppers]
+            limits = move_speed_limits(speeds, elapsed + period, left,
+                                       sent=self.wire.stepper_speed_limits)
+            state = self.set_positions(servo_lead(now.joints, angles, speeds, elapsed), limits)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report
@@ -655,35 +658,12 @@ class Arm:
                     self.bus.set_return_delay(j.dxl_id, self.return_delay)
 
 
-def travel_time(start: Sequence[float], goals: Sequence[float],
-                speeds: Sequence[float | None]) -> float:
-    """The time (s) the slowest joint needs from ``start`` to ``goals`` (rad) at its speed
-    of ``speeds`` (rad/s; None: the node's own, taken as the joint's speed limit), with the
-    steppers' speed ramp (:data:`MOVE_RAMP_S`, about half of it lost)."""
-    worst = 0.0
-    for i, (a, b, s) in enumerate(zip(start, goals, speeds, strict=True)):
-        limit = ARM_JOINT_SPEED_LIMITS[i]
-        worst = max(worst, abs(b - a) / (min(s, limit) if s else limit))
-    return worst + MOVE_RAMP_S / 2
-
-
-def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
-                  servos: bool = False) -> list[float | None]:
-    """The speed limits (rad/s) a move sends ``elapsed`` s after it began: each stepper's
-    of ``speeds`` scaled by ``elapsed`` / :data:`MOVE_RAMP_S` (at most 1), the servos'
-    as they are with ``servos`` (the first command), else None (not sent again: an RX-64
-    keeps its moving speed, and the move's goals lead it along its way)."""
-    scale = min(1.0, max(elapsed, 0.0) / MOVE_RAMP_S)
-    return [(None if s is None else s * scale) if i < N_STEPPERS else (s if servos else None)
-            for i, s in enumerate(speeds)]
-
-
 #: The arm's API: :class:`Arm`, the constants of its cycle, and (from the modules they live
 #: in) the free functions and types its users import from here.
 __all__ = [
     "COMMAND_AT", "COMMAND_LEN", "FAST_RETURN_DELAY", "HOST_WATCHDOG_MS",
     "HOST_WATCHDOG_REALTIME_MS", "host_watchdog_ms", "MOVE_DEFAULT_SPEED", "MOVE_MIN_SPEED",
-    "MOVE_RAMP_S", "ramped_speeds", "travel_time",
+    "MOVE_BRAKE_FLOOR", "MOVE_RAMP_S", "move_speed_limits", "ramped_speeds", "travel_time",
     "RESYNC_MIN_COUNTS", "SERVO_GOAL_LEAD_S", "servo_lead", "SERVO_READ_AT", "SERVO_READ_LEN", "SERVO_SLOW_READ_LEN",
     "SLOW_READ_EVERY", "STEPPER_READ_AT", "STEPPER_READ_LEN", "Arm", "resync_clears",
     # moved out, importable here as before

@@ -20,7 +20,11 @@ import numpy as np
 
 from host.arm_state import N_JOINTS, N_STEPPERS
 from host.errors import UsageError
-from protocol.robot import ARM_JOINT_ACCEL_LIMITS
+from protocol.robot import (
+    ARM_ENCODER_COUNTS_PER_REV,
+    ARM_JOINT_ACCEL_LIMITS,
+    ARM_JOINT_SPEED_LIMITS,
+)
 
 #: Joint angles or a vector: a sequence of floats or a numpy array.
 Vector = Sequence[float] | np.ndarray
@@ -137,3 +141,81 @@ def servo_lead(start: Sequence[float], goals: Sequence[float],
         if reach < abs(span):
             out[j] = start[j] + math.copysign(reach, span)
     return out
+
+
+#: How long (s) :meth:`host.arm.Arm.move` takes to bring its steppers up to speed, and to
+#: brake them into their goals (:func:`move_speed_limits`).  The nodes' own profile changes
+#: speed at π rad/s² (the hardware's), which at the speeds of a move takes 0.1-0.45 s: about
+#: half a period of the shoulder and elbow swinging together (1.2-2.5 Hz), the ramp that
+#: leaves the most swing behind.  A ramp of a period or more leaves little: on the emulator
+#: (homed at zero, a speed of 0.5-1.44 rad/s to eight poses, each joint on its own time)
+#: ramps of 0.3 s up and the nodes' braking latched J2 or J4 STALLED in 27 of 40 moves (a
+#: J2 at 0.5 rad/s too); 0.6 s up and down in 3, all at J2's full speed (1.44 rad/s), where
+#: the elastic elements carry up to 130 of their 150 counts statically in the loaded poses
+#: on the way.  The moves also came to rest sooner: 4.0-7.0 s against 3.7-7.9 s.
+MOVE_RAMP_S: Final = 0.6
+#: The least speed limit (rad/s) a move's braking sends a stepper (:func:`move_speed_limits`):
+#: a goal the node is still short of by a count or two is reached in a few tens of ms.
+MOVE_BRAKE_FLOOR: Final = 0.02
+#: A motor this close to its goal (rad at the joint: two encoder counts) has arrived: its
+#: speed limit is the move's again, which the node keeps for later goals sent without one
+#: (a joint loop's, a hold's return), instead of the braking's last.
+MOVE_ARRIVED_RAD: Final = 2 * 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
+#: Half a count of a stepper node's ``velocity_limit`` (rad/s at the joint).
+_HALF_COUNT_RAD: Final = 0.5 * 2 * math.pi / ARM_ENCODER_COUNTS_PER_REV
+
+
+def ramped_speeds(speeds: Sequence[float | None], elapsed: float, *,
+                  servos: bool = False) -> list[float | None]:
+    """The speed limits (rad/s) a move sends ``elapsed`` s after it began, before braking:
+    each stepper's of ``speeds`` scaled by ``elapsed`` / :data:`MOVE_RAMP_S` (at most 1),
+    the servos' as they are with ``servos`` (the first command), else None (not sent
+    again: an RX-64 keeps its moving speed, and the move's goals lead it along its way)."""
+    scale = min(1.0, max(elapsed, 0.0) / MOVE_RAMP_S)
+    return [(None if s is None else s * scale) if i < N_STEPPERS else (s if servos else None)
+            for i, s in enumerate(speeds)]
+
+
+def move_speed_limits(speeds: Sequence[float | None], elapsed: float,
+                      left: Sequence[float] | None = None, *, servos: bool = False,
+                      sent: Sequence[float | None] | None = None) -> list[float | None]:
+    """The speed limits (rad/s) a move sends ``elapsed`` s after it began: each stepper's
+    speed of ``speeds`` raised over :data:`MOVE_RAMP_S` (:func:`ramped_speeds`) and, as its
+    motor comes within ``left`` (rad, the motor's distance to its goal, one per stepper;
+    None: not near) of its goal, lowered so it brakes into it over :data:`MOVE_RAMP_S`:
+    ``√(2·a·left)`` with ``a = speed / MOVE_RAMP_S``; the move's speed again once the motor
+    has arrived (:data:`MOVE_ARRIVED_RAD`); never below :data:`MOVE_BRAKE_FLOOR` (nor
+    above the speed).  A stepper's limit that is what ``sent`` (rad/s, per stepper, as
+    the nodes last took it) already says, to the register's count, is None (not sent
+    again); the servos' as in :func:`ramped_speeds`."""
+    out = ramped_speeds(speeds, elapsed, servos=servos)
+    for i in range(N_STEPPERS):
+        speed, limit = speeds[i], out[i]
+        if speed is None or limit is None:
+            continue
+        if left is not None and left[i] > MOVE_ARRIVED_RAD:
+            limit = min(limit, math.sqrt(2.0 * (speed / MOVE_RAMP_S) * float(left[i])))
+        limit = max(limit, min(speed, MOVE_BRAKE_FLOOR))
+        last = None if sent is None else sent[i]
+        out[i] = None if last is not None and abs(limit - last) < _HALF_COUNT_RAD else limit
+    return out
+
+
+def travel_time(start: Sequence[float], goals: Sequence[float],
+                speeds: Sequence[float | None]) -> float:
+    """The time (s) the slowest joint needs from ``start`` to ``goals`` (rad) at its speed
+    of ``speeds`` (rad/s; None: the node's own, taken as the joint's speed limit), with the
+    steppers' ramps up and down (:data:`MOVE_RAMP_S` each, about half of each lost; a
+    joint too close to reach its speed takes ``2·√(distance·MOVE_RAMP_S/speed)``)."""
+    worst = 0.0
+    for i, (a, b, s) in enumerate(zip(start, goals, speeds, strict=True)):
+        limit = ARM_JOINT_SPEED_LIMITS[i]
+        speed = min(s, limit) if s else limit
+        far = abs(b - a)
+        if i < N_STEPPERS:
+            ramped = far / speed + MOVE_RAMP_S if far >= speed * MOVE_RAMP_S else \
+                2.0 * math.sqrt(far * MOVE_RAMP_S / speed)
+            worst = max(worst, ramped)
+        else:
+            worst = max(worst, far / speed)
+    return worst

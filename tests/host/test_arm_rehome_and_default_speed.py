@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import MOVE_DEFAULT_SPEED, MOVE_RAMP_S, Arm, travel_time
+from host.arm import MOVE_DEFAULT_SPEED, Arm
 from host.arm_homing import next_leg, search_targets
 from host.arm_rest import settled
 from host.arm_state import ArmState, ServoState
 from protocol.dynamixel import ErrorBit
-from protocol.robot import ARM_JOINT_SPEED_LIMITS
 from tests.ground_truth import arm_plant_of, emulator_of
 
 HOME = [0.0, 0.3, 0.0, 0.4, 0.0, 0.0, 0.0]
@@ -37,15 +36,6 @@ def _homed_arm(name: str) -> Arm:
 def _latched(arm: Arm) -> list[str]:
     state = arm.state()
     return [f"J{i + 1}" for i, s in enumerate(state.steppers) if s.stalled or s.slip]
-
-
-def test_travel_time_is_the_slowest_joint_at_its_speed_plus_half_the_ramp() -> None:
-    start = [0.0] * 7
-    goals = [0.0, 1.0, 0.0, -0.5, 0.0, 0.0, 0.0]
-    assert travel_time(start, goals, [0.5] * 7) == pytest.approx(2.0 + MOVE_RAMP_S / 2)
-    # a joint without a speed goes at its limit
-    assert travel_time(start, goals, [None] * 7) == pytest.approx(
-        max(1.0 / ARM_JOINT_SPEED_LIMITS[1], 0.5 / ARM_JOINT_SPEED_LIMITS[3]) + MOVE_RAMP_S / 2)
 
 
 def _servo(joint: int, angle: float, load: float) -> ServoState:

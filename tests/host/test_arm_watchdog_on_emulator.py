@@ -268,11 +268,12 @@ def test_a_program_that_only_reads_leaves_the_stop_to_be_seen():
 
 def test_after_a_hold_the_nodes_hold_without_settling():
     """A host that holds the arm mid-move (Ctrl-C) and then exits: the hold leaves the
-    motors at rest where they stop (its second write from how they turn then), so the
-    watchdog has nothing to stop.  A node still finishing a short way when the host goes
-    quiet (a program's last short goal) is stopped by the watchdog and holds there as
-    before - no settling move (it is for a move cut short; after a hold it moved the joints
-    on and, through the ptys, latched J4)."""
+    motors at rest where they stop (its second write from how they turn then), or, at some
+    moments, a node finishing the count or two it overshot that by, which its watchdog
+    stops there (2-3 of 10 moments of the 6 s move): no settling move either way.  A node
+    still finishing a short way when the host goes quiet (a program's last short goal) is
+    stopped by the watchdog and holds there as before - no settling move (it is for a move
+    cut short; after a hold it moved the joints on and, through the ptys, latched J4)."""
 
     class Interrupted(BaseException):
         """Ctrl-C between two cycles."""
@@ -294,9 +295,13 @@ def test_after_a_hold_the_nodes_hold_without_settling():
         arm.hold()
         apps = [arm_rig_of(emu).app(i) for i in range(1, 5)]
         watchdog = int(StepperFlag.WATCHDOG)
+        hold = [app.get("command_goal") / GOAL_FINE_PER_COUNT for app in apps]
         for _ in range(500):
             emu.step(1_000)
-            assert not any(app.get("status_flags") & watchdog for app in apps)
+            # no settling move (it may move a motor 40 counts): each node's goal stays the
+            # hold's, or where its watchdog stopped its last count or two
+            now = [app.get("command_goal") / GOAL_FINE_PER_COUNT for app in apps]
+            assert np.abs(np.subtract(now, hold)).max() <= 3
         # a short way (20 counts at 0.05 rad/s, 0.25 s) left to go when the host goes quiet
         state = arm.state()
         arm.cycle([arm.make_position(s.joint, s.motor_angle + 0.0126, 0.05)

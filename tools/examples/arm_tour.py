@@ -47,7 +47,8 @@ def main(url: str = "emu://arm/arm") -> Seen:
         print("moveto:", reached.reached, round(reached.position_error * 1000, 1), "mm")
 
         # Joint-space move: all joints arrive together after `duration` s (the steppers
-        # about 0.15 s later: their speed limits are ramped up over the first 0.3 s).
+        # about 0.6 s later: their speed limits ramp up over the first 0.6 s and down over
+        # the last, so the elastic joints do not ring).
         goal = [0.0, 0.3, 0.0, 0.4, 0.0, 0.2, 0.0]
         state, settled = arm.move(goal, duration=1.0, timeout=6.0)
         print("move settled:", settled)
