@@ -15,6 +15,7 @@ or when it moves while being read.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
@@ -47,6 +48,12 @@ SAMPLE_INTERVAL_S: Final = 0.04
 #: accelerometers' readings spread less than :data:`STILL_ACCEL_COUNTS` (counts, std).
 STILL_HALL_COUNTS: Final = 2
 STILL_ACCEL_COUNTS: Final = 15.0
+#: How long (s, the link's clock) homing reads a finger again while it moves before it
+#: refuses (:class:`FingerMovingError`): a hand on the arm is shaken for a second or two after
+#: the arm's moves (the wrist servos hunting by a position unit under the hand's weight,
+#: ±20-30 mg on the accelerometers), which refused one or two fingers in half the runs of
+#: "arm move, then hand home" pasted as the guide gives it.
+REST_WAIT_S: Final = 3.0
 
 
 @dataclass
@@ -121,16 +128,30 @@ class HomeResult:
                 "unobservable": list(self.unobservable)}
 
 
+def _still(reading: InertialReading) -> bool:
+    """Whether ``reading`` was taken at rest (see :data:`STILL_HALL_COUNTS`)."""
+    return (reading.hall_moved <= STILL_HALL_COUNTS
+            and reading.spread_counts <= STILL_ACCEL_COUNTS)
+
+
 def home_finger(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
-                min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> HomeResult:
+                min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD,
+                wait_s: float = REST_WAIT_S) -> HomeResult:
     """Home ``finger`` from its accelerometers; raises (:class:`UnobservableJointError`,
-    :class:`AmbiguousPoseError`, :class:`FingerMovingError`) instead of guessing."""
+    :class:`AmbiguousPoseError`, :class:`FingerMovingError`) instead of guessing.  A finger
+    that moves while being read is read again until it is still, for up to ``wait_s``
+    (s, the link's clock)."""
     reading = read_at_rest(finger, samples)
-    if reading.hall_moved > STILL_HALL_COUNTS or reading.spread_counts > STILL_ACCEL_COUNTS:
+    reads = math.ceil(max(wait_s, 0.0) / (max(1, samples) * SAMPLE_INTERVAL_S))
+    for _ in range(reads):
+        if _still(reading):
+            break
+        reading = read_at_rest(finger, samples)
+    if not _still(reading):
         raise FingerMovingError(
             f"finger {finger.index} moved while being read (motors {reading.hall_moved} "
-            f"hall counts, accelerometers ±{reading.spread_counts:.0f} mg); let it come to "
-            f"rest (idle it) and home again")
+            f"hall counts, accelerometers ±{reading.spread_counts:.0f} mg) for "
+            f"{wait_s:g} s; let it come to rest (idle it) and home again")
     try:
         found = estimate(reading.as_dict(), None, min_tilt_rad)
     except NoAccelerationError as exc:
@@ -214,4 +235,4 @@ def homed_on_robot(finger: HandFinger) -> bool:
 
 __all__ = ["AmbiguousPoseError", "FingerMovingError", "HomeResult", "InertialReading",
            "NoAccelerationError", "UnobservableJointError", "home", "home_finger", "homed_on_robot",
-           "inertial_estimate", "read_at_rest"]
+           "inertial_estimate", "read_at_rest", "REST_WAIT_S"]

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from host.errors import NotHomedError
+from host.errors import FingerMovingError, NotHomedError
 from host.hand import Hand
 from host.hand_homing import home_finger, inertial_estimate
 from host.inertial_closed_form import UnobservableJointError
@@ -115,3 +115,36 @@ def test_handctl_home_of_every_finger_says_how_to_make_vertical_axes_observable(
     err = capsys.readouterr().err
     assert "J0 (abduction) is unobservable" in err and "armctl --port ARM move" in err
     assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_homing_waits_for_a_finger_still_moving_to_come_to_rest(hand: Hand) -> None:
+    """A finger still swinging when homing starts (here: its motors idled mid-move; on the
+    arm, the wrist servos hunting after a move) is read again until it is still, instead of
+    refused at the first reading."""
+    thumb = hand.fingers[THUMB]
+    thumb.move((0.45, 0.8, 0.35), effort=200, timeout=2.0, unhomed=True)
+    thumb.idle()
+    hand.session.sleep(0.5)
+    thumb.command((0.0, 0.2, 0.1), effort=200, unhomed=True)
+    hand.session.sleep(0.15)
+    thumb.idle()  # it falls on from here for a quarter of a second
+    result = home_finger(thumb)
+    assert result.homed
+    joints = np.asarray(thumb.status().joints)
+    err = np.degrees(np.abs(joints - finger_joints(hand)[THUMB]))
+    assert np.all(err < 1.0), err
+
+
+@pytest.mark.slow
+def test_homing_refuses_a_finger_that_keeps_moving_for_the_whole_wait(hand: Hand) -> None:
+    thumb = hand.fingers[THUMB]
+    start = hand.session.now()
+    thumb.command((0.45, 0.8, 0.35), effort=200, unhomed=True)  # driven on while read
+    try:
+        with pytest.raises(FingerMovingError, match=r"finger 3 moved while being read .* "
+                                                    r"for 0.5 s; let it come to rest"):
+            home_finger(thumb, wait_s=0.5)
+        assert hand.session.now() - start >= 0.5
+    finally:
+        thumb.idle()
