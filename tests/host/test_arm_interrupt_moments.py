@@ -17,6 +17,7 @@ link and latched STALLED (through the ptys, a Ctrl-C 0.13 s into the move down).
 from __future__ import annotations
 
 import math
+import statistics
 
 import numpy as np
 import pytest
@@ -158,8 +159,10 @@ def test_a_hold_leaves_a_loaded_wrist_where_it_is() -> None:
         emulator = emulator_of(arm)
         arm.torque(True, hold=True)
         arm.move(LOADED, duration=3.0)
-        state = arm.state()
-        assert abs(state.servos[1].load) > 0.1  # J6 carries the hand
+        # J6 carries the hand: its load reads 0.12, flickering by a unit (0.03) either way
+        # as the servo hunts by a position unit, so the median of a few cycles
+        loads = [abs(arm.state().servos[1].load) for _ in range(9)]
+        assert statistics.median(loads) > 0.1
         at = arm_joints(arm)
         arm.hold()
         emulator.step(1_000_000)
