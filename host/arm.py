@@ -62,7 +62,14 @@ from host.arm_cycle import (
     resync_clears,
 )
 from host.arm_discovery import discover, open_arm_transport, open_bus
-from host.arm_gate import HOLD_TOLERANCE_RAD, check_goals, check_speeds, latches, require_torque
+from host.arm_gate import (
+    HOLD_TOLERANCE_RAD,
+    MOVE_SPEED_LIMITS,
+    check_goals,
+    check_speeds,
+    latches,
+    require_torque,
+)
 from host.arm_hold import Held, hold, stop_for_alarms
 from host.arm_homing import (
     SEARCH_PERIOD_S,
@@ -114,7 +121,6 @@ from protocol.control_tables import (
     StepperClear,
 )
 from protocol.dynamixel import InstructionPacket, make_reset
-from protocol.robot import ARM_JOINT_SPEED_LIMITS
 
 _S = STEPPER_TABLE
 _GOAL = _S["command_goal"]
@@ -579,7 +585,8 @@ class Arm:
         it afterwards why a move did not settle).  ``duration`` (s) sets each joint's speed
         so all arrive together, none below :data:`MOVE_MIN_SPEED` (a joint that barely
         moves arrives early and keeps a speed limit it can hold with); ``speed`` (rad/s)
-        caps every joint's instead; given neither, the joint that moves furthest goes at
+        caps every joint's instead (a stepper's at most
+        :data:`~host.arm_gate.MOVE_STEPPER_SPEED_RAD_S` either way); given neither, the joint that moves furthest goes at
         :data:`MOVE_DEFAULT_SPEED` and the others arrive with it; while the arm is not homed (its stops unknown) a stepper joint goes no faster
         than ``unhomed_speed`` (rad/s, None: no such cap; the nodes keep that speed
         limit for later commands without a speed).  The steppers'
@@ -615,7 +622,7 @@ class Arm:
         elif speed is not None:
             if not (math.isfinite(speed) and speed > 0):
                 raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
-            speeds = [min(speed, limit) for limit in ARM_JOINT_SPEED_LIMITS]
+            speeds = [min(speed, limit) for limit in MOVE_SPEED_LIMITS]
         driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance]
         require_torque(self, driven, "moving them")
         if not self.homed and unhomed_speed is not None:  # stops unknown: meet one gently

@@ -13,6 +13,9 @@ naming the joint, raised before a single goal is sent:
   its angle from power-up, so its range is unknown, but a goal further from its present
   angle than the joint's whole range is beyond a stop wherever the joint is: refused
   (:func:`check_goals`);
+* **a move's speed** (:meth:`host.arm.Arm.move`): no stepper joint faster than
+  :data:`MOVE_STEPPER_SPEED_RAD_S` (0.8 rad/s: faster, its elastic element winds past its
+  stall limit in loaded poses), a ``duration`` needing more refused (:func:`check_speeds`);
 * **speed and acceleration** (:data:`~protocol.robot.ARM_JOINT_SPEED_LIMITS`,
   :data:`~protocol.robot.ARM_JOINT_ACCEL_LIMITS`): a timed path whose segments need more
   speed, or whose corners more acceleration, than a joint has is refused, not clamped
@@ -73,6 +76,18 @@ _ACCEL = np.array(ARM_JOINT_ACCEL_LIMITS)
 MAX_SLOWDOWN_HINT: Final = 20.0
 #: Slack (relative) on the speed and acceleration limits, for rounding in the caller's times.
 _SLACK: Final = 1e-6
+#: The most speed (rad/s) :meth:`host.arm.Arm.move` gives a stepper joint, below the
+#: controllers' step rates (1.1-1.44 rad/s): the nodes run a move as a trapezoid, and
+#: accelerating or braking a loaded arm faster winds the elastic elements past their stall
+#: limit (150 counts).  On the emulator, with the move's ramps (0.6 s up and down), moves at
+#: 1.0-1.44 rad/s latched J2 or J4 STALLED in 7 of 28 (up from the arm's own pose to eight
+#: poses, down from four raised ones); at up to 0.8 rad/s none of 28, peaks up to 121 counts.
+MOVE_STEPPER_SPEED_RAD_S: Final = 0.8
+#: Each joint's speed limit (rad/s) in :meth:`host.arm.Arm.move`: the steppers'
+#: :data:`MOVE_STEPPER_SPEED_RAD_S`, the servos' their own.
+MOVE_SPEED_LIMITS: Final[tuple[float, ...]] = tuple(
+    min(limit, MOVE_STEPPER_SPEED_RAD_S) if i < N_STEPPERS else limit
+    for i, limit in enumerate(ARM_JOINT_SPEED_LIMITS))
 
 
 def check_finite(values: Sequence[float] | np.ndarray, what: str,
@@ -119,18 +134,24 @@ def check_duration(duration: float, what: str = "move duration") -> None:
         raise LimitError(f"{what} {duration} must be a finite number of seconds > 0")
 
 
-def check_speeds(goals: Sequence[float], present: Sequence[float], duration: float) -> None:
+def check_speeds(goals: Sequence[float], present: Sequence[float], duration: float,
+                 limits: Sequence[float] = MOVE_SPEED_LIMITS) -> None:
     """Refuse a move from ``present`` to ``goals`` (rad) in ``duration`` (s) that needs a
-    joint faster than its speed limit; the message gives the least duration that would do."""
+    joint faster than its speed limit of ``limits`` (rad/s; a move's,
+    :data:`MOVE_SPEED_LIMITS`, by default); the message gives the least duration that would
+    do."""
     check_duration(duration)
     need = np.abs(np.asarray(goals, dtype=float) - np.asarray(present, dtype=float)) / duration
-    ratio = need / _SPEED
+    most = np.asarray(limits, dtype=float)
+    ratio = need / most
     j = int(np.argmax(ratio))
     if ratio[j] > 1 + _SLACK:
         least = duration * float(ratio[j])
+        why = (" (a move's, for its elastic element; the controller steps at up to "
+               f"{_SPEED[j]:.2f})") if most[j] < _SPEED[j] else ""
         raise LimitError(f"{JOINT_NAMES[j]} would need {need[j]:.2f} rad/s to arrive in "
-                         f"{duration:g} s; its limit is {_SPEED[j]:.2f} rad/s: take at least "
-                         f"{math.ceil(least * 10) / 10:g} s", joint=JOINT_NAMES[j])
+                         f"{duration:g} s; its limit is {most[j]:.2f} rad/s{why}: take at "
+                         f"least {math.ceil(least * 10) / 10:g} s", joint=JOINT_NAMES[j])
 
 
 def path_rates(times: Sequence[float] | np.ndarray, points: np.ndarray, *, smooth: bool = False

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
+from host.arm_gate import MOVE_SPEED_LIMITS, MOVE_STEPPER_SPEED_RAD_S, check_speeds
 from host.arm_state import N_JOINTS, N_STEPPERS, ArmState
 from host.arm_trajectory import (
     MOVE_ARRIVED_RAD,
@@ -25,6 +26,7 @@ from host.arm_trajectory import (
     ramped_speeds,
     travel_time,
 )
+from host.errors import LimitError
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import ARM_JOINT_SPEED_LIMITS
 from tests.ground_truth import arm_plant_of, emulator_of
@@ -99,10 +101,47 @@ def _homed_arm(name: str) -> Arm:
     return arm
 
 
+def test_a_move_gives_the_steppers_at_most_their_elastic_speed() -> None:
+    """The controllers step J2 at up to 1.44 rad/s, but a move at more than 0.8 rad/s winds
+    a loaded arm's elastic elements past their stall limit: a duration needing more is
+    refused, naming the joint and the time that would do; the servos keep their own."""
+    start = [0.0] * 7
+    assert MOVE_SPEED_LIMITS[:N_STEPPERS] == (MOVE_STEPPER_SPEED_RAD_S,) * N_STEPPERS
+    assert MOVE_SPEED_LIMITS[N_STEPPERS:] == ARM_JOINT_SPEED_LIMITS[N_STEPPERS:]
+    with pytest.raises(LimitError, match=r"J2 would need 1.00 rad/s to arrive in 1 s; its "
+                                         r"limit is 0.80 rad/s \(a move's, for its elastic "
+                                         r"element; the controller steps at up to 1.45\): "
+                                         r"take at least 1.3 s") as refused:
+        check_speeds([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], start, 1.0)
+    assert refused.value.joint == "J2"
+    check_speeds([0.0, 0.8, 0.0, 0.0, 0.0, 1.0, 0.0], start, 1.0)  # J6 at 1 rad/s: its own
+    # the hardware's limits, where a caller asks for them
+    check_speeds([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], start, 1.0, ARM_JOINT_SPEED_LIMITS)
+
+
+@pytest.mark.slow
+def test_a_move_asked_for_more_speed_takes_the_steppers_at_their_elastic_speed() -> None:
+    """Down from a raised pose at 1.2 rad/s the elbow's element wound past its stall limit
+    braking the falling forearm (J4 latched STALLED at 198-248 counts of its 150, with the
+    host's ramps or without); a ``speed`` caps the steppers at
+    :data:`~host.arm_gate.MOVE_STEPPER_SPEED_RAD_S`."""
+    arm = _homed_arm("ramps-down")
+    try:
+        arm.move([0.0, 1.0, 0.0, 1.4, 0.0, 0.0, 0.0], duration=5.0)
+        _, settled = arm.move(HOME, speed=1.2, timeout=10.0)
+        state = arm.state()
+        assert not any(s.stalled or s.slip for s in state.steppers)
+        assert settled
+        assert max(v or 0.0 for v in arm.wire.stepper_speed_limits) <= MOVE_STEPPER_SPEED_RAD_S + 1e-3
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
 @pytest.mark.slow
 def test_a_move_at_a_speed_the_gate_allows_does_not_wind_the_elements_past_their_limit() -> None:
-    """At 1 rad/s (the gate allows J2 1.44, J4 1.11) to a loaded pose the nodes' own ramps
-    wound J2 to 168 counts of its 150 and latched it STALLED; with the host's ramps the
+    """At 1 rad/s (0.8 for the steppers) to a loaded pose the nodes' own ramps wound J2 to
+    168 counts of its 150 and latched it STALLED (151 at 0.8); with the host's ramps the
     elements carry what the pose loads them with, and little more."""
     arm = _homed_arm("ramps-fast")
     peak = [0] * N_STEPPERS

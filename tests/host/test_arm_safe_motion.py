@@ -156,8 +156,8 @@ def test_the_library_move_refuses_joints_whose_torque_is_off_and_sends_nothing(
                                                r"the joint is .* more than its whole range"),
     ([0.0, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0], {}, "J2 goal nan is not a finite number"),
     ([0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0], {"duration": 0.5},
-     r"J2 would need 3\.00 rad/s to arrive in 0\.5 s; its limit is 1\.45 rad/s: take at "
-     r"least 1\.1 s"),
+     r"J2 would need 3\.00 rad/s to arrive in 0\.5 s; its limit is 0\.80 rad/s \(a move's, "
+     r"for its elastic element; the controller steps at up to 1\.45\): take at least 1\.9 s"),
     ([0.0] * 7, {"duration": math.inf}, "must be a finite number of seconds"),
 ])
 def test_the_gate_refuses_a_move_before_anything_moves(

@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from host.arm import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
-from host.arm_gate import check_cartesian, check_finite, require_torque
+from host.arm_gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finite, require_torque
 from host.arm_homing import restore
 from host.arm_rest import RestWatch
 from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
@@ -254,9 +254,10 @@ def _move_arguments(p: argparse.ArgumentParser) -> None:
                    help="take this long (s): speeds set so every joint arrives together")
     p.add_argument("--speed", type=number_above(0, what="a speed (rad/s)"), default=None,
                    metavar="RAD_S",
-                   help="every joint at most this (rad/s), each on its own time; without "
-                        f"--duration or --speed the furthest goes at {MOVE_DEFAULT_SPEED} "
-                        "and the others arrive with it")
+                   help="every joint at most this (rad/s), each on its own time (J1-J4 "
+                        f"at most {MOVE_STEPPER_SPEED_RAD_S}); without --duration or --speed "
+                        f"the furthest goes at {MOVE_DEFAULT_SPEED} and the others arrive "
+                        "with it")
     p.add_argument("--timeout", type=_TIME, default=10.0, metavar="S",
                    help="give up waiting this long (s, default 10) after the joints should "
                         "have arrived")
