@@ -80,8 +80,8 @@ _SLACK: Final = 1e-6
 #: controllers' step rates (1.1-1.44 rad/s): the nodes run a move as a trapezoid, and
 #: accelerating or braking a loaded arm faster winds the elastic elements past their stall
 #: limit (150 counts).  On the emulator, with the move's ramps (0.6 s up and down), moves at
-#: 1.0-1.44 rad/s latched J2 or J4 STALLED in 7 of 28 (up from the arm's own pose to eight
-#: poses, down from four raised ones); at up to 0.8 rad/s none of 28, peaks up to 121 counts.
+#: 1.0-1.44 rad/s latched J2 or J4 STALLED in 7 of 32 (up from the arm's own pose to eight
+#: poses, down from four raised ones); at up to 0.8 rad/s none of 24, peaks up to 120 counts.
 MOVE_STEPPER_SPEED_RAD_S: Final = 0.8
 #: Each joint's speed limit (rad/s) in :meth:`host.arm.Arm.move`: the steppers'
 #: :data:`MOVE_STEPPER_SPEED_RAD_S`, the servos' their own.
