@@ -62,6 +62,13 @@ SEARCH_TOLERANCE_RAD: Final = 0.01
 #: latch cleared): the search goes the other way only (searching into the stop latched it
 #: again, every time).
 WOUND_COUNTS: Final = int(_S["deflection_limit"].default)
+#: How far inside its range (rad) the search of an arm homed already keeps a joint: the
+#: search is for a joint whose stops are unknown (after power-up it may start anywhere, and
+#: it goes as far each way as the joint's whole range); once homed they are known, and from
+#: the outstretched ``[0, 1.5, 0, 1.5, …]`` that search drove J4 into its upper stop (2.6
+#: rad) and latched it STALLED.  A search target is the motor's; the joint sits off it by its
+#: element's deflection (up to 150 counts, 0.09 rad).
+RANGE_MARGIN_RAD: Final = 0.15
 #: The stepper node's default velocity limit (counts/s), restored after the search.
 DEFAULT_VELOCITY_COUNTS: Final = int(_S["velocity_limit"].default)
 
@@ -112,6 +119,20 @@ def search_targets(width: float, step: float) -> list[float]:
         if 2 * k * step >= width:
             return out
         k += 1
+
+
+def within_range(plan: Sequence[float], angle: float, limits: tuple[float, float],
+                 margin: float = RANGE_MARGIN_RAD) -> list[float]:
+    """``plan`` (search offsets, rad) for a joint at ``angle`` (rad, absolute) whose range
+    ``limits`` (rad) is known: each target kept ``margin`` (rad) inside the range, a leg
+    that would repeat the one before dropped."""
+    lo, hi = limits[0] + margin - angle, limits[1] - margin - angle
+    out: list[float] = []
+    for offset in plan:
+        target = min(max(offset, lo), hi)
+        if not out or abs(target - out[-1]) > 1e-9:
+            out.append(target)
+    return out
 
 
 def search_time(plans: Sequence[Sequence[float]], speed: float) -> float:
@@ -171,6 +192,7 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     STALLED: held) or that did not get through its search in :func:`search_time`."""
     if not speed > 0:
         raise UsageError(f"homing speed {speed} must be > 0 rad/s")
+    homed_before = arm.calibration
     arm.calibration = None
     clear = _S["clear_flags"].encode(int(StepperClear.REARM_INDEX))
     arm.bus.sync_write(_S["clear_flags"].address, 1, {j.dxl_id: clear for j in arm.steppers})
@@ -178,6 +200,9 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     start = [s.motor_angle for s in state.steppers]
     joint_start = [s.angle for s in state.steppers]
     plans = [search_targets(hi - lo, step) for lo, hi in ARM_JOINT_LIMITS[:N_STEPPERS]]
+    if homed_before is not None:  # the stops are known: search inside them
+        plans = [within_range(plans[i], joint_start[i] + homed_before.offsets[i],
+                              ARM_JOINT_LIMITS[i]) for i in range(N_STEPPERS)]
     found = [bool(s.flags & StepperFlag.INDEX_SEEN) for s in state.steppers]
     clock = arm.transport
     deadline = clock.now() + search_time(plans, speed)

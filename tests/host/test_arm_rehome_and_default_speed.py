@@ -11,7 +11,7 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import MOVE_DEFAULT_SPEED, Arm
-from host.arm_homing import next_leg, search_targets
+from host.arm_homing import RANGE_MARGIN_RAD, next_leg, search_targets, within_range
 from host.arm_rest import settled
 from host.arm_state import ArmState, ServoState
 from protocol.dynamixel import ErrorBit
@@ -73,6 +73,41 @@ def test_an_arm_homed_again_where_it_was_moved_finds_its_indexes_and_latches_not
         # back where the search started
         truth = arm_plant_of(emulator_of(arm)).joint_angles()[:4]
         assert np.abs(truth - np.array(pose[:4])).max() < 0.1
+    finally:
+        arm.close()
+        forget_shared_emulators()
+
+
+def test_the_search_of_an_arm_homed_already_keeps_inside_the_joints_range() -> None:
+    """The search goes as far each way as the joint's whole range (its stops unknown after
+    power-up); once homed, its targets stay a margin inside the range."""
+    plan = search_targets(2.95, 0.12)  # J4's range, -0.35 .. 2.6 rad
+    assert max(plan) > 1.4 and min(plan) < -1.4
+    kept = within_range(plan, 1.5, (-0.35, 2.6))
+    assert 1.5 + max(kept) == pytest.approx(2.6 - RANGE_MARGIN_RAD)
+    assert min(kept) == pytest.approx(min(plan))  # -1.56: inside the range that way
+    # from near the lower stop the other side is kept in
+    low = within_range(plan, -0.2, (-0.35, 2.6))
+    assert -0.2 + min(low) == pytest.approx(-0.35 + RANGE_MARGIN_RAD)
+    assert kept[:4] == pytest.approx(plan[:4])  # the first legs are as they were
+    assert all(abs(b - a) > 1e-9 for a, b in zip(kept, kept[1:], strict=False))
+
+
+@pytest.mark.slow
+def test_an_arm_homed_again_at_the_outstretched_pose_stays_off_its_stops() -> None:
+    """From ``[0, 1.5, 0, 1.5, …]`` the search drove J4 into its upper stop (2.6 rad) and its
+    node latched STALLED, at any search speed."""
+    arm = _homed_arm("rehome-outstretched")
+    try:
+        first = arm.calibration
+        assert first is not None
+        arm.move(OUTSTRETCHED, duration=4.0)
+        before = np.array(arm.state().joints[:4])
+        again = arm.home()
+        assert again.index_encoder_counts == first.index_encoder_counts
+        assert _latched(arm) == []
+        truth = arm_plant_of(emulator_of(arm)).joint_angles()[:4]
+        assert np.abs(truth - before).max() < 0.05
     finally:
         arm.close()
         forget_shared_emulators()
