@@ -192,7 +192,9 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     STALLED: held) or that did not get through its search in :func:`search_time`."""
     if not speed > 0:
         raise UsageError(f"homing speed {speed} must be > 0 rad/s")
-    homed_before = arm.calibration
+    # homed already (by this program, or by another since the nodes' power-up: their index
+    # latches still hold): the stops are known
+    homed_before = arm.calibration if restore(arm) else None
     arm.calibration = None
     clear = _S["clear_flags"].encode(int(StepperClear.REARM_INDEX))
     arm.bus.sync_write(_S["clear_flags"].address, 1, {j.dxl_id: clear for j in arm.steppers})
