@@ -78,6 +78,7 @@ from host.arm_homing import (
     SEARCH_TOLERANCE_RAD,
 )
 from host.arm_joint_loop import JointController, TrackingLog
+from host.arm_motor_goals import motor_goals, power_up_angles
 from host.arm_rest import RestWatch, off_goal, settled
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
@@ -569,16 +570,29 @@ class Arm:
         """Move all seven joints at once (rad, rad/s)."""
         return self.cycle(self.make_positions(angles, speeds))
 
+    def motor_goals(self, angles: Sequence[float]) -> list[float]:
+        """The goals (rad, seven) :meth:`move` sends so the joints land on ``angles`` (rad):
+        each stepper's motor where the routes' coupling and, once homed, its spring's sag
+        under the arm's weight (the hand's too while :attr:`hand`) leave its joint on the
+        goal (:mod:`host.arm_motor_goals`); the servos' as they are."""
+        q_ref = power_up_angles(self.calibration, self.steppers, self.encoder_at_power_up)
+        return motor_goals(angles, q_ref, self.steppers, gravity=self.homed, hand=self.hand)
+
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = 0.02,
              settle_speed: float = 0.05, timeout: float = 10.0, period: float = 0.01,
              rest: RestWatch | None = None,
-             unhomed_speed: float | None = UNHOMED_STEPPER_SPEED) -> tuple[ArmState, bool]:
+             unhomed_speed: float | None = UNHOMED_STEPPER_SPEED,
+             motors: bool = False) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait, cycling every ``period``
         (s) with the goals again (so the stepper nodes' coupling offsets follow the joints),
-        until the move settled or ``timeout`` (s) passed after the move's own time.  Settled: every stepper node
-        stopped with its motor within ``tolerance`` (rad) of the goal (the joint itself
-        sits off it by the elastic deflection under load) and its joint slower than
+        until the move settled or ``timeout`` (s) passed after the move's own time.  The
+        steppers' motors go to :meth:`motor_goals`, where the routes' coupling and (homed)
+        the springs' sag leave the joints on ``angles`` (``motors=True``: ``angles`` are
+        the stepper motors' goals themselves, as the nodes take them); speeds, durations
+        and arrival are the motors'.  Settled: every stepper node
+        stopped with its motor within ``tolerance`` (rad) of its motor goal (the joint
+        within the arm model's error of ``angles``; an unmodelled load sags it) and its joint slower than
         ``settle_speed`` (rad/s), every servo within ``tolerance`` of its goal, and the
         arm at rest (``rest``, a :class:`~host.arm_rest.RestWatch`: every joint's angle and
         spring deflection still for its window, a second by default; pass one to ask
@@ -611,19 +625,24 @@ class Arm:
             raise LimitError(f"move timeout {timeout} must be > 0 s")
         now = self.state()
         check_goals(angles, now.joints, homed=self.homed, tolerance=tolerance)
+        # the steppers' motors go where their joints land on the goals (the routes'
+        # coupling, the springs' sag); speeds and arrival are the motors'
+        goals = list(angles) if motors else self.motor_goals(angles)
+        origin = [*(s.motor_angle for s in now.steppers), *now.joints[N_STEPPERS:]]
         speeds: list[float | None] = [None] * N_JOINTS
         if duration is None and speed is None:  # together, the furthest at the default
-            duration = max(max(abs(a - b) for a, b in zip(angles, now.joints, strict=True))
+            duration = max(max(abs(a - b) for a, b in zip(goals, origin, strict=True))
                            / MOVE_DEFAULT_SPEED, MOVE_RAMP_S)
         if duration is not None:
-            check_speeds(angles, now.joints, duration)
+            check_speeds(goals, origin, duration)
             speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
-                      for a, b in zip(angles, now.joints, strict=True)]
+                      for a, b in zip(goals, origin, strict=True)]
         elif speed is not None:
             if not (math.isfinite(speed) and speed > 0):
                 raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
             speeds = [min(speed, limit) for limit in MOVE_SPEED_LIMITS]
-        driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance]
+        driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance
+                  or abs(goals[i] - origin[i]) > tolerance]
         require_torque(self, driven, "moving them")
         if not self.homed and unhomed_speed is not None:  # stops unknown: meet one gently
             speeds[:N_STEPPERS] = [min(s or unhomed_speed, unhomed_speed)
@@ -633,13 +652,13 @@ class Arm:
         watch.reset()
         clock = self.bus.transport
         start = clock.now()
-        state = self.set_positions(servo_lead(now.joints, angles, speeds, 0.0),
+        state = self.set_positions(servo_lead(origin, goals, speeds, 0.0),
                                    move_speed_limits(speeds, period, servos=True))
-        deadline = start + timeout + travel_time(now.joints, angles, speeds)
+        deadline = start + timeout + travel_time(origin, goals, speeds)
         while True:
             stop_for_alarms(self, state, before)
             still = watch.update(state)
-            if settled(state, angles, tolerance, settle_speed) and still:
+            if settled(state, goals, tolerance, settle_speed) and still:
                 return state, True
             if clock.now() >= deadline:
                 return state, False
@@ -649,7 +668,7 @@ class Arm:
             left = [abs(s.goal - s.motor_angle) for s in state.steppers]
             limits = move_speed_limits(speeds, elapsed + period, left,
                                        sent=self.wire.stepper_speed_limits)
-            state = self.set_positions(servo_lead(now.joints, angles, speeds, elapsed), limits)
+            state = self.set_positions(servo_lead(origin, goals, speeds, elapsed), limits)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report

@@ -2,6 +2,7 @@
 part does; new code imports the module that declares each name:
 
 * :mod:`host.arm_joint_loop` - the PID loop with the coupling feed-forward and braking lead;
+* :mod:`host.arm_motor_goals` - the coupling feed-forward and the springs' sag;
 * :mod:`host.arm_trajectory` - waypoints, their interpolation, timing a path to the limits;
 * :mod:`host.arm_cartesian` - IK chosen for the stepper joints' loads, and ``moveto``;
 * :mod:`host.arm_waypoints` - record, play, save and load waypoints.
@@ -23,9 +24,9 @@ from host.arm_joint_loop import (
     PidGains,
     TrackingLog,
     braking_lead,
-    coupling_feedforward,
     elastic_deflections,
 )
+from host.arm_motor_goals import coupling_feedforward
 from host.arm_trajectory import MIN_JERK_PEAK, Trajectory, Vector, Waypoint, timed_path
 from host.arm_waypoints import (
     WAYPOINTS_KIND,

@@ -137,19 +137,25 @@ def hold_goals(state: ArmState, before: ArmState | None = None,
     (:func:`motor_speeds`; at its angle without them) once the goal reaches it at ``at``
     (s, the clock of the states' ``t``; at most :data:`EXTRAPOLATE_MAX_S` after ``state``:
     it turns on at that speed until then), plus what the estimate may be off by
-    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`; a speed no faster than the node's speed
-    limit in ``limits``, rad/s, None: not known), and never beyond the goal it was going
+    (:data:`SPEED_ERROR`, :data:`TIME_ERROR_S`, a microstep of the step counts; a speed
+    no faster than the node's speed limit in ``limits``, rad/s, None: not known), and
+    never beyond the goal it was going
     to; a servo where it drives to (:func:`servo_setpoint`); a stepper its node stopped
     (STALLED, a hardware error) is left out.  A goal short of where the motor stops would
     brake it past the goal and drive it back against a link that swings on: the spring
     winds up."""
     speeds = motor_speeds(state, before, joints)
+    span = state.t - before.t if before is not None else 0.0
     ahead = 0.0 if at is None else min(max(at - state.t, 0.0), EXTRAPOLATE_MAX_S)
     goals: dict[int, float] = {}
     for s in state.steppers:
         if s.flags & (StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR):
             continue
-        v = speeds[s.joint] / (1 - SPEED_ERROR)  # as fast as it may turn
+        v = speeds[s.joint]
+        if v and span > 0:  # the step counts' rounding: up to a microstep over the span
+            j = joints[s.joint]
+            v += copysign(2 * pi / (j.encoder_counts_per_rev * j.microsteps_per_count) / span, v)
+        v /= 1 - SPEED_ERROR  # as fast as it may turn
         limit = limits[s.joint] if s.joint < len(limits) else None
         if limit is not None and abs(v) > limit:  # the node turns it no faster
             v = copysign(limit, v)

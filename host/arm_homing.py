@@ -265,7 +265,7 @@ def home(arm: DrivenArm, *, speed: float = SEARCH_SPEED_RAD_S, step: float = SEA
     # (at J2 0.73, J4 1.05 rad with the hand, 112 of its 150 counts) and a faster move's
     # dynamics latched it
     state, _ = arm.move([*back_to, *state.joints[N_STEPPERS:]], speed=speed, timeout=10.0,
-                        unhomed_speed=None)
+                        unhomed_speed=None, motors=True)
     arm.cycle([arm.make_position(i, start[i], back) for i in range(N_STEPPERS)])
     arm.calibration = calibration_from_latches(arm, encoder, steps)
     return arm.calibration

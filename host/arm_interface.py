@@ -150,7 +150,7 @@ class DrivenArm(CyclingArm, Protocol):
              speed: float | None = None, tolerance: float = ...,
              settle_speed: float = ..., timeout: float = ..., period: float = ...,
              rest: RestWatch | None = None,
-             unhomed_speed: float | None = ...) -> tuple[ArmState, bool]:
+             unhomed_speed: float | None = ..., motors: bool = ...) -> tuple[ArmState, bool]:
         """Move all seven joints to ``angles`` (rad) and wait until they settle (a stepper
         joint no faster than ``unhomed_speed``, rad/s, while the arm is not homed)."""
         ...

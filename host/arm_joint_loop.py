@@ -32,7 +32,7 @@ angles since the nodes' power-up, when motor and capstan were aligned), so a ste
 
     u_motor = u − C·(q_des − q_power_up)
 
-(:func:`coupling_feedforward`), which keeps each capstan where the PID wants it whatever the
+(:func:`host.arm_motor_goals.coupling_feedforward`), which keeps each capstan where the PID wants it whatever the
 joints before it do.  A node cannot see the other joints: its ``deflection`` register
 (motor after reduction − joint) differs from the elastic element's true deflection by
 ``−C·Δq`` (:func:`elastic_deflections` gives the true one), and :meth:`host.arm.Arm.cycle`
@@ -62,6 +62,7 @@ import numpy as np
 from host.arm_gate import check_finite, check_goals, check_path, latches, require_torque
 from host.arm_hold import stop_for_alarms
 from host.arm_interface import DrivenArm
+from host.arm_motor_goals import coupling_feedforward, power_up_angles
 from host.arm_state import JOINT_NAMES, N_JOINTS, N_STEPPERS, ArmState, Command
 from host.arm_trajectory import Trajectory, Vector
 from host.errors import LimitError, StallError, UsageError
@@ -160,15 +161,6 @@ class JointPid:
         return out
 
 
-def coupling_feedforward(q_des: Vector, q_ref: Vector) -> np.ndarray:
-    """What to add to the stepper goals of J1..J4 (rad, 4) so the capstans end up where the
-    goals say although the routes turn them by ``C·(q − q_ref)``: ``−C·(q_des − q_ref)``
-    (``q_ref``: joint angles at the nodes' power-up, rad; only J1..J4 are used)."""
-    c = arm_route_coupling_matrix()
-    dq = np.asarray(q_des, dtype=float)[:N_STEPPERS] - np.asarray(q_ref, dtype=float)[:N_STEPPERS]
-    return -(c @ dq)
-
-
 def elastic_deflections(state: ArmState, q_ref: Vector) -> np.ndarray:
     """The series-elastic elements' true deflections (rad, J1..J4): capstan − joint, with the
     capstan = motor angle + ``C·(q − q_ref)`` (the nodes' own deflection leaves out the
@@ -229,12 +221,8 @@ class JointController:
     def power_up_angles(self) -> np.ndarray:
         """Joint angles (rad) where the stepper nodes powered up (their encoder count then,
         in this arm's frame), where each capstan was aligned with its motor."""
-        offsets = (self.arm.calibration.offsets if self.arm.calibration is not None
-                   else (0.0,) * N_JOINTS)
-        q = np.zeros(N_JOINTS)
-        for i, j in enumerate(self.arm.steppers):
-            q[i] = j.counts_to_rad(self.arm.encoder_at_power_up[i]) + offsets[i]
-        return q
+        return power_up_angles(self.arm.calibration, self.arm.steppers,
+                               self.arm.encoder_at_power_up)
 
     def goals(self, q_des: np.ndarray, qd_des: np.ndarray, state: ArmState, dt: float
               ) -> np.ndarray:

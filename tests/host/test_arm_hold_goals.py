@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from host.arm_hold import SPEED_ERROR, STEPPER_BRAKING_RAD_S2, TIME_ERROR_S, hold_goals
@@ -43,6 +43,9 @@ def state(t: float, steps: int, goal: float) -> ArmState:
        speed_error=st.floats(-SPEED_ERROR, SPEED_ERROR),
        late=st.floats(0.0, TIME_ERROR_S), ahead=st.floats(0.0, 0.02), goal_far=st.booleans(),
        cruising=st.booleans())
+# the speed 25 % low and its step count rounded down: the rounding's microstep counts too
+@example(speed=0.125, sign=-1, speed_error=-0.25, late=0.00390625, ahead=0.0, goal_far=True,
+         cruising=False)
 def test_a_hold_goal_is_never_short_of_where_the_motor_stops(
         speed: float, sign: int, speed_error: float, late: float, ahead: float,
         goal_far: bool, cruising: bool) -> None:

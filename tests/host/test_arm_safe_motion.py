@@ -142,10 +142,11 @@ def test_an_unhomed_shoulder_that_meets_its_stop_latches_alone_with_the_hand_on(
 def test_the_library_move_refuses_joints_whose_torque_is_off_and_sends_nothing(
         url: str) -> None:
     """Arm.move used to write the goals anyway: they waited in the nodes, and the joints
-    jumped there when the torque came on."""
+    jumped there when the torque came on.  J3 is named too: it stays at 0, but the routes
+    turn its capstan with J2, so its motor must move to keep it there."""
     with Arm.open(url) as arm:
         goals = list(arm.stepper_goals)
-        with pytest.raises(LimitError, match="torque is off on J2, J4: turn it on"):
+        with pytest.raises(LimitError, match="torque is off on J2, J3, J4: turn it on"):
             arm.move([0.0, 0.3, 0.0, 0.2, 0.0, 0.0, 0.0])
         arm.read_goals()
         assert arm.stepper_goals == goals

@@ -279,7 +279,7 @@ def cmd_move(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _print(out, args.json, {"settled": ok, **state.as_dict()},
            ("settled\n" if ok else "not settled\n") + _state_text(state))
     if not ok:
-        why = off_goal(state, goals, 0.02) or rest.why_not() or "?"
+        why = off_goal(state, arm.motor_goals(goals), 0.02) or rest.why_not() or "?"
         print(f"armctl: the move did not settle within {args.timeout} s ({why}): is a joint "
               "blocked, or still swinging (armctl status; a longer --timeout)?",
               file=sys.stderr)
