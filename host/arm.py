@@ -78,7 +78,7 @@ from host.arm_homing import (
     SEARCH_TOLERANCE_RAD,
 )
 from host.arm_joint_loop import JointController, TrackingLog
-from host.arm_motor_goals import motor_goals, power_up_angles
+from host.arm_motor_goals import motor_goals, on_the_way, power_up_angles
 from host.arm_rest import RestWatch, off_goal, settled
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
@@ -570,13 +570,16 @@ class Arm:
         """Move all seven joints at once (rad, rad/s)."""
         return self.cycle(self.make_positions(angles, speeds))
 
-    def motor_goals(self, angles: Sequence[float]) -> list[float]:
+    def motor_goals(self, angles: Sequence[float],
+                    through: Sequence[float] | None = None) -> list[float]:
         """The goals (rad, seven) :meth:`move` sends so the joints land on ``angles`` (rad):
         each stepper's motor where the routes' coupling and, once homed, its spring's sag
         under the arm's weight (the hand's too while :attr:`hand`) leave its joint on the
-        goal (:mod:`host.arm_motor_goals`); the servos' as they are."""
+        goal (:mod:`host.arm_motor_goals`; the coupling at the joints ``through``, rad,
+        where a move has got to: ``angles`` when None); the servos' as they are."""
         q_ref = power_up_angles(self.calibration, self.steppers, self.encoder_at_power_up)
-        return motor_goals(angles, q_ref, self.steppers, gravity=self.homed, hand=self.hand)
+        return motor_goals(angles, q_ref, self.steppers, gravity=self.homed, hand=self.hand,
+                           through=through)
 
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = 0.02,
@@ -652,8 +655,17 @@ class Arm:
         watch.reset()
         clock = self.bus.transport
         start = clock.now()
-        state = self.set_positions(servo_lead(origin, goals, speeds, 0.0),
-                                   move_speed_limits(speeds, period, servos=True))
+        def aim(state: ArmState, elapsed: float) -> list[float]:
+            """This cycle's goals: the steppers' with the routes' coupling cancelled where
+            the move has got to (:func:`on_the_way`), the servos' led along their way."""
+            led = servo_lead(origin, goals, speeds, elapsed)
+            if motors:
+                return led
+            way = on_the_way(now.joints, angles, origin, goals,
+                             [s.motor_angle for s in state.steppers])
+            return [*self.motor_goals(angles, through=way)[:N_STEPPERS], *led[N_STEPPERS:]]
+
+        state = self.set_positions(aim(now, 0.0), move_speed_limits(speeds, period, servos=True))
         deadline = start + timeout + travel_time(origin, goals, speeds)
         while True:
             stop_for_alarms(self, state, before)
@@ -663,12 +675,14 @@ class Arm:
             if clock.now() >= deadline:
                 return state, False
             clock.sleep(period)
-            # the goals again, with the coupling offsets of the joints as they are now
+            # the goals again, with the coupling offsets of the joints as they are now; a
+            # motor brakes into the nearer of this cycle's goal and the move's end
             elapsed = clock.now() - start
-            left = [abs(s.goal - s.motor_angle) for s in state.steppers]
+            left = [min(abs(s.goal - s.motor_angle), abs(goals[s.joint] - s.motor_angle))
+                    for s in state.steppers]
             limits = move_speed_limits(speeds, elapsed + period, left,
                                        sent=self.wire.stepper_speed_limits)
-            state = self.set_positions(servo_lead(origin, goals, speeds, elapsed), limits)
+            state = self.set_positions(aim(state, elapsed), limits)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report

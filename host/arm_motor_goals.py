@@ -67,13 +67,33 @@ def sag(q: Vector, steppers: Sequence[JointInfo], hand: bool) -> np.ndarray:
 
 
 def motor_goals(angles: Sequence[float], q_ref: Vector, steppers: Sequence[JointInfo], *,
-                gravity: bool, hand: bool) -> list[float]:
+                gravity: bool, hand: bool, through: Vector | None = None) -> list[float]:
     """The seven goals (rad) to send so the joints land on ``angles`` (rad): each stepper's
     motor goal (the module docs; the static deflection only with ``gravity``, for an arm
     whose angles are absolute; ``hand`` on the flange), the servos' ``angles`` as they
-    are."""
+    are.  ``through`` (rad, J1..J4 at least): the joints the routes' coupling is taken at,
+    where a move has got to (:func:`on_the_way`); ``angles`` when None."""
     q = np.asarray(angles, dtype=float)
-    motors = q[:N_STEPPERS] + coupling_feedforward(q, q_ref)
+    at = q if through is None else np.asarray(through, dtype=float)
+    motors = q[:N_STEPPERS] + coupling_feedforward(at, q_ref)
     if gravity:
         motors = motors + sag(q, steppers, hand)
     return [float(m) for m in motors] + [float(a) for a in q[N_STEPPERS:]]
+
+
+def on_the_way(start: Sequence[float], angles: Sequence[float], motors_start: Sequence[float],
+               motors_goal: Sequence[float], motors_now: Sequence[float]) -> list[float]:
+    """Where a move of the stepper joints from ``start`` to ``angles`` (rad) has got to, by
+    each motor's progress from ``motors_start`` towards ``motors_goal`` (rad; now at
+    ``motors_now``), J1..J4: the joints the routes' coupling is to be cancelled at while
+    the move goes on, so that a joint whose goal is where it is (J3 while the shoulder
+    rises) stays there all the way, not only at the end.  A joint whose motor does not
+    move is taken as arrived.  Motors, not the joints' encoders: they move smoothly, where
+    the links swing about their way."""
+    out = []
+    for i in range(N_STEPPERS):
+        span = motors_goal[i] - motors_start[i]
+        done = 1.0 if abs(span) < 1e-9 else (motors_now[i] - motors_start[i]) / span
+        done = min(max(done, 0.0), 1.0)
+        out.append(start[i] + done * (angles[i] - start[i]))
+    return out

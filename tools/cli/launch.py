@@ -49,8 +49,18 @@ def launch(prog: str, module: str, argv: list[str] | None = None) -> int:
             interrupted = True
             raise KeyboardInterrupt(signal.Signals(signum).name)
 
+    hook = sys.unraisablehook
+
+    def quiet(unraisable: Any) -> None:
+        """A Ctrl-C that lands in a callback Python cannot raise from (a weak reference's,
+        as the import system's module locks use) is printed as "Exception ignored in …"
+        with a traceback; the interruption is taken all the same (``interrupted``)."""
+        if not (interrupted and isinstance(unraisable.exc_value, KeyboardInterrupt)):
+            hook(unraisable)
+
     for sig in previous:
         signal.signal(sig, handler)
+    sys.unraisablehook = quiet
     try:
         main: Callable[[list[str] | None], int] = importlib.import_module(module).main
         if interrupted:  # swallowed on the way (an optional import's ``except ImportError``)
@@ -62,22 +72,24 @@ def launch(prog: str, module: str, argv: list[str] | None = None) -> int:
         # An interruption may come out as another exception: numpy turns one inside its
         # C extensions' import into an ImportError.  After this handler fired, it is that.
         if not interrupted:
-            _restore(previous)
+            _restore(previous, hook)
             raise
     else:
         if argv is None:  # the command's own process, which exits with this status next
             interrupted = True  # a Ctrl-C now finds the work done: ignored, not a kill
         else:
-            _restore(previous)
+            _restore(previous, hook)
         return status
     print(f"{prog}: interrupted", file=sys.stderr)
     return EXIT_INTERRUPTED
 
 
-def _restore(handlers: dict[signal.Signals, Any]) -> None:
-    """Put back the signal handlers ``launch`` found on entry."""
+def _restore(handlers: dict[signal.Signals, Any], hook: Any) -> None:
+    """Put back the signal handlers and the unraisable-exception hook ``launch`` found on
+    entry."""
     for sig, old in handlers.items():
         signal.signal(sig, old)
+    sys.unraisablehook = hook
 
 
 def armctl(argv: list[str] | None = None) -> int:
