@@ -44,7 +44,6 @@ joint damping (implicit) while the bridge is enabled.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -55,13 +54,16 @@ from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
     ARM_INDEX_ANGLES,
     ARM_ROUTE_COUPLING,
+    SERIES_ELASTIC_SOLID_STIFFNESS_FACTOR,
     SERIES_ELASTIC_STIFFNESS_NM_PER_RAD,
+    SERIES_ELASTIC_TRAVEL_RAD,
     STEPPER_FULL_STEPS_PER_REV,
     STEPPER_HOLDING_MARGIN,
     STEPPER_MICROSTEPPING,
     STEPPER_PULL_OUT_CORNER_FULL_STEPS_PER_S,
     STEPPER_REDUCTIONS,
     STEPPER_TORQUE_CONSTANT_NM_PER_A,
+    series_elastic_deflection,
 )
 
 #: Electrical period of a two-phase hybrid stepper: 4 full steps.
@@ -104,8 +106,8 @@ class ArmParams:
     #: 0.003 made small oscillations 40 % stiffer (5.9 Hz).
     hysteresis_width_rad: float = 0.015
     #: Soft travel of the tubes each way (rad), and the stiffness factor beyond it.
-    travel_rad: np.ndarray = field(default_factory=lambda: np.full(4, math.radians(4.0)))
-    stop_stiffness_factor: float = 10.0
+    travel_rad: np.ndarray = field(default_factory=lambda: np.full(4, SERIES_ELASTIC_TRAVEL_RAD))
+    stop_stiffness_factor: float = SERIES_ELASTIC_SOLID_STIFFNESS_FACTOR
     #: Belt/cable coupling matrix C (4×4, zero diagonal): see DEFAULT_COUPLING.
     coupling: np.ndarray = field(default_factory=lambda: np.array(DEFAULT_COUPLING))
     #: Reductions (motor revs per joint rev); must equal the nodes' gear_reduction_x100/100.
@@ -259,12 +261,5 @@ def deflection_at_torque(params: ArmParams, i: int, torque: float, offset: float
     """The deflection (rad) at which coupling ``i``'s spring and solid-tube terms give
     ``torque − offset`` (N·m; ``offset`` = hysteresis + viscous parts): the inverse of
     :func:`spring_torque`."""
-    k = float(params.stiffness[i])
-    travel = float(params.travel_rad[i])
-    spring = torque - offset
-    edge = k * travel
-    if spring > edge:
-        return travel + (spring - edge) / (k * params.stop_stiffness_factor)
-    if spring < -edge:
-        return -travel + (spring + edge) / (k * params.stop_stiffness_factor)
-    return spring / k
+    return series_elastic_deflection(torque - offset, float(params.stiffness[i]),
+                                     float(params.travel_rad[i]), params.stop_stiffness_factor)

@@ -11,14 +11,16 @@ two things the node cannot see:
   left the elbow at 1.75 rad (14° past its goal, and past the joint's range for goals near
   its end) and J3 at −0.18;
 * **the spring's static deflection**: the element carries the arm's weight, ``τ/k``
-  (:func:`host.arm_gravity.spring_torques`, the hand counted when it is on), up to about
-  0.06 rad (3.3°, 93 counts) for the outstretched shoulder.
+  (:func:`host.arm_gravity.spring_torques`, the hand counted when it is on) within the
+  tubes' soft travel of ±4°, much stiffer beyond (:func:`sag`): up to about 0.07 rad (4°,
+  115 counts) for the outstretched shoulder.
 
 So a stepper's motor goal for the joint goals ``q`` (rad, seven) is
 
-    m_i = q_i − Σ_j C[i][j]·(q_j − q_ref,j) + τ_i(q)/k_i
+    m_i = q_i − Σ_j C[i][j]·(q_j − q_ref,j) + δ_i(τ_i(q))
 
-(``q_ref`` the joints at the nodes' power-up, :func:`power_up_angles`).  The coupling term is
+(``q_ref`` the joints at the nodes' power-up, :func:`power_up_angles`; ``δ_i`` the element's
+deflection at the spring torque ``τ_i``).  The coupling term is
 kinematics and holds on any arm; the gravity term needs the joints' absolute angles, so it is
 left out while the arm is not homed, and it is as good as the arm's mass model (a few counts
 in most poses, up to about 40 in some; an unmodelled load, a mug in the hand, sags the joint
@@ -35,7 +37,7 @@ import numpy as np
 from host.arm_gravity import spring_torques
 from host.arm_state import N_JOINTS, N_STEPPERS, JointCalibration, JointInfo
 from host.arm_trajectory import Vector
-from protocol.robot import arm_route_coupling_matrix
+from protocol.robot import arm_route_coupling_matrix, series_elastic_deflection
 
 
 def power_up_angles(calibration: JointCalibration | None, steppers: Sequence[JointInfo],
@@ -61,9 +63,11 @@ def coupling_feedforward(q_des: Vector, q_ref: Vector) -> np.ndarray:
 
 def sag(q: Vector, steppers: Sequence[JointInfo], hand: bool) -> np.ndarray:
     """The elastic elements' static deflections (rad, J1..J4) holding the arm still at ``q``
-    (rad, absolute): ``τ/k``."""
-    stiffness = np.array([j.stiffness for j in steppers[:N_STEPPERS]], dtype=float)
-    return np.asarray(spring_torques(q, hand) / stiffness)
+    (rad, absolute): ``τ/k`` within the tubes' soft travel, stiffer beyond
+    (:func:`protocol.robot.series_elastic_deflection`)."""
+    torques = spring_torques(q, hand)
+    return np.array([series_elastic_deflection(float(t), j.stiffness)
+                     for t, j in zip(torques, steppers[:N_STEPPERS], strict=False)])
 
 
 def motor_goals(angles: Sequence[float], q_ref: Vector, steppers: Sequence[JointInfo], *,

@@ -11,13 +11,15 @@ some poses.  The host knows the whole arm while it is alive, so with every cycle
 stepper goals it writes each node's ``rest_deflection`` (counts, the node's frame as its
 ``deflection`` register reads):
 
-    d_i = τ_i(q_r) / k_i  +  offset_i  −  Σ_j C[i][j] · (q_r,j − q_j)
+    d_i = δ_i(τ_i(q_r))  +  offset_i  −  Σ_j C[i][j] · (q_r,j − q_j)
 
 ``τ(q_r)`` the springs' torques holding the arm still (:func:`host.arm_gravity.spring_torques`,
 the hand counted unless told otherwise) at ``q_r``, the pose the host expects a stop to leave
 the arm in: the stepper joints carried on at their present speeds for the watchdog's timeout
-and :data:`REST_AHEAD_S` more (braking and the links' overshoot); ``k_i`` the joint's
-stiffness, ``offset_i`` the coupling offset sent with the goal (``−C·Δq`` now) and the last
+and :data:`REST_AHEAD_S` more (braking and the links' overshoot); ``δ_i`` the joint's
+element's deflection at that torque (:func:`protocol.robot.series_elastic_deflection`: its
+stiffness within the tubes' soft travel of ±4°, ten times it beyond, where a linear model
+put the outstretched shoulder's 20-40 counts too far), ``offset_i`` the coupling offset sent with the goal (``−C·Δq`` now) and the last
 term its change by ``q_r`` (counts throughout).  Only for an arm that is homed (the model
 needs the joints' absolute angles) and nodes whose firmware takes it
 (:data:`~protocol.control_tables.STEPPER_REST_DEFLECTION_FIRMWARE`).  The node uses it only
@@ -37,7 +39,7 @@ from host.arm_gravity import spring_torques
 from host.arm_state import N_STEPPERS, ArmState, JointInfo
 from protocol.control_tables import STEPPER_REST_DEFLECTION_FIRMWARE, STEPPER_TABLE
 from protocol.dynamixel import InstructionPacket, make_sync_write
-from protocol.robot import arm_route_coupling_matrix
+from protocol.robot import arm_route_coupling_matrix, series_elastic_deflection
 
 _REG = STEPPER_TABLE["rest_deflection"]
 #: Beyond the watchdog's timeout, how far ahead (s, at the joints' present speeds) the pose
@@ -60,7 +62,7 @@ def rest_deflections(steppers: Sequence[JointInfo], state: ArmState, offsets: Se
     out = []
     for i, j in enumerate(steppers[:N_STEPPERS]):
         per_rad = j.encoder_counts_per_rev / (2.0 * math.pi)
-        element = torques[i] / j.stiffness * per_rad
+        element = series_elastic_deflection(float(torques[i]), j.stiffness) * per_rad
         shift = float(_ROUTES[i] @ moved) * per_rad
         value = round(element + offsets[i] - shift)
         out.append(max(-32767, min(32767, value)))  # -32768 says "not given"

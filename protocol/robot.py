@@ -251,6 +251,27 @@ STEPPER_REDUCTIONS: Final = (6.0, 10.0, 13.0, 13.0)
 #: the dissertation's; the shoulder's makes 15 g at the outstretched wrist move the J2
 #: encoder by about a count.
 SERIES_ELASTIC_STIFFNESS_NM_PER_RAD: Final = (160.0, 200.0, 110.0, 86.0)
+#: Soft travel of the series-elastic elements each way (rad): the polyurethane tubes give
+#: "around 4 degrees of compliance in each direction" (§5.4), then they are compressed solid.
+SERIES_ELASTIC_TRAVEL_RAD: Final = math.radians(4.0)
+#: Stiffness of the elements beyond their soft travel, as a multiple of the soft stiffness.
+SERIES_ELASTIC_SOLID_STIFFNESS_FACTOR: Final = 10.0
+
+
+def series_elastic_deflection(torque: float, stiffness: float,
+                              travel: float = SERIES_ELASTIC_TRAVEL_RAD,
+                              solid_factor: float = SERIES_ELASTIC_SOLID_STIFFNESS_FACTOR
+                              ) -> float:
+    """The deflection (rad) at which an element of soft ``stiffness`` (N·m/rad) carries
+    ``torque`` (N·m) still: ``torque/stiffness`` within ``±travel`` (rad), ``solid_factor``
+    times stiffer beyond (the tubes compressed solid)."""
+    edge = stiffness * travel
+    if torque > edge:
+        return travel + (torque - edge) / (stiffness * solid_factor)
+    if torque < -edge:
+        return -travel + (torque + edge) / (stiffness * solid_factor)
+    return torque / stiffness
+
 #: Stepper full steps per motor revolution (1.8° motors).
 STEPPER_FULL_STEPS_PER_REV: Final = 200
 #: Microsteps per full step of the stepper drivers (1/10 stepping): the base stepper then

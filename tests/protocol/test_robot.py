@@ -46,6 +46,7 @@ from protocol.robot import (
     rad_to_encoder_counts,
     rad_to_microsteps,
     reduction_x100,
+    series_elastic_deflection,
 )
 
 TURN = 36.0  # hall counts of one motor revolution (36 hall states per rev)
@@ -236,3 +237,20 @@ def test_rx64_range_by_hand() -> None:
     assert RX64_UNITS_PER_RAD == pytest.approx(195.5696, abs=1e-4)  # 1024 / 5.235988
     assert rx64_position_to_radians(512 + 307) == pytest.approx(math.radians(307 * 300 / 1024))
     assert radians_to_rx64_position(math.radians(-150.0)) == 0
+
+
+def test_a_series_elastic_element_is_soft_for_its_travel_then_solid() -> None:
+    """Worked by hand for the shoulder's element (200 N·m/rad, ±4° = 0.0698 rad soft): 10
+    N·m is 0.05 rad; 20 N·m is the travel's 13.96 N·m and 6.04 N·m at 2000 N·m/rad more."""
+    k, travel = 200.0, math.radians(4.0)
+    assert series_elastic_deflection(10.0, k) == pytest.approx(0.05)
+    assert series_elastic_deflection(-10.0, k) == pytest.approx(-0.05)
+    assert series_elastic_deflection(20.0, k) == pytest.approx(travel + (20.0 - k * travel) / 2000)
+    assert series_elastic_deflection(-20.0, k) == pytest.approx(-travel - (20.0 - k * travel) / 2000)
+    assert series_elastic_deflection(k * travel, k) == pytest.approx(travel)
+
+
+@given(st.floats(-200.0, 200.0), st.floats(-200.0, 200.0))
+def test_a_series_elastic_element_deflects_further_under_more_torque(a: float, b: float) -> None:
+    lo, hi = sorted((a, b))
+    assert series_elastic_deflection(lo, 86.0) <= series_elastic_deflection(hi, 86.0)
