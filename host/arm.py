@@ -41,7 +41,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from typing import Final
 
-from host import arm_cartesian, arm_homing
+from host import arm_cartesian, arm_homing, arm_move
 from host.arm_cartesian import (
     MOVETO_SETTLE_S,
     MOVETO_SPEED_RAD_S,
@@ -64,13 +64,9 @@ from host.arm_cycle import (
 from host.arm_discovery import discover, open_arm_transport, open_bus
 from host.arm_gate import (
     HOLD_TOLERANCE_RAD,
-    MOVE_SPEED_LIMITS,
     check_goals,
-    check_speeds,
-    latches,
-    require_torque,
 )
-from host.arm_hold import Held, hold, stop_for_alarms
+from host.arm_hold import Held, hold
 from host.arm_homing import (
     SEARCH_PERIOD_S,
     SEARCH_SPEED_RAD_S,
@@ -78,7 +74,7 @@ from host.arm_homing import (
     SEARCH_TOLERANCE_RAD,
 )
 from host.arm_joint_loop import JointController, TrackingLog
-from host.arm_motor_goals import motor_goals, on_the_way, power_up_angles
+from host.arm_move import MOVE_DEFAULT_SPEED, MOVE_MIN_SPEED, UNHOMED_STEPPER_SPEED
 from host.arm_rest import RestWatch, off_goal, settled
 from host.arm_state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
@@ -111,7 +107,7 @@ from host.arm_trajectory import (
     travel_time,
 )
 from host.dynamixel_bus import ARM_BUS_BAUD, DynamixelBus, Expect
-from host.errors import HostError, JointAlarmError, LimitError, NodeError, ReplyTimeout, UsageError
+from host.errors import HostError, JointAlarmError, NodeError, ReplyTimeout, UsageError
 from host.scheduling import Scheduling
 from host.transport import Transport, open_transport, url_options, url_scheme
 from host.view import RobotView, ViewSpec, open_view
@@ -128,25 +124,6 @@ _GOAL = _S["command_goal"]
 _TORQUE = _S["torque_enable"]
 #: Fast-mode return delay written at open (2 µs units).
 FAST_RETURN_DELAY: Final = 0
-#: The least speed limit (rad/s) :meth:`Arm.move` with a ``duration`` gives a joint: one
-#: that barely moves (or not at all) still returns briskly when pushed off its goal, and a
-#: later command without a speed does not crawl.
-MOVE_MIN_SPEED: Final = 0.2
-#: The speed (rad/s) of the joint that moves furthest in an :meth:`Arm.move` given neither
-#: a ``duration`` nor a ``speed``; the others arrive with it.  The nodes' own limits (the
-#: controllers' full step rate at π rad/s², the hardware's) wind the shoulder's and elbow's
-#: elastic elements to their stall limit (150 counts): homed at zero, J2 latched STALLED on
-#: the way to the outstretched ``[0, 1.5, 0, 1.5, 0, 0, 0]`` (211 counts) and came within 3
-#: counts of it to ``[0, 0.3, 0, 0.4, 0, 0, 0]``.  Each joint at 0.5 rad/s on its own time
-#: still latched J4 to ``[0, 0.5, 0, 0.8, 0, 0, 0]`` (157: joints that stop one after the
-#: other set the shoulder and elbow ringing together); arriving together 107-125.
-MOVE_DEFAULT_SPEED: Final = 0.5
-#: The most speed (rad/s) :meth:`Arm.move` gives a stepper joint of an arm that is not homed:
-#: the host does not know where its stops are then, and a shoulder that meets its stop at
-#: the nodes' full speed jolts the forearm hard enough that the elbow's spring deflects past
-#: its stall torque and its node latches too (on the emulator: J2 to its lower stop at full
-#: speed latched J4 as well; at 0.5 rad/s only J2, the joint that met the stop).
-UNHOMED_STEPPER_SPEED: Final = 0.5
 #: The stepper nodes' command watchdog this library sets at open (ms; see
 #: :meth:`Arm.set_watchdog`): a host that vanishes mid-move leaves the steppers braking
 #: after this long, their motors still within about 0.2 s; ten of the 10 ms cycles a move
@@ -577,9 +554,7 @@ class Arm:
         under the arm's weight (the hand's too while :attr:`hand`) leave its joint on the
         goal (:mod:`host.arm_motor_goals`; the coupling at the joints ``through``, rad,
         where a move has got to: ``angles`` when None); the servos' as they are."""
-        q_ref = power_up_angles(self.calibration, self.steppers, self.encoder_at_power_up)
-        return motor_goals(angles, q_ref, self.steppers, gravity=self.homed, hand=self.hand,
-                           through=through)
+        return arm_move.motor_goals_of(self, angles, through)
 
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = 0.02,
@@ -622,67 +597,10 @@ class Arm:
         A joint whose node latches an alarm on the way (STALLED, SLIP, an RX-64's
         OVERLOAD ...) stops the move: the arm is held where it is and
         :class:`~host.errors.JointAlarmError` names the joint and the latch."""
-        if len(angles) != N_JOINTS:
-            raise LimitError(f"give {N_JOINTS} joint angles, J1..J7")
-        if not (timeout > 0 and not math.isnan(timeout)):
-            raise LimitError(f"move timeout {timeout} must be > 0 s")
-        now = self.state()
-        check_goals(angles, now.joints, homed=self.homed, tolerance=tolerance)
-        # the steppers' motors go where their joints land on the goals (the routes'
-        # coupling, the springs' sag); speeds and arrival are the motors'
-        goals = list(angles) if motors else self.motor_goals(angles)
-        origin = [*(s.motor_angle for s in now.steppers), *now.joints[N_STEPPERS:]]
-        speeds: list[float | None] = [None] * N_JOINTS
-        if duration is None and speed is None:  # together, the furthest at the default
-            duration = max(max(abs(a - b) for a, b in zip(goals, origin, strict=True))
-                           / MOVE_DEFAULT_SPEED, MOVE_RAMP_S)
-        if duration is not None:
-            check_speeds(goals, origin, duration)
-            speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
-                      for a, b in zip(goals, origin, strict=True)]
-        elif speed is not None:
-            if not (math.isfinite(speed) and speed > 0):
-                raise LimitError(f"move speed {speed} must be a finite number > 0 rad/s")
-            speeds = [min(speed, limit) for limit in MOVE_SPEED_LIMITS]
-        driven = [i for i in range(N_JOINTS) if abs(angles[i] - now.joints[i]) > tolerance
-                  or abs(goals[i] - origin[i]) > tolerance]
-        require_torque(self, driven, "moving them")
-        if not self.homed and unhomed_speed is not None:  # stops unknown: meet one gently
-            speeds[:N_STEPPERS] = [min(s or unhomed_speed, unhomed_speed)
-                                   for s in speeds[:N_STEPPERS]]
-        before = latches(now)
-        watch = rest if rest is not None else RestWatch()
-        watch.reset()
-        clock = self.bus.transport
-        start = clock.now()
-        def aim(state: ArmState, elapsed: float) -> list[float]:
-            """This cycle's goals: the steppers' with the routes' coupling cancelled where
-            the move has got to (:func:`on_the_way`), the servos' led along their way."""
-            led = servo_lead(origin, goals, speeds, elapsed)
-            if motors:
-                return led
-            way = on_the_way(now.joints, angles, origin, goals,
-                             [s.motor_angle for s in state.steppers])
-            return [*self.motor_goals(angles, through=way)[:N_STEPPERS], *led[N_STEPPERS:]]
-
-        state = self.set_positions(aim(now, 0.0), move_speed_limits(speeds, period, servos=True))
-        deadline = start + timeout + travel_time(origin, goals, speeds)
-        while True:
-            stop_for_alarms(self, state, before)
-            still = watch.update(state)
-            if settled(state, goals, tolerance, settle_speed) and still:
-                return state, True
-            if clock.now() >= deadline:
-                return state, False
-            clock.sleep(period)
-            # the goals again, with the coupling offsets of the joints as they are now; a
-            # motor brakes into the nearer of this cycle's goal and the move's end
-            elapsed = clock.now() - start
-            left = [min(abs(s.goal - s.motor_angle), abs(goals[s.joint] - s.motor_angle))
-                    for s in state.steppers]
-            limits = move_speed_limits(speeds, elapsed + period, left,
-                                       sent=self.wire.stepper_speed_limits)
-            state = self.set_positions(aim(state, elapsed), limits)
+        return arm_move.move(self, angles, duration=duration, speed=speed,
+                             tolerance=tolerance, settle_speed=settle_speed, timeout=timeout,
+                             period=period, rest=rest, unhomed_speed=unhomed_speed,
+                             motors=motors)
 
     def clear_errors(self) -> None:
         """Clear the stepper nodes' SLIP/STALLED latches and RESET the RX-64s that report

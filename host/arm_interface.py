@@ -112,6 +112,8 @@ class DrivenArm(CyclingArm, Protocol):
 
     #: Absolute joint frames after homing; None: the nodes' frames.
     calibration: JointCalibration | None
+    #: The hand is on the flange (its weight counts in the arm's model at rest).
+    hand: bool
 
     @property
     def steppers(self) -> tuple[JointInfo, ...]:
