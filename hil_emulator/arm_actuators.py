@@ -64,6 +64,7 @@ from protocol.robot import (
     STEPPER_REDUCTIONS,
     STEPPER_TORQUE_CONSTANT_NM_PER_A,
     series_elastic_deflection,
+    series_elastic_torque,
 )
 
 #: Electrical period of a two-phase hybrid stepper: 4 full steps.
@@ -251,10 +252,8 @@ class ArmParams:
 
 def spring_torque(params: ArmParams, i: int, deflection: float) -> float:
     """Spring and solid-tube torque of coupling ``i`` at ``deflection`` (N·m; rad)."""
-    k = float(params.stiffness[i])
-    travel = float(params.travel_rad[i])
-    beyond = max(0.0, deflection - travel) + min(0.0, deflection + travel)
-    return k * deflection + k * (params.stop_stiffness_factor - 1.0) * beyond
+    return series_elastic_torque(deflection, float(params.stiffness[i]),
+                                 float(params.travel_rad[i]), params.stop_stiffness_factor)
 
 
 def deflection_at_torque(params: ArmParams, i: int, torque: float, offset: float) -> float:

@@ -88,7 +88,7 @@ from protocol.dynamixel import (
     rx64_position_to_radians,
     rx64_present_speed_to_rad_s,
 )
-from protocol.robot import arm_route_coupling_matrix
+from protocol.robot import arm_route_coupling_matrix, series_elastic_torque
 
 _S = STEPPER_TABLE
 _R = RX64_TABLE
@@ -303,21 +303,29 @@ class CycleWire:
         """An :class:`ArmState` from each node's ``(error byte, data)`` of a cycle's read."""
         steppers = []
         counts = [0] * N_STEPPERS
+        fields = []
         for i, j in enumerate(self.steppers):
             error, data = replies[j.dxl_id]
             position, steps, velocity, deflection, flags = _STEPPER_FIELDS.unpack_from(data)
             counts[i] = position
-            deflection_rad = j.counts_to_rad(deflection)
+            fields.append((error, position, steps, velocity, deflection, flags))
             # Where the encoder stood when the step count was 0 (the node's power-up):
             # the motor side in encoder counts is that plus the steps' worth.
             self.encoder_at_power_up[i] = (position + deflection
                                            - round(steps / j.microsteps_per_count))
+        # the elements' own deflections: the nodes' less the routes' coupling (C·Δq, counts)
+        moved = [c - p for c, p in zip(counts, self.encoder_at_power_up, strict=True)]
+        routes = [sum(c * d for c, d in zip(row, moved, strict=True)) for row in _ROUTES]
+        for i, j in enumerate(self.steppers):
+            error, position, steps, velocity, deflection, flags = fields[i]
+            deflection_rad = j.counts_to_rad(deflection)
+            element = j.counts_to_rad(deflection + routes[i])
             steppers.append(StepperState(
                 joint=j.joint, angle=j.counts_to_rad(position),
                 velocity=j.counts_to_rad(velocity),
                 motor_angle=j.counts_to_rad(position + deflection),
                 step_count=steps, deflection=deflection, deflection_rad=deflection_rad,
-                torque=j.stiffness * deflection_rad, flags=StepperFlag(flags),
+                torque=series_elastic_torque(element, j.stiffness), flags=StepperFlag(flags),
                 errors=ErrorBit(error), goal=j.counts_to_rad(self.stepper_goals[i])))
         servos = []
         for k, j in enumerate(self.servos):

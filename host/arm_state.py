@@ -133,10 +133,12 @@ class StepperState:
     ``angle`` (rad, joint encoder), ``velocity`` (rad/s, encoder, resolution 1 count/s),
     ``motor_angle`` (rad at the joint, to the count: ``angle`` plus the deflection),
     ``goal`` (rad, the node's goal for the motor as the host last set it), ``step_count``
-    (microsteps), ``deflection`` (joint encoder counts, as the node's register defines it)
-    and ``deflection_rad``, ``torque``
-    (N·m, stiffness × deflection), ``flags`` (:class:`StepperFlag`), ``errors`` (the status
-    packet's alarm bits).
+    (microsteps), ``deflection`` (joint encoder counts, as the node's register defines it:
+    motor − joint) and ``deflection_rad``, ``torque`` (N·m: the series-elastic element's,
+    from its own deflection, the node's plus the routes' coupling ``C·Δq``, which turns the
+    capstans of J3 and J4 with the joints before them;
+    :func:`protocol.robot.series_elastic_torque`), ``flags`` (:class:`StepperFlag`),
+    ``errors`` (the status packet's alarm bits).
     """
 
     joint: int

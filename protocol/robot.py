@@ -272,6 +272,16 @@ def series_elastic_deflection(torque: float, stiffness: float,
         return -travel + (torque + edge) / (stiffness * solid_factor)
     return torque / stiffness
 
+
+def series_elastic_torque(deflection: float, stiffness: float,
+                          travel: float = SERIES_ELASTIC_TRAVEL_RAD,
+                          solid_factor: float = SERIES_ELASTIC_SOLID_STIFFNESS_FACTOR
+                          ) -> float:
+    """The torque (N·m) an element of soft ``stiffness`` (N·m/rad) carries still at
+    ``deflection`` (rad): the inverse of :func:`series_elastic_deflection`."""
+    beyond = max(0.0, deflection - travel) + min(0.0, deflection + travel)
+    return stiffness * deflection + stiffness * (solid_factor - 1.0) * beyond
+
 #: Stepper full steps per motor revolution (1.8° motors).
 STEPPER_FULL_STEPS_PER_REV: Final = 200
 #: Microsteps per full step of the stepper drivers (1/10 stepping): the base stepper then

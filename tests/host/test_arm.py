@@ -10,10 +10,13 @@ import pytest
 
 from firmware_py.arm_stepper import StepperNodeApp
 from host.arm import SLOW_READ_EVERY, STEPPER_READ_AT, Arm, discover
+from host.arm_joint_loop import elastic_deflections
+from host.arm_motor_goals import power_up_angles
 from host.arm_state import DEFAULT_STIFFNESS_NM_PER_RAD
 from host.errors import NodeError
 from protocol.control_tables import STEPPER_FIRMWARE_VERSION, STEPPER_TABLE, StepperFlag
 from protocol.dynamixel import ErrorBit
+from protocol.robot import series_elastic_torque
 from tests.ground_truth import arm_rig_of, emulator_of
 from tools.cli import armctl
 
@@ -56,8 +59,11 @@ def test_a_stepper_joint_and_a_servo_reach_their_goals(arm: Arm) -> None:
 def test_cycle_state_fields_are_consistent(arm: Arm) -> None:
     state = arm.cycle()
     assert len(state.joints) == 7 and len(state.motor_joints) == 4
-    for s, k in zip(state.steppers, DEFAULT_STIFFNESS_NM_PER_RAD, strict=True):
-        assert s.torque == pytest.approx(k * s.deflection_rad)
+    # the torque is the element's: its deflection is the node's plus the routes' coupling
+    q_ref = power_up_angles(arm.calibration, arm.steppers, arm.encoder_at_power_up)
+    elements = elastic_deflections(state, q_ref)
+    for s, k, e in zip(state.steppers, DEFAULT_STIFFNESS_NM_PER_RAD, elements, strict=True):
+        assert s.torque == pytest.approx(series_elastic_torque(float(e), k), abs=1e-9)
         assert s.deflection_rad == pytest.approx(s.deflection * 2 * math.pi / 10_000)
     assert state.slip == [False] * 4
     assert state.errors == {}

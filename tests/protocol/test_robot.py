@@ -47,6 +47,7 @@ from protocol.robot import (
     rad_to_microsteps,
     reduction_x100,
     series_elastic_deflection,
+    series_elastic_torque,
 )
 
 TURN = 36.0  # hall counts of one motor revolution (36 hall states per rev)
@@ -248,6 +249,12 @@ def test_a_series_elastic_element_is_soft_for_its_travel_then_solid() -> None:
     assert series_elastic_deflection(20.0, k) == pytest.approx(travel + (20.0 - k * travel) / 2000)
     assert series_elastic_deflection(-20.0, k) == pytest.approx(-travel - (20.0 - k * travel) / 2000)
     assert series_elastic_deflection(k * travel, k) == pytest.approx(travel)
+
+
+@given(st.floats(-200.0, 200.0))
+def test_the_element_torque_is_the_inverse_of_its_deflection(torque: float) -> None:
+    assert series_elastic_torque(series_elastic_deflection(torque, 86.0), 86.0) == \
+        pytest.approx(torque, abs=1e-9)
 
 
 @given(st.floats(-200.0, 200.0), st.floats(-200.0, 200.0))
