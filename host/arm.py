@@ -547,14 +547,13 @@ class Arm:
         """Move all seven joints at once (rad, rad/s)."""
         return self.cycle(self.make_positions(angles, speeds))
 
-    def motor_goals(self, angles: Sequence[float],
-                    through: Sequence[float] | None = None) -> list[float]:
+    def motor_goals(self, angles: Sequence[float]) -> list[float]:
         """The goals (rad, seven) :meth:`move` sends so the joints land on ``angles`` (rad):
         each stepper's motor where the routes' coupling and, once homed, its spring's sag
         under the arm's weight (the hand's too while :attr:`hand`) leave its joint on the
-        goal (:mod:`host.arm_motor_goals`; the coupling at the joints ``through``, rad,
-        where a move has got to: ``angles`` when None); the servos' as they are."""
-        return arm_move.motor_goals_of(self, angles, through)
+        goal (:mod:`host.arm_motor_goals`); the servos' as they are.
+        """
+        return arm_move.motor_goals_of(self, angles)
 
     def move(self, angles: Sequence[float], *, duration: float | None = None,
              speed: float | None = None, tolerance: float = 0.02,

@@ -26,6 +26,11 @@ left out while the arm is not homed, and it is as good as the arm's mass model (
 in most poses, up to about 40 in some; an unmodelled load, a mug in the hand, sags the joint
 by its own weight).  The joint loop (:mod:`host.arm_joint_loop`) adds the coupling term to
 every goal it sends and leaves the sag to its integral.
+
+A move sends these goals from its start, but the coupling each cancels is the one at the
+move's end: J3's motor, which only compensates the shoulder, would get there long before the
+shoulder and push J3 off on the way.  So each cycle takes the coupling where the move has
+got to (:func:`on_the_way`, :func:`coupled_at`).
 """
 
 from __future__ import annotations
@@ -71,18 +76,28 @@ def sag(q: Vector, steppers: Sequence[JointInfo], hand: bool) -> np.ndarray:
 
 
 def motor_goals(angles: Sequence[float], q_ref: Vector, steppers: Sequence[JointInfo], *,
-                gravity: bool, hand: bool, through: Vector | None = None) -> list[float]:
+                gravity: bool, hand: bool) -> list[float]:
     """The seven goals (rad) to send so the joints land on ``angles`` (rad): each stepper's
     motor goal (the module docs; the static deflection only with ``gravity``, for an arm
     whose angles are absolute; ``hand`` on the flange), the servos' ``angles`` as they
-    are.  ``through`` (rad, J1..J4 at least): the joints the routes' coupling is taken at,
-    where a move has got to (:func:`on_the_way`); ``angles`` when None."""
+    are.  About a millisecond of CPU (the mass model): a move computes it once."""
     q = np.asarray(angles, dtype=float)
-    at = q if through is None else np.asarray(through, dtype=float)
-    motors = q[:N_STEPPERS] + coupling_feedforward(at, q_ref)
+    motors = q[:N_STEPPERS] + coupling_feedforward(q, q_ref)
     if gravity:
         motors = motors + sag(q, steppers, hand)
     return [float(m) for m in motors] + [float(a) for a in q[N_STEPPERS:]]
+
+
+def coupled_at(goals: Sequence[float], angles: Sequence[float],
+               way: Sequence[float]) -> list[float]:
+    """The stepper motor goals ``goals`` (rad, J1..J4 at least: :func:`motor_goals` of
+    ``angles``) with the routes' coupling cancelled at the joints ``way`` (rad, where a move
+    has got to: :func:`on_the_way`) instead of at ``angles``: ``goals + C·(angles − way)``,
+    J1..J4."""
+    c = arm_route_coupling_matrix()
+    dq = (np.asarray(angles, dtype=float)[:N_STEPPERS]
+          - np.asarray(way, dtype=float)[:N_STEPPERS])
+    return [float(g) for g in np.asarray(goals, dtype=float)[:N_STEPPERS] + c @ dq]
 
 
 def on_the_way(start: Sequence[float], angles: Sequence[float], motors_start: Sequence[float],

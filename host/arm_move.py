@@ -13,7 +13,7 @@ from typing import Final
 from host.arm_gate import MOVE_SPEED_LIMITS, check_goals, check_speeds, latches, require_torque
 from host.arm_hold import stop_for_alarms
 from host.arm_interface import DrivenArm
-from host.arm_motor_goals import motor_goals, on_the_way, power_up_angles
+from host.arm_motor_goals import coupled_at, motor_goals, on_the_way, power_up_angles
 from host.arm_rest import RestWatch, settled
 from host.arm_state import N_JOINTS, N_STEPPERS, ArmState
 from host.arm_trajectory import MOVE_RAMP_S, move_speed_limits, servo_lead, travel_time
@@ -40,13 +40,11 @@ MOVE_DEFAULT_SPEED: Final = 0.5
 UNHOMED_STEPPER_SPEED: Final = 0.5
 
 
-def motor_goals_of(arm: DrivenArm, angles: Sequence[float],
-                   through: Sequence[float] | None = None) -> list[float]:
+def motor_goals_of(arm: DrivenArm, angles: Sequence[float]) -> list[float]:
     """:func:`host.arm_motor_goals.motor_goals` for ``arm`` (its power-up angles, the sag
     once homed, its hand): see :meth:`host.arm.Arm.motor_goals`."""
     q_ref = power_up_angles(arm.calibration, arm.steppers, arm.encoder_at_power_up)
-    return motor_goals(angles, q_ref, arm.steppers, gravity=arm.homed, hand=arm.hand,
-                       through=through)
+    return motor_goals(angles, q_ref, arm.steppers, gravity=arm.homed, hand=arm.hand)
 
 
 def _send(arm: DrivenArm, angles: Sequence[float], speeds: Sequence[float | None]) -> ArmState:
@@ -94,6 +92,7 @@ def move(arm: DrivenArm, angles: Sequence[float], *, duration: float | None = No
     watch.reset()
     clock = arm.transport
     start = clock.now()
+
     def aim(state: ArmState, elapsed: float) -> list[float]:
         """This cycle's goals: the steppers' with the routes' coupling cancelled where
         the move has got to (:func:`on_the_way`), the servos' led along their way."""
@@ -102,7 +101,7 @@ def move(arm: DrivenArm, angles: Sequence[float], *, duration: float | None = No
             return led
         way = on_the_way(now.joints, angles, origin, goals,
                          [s.motor_angle for s in state.steppers])
-        return [*motor_goals_of(arm, angles, through=way)[:N_STEPPERS], *led[N_STEPPERS:]]
+        return [*coupled_at(goals, angles, way), *led[N_STEPPERS:]]
 
     state = _send(arm, aim(now, 0.0), move_speed_limits(speeds, period, servos=True))
     deadline = start + timeout + travel_time(origin, goals, speeds)

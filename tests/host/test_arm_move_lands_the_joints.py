@@ -15,7 +15,7 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm import Arm
-from host.arm_motor_goals import coupling_feedforward, motor_goals
+from host.arm_motor_goals import coupled_at, coupling_feedforward, motor_goals, on_the_way
 from host.arm_state import JointInfo
 from protocol.robot import ARM_JOINT_LIMITS
 from tests.ground_truth import arm_joints
@@ -49,6 +49,19 @@ def test_the_motor_goals_cancel_the_routes_coupling_by_hand() -> None:
     # the power-up pose is the reference: joints that have not moved since need nothing
     ref = np.array([0.2, 0.7, -0.3, 0.9, 0.0, 0.0, 0.0])
     assert coupling_feedforward(ref, ref) == pytest.approx([0.0] * 4)
+
+
+def test_on_the_way_the_coupling_is_cancelled_where_the_motors_have_got_to() -> None:
+    """Half way by J2's motor (J3's and J4's joints not moving), J3's motor goal lies
+    0.12 × the shoulder's remaining 0.75 rad short of its final one, so J3 stays at 0."""
+    start, angles = [0.0, 0.0, 0.0, 0.5], [0.0, 1.5, 0.0, 0.5]
+    final = motor_goals([*angles, 0.0, 0.0, 0.0], np.zeros(7), (), gravity=False, hand=False)
+    way = on_the_way(start, angles, [0.0, 0.0, 0.0, 0.5], final, [0.0, 0.75, 0.1, 0.3])
+    assert way == pytest.approx([0.0, 0.75, 0.0, 0.5])
+    goals = coupled_at(final, angles, way)
+    assert goals[2] == pytest.approx(0.12 * 0.75)
+    assert goals[3] == pytest.approx(0.5 - 0.18 * 0.75)
+    assert coupled_at(final, angles, angles) == pytest.approx(final[:4])
 
 
 def test_the_sag_raises_each_motor_by_its_springs_static_deflection() -> None:
