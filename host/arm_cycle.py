@@ -206,8 +206,13 @@ class CycleWire:
         counts = self.stepper_counts
         if counts is None:
             return [0] * N_STEPPERS
+        return [-round(turn) for turn in self._route_turns(counts)]
+
+    def _route_turns(self, counts: Sequence[int]) -> list[float]:
+        """How far the routes have turned each stepper's capstan (counts, ``C·Δq``) with the
+        joints at ``counts`` (encoder counts), ``Δq`` since the nodes' power-up."""
         moved = [c - p for c, p in zip(counts, self.encoder_at_power_up, strict=True)]
-        return [-round(sum(c * d for c, d in zip(row, moved, strict=True))) for row in _ROUTES]
+        return [sum(c * d for c, d in zip(row, moved, strict=True)) for row in _ROUTES]
 
     def packets_for(self, commands: Iterable[Command]) -> list[InstructionPacket]:
         """The SYNC_WRITEs that carry ``commands`` (the last command for a joint wins)."""
@@ -313,9 +318,8 @@ class CycleWire:
             # the motor side in encoder counts is that plus the steps' worth.
             self.encoder_at_power_up[i] = (position + deflection
                                            - round(steps / j.microsteps_per_count))
-        # the elements' own deflections: the nodes' less the routes' coupling (C·Δq, counts)
-        moved = [c - p for c, p in zip(counts, self.encoder_at_power_up, strict=True)]
-        routes = [sum(c * d for c, d in zip(row, moved, strict=True)) for row in _ROUTES]
+        # the elements' own deflections: the nodes' plus the routes' turn of the capstans
+        routes = self._route_turns(counts)
         for i, j in enumerate(self.steppers):
             error, position, steps, velocity, deflection, flags = fields[i]
             deflection_rad = j.counts_to_rad(deflection)
