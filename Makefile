@@ -26,7 +26,9 @@ $(STAMP): pyproject.toml
 ## compiled one takes about 1.8x less CPU per simulated second (docs/EMULATOR.md).
 COMPILED_CORE ?= yes
 PURE_PYTHON := $(filter-out 0,$(LOWCOST_PURE_PYTHON))
-COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(PYTHON) -m tools.build_compiled --sources 2>/dev/null))
+## (listed by the venv's Python once it exists: the listing imports the project, whose
+## dependencies only the venv has; before the first set-up the core is built anyway)
+COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(if $(wildcard $(PY)),$(PY),$(PYTHON)) -m tools.build_compiled --sources 2>/dev/null))
 CORE := $(VENV)/.compiled-core-$(if $(PURE_PYTHON),pure,$(COMPILED_CORE))
 
 $(CORE): $(STAMP) $(COMPILED_SOURCES)
