@@ -2,7 +2,7 @@
 
 One cycle = SYNC_WRITE of the seven goals (stepper goals and servo goals: two packets, the
 models' goal registers differ) + BULK_READ of the seven nodes' state (what
-:class:`host.arm.Arm` reads: the 13-byte cycle block per stepper node, 6 bytes per RX-64 -
+:class:`host.arm.facade.Arm` reads: the 13-byte cycle block per stepper node, 6 bytes per RX-64 -
 8, with voltage and temperature, one cycle in ten), nodes in fast mode (return delay 0):
 193 bytes per cycle with the stepper command block, 199 on the slow cycles (199 every
 cycle when each read the RX-64s' voltage and temperature, ≈ 498 cycles/s; 211 before the
@@ -32,7 +32,8 @@ from typing import Any
 
 from benchmarks.harness import Result
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import (
+from host.arm.bus import BITS_PER_BYTE, MIN_PACKET_SIZE, TURNAROUND_US
+from host.arm.facade import (
     SERVO_READ_AT,
     SERVO_SLOW_READ_LEN,
     SLOW_READ_EVERY,
@@ -40,7 +41,6 @@ from host.arm import (
     STEPPER_READ_LEN,
     Arm,
 )
-from host.dynamixel_bus import BITS_PER_BYTE, MIN_PACKET_SIZE, TURNAROUND_US
 from host.errors import HostError
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 

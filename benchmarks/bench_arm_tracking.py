@@ -4,7 +4,7 @@ In process on ``emu://arm/arm`` (simulation clock, fast mode: return delay 0), h
 flange follows a straight line of :data:`LINE_M` at :data:`SPEED_M_S`: the line is sampled
 every centimetre, each sample solved by IK from the previous one (so the joint path is
 continuous), and the joint-space waypoints timed along the line; the controller
-(:class:`host.arm_joint_loop.JointController`, coupling feed-forward on) runs it at 100 Hz and
+(:class:`host.arm.joint_loop.JointController`, coupling feed-forward on) runs it at 100 Hz and
 with ``rate_hz=None`` (back-to-back cycles, the wire's bound).  The error is the MuJoCo flange
 body's distance from where the line says it should be at that cycle (mm: RMS and maximum over
 the move and 0.5 s after), and the rate is the cycles per simulated second achieved.
@@ -23,10 +23,10 @@ import numpy as np
 
 from benchmarks.harness import Result
 from hil_emulator.inprocess import forget_shared_emulators
-from host import arm_kinematics
-from host.arm import Arm
-from host.arm_joint_loop import JointController
-from host.arm_trajectory import Trajectory, Waypoint
+from host.arm import kinematics as arm_kinematics
+from host.arm.facade import Arm
+from host.arm.joint_loop import JointController
+from host.arm.trajectory import Trajectory, Waypoint
 
 #: The line (m, base frame) and the flange's speed along it (m/s).
 LINE_M: Final = ((0.10, -0.15, -0.60), (0.30, 0.15, -0.48))

@@ -5,15 +5,15 @@ On ``Emulator("hand")`` (palm up; the thumb, finger 3, has every joint axis obse
 |J0| < 70°), in process on the simulation clock:
 
 * **static**: N random poses of the thumb (moved unhomed, then idled and left to rest); the
-  closed form (:mod:`host.inertial_closed_form`, 6 status samples averaged) against the
+  closed form (:mod:`host.estimation.closed_form`, 6 status samples averaged) against the
   plant's MuJoCo joint angles: RMS and max error per joint (deg).  Targets: ≤ 0.5° RMS on
   J2 (distal), ≤ 1° on J0/J1.  Once the thumb has been homed at one pose, the next pose is
   also estimated by the joint EKF fusing the halls with the accelerometers.
 * **moving**: the thumb (homed) driven through random targets while its status is read at
   50 Hz; the joint EKF with the accelerometers only, the EKF fused with the halls
-  (:meth:`host.joint_ekf.JointEkf.update_status`) and the per-sample closed form against
+  (:meth:`host.estimation.ekf.JointEkf.update_status`) and the per-sample closed form against
   the plant at each read (the readings lag by up to one IMU period, 40 ms).
-* **homing**: at each static pose, :func:`host.hand_homing.home_finger`; a success is a
+* **homing**: at each static pose, :func:`host.hand.homing.home_finger`; a success is a
   homed finger whose hall-derived joints then read within 1° of the plant; time in
   simulated seconds.
 
@@ -38,10 +38,10 @@ from benchmarks.harness import Table
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
-from host.hand import Hand
-from host.hand_homing import accels_from_status, home_finger, inertial_estimate
-from host.inertial_closed_form import estimate
-from host.joint_ekf import EkfParams, JointEkf, accel_counts_to_g
+from host.estimation.closed_form import estimate
+from host.estimation.ekf import EkfParams, JointEkf, accel_counts_to_g
+from host.hand.facade import Hand
+from host.hand.homing import accels_from_status, home_finger, inertial_estimate
 
 THUMB = 3
 JOINTS = ("J0 (abduction)", "J1 (proximal)", "J2 (distal)")

@@ -39,7 +39,7 @@ from bootloader.plan import make_plan, rollback_plan
 from firmware_py.sim.virtual_hal import PAGE_WRITE_US
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
-from host.hand_session import HandSession
+from host.hand.session import HandSession
 from protocol.framing import OVERHEAD
 from protocol.image import FLASH, BoardType, FirmwareImage
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US

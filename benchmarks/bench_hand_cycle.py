@@ -1,6 +1,6 @@
 """The hand's 12-joint state-and-command cycle through the palm: wire bound and library.
 
-One cycle = :meth:`host.hand.Hand.send` of the four fingers' ``fmcb.control`` (joint
+One cycle = :meth:`host.hand.facade.Hand.send` of the four fingers' ``fmcb.control`` (joint
 targets; each routed by ``palm.route`` in a ``txn``, the four pipelined, the palm serving
 each finger on its own pogo link) + one ``palm.hand_status`` (the palm's aggregated summary:
 every finger's motor positions and efforts from its polls, 98 bytes of payload for all 12
@@ -37,7 +37,7 @@ from benchmarks.harness import Result
 from firmware_py.palm_router import FMCB_TURNAROUND_US
 from hil_emulator.inprocess import bring_up, forget_shared_emulators
 from host.errors import HostError
-from host.hand import FingerCommand, Hand
+from host.hand.facade import FingerCommand, Hand
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.topology import HOST_LINK_BAUD, POGO_BAUD, wire_time_us

@@ -1,8 +1,8 @@
 """What the live browser view costs the robot's loop: cycles per CPU second, view on and off.
 
-The host loop is :meth:`host.arm.Arm.cycle` on ``emu://arm/arm`` (the emulator in this
+The host loop is :meth:`host.arm.facade.Arm.cycle` on ``emu://arm/arm`` (the emulator in this
 process, MuJoCo plant on).  One arm runs blocks of cycles without and with a view attached
-(:class:`host.view.RobotView` on free ports, its server a child process, nobody watching;
+(:class:`host.view.live.RobotView` on free ports, its server a child process, nobody watching;
 by default 10 states a second by the simulation clock through a bounded queue to one
 drawing thread, which sends them half a second of the robot's time at a time), in pairs of
 adjacent blocks (off-on, on-off, …, so a drift of the machine
@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 from benchmarks.harness import Result
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import Arm
-from host.view import SEND_INTERVAL_S, RobotView
+from host.arm.facade import Arm
+from host.view.live import SEND_INTERVAL_S, RobotView
 
 HOLD = [0.0, 0.3, 0.0, 0.6, 0.0, 0.3, 0.0]
 #: The target: cycles per CPU second with the view ≥ this × without.

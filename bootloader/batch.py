@@ -5,7 +5,7 @@ of the plan answers (its fmcb, in its application or its bootloader); it reads t
 versions, stops the palm's finger polling for the run (a polled finger sitting in its
 bootloader would be declared lost) and restores it at the end.  Then one
 :class:`~bootloader.node_session.FingerChannel` per finger runs, all interleaved on the one
-:class:`~host.hand_session.HandSession` (each finger has one request in flight; the palm
+:class:`~host.hand.session.HandSession` (each finger has one request in flight; the palm
 serves the fingers' links in parallel).  A finger whose flow fails is started again from
 its power cycle (:data:`FINGER_ATTEMPTS` in all); blocks already verified are not written
 again.  With ``all_or_nothing`` every finger is staged first and activated only if every
@@ -32,7 +32,7 @@ from bootloader.node_session import (
 from bootloader.plan import FlashPlan, NodeJob
 from bootloader.slot_update import SlotChannel
 from host.errors import HostError, NodeError
-from host.hand_session import LINK_NODE, HandSession, PendingReply, Target
+from host.hand.session import LINK_NODE, HandSession, PendingReply, Target
 from protocol.messages.common import Running, TxnStatus
 from protocol.messages.palm import FingerPower
 from protocol.topology import Hop

@@ -4,7 +4,7 @@ A :class:`FingerChannel` flashes the nodes of one finger (fmcb, then f2 and f3, 
 reached through the fmcb's running application).  It is written as a generator that yields
 the operations it needs — :class:`Send` a request, :class:`Sleep` — and is resumed with each
 :class:`Outcome`, so the :mod:`bootloader.batch` driver can run the four fingers at once over
-one :class:`~host.hand_session.HandSession` (one request in flight per finger).  Each node's
+one :class:`~host.hand.session.HandSession` (one request in flight per finger).  Each node's
 :class:`NodeReport` carries its explicit :class:`NodeState`; every transition is reported.
 
 A node's path: FORCING (power off → on through the board upstream: the palm for an fmcb,

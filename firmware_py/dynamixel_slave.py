@@ -261,7 +261,7 @@ class DynamixelSlave:
         """Whether bytes arriving now would make this node do anything: False exactly for a
         whole packet that :meth:`_on_bytes` lets pass untouched (for another node, nothing
         half-received, and not the status packet a BULK_READ turn waits for).  A bus model
-        may leave such a packet undelivered (:meth:`hil_emulator.rs485_bus.Rs485Bus.attach`).
+        may leave such a packet undelivered (:meth:`hil_emulator.lines.rs485_bus.Rs485Bus.attach`).
         """
         n = len(data)
         if n >= 6 and data[3] + 4 == n and data[0] == 0xFF and data[1] == 0xFF:

@@ -15,7 +15,7 @@ fast as the CPU allows; in-process users call :meth:`Emulator.step` and share th
 (:mod:`hil_emulator.inprocess`: a host transport on it, and the hand's bring-up).  A
 ``seed`` makes a run repeatable: same seed, same inputs → same frames, same physics.  Faults
 are applied from outside by whoever runs a plan (:mod:`hil_emulator.faults`); the emulator
-offers them its parts, its ports and each host link's :class:`~hil_emulator.link_tap.LinkTap`.
+offers them its parts, its ports and each host link's :class:`~hil_emulator.ports.link_tap.LinkTap`.
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from collections.abc import Callable
 from typing import TypedDict
 
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.host_links import HostLink, Port, SerialLink, SlcanLink, VirtualCanLink
-from hil_emulator.link_dir import LinkDirLock
-from hil_emulator.link_tap import LinkTap
 from hil_emulator.pacing import Pacer
+from hil_emulator.ports.host_links import HostLink, Port, SerialLink, SlcanLink, VirtualCanLink
+from hil_emulator.ports.link_dir import LinkDirLock
+from hil_emulator.ports.link_tap import LinkTap
 from hil_emulator.robot import EmulatedRobot
 
 CanMode = str  # "slcan" (a pty), "virtual:<channel>" (python-can, same process), "none"

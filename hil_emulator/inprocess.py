@@ -1,4 +1,4 @@
-"""The emulator in the host's own process: a :class:`host.transport.Transport` on its clock,
+"""The emulator in the host's own process: a :class:`host.transports.base.Transport` on its clock,
 and the hand brought up through it.
 
 Host code opened on ``emu://CONFIG/LINK`` (or given ``EmulatorTransport(emulator, "palm")``)
@@ -17,11 +17,11 @@ program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 
 :func:`bring_up` starts from a robot whose thirteen hand microcontrollers run their
 applications (``hil-emulator --ready``, ``ready=1``, benchmarks, tests).  The host library
-does it, through this transport: a :class:`~host.hand.Hand` on the palm's link waits out the
+does it, through this transport: a :class:`~host.hand.facade.Hand` on the palm's link waits out the
 palm's bootloader window (``AUTOBOOT_WINDOW_US``), powers the fingers (``palm.finger_power``), waits for each
 fmcb to boot, powers the phalanges over the tendons (``fmcb.phalange_power``) and, after
 their boot, switches on every fmcb's 100 Hz autopoll of its phalanges; a
-:class:`~host.hand_session.HandSession` on a loose finger's cable does the same for its one
+:class:`~host.hand.session.HandSession` on a loose finger's cable does the same for its one
 module.  Every reply is checked (route statuses), then the emulator checks that each node
 runs its application.  The arm is left as it powers up: torque off, hanging, until the host
 enables it.  The requests go without the ``txn`` envelope (``txn=False``) and each starts a
@@ -42,9 +42,9 @@ from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, EmulatorError
 from host.errors import HostError, TransportError, UsageError
-from host.hand import Hand, Node
-from host.hand_session import LINK_NODE, HandSession, Timeouts
-from host.transport import LinkKind, Transport, url_options
+from host.hand.facade import Hand, Node
+from host.hand.session import LINK_NODE, HandSession, Timeouts
+from host.transports.base import LinkKind, Transport, url_options
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import ALL_FINGERS, FingerPower
 from protocol.topology import FINGERS

@@ -15,7 +15,7 @@ from firmware_py.boot_program import inspect_image
 from firmware_py.mcu import Mcu
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.emulator import Emulator
-from hil_emulator.rs485_bus import Rs485Bus
+from hil_emulator.lines.rs485_bus import Rs485Bus
 from protocol.image import FLASH, BoardType
 from protocol.messages.boot_program import ImageStatus
 

@@ -1,7 +1,7 @@
 """The loop that serves the emulator's ports and paces its simulation, with its statistics.
 
 A :class:`Pacer` runs one :class:`~firmware_py.scheduler.Scheduler` and serves a set of
-:class:`~hil_emulator.host_links.Port` s (the host links, the fault control channel) until
+:class:`~hil_emulator.ports.host_links.Port` s (the host links, the fault control channel) until
 told to stop, either paced to the wall clock (real time: programs with wall-clock timeouts
 work) or as fast as the CPU allows.  In real time it also decides when host input enters
 the simulation (:meth:`Pacer.input_time_us`), measures how late each delivery to the host
@@ -22,7 +22,7 @@ from typing import Final
 import numpy as np
 
 from firmware_py.scheduler import Scheduler
-from hil_emulator.host_links import HostLink, Port, PtyBacked
+from hil_emulator.ports.host_links import HostLink, Port, PtyBacked
 from host.scheduling import Scheduling, priority_for
 
 #: Longest the real-time loop sleeps without looking at its stop flag (s); host input and

@@ -25,12 +25,14 @@ from typing import Final
 import numpy as np
 
 from firmware_py.scheduler import Scheduler
-from hil_emulator import arm_model, hand_model, scene_model
-from hil_emulator.arm_plant import ArmPlant
-from hil_emulator.arm_rig import ArmRig
+from hil_emulator import scene_model
+from hil_emulator.arm import model as arm_model
+from hil_emulator.arm.plant import ArmPlant
+from hil_emulator.arm.rig import ArmRig
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.finger_plant import FingerPlant, PalmPlant
-from hil_emulator.hand_rig import HandRig, LooseFinger
+from hil_emulator.hand import model as hand_model
+from hil_emulator.hand.finger_plant import FingerPlant, PalmPlant
+from hil_emulator.hand.rig import HandRig, LooseFinger
 from hil_emulator.plant import Plant, PlantPart, new_spec
 from hil_emulator.scene_model import SCENES, MugTracker
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
@@ -44,7 +46,7 @@ STAND_Z_M: Final = 0.4
 class EmulatedRobot:
     """One emulated robot, powered on.
 
-    ``layout`` names the hand layout (:data:`hil_emulator.hand_model.LAYOUTS`); ``physics``
+    ``layout`` names the hand layout (:data:`hil_emulator.hand.model.LAYOUTS`); ``physics``
     False leaves the MuJoCo plant out (firmware and buses only); ``scene`` adds things to
     the world (:data:`hil_emulator.scene_model.SCENES`: ``"none"``, ``"mug"`` — a table and
     a coffee mug in front of the arm; configurations with the arm only).

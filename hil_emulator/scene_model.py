@@ -8,7 +8,7 @@
           hand on the arm's wrist (:func:`add_mug_scene`).
 
 World frame (m): ``z`` up from the floor, ``x`` forward from the arm's base (the arm's base
-frame is the world's raised by :data:`~hil_emulator.arm_model.MOUNT_HEIGHT_M`).
+frame is the world's raised by :data:`~hil_emulator.arm.model.MOUNT_HEIGHT_M`).
 
 **Contacts.**  The table top has ``contype = conaffinity = TABLE_BITS`` and the mug
 ``contype = MUG_CONTYPE``, ``conaffinity = MUG_CONAFFINITY``: the mug touches the table, the
@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.hand_model import PAD_FRICTION
+from hil_emulator.hand.model import PAD_FRICTION
 
 #: The scenes :class:`~hil_emulator.emulator.Emulator` can build.
 SCENES: Final = ("none", "mug")

@@ -8,14 +8,14 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── ReplyTimeout(TimeoutError)        a request got no (matching) reply in time
     ├── RouteError                        the palm could not deliver to a finger node
     ├── NodeError                         a node answered, but with a refusal or a bad reply
-    │   └── DynamixelNodeError            an arm node's status error byte (host.dynamixel_bus)
+    │   └── DynamixelNodeError            an arm node's status error byte (host.arm.bus)
     ├── UsageError(ValueError)            the caller asked for something impossible
     │   ├── NotHomedError                 a motion command for a finger not yet homed
     │   ├── LimitError                    an arm motion the gate refuses before it starts
     │   ├── FingerMovingError             the finger moved while read for homing
     │   ├── AmbiguousPoseError            two poses fit the accelerometers
-    │   └── UnobservableJointError        a joint axis too near vertical (host.inertial_closed_form)
-    ├── NoAccelerationError               accelerometers unpowered or silent (host.inertial_closed_form)
+    │   └── UnobservableJointError        a joint axis too near vertical (host.estimation.closed_form)
+    ├── NoAccelerationError               accelerometers unpowered or silent (host.estimation.closed_form)
     ├── HomingError                       an arm joint's index mark was not found
     ├── StallError                        a stepper joint kept latching STALLED
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
@@ -107,7 +107,7 @@ class NotHomedError(UsageError):
 
 
 class LimitError(UsageError):
-    """An arm motion refused before anything moved (:mod:`host.arm_gate`): a goal outside a
+    """An arm motion refused before anything moved (:mod:`host.arm.gate`): a goal outside a
     joint's range, a path faster than a joint can follow, a joint's torque off, a number
     that is not finite.  ``joint`` names the joint (``"J1"`` … ``"J7"``) when one is to
     blame, else None."""

@@ -75,7 +75,7 @@ FINGER_JOINT_STOPS: Final[tuple[Range, Range, Range]] = ((-1.6, 1.6), (-1.6, 1.6
 FINGER_ACCEL_SEGMENTS: Final = {"fmcb": "F0", "f2": "F2", "f3": "F3"}
 #: Each accelerometer's axes in its segment's frame (rows: the board's x, y, z axes): the
 #: nominal mounting, every board's axes along its segment's (x distal, z palmar).  A real
-#: board is off by a few degrees; :mod:`host.accel_calibration` measures that.
+#: board is off by a few degrees; :mod:`host.estimation.accel_calibration` measures that.
 FINGER_ACCEL_AXES: Final[dict[str, tuple[Vec3, Vec3, Vec3]]] = {
     board: ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     for board in FINGER_ACCEL_SEGMENTS}
@@ -489,7 +489,7 @@ def arm_route_coupling_matrix() -> np.ndarray:
 #: joints after it: link 1 (the shoulder housing with the two NEMA-23 steppers), the J2
 #: capstan hub, the upper arm (tube and elbow capstan), the forearm's J5 bracket, the forearm
 #: tube with the J6 servo, the J7 servo, the flange plate.  The emulator's MuJoCo model
-#: (:mod:`hil_emulator.arm_model`) builds the same bodies from its parts; a test keeps the two
+#: (:mod:`hil_emulator.arm.model`) builds the same bodies from its parts; a test keeps the two
 #: equal.  The base (5.5 kg with the NEMA-34 steppers) turns with no joint.
 ARM_LINK_MASS_PROPERTIES: Final[tuple[tuple[float, Vec3], ...]] = (
     (3.9, (-0.06, 0.0, 0.09)),
@@ -504,7 +504,7 @@ ARM_FLANGE_MASS_PROPERTIES: Final[tuple[float, Vec3]] = (0.025, (0.0, 0.0, -0.00
 #: Principal moments of inertia (kg·m², about the centre of mass, along the body's own axes)
 #: of the same bodies (:data:`ARM_LINK_MASS_PROPERTIES`): link 1 as measured, the others
 #: uniform cylinders along each link (the emulator's model builds them from their parts; a
-#: test keeps the two equal): the host's mass matrix of the arm (:mod:`host.arm_dynamics`).
+#: test keeps the two equal): the host's mass matrix of the arm (:mod:`host.arm.dynamics`).
 ARM_LINK_INERTIAS_KGM2: Final[tuple[Vec3, ...]] = (
     (0.019, 0.021, 0.024),
     (0.000376458333, 0.000376458333, 0.00040625),

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil_emulator.arm_plant import ArmPlant
-from hil_emulator.arm_rig import ArmRig
+from hil_emulator.arm.plant import ArmPlant
+from hil_emulator.arm.rig import ArmRig
 from hil_emulator.emulator import Emulator
-from hil_emulator.hand_rig import HandRig
+from hil_emulator.hand.rig import HandRig
 from hil_emulator.inprocess import EmulatorTransport
-from host.arm import Arm
-from host.hand import Hand
+from host.arm.facade import Arm
+from host.hand.facade import Hand
 
 
 def emulator_of(robot: Hand | Arm) -> Emulator:

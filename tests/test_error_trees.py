@@ -72,7 +72,7 @@ def test_no_two_exceptions_share_a_name() -> None:
 
 def test_missing_accelerometers_are_the_robots_state_not_a_usage_error() -> None:
     from host.errors import HostError, UsageError
-    from host.inertial_closed_form import NoAccelerationError
+    from host.estimation.closed_form import NoAccelerationError
 
     assert issubclass(NoAccelerationError, HostError)
     assert not issubclass(NoAccelerationError, UsageError)

@@ -5,9 +5,11 @@ Two towers on one ground floor: ``protocol`` at the bottom; the device tower
 each other; the emulator (``hil_emulator``) and the ``tools`` where they meet.  Imports inside
 functions (and under ``TYPE_CHECKING``) count too: a lazy import is still a dependency.
 
-Inside the host library, the facades (:data:`FACADES`: ``host.arm``, ``host.hand``) sit on
-top of their helpers: no module of ``host`` imports a facade (a helper takes a small
-``Protocol`` of what it uses: ``host.arm_interface``, ``host.hand_interface``).
+Inside the host library, the facades (:data:`FACADES`: ``host.arm.facade``,
+``host.hand.facade``) sit on top of their helpers: no module of ``host`` but the package's
+public names imports a facade (a helper takes a small ``Protocol`` of what it uses:
+``host.arm.interface``, ``host.hand.interface``).  Each room (a folder by concept,
+:data:`ROOMS`) imports only what its rule allows.
 
 No modules import each other round a circle inside any package (:data:`CYCLE_FREE`: all
 of them); between packages the rule above already allows none, so none remains anywhere.
@@ -16,6 +18,7 @@ of them); between packages the rule above already allows none, so none remains a
 from __future__ import annotations
 
 import ast
+import shutil
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,7 +44,7 @@ RULES: dict[str, Rule] = {
     # mypy_extensions: @mypyc_attr on the classes programs subclass (the compiled core)
     "firmware_py": Rule(("firmware_py", "protocol"), ("numpy", "mypy_extensions")),
     # rerun (and its pyarrow, the columns the view sends): the live browser view
-    # (host.view), imported only when a view is asked for
+    # (host.view.live), imported only when a view is asked for
     "host": Rule(("host", "protocol"),
                  ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun",
                   "pyarrow")),
@@ -133,13 +136,107 @@ def test_repository_text_never_points_outside_the_repository() -> None:
 
 #: The facades of the host library: what programs use, built on helpers that never import
 #: them back.
-FACADES = ("host.arm", "host.hand")
+#: (A helper imports a sibling by its full name, ``import host.arm.kinematics as …``: through
+#: the package, ``from host.arm import …`` reaches the facade's names.)
+FACADES = ("host.arm.facade", "host.hand.facade", "host.arm", "host.hand")
+
+# ------------------------------------------------------------------------------------ the rooms
+
+#: The host library's top: what every room may import.
+HOST_TOP = ("host.errors", "host.code_names", "host.scheduling", "host.old_module_names")
+#: Each room (a folder by concept) -> what of its own package it may import besides itself
+#: (by dotted prefix); a package's top-level modules are not a room (docs/ARCHITECTURE.md).
+ROOMS: dict[str, tuple[str, ...]] = {
+    "host.transports": HOST_TOP,
+    "host.recording": HOST_TOP,
+    "host.estimation": HOST_TOP,
+    # the view draws what the hand and the arm show it (their interfaces and kinematics)
+    "host.view": (*HOST_TOP, "host.recording", "host.hand", "host.arm"),
+    "host.hand": (*HOST_TOP, "host.transports", "host.estimation", "host.recording",
+                  "host.view"),
+    "host.arm": (*HOST_TOP, "host.transports", "host.recording", "host.view"),
+    "hil_emulator.lines": (),
+    "hil_emulator.ports": ("hil_emulator.errors",),
+    "hil_emulator.hand": ("hil_emulator.errors", "hil_emulator.plant", "hil_emulator.ports",
+                          "hil_emulator.lines"),
+    "hil_emulator.arm": ("hil_emulator.errors", "hil_emulator.plant", "hil_emulator.ports",
+                         "hil_emulator.lines"),
+}
+#: Outside the view's room, only the facades (and the package's public names) import it:
+#: the view sits beside the hand and the arm, and their helpers never draw.
+VIEW = "host.view"
+VIEW_IMPORTERS = ("host", "host.arm.facade", "host.hand.facade")
+
+
+def _under(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+def room_violations(graph: Mapping[str, set[str]]) -> list[str]:
+    """``module -> target (room: rule)`` for every import the rooms' rules forbid."""
+    out = []
+    for module, targets in sorted(graph.items()):
+        room = next((r for r in ROOMS if _under(module, r)), None)
+        for target in sorted(targets):
+            if room is not None and not _under(target, room) and not any(
+                    _under(target, allowed) for allowed in ROOMS[room]):
+                out.append(f"{module} -> {target} ({room} may import "
+                           f"{', '.join(ROOMS[room]) or 'nothing of its package'})")
+            elif (_under(target, VIEW) and not _under(module, VIEW)
+                  and module not in VIEW_IMPORTERS):
+                out.append(f"{module} -> {target} (only {', '.join(VIEW_IMPORTERS)} "
+                           "import the view)")
+    return out
+
+
+@pytest.mark.parametrize("package", ["host", "hil_emulator"])
+def test_each_room_imports_only_what_its_rule_allows(package: str) -> None:
+    assert room_violations(import_graph(package)) == []
+
+
+#: A forbidden import planted in each room (a copy of the package), and the view imported by
+#: a helper: the rule must name each.
+PLANTED = {
+    "host.transports": "host.arm.state",
+    "host.recording": "host.hand.state",
+    "host.estimation": "host.arm.kinematics",
+    "host.view": "host.transports.base",
+    "host.hand": "host.arm.state",
+    "host.arm": "host.hand.state",
+    "hil_emulator.lines": "hil_emulator.errors",
+    "hil_emulator.ports": "hil_emulator.plant",
+    "hil_emulator.hand": "hil_emulator.arm.plant",
+    "hil_emulator.arm": "hil_emulator.hand.rig",
+}
+
+
+@pytest.mark.parametrize("room", sorted(ROOMS))
+def test_the_room_rule_sees_a_planted_violation(room: str, tmp_path: Path) -> None:
+    assert sorted(PLANTED) == sorted(ROOMS)
+    package = room.split(".")[0]
+    shutil.copytree(ROOT / package, tmp_path / package,
+                    ignore=shutil.ignore_patterns("*.so", "__pycache__"))
+    probe = tmp_path / Path(*room.split(".")) / "_layering_probe.py"
+    probe.write_text(f"def later() -> None:\n    import {PLANTED[room]}\n", encoding="utf-8")
+    found = room_violations(import_graph(package, tmp_path))
+    assert len(found) == 1
+    assert found[0].startswith(f"{room}._layering_probe -> {PLANTED[room]} ({room} may import")
+
+
+def test_the_room_rule_sees_a_helper_importing_the_view(tmp_path: Path) -> None:
+    shutil.copytree(ROOT / "host", tmp_path / "host",
+                    ignore=shutil.ignore_patterns("*.so", "__pycache__"))
+    (tmp_path / "host" / "arm" / "_layering_probe.py").write_text(
+        "from host.view.live import RobotView\n", encoding="utf-8")
+    assert room_violations(import_graph("host", tmp_path)) == [
+        "host.arm._layering_probe -> host.view.live (only host, host.arm.facade, "
+        "host.hand.facade import the view)"]
 #: Packages whose modules import no circle of each other: every one.
 CYCLE_FREE = OURS
 
 
 def module_name(path: Path, root: Path = ROOT) -> str:
-    """``host/arm.py`` -> ``host.arm``; a package's ``__init__.py`` -> the package."""
+    """``host/arm/facade.py`` -> ``host.arm.facade``; a package's ``__init__.py`` -> the package."""
     parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
@@ -147,7 +244,7 @@ def module_name(path: Path, root: Path = ROOT) -> str:
 def import_graph(package: str, root: Path = ROOT) -> dict[str, set[str]]:
     """Each module of ``package`` -> the modules of ``package`` it imports, by any import
     statement (in a function, under ``TYPE_CHECKING``); ``from host import arm_gate`` names
-    the module ``host.arm_gate`` (and the package ``host``, whose ``__init__`` runs first)."""
+    the module ``host.arm.gate`` (and the package ``host``, whose ``__init__`` runs first)."""
     modules = {module_name(p, root): p for p in sorted((root / package).rglob("*.py"))}
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
@@ -172,7 +269,8 @@ def facade_importers(graph: Mapping[str, set[str]],
                      facades: tuple[str, ...] = FACADES) -> list[str]:
     """``module -> facade`` for every module of the graph that imports a facade."""
     return [f"{module} -> {target}" for module, targets in sorted(graph.items())
-            for target in sorted(targets & set(facades)) if module not in facades]
+            for target in sorted(targets & set(facades))
+            if module not in facades and module != "host"]
 
 
 def import_cycles(graph: Mapping[str, set[str]]) -> list[list[str]]:
@@ -223,20 +321,22 @@ def test_no_import_cycle_inside_the_package(package: str) -> None:
 
 def test_the_checker_sees_a_facade_import_and_a_cycle(tmp_path: Path) -> None:
     """Both checks can fail: a helper importing its facade inside a function, and a circle
-    closed by ``from host import ...`` under ``TYPE_CHECKING`` and a relative import."""
-    host = tmp_path / "host"
-    host.mkdir()
-    (host / "__init__.py").write_text("", encoding="utf-8")
-    (host / "arm.py").write_text("from host import arm_helper\n", encoding="utf-8")
-    (host / "arm_helper.py").write_text(
-        "def later():\n    from host.arm import Arm\n", encoding="utf-8")
-    (host / "left.py").write_text(
-        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from host import right\n",
+    closed by ``import host.arm.right`` under ``TYPE_CHECKING`` and a relative import."""
+    arm = tmp_path / "host" / "arm"
+    arm.mkdir(parents=True)
+    (tmp_path / "host" / "__init__.py").write_text("", encoding="utf-8")
+    (arm / "__init__.py").write_text("", encoding="utf-8")
+    (arm / "facade.py").write_text("from host.arm import helper\n", encoding="utf-8")
+    (arm / "helper.py").write_text(
+        "def later():\n    from host.arm.facade import Arm\n", encoding="utf-8")
+    (arm / "left.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import host.arm.right\n",
         encoding="utf-8")
-    (host / "right.py").write_text("from .left import x\n", encoding="utf-8")
+    (arm / "right.py").write_text("from .left import x\n", encoding="utf-8")
     graph = import_graph("host", tmp_path)
-    assert facade_importers(graph) == ["host.arm_helper -> host.arm"]
-    assert import_cycles(graph) == [["host.arm", "host.arm_helper"], ["host.left", "host.right"]]
+    assert facade_importers(graph) == ["host.arm.helper -> host.arm.facade"]
+    assert import_cycles(graph) == [["host.arm.facade", "host.arm.helper"],
+                                    ["host.arm.left", "host.arm.right"]]
 
 
 def test_the_cycle_check_sees_a_circle_closed_inside_a_function(tmp_path: Path) -> None:

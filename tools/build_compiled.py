@@ -68,12 +68,12 @@ COMPILED_MODULES: Final[tuple[str, ...]] = (
     "firmware_py/stepper_settle.py",
     "firmware_py/rx64.py",
     # the buses and the plant
-    "hil_emulator/rs485_bus.py",
+    "hil_emulator/lines/rs485_bus.py",
     "hil_emulator/plant.py",
-    "hil_emulator/finger_plant.py",
-    "hil_emulator/hand_sensors.py",
-    "hil_emulator/arm_plant.py",
-    "hil_emulator/arm_actuators.py",
+    "hil_emulator/hand/finger_plant.py",
+    "hil_emulator/hand/sensors.py",
+    "hil_emulator/arm/plant.py",
+    "hil_emulator/arm/actuators.py",
 )
 
 #: mypy options of the compile (as pyproject's [tool.mypy]).

@@ -7,7 +7,7 @@ line model sees them leave (``on_transmit``) and delivers them itself (:func:`li
 A :class:`VirtualCan` holds a 1 Mbit/s bus for one frame's time (``FRAME_US``).  Both record
 what the firmware sent (``sent``, times in µs since the scheduler's start) while
 ``keep_sent`` is on; the emulator turns it off.  :class:`~firmware_py.sim.virtual_hal.VirtualHal`
-builds them; the emulator's buses (:mod:`hil_emulator.rs485_bus`) and host links wire them.
+builds them; the emulator's buses (:mod:`hil_emulator.lines.rs485_bus`) and host links wire them.
 """
 
 from __future__ import annotations

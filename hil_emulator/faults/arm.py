@@ -1,11 +1,11 @@
 """Faults of the arm: external torques, a drifting spring, a missed index pulse, RX-64
 overheat and overload, a duplicate servo ID, a sagging supply.
 
-They act through the plant (:meth:`~hil_emulator.arm_plant.ArmPlant.push`,
-:meth:`~hil_emulator.arm_plant.ArmPlant.set_stiffness`), the joint encoders' index line
+They act through the plant (:meth:`~hil_emulator.arm.plant.ArmPlant.push`,
+:meth:`~hil_emulator.arm.plant.ArmPlant.set_stiffness`), the joint encoders' index line
 (:class:`~firmware_py.sim.virtual_drives.VirtualEncoder`), the nodes' sensors
 (:class:`~hil_emulator.faults.nodes.SensorFault`) and the arm's line
-(:meth:`~hil_emulator.rs485_bus.Rs485Bus.attach`: a second node).
+(:meth:`~hil_emulator.lines.rs485_bus.Rs485Bus.attach`: a second node).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from hil_emulator.faults.nodes import SensorFault
 from protocol.topology import SERVO_IDS, STEPPER_IDS
 
 if TYPE_CHECKING:
-    from hil_emulator.arm_plant import ArmPlant
+    from hil_emulator.arm.plant import ArmPlant
     from hil_emulator.emulator import Emulator
 
 

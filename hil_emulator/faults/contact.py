@@ -1,7 +1,7 @@
 """Faults of power and contact: pogo pins, tendon supply, a node's supply.
 
 They act through :class:`~hil_emulator.emulator.Emulator` (``break_away``, ``reattach``), the
-hand rig's contacts (:meth:`~hil_emulator.hand_rig.HandRig.chatter`, ``Finger.data_contact``),
+hand rig's contacts (:meth:`~hil_emulator.hand.rig.HandRig.chatter`, ``Finger.data_contact``),
 the fmcb's phalange power switch (its load) and each node's :class:`~firmware_py.mcu.Mcu`.
 """
 
@@ -18,7 +18,7 @@ from hil_emulator.faults.base import Fault
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
-    from hil_emulator.hand_rig import HandRig
+    from hil_emulator.hand.rig import HandRig
 
 
 @dataclass
@@ -124,7 +124,7 @@ class ShortedTendon(Fault):
         switch.set_load_ma(self.load_ma)
 
     def clear(self, emulator: Emulator) -> None:
-        from hil_emulator.hand_rig import PHALANGE_LOAD_MA
+        from hil_emulator.hand.rig import PHALANGE_LOAD_MA
 
         finger = targets.finger(emulator, self.finger)
         switch = targets.node(emulator, f"finger{self.finger}.fmcb").hal.power("phalange")

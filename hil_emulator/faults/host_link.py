@@ -1,6 +1,6 @@
 """Faults of a host link (the palm's or arm's USB serial port, the loose finger's cable).
 
-Each fault sets stages of the link's :class:`~hil_emulator.link_tap.LinkTap`
+Each fault sets stages of the link's :class:`~hil_emulator.ports.link_tap.LinkTap`
 (:meth:`Emulator.link_tap <hil_emulator.emulator.Emulator.link_tap>`): corruption, loss,
 latency, a vanished port, a stuck transmitter, a wrong baud rate.
 """
@@ -14,8 +14,8 @@ import numpy as np
 
 from firmware_py.scheduler import TimerHandle
 from hil_emulator.faults.base import Fault
-from hil_emulator.host_links import PtyBacked
-from hil_emulator.link_tap import LinkTap, Stage
+from hil_emulator.ports.host_links import PtyBacked
+from hil_emulator.ports.link_tap import LinkTap, Stage
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
@@ -212,7 +212,7 @@ class SerialDriverStuck(Fault):
 @dataclass
 class BaudMismatch(Fault):
     """One side of host link ``link`` runs at ``baud`` (bit/s) instead of the link's rate:
-    every character is sampled at the wrong instants (:func:`hil_emulator.uart_sampling.misread`:
+    every character is sampled at the wrong instants (:func:`hil_emulator.lines.uart_sampling.misread`:
     deterministic bit-level re-sampling; characters with a framing error left out), both
     ways — the ``side`` at the wrong rate misreads what the other sends and is misread in
     turn.  Frames fail their checksum, so nothing reaches a motor; cleared, both sides agree
@@ -231,7 +231,7 @@ class BaudMismatch(Fault):
             raise ValueError(f"baud {self.baud} must be positive")
 
     def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
-        from hil_emulator.uart_sampling import misread
+        from hil_emulator.lines.uart_sampling import misread
 
         nominal = link_baud(emulator, self.link)
         host, device = (nominal, self.baud) if self.side == "device" else (self.baud, nominal)

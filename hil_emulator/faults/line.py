@@ -1,8 +1,8 @@
 """Faults of the line models: the arm's RS-485 line and each finger's tendon bus.
 
-They act through :class:`~hil_emulator.rs485_bus.Rs485Bus` (its error rates, frame loss, line
+They act through :class:`~hil_emulator.lines.rs485_bus.Rs485Bus` (its error rates, frame loss, line
 cut, and its ``fault_filter`` hook on what the receivers get) and the tendon contact
-(:func:`~hil_emulator.hand_rig.tendon_glitch`); ``burst_dropout`` on a tendon bus may follow
+(:func:`~hil_emulator.hand.rig.tendon_glitch`); ``burst_dropout`` on a tendon bus may follow
 the finger's tendon load from the physics.
 """
 
@@ -108,7 +108,7 @@ class BurstDropout(Fault):
     worsens under load, as the tendons carrying the phalanges' power and data strain and
     flex: each frame's good → bad probability is ``p_enter · load / tendon_torque_nm``,
     clipped to 1, where ``load`` is the finger's most loaded tendon at that moment
-    (:meth:`~hil_emulator.finger_plant.FingerPlant.tendon_load_nm`: the largest motor
+    (:meth:`~hil_emulator.hand.finger_plant.FingerPlant.tendon_load_nm`: the largest motor
     torque times its gear ratio, N·m at the capstan, i.e. tension × capstan radius; the
     model has tendons as motor-to-joint couplings without a capstan radius, so the load is
     given as that torque, not in newtons).  A slack finger (motors coasting) never enters
@@ -225,7 +225,7 @@ class TendonGlitch(Fault):
             raise ValueError(f"duration_us {self.duration_us} must be positive")
 
     def apply(self, emulator: Emulator, rng: np.random.Generator) -> None:
-        from hil_emulator.hand_rig import tendon_glitch
+        from hil_emulator.hand.rig import tendon_glitch
 
         tendon_glitch(targets.finger(emulator, self.finger), emulator.scheduler,
                       self.duration_us)

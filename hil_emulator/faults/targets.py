@@ -17,13 +17,13 @@ from firmware_py.dynamixel_slave import DynamixelSlave
 from firmware_py.mcu import Mcu
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.hand_rig import Finger
-from hil_emulator.rs485_bus import Rs485Bus
+from hil_emulator.hand.rig import Finger
+from hil_emulator.lines.rs485_bus import Rs485Bus
 from protocol.topology import FINGER_BOARDS
 
 if TYPE_CHECKING:
     from hil_emulator.emulator import Emulator
-    from hil_emulator.finger_plant import FingerPlant
+    from hil_emulator.hand.finger_plant import FingerPlant
 
 _FINGER_BOARDS = "|".join(b.app for b in FINGER_BOARDS)
 _FINGER_NODE = re.compile(rf"finger(\d)\.({_FINGER_BOARDS})$")

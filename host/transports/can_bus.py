@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from host.errors import TransportError, UsageError
-from host.transport import LinkKind, Transport, url_options
+from host.transports.base import LinkKind, Transport, url_options
 from protocol.canlink import DEFAULT_PALM_NODE, can_id, segment
 
 if TYPE_CHECKING:

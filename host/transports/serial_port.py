@@ -11,7 +11,7 @@ from urllib.parse import urlencode
 import serial
 
 from host.errors import TransportError, UsageError
-from host.transport import HAND_SERIAL_BAUD, LinkKind, Transport, url_options
+from host.transports.base import HAND_SERIAL_BAUD, LinkKind, Transport, url_options
 
 #: Highest ``?baud=`` taken (bit/s): the fastest USB-serial adapters (FT232H, 12 Mbaud).
 MAX_BAUD: Final = 12_000_000

@@ -30,7 +30,7 @@ from firmware_py.slot_swap import read_record
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
 from host.errors import HostError
-from host.hand_session import HandSession, Target
+from host.hand.session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.palm import FingerPower

@@ -18,7 +18,7 @@ from firmware_py.mcu import Mcu
 from firmware_py.sim.boards import install_one_slot_firmware
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
-from host.hand_session import HandSession, Target
+from host.hand.session import HandSession, Target
 from protocol.image import BoardType, FirmwareImage, split_pages
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, WriteStatus
 from protocol.messages.common import Running

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hil_emulator.emulator import Emulator
-from hil_emulator.host_links import PtyBacked
+from hil_emulator.ports.host_links import PtyBacked
 from tests.hil_emulator.emulator_process import HANG_GUARD_S
 
 

@@ -27,7 +27,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from host.transport import Transport
+from host.transports.base import Transport
 from protocol.framing import encode_frame
 
 PING, BOOT, READ_PAGE, WRITE_PAGE, HALT, RESET = 0x01, 0x08, 0x0A, 0x0B, 0x0C, 0x09

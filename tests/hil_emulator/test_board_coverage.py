@@ -11,8 +11,8 @@ from firmware_py.identity import read_identity
 from firmware_py.scheduler import Scheduler
 from firmware_py.sim.boards import APP_PROGRAMS, BOARD_SPECS, load_program, make_hal, make_node
 from firmware_py.sim.virtual_hal import VirtualHal
-from hil_emulator.arm_rig import ArmRig
-from hil_emulator.hand_rig import HandRig, LooseFinger
+from hil_emulator.arm.rig import ArmRig
+from hil_emulator.hand.rig import HandRig, LooseFinger
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.topology import BOARDS, HAND_BOARDS, Board, BoardType
 

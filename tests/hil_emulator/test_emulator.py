@@ -12,8 +12,8 @@ import pytest
 from firmware_py.sim.virtual_sensors import VirtualSensors
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.host_links import SerialLink
 from hil_emulator.inprocess import BOOT_US, EmulatorTransport, bring_up
+from hil_emulator.ports.host_links import SerialLink
 from protocol.framing import parse_frame
 from protocol.messages import CATALOGUE
 from protocol.stream import decode_all
@@ -192,7 +192,7 @@ def test_python_can_virtual_channel_reaches_the_palm_in_process() -> None:
 
 @pytest.mark.slow
 def test_the_phalanges_draw_their_supply_through_the_fmcb_switch() -> None:
-    from hil_emulator.hand_rig import PHALANGE_LOAD_MA
+    from hil_emulator.hand.rig import PHALANGE_LOAD_MA
     from protocol.sensor_counts import pb_current_amps, pb_current_counts
 
     emu = Emulator("hand", seed=4, can="none", physics=False)
@@ -231,8 +231,8 @@ def test_bring_up_of_a_loose_finger_and_a_clear_error_when_a_node_cannot_boot() 
 
 def test_bring_up_is_the_host_library_and_leaves_thirteen_applications_answering(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.hand import Hand
-    from host.hand_session import HandSession
+    from host.hand.facade import Hand
+    from host.hand.session import HandSession
 
     sent: list[tuple[str, int | None, bool]] = []
     start = HandSession.start

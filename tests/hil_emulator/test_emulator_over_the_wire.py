@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 
 from host.errors import HostError, ReplyTimeout
-from host.hand_session import HandSession, Target, Timeouts
-from host.transport import open_transport
+from host.hand.session import HandSession, Target, Timeouts
+from host.transports.base import open_transport
 from protocol.control_tables import RX64_TABLE, STEPPER_MODEL_NUMBER, STEPPER_TABLE
 from protocol.messages import CATALOGUE
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
@@ -335,7 +335,7 @@ def test_a_flood_on_the_arm_port_is_an_overrun_and_the_next_ping_is_answered() -
     adapter buffer holds (4 KiB: 41 ms of its 1 Mbaud wire; the rest is an overrun,
     counted); memory stays flat; a ping written afterwards is answered within 50 ms (plus what the emulator reports as late).
     benchmarks/bench_backpressure.py reports the same figures."""
-    from hil_emulator.host_links import ADAPTER_BUFFER_BYTES
+    from hil_emulator.ports.host_links import ADAPTER_BUFFER_BYTES
     from protocol.topology import ARM_BUS_BAUD, wire_time_us
 
     flood = flood_arm_port(3.0)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from hil_emulator.link_dir import LOCK_NAME
+from hil_emulator.ports.link_dir import LOCK_NAME
 from tests.hil_emulator.emulator_process import ROOT, emulator_stats, running_emulator, status
 
 EXPECTED = {

@@ -12,7 +12,7 @@ import pytest
 from firmware_py.hand_node import HandNode
 from firmware_py.sim.boards import default_image
 from hil_emulator.inprocess import EmulatorTransport, forget_shared_emulators
-from host.transport import open_transport
+from host.transports.base import open_transport
 from protocol.image import BoardType
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from tests.ground_truth import hand_rig_of

@@ -13,8 +13,8 @@ import serial
 
 from firmware_py.scheduler import Scheduler
 from hil_emulator.emulator import Emulator
-from hil_emulator.host_links import SerialLink
 from hil_emulator.pacing import CATCH_UP_EVENTS, LATE_WARN_MS, MAX_BEHIND_S
+from hil_emulator.ports.host_links import SerialLink
 from protocol.dynamixel import make_ping
 from tests.hil_emulator.emulator_thread import serving
 from tests.hil_emulator.faults.probes import FaultyEmulator

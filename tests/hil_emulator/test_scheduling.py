@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 import pytest
 
 from hil_emulator.emulator import Emulator
-from hil_emulator.port_reader import PortReader
+from hil_emulator.ports.port_reader import PortReader
 from host.scheduling import RT_PRIORITY, Scheduling, current, request_priority, rtprio_limit
 from tests.hil_emulator.emulator_process import ROOT
 

@@ -8,8 +8,8 @@ from collections.abc import Iterator
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import Arm
-from host.hand import Hand
+from host.arm.facade import Arm
+from host.hand.facade import Hand
 
 
 @pytest.fixture(scope="module")

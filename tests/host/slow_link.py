@@ -3,7 +3,7 @@ busy machine slows below real time, made exact on the simulation clock for the t
 
 from __future__ import annotations
 
-from host.transport import Transport
+from host.transports.base import Transport
 
 
 class FastLinkClock(Transport):

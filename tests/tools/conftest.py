@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host.arm import Arm
+from host.arm.facade import Arm
 
 
 @pytest.fixture()

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from host.arm import Arm
+from host.arm.facade import Arm
 from host.errors import HomingError, TransportError, UsageError
 from protocol.control_tables import STEPPER_TABLE
 from protocol.dynamixel import ErrorBit
@@ -114,7 +114,7 @@ def test_homing_stops_with_the_joint_named_when_its_node_stops_it(
 
 
 def test_the_homing_search_time_covers_the_widest_search() -> None:
-    from host.arm_homing import search_targets, search_time
+    from host.arm.homing import search_targets, search_time
 
     plan = search_targets(1.0, 0.25)  # +0.25 -0.25 +0.5 -0.5: 0.25 + 0.5 + 0.75 + 1.0
     assert search_time([plan, [0.1, -0.1]], 0.5) == pytest.approx(2 * 2.5 / 0.5 + 5.0)
@@ -185,7 +185,7 @@ def test_waypoints_recorded_before_ctrl_c_or_a_lost_link_are_saved(
         capsys: pytest.CaptureFixture[str], stop: type[BaseException]) -> None:
     """They lived in memory until the end: Ctrl-C or the emulator killed mid-recording lost
     them all."""
-    from host.arm_waypoints import load_waypoints
+    from host.arm.waypoints import load_waypoints
 
     opened = Arm.open
 

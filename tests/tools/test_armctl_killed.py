@@ -17,8 +17,8 @@ from typing import Any
 import dynamixel_sdk as sdk
 import pytest
 
-from host.arm import HOST_WATCHDOG_MS, HOST_WATCHDOG_REALTIME_MS
-from host.arm_state import JOINT_IDS, N_STEPPERS
+from host.arm.facade import HOST_WATCHDOG_MS, HOST_WATCHDOG_REALTIME_MS
+from host.arm.state import JOINT_IDS, N_STEPPERS
 from host.scheduling import rtprio_limit
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from tests.hil_emulator.emulator_process import (

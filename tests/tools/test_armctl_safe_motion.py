@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from host.arm import Arm
+from host.arm.facade import Arm
 from tests.ground_truth import arm_joints
 from tests.hil_emulator.emulator_process import (
     HANG_GUARD_S,

@@ -17,10 +17,10 @@ from host.errors import (
     TransportError,
     UsageError,
 )
-from host.hand import Hand
-from host.hand_session import LINK_BUDGET_S, HandSession, Timeouts
+from host.hand.facade import Hand
+from host.hand.session import LINK_BUDGET_S, HandSession, Timeouts
 from host.scheduling import RT_PRIORITY, Scheduling, current, rtprio_limit
-from host.transport import open_transport, schemes
+from host.transports.base import open_transport, schemes
 from protocol.messages.common import TxnStatus
 from tools.cli import armctl, flash_all_fingers, handctl
 from tools.cli import common as cli_common
@@ -63,8 +63,8 @@ def test_ctrl_c_is_exit_130(name: str, monkeypatch: pytest.MonkeyPatch,
     def interrupted(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("host.hand.Hand.open", interrupted)
-    monkeypatch.setattr("host.arm.Arm.open", interrupted)
+    monkeypatch.setattr("host.hand.facade.Hand.open", interrupted)
+    monkeypatch.setattr("host.arm.facade.Arm.open", interrupted)
     assert CLIS[name](["--port", "loop://", *COMMAND[name]]) == 130
     assert capsys.readouterr().err == f"{name}: interrupted\n"
 

@@ -142,7 +142,7 @@ def test_the_mug_moving_in_the_hand_while_off_the_table_is_a_slip() -> None:
 
 
 def test_what_a_finger_felt_is_its_taxels_rise_since_the_baseline() -> None:
-    from host.hand_state import FingerState
+    from host.hand.state import FingerState
     from tools.demo.watch import felt
 
     base = FingerState(0, tactile={"proximal": [100] * 6, "distal": [100] * 12})

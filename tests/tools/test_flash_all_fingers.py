@@ -20,7 +20,7 @@ from firmware_py.boot_program import inspect_image
 from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
-from host.hand_session import HandSession
+from host.hand.session import HandSession
 from protocol.image import BoardType, FirmwareImage, ImageHeader, Version
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US, ImageStatus
 from tools.cli import flash_all_fingers

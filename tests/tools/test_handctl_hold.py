@@ -13,7 +13,7 @@ import pytest
 
 from hil_emulator import inprocess
 from hil_emulator.inprocess import forget_shared_emulators
-from host.hand import Hand
+from host.hand.facade import Hand
 from tests.hil_emulator.emulator_process import HANG_GUARD_S
 from tools.cli import handctl
 

@@ -16,10 +16,10 @@ from mcap.reader import make_reader
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport
 from host.errors import TransportError
-from host.hand import Hand
-from host.hand_bring_up import BOOT_TIMEOUT_S
-from host.transport import _registered as transport_registry
-from host.transport import open_transport
+from host.hand.bring_up import BOOT_TIMEOUT_S
+from host.hand.facade import Hand
+from host.transports.base import _registered as transport_registry
+from host.transports.base import open_transport
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.topology import FINGERS
 from tests.host.slow_link import FastLinkClock

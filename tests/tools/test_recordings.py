@@ -16,11 +16,11 @@ import pytest
 from mcap.reader import make_reader
 
 from hil_emulator.inprocess import forget_shared_emulators
-from host import recording
 from host.errors import RecordingError
-from host.hand import Hand
-from host.hand_recording import HandRecorder
-from host.recording import FLUSH_INTERVAL_S
+from host.hand.facade import Hand
+from host.hand.recording import HandRecorder
+from host.recording import writer as recording
+from host.recording.writer import FLUSH_INTERVAL_S
 from host.scheduling import HOST_RT_PRIORITY, Scheduling, priority_for, rtprio_limit
 from tests.tools.mcap_check import check_recording
 from tools.cli import armctl, handbus, handctl

@@ -20,9 +20,9 @@ import pytest
 pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)")
 pytest.importorskip("websockets", reason="the browser is driven with websockets (the test extra)")
 
-from host.arm import Arm  # noqa: E402
-from host.view import RobotView  # noqa: E402
-from host.view_render import ARM_RGB, JOINT_RGB  # noqa: E402
+from host.arm.facade import Arm  # noqa: E402
+from host.view.live import RobotView  # noqa: E402
+from host.view.render import ARM_RGB, JOINT_RGB  # noqa: E402
 from tests.tools.headless_browser import Browser, find_browser  # noqa: E402
 
 BROWSER = find_browser()

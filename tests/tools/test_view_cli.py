@@ -59,7 +59,7 @@ def test_handctl_watch_reads_the_hand(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_the_printed_address_is_the_viewer_page_served_from_the_package() -> None:
-    from host.view import RobotView
+    from host.view.live import RobotView
 
     with RobotView(web_port=0) as view:
         assert view.address is not None

@@ -1,4 +1,4 @@
-"""armctl: the 7-DOF arm from a terminal (a thin command over :class:`host.arm.Arm`).
+"""armctl: the 7-DOF arm from a terminal (a thin command over :class:`host.arm.facade.Arm`).
 
 ::
 
@@ -27,8 +27,8 @@ they lose power, so a later armctl picks it up); ``--unhomed`` moves in the node
 (angles from power-up) anyway.  ``moveto`` refuses (exit 2) a target where every IK solution
 would have a stepper joint hold more than 70 % of its stall torque against gravity, naming
 the joint (the hand's weight counted unless ``--no-hand``).  Every motion passes the arm's
-gate first (:mod:`host.arm_gate`: finite numbers, ranges, speeds and accelerations, torque);
-Ctrl-C or SIGTERM mid-motion holds the arm where it is (:meth:`host.arm.Arm.hold`) and says
+gate first (:mod:`host.arm.gate`: finite numbers, ranges, speeds and accelerations, torque);
+Ctrl-C or SIGTERM mid-motion holds the arm where it is (:meth:`host.arm.facade.Arm.hold`) and says
 so on one line; a joint whose node latches an alarm on the way is named with its latch
 (exit 1), the rest of the arm held.
 
@@ -50,11 +50,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from host.arm import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
-from host.arm_gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finite, require_torque
-from host.arm_homing import restore
-from host.arm_rest import RestWatch
-from host.arm_state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
+from host.arm.facade import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
+from host.arm.gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finite, require_torque
+from host.arm.homing import restore
+from host.arm.rest import RestWatch
+from host.arm.state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
 from host.errors import RecordingError, UsageError
 from host.scheduling import current
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
@@ -187,7 +187,7 @@ def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
 def _require_torque(arm: Arm, what: str) -> None:
     """Refuse ``what`` while a joint's torque is off: its goal would wait in the node, and
-    the joint jump there whenever the torque came on (:func:`host.arm_gate.require_torque`
+    the joint jump there whenever the torque came on (:func:`host.arm.gate.require_torque`
     names a latched alarm)."""
     require_torque(arm, what=what)
 
@@ -378,8 +378,8 @@ def _waypoints_arguments(p: argparse.ArgumentParser) -> None:
 
 @COMMANDS.command("waypoints", "record waypoints by hand, or play them", _waypoints_arguments)
 def cmd_waypoints(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    from host.arm_trajectory import Waypoint
-    from host.arm_waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
+    from host.arm.trajectory import Waypoint
+    from host.arm.waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 
     if args.action == "record":
         if not args.seconds > 0:
@@ -430,7 +430,7 @@ def _record_check(args: argparse.Namespace) -> None:
 @COMMANDS.command("record", "record raw bus bytes and decoded states (MCAP)", _record_arguments,
                   check=_record_check)
 def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
-    from host.arm_recording import record
+    from host.arm.recording import record
 
     if not args.seconds > 0 or not args.rate > 0:
         raise UsageError("--seconds and --rate must be > 0")

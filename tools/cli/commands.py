@@ -13,7 +13,7 @@
 
 :meth:`Commands.add_parsers` gives each its sub-parser, in the order they were declared (the
 order ``--help`` lists them); :meth:`Commands.run` calls the one the command line chose with
-what the program opened (a :class:`~host.hand.Hand`, an :class:`~host.arm.Arm`) and the
+what the program opened (a :class:`~host.hand.facade.Hand`, an :class:`~host.arm.facade.Arm`) and the
 program's own extra arguments (``P``: armctl's output stream).  A command that opens no
 robot (``armctl scan`` opens the bus itself) is declared with :meth:`Commands.alone` and run
 with :meth:`Commands.run_alone`.  A check that needs no robot (a file that cannot be written)

@@ -15,11 +15,11 @@ Exit statuses (every CLI built on :func:`run_cli`):
 
 ``--timeout S`` is the link budget (s): how long the host waits for the link itself on top
 of the wire times and the nodes' own deadlines.  Its default depends on the kind of link
-(:data:`host.hand_session.LINK_BUDGET_S` for the hand: 30 ms in process, where the
+(:data:`host.hand.session.LINK_BUDGET_S` for the hand: 30 ms in process, where the
 simulation clock makes wire times exact; 100 ms over a serial port or pty, where a USB
 adapter's 16 ms latency timer and a busy machine add up; 100 ms on CAN; 250 ms over the
 network).  On the arm's bus it is the adapter latency added to each exchange's computed
-wire time (:class:`host.dynamixel_bus.DynamixelBus`: 0.2 ms in process, 100 ms otherwise).
+wire time (:class:`host.arm.bus.DynamixelBus`: 0.2 ms in process, 100 ms otherwise).
 
 ``--priority realtime`` (the default) runs the command with real-time scheduling where Linux
 allows it (root, ``CAP_SYS_NICE``, an ``rtprio`` limit: :mod:`host.scheduling`; priority
@@ -50,9 +50,9 @@ from host.errors import (
     TransportError,
     UsageError,
 )
-from host.hand_session import Timeouts
+from host.hand.session import Timeouts
 from host.scheduling import HOST_RT_PRIORITY, PRIORITIES, priority_for
-from host.transport import link_kind, schemes
+from host.transports.base import link_kind, schemes
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
 from tools.cli.launch import EXIT_INTERRUPTED

@@ -43,8 +43,8 @@ from bootloader.node_session import NodeReport, NodeState
 from bootloader.plan import FlashPlan, make_plan, rollback_plan
 from bootloader.signing import load_public_key
 from host.errors import HostError, TransportError
-from host.hand_session import HandSession
-from host.transport import open_transport
+from host.hand.session import HandSession
+from host.transports.base import open_transport
 from protocol.topology import FINGER_BOARDS
 from tools.cli.common import EXIT_ROBOT, EXIT_USAGE, add_common_arguments, hand_timeouts, run_cli
 from tools.cli.output import guard_output

@@ -39,13 +39,13 @@ from host.errors import (
     RouteError,
     UsageError,
 )
-from host.grasp_synergies import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
-from host.hand import Hand, MoveResult
-from host.hand_bring_up import BOOT_TIMEOUT_S
-from host.hand_homing import homed_on_robot
-from host.hand_state import FingerState, HandState, NodeInfo
-from host.inertial_closed_form import NoAccelerationError, UnobservableJointError, estimate
-from host.joint_ekf import fuse_snapshot
+from host.estimation.closed_form import NoAccelerationError, UnobservableJointError, estimate
+from host.estimation.ekf import fuse_snapshot
+from host.hand.bring_up import BOOT_TIMEOUT_S
+from host.hand.facade import Hand, MoveResult
+from host.hand.homing import homed_on_robot
+from host.hand.state import FingerState, HandState, NodeInfo
+from host.hand.synergies import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from protocol.image import BoardType
 from protocol.messages.boot_program import AUTOBOOT_WINDOW_US
 from protocol.messages.common import TxnStatus
@@ -426,7 +426,7 @@ def _grasp_arguments(p: argparse.ArgumentParser) -> None:
                         "nothing)")
 
 
-@COMMANDS.command("grasp", "blend towards a grasp or pose (host.grasp): "
+@COMMANDS.command("grasp", "blend towards a grasp or pose (host.hand.grasp): "
                   + ", ".join(sorted(SYNERGIES)), _grasp_arguments)
 def _cmd_grasp(hand: Hand, args: argparse.Namespace) -> int:
     hand.layout = args.layout
@@ -481,7 +481,7 @@ def _record_check(args: argparse.Namespace) -> None:
 @COMMANDS.command("record", "record frames and states to an MCAP file", _record_arguments,
                   check=_record_check)
 def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
-    from host.hand_recording import HandRecorder
+    from host.hand.recording import HandRecorder
 
     with HandRecorder(hand, args.file) as recorder:
         try:

@@ -1,8 +1,8 @@
 """Raw-frame channels of an MCAP recording, for ``handbus decode FILE.mcap``, read up to a cut.
 
-:mod:`host.hand_recording` writes every hand frame the host sent or decoded on
+:mod:`host.hand.recording` writes every hand frame the host sent or decoded on
 ``/hand/frames/tx`` and ``/hand/frames/rx`` (message encoding ``hand-frame``, one whole
-frame per message); :mod:`host.arm_recording` writes the arm bus's bytes on
+frame per message); :mod:`host.arm.recording` writes the arm bus's bytes on
 ``/arm/bus/tx`` (whole instruction packets) and ``/arm/bus/rx`` (bytes as they arrived;
 ``application/octet-stream``).
 
@@ -34,8 +34,8 @@ from tools.errors import McapCaptureError
 
 #: The first bytes of every MCAP file.
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
-#: Message encodings of the raw-frame channels (:mod:`host.hand_recording`,
-#: :mod:`host.arm_recording`).
+#: Message encodings of the raw-frame channels (:mod:`host.hand.recording`,
+#: :mod:`host.arm.recording`).
 HAND_FRAME_ENCODING: Final = "hand-frame"
 ARM_BYTES_ENCODING: Final = "application/octet-stream"
 #: What decodes each raw encoding (the hint when the other one was asked for).

@@ -7,7 +7,7 @@
 
 The recorders' JSON channels (``/arm/state``, ``/hand/state``, ``/hand/events``; the bus
 counters where recorded) go through the same drawing as a live view
-(:class:`host.view_render.Renderer`), merged by log time, so a session looks as it did
+(:class:`host.view.render.Renderer`), merged by log time, so a session looks as it did
 live.  Serving, it keeps the page up until Ctrl-C (or ``--seconds``).  Exit 1 for a file
 that is not an MCAP recording, 2 for bad arguments, 130 when interrupted.
 """
@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from host.errors import ViewUnavailable
-from host.view import WEB_PORT, RobotView
+from host.view.live import WEB_PORT, RobotView
 from protocol.robot import DEFAULT_HAND_LAYOUT, HAND_LAYOUTS
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
@@ -55,7 +55,7 @@ def messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[float, str, di
 
 def replay(view: RobotView, paths: Sequence[Path]) -> int:
     """Draw every recorded message of ``paths`` in ``view`` in time order; how many."""
-    from host.view_render import TOPICS
+    from host.view.render import TOPICS
 
     count = 0
     merged = heapq.merge(*(messages(p, TOPICS) for p in paths), key=lambda m: m[0])

@@ -4,7 +4,7 @@
 prints its address (``view: http://127.0.0.1:9090/?url=…``) on stderr; ``--view-port N``
 chooses the web page's port (the data's is N+1).  ``watch`` is a session that
 only reads the robot and draws it, until ``--seconds`` pass or Ctrl-C.  Nothing here needs
-rerun-sdk unless a view is asked for (:mod:`host.view`).
+rerun-sdk unless a view is asked for (:mod:`host.view.live`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from host.view import WEB_PORT, RobotView
+from host.view.live import WEB_PORT, RobotView
 from tools.cli.numeric import number_above
 
 __all__ = ["WATCH_HELP", "add_view_arguments", "add_watch_command", "port_number", "view_spec",

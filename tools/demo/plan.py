@@ -13,9 +13,9 @@ from typing import Final
 
 import numpy as np
 
-from hil_emulator.arm_model import MOUNT_HEIGHT_M
+from hil_emulator.arm.model import MOUNT_HEIGHT_M
 from hil_emulator.scene_model import MUG_XY_M, TABLE_TOP_Z_M
-from host.arm_kinematics import matrix_to_rpy
+from host.arm.kinematics import matrix_to_rpy
 from protocol.robot import (
     HAND_ON_FLANGE_POSITION_M,
     STEPPER_DEFAULT_CURRENT_MA,
@@ -84,7 +84,7 @@ GRASP_AMOUNT: Final = 1.0
 GRASP_SPEED_RAD_S: Final = 1.0
 GRASP_EFFORT: Final = 255
 #: Squeeze (rad of J1): how far past the contact each finger's proximal motor is sent
-#: (:func:`host.grasp.squeeze`), so its effort cap, not a position, sets the grip force.
+#: (:func:`host.hand.grasp.squeeze`), so its effort cap, not a position, sets the grip force.
 SQUEEZE_RAD: Final = 0.3
 
 

@@ -19,8 +19,8 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from host.arm import Arm, host_watchdog_ms
-from host.hand import Hand
+from host.arm.facade import Arm, host_watchdog_ms
+from host.hand.facade import Hand
 from host.scheduling import HOST_RT_PRIORITY, priority_for
 from tools.build_compiled import ROOT
 from tools.demo.script import Demo, judge, open_watch, run_session, write_run_report

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from host.arm_state import ArmState
-from host.hand_state import FingerState, HandState
+from host.arm.state import ArmState
+from host.hand.state import FingerState, HandState
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

@@ -20,7 +20,7 @@ would, with the host library and the command-line tools:
    mug's side and the thumb beside it, then in until the mug's body is between them;
 5. **grasp**: a prismatic grasp (the finger pads against the thumb) closing until the
    tactile pads report contact (``Hand.grasp(..., until_contact=True)``; the fingers, then
-   the thumb), then squeezing (:func:`host.grasp.squeeze`: each finger's proximal flexion
+   the thumb), then squeezing (:func:`host.hand.grasp.squeeze`: each finger's proximal flexion
    motor sent :data:`SQUEEZE_RAD` past the contact, so its effort cap keeps the grip through
    the lift and the hold);
 6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
@@ -38,7 +38,7 @@ on a busy machine as on an idle one); ``--realtime`` runs the same script agains
 ``hil-emulator`` subprocess through its ptys, paced to the wall clock, after identifying
 the thirteen hand MCUs and pinging the arm with the stock dynamixel-sdk over the wire.
 ``--view`` serves a live view of the robot (the hand on the arm) in a browser while the
-demo runs and prints its address (:mod:`host.view`).
+demo runs and prints its address (:mod:`host.view.live`).
 
 Success is judged on the plant's ground truth (the mug's height in the physics, not what
 the robot's sensors say): the mug rose at least :data:`MIN_LIFT_M` and stands on the table
@@ -67,19 +67,19 @@ from typing import Any
 
 import numpy as np
 
-from host.arm import Arm
-from host.arm_joint_loop import JointController, TrackingLog
-from host.arm_kinematics import solve_ik
-from host.arm_recording import ArmRecorder
-from host.arm_state import ArmState
-from host.arm_trajectory import Trajectory, timed_path
-from host.grasp import squeeze
-from host.grasp_synergies import finger_roles
-from host.hand import Hand
-from host.hand_homing import FingerMovingError, HomeResult
-from host.hand_recording import HandRecorder
-from host.hand_state import FingerState, HandState
-from host.view import RobotView, open_view
+from host.arm.facade import Arm
+from host.arm.joint_loop import JointController, TrackingLog
+from host.arm.kinematics import solve_ik
+from host.arm.recording import ArmRecorder
+from host.arm.state import ArmState
+from host.arm.trajectory import Trajectory, timed_path
+from host.hand.facade import Hand
+from host.hand.grasp import squeeze
+from host.hand.homing import FingerMovingError, HomeResult
+from host.hand.recording import HandRecorder
+from host.hand.state import FingerState, HandState
+from host.hand.synergies import finger_roles
+from host.view.live import RobotView, open_view
 from protocol.control_tables import STEPPER_TABLE
 from protocol.robot import HOMING_WRIST_TILTS
 from protocol.topology import FINGER_BOARDS, FINGERS
@@ -312,7 +312,7 @@ class Demo:
     def _move(self, pose: tuple[float, ...], timeout: float) -> None:
         """A joint-space move of the nodes themselves at :data:`JOINT_SPEED_RAD_S` on every
         joint (for the servos' homing tilts: the steppers stay where they are), through the
-        arm's gate (:mod:`host.arm_gate`) like every motion."""
+        arm's gate (:mod:`host.arm.gate`) like every motion."""
         self.arm.move(list(pose), speed=JOINT_SPEED_RAD_S, timeout=timeout)
         self._check_arm()
 

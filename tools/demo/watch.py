@@ -21,9 +21,9 @@ from typing import Any, Final
 import numpy as np
 
 from host.errors import HostError
-from host.grasp_synergies import TACTILE_CONTACT_COUNTS
-from host.hand import Hand, StatusRead
-from host.hand_state import FingerState
+from host.hand.facade import Hand, StatusRead
+from host.hand.state import FingerState
+from host.hand.synergies import TACTILE_CONTACT_COUNTS
 
 #: Rate of the hand-state reads while the arm moves or holds (Hz, the link's clock).
 HAND_STATE_HZ: Final = 10.0

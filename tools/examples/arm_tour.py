@@ -1,4 +1,4 @@
-"""A tour of :class:`host.arm.Arm`: discover, torque, the cycle API, move, home, moveto.
+"""A tour of :class:`host.arm.facade.Arm`: discover, torque, the cycle API, move, home, moveto.
 
     python -m tools.examples.arm_tour [URL]
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 from typing import TypedDict
 
-from host.arm import Arm
+from host import Arm
 
 
 class Seen(TypedDict):

@@ -1,4 +1,4 @@
-"""A tour of :class:`host.hand.Hand`: discover, status, power, move, parameters, limits,
+"""A tour of :class:`host.hand.facade.Hand`: discover, status, power, move, parameters, limits,
 events, a short state stream and an MCAP recording.
 
     python -m tools.examples.hand_tour [URL] [OUT.mcap]
@@ -12,10 +12,10 @@ from __future__ import annotations
 import sys
 from typing import TypedDict
 
-from host.finger_params import Value
-from host.hand import Hand
-from host.hand_recording import HandRecorder
-from host.hand_session import FingerEvent
+from host import Hand
+from host.hand.params import Value
+from host.hand.recording import HandRecorder
+from host.hand.session import FingerEvent
 
 
 class Seen(TypedDict):

@@ -1,4 +1,4 @@
-"""The conversation under :class:`~host.hand.Hand`: :class:`~host.hand_session.HandSession`
+"""The conversation under :class:`~host.hand.facade.Hand`: :class:`~host.hand.session.HandSession`
 requests by catalogue name, routed through the palm, several in flight at once.
 
     python -m tools.examples.session_tour [URL]
@@ -9,9 +9,9 @@ from __future__ import annotations
 import sys
 from typing import Any, TypedDict
 
+from host import open_transport
 from host.errors import RouteError
-from host.hand_session import HandSession, SessionCounters, Target
-from host.transport import open_transport
+from host.hand.session import HandSession, SessionCounters, Target
 from protocol.messages.palm import FingerPower
 
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from host.arm import Arm
-from host.hand import Hand
+from host import Arm, Hand
 from host.view import RobotView
 
 FULL = "emu://full/{}?name=view-tour"

@@ -1,7 +1,7 @@
 """``hil-bench experiments``: the dissertation's measurements, repeated on the emulator.
 
 Every experiment runs the emulator in process, in fast mode, and drives the robot through
-the wire with the host library (:class:`host.arm.Arm`, :class:`host.hand.Hand` on
+the wire with the host library (:class:`host.arm.facade.Arm`, :class:`host.hand.facade.Hand` on
 ``EmulatorTransport(Emulator(...), link)``); the plant is used only where the dissertation used an
 instrument (an optical tracker on the flange, masses hung on it, a hand pushing a joint, a
 coin dropped on a pad).  One table comes out: quantity, dissertation, emulator, tolerance,
@@ -30,10 +30,10 @@ import numpy as np
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport, bring_up
-from host.arm import Arm
-from host.arm_joint_loop import JointController, PidGains, TrackingLog
-from host.arm_state import N_JOINTS
-from host.arm_trajectory import Trajectory, timed_path
+from host.arm.facade import Arm
+from host.arm.joint_loop import JointController, PidGains, TrackingLog
+from host.arm.state import N_JOINTS
+from host.arm.trajectory import Trajectory, timed_path
 from host.errors import StallError
 from protocol.robot import (
     ARM_ENCODER_COUNTS_PER_REV,
@@ -509,7 +509,7 @@ def repeatability(seed: int = DEFAULT_SEED, rounds: int = 1, speed: float = 0.6,
 def finger_deadband(seed: int = DEFAULT_SEED) -> Outcome:
     """Finger 0 of the hand moved to joint targets through the host (palm link): how far
     the plant's joints stop from them."""
-    from host.hand import Hand
+    from host.hand.facade import Hand
 
     emulator = Emulator("hand", seed=seed)
     bring_up(emulator)
@@ -534,7 +534,7 @@ def finger_deadband(seed: int = DEFAULT_SEED) -> Outcome:
 def tactile_coin(seed: int = DEFAULT_SEED, cycles: int = 4) -> Outcome:
     """Figure 6.11: a 2 g coin (0.0196 N) put on and taken off the distal pad repeatedly;
     the taxels read through the host; the loaded step over the unloaded noise (1 σ)."""
-    from host.hand import Hand
+    from host.hand.facade import Hand
 
     emulator = Emulator("hand", seed=seed)
     bring_up(emulator)

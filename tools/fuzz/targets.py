@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from host.errors import TransportError
-from host.transport import Transport, open_transport, url_options
+from host.transports.base import Transport, open_transport, url_options
 from protocol import dynamixel as dx
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError

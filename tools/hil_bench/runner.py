@@ -2,7 +2,7 @@
 
 :func:`run_scenario` builds the emulator of the scenario's configuration and seed, brings
 the hand up (``ready``), loads the fault plan (its times count from there), performs the
-host actions through the host library (``host.hand``, ``host.arm``, the ``bootloader``
+host actions through the host library (``host.hand.facade``, ``host.arm.facade``, the ``bootloader``
 engine) on the emulator's in-process transports, and records: the fault timeline, each
 action's outcome and times, finger events, the host's status samples (``stream``,
 ``arm_stream``) and, every 10 ms, the plant's truth (finger contacts and power, arm joint
@@ -90,8 +90,8 @@ class Bench:
     @property
     def hand(self) -> Any:
         if self._hand is None:
-            from host.hand import Hand
-            from host.hand_session import HandSession
+            from host.hand.facade import Hand
+            from host.hand.session import HandSession
 
             self._hand = Hand(HandSession(EmulatorTransport(self.emu, "palm"), retries=1))
             self._hand.subscribe(self._event)
@@ -104,7 +104,7 @@ class Bench:
     @property
     def arm(self) -> Any:
         if self._arm is None:
-            from host.arm import Arm
+            from host.arm.facade import Arm
 
             self._arm = Arm.open(EmulatorTransport(self.emu, "arm"))
         return self._arm
@@ -282,8 +282,8 @@ class Bench:
     def _do_arm_play(self, waypoints: list[dict[str, Any]], time_scale: float
                      ) -> dict[str, Any]:
         """``play_waypoints`` of ``waypoints`` (``{t = s, joints = [7 rad]}`` each)."""
-        from host.arm_trajectory import Waypoint
-        from host.arm_waypoints import play_waypoints
+        from host.arm.trajectory import Waypoint
+        from host.arm.waypoints import play_waypoints
 
         points = [Waypoint(float(w["t"]), tuple(float(q) for q in w["joints"]))
                   for w in waypoints]
@@ -320,10 +320,10 @@ class Bench:
 
     def _do_arm_move_vanish(self, angles: list[float], duration: float, after_s: float
                             ) -> dict[str, Any]:
-        """Start the move :meth:`host.arm.Arm.move` makes (speeds for ``duration``, goals
+        """Start the move :meth:`host.arm.facade.Arm.move` makes (speeds for ``duration``, goals
         every 10 ms), then stop sending anything ``after_s`` into it, as a host killed
         mid-move does; the result says when (``vanished_s``, from the plan's start)."""
-        from host.arm import MOVE_MIN_SPEED
+        from host.arm.facade import MOVE_MIN_SPEED
 
         arm, clock = self.arm, self.arm.transport
         now = arm.state().joints

@@ -10,8 +10,8 @@ from hil_emulator.faults import FaultInjector
 from hil_emulator.faults.control import ControlChannel
 from hil_emulator.inprocess import EmulatorTransport
 from host.errors import HostError
-from host.hand import Hand
-from host.hand_session import HandSession
+from host.hand.facade import Hand
+from host.hand.session import HandSession
 from protocol.dynamixel import make_ping
 
 #: One millisecond of simulated time (µs).

@@ -64,7 +64,7 @@ def test_an_arm_push_moves_the_joint_and_stops_when_cleared() -> None:
 
 @pytest.mark.slow
 def test_spring_drift_changes_the_deflection_under_the_same_load_until_cleared() -> None:
-    from host.arm import Arm
+    from host.arm.facade import Arm
 
     emu = FaultyEmulator("arm", seed=1)
     plant = arm_plant_of(emu)

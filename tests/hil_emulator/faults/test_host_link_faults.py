@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hil_emulator.host_links import SerialLink
+from hil_emulator.ports.host_links import SerialLink
 from host.errors import TransportError
 from protocol.dynamixel import make_ping
 from tests.ground_truth import arm_rig_of, hand_rig_of
@@ -89,7 +89,7 @@ def test_a_stuck_host_transmitter_on_the_arm_link_jams_until_cleared() -> None:
 
 
 def test_misread_resamples_uart_characters_bit_by_bit() -> None:
-    from hil_emulator.uart_sampling import misread
+    from hil_emulator.lines.uart_sampling import misread
 
     data = bytes(range(0, 256, 7))
     assert misread(data, 115_200, 115_200) == data

@@ -9,8 +9,8 @@ from hil_emulator.errors import EmulatorConfigError, FaultPlanError
 from hil_emulator.faults import make_fault
 from hil_emulator.faults.line import BurstDropout
 from hil_emulator.inprocess import EmulatorTransport, bring_up
-from host.hand import Hand
-from host.hand_session import HandSession
+from host.hand.facade import Hand
+from host.hand.session import HandSession
 from tests.ground_truth import arm_rig_of, hand_rig_of
 from tests.hil_emulator.faults.probes import MS, FaultyEmulator, answers, arm_ping_answered, host_of
 

@@ -1,0 +1,331 @@
+"""A Dynamixel Protocol 1.0 bus client over a :class:`~host.transports.base.Transport`.
+
+One request at a time (the bus is half duplex): :meth:`DynamixelBus.exchange` sends one or
+more instruction packets in one go and collects the status packets they call for, matched
+by ID and in the order the nodes answer, each checked (checksum by the decoder; ID, length,
+error byte here).  Nothing else is ever on the wire while a request waits.
+
+Timeouts come from the wire, not a fixed guess: the time the request and every expected
+reply take at the bus's bit rate (10 bits per byte: start, 8 data, stop), plus each node's
+return delay (register 5, 2 µs units, remembered per ID once :meth:`set_return_delay` wrote
+it; the factory 250 = 500 µs until then), plus :attr:`DynamixelBus.latency_s` for the
+adapter and the operating system (a USB adapter buffers for up to a millisecond or more; the
+in-process emulator has none).  Deadlines are on :meth:`Transport.now`'s clock, so on the
+emulator they are simulation time.
+
+Errors (all in :mod:`host.errors`' tree):
+
+* :class:`~host.errors.ReplyTimeout` - a node did not answer (after ``retries`` repeats of an
+  idempotent request: PING, READ, WRITE, BULK_READ);
+* :class:`DynamixelNodeError` (a :class:`~host.errors.NodeError`) - a node answered but
+  refused the request: the error byte holds one of :data:`REQUEST_ERRORS` (instruction,
+  range, angle limit, checksum).  The other bits (input voltage, overheating, overload) are
+  *alarms*: the node reports them in every status packet until the cause is cleared, so
+  they are returned in the :class:`~protocol.dynamixel.StatusPacket` (``errors``), never
+  raised - a host must be able to read an overheating servo;
+* :class:`~host.errors.NodeError` - a reply that does not fit the request (wrong data
+  length) and no fitting one by the deadline.  A misfit is first taken for a late reply to
+  an earlier request and skipped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+from host.errors import HostError, NodeError, ReplyTimeout, UsageError
+from host.transports.base import Transport, url_scheme
+from protocol.dynamixel import (
+    MIN_PACKET_SIZE,
+    DynamixelStreamDecoder,
+    ErrorBit,
+    InstructionPacket,
+    StatusPacket,
+    make_bulk_read,
+    make_ping,
+    make_read,
+    make_sync_write,
+    make_write,
+)
+
+#: Bits on the wire per byte (8N1: start, 8 data, stop).
+BITS_PER_BYTE: Final = 10
+#: The arm bus's bit rate (bit/s).
+ARM_BUS_BAUD: Final = 1_000_000
+#: Return delay of a node whose register 5 this client has not written (µs): the factory
+#: value 250 × 2 µs.
+FACTORY_RETURN_DELAY_US: Final = 500
+#: Transceiver turnaround allowed per reply (µs): line settling between two packets.
+TURNAROUND_US: Final = 2
+#: Within an exchange's replies, a silence this long (s) after some arrived ends them: the
+#: nodes answer back to back, and the adapter passes them on within its latency.
+REPLY_GAP_S: Final = 0.005
+#: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
+REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
+                         | ErrorBit.CHECKSUM)
+#: Extra wait for replies by transport scheme (s): adapter and OS latency.
+DEFAULT_LATENCY_S: Final = {"emu": 0.0002}
+#: Extra wait for replies on any other link (s): USB adapters (a 16 ms latency timer) and
+#: ptys to an emulator on a busy machine; only a missing reply waits it out.
+SERIAL_LATENCY_S: Final = 0.1
+
+
+def error_names(error: int) -> tuple[str, ...]:
+    """Names of the :class:`~protocol.dynamixel.ErrorBit` bits set in ``error``, lowest bit
+    first, e.g. ``("OVERHEATING", "OVERLOAD")``."""
+    return tuple(bit.name or hex(bit.value) for bit in ErrorBit if error & bit.value)
+
+
+class DynamixelNodeError(NodeError):
+    """Node ``dxl_id`` refused a request: ``error`` is its status error byte (an
+    :class:`~protocol.dynamixel.ErrorBit`), ``names`` the names of the bits set."""
+
+    def __init__(self, message: str, *, dxl_id: int, error: int) -> None:
+        super().__init__(message)
+        self.dxl_id = dxl_id
+        self.error = ErrorBit(error)
+        self.names = error_names(error)
+
+
+@dataclass(frozen=True)
+class Expect:
+    """A status packet an exchange waits for: from ``dxl_id`` with ``length`` data bytes."""
+
+    dxl_id: int
+    length: int = 0
+
+
+@dataclass
+class BusStats:
+    """Counters of one :class:`DynamixelBus` (for logs and benchmarks)."""
+
+    requests: int = 0
+    retries: int = 0
+    timeouts: int = 0
+    bytes_sent: int = 0
+    bytes_received: int = 0
+
+
+class DynamixelBus:
+    """Protocol 1.0 client of the nodes on ``transport`` at ``baud`` bit/s.
+
+    ``retries``: repeats of an idempotent request that got no (valid) reply.  ``latency_s``:
+    extra wait for replies (s; default by transport scheme: 0.2 ms in process, 100 ms on a
+    serial link).  ``on_bytes(direction, data, t)``, if given, sees every chunk sent
+    (``"tx"``) and received (``"rx"``) with the transport's time (s) - for recording.
+    """
+
+    def __init__(self, transport: Transport, baud: int = ARM_BUS_BAUD, *, retries: int = 2,
+                 latency_s: float | None = None) -> None:
+        if baud <= 0:
+            raise UsageError(f"bus baud rate {baud} must be positive")
+        self.transport = transport
+        self.baud = int(baud)
+        self.retries = int(retries)
+        if latency_s is None:
+            latency_s = DEFAULT_LATENCY_S.get(url_scheme(transport.url), SERIAL_LATENCY_S)
+        self.latency_s = float(latency_s)
+        #: Return delay per ID (µs) as this client last set it.
+        self.return_delay_us: dict[int, int] = {}
+        self.stats = BusStats()
+        self.on_bytes: Callable[[str, bytes, float], None] | None = None
+        self._decoder = DynamixelStreamDecoder("status")
+        #: When (s, the transport's clock) what this client last sent has left the wire: a
+        #: write that expects no reply returns at once, and the next request queues behind it.
+        self._line_free_at = 0.0
+        #: The replies still due of an exchange cut short while its nodes answered (Ctrl-C:
+        #: a KeyboardInterrupt out of the wait): their deadline (s, the transport's clock)
+        #: and how many; None when no exchange was cut short (see :meth:`wait_out_replies`).
+        self._due: tuple[float, int] | None = None
+
+    # ------------------------------------------------------------------ timing
+
+    def wire_time(self, n_bytes: int) -> float:
+        """Seconds ``n_bytes`` take on the wire at :attr:`baud`."""
+        return n_bytes * BITS_PER_BYTE / self.baud
+
+    def reply_time(self, expected: Sequence[Expect]) -> float:
+        """Seconds from the end of a request to the end of its ``expected`` replies if every
+        node answers as late as it may: wire time, return delays and turnarounds."""
+        total = 0.0
+        for e in expected:
+            delay_us = self.return_delay_us.get(e.dxl_id, FACTORY_RETURN_DELAY_US)
+            total += self.wire_time(MIN_PACKET_SIZE + e.length)
+            total += (delay_us + TURNAROUND_US) / 1e6
+        return total
+
+    # ------------------------------------------------------------------ the one exchange
+
+    def _emit(self, direction: str, data: bytes) -> None:
+        hook = self.on_bytes
+        if hook is not None:
+            hook(direction, data, self.transport.now())
+
+    def exchange(self, packets: Sequence[InstructionPacket], expected: Sequence[Expect] = (),
+                 *, retries: int | None = None) -> list[StatusPacket]:
+        """Send ``packets`` back to back and return the status packets ``expected``, in that
+        order (each from its ID, with its data length).
+
+        Raises :class:`ReplyTimeout` if some did not arrive by the wire's deadline (after
+        ``retries`` repeats; default :attr:`retries`, 0 when nothing is expected),
+        :class:`DynamixelNodeError` if one carries a :data:`REQUEST_ERRORS` bit and
+        :class:`NodeError` if one has the wrong data length.
+        """
+        raw = b"".join(p.encode() for p in packets)
+        attempts = 1 + (self.retries if retries is None else retries) if expected else 1
+        for attempt in range(attempts):
+            if attempt:
+                self.stats.retries += 1
+            replies = self._send_and_collect(raw, expected)
+            if replies is not None:
+                return replies
+        self.stats.timeouts += 1
+        waiting = ", ".join(str(e.dxl_id) for e in expected)
+        raise ReplyTimeout(f"{self.transport.url}: no reply from node(s) {waiting} after "
+                           f"{attempts} attempt(s); check power, wiring, IDs and baud "
+                           f"({self.baud} bit/s), and that no other program has the port "
+                           f"open (one without a lock, such as the Dynamixel SDK's "
+                           f"PortHandler, takes replies meant for this one)")
+
+    def _send_and_collect(self, raw: bytes, expected: Sequence[Expect]
+                          ) -> list[StatusPacket] | None:
+        transport = self.transport
+        stale = transport.recv(0.0)  # a late reply to an earlier request: drop it
+        if stale:
+            self._emit("rx", stale)
+        self._decoder.reset()
+        self.stats.requests += 1
+        self.stats.bytes_sent += len(raw)
+        self._emit("tx", raw)
+        start = max(transport.now(), self._line_free_at)  # behind what is still going out
+        self._line_free_at = start + self.wire_time(len(raw))
+        deadline = self._line_free_at + self.reply_time(expected) + self.latency_s
+        # due until collected: an exception other than the bus's own (Ctrl-C) leaves it set
+        self._due = (deadline, len(expected)) if expected else None
+        transport.send(raw)
+        if not expected:
+            return []
+        try:
+            replies = self._collect(expected, deadline)
+        except HostError:
+            self._due = None
+            raise
+        self._due = None
+        return replies
+
+    def _collect(self, expected: Sequence[Expect], deadline: float
+                 ) -> list[StatusPacket] | None:
+        """The status packets ``expected`` arriving by ``deadline`` (see :meth:`exchange`);
+        None when some did not."""
+        transport = self.transport
+        replies: list[StatusPacket] = []
+        want = 0
+        misfit: StatusPacket | None = None
+        while True:
+            remaining = deadline - transport.now()
+            if remaining <= 0:
+                if misfit is not None:
+                    raise NodeError(f"node {misfit.id} answered {len(misfit.params)} data "
+                                    f"bytes, {expected[want].length} expected")
+                return None
+            data = transport.recv(remaining)
+            if not data:
+                continue
+            self.stats.bytes_received += len(data)
+            self._emit("rx", data)
+            for decoded in self._decoder.feed(data):
+                status = decoded.packet
+                assert isinstance(status, StatusPacket)
+                expect = expected[want]
+                if status.id != expect.dxl_id:
+                    continue  # not the node whose turn it is: noise or a late reply
+                if len(status.params) != expect.length:
+                    misfit = status  # a late reply to an earlier request, or a wrong node
+                    continue
+                self._check(status)
+                replies.append(status)
+                want += 1
+                misfit = None
+                self._due = (deadline, len(expected) - want)
+                if want == len(expected):
+                    return replies
+
+    def wait_out_replies(self) -> bool:
+        """Let the replies of an exchange that was cut short pass: a Ctrl-C while the
+        nodes answered leaves their status packets on the half-duplex line for a few more
+        wire times, and whatever is written meanwhile collides with them and is lost (a
+        hold written at once did not arrive, and the nodes drove on).  Receives until the
+        packets still due have arrived, or bytes came and then none for
+        :data:`REPLY_GAP_S` (what the interruption took of them is lost with it), or their
+        deadline has passed (the exchange's own: wire time, return delays and
+        :attr:`latency_s`), and drops them.  True when they all came, or none was due."""
+        due, self._due = self._due, None
+        if due is None:
+            return True
+        deadline, left = due
+        transport = self.transport
+        heard = False
+        while left > 0:
+            remaining = deadline - transport.now()
+            if remaining <= 0:
+                return False
+            data = transport.recv(min(remaining, REPLY_GAP_S) if heard else remaining)
+            if not data:
+                if heard:
+                    return False
+                continue
+            heard = True
+            self.stats.bytes_received += len(data)
+            self._emit("rx", data)
+            left -= sum(isinstance(d.packet, StatusPacket) for d in self._decoder.feed(data))
+        return True
+
+    def _check(self, status: StatusPacket) -> None:
+        refused = status.error & REQUEST_ERRORS
+        if refused:
+            names = ", ".join(error_names(status.error))
+            raise DynamixelNodeError(f"node {status.id} refused the request ({names})",
+                                     dxl_id=status.id, error=status.error)
+
+    # ------------------------------------------------------------------ instructions
+
+    def ping(self, dxl_id: int, retries: int | None = None) -> StatusPacket:
+        """PING ``dxl_id``; its (empty) status packet, with its alarm bits."""
+        return self.exchange([make_ping(dxl_id)], [Expect(dxl_id)], retries=retries)[0]
+
+    def scan(self, ids: Iterable[int]) -> list[int]:
+        """The IDs among ``ids`` that answer a PING (one try each)."""
+        found = []
+        for dxl_id in ids:
+            try:
+                self.ping(dxl_id, retries=0)
+            except ReplyTimeout:
+                continue
+            found.append(dxl_id)
+        return found
+
+    def read(self, dxl_id: int, address: int, length: int) -> bytes:
+        """READ ``length`` bytes at ``address`` of node ``dxl_id``."""
+        packet = make_read(dxl_id, address, length)
+        return self.exchange([packet], [Expect(dxl_id, length)])[0].params
+
+    def write(self, dxl_id: int, address: int, data: bytes) -> StatusPacket:
+        """WRITE ``data`` at ``address`` of node ``dxl_id`` and wait for its status."""
+        return self.exchange([make_write(dxl_id, address, data)], [Expect(dxl_id)])[0]
+
+    def sync_write(self, address: int, length: int, data: Mapping[int, bytes]) -> None:
+        """SYNC_WRITE ``length`` bytes at ``address`` of every node in ``data`` (no reply)."""
+        self.exchange([make_sync_write(address, length, data)])
+
+    def bulk_read(self, entries: Sequence[tuple[int, int, int]]) -> dict[int, StatusPacket]:
+        """BULK_READ ``(length, id, address)`` entries; the status packets by ID."""
+        expected = [Expect(dxl_id, length) for length, dxl_id, _ in entries]
+        replies = self.exchange([make_bulk_read(entries)], expected)
+        return {s.id: s for s in replies}
+
+    def set_return_delay(self, dxl_id: int, units: int, address: int = 5) -> None:
+        """Write node ``dxl_id``'s return delay (register 5, 2 µs units) and remember it
+        for the timeouts.  The node answers this write after its old delay."""
+        self.write(dxl_id, address, bytes([units]))
+        self.return_delay_us[dxl_id] = 2 * units
