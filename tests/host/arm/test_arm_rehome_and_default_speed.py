@@ -11,7 +11,13 @@ import pytest
 
 from hil_emulator.inprocess import forget_shared_emulators
 from host.arm.facade import MOVE_DEFAULT_SPEED, Arm
-from host.arm.homing import RANGE_MARGIN_RAD, next_leg, search_targets, within_range
+from host.arm.homing import (
+    RANGE_MARGIN_RAD,
+    next_leg,
+    search_targets,
+    straight_to_the_mark,
+    within_range,
+)
 from host.arm.rest import settled
 from host.arm.state import ArmState, ServoState
 from protocol.dynamixel import ErrorBit
@@ -106,7 +112,11 @@ def test_an_arm_homed_again_at_the_outstretched_pose_stays_off_its_stops() -> No
         arm.close()  # armctl home is another program: it knows the arm homed from the nodes
         arm = Arm.open("emu://full/arm?ready=0&name=rehome-outstretched")
         arm.torque(True, hold=True)
+        t0 = arm.transport.now()
         again = arm.home()
+        # straight over the marks and back (J2 1.6 rad each way at 0.15 rad/s), not the
+        # widening search's 22 rad (281 s of the arm's time)
+        assert arm.transport.now() - t0 < 30.0
         assert again.index_encoder_counts == first.index_encoder_counts
         assert _latched(arm) == []
         truth = arm_plant_of(emulator_of(arm)).joint_angles()[:4]
@@ -186,6 +196,16 @@ def test_a_move_given_no_duration_or_speed_goes_at_the_default_speed_and_latches
     finally:
         arm.close()
         forget_shared_emulators()
+
+
+def test_an_arm_homed_already_goes_straight_over_its_marks_then_searches() -> None:
+    """From J2 at 1.5 rad (its mark at 0.07): first to a search step beyond the mark, then,
+    should the mark not be there, the widening search about the start, inside the range."""
+    widening = search_targets(2.0, 0.12)
+    plan = straight_to_the_mark(widening, 1.5, 1)
+    assert plan[0] == pytest.approx(0.07 - 1.5 - 0.12)
+    assert plan[1:] == widening
+    assert straight_to_the_mark(widening, -0.5, 1)[0] == pytest.approx(0.07 + 0.5 + 0.12)
 
 
 def test_a_search_skips_the_legs_on_a_blocked_side() -> None:
