@@ -326,7 +326,7 @@ def _times_mj_step_result(name: str, run: FastRun, compiled: int, target: float)
 
 
 def run(quick: bool) -> list[Result]:
-    sim_s = 1.0 if quick else 5.0
+    sim_s = 0.5 if quick else 5.0
     firmware_only = fast_rtf(physics=False, sim_s=sim_s)
     full = fast_rtf(physics=True, sim_s=sim_s)
     heavy = fast_rtf(physics=True, sim_s=sim_s, heavy=True)
@@ -350,7 +350,7 @@ def run(quick: bool) -> list[Result]:
         _times_mj_step_result("full, pure Python: CPU per sim s", pure, 0,
                               TIMES_MJ_STEP_PURE_TARGET),
     ]
-    wall_s = 2.0 if quick else 8.0
+    wall_s = 1.0 if quick else 8.0
     rt = "realtime" if realtime_allowed() else None
     idle = realtime_lateness(wall_s, "full")
     with cpu_hog():

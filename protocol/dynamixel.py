@@ -270,9 +270,9 @@ def make_sync_write(address: int, length: int, data: Mapping[int, bytes]) -> Ins
         _byte("sync write id", id_, 0, MAX_ID)
         if len(value) != length:
             raise DynamixelError(f"sync write data for id {id_}: {len(value)} bytes, not {length}")
-    entries = [{"id": id_, "data": bytes(value)} for id_, value in data.items()]
-    obj = {"address": address, "length": length, "entries": entries}
-    params = wrap_construct(lambda: _SYNC_WRITE.build(obj), "sync write", DynamixelError)
+    # Hand-written (the host sends one with every cycle); tests check it against _SYNC_WRITE.
+    params = bytes((address, length)) + b"".join(
+        bytes((id_,)) + bytes(value) for id_, value in data.items())
     return InstructionPacket(BROADCAST_ID, Instruction.SYNC_WRITE, params)
 
 

@@ -665,3 +665,15 @@ def test_take_whole_agrees_with_feed(first: bytes, wire: bytes) -> None:
     found = fed.feed(wire, t=1.0)
     if packet is not None:
         assert [d.packet for d in found] == [packet] and _state(taken) == _state(fed)
+
+
+@given(st.integers(0, 255), st.integers(1, 8), st.data())
+def test_the_hand_written_sync_write_builds_what_the_declaration_does(
+        address: int, length: int, data: st.DataObject) -> None:
+    from protocol.dynamixel import _SYNC_WRITE, MAX_ID
+
+    ids = data.draw(st.lists(st.integers(0, MAX_ID), min_size=1, max_size=10, unique=True))
+    entries = {i: data.draw(st.binary(min_size=length, max_size=length)) for i in ids}
+    built = _SYNC_WRITE.build({"address": address, "length": length,
+                               "entries": [{"id": i, "data": v} for i, v in entries.items()]})
+    assert make_sync_write(address, length, entries).params == built
