@@ -261,15 +261,16 @@ def _digest_of(root: Path, **extra: str) -> str:
     return str(json.loads(out)["digest"])
 
 
-def _traffic(root: Path, python: str = sys.executable, **extra: str) -> tuple[int, str, str]:
-    """(how many compiled modules, the traffic digest, standard error) of one process
-    importing the sources under ``root`` (on PYTHONPATH; an installed ``python`` imports
-    its own when ``root`` is None-like "")."""
+def _traffic(root: Path | None, python: str = sys.executable,
+             cwd: Path | None = None) -> tuple[int, str, str]:
+    """(how many compiled modules, the traffic digest, standard error) of one process of
+    ``python`` importing the sources under ``root`` (on PYTHONPATH; None: what ``python``
+    has installed), run in ``cwd`` (default ``root``)."""
     code = ("from tools.build_compiled import loaded_compiled\n"
             "from tools.traffic_record import main\n"
             "print(len(loaded_compiled())); main(['--seed', '7'])")
-    env = _clean_env(**({"PYTHONPATH": str(root)} if str(root) else {}), **extra)
-    done = subprocess.run([python, "-c", code], cwd=root if str(root) else None, env=env,
+    env = _clean_env(**({"PYTHONPATH": str(root)} if root is not None else {}))
+    done = subprocess.run([python, "-c", code], cwd=cwd or root, env=env,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     count, record = done.stdout.split("\n", 1)
@@ -359,3 +360,60 @@ def test_an_installed_command_runs_outside_the_repository(tmp_path: Path) -> Non
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "usage: armctl" in done.stdout
+
+
+def _runs(command: list[str], cwd: Path) -> str:
+    """Run an installed command as a user would (no PYTHONPATH); its standard error, which
+    holds no traceback, after exit status 0."""
+    done = subprocess.run(command, cwd=cwd, env=_clean_env(), capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    return done.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(2400)
+def test_a_second_venv_with_an_editable_install_then_a_wheel_install(tmp_path: Path) -> None:
+    """What an IDE, tox or a user's own venv does with this checkout: ``pip install -e``
+    uses the checkout's build whole (its runtime library found from the build) where it is
+    current, or runs pure Python saying so in one line; ``pip install .`` installs a pure
+    Python wheel, with nothing to say.  Both send the traffic of pure Python, and their
+    commands run."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    python, bin_dir = str(venv / "bin" / "python"), venv / "bin"
+    work = tmp_path / "elsewhere"  # not the checkout: the sources come through the install
+    work.mkdir()
+
+    def pip_install(*args: str) -> None:
+        done = subprocess.run([python, "-m", "pip", "install", "-q", *args], env=_clean_env(),
+                              capture_output=True, text=True, timeout=1800)
+        assert done.returncode == 0, done.stderr[-3000:]
+
+    pure = _digest_of(ROOT, **{PURE_PYTHON_ENV: "1"})
+    pip_install("-e", str(ROOT))
+    current = is_current(ROOT)
+    count, digest, err = _traffic(None, python, work)
+    assert (count, digest) == (len(COMPILED_MODULES) if current else 0, pure)
+    notes = [line for line in err.splitlines() if line.startswith("note: the compiled core")]
+    assert len(notes) == (0 if current else 1), err
+    for command in ([str(bin_dir / "armctl"), "--help"],
+                    [str(bin_dir / "hil-emulator"), "--config", "arm", "--duration", "2"]):
+        said = _runs(command, work)
+        assert said.count("note: the compiled core") == (0 if current else 1), said
+
+    pip_install("--no-deps", "--force-reinstall", str(ROOT))  # the wheel, over the editable
+    site = Path(subprocess.run([python, "-c", "import protocol; print(protocol.__file__)"],
+                               cwd=work, env=_clean_env(), capture_output=True, text=True,
+                               check=True).stdout.strip()).parent.parent
+    assert site.is_relative_to(venv)
+    packed = [*site.glob("*__mypyc*"), *(site / RECORD_NAME).parent.glob(Path(RECORD_NAME).name)]
+    for package in compiled_guard.PACKAGES:
+        packed += (site / package).rglob("*.so")
+    assert packed == []  # the wheel carries no compiled core
+    assert _traffic(None, python, work) == (0, pure, "")
+    for command in ([str(bin_dir / "armctl"), "--help"],
+                    [str(bin_dir / "hil-emulator"), "--config", "arm", "--duration", "2"]):
+        said = _runs(command, work)
+        assert "compiled core" not in said and "make compiled" not in said, said
