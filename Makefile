@@ -28,6 +28,8 @@ COMPILED_CORE ?= yes
 PURE_PYTHON := $(filter-out 0,$(LOWCOST_PURE_PYTHON))
 ## (listed by the venv's Python once it exists: the listing imports the project, whose
 ## dependencies only the venv has; before the first set-up the core is built anyway)
+## A newer source only makes make ask: the set-up's step builds only when the build's record
+## of its sources' digests differs from them (a touch, a checkout back, rebuild nothing).
 COMPILED_SOURCES := $(if $(filter yes,$(COMPILED_CORE)),$(shell $(if $(wildcard $(PY)),$(PY),$(PYTHON)) -m tools.build_compiled --sources 2>/dev/null))
 CORE := $(VENV)/.compiled-core-$(if $(PURE_PYTHON),pure,$(COMPILED_CORE))
 

@@ -4,13 +4,17 @@
 
 mypyc compiles each module in :data:`COMPILED_MODULES` into a C extension written next to
 its ``.py`` (``scheduler.cpython-311-x86_64-linux-gnu.so`` beside ``scheduler.py``), which
-Python imports instead of the source.  ``make compiled`` builds it; by default
+Python imports instead of the source, and their runtime library (``<hash>__mypyc.*.so``, at
+the root); the build records what it was made from (the digest of every source it read,
+:data:`protocol.compiled_guard.RECORD_NAME`), which decides at import time whether it is
+current.  ``make compiled`` builds it; by default
 (``COMPILED_CORE=no`` skips it) the set-up (``make install``, so every ``make`` target) runs
 ``--setup``: it builds the core where a C compiler exists, saying so in one line, and falls
 back to pure Python with one line where it cannot; with ``LOWCOST_PURE_PYTHON=1`` it removes
 any build and stays pure Python, and the same variable makes a process import the sources
 although a build exists
-(:mod:`protocol.compiled_guard`, which also ignores a build older than its sources).
+(:mod:`protocol.compiled_guard`, which also ignores a build made from other sources, saying
+so in one line).
 ``--clean`` (``make clean-compiled``) removes every extension.  Behaviour is the same either
 way (the traffic digest of ``python -m tools.traffic_record`` is identical); only the speed
 differs.  See the performance section of docs/EMULATOR.md.
@@ -29,6 +33,15 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Final
 
+from protocol import compiled_guard
+from protocol.compiled_guard import (
+    PURE_PYTHON_ENV,
+    RECORD_NAME,
+    extension_suffix,
+    pure_python_requested,
+    record,
+    write_record,
+)
 from tools.cli.output import guard_output
 from tools.errors import BuildError
 
@@ -97,9 +110,19 @@ def compiled_files(root: Path = ROOT) -> list[Path]:
 
     found += [ext for ext, _source in extensions(root)]
     # mypyc's shared library of the group: beside a lone module, else at the root.
+    found += _runtime_libraries(root)
+    record = root / RECORD_NAME
+    if record.is_file():
+        found.append(record)
+    return sorted(set(found))
+
+
+def _runtime_libraries(root: Path) -> list[Path]:
+    """mypyc's shared library of the group: beside a lone module, else at the root."""
+    found: list[Path] = []
     for folder in {root, *((root / module).parent for module in COMPILED_MODULES)}:
         found += sorted(folder.glob("*__mypyc.*.so"))
-    return sorted(set(found))
+    return found
 
 
 def loaded_compiled() -> list[str]:
@@ -124,35 +147,26 @@ def _site_packages() -> Path:
     return Path(sysconfig.get_paths()["platlib"])
 
 
-def link_shared_libraries(root: Path = ROOT, site: Path | None = None) -> list[Path]:
-    """Make mypyc's shared library of the group importable from every process of this
-    interpreter: the compiled modules import it as a top-level module, which the editable
-    install's finder does not map (it maps only the packages), so an installed command
-    (``armctl``, ``hil-emulator``) started outside the repository would not find it.  A
-    symbolic link in site-packages for each (replacing a link of the same name), old links
-    into ``root`` and links to libraries that are gone removed; returns the links."""
-    site = site if site is not None else _site_packages()
-    _unlink_shared_libraries(root, site)
-    links = []
-    for lib in sorted(root.glob("*__mypyc.*.so")):
-        link = site / lib.name
-        if link.is_symlink():  # the same group built elsewhere (another checkout): this one
-            link.unlink()
-        link.symlink_to(lib.resolve())
-        links.append(link)
-    return links
-
-
 def _unlink_shared_libraries(root: Path, site: Path) -> list[Path]:
-    """Remove the links :func:`link_shared_libraries` made into ``root``, and any such link
-    whose library is gone (a build in a directory since deleted, a run interrupted before it
-    cleaned up: its link would block a build of the same group anywhere else)."""
+    """Remove the links into ``root`` that earlier versions of the set-up made in
+    site-packages for the runtime library (:mod:`protocol.compiled_guard` now loads it from
+    the build's directory), and any such link whose library is gone."""
     removed = []
     for link in sorted(site.glob("*__mypyc.*.so")):
         if link.is_symlink() and (Path(os.readlink(link)).parent == root.resolve()
                                   or not link.exists()):
             link.unlink()
             removed.append(link)
+    return removed
+
+
+def _remove_from_wheel_build(root: Path) -> list[Path]:
+    """Remove the extensions earlier versions of the build left in ``build/lib``, the
+    directory setuptools builds the project's wheel in (a wheel would carry them, for a
+    Python and sources they may not fit); returns what was removed."""
+    removed = sorted((root / "build" / "lib").rglob("*.so"))
+    for path in removed:
+        path.unlink()
     return removed
 
 
@@ -187,6 +201,9 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
     if shutil.which(os.environ.get("CC", "cc")) is None and shutil.which("gcc") is None:
         raise BuildError("no C compiler (cc or gcc) on PATH")
     build_path = (build_dir if build_dir is not None else root / "build").resolve()
+    (root / RECORD_NAME).unlink(missing_ok=True)  # no record while the build is partial
+    _remove_from_wheel_build(root)
+    made = record(root, modules, None)  # the sources as the build reads them
     here = Path.cwd()
     os.chdir(root)  # mypyc names the modules from paths relative to the working directory
     try:
@@ -200,7 +217,9 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
         command = dist.get_command_obj("build_ext")
         command.inplace = True  # type: ignore[attr-defined]
         command.build_temp = str(build_path / "temp")  # type: ignore[attr-defined]
-        command.build_lib = str(build_path / "lib")  # type: ignore[attr-defined]
+        # Not build/lib: setuptools builds a wheel of the project there (pip install .),
+        # and would pack whatever extensions it found in it (build_ext leaves a copy).
+        command.build_lib = str(build_path / "mypyc-lib")  # type: ignore[attr-defined]
         dist.run_command("build_ext")
     except (SystemExit, CCompilerError) as exc:  # distutils may report it by exiting
         raise BuildError(f"the C build failed: {exc}") from exc
@@ -208,31 +227,26 @@ def build(root: Path = ROOT, build_dir: Path | None = None,
         raise BuildError(f"mypyc failed: {exc}") from exc
     finally:
         os.chdir(here)
-    built = compiled_files(root)
-    # build_ext skips a module whose C shim did not change and copies it with its old time:
-    # stamp them all now, or protocol.compiled_guard would take the new build for stale.
-    for path in built:
-        os.utime(path)
-    return built
+    suffix = extension_suffix()
+    runtimes = [lib for lib in _runtime_libraries(root) if lib.name.endswith(suffix)]
+    made["runtime"] = runtimes[0].relative_to(root).as_posix() if runtimes else None
+    write_record(root, made)
+    return compiled_files(root)
 
 
 def build_sources(root: Path = ROOT) -> list[str]:
     """The compiled modules and the sources of :data:`~protocol.compiled_guard.INLINED`
-    (relative to ``root``): an edit to any of them calls for a new build."""
-    from protocol.compiled_guard import INLINED
-
-    inlined = [str(path.relative_to(root)) for package in INLINED
-               for path in sorted((root / package).rglob("*.py"))]
-    return sorted(set(COMPILED_MODULES) | set(inlined))
+    (relative to ``root``): what the build's record has the digest of, and make's
+    prerequisites of the set-up's step."""
+    return compiled_guard.build_sources(root, COMPILED_MODULES)
 
 
-def is_built(root: Path = ROOT) -> bool:
-    """True when every module of :data:`COMPILED_MODULES` has its extension."""
-    for module in COMPILED_MODULES:
-        source = root / module
-        if not any(source.parent.glob(f"{source.stem}.*.so")):
-            return False
-    return True
+def is_current(root: Path = ROOT, modules: Sequence[str] = COMPILED_MODULES) -> bool:
+    """True when ``modules`` are built under ``root`` for this Python, and the build is
+    usable whole and made from the sources as they are now (:mod:`protocol.compiled_guard`)."""
+    made = compiled_guard.read_record(root)
+    return (made is not None and made.get("modules") == sorted(modules)
+            and compiled_guard.problem(root) is None)
 
 
 @contextlib.contextmanager
@@ -262,13 +276,12 @@ def setup(root: Path = ROOT, build_dir: Path | None = None,
     """The set-up's step: build the compiled core (``modules``) unless pure Python is asked
     for or it is built and fresh already; never fails (any error of the build leaves pure
     Python).  Returns the one line it printed."""
-    from protocol.compiled_guard import PURE_PYTHON_ENV, pure_python_requested, stale
-
+    _unlink_shared_libraries(root, _site_packages())  # what an earlier set-up left
+    _remove_from_wheel_build(root)
     if pure_python_requested():
         clean(root, build_dir)
         line = f"compiled core: not built ({PURE_PYTHON_ENV} is set): the emulator runs pure Python"
-    elif is_built(root) and not stale(root):
-        link_shared_libraries(root)
+    elif is_current(root, modules):
         line = "compiled core: built already and up to date"
     else:
         print("compiled core: building it with mypyc (once; a few minutes on 2 cores; "
@@ -284,7 +297,6 @@ def setup(root: Path = ROOT, build_dir: Path | None = None,
             line = (f"compiled core: cannot be built here ({reason}; see {log}): the emulator "
                     "runs pure Python")
         else:
-            link_shared_libraries(root)
             line = (f"compiled core: built in {time.monotonic() - started:.0f} s; the emulator "
                     "uses it")
     print(line, flush=True)
@@ -332,7 +344,6 @@ def main(argv: list[str] | None = None) -> int:
     except BuildError as exc:
         print(f"build_compiled: {exc}", file=sys.stderr)
         return 1
-    link_shared_libraries(args.root)  # installed commands find the shared library too
     for path in built:
         print(f"built {path}")
     return 0

@@ -44,13 +44,56 @@ def free_port() -> int:
 
 
 def port_free(port: int) -> bool:
-    """Whether ``port`` can be bound on 127.0.0.1 now."""
+    """Whether a server can bind ``port`` on 127.0.0.1 now, binding as rerun's server (and
+    most servers) binds: with ``SO_REUSEADDR``, so the connections of a server that just
+    ended, waiting out TCP's TIME_WAIT, do not count; a socket listening there does."""
     with socket.socket() as s:
+        if os.name == "posix":  # on Windows the option would let two listeners share it
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("127.0.0.1", port))
         except OSError:
             return False
     return True
+
+
+def _listening_inodes(port: int) -> set[str]:
+    """The socket inodes listening on TCP ``port`` (any address), from ``/proc/net``."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            with open(table, encoding="ascii") as rows:
+                next(rows, None)
+                for row in rows:
+                    fields = row.split()
+                    # local address "0100007F:2382", state 0A = LISTEN, inode field 9
+                    if (len(fields) > 9 and fields[3] == "0A"
+                            and int(fields[1].rsplit(":", 1)[1], 16) == port):
+                        inodes.add(fields[9])
+        except OSError:
+            continue
+    return inodes
+
+
+def port_holder(port: int) -> str | None:
+    """Who listens on TCP ``port``: ``"pid 1234 (python3)"`` where ``/proc`` says (Linux, a
+    process this user may look into), ``"another program"`` where only the kernel's table
+    does, None where nothing listens."""
+    inodes = _listening_inodes(port)
+    if not inodes:
+        return None
+    wanted = {f"socket:[{inode}]" for inode in inodes}
+    for entry in sorted(Path("/proc").iterdir(), key=lambda p: p.name):
+        if not entry.name.isdigit():
+            continue
+        try:
+            for fd in (entry / "fd").iterdir():
+                if os.readlink(fd) in wanted:
+                    name = (entry / "comm").read_text(encoding="utf-8", errors="replace")
+                    return f"pid {entry.name} ({name.strip()})"
+        except OSError:
+            continue
+    return "another program"
 
 
 def grpc_url(grpc_port: int) -> str:
@@ -99,7 +142,8 @@ class ViewServer:
                  ) -> None:
         for port in (web_port, grpc_port):
             if not port_free(port):
-                raise ViewUnavailable(f"port {port} is taken (another view?): "
+                holder = port_holder(port)
+                raise ViewUnavailable(f"port {port} is taken (by {holder or 'another program'}): "
                                       "choose other ports (--view-port N: N and N+1)")
         command = [sys.executable, "-I", "-S", str(CHILD), str(rerun_binary()),
                    str(web_port), str(grpc_port), memory_limit, str(os.getpid())]

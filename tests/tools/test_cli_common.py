@@ -4,6 +4,7 @@ mapping."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from collections.abc import Callable
 
@@ -233,3 +234,36 @@ def test_every_cli_takes_priority_and_refuses_another_word(
     assert "--priority {realtime,normal}" in " ".join(capsys.readouterr().out.split())
     assert CLIS[name](["--port", "loop://", "--priority", "high", *COMMAND[name]]) == 2
     assert "invalid choice: 'high'" in capsys.readouterr().err
+
+
+#: A fresh in-process emulator for each: the same state, so the same output.
+STATUS_PORT = {"handctl": "emu://hand/palm?name=options-{}", "armctl": "emu://arm/arm?name=options-{}"}
+
+
+@pytest.mark.parametrize("name", ["handctl", "armctl"])
+def test_the_global_options_are_taken_before_or_after_the_sub_command(
+        name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--port P --json status`` and ``status --port P --json`` print the same; a
+    sub-command's own option of the same name (``armctl move --timeout``) keeps its
+    meaning after it, and a missing ``--port`` is still a bad command line."""
+    outputs = []
+    for i, argv in enumerate((["--port", "{}", "--json", "status"],
+                              ["status", "--port", "{}", "--json"],
+                              ["--json", "status", "--port", "{}"])):
+        port = STATUS_PORT[name].format(i)
+        assert CLIS[name]([a.replace("{}", port) for a in argv]) == 0
+        outputs.append(json.loads(capsys.readouterr().out))
+    assert outputs[0] == outputs[1] == outputs[2]
+    assert CLIS[name](["status", "--json"]) == 2
+    assert capsys.readouterr().err.endswith(
+        f"{name}: error: the following arguments are required: --port\n")
+
+
+def test_a_sub_commands_own_option_keeps_its_meaning_after_it() -> None:
+    parser = armctl.make_parser()
+    args = parser.parse_args(["move", "--joints", "0,0,0,0,0,0,0", "--timeout", "3",
+                              "--port", "loop://", "--view", "--view-port", "9200"])
+    assert (args.timeout, args.link_timeout) == (3.0, None)
+    assert (args.port, args.view, args.view_port) == ("loop://", True, 9200)
+    args = parser.parse_args(["--timeout", "0.5", "status", "--port", "loop://"])
+    assert args.link_timeout == 0.5 and not args.view

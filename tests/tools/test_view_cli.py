@@ -3,8 +3,11 @@ serves the page on this machine and prints its address; without rerun-sdk a clea
 
 from __future__ import annotations
 
+import http.client
 import io
+import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -16,6 +19,7 @@ import pytest
 pytest.importorskip("rerun", reason="the view needs rerun-sdk (the 'view' extra)")
 
 from hil_emulator.inprocess import forget_shared_emulators  # noqa: E402
+from host.view.server import free_port, port_free  # noqa: E402
 from tools.cli import armctl, handctl  # noqa: E402
 
 pytestmark = pytest.mark.process_wide("rerun serves its web viewer until the process ends")
@@ -91,3 +95,49 @@ def test_without_rerun_the_view_says_how_to_install_it() -> None:
     assert proc.returncode == 1, proc.stderr
     assert "needs rerun-sdk" in proc.stderr and "pip install" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def _two_free_ports() -> int:
+    """A port N with N and N+1 both free now (the page's and its data's)."""
+    while True:
+        port = free_port()
+        if port < 65534 and port_free(port + 1):
+            return port
+
+
+@pytest.mark.slow
+def test_a_view_follows_one_a_page_was_open_on_at_once(tmp_path: Path) -> None:
+    """``armctl watch`` with a page open on it (its connections kept, as a browser keeps
+    them), Ctrl-C, then at once ``armctl status … --view`` on the same ports: served, though
+    the first server's side of those connections still waits on the ports."""
+    port = _two_free_ports()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    watch = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli.armctl", "--port", "emu://arm/arm", "watch",
+         "--view-port", str(port), "--rate", "5"],
+        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert watch.stderr is not None
+        line = ""
+        while not ADDRESS.search(line):
+            line = watch.stderr.readline()
+            assert line, "armctl watch ended without printing the view's address"
+        page = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+        page.request("GET", "/")  # HTTP/1.1: kept open after the answer, as a browser does
+        assert page.getresponse().read()
+        data = socket.create_connection(("127.0.0.1", port + 1), timeout=30)
+        data.sendall(b"GET /proxy HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        watch.send_signal(signal.SIGINT)
+        assert watch.wait(timeout=120) == 130
+        follow = subprocess.run(
+            [sys.executable, "-m", "tools.cli.armctl", "status", "--port", "emu://arm/arm",
+             "--view", "--view-port", str(port)],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        page.close()
+        data.close()
+    finally:
+        if watch.poll() is None:
+            watch.kill()
+            watch.wait()
+    assert follow.returncode == 0, follow.stderr
+    assert f"view: http://127.0.0.1:{port}/" in follow.stderr

@@ -65,6 +65,7 @@ from tools.cli.common import (
     EXIT_ROBOT,
     EXIT_USAGE,
     add_common_arguments,
+    options_anywhere,
     run_cli,
     unwritable,
 )
@@ -458,6 +459,7 @@ def make_parser() -> argparse.ArgumentParser:
                         help="leave the nodes' return delay (register 5) as it is")
     add_view_arguments(parser)
     COMMANDS.add_parsers(parser.add_subparsers(dest="command", required=True))
+    options_anywhere(parser)  # before the sub-command or after it
     return parser
 
 

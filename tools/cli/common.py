@@ -32,6 +32,7 @@ which runs as fast as the CPU allows) never asks for it; ``--priority normal`` l
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import signal
 import sys
@@ -64,8 +65,8 @@ EXIT_OK: Final = 0
 EXIT_ROBOT: Final = 1
 EXIT_USAGE: Final = 2
 __all__ = ["EXIT_BROKEN_PIPE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_ROBOT", "EXIT_USAGE",
-           "add_common_arguments", "advice", "command_priority", "hand_timeouts", "parse",
-           "port_help", "run", "run_cli", "unwritable"]
+           "add_common_arguments", "advice", "command_priority", "hand_timeouts",
+           "options_anywhere", "parse", "port_help", "run", "run_cli", "unwritable"]
 
 
 def port_help(what: str) -> str:
@@ -105,6 +106,45 @@ def add_common_arguments(parser: argparse.ArgumentParser, *, what: str,
                         help="real-time scheduling for the command where allowed (root, "
                              "CAP_SYS_NICE, an rtprio limit), never on emu://: steady cycles "
                              "on a busy machine (default: realtime)")
+
+
+class _Required:
+    """The default of a required option :func:`options_anywhere` accepts after the
+    sub-command too (argparse's own check sees only the main parser): :func:`parse` refuses
+    a command line that leaves it, as argparse would."""
+
+    def __init__(self, action: argparse.Action) -> None:
+        self.option = "/".join(action.option_strings)
+
+    def __repr__(self) -> str:
+        return f"<required {self.option}>"
+
+
+def options_anywhere(parser: argparse.ArgumentParser) -> None:
+    """Accept ``parser``'s options (``--port``, ``--json`` …) after its sub-command as well
+    as before it (``armctl move --joints … --view`` as ``armctl --view move …``): each
+    sub-parser gets a copy of each, under "options of <prog>", defaulting to what the main
+    parser parsed.  A sub-command's own option of the same name (``move --timeout``) wins
+    after the sub-command.  Call it once the sub-commands are added."""
+    main_options = [a for a in parser._actions
+                    if a.option_strings and not isinstance(a, argparse._HelpAction)]
+    for action in main_options:
+        if action.required:
+            action.required = False
+            action.default = _Required(action)
+    for sub in parser._actions:
+        if not isinstance(sub, argparse._SubParsersAction):
+            continue
+        for name, sub_parser in sub.choices.items():
+            group = sub_parser.add_argument_group(
+                f"options of {parser.prog} (also before {name})")
+            for action in main_options:
+                if any(o in sub_parser._option_string_actions for o in action.option_strings):
+                    continue
+                copied = copy.copy(action)
+                copied.default = argparse.SUPPRESS  # not given here: the main parser's value
+                copied.required = False
+                group._add_action(copied)
 
 
 def hand_timeouts(args: argparse.Namespace) -> Timeouts:
@@ -215,7 +255,11 @@ def parse(parser: argparse.ArgumentParser,
     command line; its message is already on stderr)."""
     read_negative_numbers(parser)  # -1e-3 is a number, not an option
     try:
-        return parser.parse_args(argv)
+        args = parser.parse_args(argv)
+        missing = [v.option for v in vars(args).values() if isinstance(v, _Required)]
+        if missing:
+            parser.error(f"the following arguments are required: {', '.join(missing)}")
+        return args
     except SystemExit as exc:
         if exc.code is None:
             return EXIT_OK

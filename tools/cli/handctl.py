@@ -57,6 +57,7 @@ from tools.cli.common import (
     EXIT_USAGE,
     add_common_arguments,
     hand_timeouts,
+    options_anywhere,
     run_cli,
     unwritable,
 )
@@ -504,6 +505,7 @@ def _parser() -> argparse.ArgumentParser:
     add_common_arguments(p, what="the palm's port")
     add_view_arguments(p)
     COMMANDS.add_parsers(p.add_subparsers(dest="command", required=True))
+    options_anywhere(p)  # before the sub-command or after it
     return p
 
 

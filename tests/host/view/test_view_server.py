@@ -93,12 +93,39 @@ def test_the_server_ends_when_the_host_process_does(ending: str) -> None:
             host.wait()
 
 
-def test_a_taken_port_is_refused_before_anything_starts() -> None:
+def test_a_taken_port_is_refused_before_anything_starts_naming_who_holds_it() -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
+        taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(ViewUnavailable, match=f"port {port} is taken"):
+        with pytest.raises(ViewUnavailable) as refused:
             RobotView(web_port=port)
+    name = Path("/proc/self/comm").read_text().strip()
+    assert str(refused.value) == (f"port {port} is taken (by pid {os.getpid()} ({name})): "
+                                  "choose other ports (--view-port N: N and N+1)")
+
+
+def test_a_port_a_server_just_left_is_free_while_its_connections_wait() -> None:
+    """A server that served a page and ended leaves its side of each connection in TCP's
+    TIME_WAIT for up to a minute; a new server binds the port all the same (with
+    SO_REUSEADDR, as rerun's does), so the check says free, and such a server binds."""
+    with socket.socket() as server:
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+        with socket.create_connection(("127.0.0.1", port)) as page:
+            served, _ = server.accept()
+            served.sendall(b"HTTP/1.1 200 OK\r\n\r\n")
+            served.close()  # the server closes first: its side waits in TIME_WAIT
+            while page.recv(4096):
+                pass
+    assert port_free(port)
+    with socket.socket() as next_server:
+        next_server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        next_server.bind(("127.0.0.1", port))
+        next_server.listen()
+        assert not port_free(port)  # a listener there: taken
 
 
 def test_a_server_that_cannot_start_says_why_and_leaves_nothing(
