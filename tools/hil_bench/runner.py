@@ -352,7 +352,8 @@ class Bench:
         if reader_ms is not None:
             stop = clock.now() + read_for_s
             while clock.now() < stop:
-                clock.sleep(max(0.0, min(next_read, stop) - clock.now()))
+                # at least 1 ms: a sleep shorter than the clock's µs would not advance it
+                clock.sleep(max(0.001, min(next_read, stop) - clock.now()))
                 poll()
         return {"vanished_s": vanished, "goals": list(angles)}
 
