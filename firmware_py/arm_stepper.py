@@ -51,8 +51,11 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   gets a cycle's state.
 * Torque off: current 0 and no steps; on: ``run_current`` while moving, ``holding_current``
   at standstill, both capped by ``max_current``.
-* Command watchdog: every instruction addressed to the node (:meth:`host_heard`: PING, READ,
-  WRITE, a SYNC_WRITE entry, a BULK_READ naming it, ...) restarts a count of ticks (ms).
+* Command watchdog: what ``watchdog_feed`` names restarts a count of ticks (ms): with 0
+  (power-up) every instruction addressed to the node (:meth:`host_heard`: PING, READ, WRITE,
+  a SYNC_WRITE entry, a BULK_READ naming it, ...); with 1 only a write of a goal
+  (``goal_position``, ``command_goal``) or of ``keep_alive`` (:meth:`after_write`), so that
+  another program's READs do not keep a streaming host's stale goals driving the joint.
   When the count passes ``watchdog_timeout`` (0 = off) while the step generator moves, the
   node stops the move: its goal becomes the point where braking at ``acceleration_limit``
   from the present motor speed ends (``goal_position`` and ``command_goal`` say so), and it
@@ -60,6 +63,13 @@ with an index mark measures the joint.  The node exposes :data:`STEPPER_TABLE`:
   element keeps the deflection that carries the load, and the route coupling is not taken for
   deflection.  Torque stays on and nothing latches; the next goal clears the flag and moves
   on.  A node at rest is left alone whatever the count.
+* Stale goals near the stall limit (whatever feeds the watchdog): while the node steps on
+  a goal written more than ``watchdog_timeout`` ago, and its element (|deflection −
+  ``deflection_offset``|) is winding up so that braking from the present speed - the joint
+  going on at its own speed meanwhile - would leave it within
+  :data:`STALE_GUARD_SHARE` of ``deflection_limit``, the node stops as the watchdog does
+  (WATCHDOG, braking, holding the motor; no settling) instead of driving on into a STALLED
+  latch: the routes' coupling offset that came with the goal is as stale as the goal.
 * Settling after a watchdog stop (:mod:`firmware_py.stepper_settle`): the link swings on
   about the hold on its elastic element.  For :data:`SETTLE_TICKS` after the stop, at most
   ``STEPPER_SETTLE_CORRECTIONS`` times, when the encoder says the link is about to turn, the
@@ -100,6 +110,7 @@ from protocol.control_tables import (
     Register,
     StepperClear,
     StepperFlag,
+    WatchdogFeed,
 )
 from protocol.dynamixel import ErrorBit
 from protocol.robot import (
@@ -124,6 +135,10 @@ SETTLE_TICKS = 3_000
 #: A correction's goal keeps the deflection at the link's present position within this share
 #: of ``deflection_limit``.
 SETTLE_DEFLECTION_SHARE = 0.75
+#: A node stepping on stale goals stops when braking would leave its element within this
+#: share of ``deflection_limit`` of it (see the module docs): an eighth, 19 counts (0.7°) of
+#: the factory 150.
+STALE_GUARD_SHARE = 0.125
 
 # Plain-int bits for the hot path (IntFlag arithmetic is slow).
 _MOVING = int(StepperFlag.MOVING)
@@ -132,6 +147,8 @@ _INDEX_SEEN = int(StepperFlag.INDEX_SEEN)
 _STALLED = int(StepperFlag.STALLED)
 _HARDWARE_ERROR = int(StepperFlag.HARDWARE_ERROR)
 _WATCHDOG = int(StepperFlag.WATCHDOG)
+_GOALS_ONLY = int(WatchdogFeed.GOALS_ONLY)
+_GOAL_REGISTERS = frozenset({"goal_position", "command_goal"})
 _OVERHEATING = int(ErrorBit.OVERHEATING)
 _INPUT_VOLTAGE = int(ErrorBit.INPUT_VOLTAGE)
 _OVERLOAD = int(ErrorBit.OVERLOAD)
@@ -174,6 +191,7 @@ class StepperNodeApp(DynamixelSlave):
         "torque_enable", "goal_position", "velocity_limit", "acceleration_limit",
         "slip_threshold", "deflection_limit", "run_current", "holding_current",
         "command_goal", "deflection_offset", "watchdog_timeout", "rest_deflection",
+        "watchdog_feed",
     })
 
     def __init__(self, hal: Hal, dxl_id: int = 1) -> None:
@@ -196,7 +214,9 @@ class StepperNodeApp(DynamixelSlave):
         self._run_current = self._holding_current = 0
         self._watchdog_timeout = 0  # ms (ticks); 0 = off
         self._rest_deflection = REST_DEFLECTION_UNKNOWN  # counts, the host's model
-        self._quiet_ticks = 0  # ticks since the last instruction addressed to the node
+        self._quiet_ticks = 0  # ticks since the watchdog was last fed
+        self._goals_feed = False  # watchdog_feed = GOALS_ONLY: only goal/keep_alive writes feed
+        self._goal_age = 0  # ticks since the last goal written (by a host)
         #: |deflection − offset| (counts) at a clear made while over deflection_limit, then
         #: the least since; 0 once back within it (see the module docs)
         self._allowance = 0
@@ -240,6 +260,7 @@ class StepperNodeApp(DynamixelSlave):
         self._holding_current = get("holding_current")
         self._watchdog_timeout = get("watchdog_timeout")
         self._rest_deflection = get("rest_deflection")
+        self._goals_feed = get("watchdog_feed") == _GOALS_ONLY
 
     def power_up(self) -> None:
         wake = self._wake
@@ -253,6 +274,7 @@ class StepperNodeApp(DynamixelSlave):
         self._velocity = 0.0
         self._flags = 0
         self._quiet_ticks = 0
+        self._goal_age = 0
         self._allowance = 0
         self._end_settling()
         self._enc_history = deque([self._enc0], maxlen=VELOCITY_WINDOW + 1)
@@ -267,14 +289,19 @@ class StepperNodeApp(DynamixelSlave):
         self._refresh()
 
     def host_heard(self) -> None:
-        self._quiet_ticks = 0
+        if not self._goals_feed:  # any instruction feeds the watchdog
+            self._quiet_ticks = 0
 
     def after_write(self, touched: list[Register]) -> None:
         self._wake()
         names = {r.name for r in touched}
-        if "command_goal" in names or "goal_position" in names:
+        if not names.isdisjoint(_GOAL_REGISTERS):
             self._flags &= ~_WATCHDOG  # a new goal: the host is back in charge
             self._end_settling()
+            self._quiet_ticks = self._goal_age = 0  # feeds the watchdog in either mode
+        if "keep_alive" in names:
+            self._quiet_ticks = 0
+            self.set("keep_alive", 0)
         if "command_goal" in names:
             fine = self.get("command_goal")
             self.set("goal_position", _round_half_away(fine / GOAL_FINE_PER_COUNT))
@@ -404,6 +431,7 @@ class StepperNodeApp(DynamixelSlave):
         tick runs exactly when it would have.  A node at rest ignores the watchdog count."""
         if self.asleep:
             self._quiet_ticks += 1
+            self._goal_age += 1
             return
         wakes = self._wakes
         flags_before, allowance_before = self._flags, self._allowance
@@ -453,11 +481,14 @@ class StepperNodeApp(DynamixelSlave):
             self._end_settling()
         quiet = self._quiet_ticks + 1
         self._quiet_ticks = quiet
+        self._goal_age += 1
         if self._torque_enable:
             timeout = self._watchdog_timeout
-            if (timeout and quiet > timeout and self._velocity != 0.0
-                    and not self._flags & _WATCHDOG):
-                self._watchdog_stop(hw_steps, mpc)
+            if timeout and self._velocity != 0.0 and not self._flags & (_WATCHDOG | _STALLED):
+                if quiet > timeout:
+                    self._watchdog_stop(hw_steps, mpc)
+                elif self._goal_age > timeout and self._stale_winding(deflection):
+                    self._watchdog_stop(hw_steps, mpc, settle=False)
             if self._settler is not None:
                 self._settle(enc, hw_steps, mpc)
             if self._flags & _STALLED:  # held until the host clears the latch
@@ -483,10 +514,34 @@ class StepperNodeApp(DynamixelSlave):
             self.asleep = True
         self._last_inputs = inputs
 
-    def _watchdog_stop(self, hw_steps: int, mpc: float) -> None:
-        """No instruction within ``watchdog_timeout`` while moving: the goal becomes where
-        the motor stops braking at ``acceleration_limit`` (the motor's frame, so the load's
-        deflection stays in the element), and the WATCHDOG flag is set."""
+    def _stale_winding(self, deflection: int) -> bool:
+        """Stepping on stale goals, would braking now leave the element (|``deflection`` −
+        ``deflection_offset``|, counts) within :data:`STALE_GUARD_SHARE` of
+        ``deflection_limit``, it winding up?  Braking from the motor's speed ``v``
+        (counts/s) at ``acceleration_limit`` ``a`` takes ``|v|/a`` s and ``v²/2a`` counts;
+        the joint goes on meanwhile at its speed over the velocity window."""
+        element = deflection - self._deflection_offset
+        history = self._enc_history
+        span = len(history) - 1
+        joint = (history[-1] - history[0]) / (span * _DT) if span else 0.0
+        velocity = self._velocity
+        if element == 0 or (velocity - joint) * element <= 0:
+            return False  # relaxed, or unwinding
+        accel = float(self._acceleration_limit)
+        braking = abs(velocity) / accel
+        more = (math.copysign(velocity * velocity / (2.0 * accel), velocity)
+                - joint * braking)
+        if more * element < 0:
+            more = 0.0
+        limit = self._deflection_limit
+        return abs(element) + abs(more) >= limit - STALE_GUARD_SHARE * limit
+
+    def _watchdog_stop(self, hw_steps: int, mpc: float, *, settle: bool = True) -> None:
+        """No instruction within ``watchdog_timeout`` while moving (or stale goals winding
+        the element up to the stall limit, ``settle`` False): the goal becomes where the
+        motor stops braking at ``acceleration_limit`` (the motor's frame, so the load's
+        deflection stays in the element), and the WATCHDOG flag is set; a stop that cut a
+        move short settles the link's swing when ``settle``."""
         velocity = self._velocity
         motor = self._enc0 + (hw_steps - self._hw_steps0) / mpc
         accel = float(self._acceleration_limit)
@@ -494,7 +549,7 @@ class StepperNodeApp(DynamixelSlave):
         cut_short = (self._goal - stop) * velocity > STEPPER_SETTLE_MAX_CHANGE_COUNTS * abs(velocity)
         self._hold_at(stop)
         self._flags |= _WATCHDOG
-        if not cut_short:
+        if not cut_short or not settle:
             # the goal lay within the settling's reach: the node was finishing a short way
             # (a host's hold); it holds as it always did
             return

@@ -13,7 +13,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from enum import IntFlag
+from enum import IntEnum, IntFlag
 from typing import ClassVar, Final, Literal
 
 from protocol.dynamixel import ErrorBit
@@ -318,6 +318,14 @@ class StepperFlag(IntFlag):
     WATCHDOG = 0x20  # the command watchdog stopped a move: no instruction within watchdog_timeout (until the next goal; not an alarm)
 
 
+class WatchdogFeed(IntEnum):
+    """Values of the stepper node's ``watchdog_feed`` register (address 102): what keeps its
+    command watchdog from stopping a move."""
+
+    ANY_INSTRUCTION = 0  # any instruction addressed to the node (power-up: a plain-SDK host)
+    GOALS_ONLY = 1  # goal writes and keep_alive writes only (a host streaming goals)
+
+
 class StepperClear(IntFlag):
     """Command bits for the stepper node's ``clear_flags`` register (address 27); the node acts
     on a write and the register reads back 0."""
@@ -343,8 +351,13 @@ STEPPER_ROTOR_RESYNC_FIRMWARE = 3
 STEPPER_WATCHDOG_FIRMWARE = 4
 #: The first stepper node firmware version that takes the host's ``rest_deflection``.
 STEPPER_REST_DEFLECTION_FIRMWARE = 5
+#: The first stepper node firmware version with ``watchdog_feed`` and ``keep_alive`` (a host
+#: chooses what keeps the command watchdog fed), and whose stepping holds, instead of
+#: latching STALLED, where goals older than ``watchdog_timeout`` would wind its element past
+#: ``deflection_limit``.
+STEPPER_WATCHDOG_FEED_FIRMWARE = 6
 #: The stepper node's firmware version.
-STEPPER_FIRMWARE_VERSION = STEPPER_REST_DEFLECTION_FIRMWARE
+STEPPER_FIRMWARE_VERSION = STEPPER_WATCHDOG_FEED_FIRMWARE
 #: ``rest_deflection`` meaning "not given" (its power-up value): the node identifies the
 #: deflection that holds its link at rest from the swing itself.
 REST_DEFLECTION_UNKNOWN: Final = -32768
@@ -407,6 +420,18 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: the swing has shown it plausible (within the deflections seen since the stop); −32768
 #: (power-up) = not given.  Nodes report firmware_version >=
 #: :data:`STEPPER_REST_DEFLECTION_FIRMWARE` when they have it.
+#: Address 102, ``watchdog_feed`` (:class:`WatchdogFeed`), says what feeds the command
+#: watchdog: 0 (power-up) any instruction addressed to the node, as above - a program that
+#: writes a goal once and polls keeps its move going; 1 only writes of a goal
+#: (``goal_position``, ``command_goal``, in a WRITE, a SYNC_WRITE entry or an ACTION) or of
+#: address 103, ``keep_alive`` (any value; reads 0) - a host that streams goals, each right
+#: only until the next (the routes' coupling offsets), so another program's READs cannot
+#: keep a dead host's goals driving the arm.  Whatever feeds it, a node stepping on goals
+#: older than ``watchdog_timeout`` (no goal written since) stops as the watchdog does, torque
+#: on, WATCHDOG set, instead of latching STALLED when its element (|deflection −
+#: ``deflection_offset``|) is winding so that braking would end within an eighth of
+#: ``deflection_limit`` of it.  Nodes report firmware_version >=
+#: :data:`STEPPER_WATCHDOG_FEED_FIRMWARE` when they have both.
 #: Motor angle after the reduction, in encoder counts, is ``step_count * 10000 /
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
 #: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
@@ -487,6 +512,11 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _ram(100, 2, "RW", REST_DEFLECTION_UNKNOWN, "rest_deflection",
          "counts of deflection holding the link at rest where a watchdog stop leaves it "
          "(host's model; -32768 = not given: identified from the swing)", signed=True),
+    # what feeds the command watchdog, and the explicit keep-alive (see above)
+    _ram(102, 1, "RW", int(WatchdogFeed.ANY_INSTRUCTION), "watchdog_feed",
+         "what feeds the watchdog: 0 any instruction to the node, 1 goal and keep_alive "
+         "writes only", 0, 1),
+    _ram(103, 1, "RW", 0, "keep_alive", "a write feeds the watchdog (any mode); reads 0"),
 ])
 
 #: The stepper node's command block: its first and last register (see :data:`STEPPER_TABLE`).

@@ -30,6 +30,11 @@ opens (power-up, or another program turned it off: ``armctl waypoints record`` t
 ``play``) is treated the same way. Torque the node turned off itself (an alarm, its latch
 set) is not re-synced.
 
+**Keep-alives.**  The arm sets the stepper nodes' command watchdog to be fed by goal writes
+only (``watchdog_feed``, :meth:`host.arm.facade.Arm.stream_goals`); a cycle that carries
+no goal for a stepper this arm has sent one (a loop that sends a goal once and then reads)
+sends it a ``keep_alive`` write instead (one SYNC_WRITE, 6 bytes and 2 a node).
+
 **What a cycle reads** (the least the state needs, as each node answers one contiguous
 range): a stepper node's *cycle block* (addresses 76-88: encoder, steps, velocity,
 deflection, flags; 13 bytes - mirrors of registers scattered over 26-61, see
@@ -110,6 +115,7 @@ assert SERVO_READ_LEN + _SERVO_SLOW_FIELDS.size == SERVO_SLOW_READ_LEN
 _GOAL = _S["command_goal"]
 _TORQUE = _S["torque_enable"]
 _OFFSET = _S["deflection_offset"]
+_KEEP_ALIVE = _S["keep_alive"]
 #: The stepper command block (command_goal, deflection_offset): address and length.
 COMMAND_AT: Final = _S[STEPPER_COMMAND_BLOCK[0]].address
 COMMAND_LEN: Final = _S[STEPPER_COMMAND_BLOCK[1]].end - COMMAND_AT
@@ -151,6 +157,10 @@ class CycleWire:
         #: Stepper joints the arm has sent a goal (not just learnt one at open): only those
         #: are resumed, so a program that only reads (armctl status) changes nothing.
         self._goals_sent: set[int] = set()
+        #: Bus IDs of the stepper nodes whose command watchdog only goals and keep-alives
+        #: feed (``watchdog_feed`` goals only, as the arm set it): a cycle without a goal for
+        #: one this arm has sent a goal sends it a keep-alive.
+        self.keep_alive_ids: frozenset[int] = frozenset()
         #: Each RX-64's (voltage 0.1 V, temperature °C) as last read.
         self._servo_slow = [(0, 0)] * len(self.servos)
         entries = [(STEPPER_READ_LEN, j.dxl_id, STEPPER_READ_AT) for j in self.steppers]
@@ -245,6 +255,7 @@ class CycleWire:
                     offsets = self.deflection_offsets()
                 stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
         packets = []
+        fed = set(stepper_goal)  # the nodes a goal of this cycle feeds
         resync = self._resyncs(torque)
         if resync:  # the command block (offsets), then the re-sync, then the torque
             if offsets is None:
@@ -254,6 +265,7 @@ class CycleWire:
                 if j.dxl_id not in stepper_goal:  # the goal the node has, the offset now
                     stepper_goal[j.dxl_id] = self._goal_entry(joint, offsets)
             packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
+            fed.update(stepper_goal)
             stepper_goal = {}
             packets.append(make_sync_write(_S["clear_flags"].address, 1, resync_clears(
                 {self.joints[joint].dxl_id: flags for joint, flags in resync.items()})))
@@ -263,6 +275,11 @@ class CycleWire:
             packets.append(make_sync_write(_S["velocity_limit"].address, 4, stepper_speed))
         if stepper_goal:
             packets.append(make_sync_write(COMMAND_AT, COMMAND_LEN, stepper_goal))
+        keep = {j.dxl_id: b"\x01" for k, j in enumerate(self.steppers)
+                if k in self._goals_sent and j.dxl_id in self.keep_alive_ids
+                and j.dxl_id not in fed and torque.get(j.dxl_id) != b"\x00"}
+        if keep:  # a joint this arm drives, with no goal this cycle: still this host
+            packets.append(make_sync_write(_KEEP_ALIVE.address, _KEEP_ALIVE.size, keep))
         if servo:
             packets.append(self._servo_goals(servo))
         return packets

@@ -27,7 +27,12 @@ The register is in EEPROM: it persists.
 (:data:`HOST_WATCHDOG_MS`; the robot CLIs, which run real-time where allowed, give
 :func:`host_watchdog_ms`, 50 ms then): a node that hears nothing from this host for that long while it
 moves stops and holds (:meth:`set_watchdog`); a cycle that finds one stopped so while this
-arm is still cycling sends it its goal again with the next cycle.
+arm is still cycling sends it its goal again with the next cycle.  It also sets their
+``watchdog_feed`` to goals only (:meth:`stream_goals`): this arm streams goals whose
+coupling offsets are right only until the next cycle, so another program's READs (a
+monitor, ``armctl status``) must not keep a dead host's goals driving the arm; the cycles
+feed it with their goals, or an explicit keep-alive when a cycle has none for a joint it
+drives.  :meth:`close` gives back what it found.
 
 **Errors.**  Alarms (overheating, input voltage, overload) are reported by name in
 :attr:`ArmState.errors` and cleared with :meth:`Arm.clear_errors`: a stepper node's
@@ -116,8 +121,10 @@ from host.view.live import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
     STEPPER_TABLE,
     STEPPER_WATCHDOG_DEFAULT_MS,
+    STEPPER_WATCHDOG_FEED_FIRMWARE,
     STEPPER_WATCHDOG_FIRMWARE,
     StepperClear,
+    WatchdogFeed,
 )
 from protocol.dynamixel import InstructionPacket, make_reset
 
@@ -179,6 +186,9 @@ class Arm:
         #: The stepper nodes' command watchdog (s) as this arm set it (the nodes' default
         #: until it does).
         self.watchdog_s = STEPPER_WATCHDOG_DEFAULT_MS / 1000
+        #: Each stepper node's ``watchdog_feed`` before :meth:`stream_goals` set it (bus ID
+        #: -> value): what :meth:`close` gives back.
+        self._feed_found: dict[int, int] = {}
 
     # ------------------------------------------------------------------ opening
 
@@ -224,6 +234,7 @@ class Arm:
             arm.set_return_delay(return_delay)
         if watchdog_ms is not None:
             arm.set_watchdog(watchdog_ms)
+        arm.stream_goals()
         arm.read_goals()
         return arm
 
@@ -241,7 +252,16 @@ class Arm:
         return self.view
 
     def close(self) -> None:
-        """Close the transport (torque is left as it is) and a view this arm opened."""
+        """Give the stepper nodes back the ``watchdog_feed`` :meth:`stream_goals` found,
+        then close the transport (torque is left as it is) and a view this arm opened.  A
+        host killed before this leaves the nodes on goals only: safe, and the next clean
+        session that found the default gives it back."""
+        found, self._feed_found = self._feed_found, {}
+        if found and not self.transport.closed:
+            try:
+                self._write_feed({i: bytes([v]) for i, v in found.items()})
+            except HostError:
+                pass  # a bus gone: nothing to give back to
         self.bus.transport.close()
         if self.view is not None and self._owns_view:
             self.view.close()
@@ -316,6 +336,32 @@ class Arm:
         if nodes:
             self.bus.sync_write(reg.address, reg.size, nodes)
         self.watchdog_s = timeout_ms / 1000
+
+    def stream_goals(self) -> None:
+        """Set the stepper nodes' ``watchdog_feed`` to :attr:`WatchdogFeed.GOALS_ONLY` on
+        those whose firmware has it (older ones go on counting any instruction), noting what
+        each had for :meth:`close`: only this arm's goals and keep-alives then feed their
+        command watchdog, not another program's READs.  The cycles send a keep-alive to a
+        stepper this arm has sent a goal when they carry none for it (a loop that sends a
+        goal once and then only reads), so such a loop is not stopped."""
+        reg = _S["watchdog_feed"]
+        ids = [j.dxl_id for j in self.steppers
+               if j.firmware_version >= STEPPER_WATCHDOG_FEED_FIRMWARE]
+        if not ids:
+            return
+        replies = self.bus.bulk_read([(reg.size, i, reg.address) for i in ids])
+        found = {i: reg.decode(replies[i].params) for i in ids}
+        self._write_feed({i: reg.encode(int(WatchdogFeed.GOALS_ONLY)) for i in ids})
+        self._feed_found = {**found, **self._feed_found}  # the first found stays
+        self.wire.keep_alive_ids = frozenset(ids)
+
+    def _write_feed(self, values: dict[int, bytes]) -> None:
+        """SYNC_WRITE ``watchdog_feed`` (bus ID -> its byte); the cycles' keep-alives go to
+        the nodes left on goals only."""
+        reg = _S["watchdog_feed"]
+        self.bus.sync_write(reg.address, reg.size, values)
+        self.wire.keep_alive_ids = frozenset(
+            i for i, v in values.items() if v[0] == int(WatchdogFeed.GOALS_ONLY))
 
     def read_goals(self) -> None:
         """Learn each stepper node's goal (``command_goal``, 1/16 counts) with one

@@ -13,8 +13,10 @@ from protocol.control_tables import (
     STEPPER_FIRMWARE_VERSION,
     STEPPER_TABLE,
     STEPPER_WATCHDOG_DEFAULT_MS,
+    STEPPER_WATCHDOG_FEED_FIRMWARE,
     STEPPER_WATCHDOG_FIRMWARE,
     StepperFlag,
+    WatchdogFeed,
 )
 from protocol.dynamixel import make_ping, make_read, make_sync_write, make_write
 from protocol.image import BoardType
@@ -183,3 +185,80 @@ def test_once_stopped_the_motor_stays_still(timeout_ms):
         sched.run_for(1_000)
         rates.append(hal.stepper().rate)
     assert not any(rates)
+
+
+def test_goals_only_reads_do_not_keep_the_move_going(moving):
+    """``watchdog_feed`` 1 (a host streaming goals): another program's READs, PINGs and
+    non-goal writes do not feed it; the move stops as if nothing came."""
+    sched, hal, app = moving
+    write(sched, hal, "watchdog_feed", int(WatchdogFeed.GOALS_ONLY))
+    for _ in range(6):  # 0.3 s of a monitor's traffic every 50 ms
+        transact(sched, hal, make_read(2, 76, 13).encode(), run_us=25_000)
+        transact(sched, hal, make_ping(2).encode(), run_us=25_000)
+    assert flags(app) & StepperFlag.WATCHDOG
+    sched.run_for(SPEED * 1_000_000 // ACCEL + 20_000)
+    assert hal.stepper().rate == 0.0
+
+
+@pytest.mark.parametrize("feed", ["goal", "keep_alive"])
+def test_goals_only_goal_and_keep_alive_writes_keep_it_going(moving, feed):
+    sched, hal, app = moving
+    write(sched, hal, "watchdog_feed", int(WatchdogFeed.GOALS_ONLY))
+    for _ in range(20):  # 1 s, every 50 ms
+        if feed == "goal":
+            write(sched, hal, "goal_position", 5 * SPEED)
+        else:
+            write(sched, hal, "keep_alive", 1)
+        sched.run_for(50_000)
+    assert not flags(app) & StepperFlag.WATCHDOG
+    assert hal.stepper().rate == pytest.approx(SPEED * K)
+    assert app.get("keep_alive") == 0
+
+
+def test_the_feed_register_and_the_version():
+    reg = STEPPER_TABLE["watchdog_feed"]
+    assert (reg.address, reg.size, reg.area, reg.default) == (102, 1, "RAM", 0)
+    assert STEPPER_TABLE["keep_alive"].address == 103
+    assert STEPPER_WATCHDOG_FEED_FIRMWARE == 6 <= STEPPER_FIRMWARE_VERSION
+
+
+def _blocked_move(sched: Scheduler, hal: VirtualHal, *, fresh_goals: bool) -> StepperFlag:
+    """Node 2 stepping at SPEED on a joint that does not follow (the encoder held: a stale
+    coupling winding the element), a reader polling every 20 ms so the default feed keeps
+    it going, ``fresh_goals`` a host re-sending the goal with each poll; flags after 1 s."""
+    write(sched, hal, "deflection_limit", 150)
+    write(sched, hal, "velocity_limit", 200)  # 2 s to the goal
+    write(sched, hal, "watchdog_timeout", TIMEOUT_MS)
+    write(sched, hal, "torque_enable", 1)
+    write(sched, hal, "goal_position", 400)
+    for _ in range(50):
+        if fresh_goals:  # (the reply's error byte says OVERLOAD once STALLED latched)
+            goal = STEPPER_TABLE["goal_position"]
+            transact(sched, hal, make_write(2, goal.address, goal.encode(400)).encode(),
+                     run_us=300)
+        transact(sched, hal, make_read(2, 76, 13).encode(), run_us=20_000)
+    return StepperFlag(hal_app_flags(sched, hal))
+
+
+def hal_app_flags(sched: Scheduler, hal: VirtualHal) -> int:
+    (reply,) = transact(sched, hal, make_read(2, STEPPER_TABLE["status_flags"].address,
+                                              1).encode(), run_us=300)
+    return int(reply.params[0])
+
+
+def test_stale_goals_winding_the_element_hold_instead_of_latching():
+    """Whatever feeds the watchdog: stepping on goals older than its timeout into an element
+    wound towards ``deflection_limit`` stops and holds (WATCHDOG) before STALLED would
+    latch, the element short of the limit."""
+    sched, hal, app = fresh()
+    f = _blocked_move(sched, hal, fresh_goals=False)
+    assert f & StepperFlag.WATCHDOG and not f & (StepperFlag.STALLED | StepperFlag.SLIP)
+    assert hal.stepper().rate == 0.0 and app.get("torque_enable") == 1
+    assert abs(app.deflection()) < 150
+
+
+def test_fresh_goals_into_a_stall_still_latch():
+    """A live host sending goals into a blocked joint: STALLED latches as it always did."""
+    sched, hal, app = fresh()
+    f = _blocked_move(sched, hal, fresh_goals=True)
+    assert f & StepperFlag.STALLED

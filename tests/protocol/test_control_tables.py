@@ -21,6 +21,7 @@ from protocol.control_tables import (
     STEPPER_REST_DEFLECTION_FIRMWARE,
     STEPPER_ROTOR_RESYNC_FIRMWARE,
     STEPPER_TABLE,
+    STEPPER_WATCHDOG_FEED_FIRMWARE,
     STEPPER_WATCHDOG_FIRMWARE,
     TABLES_BY_MODEL,
     ControlTable,
@@ -30,6 +31,7 @@ from protocol.control_tables import (
     RegisterRangeError,
     StepperClear,
     StepperFlag,
+    WatchdogFeed,
 )
 from protocol.dynamixel import ErrorBit
 from protocol.errors import DynamixelError, ProtocolError
@@ -335,11 +337,15 @@ def test_stepper_cycle_block_addresses() -> None:
         ("deflection_offset", 96, 2, "RW", True),
         ("watchdog_timeout", 98, 2, "RW", False),
         ("rest_deflection", 100, 2, "RW", True),
+        ("watchdog_feed", 102, 1, "RW", False),
+        ("keep_alive", 103, 1, "RW", False),
     ]
-    assert STEPPER_TABLE.size == 102
+    assert STEPPER_TABLE.size == 104
     assert STEPPER_CYCLE_BLOCK == ("cycle_present_position", "cycle_status_flags")
     assert STEPPER_CYCLE_BLOCK_FIRMWARE == 2
     assert STEPPER_ROTOR_RESYNC_FIRMWARE == 3
     assert STEPPER_WATCHDOG_FIRMWARE == 4
-    assert STEPPER_TABLE["firmware_version"].default == STEPPER_REST_DEFLECTION_FIRMWARE == 5
+    assert STEPPER_REST_DEFLECTION_FIRMWARE == 5
+    assert STEPPER_TABLE["firmware_version"].default == STEPPER_WATCHDOG_FEED_FIRMWARE == 6
+    assert STEPPER_TABLE["watchdog_feed"].default == WatchdogFeed.ANY_INSTRUCTION == 0
     assert STEPPER_TABLE["rest_deflection"].default == REST_DEFLECTION_UNKNOWN == -32768

@@ -378,3 +378,14 @@ def test_several_built_in_names_run_in_the_order_given(
     lines = capsys.readouterr().out.splitlines()
     assert [line.split()[0] for line in lines[:2]] == ["link_latency", "link_loss"]
     assert lines[-1] == "2 of 2 runs passed"
+
+
+def test_host_vanish_with_a_reader_on_the_bus_holds_the_arm() -> None:
+    """``host_vanish_reader``: another program's READs every 20 ms, before and after the host
+    went, do not keep its goals driving (the host set the nodes' feed to goals only)."""
+    from tools.hil_bench.runner import run_scenario
+
+    raw = tomllib.loads((scenario_dir() / "host_vanish_reader.toml").read_text())
+    (held,) = run_scenario(raw)["assertions"]
+    assert held["passed"], held
+    assert max(held["measured"]["drive_on_deg"]) < 8.0

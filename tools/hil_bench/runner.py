@@ -318,11 +318,14 @@ class Bench:
     def _do_arm_clear_errors(self) -> None:
         self.arm.clear_errors()
 
-    def _do_arm_move_vanish(self, angles: list[float], duration: float, after_s: float
-                            ) -> dict[str, Any]:
+    def _do_arm_move_vanish(self, angles: list[float], duration: float, after_s: float,
+                            reader_ms: float | None, read_for_s: float) -> dict[str, Any]:
         """Start the move :meth:`host.arm.facade.Arm.move` makes (speeds for ``duration``, goals
-        every 10 ms), then stop sending anything ``after_s`` into it, as a host killed
-        mid-move does; the result says when (``vanished_s``, from the plan's start)."""
+        every 10 ms), then stop sending goals ``after_s`` into it, as a host killed
+        mid-move does; the result says when (``vanished_s``, from the plan's start).  With
+        ``reader_ms``, another program on the bus READs the seven joints' positions every
+        ``reader_ms`` (ms) through the move and for ``read_for_s`` (s) after the host went
+        (a monitor: plain READs, no writes)."""
         from host.arm.facade import MOVE_MIN_SPEED
 
         arm, clock = self.arm, self.arm.transport
@@ -330,11 +333,29 @@ class Bench:
         speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
                   for a, b in zip(angles, now, strict=True)]
         arm.set_positions(angles, speeds)
+        next_read = clock.now()
+
+        def poll() -> None:
+            nonlocal next_read
+            if reader_ms is not None and clock.now() >= next_read:
+                next_read += reader_ms / 1000
+                for j in arm.joints:  # present_position: 32 (steppers), 36 (RX-64s)
+                    arm.bus.read(j.dxl_id, 32 if j.kind == "stepper" else 36,
+                                 4 if j.kind == "stepper" else 2)
+
         end = clock.now() + after_s
         while clock.now() < end:
             clock.sleep(0.01)
             arm.set_positions(angles)
-        return {"vanished_s": round(self.now_s(), 6), "goals": list(angles)}
+            poll()
+        vanished = round(self.now_s(), 6)
+        if reader_ms is not None:
+            stop = clock.now() + read_for_s
+            while clock.now() < stop:
+                # at least 1 ms: a sleep shorter than the clock's µs would not advance it
+                clock.sleep(max(0.001, min(next_read, stop) - clock.now()))
+                poll()
+        return {"vanished_s": vanished, "goals": list(angles)}
 
 
 def run_scenario(raw: dict[str, Any], source: str = "<scenario>",

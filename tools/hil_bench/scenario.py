@@ -40,7 +40,8 @@ ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "arm_play": (("waypoints",), {"time_scale": 1.0}),
     "arm_stream": (("seconds",), {"rate_hz": 100.0}),
     "arm_clear_errors": ((), {}),
-    "arm_move_vanish": (("angles",), {"duration": 6.0, "after_s": 1.5}),
+    "arm_move_vanish": (("angles",), {"duration": 6.0, "after_s": 1.5, "reader_ms": None,
+                                      "read_for_s": 3.0}),
 }
 #: Each assertion's keys: required ones, then optional ones with defaults.
 ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {

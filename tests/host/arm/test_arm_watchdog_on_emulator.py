@@ -12,7 +12,12 @@ import pytest
 
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm.facade import HOST_WATCHDOG_MS, MOVE_MIN_SPEED, SERVO_GOAL_LEAD_S, Arm, servo_lead
-from protocol.control_tables import GOAL_FINE_PER_COUNT, REST_DEFLECTION_UNKNOWN, StepperFlag
+from protocol.control_tables import (
+    GOAL_FINE_PER_COUNT,
+    REST_DEFLECTION_UNKNOWN,
+    StepperFlag,
+    WatchdogFeed,
+)
 from protocol.dynamixel import rx64_position_to_radians
 from protocol.robot import (
     STEPPER_SETTLE_MAX_BACK_COUNTS,
@@ -341,3 +346,32 @@ def test_a_homed_arm_tells_the_stepper_nodes_the_deflection_that_holds_them_at_r
             told = app.get("rest_deflection")
             assert told != REST_DEFLECTION_UNKNOWN
             assert abs(told - state.steppers[node].deflection) <= 3, f"J{node + 1}"
+
+
+def test_an_arm_feeds_the_watchdog_with_its_goals_only_and_gives_the_feed_back():
+    """At open the arm sets the steppers' ``watchdog_feed`` to goals only; a loop that sends
+    a goal once and then only cycles keeps its joint going (the cycles' keep-alives), while
+    another program's reads alone do not (the host gone, the node stops); a clean close
+    gives back the default it found, and a second session that found goals only keeps it."""
+    feed = WatchdogFeed.GOALS_ONLY
+    arm = Arm.open("emu://arm/arm?name=watchdog-feed")
+    emu = emulator_of(arm)
+    apps = [arm_rig_of(emu).app(i) for i in range(1, 5)]
+    try:
+        assert [a.get("watchdog_feed") for a in apps] == [feed] * 4
+        state = arm.torque(True, hold=True)
+        arm.cycle([arm.make_position(1, state.joints[1] + 0.4, 0.2)])  # 2 s at 0.2 rad/s
+        for _ in range(50):  # 0.5 s of cycles without goals: keep-alives
+            arm.transport.sleep(0.01)
+            state = arm.cycle()
+        assert not state.steppers[1].watchdog and state.steppers[1].moving
+        with Arm.on(EmulatorTransport(emu, "arm")) as reader:  # found goals only
+            for _ in range(30):  # the first host silent; another program only reads
+                reader.transport.sleep(0.01)
+                state = reader.cycle()
+            assert state.steppers[1].watchdog and not state.steppers[1].moving
+        assert [a.get("watchdog_feed") for a in apps] == [feed] * 4  # as it found them
+    finally:
+        arm.close()
+    emu.step(1_000)  # the close's write on the wire
+    assert [a.get("watchdog_feed") for a in apps] == [WatchdogFeed.ANY_INSTRUCTION] * 4
