@@ -21,7 +21,7 @@ says where each comes from):
   (max, drawn uniform), noise density 218 µg/√Hz at 100 Hz output (bandwidth ODR/2: 1.54 mg
   rms); ST gives no cross-axis figure: ±1 % (1σ) as the ADXL345 datasheet's, a comparable
   MEMS part;
-* its mounting: a rotation of a few degrees (each axis 1.5° σ, at most 4°) for the chip's
+* its mounting: a rotation of a few degrees (each axis 1° σ, at most 4°: 1.6° on average) for the chip's
   solder tilt and the board on its laser-cut link (the dissertation's §4.4: "rotations of
   several degrees");
 * tactile pads: a per-taxel offset of the photosensor's unloaded reading and its drift;
@@ -96,7 +96,7 @@ class Imperfections:
 
     accel: AccelPart = field(default_factory=AccelPart)
     #: Mounting rotation of each accelerometer (deg, 1σ about each axis; clipped).
-    mount_tilt_deg: float = 1.5
+    mount_tilt_deg: float = 1.0
     mount_tilt_max_deg: float = 4.0
     #: Taxels: offset of each one's unloaded reading (counts, 1σ) and its drift (counts/√s).
     taxel_offset_counts: float = 150.0
