@@ -485,6 +485,9 @@ class FmcbApp(HandNode):
     def _on_set_home(self, req: Request) -> dict[str, Any]:
         self.offsets = [int(v) for v in req.fields["offset"]]
         self.hall_target = self.hall_pos  # hold the pose under the new zero
+        # A status asked for next reports positions under the new zero, not the snapshot
+        # of before (a resting fmcb may not take another for a while).
+        self._refresh_status()
         return {}
 
     # --- parameters -----------------------------------------------------------------------

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from typing import TypedDict
 
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.imperfections import DEFAULT_SENSORS
 from hil_emulator.pacing import Pacer
 from hil_emulator.ports.host_links import HostLink, Port, SerialLink, SlcanLink, VirtualCanLink
 from hil_emulator.ports.link_dir import LinkDirLock
@@ -39,7 +40,7 @@ CanMode = str  # "slcan" (a pty), "virtual:<channel>" (python-can, same process)
 class PortsDescription(TypedDict, total=False):
     """The ports as the ``hil-emulator`` command prints them (:meth:`Emulator.describe`):
     always ``config``, ``palm``, ``arm``, ``fingers`` (paths, or None / empty where the
-    configuration has none) and ``seed``; ``can`` and ``can_interface`` with a CAN link,
+    configuration has none), ``seed`` and ``sensors``; ``can`` and ``can_interface`` with a CAN link,
     ``scene`` with a scene, ``hand_layout`` with a hand, ``links`` with a link directory."""
 
     config: str
@@ -49,6 +50,7 @@ class PortsDescription(TypedDict, total=False):
     can: str | None
     can_interface: str
     seed: int
+    sensors: str
     scene: str
     hand_layout: str
     links: dict[str, str]
@@ -63,8 +65,10 @@ class Emulator(EmulatedRobot):
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
-                 physics: bool = True, can: CanMode = "slcan", scene: str = "none") -> None:
-        super().__init__(config, seed=seed, layout=layout, physics=physics, scene=scene)
+                 physics: bool = True, can: CanMode = "slcan", scene: str = "none",
+                 sensors: str = DEFAULT_SENSORS) -> None:
+        super().__init__(config, seed=seed, layout=layout, physics=physics, scene=scene,
+                         sensors=sensors)
         self.can_mode = can
         #: What :meth:`run` serves: the host links by name, and any :meth:`add_port`.
         self.links: dict[str, Port] = {}
@@ -137,6 +141,7 @@ class Emulator(EmulatedRobot):
             out["can"] = path("can")
             out["can_interface"] = "slcan" if self.can_mode == "slcan" else "virtual"
         out["seed"] = self.seed
+        out["sensors"] = self.sensors
         if self.scene != "none":
             out["scene"] = self.scene
         if self.hand is not None:

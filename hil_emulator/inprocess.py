@@ -9,8 +9,10 @@ the timeout (simulation seconds) passes.  Timing is therefore exact and independ
 busy the machine is: a reply arrives when its last bit would on the real wire.
 
 URLs: ``emu://full/palm``, ``emu://full/arm``, ``emu://hand/palm``, ``emu://arm/arm``,
-``emu://loose-finger/finger0``, options ``?seed=N&ready=1&physics=0&scene=mug&name=X``
-(``scene``: :data:`hil_emulator.scene_model.SCENES`).  Transports
+``emu://loose-finger/finger0``, options
+``?seed=N&ready=1&physics=0&scene=mug&sensors=ideal&name=X`` (``scene``:
+:data:`hil_emulator.scene_model.SCENES`; ``sensors``: ``realistic``, the default, or
+``ideal``, :mod:`hil_emulator.imperfections`).  Transports
 opened with the same configuration, seed, options and ``name`` share one emulator, so a
 program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 ``ready=1`` (the default) brings the hand up first, as ``hil-emulator --ready`` does.
@@ -41,6 +43,7 @@ from typing import Any, ClassVar, Final
 from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, EmulatorError
+from hil_emulator.imperfections import DEFAULT_SENSORS
 from host.errors import HostError, TransportError, UsageError
 from host.hand.facade import Hand, Node
 from host.hand.session import LINK_NODE, HandSession, Timeouts
@@ -95,7 +98,7 @@ class EmulatorTransport(Transport):
 
     @classmethod
     def from_url(cls, url: str, **options: object) -> EmulatorTransport:
-        """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&name=X``."""
+        """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&sensors=M&name=X``."""
         rest = url.split("://", 1)[1].split("?", 1)[0]
         config, _, link = rest.partition("/")
         if config not in LINKS:
@@ -111,16 +114,17 @@ class EmulatorTransport(Transport):
         ready = merged.pop("ready", "1") not in ("0", "false", "no")
         physics = merged.pop("physics", "1") not in ("0", "false", "no")
         scene = merged.pop("scene", "none")
+        sensors = merged.pop("sensors", DEFAULT_SENSORS)
         name = merged.pop("name", "")
         if merged:
             raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
-                             "seed, ready, physics, scene and name")
-        key = (config, str(seed), str(ready), str(physics), scene, name)
+                             "seed, ready, physics, scene, sensors and name")
+        key = (config, str(seed), str(ready), str(physics), scene, sensors, name)
         emulator = _shared.get(key)
         if emulator is None:
             try:
                 emulator = Emulator(config, seed=seed, physics=physics, can="none",
-                                    scene=scene)
+                                    scene=scene, sensors=sensors)
             except EmulatorConfigError as exc:
                 raise UsageError(f"{url}: {exc}") from exc
             if ready:

@@ -15,6 +15,7 @@ from firmware_py.boot_program import inspect_image
 from firmware_py.mcu import Mcu
 from firmware_py.sim.virtual_hal import VirtualHal
 from hil_emulator.emulator import Emulator
+from hil_emulator.imperfections import PlantedTruth
 from hil_emulator.lines.rs485_bus import Rs485Bus
 from protocol.image import FLASH, BoardType
 from protocol.messages.boot_program import ImageStatus
@@ -64,6 +65,12 @@ class EmulatorIntrospection:
             if finger.tendon_bus is not None:
                 buses[f"tendon{finger.index}"] = finger.tendon_bus
         return buses
+
+    def planted_truth(self) -> PlantedTruth | None:
+        """What ``--sensors realistic`` drew for this robot (each board's accelerometer and
+        mounting, pad and gauge offsets, each moved body), the ground truth a calibration is
+        held to; None for ``ideal`` sensors or without physics."""
+        return self.emulator.planted
 
     # --- the interface --------------------------------------------------------------------
     def motors_driven(self) -> list[str]:

@@ -22,10 +22,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Final
 
+import mujoco
 import numpy as np
 
+from firmware_py.mcu import Mcu
 from firmware_py.scheduler import Scheduler
-from hil_emulator import scene_model
+from hil_emulator import imperfections, scene_model
 from hil_emulator.arm import model as arm_model
 from hil_emulator.arm.plant import ArmPlant
 from hil_emulator.arm.rig import ArmRig
@@ -33,6 +35,7 @@ from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand import model as hand_model
 from hil_emulator.hand.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand.rig import HandRig, LooseFinger
+from hil_emulator.imperfections import DEFAULT_SENSORS, PlantedTruth
 from hil_emulator.plant import Plant, PlantPart, new_spec
 from hil_emulator.scene_model import SCENES, MugTracker
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
@@ -49,11 +52,16 @@ class EmulatedRobot:
     ``layout`` names the hand layout (:data:`hil_emulator.hand.model.LAYOUTS`); ``physics``
     False leaves the MuJoCo plant out (firmware and buses only); ``scene`` adds things to
     the world (:data:`hil_emulator.scene_model.SCENES`: ``"none"``, ``"mug"`` — a table and
-    a coffee mug in front of the arm; configurations with the arm only).
+    a coffee mug in front of the arm; configurations with the arm only); ``sensors``
+    (:data:`hil_emulator.imperfections.SENSOR_MODES`) ``"realistic"`` (the default) builds
+    the robot as a real one is, its sensors imperfect and its links off by a laser-cut
+    build's tolerances (:mod:`hil_emulator.imperfections`; what was drawn:
+    :attr:`planted`), ``"ideal"`` exact sensors on the nominal geometry.
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
-                 physics: bool = True, scene: str = "none") -> None:
+                 physics: bool = True, scene: str = "none",
+                 sensors: str = DEFAULT_SENSORS) -> None:
         if config not in CONFIGS:
             raise EmulatorConfigError(
                 f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
@@ -69,6 +77,10 @@ class EmulatedRobot:
         if scene != "none" and config not in ("full", "arm"):
             raise EmulatorConfigError(f"the {scene!r} scene stands in front of the arm: use it "
                                       f"with the full or arm configuration, not {config!r}")
+        self.sensors = imperfections.check_sensors(sensors)  #: ``"ideal"`` or ``"realistic"``
+        #: What ``sensors="realistic"`` drew for this robot (None: ideal, or no physics): the
+        #: ground truth a calibration is held to, never on the wire.
+        self.planted: PlantedTruth | None = None
         self.config = config
         self.scene = scene  #: the scene's name (:data:`hil_emulator.scene_model.SCENES`)
         self.seed = seed
@@ -108,6 +120,8 @@ class EmulatedRobot:
 
         spec = new_spec(f"hil-{self.config}")
         parts: list[PlantPart] = []
+        truth = PlantedTruth() if self.sensors == "realistic" else None
+        self.planted = truth
         hand_parent = None
         if self.arm is not None:
             base = spec.worldbody.add_body(name="arm_base",
@@ -127,22 +141,51 @@ class EmulatedRobot:
                                     pos=HAND_ON_FLANGE_POSITION_M, quat=HAND_ON_FLANGE_QUAT)
             else:
                 hand_model.add_hand(spec, hand_parent, layout=layout, prefix="hand/")
-            parts.append(PalmPlant("hand/", self.hand.palm, rng()))
+            if truth is None:
+                parts.append(PalmPlant("hand/", self.hand.palm, rng()))
+            else:
+                parts.append(PalmPlant("hand/", self.hand.palm, rng(),
+                                       imperfections.palm_params(),
+                                       imperfections.palm_errors(self.seed, truth)))
             for finger in self.hand.fingers:
-                fp = FingerPlant(f"hand/finger{finger.index}/", finger.fmcb, finger.f2,
-                                 finger.f3, rng())
+                fp = self._finger_plant(f"hand/finger{finger.index}/", finger.index,
+                                        finger.fmcb, finger.f2, finger.f3, rng(), truth)
                 self.finger_plants.append(fp)
                 parts.append(fp)
         if self.loose is not None:
             bench = spec.worldbody.add_body(name="bench_clamp", pos=[0.0, 0.0, 0.3])
             hand_model.add_finger(spec, bench, "finger0/")
             f = self.loose.finger
-            fp = FingerPlant("finger0/", f.fmcb, f.f2, f.f3, rng())
+            fp = self._finger_plant("finger0/", 0, f.fmcb, f.f2, f.f3, rng(), truth)
             self.finger_plants.append(fp)
             parts.append(fp)
+        if truth is not None:
+            self._as_built(spec, truth)
         self.scene_parts = scene_model.add_scene(spec, self.scene)
         parts.extend(self.scene_parts)
         return Plant(spec, parts)
+
+    def _finger_plant(self, prefix: str, index: int, fmcb: Mcu, f2: Mcu, f3: Mcu,
+                      rng: np.random.Generator, truth: PlantedTruth | None) -> FingerPlant:
+        """Finger module ``index``'s plant part, its sensors as built when ``truth`` is given."""
+        if truth is None:
+            return FingerPlant(prefix, fmcb, f2, f3, rng)
+        return FingerPlant(prefix, fmcb, f2, f3, rng, imperfections.finger_params(),
+                           imperfections.finger_errors(self.seed, index, truth))
+
+    def _as_built(self, spec: mujoco.MjSpec, truth: PlantedTruth) -> None:
+        """Move the arm's joint bodies and flange, the palm and each finger module's mount and
+        phalanges from their nominal places by a laser-cut build's tolerances."""
+        arm = [body.name for body in spec.bodies
+               if body.name.startswith("arm/") and (len(body.joints) or body.name == "arm/flange")]
+        if arm:
+            imperfections.perturb_bodies(spec, arm, imperfections.part_rng(self.seed, "arm geometry"),
+                                         truth)
+        hand = [body.name for body in spec.bodies if body.name == "hand/palm"
+                or body.name.endswith(("/F0", "/F2", "/F3"))]
+        if hand:
+            imperfections.perturb_bodies(spec, hand,
+                                         imperfections.part_rng(self.seed, "hand geometry"), truth)
 
     # ------------------------------------------------------------------ parts
     def rig(self, link: str) -> HandRig | ArmRig | LooseFinger:

@@ -9,6 +9,7 @@ from hil_emulator.arm.plant import ArmPlant
 from hil_emulator.arm.rig import ArmRig
 from hil_emulator.emulator import Emulator
 from hil_emulator.hand.rig import HandRig
+from hil_emulator.imperfections import PlantedTruth
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm.facade import Arm
 from host.hand.facade import Hand
@@ -54,3 +55,11 @@ def arm_joints(arm: Arm) -> np.ndarray:
 def arm_velocities(arm: Arm) -> np.ndarray:
     """The arm plant's seven joint velocities (rad/s)."""
     return np.array(arm_plant_of(emulator_of(arm)).joint_velocities())
+
+
+def planted_of(robot: Hand | Arm) -> PlantedTruth:
+    """What the emulator behind ``robot`` drew for its sensors and geometry (it was opened
+    with ``sensors=realistic``, the default)."""
+    planted = emulator_of(robot).planted
+    assert planted is not None, "this emulator's sensors are ideal"
+    return planted

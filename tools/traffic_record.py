@@ -7,6 +7,9 @@ state is hashed, so a change of wire bytes, of firmware timing or of physics sho
 
     python -m tools.traffic_record --seed 7 --out run.jsonl      # prints the sha-256 digest
 
+It records the emulator with ``--sensors ideal`` unless told otherwise: the digest of the
+ideal robot is the one kept across refactors.
+
 The host script (fixed, in-process, fast mode): bring the hand up as ``--ready`` does, then
 ping and identify every hand node through the palm, read statuses, move a finger in joint
 mode, poll, read the phalanges' tactile data; on the arm, ping every id, enable torque,
@@ -26,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from hil_emulator.emulator import Emulator
+from hil_emulator.imperfections import SENSOR_MODES
 from hil_emulator.inprocess import bring_up
 from protocol import dynamixel as dxl
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
@@ -67,8 +71,8 @@ def _recorder(port: str, out: list[Record]) -> Callable[[bytes, int], None]:
     return record
 
 
-def _full_run(seed: int, out: list[Record]) -> None:
-    emu = Emulator("full", seed=seed, can="none")
+def _full_run(seed: int, out: list[Record], sensors: str) -> None:
+    emu = Emulator("full", seed=seed, can="none", sensors=sensors)
     assert emu.hand is not None and emu.arm is not None
     emu.hand.on_host_bytes = _recorder("palm", out)
     emu.arm.on_host_bytes = _recorder("arm", out)
@@ -125,8 +129,8 @@ def _full_run(seed: int, out: list[Record]) -> None:
                 "qvel_sha256": _array_digest(emu.plant.data.qvel)})
 
 
-def _loose_run(seed: int, out: list[Record]) -> None:
-    emu = Emulator("loose-finger", seed=seed, can="none")
+def _loose_run(seed: int, out: list[Record], sensors: str) -> None:
+    emu = Emulator("loose-finger", seed=seed, can="none", sensors=sensors)
     assert emu.loose is not None
     emu.loose.on_host_bytes = _recorder("finger0", out)
     bring_up(emu)
@@ -147,11 +151,14 @@ def _array_digest(values: Any) -> str:
     return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()
 
 
-def record(seed: int = 7) -> list[Record]:
-    """Run the fixed host script on the full and loose-finger configurations; the records."""
+def record(seed: int = 7, sensors: str = "ideal") -> list[Record]:
+    """Run the fixed host script on the full and loose-finger configurations; the records.
+
+    ``sensors`` (``--sensors``): ``"ideal"`` by default, so the digest stays what it was
+    before the sensors had imperfections; ``"realistic"`` records the robot as built."""
     out: list[Record] = []
-    _full_run(seed, out)
-    _loose_run(seed, out)
+    _full_run(seed, out, sensors)
+    _loose_run(seed, out, sensors)
     return out
 
 
@@ -170,12 +177,15 @@ def _lines(records: list[Record]) -> Iterator[str]:
 
 @guard_output("traffic_record")
 def main(argv: list[str] | None = None) -> int:
-    """``python -m tools.traffic_record [--seed N] [--out FILE]``: print the run's digest."""
+    """``python -m tools.traffic_record [--seed N] [--sensors ideal|realistic] [--out FILE]``:
+    print the run's digest."""
     parser = argparse.ArgumentParser(prog="traffic_record", description=__doc__.split("\n")[0])
     parser.add_argument("--seed", type=int, default=7, help="emulator seed (default 7)")
+    parser.add_argument("--sensors", choices=SENSOR_MODES, default="ideal",
+                        help="the emulator's sensors (default ideal: the digest of before)")
     parser.add_argument("--out", help="write the records as JSON lines to this file")
     args = read_negative_numbers(parser).parse_args(argv)
-    records = record(args.seed)
+    records = record(args.seed, args.sensors)
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:
             fh.writelines(_lines(records))

@@ -65,9 +65,11 @@ from hil_emulator.hand.model import (
 )
 from hil_emulator.hand.sensors import (
     DEFAULT_TACTILE,
+    FingerErrors,
     LinearCounts,
     NormalStream,
     PadContacts,
+    PalmErrors,
     TactileModel,
     WindingThermal,
     strain_counts,
@@ -110,6 +112,11 @@ class FingerParams:
     thermal_time_constant_s: float = 20.0
     tip_coupling: float = 0.1
     tip_time_constant_s: float = 120.0
+    #: The fmcb board's rise over ambient as a fraction of its windings' mean rise (it sits
+    #: on the motors' heatsink): the temperature its accelerometer's offset follows.
+    board_coupling: float = 0.5
+    #: The accelerometers' output resolution in wire counts (1: a digit is 1 mg).
+    accel_step_counts: int = 1
 
     def __post_init__(self) -> None:
         if self.sensor_period_ticks < 1 or self.thermal_period_ticks < 1:
@@ -179,8 +186,11 @@ class FingerPlant:
     """
 
     def __init__(self, prefix: str, fmcb: Mcu, f2: Mcu, f3: Mcu, rng: np.random.Generator,
-                 params: FingerParams | None = None) -> None:
+                 params: FingerParams | None = None, errors: FingerErrors | None = None
+                 ) -> None:
         self.prefix = prefix
+        #: The sensors' imperfections as built (None: ideal sensors).
+        self.errors = errors
         self.names = FingerNames(prefix)
         self.params = params or FingerParams()
         self.fmcb, self.f2, self.f3 = fmcb, f2, f3
@@ -221,8 +231,8 @@ class FingerPlant:
         #: One conversion for all slow channels: fmcb accel, mag, f2 accel, mag, f3 accel,
         #: mag (the order of the IMU sensors in bind), then f2 and f3 taxels.
         self._counts = LinearCounts.imu(
-            [("accel", p.accel_noise_counts), ("mag", p.mag_noise_counts)] * 3
-        ).join(LinearCounts.taxels(p.tactile, n2 + n3))
+            [("accel", p.accel_noise_counts), ("mag", p.mag_noise_counts)] * 3,
+            step=p.accel_step_counts).join(LinearCounts.taxels(p.tactile, n2 + n3))
         self._n_f2 = n2
         self._zeros_f2, self._zeros_f3 = np.zeros(n2), np.zeros(n3)
         #: Every random number after the hall phases, in the order they were drawn one
@@ -495,9 +505,21 @@ class FingerPlant:
             raw += tactile.compression(np.concatenate(
                 (self._zeros_f2 if f2 is None else f2,
                  self._zeros_f3 if f3 is None else f3))).tolist()
+        errors = self.errors
+        if errors is not None:  # the chips as built, before their noise and rounding
+            errors.fmcb.apply(raw, 0, 3)
+            errors.f2.apply(raw, 6, 9)
+            errors.f3.apply(raw, 12, 15)
         size = self._counts.size
         noise, at = self._normals.take(size + 1)  # the last one: the strain gauge's
         counts = self._counts.counts(raw, noise, at)
+        self._counts.scale_steps(counts)
+        n2 = self._n_f2
+        strain_noise = p.strain_noise_counts * noise[at + size]
+        if errors is not None:
+            errors.f2_pad.apply(counts, 18)
+            errors.f3_pad.apply(counts, 18 + n2)
+            strain_noise += errors.gauge.offset
         fmcb_in, f2_in, f3_in = self._fmcb_sensors, self._f2_sensors, self._f3_sensors
         fmcb_in.set_accel(counts[0], counts[1], counts[2])
         fmcb_in.set_mag(counts[3], counts[4], counts[5])
@@ -505,11 +527,10 @@ class FingerPlant:
         f2_in.set_mag(counts[9], counts[10], counts[11])
         f3_in.set_accel(counts[12], counts[13], counts[14])
         f3_in.set_mag(counts[15], counts[16], counts[17])
-        n2 = self._n_f2
         f2_in.set_taxels(counts[18:18 + n2])
         f3_in.set_taxels(counts[18 + n2:])
         moment = self.gauge_moment_nm(loads[0])
-        f2_in.set_strain(strain_counts(moment, p.strain_noise_counts * noise[at + size]))
+        f2_in.set_strain(strain_counts(moment, strain_noise))
 
     def gauge_moment_nm(self, f2_loads: np.ndarray | None = None) -> float:
         """Bending moment at the F2 gauge about F2's flexion axis (N·m), + for palmar loads.
@@ -549,7 +570,21 @@ class FingerPlant:
         target = p.ambient_c + p.tip_coupling * rise
         decay = math.exp(-interval_s / p.tip_time_constant_s)
         self.tip_temperature_c = target + (self.tip_temperature_c - target) * decay
+        errors = self.errors
+        if errors is not None:
+            errors.fmcb.set_temperature(self.board_temperature_c())
+            errors.f2.set_temperature(self.tip_temperature_c)
+            errors.f3.set_temperature(self.tip_temperature_c)
+            errors.drift(interval_s)
         self._write_temperatures()
+
+    def board_temperature_c(self) -> float:
+        """The fmcb board's temperature (°C): ambient plus :attr:`FingerParams.board_coupling`
+        × its windings' mean rise.  The phalange boards are at the fingertip's
+        (:attr:`tip_temperature_c`)."""
+        p = self.params
+        temps = self.thermal.temperature_c
+        return p.ambient_c + p.board_coupling * (sum(temps) / len(temps) - p.ambient_c)
 
     def _write_temperatures(self) -> None:
         self._fmcb_sensors.set_temperatures([round(t * 10.0) for t in self.thermal.temperature_c])
@@ -576,6 +611,8 @@ class PalmParams:
     mag_noise_counts: float = 2.0
     temperature_decic: int = 250
     supply_mv: int = 24000
+    #: The accelerometer's output resolution in wire counts (1: a digit is 1 mg).
+    accel_step_counts: int = 1
 
 
 class PalmPlant:
@@ -588,8 +625,10 @@ class PalmPlant:
     """
 
     def __init__(self, prefix: str, palm: Mcu, rng: np.random.Generator,
-                 params: PalmParams | None = None) -> None:
+                 params: PalmParams | None = None, errors: PalmErrors | None = None) -> None:
         self.prefix = prefix
+        #: The sensors' imperfections as built (None: ideal sensors).
+        self.errors = errors
         self.names = PalmNames(prefix)
         self.params = params or PalmParams()
         self.palm = palm
@@ -600,7 +639,8 @@ class PalmPlant:
         p = self.params
         self._counts = LinearCounts.imu(
             [("accel", p.accel_noise_counts), ("gyro", p.gyro_noise_counts),
-             ("mag", p.mag_noise_counts)]).join(LinearCounts.taxels(p.tactile, len(PALM_TAXELS)))
+             ("mag", p.mag_noise_counts)], step=p.accel_step_counts
+        ).join(LinearCounts.taxels(p.tactile, len(PALM_TAXELS)))
         self._normals = NormalStream(rng)
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -641,8 +681,14 @@ class PalmPlant:
         forces = taxel_forces(self._pads.collect()[0], self._taxels_xy, p.tactile.spread_m)
         if forces is not None:  # else the taxels read 0
             raw += p.tactile.compression(forces).tolist()
+        errors = self.errors
+        if errors is not None:  # accel at 0, gyro at 3 (another part), mag at 6
+            errors.imu.apply(raw, 0, 6)
         noise, at = self._normals.take(self._counts.size)
         counts = self._counts.counts(raw, noise, at)
+        self._counts.scale_steps(counts)
+        if errors is not None:
+            errors.pad.apply(counts, 9)
         sensors = self._sensors
         sensors.set_accel(counts[0], counts[1], counts[2])
         sensors.set_gyro(counts[3], counts[4], counts[5])

@@ -86,16 +86,38 @@ class LinearCounts:
         self.size = sum(run[0] for run in runs)
         #: Per element: (scale, offset, σ, lo, hi) (:meth:`_counts_flat`).
         self._constants = [run[1:] for run in runs for _ in range(run[0])]
+        #: (first element, step counts) of each 3-vector read in digits of ``step`` counts
+        #: (:meth:`imu`); kept through :meth:`join` when it comes first.
+        self.stepped: list[tuple[int, int]] = []
 
     @classmethod
-    def imu(cls, channels: list[tuple[str, float]]) -> LinearCounts:
+    def imu(cls, channels: list[tuple[str, float]], step: int = 1) -> LinearCounts:
         """Consecutive 3-vectors of ``(kind, noise σ counts)``, kind ``"accel"`` (raw in
-        m/s², proper acceleration), ``"mag"`` (gauss) or ``"gyro"`` (rad/s)."""
+        m/s², proper acceleration), ``"mag"`` (gauss) or ``"gyro"`` (rad/s).
+
+        ``step`` (counts, ≥ 1): the accelerometers' output resolution in wire counts.  Above
+        1 their runs convert to chip digits of ``step`` counts (scale, σ and clamp divided
+        by it) and :meth:`scale_steps` multiplies those digits back into counts: readings
+        on a grid of ``step``."""
         runs = []
         for kind, sigma in channels:
             scale, clamp = IMU_SCALES[kind]
-            runs.append((3, float(scale), 0.0, float(sigma), -float(clamp), float(clamp)))
-        return cls(runs)
+            div = float(step) if kind == "accel" else 1.0
+            runs.append((3, float(scale) / div, 0.0, float(sigma) / div, -float(clamp) / div,
+                         float(clamp) / div))
+        out = cls(runs)
+        if step > 1:
+            out.stepped = [(3 * i, step) for i, (kind, _) in enumerate(channels)
+                           if kind == "accel"]
+        return out
+
+    def scale_steps(self, counts: list[int]) -> None:
+        """Chip digits → counts, in place, for the runs :meth:`imu` made stepped (none:
+        nothing to do)."""
+        for start, step in self.stepped:
+            counts[start] = counts[start] * step
+            counts[start + 1] = counts[start + 1] * step
+            counts[start + 2] = counts[start + 2] * step
 
     @classmethod
     def taxels(cls, model: TactileModel, n: int) -> LinearCounts:
@@ -113,7 +135,10 @@ class LinearCounts:
                 runs[-1] = (runs[-1][0] + run[0], *run[1:])
             else:
                 runs.append(run)
-        return LinearCounts(runs)
+        out = LinearCounts(runs)
+        out.stepped = self.stepped + [(start + self.size, step)
+                                      for start, step in other.stepped]
+        return out
 
     def counts(self, raw: list[float], noise: list[float], at: int = 0) -> list[int]:
         """Counts (Python ints) for ``raw`` values and the standard normal draws
@@ -199,6 +224,130 @@ class NormalStream:
             at = 0
         self._at = at + n
         return buffer, at
+
+
+class ImuErrors:
+    """One board's accelerometer as built, and the magnetometer in the same package.
+
+    The board reads ``a_chip = M·a_nominal + b(T)`` (m/s²) where ``a_nominal`` is the proper
+    acceleration in the board's nominal axes (the model's IMU site), ``M = (I + S)(I + C)·Rᵀ``
+    folds the mounting rotation ``R`` (chip axes in the nominal frame), the cross-axis
+    coupling ``C`` (zero diagonal) and the per-axis scale error ``S`` (diagonal), and
+    ``b(T) = b₀ + k·(T − T_ref)`` is the zero-g offset with its temperature coefficient
+    ``k`` (m/s² per °C).  The magnetometer turns with the package: ``m_chip = Rᵀ·m``.
+    Matrices come precomputed, row-major (9 floats); :meth:`set_temperature` recomputes the
+    offset, :meth:`apply` is the per-refresh work (two 3×3 products, plain floats)."""
+
+    def __init__(self, accel_matrix: list[float], bias_m_s2: list[float],
+                 bias_tc_m_s2_per_c: list[float], mag_matrix: list[float],
+                 reference_c: float) -> None:
+        if len(accel_matrix) != 9 or len(mag_matrix) != 9:
+            raise ValueError("ImuErrors: the matrices are 9 floats, row-major")
+        if len(bias_m_s2) != 3 or len(bias_tc_m_s2_per_c) != 3:
+            raise ValueError("ImuErrors: the offsets are 3 floats")
+        self.accel_matrix = [float(v) for v in accel_matrix]
+        self.mag_matrix = [float(v) for v in mag_matrix]
+        self.bias_m_s2 = [float(v) for v in bias_m_s2]
+        self.bias_tc = [float(v) for v in bias_tc_m_s2_per_c]
+        self.reference_c = float(reference_c)
+        #: The offset at the board's present temperature (m/s²).
+        self.bias_now = list(self.bias_m_s2)
+        self.temperature_c = self.reference_c
+
+    def set_temperature(self, temperature_c: float) -> None:
+        """The board is at ``temperature_c`` (°C): its zero-g offset moves with it."""
+        dt = temperature_c - self.reference_c
+        self.temperature_c = temperature_c
+        b, k = self.bias_m_s2, self.bias_tc
+        self.bias_now = [b[0] + k[0] * dt, b[1] + k[1] * dt, b[2] + k[2] * dt]
+
+    def apply(self, raw: list[float], accel_at: int, mag_at: int) -> None:
+        """Rewrite, in place, the accelerometer 3-vector at ``raw[accel_at:]`` (m/s²) as
+        the chip measures it, and the magnetometer's at ``raw[mag_at:]`` (``mag_at`` < 0:
+        none)."""
+        x, y, z = raw[accel_at], raw[accel_at + 1], raw[accel_at + 2]
+        m = self.accel_matrix
+        b = self.bias_now
+        raw[accel_at] = m[0] * x + m[1] * y + m[2] * z + b[0]
+        raw[accel_at + 1] = m[3] * x + m[4] * y + m[5] * z + b[1]
+        raw[accel_at + 2] = m[6] * x + m[7] * y + m[8] * z + b[2]
+        if mag_at >= 0:
+            x, y, z = raw[mag_at], raw[mag_at + 1], raw[mag_at + 2]
+            r = self.mag_matrix
+            raw[mag_at] = r[0] * x + r[1] * y + r[2] * z
+            raw[mag_at + 1] = r[3] * x + r[4] * y + r[5] * z
+            raw[mag_at + 2] = r[6] * x + r[7] * y + r[8] * z
+
+
+class PadErrors:
+    """Per-taxel offsets (counts) of one board's pads as built, and their drift.
+
+    Each taxel reads its ideal counts plus its own offset, which wanders as a random walk
+    (:meth:`drift`, at the plant's thermal period); :meth:`apply` adds the rounded offsets
+    to the taxels' counts in place and clamps to the 16-bit ADC."""
+
+    def __init__(self, offsets_counts: list[float], drift_counts_per_sqrt_s: float) -> None:
+        self.offsets = [float(v) for v in offsets_counts]
+        self.drift_sigma = float(drift_counts_per_sqrt_s)
+        self._rounded = [rint(v) for v in self.offsets]
+
+    def drift(self, noise: list[float], at: int, interval_s: float) -> None:
+        """Advance the random walk by ``interval_s`` seconds with the standard normal draws
+        ``noise[at:at + len(offsets)]``."""
+        step = self.drift_sigma * math.sqrt(interval_s)
+        self.offsets = [v + step * noise[at + j] for j, v in enumerate(self.offsets)]
+        self._rounded = [rint(v) for v in self.offsets]
+
+    def apply(self, counts: list[int], start: int) -> None:
+        """Add the offsets to ``counts[start:start + len(offsets)]`` (in place, clamped to
+        0..65535)."""
+        for j, off in enumerate(self._rounded):
+            v = counts[start + j] + off
+            counts[start + j] = 0 if v < 0 else 0xFFFF if v > 0xFFFF else v
+
+
+class GaugeErrors:
+    """The strain gauge's bridge offset (counts) as built and its drift (a random walk,
+    counts per √s, advanced at the plant's thermal period)."""
+
+    def __init__(self, offset_counts: float, drift_counts_per_sqrt_s: float) -> None:
+        self.offset = float(offset_counts)
+        self.drift_sigma = float(drift_counts_per_sqrt_s)
+
+    def drift(self, noise: float, interval_s: float) -> None:
+        """Advance the random walk by ``interval_s`` seconds with one standard normal draw."""
+        self.offset = self.offset + self.drift_sigma * math.sqrt(interval_s) * noise
+
+
+class FingerErrors:
+    """What one finger module's sensors get wrong as built (``--sensors realistic``): each
+    board's :class:`ImuErrors`, f2's and f3's :class:`PadErrors`, f2's :class:`GaugeErrors`,
+    and the standard normal draws their drifts take (a stream of their own, so the plant's
+    noise is the same with them or without)."""
+
+    def __init__(self, fmcb: ImuErrors, f2: ImuErrors, f3: ImuErrors, f2_pad: PadErrors,
+                 f3_pad: PadErrors, gauge: GaugeErrors, normals: NormalStream) -> None:
+        self.fmcb, self.f2, self.f3 = fmcb, f2, f3
+        self.f2_pad, self.f3_pad = f2_pad, f3_pad
+        self.gauge = gauge
+        self.normals = normals
+
+    def drift(self, interval_s: float) -> None:
+        """The pads' and the gauge's offsets wander on by ``interval_s`` seconds."""
+        n2, n3 = len(self.f2_pad.offsets), len(self.f3_pad.offsets)
+        noise, at = self.normals.take(n2 + n3 + 1)
+        self.f2_pad.drift(noise, at, interval_s)
+        self.f3_pad.drift(noise, at + n2, interval_s)
+        self.gauge.drift(noise[at + n2 + n3], interval_s)
+
+
+class PalmErrors:
+    """What the palm board's sensors get wrong as built: its accelerometer (and the
+    magnetometer with it; the gyro is another part, left ideal) and its pad's offsets."""
+
+    def __init__(self, imu: ImuErrors, pad: PadErrors) -> None:
+        self.imu = imu
+        self.pad = pad
 
 
 def strain_counts(moment_nm: float, noise: float) -> int:

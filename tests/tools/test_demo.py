@@ -52,7 +52,8 @@ def test_judge_needs_a_lift_and_a_set_down() -> None:
 def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str],
                                           tmp_path: Path) -> None:
-    def broken(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
+    def broken(out: Path, seed: int, view_port: int | None = None,
+               sensors: str | None = None) -> tuple[bool, str]:
         raise demo.DemoFailed("grasp", "no finger felt the mug")
 
     monkeypatch.setattr(demo, "run_inprocess", broken)

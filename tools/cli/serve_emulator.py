@@ -4,11 +4,11 @@
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
                  [--faults FILE] [--control PATH] [--scene none|mug]
-                 [--priority realtime|normal]
+                 [--sensors ideal|realistic] [--priority realtime|normal]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
-``seed``, ``links``, and ``scene`` when one was asked for), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
+``seed``, ``sensors``, ``links``, and ``scene`` when one was asked for), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
 time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
 line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
 and one when it is on time again.
@@ -50,6 +50,7 @@ from hil_emulator.emulator import Emulator, has_display
 from hil_emulator.errors import EmulatorError
 from hil_emulator.faults import FaultInjector, load_plan
 from hil_emulator.faults.control import ControlChannel
+from hil_emulator.imperfections import DEFAULT_SENSORS, SENSOR_MODES
 from hil_emulator.inprocess import bring_up
 from hil_emulator.robot import CONFIGS
 from hil_emulator.scene_model import SCENES
@@ -93,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene", choices=SCENES, default="none",
                         help="things in front of the arm: mug = a table with a coffee mug "
                              "on it, within the hand's reach (full and arm configurations)")
+    parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEFAULT_SENSORS,
+                        help="realistic (default): sensors as imperfect as the real parts "
+                             "and a laser-cut build's geometry, drawn from --seed per board; "
+                             "ideal: exact sensors on the nominal geometry")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=number_above(0, what="a time in seconds"),
@@ -137,7 +142,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         plan = load_plan(args.faults) if args.faults else []
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
-                            physics=args.physics, can=args.can, scene=args.scene)
+                            physics=args.physics, can=args.can, scene=args.scene,
+                            sensors=args.sensors)
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2

@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from hil_emulator.imperfections import DEFAULT_SENSORS, SENSOR_MODES
 from tools.cli.numeric import read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.view import add_view_arguments
@@ -23,6 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("demo-output"),
                         help="where the report and recordings go (default ./demo-output)")
     parser.add_argument("--seed", type=int, default=0, help="the emulator's seed")
+    parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEFAULT_SENSORS,
+                        help="the robot's sensors: realistic (default, as built) or ideal")
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")
@@ -31,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         ok, text = (realtime.run_realtime if args.realtime else script.run_inprocess)(
-            args.out, args.seed, args.view_port if args.view else None)
+            args.out, args.seed, args.view_port if args.view else None, args.sensors)
     except DemoFailed as exc:
         ok, text = False, f"{exc.step}: {exc}"
     except KeyboardInterrupt:

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from hil_emulator.imperfections import DEFAULT_SENSORS
 from host.arm.facade import Arm, host_watchdog_ms
 from host.hand.facade import Hand
 from host.scheduling import HOST_RT_PRIORITY, priority_for
@@ -28,11 +29,12 @@ from tools.errors import DemoFailed
 
 
 @contextlib.contextmanager
-def emulator_process(link_dir: Path, seed: int) -> Iterator[tuple[dict[str, Any],
-                                                                 subprocess.Popen[str]]]:
+def emulator_process(link_dir: Path, seed: int, sensors: str = DEFAULT_SENSORS
+                     ) -> Iterator[tuple[dict[str, Any], subprocess.Popen[str]]]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "tools.cli.serve_emulator", "--config", "full", "--scene", "mug",
-         "--ready", "--stats", "--seed", str(seed), "--link-dir", str(link_dir)],
+         "--ready", "--stats", "--seed", str(seed), "--sensors", sensors,
+         "--link-dir", str(link_dir)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
@@ -108,13 +110,14 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
         port.closePort()
 
 
-def run_realtime(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
+def run_realtime(out: Path, seed: int, view_port: int | None = None,
+                 sensors: str = DEFAULT_SENSORS) -> tuple[bool, str]:
     wall0 = time.monotonic()
     link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
     try:
         print("[wall    0.0 s] emulator: starting hil-emulator --config full --scene mug "
               "--ready (the hand brought up in simulated time first)", flush=True)
-        with emulator_process(link_dir, seed) as (ports, proc):
+        with emulator_process(link_dir, seed, sensors) as (ports, proc):
             def say(text: str) -> None:
                 print(f"[wall {time.monotonic() - wall0:6.1f} s] wire: {text}", flush=True)
 

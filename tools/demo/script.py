@@ -2,7 +2,8 @@
 
 ::
 
-    python -m tools.demo [--out DIR] [--seed N] [--realtime] [--view [--view-port N]]
+    python -m tools.demo [--out DIR] [--seed N] [--sensors realistic|ideal] [--realtime]
+                         [--view [--view-port N]]
 
 On the emulator's ``full`` configuration (the hand on the arm's wrist) with the ``mug``
 scene (a table in front of the arm, a 0.3 kg coffee mug on it), the demo does what a user
@@ -552,11 +553,14 @@ def open_watch(hand: Hand, arm: Arm, view_port: int | None) -> RobotView | None:
     return view
 
 
-def run_inprocess(out: Path, seed: int, view_port: int | None = None) -> tuple[bool, str]:
+def run_inprocess(out: Path, seed: int, view_port: int | None = None,
+                  sensors: str | None = None) -> tuple[bool, str]:
+    """The demo in this process; ``sensors`` the emulator's (None: its default)."""
     from hil_emulator.inprocess import EmulatorTransport
 
     wall0 = time.monotonic()
-    url = f"emu://full/{{}}?scene=mug&seed={seed}&name=demo"
+    option = "" if sensors is None else f"&sensors={sensors}"
+    url = f"emu://full/{{}}?scene=mug&seed={seed}{option}&name=demo"
     print(f"[sim    0.0 s | wall    0.0 s] emulator: full configuration, mug scene, in this "
           f"process on the simulation clock ({url.format('palm')})", flush=True)
     hand = Hand.open(url.format("palm"))

@@ -18,7 +18,9 @@ POSES = [(0.0, 1.5, 0.0, 1.5, 0.0, 0.2, 0.0), (0.0, 0.3, 0.0, 0.4, 0.0, 0.0, 0.0
 @pytest.fixture(scope="module", params=["arm", "full"])
 def model(request: pytest.FixtureRequest) -> tuple[mujoco.MjModel, mujoco.MjData, int, int,
                                                    bool]:
-    plant = Emulator(request.param, seed=0, can="none").arm_plant
+    # The drawing's geometry (ideal): the host's model is of the drawing, and the built
+    # robot's bodies sit a few tenths of a millimetre off it.
+    plant = Emulator(request.param, seed=0, can="none", sensors="ideal").arm_plant
     assert plant is not None
     m = plant.model
     joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "arm/J1")

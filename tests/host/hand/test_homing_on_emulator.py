@@ -2,7 +2,9 @@
 
 The hand stands palm up, so fingers 0-2 have J0 vertical (never observable) and the thumb
 (finger 3, standing up from the palm) has every axis observable for |J0| < 70°.  Ground
-truth is the plant's MuJoCo joint angles.  One emulator for the module.
+truth is the plant's MuJoCo joint angles.  One emulator for the module, with ideal sensors:
+these tests hold the estimator to its own accuracy (within 1°); the robot as built, its
+accelerometers uncalibrated, homes too but reads degrees off (the last test).
 """
 
 from __future__ import annotations
@@ -17,10 +19,10 @@ from host.errors import FingerMovingError, NotHomedError
 from host.estimation.closed_form import UnobservableJointError
 from host.hand.facade import Hand
 from host.hand.homing import home_finger, inertial_estimate
-from tests.ground_truth import finger_joints
+from tests.ground_truth import finger_joints, planted_of
 from tools.cli.handctl import main
 
-URL = "emu://hand/palm?name=estimation-tests"
+URL = "emu://hand/palm?name=estimation-tests&sensors=ideal"
 THUMB = 3
 
 
@@ -148,3 +150,22 @@ def test_homing_refuses_a_finger_that_keeps_moving_for_the_whole_wait(hand: Hand
         assert hand.session.now() - start >= 0.5
     finally:
         thumb.idle()
+
+
+def test_the_robot_as_built_homes_a_few_degrees_off() -> None:
+    """Realistic sensors (the default): homing from the accelerometers still homes the
+    thumb, and its joints then read within 5° of the plant (uncalibrated chips: offsets,
+    scale errors and mounting tilts of an LSM303DLH on a laser-cut finger; 1.9, 0.5 and
+    3.7° on this seed), and not within the 0.5° the ideal chips give: the imperfections
+    reach the host.  The status right after homing already says so."""
+    with Hand.open("emu://hand/palm?name=estimation-realistic") as hand:
+        assert planted_of(hand).accels["finger3.f2"].tilt_deg() > 0.0
+        thumb = hand.fingers[THUMB]
+        thumb.move((0.45, 0.8, 0.35), effort=200, timeout=2.0, unhomed=True)
+        thumb.idle()
+        hand.session.sleep(0.2)
+        result = home_finger(thumb)
+        assert result.homed and thumb.homed
+        err = np.degrees(np.abs(np.asarray(thumb.status().joints) - finger_joints(hand)[THUMB]))
+        assert np.all(err < 5.0), err
+        assert np.max(err) > 0.5, err
