@@ -7,11 +7,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from hil_emulator.imperfections import DEFAULT_SENSORS, SENSOR_MODES
+from hil_emulator.imperfections import SENSOR_MODES
 from tools.cli.numeric import read_negative_numbers
 from tools.cli.output import guard_output
 from tools.cli.view import add_view_arguments
 from tools.demo import realtime, script
+from tools.demo.plan import DEMO_SENSORS
 from tools.errors import DemoFailed
 
 #: The command's one-line description (the first paragraph of the script's docs).
@@ -24,8 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("demo-output"),
                         help="where the report and recordings go (default ./demo-output)")
     parser.add_argument("--seed", type=int, default=0, help="the emulator's seed")
-    parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEFAULT_SENSORS,
-                        help="the robot's sensors: realistic (default, as built) or ideal")
+    parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEMO_SENSORS,
+                        help="the robot's sensors: ideal (default, for now) or realistic (as built)")
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")

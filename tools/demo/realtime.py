@@ -19,17 +19,17 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from hil_emulator.imperfections import DEFAULT_SENSORS
 from host.arm.facade import Arm, host_watchdog_ms
 from host.hand.facade import Hand
 from host.scheduling import HOST_RT_PRIORITY, priority_for
 from tools.build_compiled import ROOT
+from tools.demo.plan import DEMO_SENSORS
 from tools.demo.script import Demo, judge, open_watch, run_session, write_run_report
 from tools.errors import DemoFailed
 
 
 @contextlib.contextmanager
-def emulator_process(link_dir: Path, seed: int, sensors: str = DEFAULT_SENSORS
+def emulator_process(link_dir: Path, seed: int, sensors: str = DEMO_SENSORS
                      ) -> Iterator[tuple[dict[str, Any], subprocess.Popen[str]]]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "tools.cli.serve_emulator", "--config", "full", "--scene", "mug",
@@ -111,7 +111,7 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
 
 
 def run_realtime(out: Path, seed: int, view_port: int | None = None,
-                 sensors: str = DEFAULT_SENSORS) -> tuple[bool, str]:
+                 sensors: str = DEMO_SENSORS) -> tuple[bool, str]:
     wall0 = time.monotonic()
     link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
     try:
