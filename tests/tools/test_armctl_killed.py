@@ -31,8 +31,8 @@ from tests.hil_emulator.emulator_process import (
 GOAL = ["0", "1.5", "0", "1.5", "0", "0.2", "0"]
 
 
-def truth(info: dict[str, Any]) -> dict[str, Any]:
-    """The emulator's ground truth of the arm (control channel ``truth``)."""
+def truth_raw(info: dict[str, Any]) -> dict[str, Any]:
+    """The control channel's whole ``truth`` answer (its clock too)."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
         client.settimeout(HANG_GUARD_S)
         client.connect(info["control"])
@@ -42,7 +42,12 @@ def truth(info: dict[str, Any]) -> dict[str, Any]:
             chunk = client.recv(65536)
             assert chunk, "the control channel closed without an answer"
             answer += chunk
-    reply = json.loads(answer)
+    return dict(json.loads(answer))
+
+
+def truth(info: dict[str, Any]) -> dict[str, Any]:
+    """The emulator's ground truth of the arm (control channel ``truth``)."""
+    reply = truth_raw(info)
     assert reply["ok"], reply
     return dict(reply["arm"])
 

@@ -6,12 +6,10 @@ the arm.  Judged on the plant's ground truth (the emulator's ``truth``), on its 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import random
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -22,12 +20,11 @@ import pytest
 
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from tests.hil_emulator.emulator_process import (
-    HANG_GUARD_S,
     ROOT,
     running_emulator,
     wait_simulated,
 )
-from tests.tools.test_armctl_killed import GOAL, armctl
+from tests.tools.test_armctl_killed import GOAL, armctl, truth_raw
 
 #: The move: from the homed pose out to GOAL in 6 s.
 START = ["0", "0.3", "0", "0.4", "0", "0", "0"]
@@ -97,18 +94,6 @@ def kill_mid_move(info: dict[str, Any], delay_s: float, watch_s: float = 2.5) ->
             "latched": latched, "flags": {k: n["status_flags"] for k, n in rows[-1]["nodes"].items()}}
 
 
-def truth_raw(info: dict[str, Any]) -> dict[str, Any]:
-    """The control channel's whole ``truth`` answer (its clock too)."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
-        client.settimeout(HANG_GUARD_S)
-        client.connect(info["control"])
-        client.sendall(b'{"op": "truth"}\n')
-        answer = b""
-        while not answer.endswith(b"\n"):
-            chunk = client.recv(65536)
-            assert chunk, "the control channel closed without an answer"
-            answer += chunk
-    return dict(json.loads(answer))
 
 
 def held(figures: dict[str, Any]) -> bool:
