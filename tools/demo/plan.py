@@ -112,7 +112,7 @@ def flange_pose(back_m: float = 0.0, up_m: float = 0.0) -> FlangePose:
     return FlangePose((float(xyz[0]), float(xyz[1]), float(xyz[2])), (r, p, w))
 
 #: The sensors the demo's robot has unless ``--sensors`` says otherwise: ``ideal`` for now.
-#: On the robot as built (``realistic``) seed 0 lifts the mug 9.1 cm, then its put-down
+#: On the robot as built (``realistic``) seed 0 (pure Python) lifts the mug 9.1 cm, then its put-down
 #: latches OVERLOAD on J3 (the sub-millimetre build geometry alone tips it: with it nominal
 #: the same seed passes); seed 1 passes.  ``make demo`` stays the example that works until
 #: the host calibrates the robot it drives.
