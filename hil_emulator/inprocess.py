@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar, Final
 
 from firmware_py.mcu import Mcu
@@ -67,6 +68,65 @@ ROUTE_MS: Final = 20
 ROUTED_SLOT_US: Final = 30_000
 
 _shared: dict[tuple[str, ...], Emulator] = {}
+
+
+@dataclass(frozen=True)
+class EmulatorSpec:
+    """What an ``emu://`` URL asks for: the emulator (``config``, ``seed``, ``ready``,
+    ``physics``, ``scene``, ``sensors``, its sharing ``name``) and the ``link`` opened."""
+
+    config: str
+    link: str
+    seed: int = 0
+    ready: bool = True
+    physics: bool = True
+    scene: str = "none"
+    sensors: str = DEFAULT_SENSORS
+    name: str = ""
+
+    def key(self) -> tuple[str, ...]:
+        """What transports sharing one emulator have in common (all but the link)."""
+        return (self.config, str(self.seed), str(self.ready), str(self.physics), self.scene,
+                self.sensors, self.name)
+
+    def build(self, url: str = "") -> Emulator:
+        """A new emulator of this spec, brought up (:func:`bring_up`) when ``ready``;
+        :class:`UsageError` (naming ``url``) for a configuration it cannot build."""
+        try:
+            emulator = Emulator(self.config, seed=self.seed, physics=self.physics, can="none",
+                                scene=self.scene, sensors=self.sensors)
+        except EmulatorConfigError as exc:
+            raise UsageError(f"{url or self.config}: {exc}") from exc
+        if self.ready:
+            bring_up(emulator)
+        return emulator
+
+
+def parse_url(url: str, **options: object) -> EmulatorSpec:
+    """The :class:`EmulatorSpec` of ``emu://CONFIG/LINK?…`` (``options`` override the
+    URL's); :class:`UsageError` for an unknown configuration, link option or seed."""
+    rest = url.split("://", 1)[1].split("?", 1)[0] if "://" in url else url
+    config, _, link = rest.partition("/")
+    if config not in LINKS:
+        raise UsageError(f"{url}: unknown emulator configuration {config!r}; "
+                         f"choose one of {', '.join(LINKS)}")
+    link = link or LINKS[config][0]
+    merged = {**url_options(url), **{k: str(v) for k, v in options.items()}}
+    seed_text = merged.pop("seed", "0")
+    try:
+        seed = int(seed_text)
+    except ValueError:
+        raise UsageError(f"{url}: seed={seed_text!r} is not an integer") from None
+    spec = EmulatorSpec(
+        config, link, seed,
+        ready=merged.pop("ready", "1") not in ("0", "false", "no"),
+        physics=merged.pop("physics", "1") not in ("0", "false", "no"),
+        scene=merged.pop("scene", "none"), sensors=merged.pop("sensors", DEFAULT_SENSORS),
+        name=merged.pop("name", ""))
+    if merged:
+        raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
+                         "seed, ready, physics, scene, sensors and name")
+    return spec
 
 
 class EmulatorTransport(Transport):
@@ -99,38 +159,13 @@ class EmulatorTransport(Transport):
     @classmethod
     def from_url(cls, url: str, **options: object) -> EmulatorTransport:
         """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&sensors=M&name=X``."""
-        rest = url.split("://", 1)[1].split("?", 1)[0]
-        config, _, link = rest.partition("/")
-        if config not in LINKS:
-            raise UsageError(f"{url}: unknown emulator configuration {config!r}; "
-                                 f"choose one of {', '.join(LINKS)}")
-        link = link or LINKS[config][0]
-        merged = {**url_options(url), **{k: str(v) for k, v in options.items()}}
-        seed_text = merged.pop("seed", "0")
-        try:
-            seed = int(seed_text)
-        except ValueError:
-            raise UsageError(f"{url}: seed={seed_text!r} is not an integer") from None
-        ready = merged.pop("ready", "1") not in ("0", "false", "no")
-        physics = merged.pop("physics", "1") not in ("0", "false", "no")
-        scene = merged.pop("scene", "none")
-        sensors = merged.pop("sensors", DEFAULT_SENSORS)
-        name = merged.pop("name", "")
-        if merged:
-            raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
-                             "seed, ready, physics, scene, sensors and name")
-        key = (config, str(seed), str(ready), str(physics), scene, sensors, name)
+        spec = parse_url(url, **options)
+        key = spec.key()
         emulator = _shared.get(key)
         if emulator is None:
-            try:
-                emulator = Emulator(config, seed=seed, physics=physics, can="none",
-                                    scene=scene, sensors=sensors)
-            except EmulatorConfigError as exc:
-                raise UsageError(f"{url}: {exc}") from exc
-            if ready:
-                bring_up(emulator)
+            emulator = spec.build(url)
             _shared[key] = emulator
-        return cls(emulator, link, url)
+        return cls(emulator, spec.link, url)
 
     def _arrived(self, data: bytes, t_us: int) -> None:
         self._inbox.append(data)

@@ -30,7 +30,14 @@ from typing import Any, Final
 from host.arm.interface import WatchedArm
 from host.arm.state import ArmState
 from host.recording.topics import ARM_STATE
-from host.recording.writer import JSON_ENCODING, Recording, Sink, Topic
+from host.recording.writer import (
+    JSON_ENCODING,
+    SOURCE_METADATA,
+    Recording,
+    Sink,
+    Topic,
+    source_metadata,
+)
 
 RAW_ENCODING: Final = "application/octet-stream"
 STATE_TOPIC: Final = ARM_STATE
@@ -92,8 +99,13 @@ class ArmRecorder(Recording):
 
     def __init__(self, arm: WatchedArm, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
+        transport = arm.transport
+        prologue = arm.bus.prologue
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm.recording",
-                         sinks=sinks)
+                         sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
+                             "arm", transport.url, transport.now(), prologue.state())})
+        for direction, t, data in prologue.messages:
+            self.log(TX if direction == "tx" else RX, t, data)
         self.arm = arm
         self.states = 0
         self._previous = arm.bus.on_bytes

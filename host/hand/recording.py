@@ -33,7 +33,14 @@ from host.hand.interface import WatchedHand
 from host.hand.session import FingerEvent
 from host.hand.state import FingerState, HandState
 from host.recording.topics import HAND_EVENTS, HAND_STATE
-from host.recording.writer import JSON_ENCODING, Recording, Sink, Topic
+from host.recording.writer import (
+    JSON_ENCODING,
+    SOURCE_METADATA,
+    Recording,
+    Sink,
+    Topic,
+    source_metadata,
+)
 
 #: Message encoding of raw hand frames.
 FRAME_ENCODING: Final = "hand-frame"
@@ -129,8 +136,14 @@ class HandRecorder(Recording):
 
     def __init__(self, hand: WatchedHand, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
+        transport = hand.session.transport
+        prologue = hand.session.prologue
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand.recording",
-                         sinks=sinks)
+                         sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
+                             hand.session.link, transport.url, transport.now(),
+                             prologue.state())})
+        for direction, t, frame in prologue.messages:
+            self.log(FRAMES_TX if direction == "tx" else FRAMES_RX, t, frame)
         self.frames = 0
         self.states = 0
         self._attached = False
