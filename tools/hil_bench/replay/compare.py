@@ -24,8 +24,8 @@ from collections.abc import Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+from tools.errors import ReplayRefused
 from tools.hil_bench.replay.exchanges import Exchange
-from tools.hil_bench.replay.source import ReplayRefused
 
 #: A channel's tolerance when none is given (its unit's: counts, rad, µs …).
 DEFAULT_TOLERANCE: Final = 0.0

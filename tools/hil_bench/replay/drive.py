@@ -11,7 +11,7 @@ out when the emulator is ready.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Final
 
 from hil_emulator.emulator import Emulator
@@ -30,7 +30,7 @@ def answers(emulator: Emulator, sent: Mapping[str, Sequence[Timed]], *,
     rigs = {link: emulator.rig(link) for link in sent}
     displaced = {link: rig.on_host_bytes for link, rig in rigs.items()}
 
-    def taker(link: str) -> object:
+    def taker(link: str) -> Callable[[bytes, int], None]:
         inbox = out[link]
 
         def take(data: bytes, t_us: int) -> None:
@@ -38,7 +38,7 @@ def answers(emulator: Emulator, sent: Mapping[str, Sequence[Timed]], *,
         return take
 
     for link, rig in rigs.items():
-        rig.on_host_bytes = taker(link)  # type: ignore[assignment]
+        rig.on_host_bytes = taker(link)
     try:
         merged = sorted((m.t, n, link, m.data) for link, messages in sent.items()
                         for n, m in enumerate(messages))

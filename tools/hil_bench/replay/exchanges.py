@@ -217,7 +217,8 @@ def _reply_fields(layers: Sequence[Interpretation]) -> dict[str, float]:
     fields: dict[str, float] = {}
     for layer in layers[:-1]:
         if layer.fields is not None and "status" in layer.fields:
-            fields[f"{layer.name}_status"] = _number(layer.fields["status"])
+            fields[f"{(layer.name or 'envelope').rpartition('.')[2]}_status"] = _number(
+                layer.fields["status"])
     inner = layers[-1]
     if inner.fields is not None and inner.name not in ("txn", "palm.route"):
         fields.update(flatten(dict(inner.fields)))
@@ -233,6 +234,11 @@ def hand_exchanges(tx: Iterable[Timed], rx: Iterable[Timed]) -> list[Exchange]:
         layers = _layers(frame)
         key, place = _key_and_place(layers, frame.type)
         name = layers[-1].name or f"type{frame.type:#04x}"
+        node = place.rpartition(".")[2]
+        if node != "palm" and name.startswith(node + "."):
+            name = name[len(node) + 1:]  # finger0.fmcb + fmcb.status: finger0.fmcb.status
+        elif node == "palm" and name.startswith("palm."):
+            name = name[len("palm."):]
         ex = Exchange(key, t, f"hand.{place}.{name}")
         exchanges.append(ex)
         by_key[key].append(ex)

@@ -4,6 +4,7 @@ emulators of other parameters: in process, on the simulated clock, no ptys."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -12,10 +13,11 @@ from pathlib import Path
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorError
 from host.errors import UsageError
+from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, compare, tolerances_for
 from tools.hil_bench.replay.drive import answers
 from tools.hil_bench.replay.exchanges import PAIRING, Exchange
-from tools.hil_bench.replay.source import Recorded, ReplayRefused, load
+from tools.hil_bench.replay.source import Recorded, load
 
 
 @dataclass
@@ -52,9 +54,16 @@ def build_emulator(recording: Recorded) -> Emulator:
 
 
 def recorded_exchanges(recording: Recorded) -> list[Exchange]:
-    """The recorded requests paired with the recorded replies, every link."""
-    return [ex for traffic in recording.links.values()
-            for ex in PAIRING[traffic.kind](traffic.tx, traffic.rx)]
+    """The recorded requests paired with the recorded replies, every link.  In a file cut
+    short, the requests after the last one answered are left out: their replies may be
+    what the cut lost."""
+    out = [ex for traffic in recording.links.values()
+           for ex in PAIRING[traffic.kind](traffic.tx, traffic.rx)]
+    if recording.truncated:
+        answered = [ex.t for ex in out if ex.fields is not None]
+        last = max(answered, default=-math.inf)
+        out = [ex for ex in out if ex.t <= last]
+    return out
 
 
 def replay_channels(recording: Recorded, emulator: Emulator,

@@ -22,17 +22,13 @@ from hil_emulator.inprocess import EmulatorSpec, parse_url
 from host.errors import UsageError
 from host.recording.writer import SOURCE_METADATA
 from tools.cli.mcap_capture import read_recording
-from tools.errors import McapCaptureError, ToolError
+from tools.errors import McapCaptureError, ReplayRefused
 
 #: Each host link's (sent, received) topics.
 LINK_TOPICS: Final = {"arm": ("/arm/bus/tx", "/arm/bus/rx"),
                       "hand": ("/hand/frames/tx", "/hand/frames/rx")}
 #: The emulator's link name of a hand session's ``link`` (:class:`host.hand.session.HandSession`).
 HAND_LINKS: Final = {"palm": "palm", "finger": "finger0", "finger0": "finger0"}
-
-
-class ReplayRefused(ToolError, ValueError):
-    """A recording replay cannot replay (the message says why, in one line)."""
 
 
 @dataclass(frozen=True)
