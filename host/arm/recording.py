@@ -19,6 +19,11 @@ get the packets back.  :func:`record` cycles the arm itself for a while; :class:
 writes whatever another program does with the arm (every cycle's state, every byte) while
 it is attached.  The file is written as it goes (at least every
 :data:`host.recording.writer.FLUSH_INTERVAL_S`).
+
+The file's ``source`` metadata record says the link, its URL, the link's clock when the
+recorder attached and whether the bus's first chunks since it opened (its prologue,
+:mod:`host.recording.prologue`: what the Arm sent as it opened) are all in it; they are
+written first, at their own times, so ``hil-bench replay`` starts from the same robot.
 """
 
 from __future__ import annotations

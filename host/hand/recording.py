@@ -21,6 +21,10 @@ emulator) is each message's publish time and, in JSON, its field ``t`` (s)
 ``handbus decode``.  The file is written as it goes (at least every
 :data:`host.recording.writer.FLUSH_INTERVAL_S`); a full disk stops it with
 :class:`~host.errors.RecordingError` at the next state :meth:`HandRecorder.record` writes.
+
+The file's ``source`` metadata record says the link, its URL, the link's clock when the
+recorder attached and whether the session's first frames since it opened (its prologue,
+:mod:`host.recording.prologue`) are all in it; they are written first, at their own times.
 """
 
 from __future__ import annotations
