@@ -36,6 +36,7 @@ envelope's format.  Bytes a listener already had on the link (a recorder) keep r
 from __future__ import annotations
 
 import math
+import weakref
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -68,6 +69,26 @@ ROUTE_MS: Final = 20
 ROUTED_SLOT_US: Final = 30_000
 
 _shared: dict[tuple[str, ...], Emulator] = {}
+#: Host sends kept per emulator link for :meth:`EmulatorTransport.sent_before` (beyond, a
+#: later transport is told the link's past is unknown).
+SENT_LOG_LIMIT: Final = 20_000
+
+
+class _SentLog:
+    """One emulator link's host sends, in order, up to :data:`SENT_LOG_LIMIT`."""
+
+    def __init__(self) -> None:
+        self.sends: list[tuple[float, bytes]] = []
+        self.complete = True
+
+    def add(self, t: float, data: bytes) -> None:
+        if len(self.sends) < SENT_LOG_LIMIT:
+            self.sends.append((t, data))
+        else:
+            self.complete = False
+
+
+_sent: weakref.WeakKeyDictionary[Emulator, dict[str, _SentLog]] = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -142,7 +163,7 @@ class EmulatorTransport(Transport):
         "emu": LinkKind("in-process", budget_s=0.030, exact_timing=True)}
 
     def __init__(self, emulator: Emulator, link: str, url: str | None = None, *,
-                 tee: bool = False) -> None:
+                 tee: bool = False, logged: bool = True) -> None:
         super().__init__(url or f"emu://{emulator.config}/{link}")
         rig = {"palm": emulator.hand, "arm": emulator.arm, "finger0": emulator.loose}.get(link)
         if rig is None:
@@ -154,6 +175,12 @@ class EmulatorTransport(Transport):
         self._inbox: deque[bytes] = deque()
         self._displaced: Callable[[bytes, int], None] | None = rig.on_host_bytes
         self._tee = tee
+        #: Every host transport's sends on this emulator's link, shared by them (those of
+        #: the bring-up, ``logged=False``, left out: a replay's emulator does it itself).
+        self._log: _SentLog | None = (
+            _sent.setdefault(emulator, {}).setdefault(link, _SentLog()) if logged else None)
+        self._before = len(self._log.sends) if self._log is not None else 0
+        self._known = self._log is not None and self._log.complete
         rig.on_host_bytes = self._arrived
 
     @classmethod
@@ -181,7 +208,16 @@ class EmulatorTransport(Transport):
         if seconds > 0:
             self.emulator.step(int(round(seconds * 1e6)))
 
+    def sent_before(self) -> list[tuple[float, bytes]] | None:
+        """What earlier transports sent on this link of the emulator before this one
+        opened (``(t, bytes)``, simulation s); the bring-up's requests are not in it."""
+        if self._log is None or not self._known:
+            return None
+        return list(self._log.sends[:self._before])
+
     def _send(self, data: bytes) -> None:
+        if self._log is not None:
+            self._log.add(self.now(), bytes(data))
         tap = self._rig.link_tap
         if tap is not None:
             if tap.vanished:
@@ -242,7 +278,7 @@ def bring_up(emulator: Emulator, autopoll: bool = True) -> None:
 
 
 def _session(emulator: Emulator, link: str) -> HandSession:
-    transport = EmulatorTransport(emulator, link, tee=True)
+    transport = EmulatorTransport(emulator, link, tee=True, logged=False)
     return HandSession(transport, link="palm" if link == "palm" else "finger",
                        timeouts=Timeouts(fmcb_ms=ROUTE_MS), retries=0)
 

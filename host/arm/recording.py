@@ -7,6 +7,8 @@ topic              message encoding              payload
 =================  ============================  =========================================
 ``/arm/bus/tx``    ``application/octet-stream``  bytes the host sent (whole packets)
 ``/arm/bus/rx``    ``application/octet-stream``  bytes received, as they arrived
+``/arm/bus/tx/earlier``  ``application/octet-stream``  what other programs sent on the link
+                                                 before this one opened it (when known)
 ``/arm/state``     ``json`` (:data:`STATE_SCHEMA`)  every cycle's
                                                  :meth:`~host.arm.state.ArmState.as_dict`
 =================  ============================  =========================================
@@ -48,6 +50,7 @@ RAW_ENCODING: Final = "application/octet-stream"
 STATE_TOPIC: Final = ARM_STATE
 TX_TOPIC: Final = "/arm/bus/tx"
 RX_TOPIC: Final = "/arm/bus/rx"
+EARLIER_TOPIC: Final = "/arm/bus/tx/earlier"
 
 
 def _array(description: str, kind: str, n: int) -> dict[str, Any]:
@@ -93,7 +96,8 @@ STATE_SCHEMA: Final = {
 TX: Final = Topic(TX_TOPIC, RAW_ENCODING)
 RX: Final = Topic(RX_TOPIC, RAW_ENCODING)
 STATE: Final = Topic(STATE_TOPIC, JSON_ENCODING, "ArmState", STATE_SCHEMA)
-TOPICS: Final = (TX, RX, STATE)
+EARLIER: Final = Topic(EARLIER_TOPIC, RAW_ENCODING)
+TOPICS: Final = (TX, RX, STATE, EARLIER)
 
 
 class ArmRecorder(Recording):
@@ -106,9 +110,13 @@ class ArmRecorder(Recording):
                  ) -> None:
         transport = arm.transport
         prologue = arm.bus.prologue
+        earlier = transport.sent_before()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm.recording",
                          sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
-                             "arm", transport.url, transport.now(), prologue.state())})
+                             "arm", transport.url, transport.now(), prologue.state(),
+                             None if earlier is None else len(earlier))})
+        for t, data in earlier or ():
+            self.log(EARLIER, t, data)
         for direction, t, data in prologue.messages:
             self.log(TX if direction == "tx" else RX, t, data)
         self.arm = arm

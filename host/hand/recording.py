@@ -13,6 +13,8 @@ topic                  encoding        message
                                        fingers a move, grasp or homing polled;
                                        :data:`FINGER_READING_SCHEMA`)
 ``/hand/events``       ``json``        every ``palm.finger_event`` (:data:`EVENT_SCHEMA`)
+``/hand/frames/tx/earlier``  ``hand-frame``  what other programs sent on the link before this
+                                       one opened it (when the transport knows)
 =====================  ==============  =======================================================
 
 Log times are the wall clock; the link's clock (the simulation's with the in-process
@@ -129,7 +131,8 @@ STATE: Final = Topic(HAND_STATE, JSON_ENCODING, "HandState", HAND_STATE_SCHEMA)
 FINGERS_READ: Final = Topic("/hand/fingers", JSON_ENCODING, "FingerReading",
                             FINGER_READING_SCHEMA)
 EVENTS: Final = Topic(HAND_EVENTS, JSON_ENCODING, "FingerEvent", EVENT_SCHEMA)
-TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS)
+FRAMES_EARLIER: Final = Topic("/hand/frames/tx/earlier", FRAME_ENCODING)
+TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS, FRAMES_EARLIER)
 
 
 class HandRecorder(Recording):
@@ -142,10 +145,13 @@ class HandRecorder(Recording):
                  ) -> None:
         transport = hand.session.transport
         prologue = hand.session.prologue
+        earlier = transport.sent_before()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand.recording",
                          sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
                              hand.session.link, transport.url, transport.now(),
-                             prologue.state())})
+                             prologue.state(), None if earlier is None else len(earlier))})
+        for t, data in earlier or ():
+            self.log(FRAMES_EARLIER, t, data)
         for direction, t, frame in prologue.messages:
             self.log(FRAMES_TX if direction == "tx" else FRAMES_RX, t, frame)
         self.frames = 0

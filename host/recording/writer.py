@@ -79,16 +79,21 @@ class Sink(Protocol):
         """No more messages."""
 
 
-def source_metadata(link: str, url: str, now_s: float, prologue: str) -> dict[str, str]:
+def source_metadata(link: str, url: str, now_s: float, prologue: str,
+                    earlier: int | None) -> dict[str, str]:
     """The :data:`SOURCE_METADATA` record of a recorder on host link ``link`` (``arm``,
     ``palm``, ``finger``) opened as ``url``, attached at ``now_s`` (s, the link's clock),
     having written the link's first messages (:mod:`host.recording.prologue`: ``complete``
-    when every message since the link opened is in the file, else ``partial``).
+    when every message since the link opened is in the file, else ``partial``) and
+    ``earlier`` sends of other programs on the same link before it opened (their count, when
+    the transport knows them: :meth:`host.transports.base.Transport.sent_before`; else
+    ``unknown``).
 
     What the emulator that answered was (configuration, seed, sensors, scene) is in an
     ``emu://`` URL's path and options; a serial port or a pty says nothing of it, and a
     replay says what it assumes instead."""
-    return {"link": link, "url": url, "start_t": repr(float(now_s)), "prologue": prologue}
+    return {"link": link, "url": url, "start_t": repr(float(now_s)), "prologue": prologue,
+            "earlier": "unknown" if earlier is None else str(earlier)}
 
 
 def link_ns(t: float) -> int:

@@ -77,9 +77,9 @@ def replay_channels(recording: Recorded, emulator: Emulator,
     if recorded is None:
         recorded = recorded_exchanges(recording)
     start_us = emulator.scheduler.now_us()
-    first = min(m.t for traffic in recording.links.values() for m in traffic.tx)
+    first = min(m.t for traffic in recording.links.values() for m in traffic.earlier + traffic.tx)
     shift = 0.0 if recording.emulated else start_us / 1e6 - first
-    sent = {traffic.link: traffic.tx for traffic in recording.links.values()}
+    sent = {traffic.link: traffic.earlier + traffic.tx for traffic in recording.links.values()}
     got = answers(emulator, sent, shift_s=shift)
     replayed = [ex for traffic in recording.links.values()
                 for ex in PAIRING[traffic.kind](traffic.tx, got[traffic.link])]

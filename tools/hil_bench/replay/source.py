@@ -27,6 +27,9 @@ from tools.errors import McapCaptureError, ReplayRefused
 #: Each host link's (sent, received) topics.
 LINK_TOPICS: Final = {"arm": ("/arm/bus/tx", "/arm/bus/rx"),
                       "hand": ("/hand/frames/tx", "/hand/frames/rx")}
+#: Each link's topic of what other programs sent on it before the recorded one: replayed
+#: (the robot as the recording found it), not compared.
+EARLIER_TOPICS: Final = {"arm": "/arm/bus/tx/earlier", "hand": "/hand/frames/tx/earlier"}
 #: The emulator's link name of a hand session's ``link`` (:class:`host.hand.session.HandSession`).
 HAND_LINKS: Final = {"palm": "palm", "finger": "finger0", "finger0": "finger0"}
 
@@ -48,6 +51,8 @@ class LinkTraffic:
     link: str
     tx: list[Timed] = field(default_factory=list)
     rx: list[Timed] = field(default_factory=list)
+    #: What other programs sent on the link before the recorded one (sent, not compared).
+    earlier: list[Timed] = field(default_factory=list)
 
 
 @dataclass
@@ -81,19 +86,19 @@ def load(path: str | Path, *, seed: int | None = None, sensors: str | None = Non
         raise ReplayRefused(f"cannot read it: {exc}") from exc
     source = contents.metadata.get(SOURCE_METADATA, {})
     links: dict[str, LinkTraffic] = {}
-    by_topic: dict[str, tuple[LinkTraffic, bool]] = {}
+    by_topic: dict[str, tuple[LinkTraffic, str]] = {}
     for kind, (tx, rx) in LINK_TOPICS.items():
         if tx in contents.encodings:
             link = "arm" if kind == "arm" else HAND_LINKS.get(source.get("link", ""), "palm")
             traffic = links[kind] = LinkTraffic(kind, link)
-            by_topic[tx] = (traffic, True)
-            by_topic[rx] = (traffic, False)
+            by_topic[tx] = (traffic, "tx")
+            by_topic[rx] = (traffic, "rx")
+            by_topic[EARLIER_TOPICS[kind]] = (traffic, "earlier")
     for message in contents.messages:
         found = by_topic.get(message.channel)
         if found is not None:
-            traffic, sent = found
-            (traffic.tx if sent else traffic.rx).append(
-                Timed(message.publish_time_ns / 1e9, message.data))
+            traffic, which = found
+            getattr(traffic, which).append(Timed(message.publish_time_ns / 1e9, message.data))
     links = {k: v for k, v in links.items() if v.tx}
     if not links:
         cut = f" (the file is {contents.stopped} after {len(contents.messages)} messages)" \
@@ -127,6 +132,11 @@ def load(path: str | Path, *, seed: int | None = None, sensors: str | None = Non
     if missing:
         raise ReplayRefused(f"the {spec.config!r} emulator it names has no "
                             f"{' or '.join(links[k].link for k in missing)} link")
+    if source and source.get("earlier", "unknown") == "unknown" and url.startswith("emu://"):
+        assumed.append("the link's use before the recording is unknown: assumed none")
+    if source.get("prologue") == "partial":
+        assumed.append("the link's opening is only partly in the file: assumed the rest "
+                       "changed nothing")
     truncated = None
     if contents.stopped:
         truncated = (f"the file is {contents.stopped} ({contents.unread} bytes unread); "
