@@ -225,3 +225,26 @@ def test_a_recording_cut_short_replays_what_it_has_and_says_so(
     full = replay(arm_move)
     assert 0 < data["exchanges"] < full.exchanges
 
+
+
+def test_a_recording_of_a_serial_port_replays_on_an_assumed_emulator_and_says_so(
+        arm_move: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A serial port names no emulator: the default one for the recorded link is assumed,
+    the times are shifted onto its clock, and the output says both."""
+    path = tmp_path / "serial.mcap"
+    topics = {name: Topic(name, "application/octet-stream")
+              for name in ("/arm/bus/tx", "/arm/bus/rx")}
+    recording = Recording(path, list(topics.values()), library="test", metadata={
+        SOURCE_METADATA: {"link": "arm", "url": "/dev/ttyUSB0", "start_t": "1000.0",
+                          "prologue": "complete", "earlier": "unknown"}})
+    for m in read_recording(arm_move).messages:
+        if m.channel in topics:  # the same bytes, on a clock 1000 s later
+            recording.log(topics[m.channel], 1000.0 + m.publish_time_ns / 1e9, m.data)
+    recording.close_sinks()
+    code, data, _err = _replay_json(capsys, str(path))
+    assert code in (0, 1)
+    assert not data["from_recording"] and data["emulator"]["config"] == "arm"
+    assert any("/dev/ttyUSB0" in a and "assumed" in a for a in data["assumed"])
+    assert any("shifted" in n for n in data["notes"])
+    # on the right clock: the replies came, the nodes answered as the arm's do
+    assert data["channels"]["arm.J2.replied"]["max"] == 0

@@ -12,7 +12,8 @@ from typing import Any, Final
 from tools.hil_bench.replay.compare import Channel
 from tools.hil_bench.replay.session import ReplayResult
 
-#: Channels plotted in a report at most (those that parted first, else the largest errors).
+#: Channels plotted in a report at most (those that parted first, else the largest errors,
+#: then those whose recorded values moved most).
 MAX_PLOTS: Final = 6
 #: Channels named in the one-line summary at most.
 NAMED: Final = 8
@@ -78,8 +79,7 @@ def text_lines(result: ReplayResult) -> list[str]:
     lines = [f"{rec.path}: replayed on the {spec.config!r} emulator (seed {spec.seed}, "
              f"sensors {spec.sensors}, scene {spec.scene}): {result.sim_s:.2f} simulated s "
              f"in {result.cpu_s:.2f} CPU s"]
-    lines += [f"note: assumed {a}" if not a.startswith(("recorded", "with no")) else
-              f"note: {a}" for a in rec.assumed]
+    lines += [f"note: {a}" for a in rec.assumed]
     if rec.truncated:
         lines.append(f"note: {rec.truncated}")
     lines += [f"note: {n}" for n in result.notes]
@@ -90,7 +90,10 @@ def text_lines(result: ReplayResult) -> list[str]:
 def _plotted(result: ReplayResult) -> list[Channel]:
     if not result.within:
         return [result.channels[n] for n in result.failing[:MAX_PLOTS]]
-    ranked = sorted(result.channels.values(), key=lambda c: (-c.max_abs, c.name))
+    def spread(c: Channel) -> float:
+        return max(c.recorded, default=0.0) - min(c.recorded, default=0.0)
+
+    ranked = sorted(result.channels.values(), key=lambda c: (-c.max_abs, -spread(c), c.name))
     return ranked[:MAX_PLOTS]
 
 

@@ -123,10 +123,11 @@ def load(path: str | Path, *, seed: int | None = None, sensors: str | None = Non
         assumed.append(f"{what}: assumed the {config!r} emulator, seed {spec.seed}, "
                        f"sensors {spec.sensors!r}, no scene, brought up (ready)")
     if seed is not None and seed != spec.seed:
-        assumed.append(f"seed {seed} instead of the recording's {spec.seed}")
+        assumed.append(f"used seed {seed} instead of the recording's {spec.seed}")
         spec = replace(spec, seed=seed)
     if sensors is not None and sensors != spec.sensors:
-        assumed.append(f"sensors {sensors!r} instead of the recording's {spec.sensors!r}")
+        assumed.append(f"used sensors {sensors!r} instead of the recording's "
+                       f"{spec.sensors!r}")
         spec = replace(spec, sensors=sensors)
     missing = [kind for kind in links if not _offers(spec.config, links[kind].link)]
     if missing:
