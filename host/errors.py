@@ -20,7 +20,8 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── StallError                        a stepper joint kept latching STALLED
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     ├── ViewUnavailable                   the live view cannot start
-    └── RecordingError(OSError)           a recording's file could not be written
+    ├── RecordingError(OSError)           a recording's file could not be written
+    └── CalibrationFileError(ValueError)  a calibration file unreadable, malformed, newer, another robot's
 
 Defined here unless their constructor needs their module's data (the module is named).
 """
@@ -85,6 +86,16 @@ class HomingError(HostError):
 class RecordingError(HostError, OSError):
     """A recording's file could not be created or written (no such directory, no
     permission, a full disk); what was written before stays in the file."""
+
+
+class CalibrationFileError(HostError, ValueError):
+    """A calibration file (:mod:`host.estimation.calibration_file`) that cannot be read, is
+    not one, is of a newer version than this library reads, or (when writing) belongs to
+    another robot.  ``path`` is the file."""
+
+    def __init__(self, message: str, *, path: Any) -> None:
+        super().__init__(message)
+        self.path = path
 
 
 class StallError(HostError):
