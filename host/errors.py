@@ -21,7 +21,8 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     ├── ViewUnavailable                   the live view cannot start
     ├── RecordingError(OSError)           a recording's file could not be written
-    └── CalibrationFileError(ValueError)  a calibration file unreadable, malformed, newer, another robot's
+    ├── CalibrationFileError(ValueError)  a calibration file unreadable, malformed, newer, another robot's
+    └── CalibrationError                  a calibration's fit does not explain its readings
 
 Defined here unless their constructor needs their module's data (the module is named).
 """
@@ -96,6 +97,16 @@ class CalibrationFileError(HostError, ValueError):
     def __init__(self, message: str, *, path: Any) -> None:
         super().__init__(message)
         self.path = path
+
+
+class CalibrationError(HostError):
+    """A calibration's fit leaves residuals far above the sensors' noise: the robot did not
+    do what the poses assumed (a finger met something, its halls lost counts); nothing was
+    written.  ``finger`` names the finger (None: not a finger's)."""
+
+    def __init__(self, message: str, *, finger: int | None = None) -> None:
+        super().__init__(message)
+        self.finger = finger
 
 
 class StallError(HostError):
