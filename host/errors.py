@@ -14,14 +14,14 @@ ConnectionError`` catches it where a caller does not know this library::
     │   ├── LimitError                    an arm motion the gate refuses before it starts
     │   ├── FingerMovingError             the finger moved while read for homing
     │   ├── AmbiguousPoseError            two poses fit the accelerometers
-    │   └── UnobservableJointError        a joint axis too near vertical (host.estimation.closed_form)
+    │   ├── UnobservableJointError        a joint axis too near vertical (host.estimation.closed_form)
+    │   └── CalibrationFileError          a calibration file unreadable, malformed, newer, another robot's
     ├── NoAccelerationError               accelerometers unpowered or silent (host.estimation.closed_form)
     ├── HomingError                       an arm joint's index mark was not found
     ├── StallError                        a stepper joint kept latching STALLED
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     ├── ViewUnavailable                   the live view cannot start
     ├── RecordingError(OSError)           a recording's file could not be written
-    ├── CalibrationFileError(ValueError)  a calibration file unreadable, malformed, newer, another robot's
     └── CalibrationError                  a calibration's fit does not explain its readings
 
 Defined here unless their constructor needs their module's data (the module is named).
@@ -89,7 +89,7 @@ class RecordingError(HostError, OSError):
     permission, a full disk); what was written before stays in the file."""
 
 
-class CalibrationFileError(HostError, ValueError):
+class CalibrationFileError(UsageError):
     """A calibration file (:mod:`host.estimation.calibration_file`) that cannot be read, is
     not one, is of a newer version than this library reads, or (when writing) belongs to
     another robot.  ``path`` is the file."""
