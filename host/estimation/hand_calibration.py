@@ -135,7 +135,10 @@ class BoardCalibration:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> BoardCalibration:
         def vec(key: str) -> np.ndarray:
-            v = np.asarray(data[key], dtype=float)
+            try:
+                v = np.asarray(data[key], dtype=float)
+            except (TypeError, ValueError):
+                raise UsageError(f"calibration value {key!r} is not 3 finite numbers") from None
             if v.shape != (3,) or not np.all(np.isfinite(v)):
                 raise UsageError(f"calibration value {key!r} is not 3 finite numbers")
             return v
@@ -143,7 +146,7 @@ class BoardCalibration:
         try:
             return cls(vec("rotation_vector_rad"), vec("scale"), vec("cross"),
                        vec("bias_counts"), dict(data.get("sigma", {})))
-        except (KeyError, TypeError) as exc:
+        except (KeyError, TypeError, AttributeError) as exc:
             raise UsageError(f"a board's calibration lacks {exc}") from None
 
 
@@ -341,4 +344,10 @@ class HandCalibration:
         if section.get("method") != METHOD or not isinstance(boards, dict):
             raise UsageError(f"{source}: the hand section is not of method {METHOD!r} "
                              "with boards")
-        return cls({str(k): BoardCalibration.from_json(v) for k, v in boards.items()}, source)
+        out = {}
+        for k, v in boards.items():
+            try:
+                out[str(k)] = BoardCalibration.from_json(v)
+            except UsageError as exc:
+                raise UsageError(f"{source}: board {k}: {exc}") from None
+        return cls(out, source)

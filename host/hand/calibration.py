@@ -170,6 +170,5 @@ def choose_calibration(robot_serial: str, choice: str | os.PathLike[str] | None 
     try:
         cal = HandCalibration.from_section(section, str(path))
     except UsageError as exc:
-        raise CalibrationFileError(f"{path}: {exc}".replace(f"{path}: {path}: ", f"{path}: "),
-                                   path=path) from None
+        raise CalibrationFileError(str(exc), path=path) from None  # names the file
     return CalibrationChoice(cal, path, warnings, str(section.get("created_utc")))

@@ -109,3 +109,14 @@ def test_calibrate_writes_the_file_the_next_command_uses(serial: str, tmp_path: 
     assert main(["--port", URL, "status", "--calibration", str(out)]) == 0
     assert capsys.readouterr().err.strip().endswith(f"(hand, 3 boards, made "
                                                     f"{hand['created_utc']})")
+
+
+def test_a_hand_section_with_a_broken_board_is_a_one_line_error(
+        serial: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "broken.json"
+    section = _a_calibration()
+    section["boards"][board_key(3, "f2")]["bias_counts"] = ["x", 1, 2]
+    cf.save_section(path, serial, "hand", section)
+    assert main(["--port", URL, "status", "--calibration", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "finger3.f2" in err[0]
