@@ -27,9 +27,10 @@ its prior (:attr:`FingerFit.observability`): what the poses made observable.
 What the poses cannot make observable, whatever their number:
 
 * a board's rotation about the joint axis just before it (f2 about J1, f3 about J2) is
-  the same reading as an offset of that joint's halls: with relative halls it stays at its
-  prior (1° σ) and the estimate of that joint keeps that error; only an absolute joint
-  reference (a mechanical stop) removes it;
+  the same reading as an offset of that joint's halls: with relative halls alone it stays
+  at its prior (1° σ) and the estimate of that joint keeps that error.  A sample taken
+  resting against a joint's mechanical stop (:attr:`FingerSample.at_stop`) knows that
+  joint's angle, hence its offset, and makes the rotation observable;
 * with the hand in one orientation the fmcb sees one direction: its 12 parameters give 3
   readings, so it is corrected only at that orientation (its reading is made to agree with
   the direction the phalanges' motion implies); its rotation about J0 is the same as J0's
@@ -62,6 +63,10 @@ METHOD: Final = "hand-accelerometers-static-poses-least-squares"
 #: (rad per axis, when unknown).
 PRIORS: Final = {"rotation": math.radians(1.0), "scale": 0.033, "cross": 0.01,
                  "bias": 20.0, "offset": math.radians(10.0), "up": math.radians(10.0)}
+#: How well a joint resting against its stop knows its angle (rad, 1σ): on the emulator
+#: within 0.05° after the push; a real build's stops are laser-cut, so their tolerance
+#: (to be measured) belongs here.
+STOP_SIGMA_RAD: Final = math.radians(0.1)
 #: One averaged reading's noise (counts, 1σ): the chip's 1.5 mg over a few samples, its
 #: 1 mg steps and a little temperature drift.
 READING_SIGMA_COUNTS: Final = 1.0
@@ -159,6 +164,9 @@ class FingerSample:
     q_hall: tuple[float, float, float]
     readings: Mapping[str, Sequence[float]]
     group: int = 0
+    #: Taken resting against a mechanical stop: (joint, the stop's angle, rad); the joint's
+    #: true angle is then known, which fixes its hall offset.
+    at_stop: tuple[int, float] | None = None
 
 
 @dataclass
@@ -219,6 +227,8 @@ def fit_finger(samples: Sequence[FingerSample], *, offsets_guess: Sequence[float
     q_h = np.array([s.q_hall for s in samples], dtype=float)
     readings = np.array([[s.readings[b] for b in boards] for s in samples], dtype=float)
     sample_group = [s.group for s in samples]
+    stops = [(i, s.at_stop[0], s.at_stop[1]) for i, s in enumerate(samples)
+             if s.at_stop is not None]
     prior_sigma = np.concatenate(
         [np.repeat([PRIORS[g] for g in _GROUPS], 3)] * nb
         + [np.full(3, PRIORS["offset"]), np.full(2 * len(free), PRIORS["up"])])
@@ -242,7 +252,8 @@ def fit_finger(samples: Sequence[FingerSample], *, offsets_guess: Sequence[float
             seg = _segment_up(q_h[i] + offsets, up[sample_group[i]])
             for k, board in enumerate(boards):
                 res[i, k] = mats[k] @ seg[board] + bias[k] - readings[i, k]
-        return np.concatenate((res.ravel() / READING_SIGMA_COUNTS, x / prior_sigma))
+        at_stops = [(q_h[i, j] + offsets[j] - angle) / STOP_SIGMA_RAD for i, j, angle in stops]
+        return np.concatenate((res.ravel() / READING_SIGMA_COUNTS, at_stops, x / prior_sigma))
 
     sol = least_squares(residual, np.zeros(n_params), method="trf", x_scale=prior_sigma)
     x = sol.x

@@ -19,7 +19,7 @@ import numpy as np
 
 from host.errors import CalibrationError, CalibrationFileError, HostError, UsageError
 from host.estimation.calibration_file import default_path, find
-from host.estimation.closed_form import estimate
+from host.estimation.closed_form import DEFAULT_MIN_AXIS_TILT_RAD, axis_tilt, estimate
 from host.estimation.finger_gravity import to_segment
 from host.estimation.hand_calibration import (
     FingerFit,
@@ -30,7 +30,8 @@ from host.estimation.hand_calibration import (
 )
 from host.hand.homing import read_at_rest
 from host.hand.interface import HandFinger
-from protocol.robot import motor_to_joint
+from host.hand.params import FingerParams
+from protocol.robot import FINGER_JOINT_AXES, FINGER_JOINT_STOPS, motor_to_joint
 
 #: The poses (J0, J1, J2; rad) a finger calibrates in: J0 swung both ways, J1 from bent
 #: back a little to bent, J2 from straight to well bent, so each phalange sees gravity from
@@ -44,6 +45,20 @@ CALIBRATION_POSES: Final = tuple(
 REST_S: Final = 0.3
 #: Effort cap of the calibration's moves (1/255 of full PWM).
 EFFORT: Final = 200
+#: The mechanical stops a finger is pushed against, after its poses: (joint, which end: 0
+#: lower, 1 upper, of :data:`protocol.robot.FINGER_JOINT_STOPS`), the pose it starts from
+#: (rad) and the push (rad, relative: past the stop).  J1 back, J2 forward with J1 back
+#: (the tip away from the palm), J0 out; J0's only where gravity sees J0 (its axis off
+#: vertical).  Pushed with :data:`STOP_EFFORT` for :data:`STOP_PUSH_S`, idled, read: the
+#: joint rests on its stop (within 0.05° on the emulator) and the halls still count true.
+STOP_TOUCHES: Final = ((1, 0, (0.0, 0.2, 0.1), (0.0, -2.0, 0.0)),
+                       (2, 1, (0.0, -0.3, 0.1), (0.0, 0.0, 2.0)),
+                       (0, 1, (0.0, 0.2, 0.1), (2.0, 0.0, 0.0)))
+STOP_EFFORT: Final = 200
+STOP_PUSH_S: Final = 4.0
+#: The firmware's joint limits are widened to this (rad) while a stop is touched, then put
+#: back.
+STOP_LIMIT_RAD: Final = 2.2
 #: Largest residual (counts RMS) a finger's fit may leave: a few times the readings' noise
 #: (about 0.7 counts when the poses are what they say).
 MAX_RMS_COUNTS: Final = 5.0
@@ -52,7 +67,19 @@ Progress = Callable[[int, int, int], None]
 
 
 class CalibratingFinger(HandFinger, Protocol):
-    """What calibrating uses of a finger: moving it and idling it."""
+    """What calibrating uses of a finger: moving it, idling it, its fmcb's parameters."""
+
+    @property
+    def params(self) -> FingerParams:
+        """The fmcb's parameters (its joint limits)."""
+        ...
+
+    def command(self, joints: Sequence[float] | None = None, *,
+                effort: Sequence[int] | int | None = None, relative: bool = False,
+                hall: Sequence[int] | None = None, idle: bool = False,
+                unhomed: bool = False) -> None:
+        """Send one control command (``relative``: joint deltas, rad)."""
+        ...
 
     def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
              timeout: float = 3.0, unhomed: bool = False) -> Any:
@@ -87,6 +114,49 @@ def gather_finger(finger: CalibratingFinger, poses: Sequence[Sequence[float]] = 
     return samples
 
 
+def touch_stops(finger: CalibratingFinger, progress: Progress | None = None,
+                touches: Sequence[tuple[int, int, Sequence[float], Sequence[float]]]
+                = STOP_TOUCHES, j0_observable: bool = True) -> list[FingerSample]:
+    """Push ``finger`` against each stop of ``touches`` (J0's only if ``j0_observable``),
+    its firmware joint limits widened meanwhile and restored after; one sample resting
+    against each (``at_stop`` set)."""
+    session = finger.motor.session
+    chosen = [t for t in touches if j0_observable or t[0] != 0]
+    names = [f"joint_{end}_{j}" for j in range(3) for end in ("lower", "upper")]
+    saved = {n: finger.params.get(n) for n in names}
+    samples = []
+    try:
+        for n in names:
+            finger.params.set(n, STOP_LIMIT_RAD if "upper" in n else -STOP_LIMIT_RAD)
+        for k, (joint, end, start, push) in enumerate(chosen):
+            try:
+                finger.move(start, effort=EFFORT, timeout=2.0, unhomed=True)
+            except HostError:
+                pass
+            finger.command(push, relative=True, effort=STOP_EFFORT, unhomed=True)
+            session.sleep(STOP_PUSH_S)
+            finger.idle()
+            session.sleep(REST_S)
+            reading = read_at_rest(finger)
+            samples.append(FingerSample(motor_to_joint(reading.hall_pos),
+                                        {b: v.tolist() for b, v in reading.as_dict().items()},
+                                        at_stop=(joint, FINGER_JOINT_STOPS[joint][end])))
+            if progress is not None:
+                progress(finger.index, k + 1, len(chosen))
+    finally:
+        finger.idle()
+        for n, v in saved.items():
+            finger.params.set(n, v)
+    return samples
+
+
+def _j0_observable(samples: Sequence[FingerSample]) -> bool:
+    """Whether gravity sees the finger's J0 (its axis off vertical by 20° or more)."""
+    up = np.mean([to_segment("fmcb", s.readings["fmcb"]) for s in samples], axis=0)
+    return bool(axis_tilt(up / np.linalg.norm(up), FINGER_JOINT_AXES[0])
+                >= DEFAULT_MIN_AXIS_TILT_RAD)
+
+
 def _guesses(samples: Sequence[FingerSample]) -> tuple[list[float], list[float]]:
     """The start of the fit: the offsets a nominal homing at the first pose would give and
     the fmcb's mean nominal reading as the up direction."""
@@ -109,15 +179,31 @@ def fit_samples(samples: Sequence[FingerSample]) -> FingerFit:
 
 
 def calibrate_fingers(fingers: Sequence[CalibratingFinger], progress: Progress | None = None,
-                      poses: Sequence[Sequence[float]] = CALIBRATION_POSES
-                      ) -> tuple[HandCalibration, dict[int, FingerFit]]:
-    """Gather and fit each finger of ``fingers``; the hand's calibration and each fit.
+                      poses: Sequence[Sequence[float]] = CALIBRATION_POSES, *,
+                      stops: bool = True) -> tuple[HandCalibration, dict[int, FingerFit]]:
+    """Gather and fit each finger of ``fingers`` (its poses, then, with ``stops``, its
+    :data:`STOP_TOUCHES`); the hand's calibration and each fit.
     Raises :class:`~host.errors.CalibrationError` for a fit worse than
     :data:`MAX_RMS_COUNTS`."""
     cal = HandCalibration(source="this run")
     fits: dict[int, FingerFit] = {}
+    total = len(poses) + (len(STOP_TOUCHES) if stops else 0)
+
+    def told(first: int) -> Progress | None:
+        if progress is None:
+            return None
+        report = progress
+        return lambda f, done, _n: report(f, first + done, total)
+
     for finger in fingers:
-        fit = fit_samples(gather_finger(finger, poses, progress))
+        samples = gather_finger(finger, poses, told(0))
+        if stops:
+            touched = touch_stops(finger, told(len(poses)),
+                                  j0_observable=_j0_observable(samples))
+            samples += touched
+            if progress is not None and len(touched) < len(STOP_TOUCHES):
+                progress(finger.index, total, total)
+        fit = fit_samples(samples)
         if not fit.rms_counts <= MAX_RMS_COUNTS:
             raise CalibrationError(
                 f"finger {finger.index}: the fit leaves {fit.rms_counts:.1f} mg RMS (the "

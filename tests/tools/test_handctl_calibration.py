@@ -98,13 +98,13 @@ def test_calibrate_writes_the_file_the_next_command_uses(serial: str, tmp_path: 
     out = tmp_path / "cal.json"
     assert main(["--port", URL, "calibrate", "--fingers", "3", "--out", str(out)]) == 0
     captured = capsys.readouterr()
-    assert "calibrating finger 3: pose 27/27" in captured.err
+    assert "calibrating finger 3: pose 30/30" in captured.err
     assert f"wrote {out}" in captured.out and "not observable" in captured.out
     written = cf.load(out)
     assert written.robot_serial == serial
     hand = written.sections["hand"]
     assert set(hand["boards"]) == {board_key(3, b) for b in ("fmcb", "f2", "f3")}
-    assert hand["fits"]["3"]["poses"] == 27 and "f2.rotation[y]" in hand["fits"]["3"][
+    assert hand["fits"]["3"]["poses"] == 30 and "fmcb.rotation[x]" in hand["fits"]["3"][
         "unobservable"]
     assert main(["--port", URL, "status", "--calibration", str(out)]) == 0
     assert capsys.readouterr().err.strip().endswith(f"(hand, 3 boards, made "

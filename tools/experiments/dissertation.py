@@ -599,8 +599,9 @@ def inertial_calibration(seed: int = DEFAULT_SEED) -> Outcome:
         Row("thumb joint estimate, calibrated, held-out poses", "—",
             f"{float(np.mean(after)):.2f}° ({joints}" + "/".join(f"{v:.2f}" for v in after)
             + f"): {ratio:.1f}× better", f"≥{hc.IMPROVEMENT:g}× better",
-            ratio >= hc.IMPROVEMENT, "a phalange's tilt about its joint axis is not "
-            "observable with relative halls (docs/decisions/calibration.md)", ratio),
+            ratio >= hc.IMPROVEMENT, "the calibration rests each joint on a mechanical stop, "
+            "exact in the emulator: a real build's stop tolerance adds to this "
+            "(docs/decisions/calibration.md)", ratio),
     ])
 
 

@@ -3,7 +3,8 @@
 The dissertation's §4.6.1 measured the joint estimates of strap-down accelerometers against
 the joint encoders along a trajectory (0.93–1.59° mean error, uncalibrated hardware).  Here,
 on the hand as built (``--sensors realistic``), the thumb (finger 3, palm up: every joint
-observable) is calibrated (:mod:`host.hand.calibration`, its 27 poses), then stepped along a
+observable) is calibrated (:mod:`host.hand.calibration`: its 27 poses and 3 joint stops;
+the emulator's stops are exact, a real build's are not), then stepped along a
 smooth trajectory through held-out poses (none of the calibration's: three sinusoids of
 incommensurate periods over the joints' working range), resting at each (the estimate is
 of a finger at rest; moving, the readings lag and carry the motion's own acceleration).  At

@@ -93,16 +93,21 @@ def test_a_section_of_another_method_is_refused() -> None:
 
 
 def _finger_samples(planted: dict[str, np.ndarray], offsets: np.ndarray,
-                    up_f0: np.ndarray) -> list[hc.FingerSample]:
-    samples = []
-    for j0 in (-0.7, 0.0, 0.7):
+                    up_f0: np.ndarray, stops: bool = False) -> list[hc.FingerSample]:
+    poses: list[tuple[tuple[float, float, float], tuple[int, float] | None]] = [
+        ((j0, j1, j2), None) for j0 in (-0.7, 0.0, 0.7)
         for j1, j2 in ((-0.3, 0.1), (0.0, 0.8), (0.0, 1.4), (0.45, 0.1), (0.45, 0.8),
-                       (0.9, 0.1), (0.9, 0.8)):
-            q = np.array([j0, j1, j2])
-            seg = hc._segment_up(q, up_f0)
-            readings = {b: (hc.board_matrix(p) @ seg[b] + p[9:12]).tolist()
-                        for b, p in planted.items()}
-            samples.append(hc.FingerSample(tuple(q - offsets), readings))
+                       (0.9, 0.1), (0.9, 0.8))]
+    if stops:
+        poses += [((0.1, -1.6, 0.1), (1, -1.6)), ((0.3, -0.7, 1.8), (2, 1.8))]
+    samples = []
+    for pose, at_stop in poses:
+        q = np.array(pose)
+        seg = hc._segment_up(q, up_f0)
+        readings = {b: (hc.board_matrix(p) @ seg[b] + p[9:12]).tolist()
+                    for b, p in planted.items()}
+        samples.append(hc.FingerSample((q[0] - offsets[0], q[1] - offsets[1],
+                                        q[2] - offsets[2]), readings, at_stop=at_stop))
     return samples
 
 
@@ -124,6 +129,24 @@ def test_a_finger_fit_finds_the_hall_offsets_and_names_the_unobservable() -> Non
         assert np.abs(fit.boards[b].bias - planted[b][9:12]).max() < 1.0
     assert {"f2.rotation[y]", "f3.rotation[y]"} <= set(fit.unobservable())
     assert "f2.bias[x]" not in fit.unobservable()
+
+
+def test_touching_the_stops_makes_a_phalanges_tilt_about_its_joint_observable() -> None:
+    rng = np.random.default_rng(4)
+    sizes = np.repeat([hc.PRIORS[g] for g in ("rotation", "scale", "cross", "bias")], 3)
+    planted = {b: rng.normal(size=12) * sizes for b in ("fmcb", "f2", "f3")}
+    offsets = np.array([0.05, -0.04, 0.03])
+    up_f0 = axis_rotation([0.0, 1.0, 0.0], 1.2) @ np.array([0.0, 0.0, 1.0])
+    without = hc.fit_finger(_finger_samples(planted, offsets, up_f0), offsets_guess=[0, 0, 0],
+                            up_guess={0: up_f0})
+    touched = hc.fit_finger(_finger_samples(planted, offsets, up_f0, stops=True),
+                            offsets_guess=[0, 0, 0], up_guess={0: up_f0})
+    assert "f2.rotation[y]" in without.unobservable()
+    assert "f2.rotation[y]" not in touched.unobservable()
+    for b in ("f2", "f3"):
+        assert touched.boards[b].rotation_vector == pytest.approx(planted[b][0:3],
+                                                                  abs=np.radians(0.05))
+    assert touched.offsets[1:] == pytest.approx(offsets[1:], abs=np.radians(0.05))
 
 
 def test_a_finger_fit_needs_six_poses() -> None:
