@@ -2,22 +2,32 @@
 
 Each finger is moved (unhomed, its halls relative) through :data:`CALIBRATION_POSES`,
 idled, left to rest and read (:func:`host.hand.homing.read_at_rest`, six samples
-averaged); then :func:`host.estimation.hand_calibration.fit_finger` fits its three boards
-and its hall offsets (the model and what it can and cannot observe: that module).  The
-finger is left idle at the last pose.  Angles in rad, readings in counts.
+averaged), then pushed onto the joint stops of :data:`STOP_TOUCHES` and read resting on
+each; :func:`host.estimation.hand_calibration.fit_finger` fits its three boards and its hall
+offsets (the model and what it can and cannot observe: that module).  The finger is left
+idle near straight (J1 0.2, J2 0.1 rad), where homing sees its joints.  :func:`choose_calibration` is which file a program then uses.  Angles in rad,
+readings in counts.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any, Final, Protocol
+from typing import Any, Final, Protocol, TypeVar
 
 import numpy as np
 
-from host.errors import CalibrationError, CalibrationFileError, HostError, UsageError
+from host.errors import (
+    CalibrationError,
+    CalibrationFileError,
+    HostError,
+    RouteError,
+    UsageError,
+)
 from host.estimation.calibration_file import default_path, find
 from host.estimation.closed_form import DEFAULT_MIN_AXIS_TILT_RAD, axis_tilt, estimate
 from host.estimation.finger_gravity import to_segment
@@ -31,6 +41,7 @@ from host.estimation.hand_calibration import (
 from host.hand.homing import read_at_rest
 from host.hand.interface import HandFinger
 from host.hand.params import FingerParams
+from protocol.messages.palm import RouteStatus
 from protocol.robot import FINGER_JOINT_AXES, FINGER_JOINT_STOPS, motor_to_joint
 
 #: The poses (J0, J1, J2; rad) a finger calibrates in: J0 swung both ways, J1 from bent
@@ -59,6 +70,9 @@ STOP_PUSH_S: Final = 4.0
 #: The firmware's joint limits are widened to this (rad) while a stop is touched, then put
 #: back.
 STOP_LIMIT_RAD: Final = 2.2
+#: A joint said to rest on its stop whose uncalibrated estimate is further from the stop
+#: than this (rad) did not get there (something in the way): refused.
+STOP_CHECK_RAD: Final = math.radians(6.0)
 #: Largest residual (counts RMS) a finger's fit may leave: a few times the readings' noise
 #: (about 0.7 counts when the poses are what they say).
 MAX_RMS_COUNTS: Final = 5.0
@@ -91,6 +105,25 @@ class CalibratingFinger(HandFinger, Protocol):
         ...
 
 
+#: Tries of a request the palm refuses as busy (its queue for the finger full, as after a
+#: move that timed out on a loaded link), :data:`BUSY_WAIT_S` apart.
+BUSY_TRIES: Final = 5
+BUSY_WAIT_S: Final = 0.1
+T = TypeVar("T")
+
+
+def _when_free(finger: CalibratingFinger, call: Callable[[], T]) -> T:
+    """``call()``, again while the palm answers that the finger's route is busy."""
+    for attempt in range(BUSY_TRIES):
+        try:
+            return call()
+        except RouteError as exc:
+            if exc.status != RouteStatus.BUSY or attempt == BUSY_TRIES - 1:
+                raise
+            finger.motor.session.sleep(BUSY_WAIT_S)
+    raise AssertionError("unreachable")
+
+
 def gather_finger(finger: CalibratingFinger, poses: Sequence[Sequence[float]] = CALIBRATION_POSES,
                   progress: Progress | None = None,
                   rest_s: float = REST_S) -> list[FingerSample]:
@@ -104,9 +137,9 @@ def gather_finger(finger: CalibratingFinger, poses: Sequence[Sequence[float]] = 
             finger.move(pose, effort=EFFORT, timeout=2.0, unhomed=True)
         except HostError:
             pass
-        finger.idle()
+        _when_free(finger, finger.idle)
         session.sleep(rest_s)
-        reading = read_at_rest(finger)
+        reading = _when_free(finger, lambda: read_at_rest(finger))
         samples.append(FingerSample(motor_to_joint(reading.hall_pos),
                                     {b: v.tolist() for b, v in reading.as_dict().items()}))
         if progress is not None:
@@ -133,21 +166,42 @@ def touch_stops(finger: CalibratingFinger, progress: Progress | None = None,
                 finger.move(start, effort=EFFORT, timeout=2.0, unhomed=True)
             except HostError:
                 pass
-            finger.command(push, relative=True, effort=STOP_EFFORT, unhomed=True)
+            _when_free(finger, partial(finger.command, push, relative=True, effort=STOP_EFFORT,
+                                       unhomed=True))
             session.sleep(STOP_PUSH_S)
-            finger.idle()
+            _when_free(finger, finger.idle)
             session.sleep(REST_S)
-            reading = read_at_rest(finger)
+            reading = _when_free(finger, lambda: read_at_rest(finger))
+            stop = FINGER_JOINT_STOPS[joint][end]
+            _check_on_stop(finger.index, joint, stop, reading.as_dict())
             samples.append(FingerSample(motor_to_joint(reading.hall_pos),
                                         {b: v.tolist() for b, v in reading.as_dict().items()},
-                                        at_stop=(joint, FINGER_JOINT_STOPS[joint][end])))
+                                        at_stop=(joint, stop)))
             if progress is not None:
                 progress(finger.index, k + 1, len(chosen))
+        try:  # off the last stop, back where homing sees every joint
+            finger.move(chosen[0][2], effort=EFFORT, timeout=2.0, unhomed=True)
+        except HostError:
+            pass
     finally:
-        finger.idle()
+        _when_free(finger, finger.idle)
         for n, v in saved.items():
             finger.params.set(n, v)
     return samples
+
+
+def _check_on_stop(finger: int, joint: int, stop: float, readings: dict[str, Any]) -> None:
+    """Refuse a stop the joint did not reach: its nominal estimate is within the
+    mountings' few degrees of the stop if it did (:data:`STOP_CHECK_RAD`)."""
+    try:
+        q = estimate(readings).q[joint]
+    except HostError:
+        return
+    if q is not None and abs(q - stop) > STOP_CHECK_RAD:
+        raise CalibrationError(
+            f"finger {finger}: J{joint} did not reach its stop at {math.degrees(stop):.0f}° "
+            f"(its accelerometers say {math.degrees(q):.0f}°): clear its way and calibrate "
+            "again", finger=finger)
 
 
 def _j0_observable(samples: Sequence[FingerSample]) -> bool:
