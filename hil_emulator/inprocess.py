@@ -36,8 +36,10 @@ envelope's format.  Bytes a listener already had on the link (a recorder) keep r
 from __future__ import annotations
 
 import math
+import weakref
 from collections import deque
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar, Final
 
 from firmware_py.mcu import Mcu
@@ -67,6 +69,85 @@ ROUTE_MS: Final = 20
 ROUTED_SLOT_US: Final = 30_000
 
 _shared: dict[tuple[str, ...], Emulator] = {}
+#: Host sends kept per emulator link for :meth:`EmulatorTransport.sent_before` (beyond, a
+#: later transport is told the link's past is unknown).
+SENT_LOG_LIMIT: Final = 20_000
+
+
+class _SentLog:
+    """One emulator link's host sends, in order, up to :data:`SENT_LOG_LIMIT`."""
+
+    def __init__(self) -> None:
+        self.sends: list[tuple[float, bytes]] = []
+        self.complete = True
+
+    def add(self, t: float, data: bytes) -> None:
+        if len(self.sends) < SENT_LOG_LIMIT:
+            self.sends.append((t, data))
+        else:
+            self.complete = False
+
+
+_sent: weakref.WeakKeyDictionary[Emulator, dict[str, _SentLog]] = weakref.WeakKeyDictionary()
+
+
+@dataclass(frozen=True)
+class EmulatorSpec:
+    """What an ``emu://`` URL asks for: the emulator (``config``, ``seed``, ``ready``,
+    ``physics``, ``scene``, ``sensors``, its sharing ``name``) and the ``link`` opened."""
+
+    config: str
+    link: str
+    seed: int = 0
+    ready: bool = True
+    physics: bool = True
+    scene: str = "none"
+    sensors: str = DEFAULT_SENSORS
+    name: str = ""
+
+    def key(self) -> tuple[str, ...]:
+        """What transports sharing one emulator have in common (all but the link)."""
+        return (self.config, str(self.seed), str(self.ready), str(self.physics), self.scene,
+                self.sensors, self.name)
+
+    def build(self, url: str = "") -> Emulator:
+        """A new emulator of this spec, brought up (:func:`bring_up`) when ``ready``;
+        :class:`UsageError` (naming ``url``) for a configuration it cannot build."""
+        try:
+            emulator = Emulator(self.config, seed=self.seed, physics=self.physics, can="none",
+                                scene=self.scene, sensors=self.sensors)
+        except EmulatorConfigError as exc:
+            raise UsageError(f"{url or self.config}: {exc}") from exc
+        if self.ready:
+            bring_up(emulator)
+        return emulator
+
+
+def parse_url(url: str, **options: object) -> EmulatorSpec:
+    """The :class:`EmulatorSpec` of ``emu://CONFIG/LINK?…`` (``options`` override the
+    URL's); :class:`UsageError` for an unknown configuration, link option or seed."""
+    rest = url.split("://", 1)[1].split("?", 1)[0] if "://" in url else url
+    config, _, link = rest.partition("/")
+    if config not in LINKS:
+        raise UsageError(f"{url}: unknown emulator configuration {config!r}; "
+                         f"choose one of {', '.join(LINKS)}")
+    link = link or LINKS[config][0]
+    merged = {**url_options(url), **{k: str(v) for k, v in options.items()}}
+    seed_text = merged.pop("seed", "0")
+    try:
+        seed = int(seed_text)
+    except ValueError:
+        raise UsageError(f"{url}: seed={seed_text!r} is not an integer") from None
+    spec = EmulatorSpec(
+        config, link, seed,
+        ready=merged.pop("ready", "1") not in ("0", "false", "no"),
+        physics=merged.pop("physics", "1") not in ("0", "false", "no"),
+        scene=merged.pop("scene", "none"), sensors=merged.pop("sensors", DEFAULT_SENSORS),
+        name=merged.pop("name", ""))
+    if merged:
+        raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
+                         "seed, ready, physics, scene, sensors and name")
+    return spec
 
 
 class EmulatorTransport(Transport):
@@ -82,7 +163,7 @@ class EmulatorTransport(Transport):
         "emu": LinkKind("in-process", budget_s=0.030, exact_timing=True)}
 
     def __init__(self, emulator: Emulator, link: str, url: str | None = None, *,
-                 tee: bool = False) -> None:
+                 tee: bool = False, logged: bool = True) -> None:
         super().__init__(url or f"emu://{emulator.config}/{link}")
         rig = {"palm": emulator.hand, "arm": emulator.arm, "finger0": emulator.loose}.get(link)
         if rig is None:
@@ -94,43 +175,24 @@ class EmulatorTransport(Transport):
         self._inbox: deque[bytes] = deque()
         self._displaced: Callable[[bytes, int], None] | None = rig.on_host_bytes
         self._tee = tee
+        #: Every host transport's sends on this emulator's link, shared by them (those of
+        #: the bring-up, ``logged=False``, left out: a replay's emulator does it itself).
+        self._log: _SentLog | None = (
+            _sent.setdefault(emulator, {}).setdefault(link, _SentLog()) if logged else None)
+        self._before = len(self._log.sends) if self._log is not None else 0
+        self._known = self._log is not None and self._log.complete
         rig.on_host_bytes = self._arrived
 
     @classmethod
     def from_url(cls, url: str, **options: object) -> EmulatorTransport:
         """``emu://CONFIG/LINK?seed=N&ready=1&physics=1&scene=S&sensors=M&name=X``."""
-        rest = url.split("://", 1)[1].split("?", 1)[0]
-        config, _, link = rest.partition("/")
-        if config not in LINKS:
-            raise UsageError(f"{url}: unknown emulator configuration {config!r}; "
-                                 f"choose one of {', '.join(LINKS)}")
-        link = link or LINKS[config][0]
-        merged = {**url_options(url), **{k: str(v) for k, v in options.items()}}
-        seed_text = merged.pop("seed", "0")
-        try:
-            seed = int(seed_text)
-        except ValueError:
-            raise UsageError(f"{url}: seed={seed_text!r} is not an integer") from None
-        ready = merged.pop("ready", "1") not in ("0", "false", "no")
-        physics = merged.pop("physics", "1") not in ("0", "false", "no")
-        scene = merged.pop("scene", "none")
-        sensors = merged.pop("sensors", DEFAULT_SENSORS)
-        name = merged.pop("name", "")
-        if merged:
-            raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
-                             "seed, ready, physics, scene, sensors and name")
-        key = (config, str(seed), str(ready), str(physics), scene, sensors, name)
+        spec = parse_url(url, **options)
+        key = spec.key()
         emulator = _shared.get(key)
         if emulator is None:
-            try:
-                emulator = Emulator(config, seed=seed, physics=physics, can="none",
-                                    scene=scene, sensors=sensors)
-            except EmulatorConfigError as exc:
-                raise UsageError(f"{url}: {exc}") from exc
-            if ready:
-                bring_up(emulator)
+            emulator = spec.build(url)
             _shared[key] = emulator
-        return cls(emulator, link, url)
+        return cls(emulator, spec.link, url)
 
     def _arrived(self, data: bytes, t_us: int) -> None:
         self._inbox.append(data)
@@ -146,7 +208,16 @@ class EmulatorTransport(Transport):
         if seconds > 0:
             self.emulator.step(int(round(seconds * 1e6)))
 
+    def sent_before(self) -> list[tuple[float, bytes]] | None:
+        """What earlier transports sent on this link of the emulator before this one
+        opened (``(t, bytes)``, simulation s); the bring-up's requests are not in it."""
+        if self._log is None or not self._known:
+            return None
+        return list(self._log.sends[:self._before])
+
     def _send(self, data: bytes) -> None:
+        if self._log is not None:
+            self._log.add(self.now(), bytes(data))
         tap = self._rig.link_tap
         if tap is not None:
             if tap.vanished:
@@ -207,7 +278,7 @@ def bring_up(emulator: Emulator, autopoll: bool = True) -> None:
 
 
 def _session(emulator: Emulator, link: str) -> HandSession:
-    transport = EmulatorTransport(emulator, link, tee=True)
+    transport = EmulatorTransport(emulator, link, tee=True, logged=False)
     return HandSession(transport, link="palm" if link == "palm" else "finger",
                        timeouts=Timeouts(fmcb_ms=ROUTE_MS), retries=0)
 

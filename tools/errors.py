@@ -14,6 +14,7 @@ failure), an oracle's verdict an ``AssertionError``::
     ├── BuildError                        the compiled core could not be built
     ├── DemoFailed                        a step of ``make demo`` failed
     ├── ScenarioError(ValueError)         a hil-bench scenario file that cannot be used
+    ├── ReplayRefused(ValueError)         a recording hil-bench replay cannot replay (exit 2)
     ├── TargetSilent(TransportError)      a fuzz target does not answer before the campaign
     ├── WrongTarget(TransportError)       the node on the port is another board
     ├── FuzzFailure(AssertionError)       a hil-fuzz oracle failed
@@ -66,6 +67,10 @@ class DemoFailed(ToolError):
 
 class ScenarioError(ToolError, ValueError):
     """A scenario file that cannot be used; the message names the file and the key."""
+
+
+class ReplayRefused(ToolError, ValueError):
+    """A recording ``hil-bench replay`` cannot replay (the message says why, in one line)."""
 
 
 class TargetSilent(ToolError, TransportError):

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from host.errors import HostError, NodeError, ReplyTimeout, UsageError
+from host.recording.prologue import Prologue
 from host.transports.base import Transport, url_scheme
 from protocol.dynamixel import (
     MIN_PACKET_SIZE,
@@ -130,6 +131,8 @@ class DynamixelBus:
         self.return_delay_us: dict[int, int] = {}
         self.stats = BusStats()
         self.on_bytes: Callable[[str, bytes, float], None] | None = None
+        #: The first chunks each way since the bus opened, for a recorder attaching later.
+        self.prologue = Prologue()
         self._decoder = DynamixelStreamDecoder("status")
         #: When (s, the transport's clock) what this client last sent has left the wire: a
         #: write that expects no reply returns at once, and the next request queues behind it.
@@ -161,6 +164,9 @@ class DynamixelBus:
         hook = self.on_bytes
         if hook is not None:
             hook(direction, data, self.transport.now())
+            self.prologue.complete = False  # what a listener takes is not kept
+        elif self.prologue.complete:
+            self.prologue.add(direction, self.transport.now(), data)
 
     def exchange(self, packets: Sequence[InstructionPacket], expected: Sequence[Expect] = (),
                  *, retries: int | None = None) -> list[StatusPacket]:

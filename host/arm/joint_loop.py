@@ -46,6 +46,14 @@ within one step and trails the path (more, the faster the cycle).  The controlle
 stepper goal ahead by the braking distance at the path's speed, ``sign(q̇_des)·q̇_des²/(2a)``
 (:func:`braking_lead`); at the path's end ``q̇_des`` is 0 and the goal is the path's.
 
+**Taking over** (:meth:`JointController.start`).  A controller that takes the arm from
+another one (each Cartesian move makes its own), from a plain move or from another program
+starts its integral where each resting stepper's goal already is: ``goal − q − feed-forward``
+(clamped to ``integral_limit``), so a load the last commander held (a mug in the hand, a
+push, an unmodelled payload) stays held.  With the integral from zero the arm dropped by the
+whole load's deflection at every new move (the mug demo's hand fell 6 cm in 0.3 s, and the
+mug slid in the grip).
+
 Cartesian moves (:mod:`host.arm.cartesian`) and waypoint playback (:mod:`host.arm.waypoints`)
 run on this loop.
 """
@@ -76,6 +84,9 @@ DEFAULT_RATE_HZ: Final = 100.0
 #: that someone holds, or that carries more than it can, is not driven again and again.
 STALL_RETRIES: Final = 3
 STALL_WINDOW_S: Final = 2.0
+#: A stepper joint slower than this (rad/s), its node not moving, is at rest: a controller
+#: taking the arm over starts its integral where that joint's goal already is (bumpless).
+TAKE_OVER_STILL_RAD_S: Final = 0.02
 
 
 # ----------------------------------------------------------------------------- the math
@@ -272,7 +283,22 @@ class JointController:
         self.state = self.arm.state()
         self._last_t = self.state.t
         self._latched = latches(self.state)
+        self.take_over(self.state)
         return self.state
+
+    def take_over(self, state: ArmState) -> None:
+        """Start the integral (rad) of each stepper joint at rest in ``state`` where its
+        node's goal already is, ``goal − q − feed-forward(q)`` clamped to ``integral_limit``,
+        so the first cycle's goal holding ``q`` is the goal the node has (bumpless
+        transfer); a joint still moving starts from zero."""
+        q = np.array(state.joints)
+        held = np.array([s.goal for s in state.steppers]) - q[:N_STEPPERS]
+        if self.feedforward:
+            held -= coupling_feedforward(q, self.q_ref)
+        limit = np.array(self.pid.gains.integral_limit[:N_STEPPERS])
+        rest = np.array([not s.moving and abs(s.velocity) < TAKE_OVER_STILL_RAD_S
+                         for s in state.steppers])
+        self.pid.integral[:N_STEPPERS] = np.where(rest, np.clip(held, -limit, limit), 0.0)
 
     def step(self, q_des: Vector, qd_des: Vector | None = None,
              log: TrackingLog | None = None) -> ArmState:

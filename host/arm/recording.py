@@ -7,6 +7,8 @@ topic              message encoding              payload
 =================  ============================  =========================================
 ``/arm/bus/tx``    ``application/octet-stream``  bytes the host sent (whole packets)
 ``/arm/bus/rx``    ``application/octet-stream``  bytes received, as they arrived
+``/arm/bus/tx/earlier``  ``application/octet-stream``  what other programs sent on the link
+                                                 before this one opened it (when known)
 ``/arm/state``     ``json`` (:data:`STATE_SCHEMA`)  every cycle's
                                                  :meth:`~host.arm.state.ArmState.as_dict`
 =================  ============================  =========================================
@@ -19,6 +21,11 @@ get the packets back.  :func:`record` cycles the arm itself for a while; :class:
 writes whatever another program does with the arm (every cycle's state, every byte) while
 it is attached.  The file is written as it goes (at least every
 :data:`host.recording.writer.FLUSH_INTERVAL_S`).
+
+The file's ``source`` metadata record says the link, its URL, the link's clock when the
+recorder attached and whether the bus's first chunks since it opened (its prologue,
+:mod:`host.recording.prologue`: what the Arm sent as it opened) are all in it; they are
+written first, at their own times, so ``hil-bench replay`` starts from the same robot.
 """
 
 from __future__ import annotations
@@ -30,12 +37,20 @@ from typing import Any, Final
 from host.arm.interface import WatchedArm
 from host.arm.state import ArmState
 from host.recording.topics import ARM_STATE
-from host.recording.writer import JSON_ENCODING, Recording, Sink, Topic
+from host.recording.writer import (
+    JSON_ENCODING,
+    SOURCE_METADATA,
+    Recording,
+    Sink,
+    Topic,
+    source_metadata,
+)
 
 RAW_ENCODING: Final = "application/octet-stream"
 STATE_TOPIC: Final = ARM_STATE
 TX_TOPIC: Final = "/arm/bus/tx"
 RX_TOPIC: Final = "/arm/bus/rx"
+EARLIER_TOPIC: Final = "/arm/bus/tx/earlier"
 
 
 def _array(description: str, kind: str, n: int) -> dict[str, Any]:
@@ -81,7 +96,8 @@ STATE_SCHEMA: Final = {
 TX: Final = Topic(TX_TOPIC, RAW_ENCODING)
 RX: Final = Topic(RX_TOPIC, RAW_ENCODING)
 STATE: Final = Topic(STATE_TOPIC, JSON_ENCODING, "ArmState", STATE_SCHEMA)
-TOPICS: Final = (TX, RX, STATE)
+EARLIER: Final = Topic(EARLIER_TOPIC, RAW_ENCODING)
+TOPICS: Final = (TX, RX, STATE, EARLIER)
 
 
 class ArmRecorder(Recording):
@@ -92,8 +108,17 @@ class ArmRecorder(Recording):
 
     def __init__(self, arm: WatchedArm, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
+        transport = arm.transport
+        prologue = arm.bus.prologue
+        earlier = transport.sent_before()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm.recording",
-                         sinks=sinks)
+                         sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
+                             "arm", transport.url, transport.now(), prologue.state(),
+                             None if earlier is None else len(earlier))})
+        for t, data in earlier or ():
+            self.log(EARLIER, t, data)
+        for direction, t, data in prologue.messages:
+            self.log(TX if direction == "tx" else RX, t, data)
         self.arm = arm
         self.states = 0
         self._previous = arm.bus.on_bytes

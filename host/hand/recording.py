@@ -13,6 +13,8 @@ topic                  encoding        message
                                        fingers a move, grasp or homing polled;
                                        :data:`FINGER_READING_SCHEMA`)
 ``/hand/events``       ``json``        every ``palm.finger_event`` (:data:`EVENT_SCHEMA`)
+``/hand/frames/tx/earlier``  ``hand-frame``  what other programs sent on the link before this
+                                       one opened it (when the transport knows)
 =====================  ==============  =======================================================
 
 Log times are the wall clock; the link's clock (the simulation's with the in-process
@@ -21,6 +23,10 @@ emulator) is each message's publish time and, in JSON, its field ``t`` (s)
 ``handbus decode``.  The file is written as it goes (at least every
 :data:`host.recording.writer.FLUSH_INTERVAL_S`); a full disk stops it with
 :class:`~host.errors.RecordingError` at the next state :meth:`HandRecorder.record` writes.
+
+The file's ``source`` metadata record says the link, its URL, the link's clock when the
+recorder attached and whether the session's first frames since it opened (its prologue,
+:mod:`host.recording.prologue`) are all in it; they are written first, at their own times.
 """
 
 from __future__ import annotations
@@ -33,7 +39,14 @@ from host.hand.interface import WatchedHand
 from host.hand.session import FingerEvent
 from host.hand.state import FingerState, HandState
 from host.recording.topics import HAND_EVENTS, HAND_STATE
-from host.recording.writer import JSON_ENCODING, Recording, Sink, Topic
+from host.recording.writer import (
+    JSON_ENCODING,
+    SOURCE_METADATA,
+    Recording,
+    Sink,
+    Topic,
+    source_metadata,
+)
 
 #: Message encoding of raw hand frames.
 FRAME_ENCODING: Final = "hand-frame"
@@ -118,7 +131,8 @@ STATE: Final = Topic(HAND_STATE, JSON_ENCODING, "HandState", HAND_STATE_SCHEMA)
 FINGERS_READ: Final = Topic("/hand/fingers", JSON_ENCODING, "FingerReading",
                             FINGER_READING_SCHEMA)
 EVENTS: Final = Topic(HAND_EVENTS, JSON_ENCODING, "FingerEvent", EVENT_SCHEMA)
-TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS)
+FRAMES_EARLIER: Final = Topic("/hand/frames/tx/earlier", FRAME_ENCODING)
+TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS, FRAMES_EARLIER)
 
 
 class HandRecorder(Recording):
@@ -129,8 +143,17 @@ class HandRecorder(Recording):
 
     def __init__(self, hand: WatchedHand, path: str | Path | None, *, sinks: tuple[Sink, ...] = ()
                  ) -> None:
+        transport = hand.session.transport
+        prologue = hand.session.prologue
+        earlier = transport.sent_before()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand.recording",
-                         sinks=sinks)
+                         sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
+                             hand.session.link, transport.url, transport.now(),
+                             prologue.state(), None if earlier is None else len(earlier))})
+        for t, data in earlier or ():
+            self.log(FRAMES_EARLIER, t, data)
+        for direction, t, frame in prologue.messages:
+            self.log(FRAMES_TX if direction == "tx" else FRAMES_RX, t, frame)
         self.frames = 0
         self.states = 0
         self._attached = False

@@ -34,10 +34,11 @@ from typing import Any, Final
 
 from host.code_names import code_name
 from host.errors import NodeError, ReplyTimeout, RouteError, UsageError
+from host.recording.prologue import Prologue
 from host.transports.base import Transport, declared_links, link_of
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
-from protocol.framing import encode_frame, parse_frame
+from protocol.framing import Frame, encode_frame, parse_frame
 from protocol.messages import CATALOGUE
 from protocol.messages.common import TxnStatus
 from protocol.messages.fmcb import ControlMode
@@ -249,6 +250,9 @@ class HandSession:
         self.counters = SessionCounters()
         self.events: deque[FingerEvent] = deque(maxlen=EVENT_QUEUE)
         self.taps: list[Tap] = []
+        #: The first frames each way since the session opened, while no tap listened (for
+        #: a recorder attaching later).
+        self.prologue = Prologue()
         self._subscribers: list[Callable[[FingerEvent], None]] = []
         self._pending: dict[int, PendingReply] = {}
         self._untagged: list[PendingReply] = []
@@ -438,7 +442,18 @@ class HandSession:
         pending.deadline = now + wait_s
         for tap in self.taps:
             tap("tx", now, frame)
+        self._keep("tx", now, frame)
         self.transport.send(frame)
+
+    def _keep(self, direction: str, t: float, frame: bytes | Frame) -> None:
+        """Keep a frame in the :attr:`prologue` while no tap listens; a tap ends it."""
+        prologue = self.prologue
+        if prologue.complete:
+            if self.taps:
+                prologue.complete = False
+            else:
+                prologue.add(direction, t, frame if isinstance(frame, bytes)
+                             else frame.to_bytes())
 
     def _expire(self, pending: PendingReply) -> None:
         if pending.txn:
@@ -468,6 +483,7 @@ class HandSession:
                 raw = frame.to_bytes()
                 for tap in self.taps:
                     tap("rx", t, raw)
+            self._keep("rx", t, frame)
             if frame.address != ADDR_HOST:
                 self.counters.stray_frames += 1
             elif frame.type == _TXN.type_id:

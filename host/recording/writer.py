@@ -47,6 +47,8 @@ CHUNK_BYTES: Final = 256 * 1024
 #: Message encoding and schema encoding of the JSON topics.
 JSON_ENCODING: Final = "json"
 JSON_SCHEMA_ENCODING: Final = "jsonschema"
+#: Name of the MCAP metadata record saying what was recorded (:func:`source_metadata`).
+SOURCE_METADATA: Final = "source"
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,23 @@ class Sink(Protocol):
         """No more messages."""
 
 
+def source_metadata(link: str, url: str, now_s: float, prologue: str,
+                    earlier: int | None) -> dict[str, str]:
+    """The :data:`SOURCE_METADATA` record of a recorder on host link ``link`` (``arm``,
+    ``palm``, ``finger``) opened as ``url``, attached at ``now_s`` (s, the link's clock),
+    having written the link's first messages (:mod:`host.recording.prologue`: ``complete``
+    when every message since the link opened is in the file, else ``partial``) and
+    ``earlier`` sends of other programs on the same link before it opened (their count, when
+    the transport knows them: :meth:`host.transports.base.Transport.sent_before`; else
+    ``unknown``).
+
+    What the emulator that answered was (configuration, seed, sensors, scene) is in an
+    ``emu://`` URL's path and options; a serial port or a pty says nothing of it, and a
+    replay says what it assumes instead."""
+    return {"link": link, "url": url, "start_t": repr(float(now_s)), "prologue": prologue,
+            "earlier": "unknown" if earlier is None else str(earlier)}
+
+
 def link_ns(t: float) -> int:
     """The link's clock ``t`` (s) as MCAP nanoseconds (never negative)."""
     return max(0, int(round(t * 1e9)))
@@ -89,7 +108,8 @@ class McapFile:
     taken, ``saved`` those in chunks written to the file."""
 
     def __init__(self, path: str | Path, *, library: str,
-                 flush_interval_s: float | None = None) -> None:
+                 flush_interval_s: float | None = None,
+                 metadata: Mapping[str, Mapping[str, str]] | None = None) -> None:
         self.path = Path(path)
         self.error: OSError | None = None
         self.messages = 0
@@ -110,6 +130,8 @@ class McapFile:
                               compression=CompressionType.ZSTD)
         try:
             self._writer.start(profile="", library=library)
+            for name, record in (metadata or {}).items():
+                self._writer.add_metadata(name, dict(record))
             self._stream.flush()
         except OSError as exc:
             self._fail(exc)
@@ -209,9 +231,11 @@ class Recording:
     (:class:`McapFile`, :attr:`file`); ``sinks`` are more."""
 
     def __init__(self, path: str | Path | None, topics: Sequence[Topic], *, library: str,
-                 sinks: Sequence[Sink] = ()) -> None:
+                 sinks: Sequence[Sink] = (),
+                 metadata: Mapping[str, Mapping[str, str]] | None = None) -> None:
         self.topics = tuple(topics)
-        self.file = None if path is None else McapFile(path, library=library)
+        self.file = None if path is None else McapFile(path, library=library,
+                                                       metadata=metadata)
         self.sinks: list[Sink] = []
         for sink in ([self.file] if self.file is not None else []) + list(sinks):
             self.add_sink(sink)

@@ -119,6 +119,14 @@ class Transport(ABC):
         """The link's clock (s): wall-clock monotonic time, or the simulation's."""
         return time.monotonic()
 
+    def sent_before(self) -> list[tuple[float, bytes]] | None:
+        """What earlier transports sent on this same link before this one opened, as
+        ``(t, bytes)`` on this transport's clock, when the transport can know it (the
+        in-process emulator keeps its links' host input); None when it cannot (a serial
+        port: the robot does not say what it was sent).  A recorder writes it, so a replay
+        starts from the robot the recording found."""
+        return None
+
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` pass on the link's clock (bytes arriving meanwhile are kept)."""
         if seconds > 0:

@@ -39,6 +39,8 @@ PROMISED = {
                            "wire bound: cycle rate"],
     "bench_estimation": ["static, closed form", "moving, EKF fused with halls", "homing: "],
     "bench_view": ["arm cycles, view off", "arm cycles, view on (10 Hz)"],
+    "bench_replay": ["bare mj_step (arm model)", "replay of arm recording",
+                     "replay of hand recording", "agrees with its recording"],
 }
 
 

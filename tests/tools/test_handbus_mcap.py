@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 
 from hil_emulator.inprocess import forget_shared_emulators
 from tools.cli import armctl, handbus, handctl
-from tools.cli.mcap_capture import MCAP_MAGIC, is_mcap, raw_chunks
+from tools.cli.mcap_capture import MCAP_MAGIC, is_mcap, raw_chunks, read_recording
 
 
 def _decode(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[list[dict], dict]:
@@ -76,8 +76,13 @@ def test_an_arm_recording_decodes_with_dynamixel(tmp_path: Path,
         forget_shared_emulators()
     capsys.readouterr()
     records, summary = _decode(capsys, "--dynamixel", str(path))
-    rx = [r for r in records if r["channel"] == "/arm/bus/rx"]
-    tx = [r for r in records if r["channel"] == "/arm/bus/tx"]
+    # the recording opens with what the arm sent before the recorder attached (its prologue:
+    # the Arm's opening); then the 10 cycles
+    start = float(read_recording(path).metadata["source"]["start_t"])
+    assert any(r["t_link"] < start for r in records)
+    # (a reply comes strictly after its request; the last prologue reply may end at start)
+    rx = [r for r in records if r["channel"] == "/arm/bus/rx" and r["t_link"] > start]
+    tx = [r for r in records if r["channel"] == "/arm/bus/tx" and r["t_link"] >= start]
     # 10 cycles at 100 Hz: each a BULK_READ of the 7 joints (commands only when given)
     assert sum(1 for r in tx if r["name"] == "BULK_READ") == 10
     assert [r["id"] for r in rx] == list(range(1, 8)) * 10

@@ -8,6 +8,7 @@
     armctl --port emu://arm/arm torque on
     armctl --port P move --joints 0 0.3 0 0.2 0 0 0 --duration 2
     armctl --port P record arm.mcap --seconds 5     # raw bytes + decoded states (MCAP)
+    armctl --port P excite arm-excite.mcap          # chirp each joint, hold under gravity, recorded
     armctl --port P home                            # find every stepper joint's index mark
     armctl --port P moveto 0.3 0.0 -0.5 [--rpy R P Y]   # flange to x y z (m, base frame)
     armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
@@ -446,6 +447,71 @@ def cmd_record(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
         raise
     _print(out, args.json, {"file": args.file, "cycles": cycles},
            f"{cycles} cycles recorded to {args.file}")
+    return EXIT_OK
+
+
+def _joint_list(text: str) -> tuple[int, ...]:
+    """An argparse type: ``J1,J3,J5`` (joint names, comma-separated) as joint indices."""
+    names = [n.strip().upper() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in JOINT_NAMES]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: joint names among "
+                                         f"{', '.join(JOINT_NAMES)}, comma-separated")
+    return tuple(JOINT_NAMES.index(n) for n in dict.fromkeys(names))
+
+
+def _excite_arguments(p: argparse.ArgumentParser) -> None:
+    from host.arm.excite import Excitation
+
+    plan = Excitation()
+    p.add_argument("file", help="output .mcap file")
+    p.add_argument("--joints", type=_joint_list, default=plan.joints, metavar="J1,J2,…",
+                   help="the joints to chirp, in order (default all seven)")
+    p.add_argument("--amplitude", type=number_above(0, what="an amplitude (rad)"),
+                   default=plan.amplitude_rad, metavar="RAD",
+                   help=f"largest chirp amplitude (rad, default {plan.amplitude_rad}); each "
+                        "joint's is smaller where its speed, acceleration or range asks")
+    p.add_argument("--chirp-seconds", type=_TIME, default=plan.chirp_s, metavar="S",
+                   help=f"each joint's chirp (s, default {plan.chirp_s:g})")
+    p.add_argument("--f0", type=number_above(0, what="a frequency (Hz)"),
+                   default=plan.f0_hz, metavar="HZ",
+                   help=f"the chirp's start frequency (Hz, default {plan.f0_hz:g})")
+    p.add_argument("--f1", type=number_above(0, what="a frequency (Hz)"),
+                   default=plan.f1_hz, metavar="HZ",
+                   help=f"the chirp's end frequency (Hz, default {plan.f1_hz:g})")
+    p.add_argument("--hold-seconds", type=number_above(0, inclusive=True, what="a time (s)"),
+                   default=plan.hold_s, metavar="S",
+                   help=f"each hold under gravity (s, default {plan.hold_s:g})")
+    p.add_argument("--unhomed", action="store_true",
+                   help="excite although the arm is not homed (stepper ranges unknown)")
+
+
+@COMMANDS.command("excite", "chirp each joint, hold under gravity, record it all (MCAP)",
+                  _excite_arguments, check=_record_check)
+def cmd_excite(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    from host.arm.excite import Excitation, amplitude, excitation_path, excite
+    from host.arm.gate import check_path
+    from host.arm.recording import ArmRecorder
+
+    _require_homed(arm, args, "exciting it")
+    _require_torque(arm, "exciting it")
+    plan = Excitation(joints=args.joints, amplitude_rad=args.amplitude,
+                      chirp_s=args.chirp_seconds, f0_hz=args.f0, f1_hz=args.f1,
+                      hold_s=args.hold_seconds)
+    start = arm.state().joints
+    path = excitation_path(plan, start, arm.homed)
+    check_path([w.t for w in path], [w.joints for w in path], start, homed=arm.homed)
+    with ArmRecorder(arm, args.file) as recorder:
+        recorder.check()
+        state, duration = excite(arm, plan)
+        recorder.check()
+    names = [JOINT_NAMES[j] for j in plan.joints]
+    amplitudes = [amplitude(plan, j, start[j], arm.homed) for j in plan.joints]
+    _print(out, args.json, {**state.as_dict(), "file": args.file, "excited": names,
+                            "amplitudes_rad": amplitudes, "duration_s": duration,
+                            "states": recorder.states},
+           f"excited {', '.join(names)} ({duration:.1f} s of path) and recorded it to "
+           f"{args.file}")
     return EXIT_OK
 
 

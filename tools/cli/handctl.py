@@ -9,6 +9,7 @@
     handctl --port P move --finger 1 --joints 0.2,0.5,0.3 [--effort 120] [--duration 3]
     handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
     handctl --port P record run.mcap --seconds 5 [--rate 50]
+    handctl --port P excite hand-excite.mcap [--fingers 0,1]  # closures against nothing
     handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
     handctl --port P calibrate [--fingers 3] [--out PATH]  # the accelerometers' calibration file
     handctl --port P status --calibration none            # estimate without the calibration file
@@ -569,6 +570,56 @@ def _cmd_record(hand: Hand, args: argparse.Namespace) -> int:
     recorder.check()  # finishing the file (its summary) can fail too
     _emit(args, {"file": args.file, "frames": recorder.frames, "states": recorder.states},
           f"{args.file}: {recorder.frames} frames, {recorder.states} states")
+    return 0
+
+
+def _effort_list(text: str) -> tuple[int, ...]:
+    """An argparse type: ``150,255`` (efforts 1..255, comma-separated)."""
+    try:
+        found = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        found = ()
+    if not found or any(not 0 < e <= 255 for e in found):
+        raise argparse.ArgumentTypeError(f"{text!r}: efforts 1..255, comma-separated")
+    return found
+
+
+def _excite_arguments(p: argparse.ArgumentParser) -> None:
+    from host.hand.excite import FingerExcitation
+
+    plan = FingerExcitation()
+    p.add_argument("file", help="output .mcap file")
+    p.add_argument("--fingers", type=_finger_list, default=plan.fingers, metavar="0,1,…",
+                   help="the fingers to close, in order (default all four)")
+    p.add_argument("--efforts", type=_effort_list, default=plan.efforts, metavar="E,…",
+                   help="the efforts each closure is made at (1..255, default "
+                        f"{','.join(map(str, plan.efforts))})")
+    p.add_argument("--timeout", dest="move_timeout", type=number_above(0),
+                   default=plan.timeout_s, metavar="S",
+                   help=f"each closure's time to settle (s, default {plan.timeout_s:g})")
+    p.add_argument("--unhomed", action="store_true",
+                   help="close fingers that were never homed (angles from power-up)")
+
+
+@COMMANDS.command("excite", "close each finger against nothing at two efforts, recorded "
+                  "(MCAP)", _excite_arguments, check=_record_check)
+def _cmd_excite(hand: Hand, args: argparse.Namespace) -> int:
+    from host.hand.excite import FingerExcitation, excite_fingers, moves
+    from host.hand.recording import HandRecorder
+
+    plan = FingerExcitation(fingers=tuple(dict.fromkeys(args.fingers)), efforts=args.efforts,
+                            timeout_s=args.move_timeout,
+                            unhomed=args.unhomed)
+    with HandRecorder(hand, args.file) as recorder:
+        recorder.check()
+        results = excite_fingers(hand, plan)
+        recorder.check()
+    unsettled = sum(not r.settled for r in results)
+    _emit(args, {"file": args.file, "fingers": list(plan.fingers), "moves": len(moves(plan)),
+                 "unsettled": unsettled, "frames": recorder.frames},
+          f"{args.file}: {len(results)} closures and openings of fingers "
+          f"{', '.join(map(str, plan.fingers))} ({unsettled} did not settle), "
+          f"{recorder.frames} frames")
     return 0
 
 

@@ -43,7 +43,7 @@ ENCODING_HINT: Final = {HAND_FRAME_ENCODING: "hand frames: decode without --dyna
                         ARM_BYTES_ENCODING: "arm bus bytes: decode with --dynamixel"}
 
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 1, 2, 3, 4, 5, 6
-_OP_DATA_END, _OP_LAST = 0x0F, 0x0F
+_OP_METADATA, _OP_DATA_END, _OP_LAST = 0x0C, 0x0F, 0x0F
 _RECORD_HEAD = 9  # opcode (1 byte) and length (8)
 
 #: ``(data, out) -> summary counters``: one of ``handbus``'s raw-capture decoders.
@@ -75,6 +75,8 @@ class Contents:
     stopped: str | None = None
     #: Messages read from the start of a chunk cut short (its CRC unchecked).
     salvaged: int = 0
+    #: The file's metadata records by name (``source``: :mod:`host.recording.writer`).
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
 
     @property
     def unread(self) -> int:
@@ -111,6 +113,16 @@ class _Walker:
             encoding, at = _string(body, at)
             self.channels[channel_id] = (topic, encoding)
             self.contents.encodings[topic] = encoding
+        elif opcode == _OP_METADATA:
+            name, at = _string(body, 0)
+            (size,) = struct.unpack_from("<I", body, at)
+            at += 4
+            end = at + size
+            record: dict[str, str] = {}
+            while at < end:
+                key, at = _string(body, at)
+                record[key], at = _string(body, at)
+            self.contents.metadata[name] = record
         elif opcode == _OP_MESSAGE:
             channel_id, _seq, log_time, publish_time = struct.unpack_from("<HIQQ", body, 0)
             topic, _ = self.channels.get(channel_id, (f"channel {channel_id}", ""))

@@ -24,8 +24,9 @@ would, with the host library and the command-line tools:
    the thumb), then squeezing (:func:`host.hand.grasp.squeeze`: each finger's proximal flexion
    motor sent :data:`SQUEEZE_RAD` past the contact, so its effort cap keeps the grip through
    the lift and the hold);
-6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: down again,
-   the hand opened and withdrawn; **park**: back to the ready pose and hanging;
+6. **lift**: the flange up :data:`LIFT_M`, held :data:`HOLD_S`; **put down**: lowered,
+   feeling for the table with the stepper joints' torques (:data:`SET_DOWN_FROM_M`), the
+   hand opened and withdrawn; **park**: back to the ready pose and hanging;
 7. **report**: the session's MCAP recordings (hand frames, states, finger readings and
    events, arm bus and states; from the firmware step on, the hand's state read at
    :data:`tools.demo.watch.HAND_STATE_HZ` while the arm moves) and a Markdown report with
@@ -68,9 +69,10 @@ from typing import Any
 
 import numpy as np
 
+from host.arm.cartesian import choose_ik
 from host.arm.facade import Arm
 from host.arm.joint_loop import JointController, TrackingLog
-from host.arm.kinematics import solve_ik
+from host.arm.kinematics import forward, solve_ik
 from host.arm.recording import ArmRecorder
 from host.arm.state import ArmState
 from host.arm.trajectory import Trajectory, timed_path
@@ -101,7 +103,12 @@ from tools.demo.plan import (
     NEAR_SPEED_RAD_S,
     READY_BACK_M,
     READY_UP_M,
+    SET_DOWN_FROM_M,
+    SET_DOWN_HOLD_S,
+    SET_DOWN_LOAD_NM,
     SET_DOWN_M,
+    SET_DOWN_PRESS_M,
+    SET_DOWN_SPEED_RAD_S,
     SET_DOWN_TILT_RAD,
     SQUEEZE_RAD,
     STEPPER_CURRENT_MA,
@@ -351,15 +358,16 @@ class Demo:
                              f"{[round(q, 2) for q in state.joints]} rad)")
 
     def _moveto(self, target: FlangePose, what: str,
-                speed: float = NEAR_SPEED_RAD_S) -> None:
+                speed: float = NEAR_SPEED_RAD_S, quiet: bool = False) -> None:
         log = TrackingLog()
         result = self.arm.moveto(list(target.xyz), list(target.rpy), speed=speed, log=log)
         self._check_arm(log)
         if not result.reached and result.position_error > 0.01:
             raise DemoFailed(self.step, f"{what}: the flange stopped "
                              f"{result.position_error * 1000:.0f} mm from its target")
-        self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
-                 f"{result.position_error * 1000:.1f} mm off")
+        if not quiet:
+            self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
+                     f"{result.position_error * 1000:.1f} mm off")
 
     def _thumb_clear(self) -> None:
         """Bend the opposing finger back (:data:`THUMB_CLEAR_Q`)."""
@@ -434,8 +442,8 @@ class Demo:
                                          f"from its place, tilted "
                                          f"{math.degrees(self.truth.tilt_rad):.0f}° "
                                          f"(ground truth)")
-        self.begin("put down", "lowering the mug onto the table")
-        self._moveto(flange_pose(), "set down")
+        self.begin("put down", "lowering the mug until the table takes its weight")
+        self._set_down()
         self._slip()
         self.sampler.finish()
         self.hand.grasp("open", 1.0, speed=1.5)
@@ -443,6 +451,44 @@ class Demo:
         self.say("hand opened")
         self._moveto(flange_pose(APPROACH_M), "hand withdrawn from the mug")
         self._truth()
+
+    def _set_down(self) -> None:
+        """Lower the held mug onto the table, feeling for it (:data:`SET_DOWN_FROM_M`): a
+        slow joint-space descent under the host's controller that stops the cycle the
+        stepper joints' torques say the table carries the mug, then holds there."""
+        self._moveto(flange_pose(up_m=SET_DOWN_FROM_M), "above the table")
+        bottom = flange_pose(up_m=-SET_DOWN_PRESS_M)
+        control = JointController(self.arm)
+        state = control.start()
+        held = self._stepper_torques(state)
+        ik = choose_ik(bottom.xyz, bottom.rpy, state.joints)
+        path = Trajectory(timed_path([state.joints, ik.q], SET_DOWN_SPEED_RAD_S, smooth=True),
+                          smooth=True)
+        log = TrackingLog()
+
+        def touched(s: ArmState) -> bool:
+            return float(np.linalg.norm(self._stepper_torques(s) - held)) >= SET_DOWN_LOAD_NM
+
+        state = control.run(path, path.duration, log, until=touched)
+        here = np.array(state.joints)
+        change = float(np.linalg.norm(self._stepper_torques(state) - held))
+        control.run(lambda _t: (here, np.zeros(len(here))), SET_DOWN_HOLD_S, log)
+        self._check_arm(log)
+        height = float(forward(state.joints).position[2] - flange_pose().xyz[2])
+        self.log.result["set_down_above_grasp_m"] = height
+        if change >= SET_DOWN_LOAD_NM:
+            self.say(f"set down: the table took the mug with the flange {height * 1000:+.0f} "
+                     f"mm from the grasp's height (the steppers' torques changed "
+                     f"{change:.2f} N·m)")
+        else:
+            self.say(f"set down: the flange {height * 1000:+.0f} mm from the grasp's height "
+                     f"without feeling the table")
+
+    @staticmethod
+    def _stepper_torques(state: ArmState) -> np.ndarray:
+        """The stepper joints' torques in ``state`` (N·m, J1..J4, from their elastic
+        deflections)."""
+        return np.array([j.torque for j in state.steppers])
 
     def _slip(self) -> None:
         """In process: how far the mug moved in the hand while off the table, and how the

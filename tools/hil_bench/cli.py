@@ -5,6 +5,8 @@
                   [--workers N] [--scheduler tcp://HOST:8786]
     hil-bench list-scenarios [--json]
     hil-bench list-faults [--json]
+    hil-bench replay RECORDING.mcap [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
+                  [--sensors ideal|realistic] [--report DIR]
     hil-bench experiments ARGS…
 
 ``run`` runs each scenario (docs/HIL_BENCH.md) in fast mode on the in-process emulator: one
@@ -17,7 +19,9 @@ failed run prints the command that runs it alone (``--seed``, ``--set``).
 per fault class and per ``campaign.vary`` parameter value, and their bar charts), one JSON
 per run and PNG plots around each fault.  ``list-scenarios`` prints the built-in
 scenarios (a NAME ``run`` takes instead of a file).  ``list-faults`` prints the fault catalogue with parameters,
-including those not implemented yet.  ``experiments`` hands its arguments to
+including those not implemented yet.  ``replay`` drives an emulator with a recording's host
+bytes and compares its answers with the recorded robot's (:mod:`tools.hil_bench.replay`).
+``experiments`` hands its arguments to
 ``tools.experiments.dissertation``.
 """
 
@@ -71,6 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     ls.add_argument("--json", action="store_true", help="as JSON")
     lf = sub.add_parser("list-faults", help="the fault catalogue with parameters")
     lf.add_argument("--json", action="store_true", help="as JSON")
+    from tools.hil_bench.replay.command import add_arguments
+
+    add_arguments(sub)
     # ``experiments`` takes its own options (--json, --report …), which argparse's REMAINDER
     # would refuse when they come first: main hands them over before parsing
     sub.add_parser("experiments", help="bench experiments (tools.experiments.dissertation): "
@@ -277,6 +284,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return list_faults(args.json)
     if args.command == "list-scenarios":
         return list_scenarios(args.json)
+    if args.command == "replay":
+        from tools.hil_bench.replay.command import run as replay
+
+        return replay(args)
     return run(args)
 
 
