@@ -71,8 +71,9 @@ STOP_PUSH_S: Final = 4.0
 #: back.
 STOP_LIMIT_RAD: Final = 2.2
 #: A joint said to rest on its stop whose uncalibrated estimate is further from the stop
-#: than this (rad) did not get there (something in the way): refused.
-STOP_CHECK_RAD: Final = math.radians(6.0)
+#: than this (rad) did not get there (something in the way): refused.  Generous: at J0's
+#: stop the uncalibrated estimate of J0 was seen 7° off (seed 3) on a joint resting there.
+STOP_CHECK_RAD: Final = math.radians(15.0)
 #: Largest residual (counts RMS) a finger's fit may leave: a few times the readings' noise
 #: (about 0.7 counts when the poses are what they say).
 MAX_RMS_COUNTS: Final = 5.0
@@ -191,8 +192,8 @@ def touch_stops(finger: CalibratingFinger, progress: Progress | None = None,
 
 
 def _check_on_stop(finger: int, joint: int, stop: float, readings: dict[str, Any]) -> None:
-    """Refuse a stop the joint did not reach: its nominal estimate is within the
-    mountings' few degrees of the stop if it did (:data:`STOP_CHECK_RAD`)."""
+    """Refuse a stop the joint did not reach: its nominal estimate is within
+    :data:`STOP_CHECK_RAD` of the stop if it did."""
     try:
         q = estimate(readings).q[joint]
     except HostError:
