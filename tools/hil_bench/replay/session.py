@@ -55,14 +55,16 @@ def build_emulator(recording: Recorded) -> Emulator:
 
 def recorded_exchanges(recording: Recorded) -> list[Exchange]:
     """The recorded requests paired with the recorded replies, every link.  In a file cut
-    short, the requests after the last one answered are left out: their replies may be
-    what the cut lost."""
+    short, the last request answered and those after it are left out: their replies may
+    be what the cut lost."""
     out = [ex for traffic in recording.links.values()
            for ex in PAIRING[traffic.kind](traffic.tx, traffic.rx)]
     if recording.truncated:
         answered = [ex.t for ex in out if ex.fields is not None]
         last = max(answered, default=-math.inf)
-        out = [ex for ex in out if ex.t <= last]
+        # the last answered request's other replies (a BULK_READ's later nodes) may be
+        # what the cut lost: it goes too
+        out = [ex for ex in out if ex.t < last]
     return out
 
 
