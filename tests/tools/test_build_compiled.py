@@ -444,5 +444,8 @@ def test_a_second_venv_with_an_editable_install_then_a_wheel_install(tmp_path: P
     assert _traffic(None, python, work) == (0, pure, "")
     for command in ([str(bin_dir / "armctl"), "--help"],
                     [str(bin_dir / "hil-emulator"), "--config", "arm", "--duration", "2"]):
-        said = _runs(command, work)
+        # (an emulator that falls behind the wall clock on a busy machine says so, and
+        # that `make compiled` helps: advice about speed, not a note about this build)
+        said = "".join(line for line in _runs(command, work).splitlines(keepends=True)
+                       if "cannot keep up with the wall clock" not in line)
         assert "compiled core" not in said and "make compiled" not in said, said
