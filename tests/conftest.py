@@ -10,16 +10,22 @@ hypothesis profile, and the check that no test leaves anything behind.
   other and long (the slot update's 200-case campaign, in shards): each of their tests is
   a unit of its own, for whichever worker is free;
 * the files of :data:`WALL_CLOCK_FILES` (tests that hold wall-clock timing over real ptys,
-  start the emulator or other programs as processes, start CPU-bound helpers of their own —
-  a CPU hog, local worker processes, a compiler — or measure speed) form one unit,
+  start the emulator as a process, load the machine with more than one CPU-bound process
+  of their own — CPU hogs, local worker processes — or measure speed) form one unit,
   :data:`WALL_CLOCK_GROUP`, run on one worker, one test at a time.  So each of them has at
   most one other test beside it, an in-process simulation on the other worker: the "one
   other CPU-bound process" every such test is written to stand (their timing bounds come
-  from what the emulator reports, not from an idle machine's margins).
+  from what the emulator reports, not from an idle machine's margins).  A file whose tests
+  time nothing and run one CPU-bound process at a time stays out, however long it takes:
+  beside a wall-clock test it is that one other process (the compiled core's tests start a
+  compiler, mypy or pip and wait for it; hil-fuzz's run on the in-process emulator, by its
+  link's simulated clock).
 
-xdist hands out the largest units (by number of tests) first, the wall-clock group among
-them, and the one-test units last.  Without xdist (``pytest`` alone, ``TEST_WORKERS=0``)
-the hook is never called.
+xdist hands out the units in this order: the wall-clock group (one worker's serial chain,
+the run's longest unit), then the files of :data:`LONG_FILES` (the longest files, longest
+first, so that none of them is left to finish alone at the end), then the rest, the largest
+(by number of tests) first, and the one-test units last.  Without xdist (``pytest`` alone,
+``TEST_WORKERS=0``) the hook is never called.
 
 Every test, and every module's fixtures, must leave no descriptor (a pty, a socket, a pipe,
 a file), no non-daemon thread and no running emulator (on a thread or as a process)
@@ -41,6 +47,9 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 from tests import leaks
+
+#: Measuring where the time goes: ``pytest --cpu-durations=N`` (:mod:`tests.cpu_durations`).
+pytest_plugins = ["tests.cpu_durations"]
 
 #: The hypothesis settings profile every test runs under (registered and loaded here).
 HYPOTHESIS_PROFILE: Final = "any-machine"
@@ -68,8 +77,6 @@ WALL_CLOCK_FILES: Final = frozenset({
     "tools/test_cli_common.py",
     "tools/test_cli_help.py",
     "tools/test_hil_bench.py",
-    "tools/test_hil_fuzz.py",
-    "tools/test_build_compiled.py",
     "tools/test_demo_realtime.py",
     "benchmarks/test_benchmarks.py",
 })
@@ -79,6 +86,16 @@ WALL_CLOCK_FILES: Final = frozenset({
 SPREAD_FILES: Final = frozenset({
     "bootloader/test_slot_campaign.py",
 })
+
+
+#: The test files (relative to ``tests/``) of most CPU time outside the wall-clock group,
+#: longest first (``pytest --cpu-durations=N`` measures them): handed out before the others.
+LONG_FILES: Final = (
+    "tools/test_build_compiled.py",
+    "host/arm/test_arm_interrupt_moments.py",
+    "tools/test_hil_fuzz.py",
+    "tools/test_demo.py",
+)
 
 
 def scope_of(nodeid: str) -> str:
@@ -91,6 +108,18 @@ def scope_of(nodeid: str) -> str:
     return nodeid if path.removeprefix("tests/") in SPREAD_FILES else path
 
 
+def handed_out(unit: str, tests: int) -> tuple[int, int, int]:
+    """The order xdist hands out the unit ``unit`` (of :func:`scope_of`) of ``tests``
+    tests in, as a sort key: the wall-clock group, :data:`LONG_FILES` in their order, the
+    other units by number of tests (most first)."""
+    if unit == WALL_CLOCK_GROUP:
+        return (0, 0, 0)
+    path = unit.split("::", 1)[0].removeprefix("tests/")
+    if path in LONG_FILES and "::" not in unit:
+        return (1, LONG_FILES.index(path), 0)
+    return (2, 0, -tests)
+
+
 @pytest.hookimpl(optionalhook=True)  # an xdist hook: unknown (and unused) without xdist
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     """Whole units (:func:`scope_of`) to whichever worker is free, the largest (most tests)
@@ -100,6 +129,15 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     class UnitScheduling(LoadScopeScheduling):  # type: ignore[misc]
         def _split_scope(self, nodeid: str) -> str:
             return scope_of(nodeid)
+
+        def _assign_work_unit(self, node: Any) -> None:
+            if not getattr(self, "_ordered", False):  # the whole queue is there by now
+                ordered = sorted(self.workqueue.items(),
+                                 key=lambda unit: handed_out(unit[0], len(unit[1])))
+                self.workqueue.clear()
+                self.workqueue.update(ordered)
+                self._ordered = True
+            super()._assign_work_unit(node)
 
     return UnitScheduling(config, log)
 

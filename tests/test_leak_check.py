@@ -66,6 +66,7 @@ def test_a_process_still_running_is_named() -> None:
     assert leaks.leaked(before) == []
 
 
-@pytest.mark.parametrize("listed", sorted(conftest.WALL_CLOCK_FILES | conftest.SPREAD_FILES))
+@pytest.mark.parametrize("listed", sorted(conftest.WALL_CLOCK_FILES | conftest.SPREAD_FILES
+                                              | set(conftest.LONG_FILES)))
 def test_every_file_the_scheduling_names_exists(listed: str) -> None:
     assert (TESTS / listed).is_file(), f"tests/conftest.py names {listed}, which is gone"
