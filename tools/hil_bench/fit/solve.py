@@ -174,10 +174,11 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
     if len(set(names)) != len(names) or not names:
         raise EmulatorConfigError("name each parameter once, at least one")
     cpu0, children0 = time.process_time(), os.times()
-    cases = [load_case(p, tolerances) for p in paths]
-    for path, case in zip(paths, cases, strict=True):
+    cases = []
+    for path in paths:
         try:
-            check_parameters(case, names)
+            cases.append(load_case(path, tolerances))
+            check_parameters(cases[-1], names)
         except ReplayRefused as exc:
             raise ReplayRefused(f"{path}: {exc}") from None
     notes = [f"{p}: recorded on an emulator with the profile {c.recorded_profile}; the fit "
