@@ -128,7 +128,7 @@ class RobotProfile:
     def arm_params(self, base: ArmParams | None = None) -> ArmParams:
         """``base`` (default: the nominal arm) with this profile's arm parameters."""
         base = base or ArmParams()
-        arrays = {}
+        arrays: dict[str, Any] = {}
         for name, value in self.values.items():
             p = PARAMETERS[name]
             if p.field not in arrays:

@@ -103,3 +103,9 @@ def test_an_emu_url_names_its_profile_and_a_bad_one_is_a_usage_error(tmp_path: P
     bad = _file(tmp_path, _profile({"arm.J4.stiffness": -1.0}), "bad.json")
     with pytest.raises(UsageError, match="outside its bounds"):
         parse_url(f"emu://arm/arm?profile={bad}").build()
+
+
+def test_the_docs_list_every_parameter_with_its_unit_and_nominal() -> None:
+    text = (ROOT / "docs" / "EMULATOR.md").read_text(encoding="utf-8")
+    for p in PARAMETERS.values():
+        assert f"| `{p.name}` | {p.unit} | {p.nominal:g} |" in text, p.name
