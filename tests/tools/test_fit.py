@@ -20,6 +20,8 @@ from host.hand.facade import Hand
 from host.hand.recording import HandRecorder
 from tools.hil_bench.cli import main
 from tools.hil_bench.fit.cases import FIT_TOLERANCES
+from tools.hil_bench.fit.command import text_lines
+from tools.hil_bench.fit.solve import FitResult, FittedParameter
 from tools.hil_bench.replay.session import build_emulator, replay
 from tools.hil_bench.replay.source import Recorded
 
@@ -136,3 +138,14 @@ def test_a_file_that_is_no_recording_is_refused(tmp_path: Path,
     path = tmp_path / "not.mcap"
     path.write_bytes(b"not a recording")
     assert str(path) in _refused(capsys, str(path), "--params", "arm.J2.stiffness")
+
+
+def test_the_text_report_gives_each_estimate_and_the_error_removed() -> None:
+    result = FitResult(["a.mcap"], [FittedParameter("arm.J2.stiffness", "N·m/rad", 200.0,
+                                                    259.0, 1.5)],
+                       rms_before=2.0, rms_after=0.5, channels_before={}, channels_after={},
+                       within_after=False, replays=9, iterations=3, cpu_s=12.0, message="ok")
+    lines = text_lines(result)
+    assert lines[0] == "arm.J2.stiffness = 259 ± 1.5 N·m/rad (nominal 200)"
+    assert "2 before, 0.5 after: 75.0 % removed" in lines[1]
+    assert "still parts" in lines[2]

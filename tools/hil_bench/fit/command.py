@@ -12,10 +12,13 @@ import argparse
 import json
 import os
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tools.cli.numeric import number_above
 from tools.hil_bench.replay.command import tolerance
+
+if TYPE_CHECKING:
+    from tools.hil_bench.fit.solve import FitResult
 
 
 def add_arguments(sub: Any) -> None:
@@ -38,7 +41,7 @@ def add_arguments(sub: Any) -> None:
                    "joint positions and deflections, 2 counts)")
 
 
-def text_lines(result: Any) -> list[str]:
+def text_lines(result: FitResult) -> list[str]:
     """The fit as lines of text."""
     lines = [f"{p.name} = {p.value:.5g} ± {p.uncertainty:.2g} {p.unit} (nominal "
              f"{p.nominal:g})" for p in result.parameters]
