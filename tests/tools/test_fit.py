@@ -98,6 +98,16 @@ def test_fit_recovers_the_stiffnesses_and_the_refit_replays_another_recording(
     assert not all(c.within for c in nominal.channels.values() if c.tolerance > 0)
 
 
+def test_a_parameter_the_recording_does_not_move_stays_nominal_without_an_uncertainty(
+        recordings: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    # J1 (the vertical base joint) is neither chirped nor loaded by gravity in the second
+    code, data, _err = _fit(capsys, str(recordings[1]), "--params", "arm.J1.stiffness",
+                            "--workers", "1")
+    estimate = data["parameters"]["arm.J1.stiffness"]
+    assert estimate["value"] == estimate["nominal"] and estimate["uncertainty"] is None
+    assert data["rms_after"] == data["rms_before"] > 0 and code == 1  # J4 still parts
+
+
 def test_a_recording_replays_exactly_on_the_profile_it_was_made_with(
         recordings: tuple[Path, Path]) -> None:
     result = replay(recordings[1])

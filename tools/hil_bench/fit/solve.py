@@ -85,13 +85,13 @@ class FitResult:
         return RobotProfile(
             {p.name: p.value for p in self.parameters},
             {"by": "hil-bench fit", "recordings": self.recordings,
-             "uncertainty": {p.name: p.uncertainty for p in self.parameters},
+             "uncertainty": {p.name: _finite(p.uncertainty) for p in self.parameters},
              "rms_before": self.rms_before, "rms_after": self.rms_after})
 
     def as_json(self) -> dict[str, Any]:
         """The ``--json`` form."""
         return {"recordings": self.recordings,
-                "parameters": {p.name: {"value": p.value, "uncertainty": p.uncertainty,
+                "parameters": {p.name: {"value": p.value, "uncertainty": _finite(p.uncertainty),
                                         "unit": p.unit, "nominal": p.nominal}
                                for p in self.parameters},
                 "rms_before": self.rms_before, "rms_after": self.rms_after,
@@ -101,6 +101,11 @@ class FitResult:
                              for name in self.channels_before},
                 "replays": self.replays, "iterations": self.iterations,
                 "cpu_s": self.cpu_s, "message": self.message, "notes": self.notes}
+
+
+def _finite(x: float) -> float | None:
+    """``x``, or None (JSON's null) for a parameter the recordings do not pin down."""
+    return x if math.isfinite(x) else None
 
 
 def _values(names: Sequence[str], x: np.ndarray) -> dict[str, float]:
