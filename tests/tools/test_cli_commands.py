@@ -20,7 +20,7 @@ def _sub_names(parser: argparse.ArgumentParser) -> list[str]:
 
 def test_handctl_and_armctl_parse_exactly_the_commands_they_declare() -> None:
     assert _sub_names(handctl._parser()) == list(handctl.COMMANDS) == [
-        "watch", "ping", "status", "up", "power", "move", "home", "grasp", "record",
+        "watch", "ping", "status", "up", "power", "move", "home", "calibrate", "grasp", "record",
         "excite"]
     assert _sub_names(armctl.make_parser()) == list(armctl.COMMANDS) == [
         "watch", "ping", "scan", "status", "torque", "clear", "move", "home", "moveto",

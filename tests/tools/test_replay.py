@@ -248,3 +248,38 @@ def test_a_recording_of_a_serial_port_replays_on_an_assumed_emulator_and_says_so
     assert any("shifted" in n for n in data["notes"])
     # on the right clock: the replies came, the nodes answered as the arm's do
     assert data["channels"]["arm.J2.replied"]["max"] == 0
+
+
+def test_one_sessions_arm_and_hand_recordings_replay_together_on_one_emulator(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``make demo``'s shape: the hand on the arm, one emulator, a recorder per link; the
+    two files given together drive both links of one emulator, as the session did."""
+    url = "emu://full/{link}?seed=5&name=test-replay-full"
+    arm_path, hand_path = tmp_path / "arm.mcap", tmp_path / "hand.mcap"
+    forget_shared_emulators()
+    try:
+        with Arm.open(url.format(link="arm")) as arm, \
+                Hand.open(url.format(link="palm")) as hand, \
+                ArmRecorder(arm, arm_path), HandRecorder(hand, hand_path):
+            arm.cycle([arm.make_torque(j, True) for j in range(7)])
+            arm.move(GOAL, duration=0.6, timeout=2.0)
+            hand.fingers[1].move([0.0, 0.5, 0.4], effort=200, timeout=1.0, unhomed=True)
+            hand.status()
+            arm.torque(False)
+    finally:
+        forget_shared_emulators()
+    code, data, _err = _replay_json(capsys, str(arm_path), str(hand_path))
+    assert code == 0, data["failing"]
+    assert data["links"] == ["arm", "palm"] and data["emulator"]["config"] == "full"
+    names = data["channels"]
+    assert any(n.startswith("arm.J2.") for n in names)
+    assert any(n.startswith("hand.finger1.") for n in names)
+
+
+def test_recordings_of_two_emulators_are_refused_together(
+        arm_move: Path, hand_move: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(arm_move), str(hand_move)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another emulator" in err[0]
+    assert main(["replay", str(arm_move), str(arm_move)]) == 2
+    assert "repeats the arm link" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""``hil-bench replay RECORDING.mcap [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
+"""``hil-bench replay RECORDING.mcap… [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
 [--sensors ideal|realistic] [--report DIR]``: exit 0 when every channel is within its
 tolerance, 1 when one is not (a line naming them), 2 for a recording it cannot replay (a
 line saying why) or bad arguments."""
@@ -32,8 +32,10 @@ def add_arguments(sub: Any) -> None:
     """The ``replay`` sub-command's parser."""
     p = sub.add_parser("replay", help="replay a recording against the emulator and say where "
                        "they differ")
-    p.add_argument("recording", metavar="RECORDING.mcap", help="a recording (armctl record, "
-                   "handctl record, make demo)")
+    p.add_argument("recording", metavar="RECORDING.mcap", nargs="+",
+                   help="a recording (armctl record, handctl record, make demo), or one "
+                   "session's recordings of its links (make demo's arm.mcap and hand.mcap), "
+                   "replayed together on one emulator")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--tolerance", action="append", type=tolerance, default=[],
                    metavar="CHANNEL=VALUE", help="a channel's tolerance in its unit (CHANNEL "
@@ -63,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         result = replay(args.recording, tolerances=args.tolerance, seed=args.seed,
                         sensors=args.sensors)
     except ReplayRefused as exc:
-        print(f"hil-bench replay: {args.recording}: {exc}", file=sys.stderr)
+        print(f"hil-bench replay: {' + '.join(args.recording)}: {exc}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(as_json(result), indent=1))

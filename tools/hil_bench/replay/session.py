@@ -17,7 +17,7 @@ from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, compare, tolerances_for
 from tools.hil_bench.replay.drive import answers
 from tools.hil_bench.replay.exchanges import PAIRING, Exchange
-from tools.hil_bench.replay.source import Recorded, load
+from tools.hil_bench.replay.source import Recorded, load, merge
 
 
 @dataclass
@@ -87,14 +87,17 @@ def replay_channels(recording: Recorded, emulator: Emulator,
     return compare(recorded, replayed, tolerances), sim_s
 
 
-def replay(path: str | Path, *, tolerances: Sequence[tuple[str, float]] = (),
+def replay(path: str | Path | Sequence[str | Path], *,
+           tolerances: Sequence[tuple[str, float]] = (),
            seed: int | None = None, sensors: str | None = None,
            emulator_factory: Callable[[Recorded], Emulator] = build_emulator) -> ReplayResult:
-    """Replay the recording at ``path`` against a new emulator of its configuration
-    (``seed``, ``sensors`` override the recording's; ``emulator_factory`` builds another);
-    :class:`ReplayRefused` for a recording it cannot replay or a tolerance naming no
-    channel."""
-    recording = load(path, seed=seed, sensors=sensors)
+    """Replay the recording at ``path`` (or one session's recordings, one per link: every
+    link on one emulator, :func:`~tools.hil_bench.replay.source.merge`) against a new
+    emulator of its configuration (``seed``, ``sensors`` override the recording's;
+    ``emulator_factory`` builds another); :class:`ReplayRefused` for a recording it cannot
+    replay or a tolerance naming no channel."""
+    paths = [path] if isinstance(path, str | Path) else list(path)
+    recording = merge([load(p, seed=seed, sensors=sensors) for p in paths])
     recorded = recorded_exchanges(recording)
     limits = tolerances_for(channel_names(recorded), tolerances)
     cpu0 = time.process_time()

@@ -146,6 +146,36 @@ def load(path: str | Path, *, seed: int | None = None, sensors: str | None = Non
     return Recorded(str(path), links, spec, emulated, assumed, truncated)
 
 
+def merge(recordings: list[Recorded]) -> Recorded:
+    """One session recorded by several recorders (``make demo``'s ``arm.mcap`` and
+    ``hand.mcap``: one emulator, one recorder per link) as one recording, so every link is
+    driven on one emulator, as it was; :class:`ReplayRefused` when they name different
+    emulators, repeat a link, or mix an emulator's clock with a serial port's."""
+    first = recordings[0]
+    if len(recordings) == 1:
+        return first
+    links: dict[str, LinkTraffic] = {}
+    for rec in recordings:
+        if rec.spec.key()[:-1] != first.spec.key()[:-1]:
+            raise ReplayRefused(f"{rec.path} was recorded on another emulator than "
+                                f"{first.path} ({rec.spec.config}, seed {rec.spec.seed}, "
+                                f"sensors {rec.spec.sensors}, scene {rec.spec.scene} against "
+                                f"{first.spec.config}, seed {first.spec.seed}, sensors "
+                                f"{first.spec.sensors}, scene {first.spec.scene})")
+        if rec.emulated != first.emulated:
+            raise ReplayRefused(f"{rec.path} and {first.path} do not share a clock (one is an "
+                                f"emu:// recording, the other not)")
+        for kind, traffic in rec.links.items():
+            if kind in links:
+                raise ReplayRefused(f"{rec.path} repeats the {kind} link of another file: "
+                                    f"give each link's recording once")
+            links[kind] = traffic
+    assumed = [a for rec in recordings for a in rec.assumed]
+    cuts = [f"{rec.path}: {rec.truncated}" for rec in recordings if rec.truncated]
+    return Recorded(" + ".join(rec.path for rec in recordings), links, first.spec,
+                    first.emulated, assumed, "; ".join(cuts) or None)
+
+
 def _offers(config: str, link: str) -> bool:
     from hil_emulator.inprocess import LINKS
 
