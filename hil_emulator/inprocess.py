@@ -112,7 +112,7 @@ class EmulatorSpec:
     def key(self) -> tuple[str, ...]:
         """What transports sharing one emulator have in common (all but the link)."""
         return (self.config, str(self.seed), str(self.ready), str(self.physics), self.scene,
-                self.sensors, self.name, self.profile)
+                self.sensors, self.profile, self.name)  # the name last: merge() drops it
 
     def build(self, url: str = "", profile: RobotProfile | None = None) -> Emulator:
         """A new emulator of this spec (``profile`` instead of the spec's, when given),
