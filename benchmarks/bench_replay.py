@@ -9,6 +9,12 @@ driving, pairing, comparing).  The figures are CPU time of this process
 The baseline is ``mj_step`` alone on that emulator's model from its present state
 (:func:`benchmarks.bench_emulator.bare_mj_step_cpu`), so the ratio says how many times
 slower than the bare physics a replay runs.
+
+The fit (``hil-bench fit``): an excitation of J2 (and J4 unless ``quick``) recorded on an
+arm whose elements are 30 % stiffer and 20 % softer than nominal (a robot profile), then
+those stiffnesses fitted from nominal in this process (one worker, so the CPU time is all
+this process's).  Its figure is simulated seconds fitted per CPU second, against one replay
+of the same recording: the ratio is the number of replays' worth of CPU a fit costs.
 """
 
 from __future__ import annotations
@@ -20,10 +26,13 @@ from pathlib import Path
 from benchmarks.bench_emulator import bare_mj_step_cpu
 from benchmarks.harness import Result
 from hil_emulator.inprocess import forget_shared_emulators
+from hil_emulator.profile import PARAMETERS, RobotProfile
+from host.arm.excite import Excitation, excite
 from host.arm.facade import Arm
-from host.arm.recording import record
+from host.arm.recording import ArmRecorder, record
 from host.hand.facade import Hand
 from host.hand.recording import HandRecorder
+from tools.hil_bench.fit.solve import fit
 from tools.hil_bench.replay.session import build_emulator, recorded_exchanges, replay_channels
 from tools.hil_bench.replay.source import load
 
@@ -63,6 +72,40 @@ def replay_rate(path: Path) -> tuple[float, float, bool]:
     return sim_s / cpu, 1.0 / bare, all(c.within for c in channels.values())
 
 
+def _record_excitation(path: Path, profile: Path, quick: bool) -> list[str]:
+    """Record an excitation of an arm whose J2 element is 30 % stiffer (J4's 20 % softer)
+    than nominal, its profile written to ``profile``; the parameters to fit."""
+    joints, names = ((1,), ["arm.J2.stiffness"]) if quick else (
+        (1, 3), ["arm.J2.stiffness", "arm.J4.stiffness"])
+    RobotProfile({n: PARAMETERS[n].nominal * f for n, f in zip(
+        names, (1.3, 0.8), strict=False)}).write(profile)
+    try:
+        with Arm.open(f"emu://arm/arm?name=bench-fit&profile={profile}") as arm:
+            arm.torque(True)
+            with ArmRecorder(arm, path):
+                excite(arm, Excitation(joints=joints, chirp_s=0.5 if quick else 1.5,
+                                       hold_s=0.2, holds=((0.3, 0.4),)))
+    finally:
+        forget_shared_emulators()
+    return names
+
+
+def fit_rate(path: Path, names: list[str]) -> tuple[float, float, float]:
+    """(simulated s fitted per CPU s, one replay's simulated s per CPU s, the fit's CPU s)
+    for the recording at ``path``."""
+    recording = load(path)
+    emulator = build_emulator(recording)
+    try:
+        cpu = time.process_time()
+        _channels, sim_s = replay_channels(recording, emulator, None,
+                                           recorded_exchanges(recording))
+        cpu = time.process_time() - cpu
+    finally:
+        emulator.close()
+    result = fit([str(path)], names, workers=1)
+    return sim_s / result.cpu_s, sim_s / cpu, result.cpu_s
+
+
 def run(quick: bool) -> list[Result]:
     results: list[Result] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -78,4 +121,13 @@ def run(quick: bool) -> list[Result]:
                        note=f"{seconds:g} s recorded; CPU time; "
                             f"{'agrees' if agreed else 'DISAGREES'} with its recording"),
             ]
+        path, profile = Path(tmp) / "excite.mcap", Path(tmp) / "profile.json"
+        names = _record_excitation(path, profile, quick)
+        rate, one, cpu_s = fit_rate(path, names)
+        base = "one replay of the arm excitation"
+        results += [
+            Result(GROUP, base, one, "sim-s", note="CPU time"),
+            Result(GROUP, f"fit of {len(names)} stiffness(es) from it", rate, "sim-s",
+                   baseline=base, note=f"{cpu_s:.1f} CPU s in all, one worker"),
+        ]
     return results

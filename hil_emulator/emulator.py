@@ -32,6 +32,7 @@ from hil_emulator.pacing import Pacer
 from hil_emulator.ports.host_links import HostLink, Port, SerialLink, SlcanLink, VirtualCanLink
 from hil_emulator.ports.link_dir import LinkDirLock
 from hil_emulator.ports.link_tap import LinkTap
+from hil_emulator.profile import RobotProfile
 from hil_emulator.robot import EmulatedRobot
 
 CanMode = str  # "slcan" (a pty), "virtual:<channel>" (python-can, same process), "none"
@@ -41,7 +42,8 @@ class PortsDescription(TypedDict, total=False):
     """The ports as the ``hil-emulator`` command prints them (:meth:`Emulator.describe`):
     always ``config``, ``palm``, ``arm``, ``fingers`` (paths, or None / empty where the
     configuration has none), ``seed`` and ``sensors``; ``can`` and ``can_interface`` with a CAN link,
-    ``scene`` with a scene, ``hand_layout`` with a hand, ``links`` with a link directory."""
+    ``scene`` with a scene, ``hand_layout`` with a hand, ``links`` with a link directory,
+    ``profile`` (its file) with a robot profile read from one."""
 
     config: str
     palm: str | None
@@ -54,6 +56,7 @@ class PortsDescription(TypedDict, total=False):
     scene: str
     hand_layout: str
     links: dict[str, str]
+    profile: str
 
 
 class Emulator(EmulatedRobot):
@@ -66,9 +69,10 @@ class Emulator(EmulatedRobot):
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
                  physics: bool = True, can: CanMode = "slcan", scene: str = "none",
-                 sensors: str = DEFAULT_SENSORS) -> None:
+                 sensors: str = DEFAULT_SENSORS,
+                 profile: RobotProfile | str | None = None) -> None:
         super().__init__(config, seed=seed, layout=layout, physics=physics, scene=scene,
-                         sensors=sensors)
+                         sensors=sensors, profile=profile)
         self.can_mode = can
         #: What :meth:`run` serves: the host links by name, and any :meth:`add_port`.
         self.links: dict[str, Port] = {}
@@ -148,6 +152,8 @@ class Emulator(EmulatedRobot):
             out["hand_layout"] = self.layout
         if self.link_paths:
             out["links"] = dict(self.link_paths)
+        if self.profile is not None and self.profile.source:
+            out["profile"] = self.profile.source
         return out
 
     def add_port(self, port: Port) -> None:

@@ -10,9 +10,10 @@ busy the machine is: a reply arrives when its last bit would on the real wire.
 
 URLs: ``emu://full/palm``, ``emu://full/arm``, ``emu://hand/palm``, ``emu://arm/arm``,
 ``emu://loose-finger/finger0``, options
-``?seed=N&ready=1&physics=0&scene=mug&sensors=ideal&name=X`` (``scene``:
+``?seed=N&ready=1&physics=0&scene=mug&sensors=ideal&profile=PATH&name=X`` (``scene``:
 :data:`hil_emulator.scene_model.SCENES`; ``sensors``: ``realistic``, the default, or
-``ideal``, :mod:`hil_emulator.imperfections`).  Transports
+``ideal``, :mod:`hil_emulator.imperfections`; ``profile``: a robot profile file,
+:mod:`hil_emulator.profile`).  Transports
 opened with the same configuration, seed, options and ``name`` share one emulator, so a
 program can open ``emu://full/palm`` and ``emu://full/arm`` and drive one robot.
 ``ready=1`` (the default) brings the hand up first, as ``hil-emulator --ready`` does.
@@ -46,6 +47,7 @@ from firmware_py.mcu import Mcu
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError, EmulatorError
 from hil_emulator.imperfections import DEFAULT_SENSORS
+from hil_emulator.profile import RobotProfile
 from host.errors import HostError, TransportError, UsageError
 from host.hand.facade import Hand, Node
 from host.hand.session import LINK_NODE, HandSession, Timeouts
@@ -94,7 +96,8 @@ _sent: weakref.WeakKeyDictionary[Emulator, dict[str, _SentLog]] = weakref.WeakKe
 @dataclass(frozen=True)
 class EmulatorSpec:
     """What an ``emu://`` URL asks for: the emulator (``config``, ``seed``, ``ready``,
-    ``physics``, ``scene``, ``sensors``, its sharing ``name``) and the ``link`` opened."""
+    ``physics``, ``scene``, ``sensors``, ``profile`` (a file's path, empty: none), its
+    sharing ``name``) and the ``link`` opened."""
 
     config: str
     link: str
@@ -104,18 +107,21 @@ class EmulatorSpec:
     scene: str = "none"
     sensors: str = DEFAULT_SENSORS
     name: str = ""
+    profile: str = ""
 
     def key(self) -> tuple[str, ...]:
         """What transports sharing one emulator have in common (all but the link)."""
         return (self.config, str(self.seed), str(self.ready), str(self.physics), self.scene,
-                self.sensors, self.name)
+                self.sensors, self.profile, self.name)  # the name last: merge() drops it
 
-    def build(self, url: str = "") -> Emulator:
-        """A new emulator of this spec, brought up (:func:`bring_up`) when ``ready``;
-        :class:`UsageError` (naming ``url``) for a configuration it cannot build."""
+    def build(self, url: str = "", profile: RobotProfile | None = None) -> Emulator:
+        """A new emulator of this spec (``profile`` instead of the spec's, when given),
+        brought up (:func:`bring_up`) when ``ready``; :class:`UsageError` (naming ``url``)
+        for a configuration or profile it cannot build."""
         try:
             emulator = Emulator(self.config, seed=self.seed, physics=self.physics, can="none",
-                                scene=self.scene, sensors=self.sensors)
+                                scene=self.scene, sensors=self.sensors,
+                                profile=profile or self.profile or None)
         except EmulatorConfigError as exc:
             raise UsageError(f"{url or self.config}: {exc}") from exc
         if self.ready:
@@ -143,10 +149,10 @@ def parse_url(url: str, **options: object) -> EmulatorSpec:
         ready=merged.pop("ready", "1") not in ("0", "false", "no"),
         physics=merged.pop("physics", "1") not in ("0", "false", "no"),
         scene=merged.pop("scene", "none"), sensors=merged.pop("sensors", DEFAULT_SENSORS),
-        name=merged.pop("name", ""))
+        name=merged.pop("name", ""), profile=merged.pop("profile", ""))
     if merged:
         raise UsageError(f"{url}: unknown emulator options {sorted(merged)}; it takes "
-                         "seed, ready, physics, scene, sensors and name")
+                         "seed, ready, physics, scene, sensors, profile and name")
     return spec
 
 

@@ -37,6 +37,7 @@ from hil_emulator.hand.finger_plant import FingerPlant, PalmPlant
 from hil_emulator.hand.rig import HandRig, LooseFinger
 from hil_emulator.imperfections import DEFAULT_SENSORS, PlantedTruth
 from hil_emulator.plant import Plant, PlantPart, new_spec
+from hil_emulator.profile import RobotProfile, as_profile
 from hil_emulator.scene_model import SCENES, MugTracker
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
 
@@ -56,12 +57,15 @@ class EmulatedRobot:
     (:data:`hil_emulator.imperfections.SENSOR_MODES`) ``"realistic"`` (the default) builds
     the robot as a real one is, its sensors imperfect and its links off by a laser-cut
     build's tolerances (:mod:`hil_emulator.imperfections`; what was drawn:
-    :attr:`planted`), ``"ideal"`` exact sensors on the nominal geometry.
+    :attr:`planted`), ``"ideal"`` exact sensors on the nominal geometry; ``profile`` (a
+    :class:`~hil_emulator.profile.RobotProfile` or its file's path) gives the robot the
+    physical parameters of a particular one (:mod:`hil_emulator.profile`).
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
                  physics: bool = True, scene: str = "none",
-                 sensors: str = DEFAULT_SENSORS) -> None:
+                 sensors: str = DEFAULT_SENSORS,
+                 profile: RobotProfile | str | None = None) -> None:
         if config not in CONFIGS:
             raise EmulatorConfigError(
                 f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
@@ -77,6 +81,8 @@ class EmulatedRobot:
         if scene != "none" and config not in ("full", "arm"):
             raise EmulatorConfigError(f"the {scene!r} scene stands in front of the arm: use it "
                                       f"with the full or arm configuration, not {config!r}")
+        #: The robot's own physical parameters (None: the nominal robot's).
+        self.profile = as_profile(profile)
         self.sensors = imperfections.check_sensors(sensors)  #: ``"ideal"`` or ``"realistic"``
         #: What ``sensors="realistic"`` drew for this robot (None: ideal, or no physics): the
         #: ground truth a calibration is held to, never on the wire.
@@ -127,8 +133,9 @@ class EmulatedRobot:
             base = spec.worldbody.add_body(name="arm_base",
                                            pos=[0.0, 0.0, arm_model.MOUNT_HEIGHT_M])
             hand_parent = arm_model.add_arm(spec, base, prefix="arm/")
+            params = self.profile.arm_params() if self.profile is not None else None
             self.arm_plant = ArmPlant("arm/", self.arm.stepper_hals, self.arm.servo_hals,
-                                      rng())
+                                      rng(), params)
             parts.append(self.arm_plant)
         if self.hand is not None:
             if hand_parent is None:

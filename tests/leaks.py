@@ -79,6 +79,15 @@ def _command(pid: int) -> str:
         return "?"
 
 
+def _resource_tracker_fd() -> int | None:
+    """The pipe to multiprocessing's resource tracker, opened by the first spawned process
+    and kept for the life of this one (as its process is, :func:`_children`)."""
+    from multiprocessing import resource_tracker
+
+    fd = getattr(resource_tracker._resource_tracker, "_fd", None)
+    return fd if isinstance(fd, int) else None
+
+
 def snapshot() -> Snapshot:
     """What this process holds now."""
     return Snapshot(_fds(), frozenset(threading.enumerate()), _children())
@@ -111,6 +120,8 @@ def leaked(before: Snapshot, grace_s: float = GRACE_S) -> list[str]:
         time.sleep(0.05)
         children = _children() - before.children
     found += [f"a running process {pid} ({_command(pid)})" for pid in sorted(children)]
+    tracker = _resource_tracker_fd()
     found += [f"file descriptor {fd} ({target})" for fd, target in sorted(_fds().items())
-              if before.fds.get(fd) != target and not any(p.search(target) for p in PROCESS_WIDE)]
+              if before.fds.get(fd) != target and fd != tracker
+              and not any(p.search(target) for p in PROCESS_WIDE)]
     return found

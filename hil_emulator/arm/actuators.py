@@ -131,6 +131,9 @@ class ArmParams:
     bearing_friction_nm: np.ndarray = field(default_factory=lambda: _vec((0.05, 0.1, 0.05,
                                                                           0.05)))
     friction_spread: float = 0.25
+    #: The bearings' friction of one arm as measured (N·m, J1..J4; NaN: drawn as above), as a
+    #: robot profile gives it (:mod:`hil_emulator.profile`).
+    bearing_friction_as_built_nm: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
     #: On re-locking after a slip the rotor settles 0..this many electrical periods further on
     #: in the slip's direction (random, as long as the coupling stays within capacity).
     slip_overshoot_periods: int = 2
@@ -175,6 +178,11 @@ class ArmParams:
                 raise EmulatorConfigError(f"ArmParams.{name} needs 4 finite values, got "
                                           f"{getattr(self, name)!r}")
             setattr(self, name, value)
+        built = np.array(self.bearing_friction_as_built_nm, dtype=float).reshape(-1)
+        if built.shape != (4,) or (built[~np.isnan(built)] < 0).any():
+            raise EmulatorConfigError("ArmParams.bearing_friction_as_built_nm needs 4 values "
+                                      ">= 0 or NaN")
+        self.bearing_friction_as_built_nm = built
         coupling = np.array(self.coupling, dtype=float)
         if coupling.shape != (4, 4) or not np.isfinite(coupling).all():
             raise EmulatorConfigError("ArmParams.coupling must be a finite 4×4 matrix")

@@ -268,6 +268,9 @@ class ArmPlant:
         if not self._bound:  # this arm's bearings (seeded), drawn once
             self._bearing_friction = p.bearing_friction_nm * np.exp(
                 p.friction_spread * self.rng.standard_normal(_N_STEPPERS))
+            measured = p.bearing_friction_as_built_nm
+            self._bearing_friction = np.where(np.isnan(measured), self._bearing_friction,
+                                              measured)
         model.dof_frictionloss[d0 : d0 + _N_STEPPERS] = self._bearing_friction
         model.dof_solimp[d0 : d0 + _N_STEPPERS] = FRICTION_SOLIMP
         self._servo_enabled = [False] * _N_SERVOS

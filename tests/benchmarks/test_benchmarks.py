@@ -40,7 +40,8 @@ PROMISED = {
     "bench_estimation": ["static, closed form", "moving, EKF fused with halls", "homing: "],
     "bench_view": ["arm cycles, view off", "arm cycles, view on (10 Hz)"],
     "bench_replay": ["bare mj_step (arm model)", "replay of arm recording",
-                     "replay of hand recording", "agrees with its recording"],
+                     "replay of hand recording", "agrees with its recording",
+                     "one replay of the arm excitation", "fit of 1 stiffness(es) from it"],
 }
 
 

@@ -4,7 +4,7 @@
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
                  [--faults FILE] [--control PATH] [--scene none|mug]
-                 [--sensors ideal|realistic] [--priority realtime|normal]
+                 [--sensors ideal|realistic] [--profile FILE] [--priority realtime|normal]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
 ``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="realistic (default): sensors as imperfect as the real parts "
                              "and a laser-cut build's geometry, drawn from --seed per board; "
                              "ideal: exact sensors on the nominal geometry")
+    parser.add_argument("--profile", metavar="FILE",
+                        help="a robot profile (JSON): this robot's physical parameters, "
+                             "e.g. written by hil-bench fit (docs/EMULATOR.md)")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=number_above(0, what="a time in seconds"),
@@ -143,7 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = load_plan(args.faults) if args.faults else []
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
                             physics=args.physics, can=args.can, scene=args.scene,
-                            sensors=args.sensors)
+                            sensors=args.sensors, profile=args.profile)
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2

@@ -7,6 +7,8 @@
     hil-bench list-faults [--json]
     hil-bench replay RECORDING.mcap [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
                   [--sensors ideal|realistic] [--report DIR]
+    hil-bench fit RECORDING.mcap… --params NAME… [--out PROFILE] [--json] [--workers N]
+                  [--tolerance CHANNEL=VALUE …]
     hil-bench experiments ARGS…
 
 ``run`` runs each scenario (docs/HIL_BENCH.md) in fast mode on the in-process emulator: one
@@ -20,7 +22,9 @@ per fault class and per ``campaign.vary`` parameter value, and their bar charts)
 per run and PNG plots around each fault.  ``list-scenarios`` prints the built-in
 scenarios (a NAME ``run`` takes instead of a file).  ``list-faults`` prints the fault catalogue with parameters,
 including those not implemented yet.  ``replay`` drives an emulator with a recording's host
-bytes and compares its answers with the recorded robot's (:mod:`tools.hil_bench.replay`).
+bytes and compares its answers with the recorded robot's (:mod:`tools.hil_bench.replay`);
+``fit`` estimates the physical parameters that best reproduce recordings and writes a robot
+profile (:mod:`tools.hil_bench.fit`).
 ``experiments`` hands its arguments to
 ``tools.experiments.dissertation``.
 """
@@ -75,9 +79,11 @@ def build_parser() -> argparse.ArgumentParser:
     ls.add_argument("--json", action="store_true", help="as JSON")
     lf = sub.add_parser("list-faults", help="the fault catalogue with parameters")
     lf.add_argument("--json", action="store_true", help="as JSON")
+    from tools.hil_bench.fit.command import add_arguments as add_fit
     from tools.hil_bench.replay.command import add_arguments
 
     add_arguments(sub)
+    add_fit(sub)
     # ``experiments`` takes its own options (--json, --report …), which argparse's REMAINDER
     # would refuse when they come first: main hands them over before parsing
     sub.add_parser("experiments", help="bench experiments (tools.experiments.dissertation): "
@@ -288,6 +294,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tools.hil_bench.replay.command import run as replay
 
         return replay(args)
+    if args.command == "fit":
+        from tools.hil_bench.fit.command import run as fit
+
+        return fit(args)
     return run(args)
 
 
