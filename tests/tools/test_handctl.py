@@ -15,7 +15,7 @@ from protocol.framing import parse_frame
 from tests.hil_emulator.emulator_thread import serving
 from tools.cli.handctl import main
 
-URL = "emu://hand/palm?name=host-tests"
+URL = "emu://hand/palm?name=handctl-tests"  # its own emulator: not the one another module left
 
 
 def _json(capsys: pytest.CaptureFixture[str]) -> dict:
