@@ -133,6 +133,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None,
                 return reopened
 
             demo = Demo(hand, arm, out, palm_port=ports["palm"], reopen_hand=reopen_hand)
+            demo.calibrate = sensors != "ideal"
             demo.wall0 = wall0
             try:
                 # steady host cycles on a busy machine, below the emulator's own priority

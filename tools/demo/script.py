@@ -14,7 +14,12 @@ would, with the host library and the command-line tools:
    flashes all twelve finger MCUs with ``flash-all-fingers``;
 3. **homing**: the arm at its encoders' index marks (``Arm.home``), then the hand from its
    accelerometers (``Hand.home``) in two wrist tilts (:data:`protocol.robot.HOMING_WRIST_TILTS`): the three
-   parallel fingers' axes are observable in one, the thumb's in the other;
+   parallel fingers' axes are observable in one, the thumb's in the other.  In each tilt,
+   before homing them, the fingers' accelerometers are calibrated
+   (:func:`host.hand.calibration.calibrate_fingers`: each finger through its poses and onto
+   its stops; the fit of every board's mounting, bias and scale, used by the homing and
+   written to ``OUT/calibration.json``); on an emulator with ``--sensors ideal`` there is
+   nothing to calibrate;
 4. **reach**: the hanging arm turns its upper arm and wrist, raises the hand to a ready
    pose in front of the table's edge (joint moves), and brings it to the mug from the side
    (``Arm.moveto``): the palm upright, its face towards the mug, the fingers open along the
@@ -76,6 +81,9 @@ from host.arm.kinematics import forward, solve_ik
 from host.arm.recording import ArmRecorder
 from host.arm.state import ArmState
 from host.arm.trajectory import Trajectory, timed_path
+from host.estimation.calibration_file import save_section
+from host.estimation.hand_calibration import FingerFit, HandCalibration
+from host.hand.calibration import calibrate_fingers
 from host.hand.facade import Hand
 from host.hand.grasp import squeeze
 from host.hand.homing import FingerMovingError, HomeResult
@@ -120,6 +128,8 @@ from tools.demo.report import Log, write_report
 from tools.demo.watch import SLIP_M, HandSampler, MugInHand, felt
 from tools.errors import DemoFailed
 
+#: The hand's calibration file the demo writes in its output directory.
+CALIBRATION_FILE = "calibration.json"
 #: The hand's fall reported for the put-down: the most it fell in this long (s).
 FALL_WINDOW_S = 0.3
 
@@ -158,6 +168,9 @@ class Demo:
         self.wall0 = time.monotonic()
         self.step = "start"
         self.sampler = HandSampler(hand)
+        #: Calibrate the hand's accelerometers before homing it (the robot as built); an
+        #: emulated robot with ideal sensors needs none.
+        self.calibrate = True
         self.mug_in_hand: MugInHand | None = None
         #: The session's hand recording (:func:`run_session`), kept on the hand when its
         #: link is opened again.
@@ -289,9 +302,23 @@ class Demo:
         self.say("arm homed; index offsets (rad): "
                  + ", ".join(f"{o:+.3f}" for o in calibration.offsets[:4]))
         homed: dict[int, bool] = {}
+        hand_cal = HandCalibration(source=str(self.out / CALIBRATION_FILE))
+        fits: dict[int, FingerFit] = {}
         for (j6, j7), fingers in HOMING_WRIST_TILTS:
             self._move((0.0, 0.0, 0.0, 0.0, 0.0, j6, j7), 4.0)
             self.rest(2.0)  # the elastic arm and the fingers come to rest
+            fitted: dict[int, FingerFit] = {}
+            if self.calibrate:
+                found, fitted = calibrate_fingers([self.hand.fingers[k] for k in fingers])
+                hand_cal.boards.update(found.boards)
+                fits.update(fitted)
+                self.hand.calibration = hand_cal
+            for k in fitted:
+                tilts = ", ".join(f"{b} {math.degrees(float(np.linalg.norm(c.rotation_vector))):.1f}°"
+                                  for b, c in fitted[k].boards.items())
+                self.say(f"hand: finger {k}'s accelerometers calibrated "
+                         f"({fitted[k].poses} poses, residual {fitted[k].rms_counts:.1f} mg; "
+                         f"mounting tilts {tilts})")
             for k in fingers:
                 result = self._home_finger(k)
                 homed[k] = result.homed
@@ -301,6 +328,14 @@ class Demo:
         missing = [k for k, ok in homed.items() if not ok]
         if missing:
             raise DemoFailed("homing", f"fingers {missing} not homed")
+        if not self.calibrate:
+            self.say("hand: ideal sensors, nothing to calibrate")
+            return
+        serial = self.hand.serial()
+        save_section(self.out / CALIBRATION_FILE, serial, "hand",
+                     hand_cal.to_section(fits=fits), replace_other_robot=True)
+        self.say(f"hand: calibration of robot {serial} written to "
+                 f"{self.out / CALIBRATION_FILE}")
 
     def _home_finger(self, k: int) -> HomeResult:
         """Home finger ``k``; a finger still swaying after the wrist's tilt
@@ -617,6 +652,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None,
     emulator = transport.emulator
     truth = emulator.scene_parts[0]
     demo = Demo(hand, arm, out, truth=truth, palm_port=url.format("palm"))
+    demo.calibrate = sensors != "ideal"
     demo.mug_in_hand = MugInHand.from_emulator(emulator, truth)
     if demo.mug_in_hand is not None:
         demo.log.truth = demo.mug_in_hand.samples
