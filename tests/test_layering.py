@@ -46,8 +46,8 @@ RULES: dict[str, Rule] = {
     # rerun (and its pyarrow, the columns the view sends): the live browser view
     # (host.view.live), imported only when a view is asked for
     "host": Rule(("host", "protocol"),
-                 ("serial", "can", "dynamixel_sdk", "numpy", "mcap", "mcap_protobuf", "rerun",
-                  "pyarrow")),
+                 ("serial", "can", "dynamixel_sdk", "numpy", "scipy", "mcap", "mcap_protobuf",
+                  "rerun", "pyarrow")),
     "bootloader": Rule(("bootloader", "host", "protocol"),
                        ("serial", "can", "numpy", "cryptography", "intelhex", "elftools",
                         "nacl")),
