@@ -67,7 +67,10 @@ DEFAULT_SENSORS: Final = "realistic"
 #: Each part's key in the seed sequence's children (``SeedSequence(seed, spawn_key=(k,))``):
 #: the palm, finger modules 0..3, then the arm's and the hand's geometry.
 PART_KEYS: Final = {"palm": 0, "finger0": 1, "finger1": 2, "finger2": 3, "finger3": 4,
-                    "arm geometry": 10, "hand geometry": 11, "arm assembly": 12}
+                    "arm geometry": 10, "hand geometry": 11, "serial": 12,
+                    "arm assembly": 13}
+#: The hand's node uids of ``--sensors ideal`` (the palm's; the fingers' follow it).
+IDEAL_UID_BASE: Final = 0x1000
 #: The arm's bodies whose tube is cut to length by hand (:func:`lengthen_arm_tubes`): the
 #: upper arm's (roll bearing → elbow) and the forearm's (forearm roll → wrist pitch).
 ARM_TUBE_BODIES: Final = ("arm/forearm", "arm/wrist")
@@ -141,6 +144,16 @@ def check_sensors(sensors: str) -> str:
 def part_rng(seed: int, part: str) -> np.random.Generator:
     """The generator of ``part``'s imperfections (:data:`PART_KEYS`) for ``seed``."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(PART_KEYS[part],)))
+
+
+def hand_uid_base(seed: int, sensors: str) -> int:
+    """The palm's uid (its boards' numbering base, a multiple of 0x1000): ``ideal`` keeps
+    :data:`IDEAL_UID_BASE`; ``realistic`` draws it from the seed, so robots of different
+    seeds, whose parts differ, have different serial numbers (a calibration file is named
+    by it) as two real hands do."""
+    if sensors != "realistic":
+        return IDEAL_UID_BASE
+    return int(part_rng(seed, "serial").integers(2, 0x80000)) << 12
 
 
 def rotation_from_vector(v: np.ndarray) -> np.ndarray:

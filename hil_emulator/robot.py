@@ -92,8 +92,8 @@ class EmulatedRobot:
         if config in ("full", "arm"):
             self.arm = ArmRig(self.scheduler, seed=int(next(seeds)))
         if config in ("full", "hand"):
-            self.hand = HandRig(self.scheduler, line_model=True, seed=int(next(seeds)),
-                                record=False)
+            self.hand = HandRig(self.scheduler, imperfections.hand_uid_base(seed, self.sensors),
+                                line_model=True, seed=int(next(seeds)), record=False)
         if config == "loose-finger":
             self.loose = LooseFinger(self.scheduler, line_model=True, seed=int(next(seeds)),
                                      record=False)

@@ -14,13 +14,15 @@ ConnectionError`` catches it where a caller does not know this library::
     │   ├── LimitError                    an arm motion the gate refuses before it starts
     │   ├── FingerMovingError             the finger moved while read for homing
     │   ├── AmbiguousPoseError            two poses fit the accelerometers
-    │   └── UnobservableJointError        a joint axis too near vertical (host.estimation.closed_form)
+    │   ├── UnobservableJointError        a joint axis too near vertical (host.estimation.closed_form)
+    │   └── CalibrationFileError          a calibration file unreadable, malformed, newer, another robot's
     ├── NoAccelerationError               accelerometers unpowered or silent (host.estimation.closed_form)
     ├── HomingError                       an arm joint's index mark was not found
     ├── StallError                        a stepper joint kept latching STALLED
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     ├── ViewUnavailable                   the live view cannot start
-    └── RecordingError(OSError)           a recording's file could not be written
+    ├── RecordingError(OSError)           a recording's file could not be written
+    └── CalibrationError                  a calibration's fit does not explain its readings
 
 Defined here unless their constructor needs their module's data (the module is named).
 """
@@ -85,6 +87,26 @@ class HomingError(HostError):
 class RecordingError(HostError, OSError):
     """A recording's file could not be created or written (no such directory, no
     permission, a full disk); what was written before stays in the file."""
+
+
+class CalibrationFileError(UsageError):
+    """A calibration file (:mod:`host.estimation.calibration_file`) that cannot be read, is
+    not one, is of a newer version than this library reads, or (when writing) belongs to
+    another robot.  ``path`` is the file."""
+
+    def __init__(self, message: str, *, path: Any) -> None:
+        super().__init__(message)
+        self.path = path
+
+
+class CalibrationError(HostError):
+    """A calibration's fit leaves residuals far above the sensors' noise: the robot did not
+    do what the poses assumed (a finger met something, its halls lost counts); nothing was
+    written.  ``finger`` names the finger (None: not a finger's)."""
+
+    def __init__(self, message: str, *, finger: int | None = None) -> None:
+        super().__init__(message)
+        self.finger = finger
 
 
 class StallError(HostError):

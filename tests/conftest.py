@@ -105,6 +105,14 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
 
 
 @pytest.fixture(autouse=True)
+def _calibration_files_apart(tmp_path_factory: pytest.TempPathFactory,
+                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """No test reads or writes the user's calibration files: each test's default calibration
+    directory ($LOWCOST_CALIBRATION_DIR, host.estimation.calibration_file) is its own, empty."""
+    monkeypatch.setenv("LOWCOST_CALIBRATION_DIR", str(tmp_path_factory.mktemp("calibration")))
+
+
+@pytest.fixture(autouse=True)
 def _leaves_nothing_behind(request: pytest.FixtureRequest) -> Iterator[None]:
     """Fail the test that leaves a descriptor (a pty, a socket, a file), a non-daemon thread or
     a running emulator behind (:mod:`tests.leaks`); its module's fixtures are checked when

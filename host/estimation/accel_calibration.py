@@ -13,8 +13,10 @@ frame (columns; its deviation from the nominal
 (counts).  Given ``N ≥ 4`` poses with non-coplanar ``g`` (from the joint angles of the
 poses and the base's orientation), :func:`calibrate` solves ``r = A·g + b`` by linear least
 squares (12 unknowns), splits ``A`` into scale and rotation (rows of ``A`` are
-``scale_i·R[:, i]``; the rotation is the nearest orthonormal one), then refines all seven
-physical parameters by Gauss–Newton.
+``scale_i·R[:, i]``; the rotation is the nearest orthonormal one), then refines the nine
+physical parameters (bias, scale, rotation) by :func:`scipy.optimize.least_squares`.  A
+whole finger, with its relative halls and the priors that keep unobservable parameters at
+their nominal values: :mod:`host.estimation.hand_calibration`.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from host.errors import UsageError
 from host.estimation.finger_gravity import axis_rotation
@@ -102,18 +105,8 @@ def calibrate(readings: np.ndarray, up_segment: np.ndarray,
     scale = np.linalg.norm(a, axis=1)
     rot0 = nearest_rotation((a / scale[:, None]).T)
     params = np.concatenate((bias, scale, np.zeros(3)))
-    for _ in range(iterations):
-        res = _residual(params, rot0, g, r)
-        jac = np.zeros((res.size, params.size))
-        for k in range(params.size):
-            step = 1e-6 * max(1.0, abs(float(params[k])))
-            p = params.copy()
-            p[k] += step
-            jac[:, k] = (_residual(p, rot0, g, r) - res) / step
-        delta, *_ = np.linalg.lstsq(jac, -res, rcond=None)
-        params = params + delta
-        if float(np.max(np.abs(delta))) < 1e-10:
-            break
+    params = least_squares(_residual, params, args=(rot0, g, r), method="lm",
+                           max_nfev=200 * max(1, iterations)).x
     rot = rot0 @ _small_rotation(params[6:9])
     rms = float(np.sqrt(np.mean(_residual(params, rot0, g, r) ** 2)))
     return AccelCalibration(params[0:3].copy(), params[3:6].copy(), rot, rms)

@@ -23,11 +23,14 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 import host.hand.bring_up as hand_bring_up
+import host.hand.calibration as hand_calibration
 import host.hand.grasp as grasping
 import host.hand.homing as hand_homing
 from host.code_names import code_name
 from host.errors import HostError, NotHomedError, UsageError, why_no_answer
+from host.estimation.calibration_file import serial_of_uid
 from host.estimation.closed_form import DEFAULT_MIN_AXIS_TILT_RAD
+from host.estimation.hand_calibration import HandCalibration
 from host.hand.bring_up import BOOT_TIMEOUT_S, bring_up
 from host.hand.finger import FALLBACK_DEADBAND_HALL, FULL_EFFORT, Finger
 from host.hand.grasp import GRASP_TIMEOUT_S
@@ -116,6 +119,9 @@ class Hand:
         self.layout = layout
         self.palm = Node(session, LINK_NODE, "palm")
         self.fingers = [Finger(self, k) for k in range(FINGERS)]
+        #: The accelerometers' calibration the estimates and homing use (None: their
+        #: nominal mounting); :meth:`load_calibration` sets it.
+        self.calibration: HandCalibration | None = None
         #: Called with every :class:`HandState` read (:meth:`status`, streams): a view, a
         #: plot, a recorder; whoever reads the hand need not know it is watched.
         self.state_taps: list[Callable[[HandState], None]] = []
@@ -444,7 +450,30 @@ class Hand:
         """Home ``finger`` (or every finger) from its accelerometers, averaging ``samples``
         status reads, refusing a joint whose axis is within ``min_tilt_rad`` of vertical:
         see :func:`host.hand.homing.home`."""
-        return hand_homing.home(self, finger, samples, min_tilt_rad)
+        return hand_homing.home(self, finger, samples, min_tilt_rad,
+                                calibration=self.calibration)
+
+    # --- calibration (host.hand.calibration) ---------------------------------------------
+    def serial(self) -> str:
+        """The robot's serial number: the palm's ``uid`` as eight hex digits."""
+        info = self.palm.identify()
+        if info.uid is None:
+            raise HostError(f"the palm did not say its uid: {info.problem}")
+        return serial_of_uid(info.uid)
+
+    def load_calibration(self, choice: str | None = None
+                         ) -> hand_calibration.CalibrationChoice:
+        """Find and use this robot's accelerometer calibration (``choice``: None for the
+        default file of its serial, ``"none"``, or a path): see
+        :func:`host.hand.calibration.choose_calibration`.  Print its ``summary()`` and
+        ``warnings``."""
+        info = self.palm.identify()
+        if info.uid is None:
+            raise HostError(f"the palm did not say its uid: {info.problem}")
+        chosen = hand_calibration.choose_calibration(serial_of_uid(info.uid), choice,
+                                                     info.fw_version)
+        self.calibration = chosen.calibration
+        return chosen
 
     def require_homed(self, fingers: Sequence[int]) -> None:
         """Raise :class:`~host.errors.NotHomedError` naming those of ``fingers`` whose fmcb

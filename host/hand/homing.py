@@ -37,6 +37,7 @@ from host.estimation.closed_form import (
     UnobservableJointError,
     estimate,
 )
+from host.estimation.hand_calibration import HandCalibration
 from host.hand.interface import HandFinger, LinkedHand
 from protocol.robot import joint_to_motor
 
@@ -100,11 +101,21 @@ def read_at_rest(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
         int((hall.max(axis=0) - hall.min(axis=0)).max()), len(rows))
 
 
+def corrected(finger: int, readings: dict[str, Any],
+              calibration: HandCalibration | None) -> dict[str, Any]:
+    """``readings`` of finger ``finger`` corrected by ``calibration`` (unchanged without)."""
+    return readings if calibration is None else calibration.correct(finger, readings)
+
+
 def inertial_estimate(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                       previous: Sequence[float | None] | None = None,
-                      min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> InertialEstimate:
-    """The finger's joint angles (rad) from its accelerometers now (closed form)."""
-    return estimate(read_at_rest(finger, samples).as_dict(), previous, min_tilt_rad)
+                      min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD,
+                      calibration: HandCalibration | None = None) -> InertialEstimate:
+    """The finger's joint angles (rad) from its accelerometers now (closed form), their
+    readings corrected by ``calibration`` (:mod:`host.estimation.hand_calibration`)."""
+    readings = corrected(finger.index, dict(read_at_rest(finger, samples).as_dict()),
+                         calibration)
+    return estimate(readings, previous, min_tilt_rad)
 
 
 @dataclass
@@ -136,8 +147,10 @@ def _still(reading: InertialReading) -> bool:
 
 def home_finger(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                 min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD,
-                wait_s: float = REST_WAIT_S) -> HomeResult:
-    """Home ``finger`` from its accelerometers; raises (:class:`UnobservableJointError`,
+                wait_s: float = REST_WAIT_S,
+                calibration: HandCalibration | None = None) -> HomeResult:
+    """Home ``finger`` from its accelerometers (corrected by ``calibration`` when given);
+    raises (:class:`UnobservableJointError`,
     :class:`AmbiguousPoseError`, :class:`FingerMovingError`) instead of guessing.  A finger
     that moves while being read is read again until it is still, for up to ``wait_s``
     (s, the link's clock)."""
@@ -153,7 +166,8 @@ def home_finger(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
             f"hall counts, accelerometers ±{reading.spread_counts:.0f} mg) for "
             f"{wait_s:g} s; let it come to rest (idle it) and home again")
     try:
-        found = estimate(reading.as_dict(), None, min_tilt_rad)
+        found = estimate(corrected(finger.index, dict(reading.as_dict()), calibration), None,
+                         min_tilt_rad)
     except NoAccelerationError as exc:
         raise NoAccelerationError(exc.boards, exc.readings,
                                   message=_silent_boards(finger, exc)) from None
@@ -206,17 +220,20 @@ def _silent_boards(finger: HandFinger, exc: NoAccelerationError) -> str:
 
 
 def home(hand: LinkedHand, finger: int | None = None, samples: int = DEFAULT_SAMPLES,
-         min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD) -> list[HomeResult]:
+         min_tilt_rad: float = DEFAULT_MIN_AXIS_TILT_RAD,
+         calibration: HandCalibration | None = None) -> list[HomeResult]:
     """Home one finger (errors raised) or every finger (``None``: one :class:`HomeResult`
-    each, ``problem`` saying why a finger was not homed)."""
+    each, ``problem`` saying why a finger was not homed); the accelerometers corrected by
+    ``calibration`` when given."""
     if finger is not None:
         if not 0 <= finger < len(hand.fingers):
             raise UsageError(f"finger {finger}: the hand has fingers 0..{len(hand.fingers) - 1}")
-        return [home_finger(hand.fingers[finger], samples, min_tilt_rad)]
+        return [home_finger(hand.fingers[finger], samples, min_tilt_rad,
+                            calibration=calibration)]
     results = []
     for f in hand.fingers:
         try:
-            results.append(home_finger(f, samples, min_tilt_rad))
+            results.append(home_finger(f, samples, min_tilt_rad, calibration=calibration))
         except UnobservableJointError as exc:
             results.append(HomeResult(f.index, False, problem=str(exc),
                                       unobservable=tuple(p.joint for p in exc.problems)))
@@ -233,6 +250,6 @@ def homed_on_robot(finger: HandFinger) -> bool:
     return list(raw) != list(rel)
 
 
-__all__ = ["AmbiguousPoseError", "FingerMovingError", "HomeResult", "InertialReading",
+__all__ = ["AmbiguousPoseError", "corrected", "FingerMovingError", "HomeResult", "InertialReading",
            "NoAccelerationError", "UnobservableJointError", "home", "home_finger", "homed_on_robot",
            "inertial_estimate", "read_at_rest", "REST_WAIT_S"]

@@ -10,6 +10,8 @@
     handctl --port P move --hand 0,0.5,0.3,0,0.5,0.3,0,0.5,0.3,0,0.5,0.3
     handctl --port P record run.mcap --seconds 5 [--rate 50]
     handctl --port P home [--finger 3]                    # hall offsets from the accelerometers
+    handctl --port P calibrate [--fingers 3] [--out PATH]  # the accelerometers' calibration file
+    handctl --port P status --calibration none            # estimate without the calibration file
     handctl --port P grasp cylindrical 0.8 [--speed 1.0] [--until-contact] [--unhomed]
     handctl --port P grasp pinch 1.0 --fingers 0,3        # only some fingers
     handctl --port P grasp open 1.0                       # poses: open, relax, point
@@ -30,6 +32,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from host.code_names import code_name
 from host.errors import (
     HostError,
@@ -39,11 +43,14 @@ from host.errors import (
     RouteError,
     UsageError,
 )
+from host.estimation.calibration_file import default_path as calibration_path
+from host.estimation.calibration_file import save_section, serial_of_uid
 from host.estimation.closed_form import NoAccelerationError, UnobservableJointError, estimate
 from host.estimation.ekf import fuse_snapshot
 from host.hand.bring_up import BOOT_TIMEOUT_S
+from host.hand.calibration import NO_CALIBRATION, calibrate_fingers
 from host.hand.facade import Hand, MoveResult
-from host.hand.homing import homed_on_robot
+from host.hand.homing import corrected, homed_on_robot
 from host.hand.state import FingerState, HandState, NodeInfo
 from host.hand.synergies import DEFAULT_SPEED_RAD_S, MAX_SPEED_RAD_S, SYNERGIES
 from protocol.image import BoardType
@@ -156,10 +163,26 @@ def _node_line(n: NodeInfo) -> str:
     return f"{n.where:15} {n.running:11} v{n.fw_version}  uid {n.uid:#010x}{cat}"
 
 
-@COMMANDS.command("status", "joints, taxels, currents, power of every finger")
+def _calibration_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--calibration", metavar="PATH",
+                   help="the accelerometers' calibration file (default: this robot's, "
+                        "named by its palm's uid; 'none': their nominal mounting)")
+
+
+def _use_calibration(hand: Hand, args: argparse.Namespace) -> None:
+    """Load the calibration ``--calibration`` names (or this robot's) and say on stderr,
+    in one line each, which one the estimates use and what is wrong with it."""
+    chosen = hand.load_calibration(args.calibration)
+    for line in [*chosen.warnings, chosen.summary()]:
+        print(f"handctl: {line}" if line in chosen.warnings else line, file=sys.stderr)
+
+
+@COMMANDS.command("status", "joints, taxels, currents, power of every finger",
+                  _calibration_argument)
 def _cmd_status(hand: Hand, args: argparse.Namespace) -> int:
     """Exit 1 when a finger that is powered does not answer (the advice fits what the link
     carried meanwhile: garbage, late replies, or nothing)."""
+    _use_calibration(hand, args)
     before = _link_seen(hand)
     state = hand.status()
     seen = {k: v - before[k] for k, v in _link_seen(hand).items()}
@@ -207,8 +230,9 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
         homed = homed_on_robot(hand.fingers[f.index])
     except HostError:
         homed = False
+    accels = corrected(f.index, dict(f.accels), hand.calibration)
     try:
-        found = estimate(f.accels)
+        found = estimate(accels)
     except (NoAccelerationError, UsageError) as exc:  # NoAccelerationError: phalanges unpowered
         return {"joints_accel": None, "homed": homed,
                 "accel_problem": f"{exc}; power the phalanges: handctl up"
@@ -217,7 +241,7 @@ def _inertial(hand: Hand, f: FingerState) -> dict[str, Any]:
         "joints_accel": [None if q is None else round(q, 6) for q in found.q],
         "homed": homed}
     if homed:
-        out["joints"] = [round(float(q), 6) for q in fuse_snapshot(f.joints_hall, f.accels)]
+        out["joints"] = [round(float(q), 6) for q in fuse_snapshot(f.joints_hall, accels)]
     return out
 
 
@@ -383,11 +407,13 @@ def _move_text(r: MoveResult) -> str:
 
 def _home_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--finger", type=int, help="one finger (default: every finger)")
+    _calibration_argument(p)
 
 
 @COMMANDS.command("home", "set the hall offsets from the accelerometers (no joint axis near "
                   "vertical)", _home_arguments)
 def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
+    _use_calibration(hand, args)
     try:
         results = hand.home(args.finger)
     except UnobservableJointError as exc:  # one finger asked for: an error, with the way out
@@ -403,6 +429,52 @@ def _cmd_home(hand: Hand, args: argparse.Namespace) -> int:
     lines += tilt_hints([r.finger for r in results if r.unobservable])
     _emit(args, {"fingers": [r.to_dict() for r in results]}, "\n".join(lines))
     return 0 if all(r.homed for r in results) else EXIT_ROBOT
+
+
+def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fingers", type=_finger_list, metavar="K,…",
+                   help="only these fingers, e.g. 3 (default: all four)")
+    p.add_argument("--out", metavar="PATH",
+                   help="the calibration file to write (default: this robot's, in "
+                        "$LOWCOST_CALIBRATION_DIR or ~/.config/lowcost-hand/calibration)")
+    p.add_argument("--replace-other-robot", action="store_true",
+                   help="overwrite a file at --out that holds another robot's calibration")
+
+
+@COMMANDS.command("calibrate", "fit the accelerometers' mounting, bias and scale from poses the "
+                  "fingers take (they move!) and write the calibration file",
+                  _calibrate_arguments)
+def _cmd_calibrate(hand: Hand, args: argparse.Namespace) -> int:
+    info = hand.palm.identify()
+    if info.uid is None:
+        raise NodeError(f"the palm did not say its uid: {info.problem}")
+    serial = serial_of_uid(info.uid)
+    if args.out is not None and args.out == NO_CALIBRATION:
+        raise UsageError("--out none: give the calibration file's path")
+    out = calibration_path(serial) if args.out is None else args.out
+    fingers = args.fingers if args.fingers is not None else list(range(FINGERS))
+
+    def progress(finger: int, done: int, total: int) -> None:
+        end = "\n" if done == total else ""
+        print(f"\rcalibrating finger {finger}: pose {done}/{total}", end=end, file=sys.stderr,
+              flush=True)
+
+    cal, fits = calibrate_fingers([hand.fingers[k] for k in fingers], progress)
+    written = save_section(out, serial, "hand", cal.to_section(fits=fits,
+                                                               firmware=info.fw_version),
+                           replace_other_robot=args.replace_other_robot)
+    lines = []
+    for k, fit in sorted(fits.items()):
+        boards = ", ".join(f"{b} tilt {np.degrees(np.linalg.norm(c.rotation_vector)):.2f}° "
+                           f"bias [{', '.join(f'{v:+.0f}' for v in c.bias)}] mg"
+                           for b, c in fit.boards.items())
+        lines.append(f"finger {k}: {fit.poses} poses, residual {fit.rms_counts:.2f} mg; {boards}")
+        lines.append(f"finger {k}: not observable from these poses (left at nominal): "
+                     + (", ".join(fit.unobservable()) or "nothing"))
+    lines.append(f"wrote {out} (robot {serial}, sections: {', '.join(written.sections)})")
+    _emit(args, {"path": str(out), "robot_serial": serial,
+                 "hand": written.sections["hand"]}, "\n".join(lines))
+    return 0
 
 
 def _grasp_arguments(p: argparse.ArgumentParser) -> None:
