@@ -18,7 +18,7 @@ touch's repeatability (:data:`TOUCH_SIGMA_M`) and ``s_p`` each parameter's CAD t
 (:meth:`ArmGeometry.nominal`), as §4.4 advises; scipy's trust-region least squares does the
 rest.
 
-**What it estimates** (:data:`PARAMETERS`): the zero offsets of J2..J7 (rad, added to the
+**What it estimates** (:data:`PARAMETERS`): the zero offsets of J2..J6 (rad, added to the
 readings), each joint body's offset J2..J7 in its parent's frame (m, 3 each) and the flange
 offset (m, 3), except what no touch can see:
 
@@ -27,9 +27,11 @@ offset (m, 3), except what no touch can see:
   free: J1's zero offset, J1's body offset and J2's offset along J1's axis (:data:`GAUGE`)
   are held at the CAD values.  An error there is a rigid motion of everything the arm
   touches (compare with a true geometry after :meth:`ArmGeometry.with_gauge_of`);
-* offsets along a joint's own axis that only add: J3's and J4's offsets along the upper arm
-  (J3's axis) appear only as their sum (J3's is held, J4's estimated), likewise J5's and J6's
-  along the forearm.  Offsets that add along a parallel or the same axis further on (J2's
+* what another parameter does exactly (:data:`SUMMED`): J3's and J4's offsets along the
+  upper arm (J3's axis) appear only as their sum (J3's is held, J4's estimated), likewise
+  J5's and J6's along the forearm; J7's zero turns the flange *point* about J7's axis, the
+  same as moving the flange offset in ``y`` and ``z``, so the flange offset takes it (a tool's
+  orientation would need J7's zero; touches give none).  Offsets that add along a parallel or the same axis further on (J2's
   and J3's ``y`` along J2's axis, J4's and J5's ``y``, J6's and J7's ``y``, J7's and the
   flange's ``x``) are estimated together: the prior splits their sum, which is what the
   flange's position depends on (``tests/host/arm/test_arm_calibration.py`` checks this list
@@ -65,9 +67,10 @@ _AXES: Final = np.array(ARM_JOINT_AXES, dtype=float)
 #: body offset, J2's offset along J1's axis.
 GAUGE: Final = (("zero", 0), ("offset", 0, 0), ("offset", 0, 1), ("offset", 0, 2),
                 ("offset", 1, 2))
-#: Held at the CAD values because only their sum with a later one along the same axis shows
-#: (J3's and J4's, J5's and J6's offsets along J3's and J5's axes): the later one is estimated.
-SUMMED: Final = (("offset", 2, 2), ("offset", 4, 2))
+#: Held at the CAD values because another parameter does exactly what they do: J3's and J4's,
+#: J5's and J6's offsets along J3's and J5's axes only add (the later one is estimated); J7's
+#: zero turns the flange point about J7's axis, which is the same as moving the flange offset.
+SUMMED: Final = (("offset", 2, 2), ("offset", 4, 2), ("zero", 6))
 #: What the solver estimates, in the parameter vector's order: ``("zero", joint)`` (rad,
 #: joint 0..6 = J1..J7), ``("offset", joint, axis)`` (m, axis 0..2 = x, y, z of the joint
 #: body's offset in its parent's frame), ``("flange", axis)`` (m).
@@ -274,3 +277,30 @@ def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> Calibr
         geometry,
         (_rms(board_residuals(start, data.boards)), _rms(board_residuals(geometry, data.boards))),
         (table(start), table(geometry)), int(fit.nfev), bool(fit.success))
+
+
+#: The calibration file's section for the arm (``host.estimation.calibration_file``).
+ARM_SECTION: Final = "arm"
+#: Its ``method``: how the section was made.
+METHOD: Final = "touches (board distances, table planarity; §4.4) by least squares"
+
+
+def arm_section(result: CalibrationResult) -> dict[str, object]:
+    """The calibration file's ``"arm"`` section for ``result`` (JSON values: the geometry
+    in rad and m, the residuals' rms before and after in m, the estimated parameters)."""
+    return {"method": METHOD, "geometry": result.geometry.as_dict(),
+            "board_rms_m": list(result.board_rms_m), "table_rms_m": list(result.table_rms_m),
+            "estimated": [list(p) for p in PARAMETERS]}
+
+
+def geometry_of_section(section: dict[str, object]) -> ArmGeometry:
+    """The geometry an ``"arm"`` section holds; :class:`ValueError` (one line) if it holds
+    none or a malformed one."""
+    geometry = section.get("geometry")
+    if not isinstance(geometry, dict):
+        raise ValueError("the calibration's arm section has no geometry")
+    try:
+        return ArmGeometry.from_dict(geometry)
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"the calibration's arm section has a malformed geometry ({exc})"
+                         ) from exc
