@@ -26,7 +26,10 @@ offset (m, 3), except what no touch can see:
   board's and the table's poses are unknown, so the base's yaw about J1 and its position are
   free: J1's zero offset, J1's body offset and J2's offset along J1's axis (:data:`GAUGE`)
   are held at the CAD values.  An error there is a rigid motion of everything the arm
-  touches (compare with a true geometry after :meth:`ArmGeometry.with_gauge_of`);
+  touches (compare with a true geometry after :meth:`ArmGeometry.with_gauge_of`).  Anchor
+  touches, of points drawn in the base frame (:attr:`CalibrationData.anchor_points_m`: a
+  dimple or two on the base plate), make J1's zero and body offset (:data:`ANCHORED`) seen;
+  residual ``FK(q) − p``;
 * what another parameter does exactly (:data:`SUMMED`): J3's and J4's offsets along the
   upper arm (J3's axis) appear only as their sum (J3's is held, J4's estimated), likewise
   J5's and J6's along the forearm; J7's zero turns the flange *point* about J7's axis, the
@@ -71,6 +74,10 @@ GAUGE: Final = (("zero", 0), ("offset", 0, 0), ("offset", 0, 1), ("offset", 0, 2
 #: J5's and J6's offsets along J3's and J5's axes only add (the later one is estimated); J7's
 #: zero turns the flange point about J7's axis, which is the same as moving the flange offset.
 SUMMED: Final = (("offset", 2, 2), ("offset", 4, 2), ("zero", 6))
+#: Estimated as well when the data has anchor touches (points drawn in the base frame, e.g.
+#: dimples on the base plate): J1's zero and J1's body offset.  J2's offset along J1's axis
+#: stays held: it only adds to J1's.
+ANCHORED: Final = (("zero", 0), ("offset", 0, 0), ("offset", 0, 1), ("offset", 0, 2))
 #: What the solver estimates, in the parameter vector's order: ``("zero", joint)`` (rad,
 #: joint 0..6 = J1..J7), ``("offset", joint, axis)`` (m, axis 0..2 = x, y, z of the joint
 #: body's offset in its parent's frame), ``("flange", axis)`` (m).
@@ -122,10 +129,10 @@ class ArmGeometry:
         out: np.ndarray = pos + rot @ self.flange_offset_m
         return out
 
-    def vector(self) -> np.ndarray:
-        """The values of :data:`PARAMETERS` (rad and m)."""
+    def vector(self, parameters: Sequence[tuple[object, ...]] = PARAMETERS) -> np.ndarray:
+        """The values of ``parameters`` (default :data:`PARAMETERS`; rad and m)."""
         out = []
-        for p in PARAMETERS:
+        for p in parameters:
             if p[0] == "zero":
                 out.append(self.zero_offsets_rad[int(p[1])])  # type: ignore[call-overload]
             elif p[0] == "offset":
@@ -134,12 +141,13 @@ class ArmGeometry:
                 out.append(self.flange_offset_m[int(p[1])])  # type: ignore[call-overload]
         return np.array(out, dtype=float)
 
-    def with_vector(self, values: np.ndarray) -> ArmGeometry:
-        """A copy with :data:`PARAMETERS` set to ``values``."""
+    def with_vector(self, values: np.ndarray,
+                    parameters: Sequence[tuple[object, ...]] = PARAMETERS) -> ArmGeometry:
+        """A copy with ``parameters`` (default :data:`PARAMETERS`) set to ``values``."""
         zero = self.zero_offsets_rad.copy()
         offsets = self.joint_offsets_m.copy()
         flange = self.flange_offset_m.copy()
-        for p, v in zip(PARAMETERS, values, strict=True):
+        for p, v in zip(parameters, values, strict=True):
             if p[0] == "zero":
                 zero[int(p[1])] = v  # type: ignore[call-overload]
             elif p[0] == "offset":
@@ -191,11 +199,19 @@ class BoardTouches:
 
 @dataclass(frozen=True)
 class CalibrationData:
-    """What the arm gathered: the board's placements and the table touches' readings
-    (m×7, rad)."""
+    """What the arm gathered: the board's placements, the table touches' readings (m×7,
+    rad) and, if any, anchor touches: readings (k×7, rad) at points drawn in the base frame
+    (``anchor_points_m``, k×3, m), which make the gauge's J1 zero and base position seen."""
 
     boards: tuple[BoardTouches, ...]
     table_joints: np.ndarray
+    anchor_joints: np.ndarray = field(default_factory=lambda: np.zeros((0, _N)))
+    anchor_points_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def parameters(self) -> tuple[tuple[object, ...], ...]:
+        """What these touches can tell: :data:`PARAMETERS`, and :data:`ANCHORED` with
+        anchors."""
+        return (*ANCHORED, *PARAMETERS) if len(self.anchor_joints) else PARAMETERS
 
 
 @dataclass(frozen=True)
@@ -239,17 +255,21 @@ def board_residuals(geometry: ArmGeometry, boards: Sequence[BoardTouches]) -> np
 
 def _residuals(values: np.ndarray, start: ArmGeometry, prior: np.ndarray,
                data: CalibrationData) -> np.ndarray:
-    geometry = start.with_vector(values)
+    parameters = data.parameters()
+    geometry = start.with_vector(values, parameters)
     parts = [board_residuals(geometry, data.boards) / TOUCH_SIGMA_M]
     if len(data.table_joints) >= 4:
         parts.append(plane_distances(geometry.tips(data.table_joints)) / TOUCH_SIGMA_M)
-    parts.append((values - prior) / _prior_widths())
+    if len(data.anchor_joints):
+        parts.append((geometry.tips(data.anchor_joints) - data.anchor_points_m).ravel()
+                     / TOUCH_SIGMA_M)
+    parts.append((values - prior) / _prior_widths(parameters))
     return np.concatenate(parts)
 
 
-def _prior_widths() -> np.ndarray:
+def _prior_widths(parameters: Sequence[tuple[object, ...]]) -> np.ndarray:
     return np.array([PRIOR_SIGMA_RAD if p[0] == "zero" else PRIOR_SIGMA_M
-                     for p in PARAMETERS])
+                     for p in parameters])
 
 
 def _rms(values: np.ndarray) -> float:
@@ -262,11 +282,12 @@ def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> Calibr
     if not data.boards or sum(len(b.joints) for b in data.boards) < 3:
         raise ValueError("calibration needs at least one board placement with 3 touches")
     start = start or ArmGeometry.nominal()
-    prior = ArmGeometry.nominal().vector()
-    x0 = start.vector()
+    parameters = data.parameters()
+    prior = ArmGeometry.nominal().vector(parameters)
+    x0 = start.vector(parameters)
     fit = least_squares(_residuals, x0, args=(start, prior, data), method="trf",
-                        x_scale=_prior_widths(), xtol=1e-10, ftol=1e-10)
-    geometry = start.with_vector(fit.x)
+                        x_scale=_prior_widths(parameters), xtol=1e-10, ftol=1e-10)
+    geometry = start.with_vector(fit.x, parameters)
 
     def table(g: ArmGeometry) -> float:
         if len(data.table_joints) < 4:

@@ -59,6 +59,12 @@ TABLE_TOUCHES: Final = 60
 #: The table's top in the base frame (m): 0.40 m below the base plate.
 TABLE_Z_M: Final = -0.40
 EMULATOR_POSES: Final = 12
+#: Anchor dimples on the arm's mounting bracket, drawn in the base frame (m), each touched
+#: :data:`ANCHOR_TOUCHES` times in different configurations; as built each is off its drawing
+#: by :data:`ANCHOR_SIGMA_M` per axis.
+ANCHOR_POINTS_M: Final = np.array([(0.35, 0.12, -0.15), (0.35, -0.12, -0.15)])
+ANCHOR_TOUCHES: Final = 3
+ANCHOR_SIGMA_M: Final = 0.0003
 #: The arm's body names in the emulator's model, J1..J7 then the flange.
 ARM_BODIES: Final = ("arm/link1", "arm/shoulder", "arm/upper_arm", "arm/forearm",
                      "arm/forearm_roll", "arm/wrist", "arm/wrist_yaw", "arm/flange")
@@ -135,6 +141,24 @@ def touches(truth: ArmGeometry, offsets: np.ndarray, rng: np.random.Generator, b
     return CalibrationData(tuple(placements), table_readings), true_tips
 
 
+def anchored(data: CalibrationData, truth: ArmGeometry, offsets: np.ndarray,
+             rng: np.random.Generator) -> CalibrationData:
+    """``data`` with the anchor dimples' touches (:data:`ANCHOR_POINTS_M`, each where the
+    built bracket has it)."""
+    joints: list[np.ndarray] = []
+    points: list[np.ndarray] = []
+    for drawn in ANCHOR_POINTS_M:
+        built = drawn + rng.normal(0.0, ANCHOR_SIGMA_M, 3)
+        touched = 0
+        while touched < ANCHOR_TOUCHES:
+            q = reach(truth, built, rng)
+            if q is not None:
+                joints.append(_quantised(q + offsets))
+                points.append(drawn)
+                touched += 1
+    return CalibrationData(data.boards, data.table_joints, np.array(joints), np.array(points))
+
+
 @dataclass
 class SeedResult:
     """One seed's figures (mm): held-out mean and max before and after, synthetic and (with
@@ -151,6 +175,11 @@ class SeedResult:
     #: The same without the true gauge: the base frame's absolute error, J1's index in it.
     emulator_raw_before_mean_mm: float | None = None
     emulator_raw_after_mean_mm: float | None = None
+    #: Calibrated with the anchor touches too, no gauge given: synthetic, on the emulator.
+    anchored_mean_mm: float = 0.0
+    anchored_max_mm: float = 0.0
+    emulator_anchored_mean_mm: float | None = None
+    emulator_anchored_max_mm: float | None = None
     evaluations: int = 0
 
 
@@ -201,14 +230,20 @@ def run_seed(seed: int, emulator: bool = False) -> SeedResult:
     train, _ = touches(truth, offsets, rng, TRAINING_BOARDS, TABLE_TOUCHES)
     test, test_tips = touches(truth, offsets, rng, HELD_OUT_BOARDS, 0)
     result = calibrate(train)
+    with_anchors = calibrate(anchored(train, truth, offsets, rng)).geometry
     seen = ArmGeometry(-offsets, truth.joint_offsets_m, truth.flange_offset_m)
     before = held_out_errors(ArmGeometry.nominal(), seen, test, test_tips) * 1000
     after = held_out_errors(result.geometry, seen, test, test_tips) * 1000
+    est = np.concatenate([with_anchors.tips(b.joints) for b in test.boards])
+    raw = np.linalg.norm(est - np.concatenate(test_tips), axis=1) * 1000
     out = SeedResult(seed, float(before.mean()), float(before.max()), float(after.mean()),
-                     float(after.max()), evaluations=result.evaluations)
+                     float(after.max()), evaluations=result.evaluations,
+                     anchored_mean_mm=float(raw.mean()), anchored_max_mm=float(raw.max()))
     if emulator:
-        nominal, calibrated, nominal_raw, calibrated_raw = on_emulator(
-            seed, (ArmGeometry.nominal(), result.geometry), seen)
+        nominal, calibrated, _, nominal_raw, calibrated_raw, anchors_raw = on_emulator(
+            seed, (ArmGeometry.nominal(), result.geometry, with_anchors), seen)
+        out.emulator_anchored_mean_mm = float(anchors_raw.mean() * 1000)
+        out.emulator_anchored_max_mm = float(anchors_raw.max() * 1000)
         out.emulator_before_mean_mm = float(nominal.mean() * 1000)
         out.emulator_after_mean_mm = float(calibrated.mean() * 1000)
         out.emulator_after_max_mm = float(calibrated.max() * 1000)
@@ -235,12 +270,15 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{d1:g})")
     for r in results:
         line = (f"seed {r.seed}: CAD mean {r.before_mean_mm:.1f} max {r.before_max_mm:.1f}"
-                f"  →  calibrated mean {r.after_mean_mm:.2f} max {r.after_max_mm:.2f}")
+                f"  →  calibrated mean {r.after_mean_mm:.2f} max {r.after_max_mm:.2f}"
+                f" (anchored, no gauge given: {r.anchored_mean_mm:.2f} max "
+                f"{r.anchored_max_mm:.2f})")
         if r.emulator_before_mean_mm is not None:
             line += (f"  | on the emulator: {r.emulator_before_mean_mm:.1f} → "
                      f"{r.emulator_after_mean_mm:.2f} (max {r.emulator_after_max_mm:.2f}); "
                      f"with J1's index error: {r.emulator_raw_before_mean_mm:.1f} → "
-                     f"{r.emulator_raw_after_mean_mm:.1f}")
+                     f"{r.emulator_raw_after_mean_mm:.1f}, anchored "
+                     f"{r.emulator_anchored_mean_mm:.2f} (max {r.emulator_anchored_max_mm:.2f})")
         print(line)
     return 0
 

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from host.arm.calibration import (
+    ANCHORED,
     ARM_SECTION,
     GAUGE,
     METHOD,
@@ -32,7 +33,7 @@ from host.arm.calibration import (
     plane_distances,
 )
 from host.estimation.calibration_file import load, save_section
-from tools.experiments.arm_calibration import held_out_errors, touches
+from tools.experiments.arm_calibration import anchored, held_out_errors, touches
 
 #: Recovery bounds: J2's, J3's and J5's zero offsets within 0.05° of the planted ones (J4's
 #: and J6's within 0.15°), and the held-out end-effector error (true gauge) under 0.5 mm
@@ -164,3 +165,26 @@ def test_the_arm_section_round_trips_through_the_calibration_file(tmp_path: Path
     assert back.tips(q) == pytest.approx(geometry.tips(q), abs=1e-12)
     with pytest.raises(ValueError, match="no geometry"):
         geometry_of_section({"method": METHOD})
+
+
+@pytest.mark.slow
+def test_anchor_touches_make_j1s_zero_and_the_base_seen() -> None:
+    """With two dimples drawn in the base frame touched too, J1's index error is recovered
+    and the held-out flange positions are right without being given the gauge."""
+    rng = np.random.default_rng(13)
+    truth, readings = planted_arm(rng)
+    train, _ = touches(truth, readings, rng, boards=6, table=60)
+    test, test_tips = touches(truth, readings, rng, boards=3, table=0)
+    with_anchors = anchored(train, truth, readings, rng)
+    assert with_anchors.parameters()[:len(ANCHORED)] == ANCHORED
+    geometry = calibrate(with_anchors).geometry
+    est = np.concatenate([geometry.tips(b.joints) for b in test.boards])
+    errors = np.linalg.norm(est - np.concatenate(test_tips), axis=1)
+    assert errors.mean() <= MEAN_BOUND_M and errors.max() <= MAX_BOUND_M, errors
+    # J1's zero itself within 0.25°: with two anchors it still trades a little with J1's
+    # and J2's body offsets (the flange is right, as above)
+    assert abs(geometry.zero_offsets_rad[0] + readings[0]) <= 5 * ZERO_BOUND_RAD
+    # without them the same touches leave J1's error in: millimetres at the board
+    plain = calibrate(train).geometry
+    est = np.concatenate([plain.tips(b.joints) for b in test.boards])
+    assert np.linalg.norm(est - np.concatenate(test_tips), axis=1).mean() > 2 * MEAN_BOUND_M
