@@ -27,7 +27,13 @@ says where each comes from):
 * tactile pads: a per-taxel offset of the photosensor's unloaded reading and its drift;
   the strain gauge: a bridge offset and its drift (representative, no part's datasheet);
 * geometry: every joint body's and finger mount's position off by a few tenths of a
-  millimetre (0.3 mm σ per axis, at most 1 mm): laser-cut parts and their assembly.
+  millimetre (0.3 mm σ per axis, at most 1 mm): laser-cut parts and their assembly;
+* the arm as assembled (:func:`arm_params`, :func:`lengthen_arm_tubes`): each stepper
+  joint's encoder index mark away from the kinematic zero's drawing (0.4° σ: the slotted
+  disc clamped on its shaft and the optical flag on its plywood bracket), each RX-64 horn
+  turned on its spline (0.5° σ: the spline's play and the horn's alignment mark), and the
+  two tubes (upper arm, forearm) 1 mm σ longer or shorter than drawn (cut and seated by
+  hand).  None of it is on the wire: the host learns it only by calibration.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from typing import Final
 import mujoco
 import numpy as np
 
+from hil_emulator.arm.actuators import ArmParams
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand.finger_plant import FingerParams, PalmParams
 from hil_emulator.hand.model import F2_TAXELS, F3_TAXELS, PALM_TAXELS
@@ -51,6 +58,7 @@ from hil_emulator.hand.sensors import (
     PadErrors,
     PalmErrors,
 )
+from protocol.robot import ARM_INDEX_ANGLES
 
 #: The choices of ``--sensors``.
 SENSOR_MODES: Final = ("ideal", "realistic")
@@ -59,9 +67,13 @@ DEFAULT_SENSORS: Final = "realistic"
 #: Each part's key in the seed sequence's children (``SeedSequence(seed, spawn_key=(k,))``):
 #: the palm, finger modules 0..3, then the arm's and the hand's geometry.
 PART_KEYS: Final = {"palm": 0, "finger0": 1, "finger1": 2, "finger2": 3, "finger3": 4,
-                    "arm geometry": 10, "hand geometry": 11, "serial": 12}
+                    "arm geometry": 10, "hand geometry": 11, "serial": 12,
+                    "arm assembly": 13}
 #: The hand's node uids of ``--sensors ideal`` (the palm's; the fingers' follow it).
 IDEAL_UID_BASE: Final = 0x1000
+#: The arm's bodies whose tube is cut to length by hand (:func:`lengthen_arm_tubes`): the
+#: upper arm's (roll bearing → elbow) and the forearm's (forearm roll → wrist pitch).
+ARM_TUBE_BODIES: Final = ("arm/forearm", "arm/wrist")
 #: The finger boards carrying an accelerometer, in the plant's order.
 FINGER_BOARDS: Final = ("fmcb", "f2", "f3")
 
@@ -109,6 +121,12 @@ class Imperfections:
     #: Geometry: each joint body's and finger mount's position (m, 1σ per axis; clipped).
     geometry_sigma_m: float = 0.0003
     geometry_max_m: float = 0.001
+    #: The arm as assembled: each stepper joint's encoder index mark off its drawn angle
+    #: (rad, 1σ), each RX-64 horn's turn on its spline (rad, 1σ), each hand-cut tube's
+    #: length (m, 1σ); each clipped at 3σ.
+    index_sigma_rad: float = math.radians(0.4)
+    horn_sigma_rad: float = math.radians(0.5)
+    tube_sigma_m: float = 0.001
 
 
 #: The figures of ``--sensors realistic``.
@@ -216,6 +234,18 @@ class PlantedTruth:
     pads: dict[str, PadTruth] = field(default_factory=dict)
     gauge_offsets_counts: dict[str, float] = field(default_factory=dict)
     geometry_m: dict[str, np.ndarray] = field(default_factory=dict)
+    #: The arm as assembled (zeros: not drawn): J1..J4's index marks' angles less their
+    #: drawn ones (rad; the plant's index sits at ``ARM_INDEX_ANGLES + this``, so the homed
+    #: host reads ``q − this``), J5..J7's horn offsets (rad; the host reads ``q + this``),
+    #: and the upper-arm and forearm tubes' length errors (m, :data:`ARM_TUBE_BODIES`' order).
+    arm_index_offsets_rad: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    arm_horn_offsets_rad: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    arm_tube_errors_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def arm_reading_offsets_rad(self) -> np.ndarray:
+        """What the homed host reads less the true joint angle (rad, J1..J7): ``−index``
+        for the steppers, ``+horn`` for the servos."""
+        return np.concatenate((-self.arm_index_offsets_rad, self.arm_horn_offsets_rad))
 
 
 def _pad(rng: np.random.Generator, n: int, p: Imperfections) -> PadTruth:
@@ -276,3 +306,34 @@ def perturb_bodies(spec: mujoco.MjSpec, names: list[str], rng: np.random.Generat
                         p.geometry_max_m)
         body.pos = np.asarray(body.pos, dtype=float) + delta
         truth.geometry_m[name] = delta
+
+
+def _clipped(rng: np.random.Generator, sigma: float, n: int) -> np.ndarray:
+    return np.clip(rng.normal(0.0, sigma, n), -3.0 * sigma, 3.0 * sigma)
+
+
+def draw_arm_assembly(seed: int, truth: PlantedTruth, p: Imperfections = REALISTIC) -> None:
+    """Draw the arm's assembly errors for ``seed`` (index marks, horns, tubes, in that order)
+    into ``truth``."""
+    rng = part_rng(seed, "arm assembly")
+    truth.arm_index_offsets_rad = _clipped(rng, p.index_sigma_rad, 4)
+    truth.arm_horn_offsets_rad = _clipped(rng, p.horn_sigma_rad, 3)
+    truth.arm_tube_errors_m = _clipped(rng, p.tube_sigma_m, len(ARM_TUBE_BODIES))
+
+
+def arm_params(truth: PlantedTruth) -> ArmParams:
+    """The arm plant's parameters as assembled (``truth``'s index marks and horns)."""
+    return ArmParams(index_angles=np.array(ARM_INDEX_ANGLES) + truth.arm_index_offsets_rad,
+                     horn_offsets_rad=(float(truth.arm_horn_offsets_rad[0]),
+                                       float(truth.arm_horn_offsets_rad[1]),
+                                       float(truth.arm_horn_offsets_rad[2])))
+
+
+def lengthen_arm_tubes(spec: mujoco.MjSpec, truth: PlantedTruth) -> None:
+    """Move each of :data:`ARM_TUBE_BODIES` along its link (the parent's ``−z``) by its tube's
+    length error in ``truth`` (a longer tube puts the joint further down the link)."""
+    for name, error in zip(ARM_TUBE_BODIES, truth.arm_tube_errors_m, strict=True):
+        body = spec.body(name)
+        if body is None:
+            raise EmulatorConfigError(f"no body {name!r} to place as built")
+        body.pos = np.asarray(body.pos, dtype=float) + np.array([0.0, 0.0, -float(error)])

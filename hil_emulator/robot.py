@@ -133,7 +133,12 @@ class EmulatedRobot:
             base = spec.worldbody.add_body(name="arm_base",
                                            pos=[0.0, 0.0, arm_model.MOUNT_HEIGHT_M])
             hand_parent = arm_model.add_arm(spec, base, prefix="arm/")
-            params = self.profile.arm_params() if self.profile is not None else None
+            params = None
+            if truth is not None:
+                imperfections.draw_arm_assembly(self.seed, truth)
+                params = imperfections.arm_params(truth)
+            if self.profile is not None:
+                params = self.profile.arm_params(params)
             self.arm_plant = ArmPlant("arm/", self.arm.stepper_hals, self.arm.servo_hals,
                                       rng(), params)
             parts.append(self.arm_plant)
@@ -181,13 +186,14 @@ class EmulatedRobot:
                            imperfections.finger_errors(self.seed, index, truth))
 
     def _as_built(self, spec: mujoco.MjSpec, truth: PlantedTruth) -> None:
-        """Move the arm's joint bodies and flange, the palm and each finger module's mount and
+        """Move the arm's joint bodies and flange (and its tubes' ends), the palm and each finger module's mount and
         phalanges from their nominal places by a laser-cut build's tolerances."""
         arm = [body.name for body in spec.bodies
                if body.name.startswith("arm/") and (len(body.joints) or body.name == "arm/flange")]
         if arm:
             imperfections.perturb_bodies(spec, arm, imperfections.part_rng(self.seed, "arm geometry"),
                                          truth)
+            imperfections.lengthen_arm_tubes(spec, truth)
         hand = [body.name for body in spec.bodies if body.name == "hand/palm"
                 or body.name.endswith(("/F0", "/F2", "/F3"))]
         if hand:

