@@ -80,6 +80,11 @@ def test_demo_lifts_the_mug_and_writes_report_and_recordings(
     for step in ("emulator:", "firmware:", "homing:", "reach:", "grasp:", "lift:",
                  "put down:", "park:"):
         assert f"] {step}" in out
+    # The robot as built: its hand calibrated before homing, the fit written and used.
+    assert out.count("accelerometers calibrated") == 4
+    written = json.loads((tmp_path / "calibration.json").read_text())
+    assert written["format"] == "lowcost-calibration"
+    assert len(written["sections"]["hand"]["boards"]) == 12
     report = (tmp_path / "report.md").read_text()
     result = json.loads(report.split("```json", 1)[1].split("```", 1)[0])
     # Ground truth from the physics: lifted at least 5 cm, set down upright.

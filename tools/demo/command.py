@@ -26,7 +26,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="where the report and recordings go (default ./demo-output)")
     parser.add_argument("--seed", type=int, default=0, help="the emulator's seed")
     parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEMO_SENSORS,
-                        help="the robot's sensors: ideal (default, for now) or realistic (as built)")
+                        help="the robot's sensors: realistic (as built, the default; the demo calibrates "
+                             "the hand first) or ideal (exact, nothing to calibrate)")
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")

@@ -128,9 +128,8 @@ def flange_pose(back_m: float = 0.0, up_m: float = 0.0) -> FlangePose:
     r, p, w = matrix_to_rpy(flange)
     return FlangePose((float(xyz[0]), float(xyz[1]), float(xyz[2])), (r, p, w))
 
-#: The sensors the demo's robot has unless ``--sensors`` says otherwise: ``ideal`` for now.
-#: On the robot as built (``realistic``), uncalibrated, the grasp holds the mug loosely: it
-#: slides down in the hand about 3.5 mm/s from the lift on (seed 0: 2.7 cm by the put-down,
-#: past :data:`tools.demo.watch.SLIP_M`).  ``make demo`` stays the example that works until
-#: the host calibrates the robot it drives.
-DEMO_SENSORS: Final = "ideal"
+#: The sensors the demo's robot has unless ``--sensors`` says otherwise: the robot as built
+#: (the emulator's default).  Uncalibrated, its grasp held the mug loosely (it slid down in
+#: the hand about 3.5 mm/s from the lift on: seed 0, 2.7 cm by the put-down, a failure); the
+#: demo calibrates the hand's accelerometers before homing it (:mod:`tools.demo.script`).
+DEMO_SENSORS: Final = "realistic"
