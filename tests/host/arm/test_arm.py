@@ -180,15 +180,23 @@ def test_armctl_record_writes_raw_bytes_and_states(arm: Arm, tmp_path: object) -
 
     from mcap.reader import make_reader
 
+    from host.recording.writer import SOURCE_METADATA
     from protocol.dynamixel import DynamixelStreamDecoder
 
     path = Path(str(tmp_path)) / "arm.mcap"
     assert armctl.main(["--port", URL, "record", str(path), "--seconds", "0.1"],
                        out=io.StringIO()) == 0
     with path.open("rb") as stream:
-        messages = [(ch.topic, msg.data) for _, ch, msg in make_reader(stream).iter_messages()]
-    states = [json.loads(d) for t, d in messages if t == "/arm/state"]
+        reader = make_reader(stream)
+        source = next(m.metadata for m in reader.iter_metadata() if m.name == SOURCE_METADATA)
+        messages = [(ch.topic, msg.data, msg.publish_time / 1e9)
+                    for _, ch, msg in reader.iter_messages()]
+    states = [json.loads(d) for t, d, _ in messages if t == "/arm/state"]
     assert len(states) == 10 and all(len(s["joints"]) == 7 for s in states)
     decoder = DynamixelStreamDecoder("status")
-    replies = [p for t, d in messages if t == "/arm/bus/rx" for p in decoder.feed(d)]
+    # the recorded cycles' replies; the link's opening before them is the file's prologue
+    start = float(source["start_t"])
+    replies = [p for t, d, at in messages if t == "/arm/bus/rx" and at > start
+               for p in decoder.feed(d)]
     assert len(replies) == 7 * 10
+    assert any(t == "/arm/bus/rx" and at < start for t, _, at in messages)
