@@ -50,8 +50,9 @@ typecheck: $(STAMP)
 ## slot update's 200 cases: make test-long), slow ones included, on TEST_WORKERS pytest-xdist
 ## workers: a test file runs whole on one worker (the campaigns' independent shards spread
 ## over both), and the wall-clock tests run one at a time on one of them (tests/conftest.py).
-## About 11 minutes from a fresh clone on an idle 2-core machine, set-up and compiled core
-## included (8.5 minutes of tests; was 18).
+## About 15 minutes from a fresh clone on an idle 2-core machine, set-up and compiled core
+## included (11 minutes of tests); about 11.5 with the set-up done.  pytest --cpu-durations=N
+## says where the time goes (per test, file and worker).
 ## TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2
 PYTEST_PARALLEL := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
