@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 import tools.experiments.dissertation as bench
-from tools.experiments.dissertation import Outcome, Row
+from tools.experiments.outcome import Outcome, Row
 
 
 def values(outcome: Outcome) -> dict[str, float | None]:
