@@ -12,6 +12,7 @@ forward kinematics of the measured joints) is within the tolerance and the arm a
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
@@ -38,13 +39,15 @@ MOVETO_SETTLE_S: Final = 8.0
 class CartesianMove:
     """A Cartesian move's outcome: ``goals`` (the IK's joint goals, rad, 7), ``ik``, the last
     ``state``, the flange's ``position_error`` (m: FK of the measured joints vs the target)
-    and ``reached`` (within the tolerance asked)."""
+    and ``reached`` (within the tolerance asked); ``stopped``: a guarded move's ``until``
+    held the arm where it was before the target (``reached`` is then False)."""
 
     goals: tuple[float, ...]
     ik: arm_kinematics.IkResult
     state: ArmState
     position_error: float
     reached: bool
+    stopped: bool = False
 
 
 #: Extra IK starting points (rad, J1..J7) besides the present joints and the IK's default:
@@ -139,7 +142,8 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
            speed: float = MOVETO_SPEED_RAD_S, tolerance_m: float = MOVETO_TOLERANCE_M,
            settle_timeout: float = MOVETO_SETTLE_S,
            controller: JointController | None = None, allow_unhomed: bool = False,
-           hand: bool = True, log: TrackingLog | None = None) -> CartesianMove:
+           hand: bool = True, log: TrackingLog | None = None,
+           until: Callable[[ArmState], bool] | None = None) -> CartesianMove:
     """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given: IK
     (:func:`choose_ik`: the solution nearest the present joints that no stepper joint holds
     more than :data:`MOVETO_LOAD_LIMIT` of its stall torque in, ``hand`` saying whether the
@@ -147,6 +151,10 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
     joint-space path at ``speed`` (rad/s, fastest joint), then the PID holds the goals until
     the flange (by FK of the measured joints) is within ``tolerance_m`` and the arm is at
     rest (:class:`~host.arm.rest.RestWatch`), or ``settle_timeout`` (s) passes.
+
+    A guarded move: ``until(state)``, asked every cycle of the path, stops it where the arm
+    is the first time it is true (a contact felt), and the PID then holds the joints there
+    until the arm is at rest (``stopped`` in the result).
 
     Refuses (:class:`~host.errors.UsageError`) an arm that is not homed unless
     ``allow_unhomed``, a target the IK cannot reach within 1 mm, and one where every IK
@@ -161,18 +169,21 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
     ik = choose_ik(xyz, rpy, q_now, hand=hand)
     goals = ik.q
     trajectory = Trajectory(timed_path([q_now, goals], speed, smooth=True), smooth=True)
-    state = control.run(trajectory, trajectory.duration, log)
+    state = control.run(trajectory, trajectory.duration, log, until=until)
     target = np.asarray(xyz, dtype=float)
+    stopped = until is not None and until(state)
+    hold = np.array(state.joints) if stopped else goals
+    held_at = arm_kinematics.forward(hold).position if stopped else target
 
     rest = RestWatch()
 
     def settled(s: ArmState) -> bool:
-        err = float(np.linalg.norm(arm_kinematics.forward(s.joints).position - target))
+        err = float(np.linalg.norm(arm_kinematics.forward(s.joints).position - held_at))
         still = rest.update(s)
         return err <= tolerance_m and still
 
-    state = control.run(lambda _t: (goals, np.zeros(N_JOINTS)), settle_timeout, log,
+    state = control.run(lambda _t: (hold, np.zeros(N_JOINTS)), settle_timeout, log,
                         until=settled)
     error = float(np.linalg.norm(arm_kinematics.forward(state.joints).position - target))
     return CartesianMove(tuple(float(v) for v in goals), ik, state, error,
-                         error <= tolerance_m)
+                         not stopped and error <= tolerance_m, stopped)

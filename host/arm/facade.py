@@ -532,16 +532,19 @@ class Arm:
                speed: float = MOVETO_SPEED_RAD_S, tolerance_m: float = MOVETO_TOLERANCE_M,
                settle_timeout: float = MOVETO_SETTLE_S,
                controller: JointController | None = None, allow_unhomed: bool = False,
-               hand: bool = True, log: TrackingLog | None = None) -> CartesianMove:
+               hand: bool = True, log: TrackingLog | None = None,
+               until: Callable[[ArmState], bool] | None = None) -> CartesianMove:
         """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given:
         IK, then an interpolated, feed-forward-compensated joint move at ``speed`` (rad/s,
         fastest joint) until the flange is within ``tolerance_m`` (m) and the arm at rest,
         or ``settle_timeout`` (s) passed (:func:`host.arm.cartesian.moveto`: ``controller``,
-        ``allow_unhomed``, ``hand`` on the flange, ``log``); the result carries the joint
+        ``allow_unhomed``, ``hand`` on the flange, ``log``; ``until``: a guarded move, held
+        where it is the first cycle ``until(state)`` is true); the result carries the joint
         goals."""
         return arm_cartesian.moveto(self, xyz, rpy, speed=speed, tolerance_m=tolerance_m,
                                     settle_timeout=settle_timeout, controller=controller,
-                                    allow_unhomed=allow_unhomed, hand=hand, log=log)
+                                    allow_unhomed=allow_unhomed, hand=hand, log=log,
+                                    until=until)
 
     # ------------------------------------------------------------------ conveniences
 

@@ -74,7 +74,6 @@ from typing import Any
 
 import numpy as np
 
-from host.arm.cartesian import choose_ik
 from host.arm.facade import Arm
 from host.arm.joint_loop import JointController, TrackingLog
 from host.arm.kinematics import forward, solve_ik
@@ -393,16 +392,17 @@ class Demo:
                              f"{[round(q, 2) for q in state.joints]} rad)")
 
     def _moveto(self, target: FlangePose, what: str,
-                speed: float = NEAR_SPEED_RAD_S, quiet: bool = False) -> None:
+                speed: float = NEAR_SPEED_RAD_S,
+                controller: JointController | None = None) -> None:
         log = TrackingLog()
-        result = self.arm.moveto(list(target.xyz), list(target.rpy), speed=speed, log=log)
+        result = self.arm.moveto(list(target.xyz), list(target.rpy), speed=speed, log=log,
+                                 controller=controller)
         self._check_arm(log)
         if not result.reached and result.position_error > 0.01:
             raise DemoFailed(self.step, f"{what}: the flange stopped "
                              f"{result.position_error * 1000:.0f} mm from its target")
-        if not quiet:
-            self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
-                     f"{result.position_error * 1000:.1f} mm off")
+        self.say(f"{what}: flange at {_fmt(target.xyz)} m (base frame), "
+                 f"{result.position_error * 1000:.1f} mm off")
 
     def _thumb_clear(self) -> None:
         """Bend the opposing finger back (:data:`THUMB_CLEAR_Q`)."""
@@ -489,32 +489,29 @@ class Demo:
 
     def _set_down(self) -> None:
         """Lower the held mug onto the table, feeling for it (:data:`SET_DOWN_FROM_M`): a
-        slow joint-space descent under the host's controller that stops the cycle the
-        stepper joints' torques say the table carries the mug, then holds there."""
-        self._moveto(flange_pose(up_m=SET_DOWN_FROM_M), "above the table")
-        bottom = flange_pose(up_m=-SET_DOWN_PRESS_M)
+        slow guarded move (``Arm.moveto(..., until=...)``) that stops the cycle the
+        stepper joints' torques say the table carries the mug, and holds there."""
         control = JointController(self.arm)
-        state = control.start()
-        held = self._stepper_torques(state)
-        ik = choose_ik(bottom.xyz, bottom.rpy, state.joints)
-        path = Trajectory(timed_path([state.joints, ik.q], SET_DOWN_SPEED_RAD_S, smooth=True),
-                          smooth=True)
         log = TrackingLog()
+        self._moveto(flange_pose(up_m=SET_DOWN_FROM_M), "above the table",
+                     controller=control)
+        assert control.state is not None
+        held = self._stepper_torques(control.state)
 
         def touched(s: ArmState) -> bool:
             return float(np.linalg.norm(self._stepper_torques(s) - held)) >= SET_DOWN_LOAD_NM
 
-        state = control.run(path, path.duration, log, until=touched)
-        here = np.array(state.joints)
-        change = float(np.linalg.norm(self._stepper_torques(state) - held))
-        control.run(lambda _t: (here, np.zeros(len(here))), SET_DOWN_HOLD_S, log)
+        bottom = flange_pose(up_m=-SET_DOWN_PRESS_M)
+        result = self.arm.moveto(list(bottom.xyz), list(bottom.rpy),
+                                 speed=SET_DOWN_SPEED_RAD_S, settle_timeout=SET_DOWN_HOLD_S,
+                                 controller=control, log=log, until=touched)
         self._check_arm(log)
-        height = float(forward(state.joints).position[2] - flange_pose().xyz[2])
+        height = float(forward(result.state.joints).position[2] - flange_pose().xyz[2])
         self.log.result["set_down_above_grasp_m"] = height
-        if change >= SET_DOWN_LOAD_NM:
+        if result.stopped:
             self.say(f"set down: the table took the mug with the flange {height * 1000:+.0f} "
-                     f"mm from the grasp's height (the steppers' torques changed "
-                     f"{change:.2f} N·m)")
+                     f"mm from the grasp's height (the steppers' torques changed by "
+                     f"{SET_DOWN_LOAD_NM:g} N·m or more)")
         else:
             self.say(f"set down: the flange {height * 1000:+.0f} mm from the grasp's height "
                      f"without feeling the table")

@@ -187,6 +187,23 @@ def test_moveto_reaches_a_cartesian_goal_within_5_mm(arm: Arm) -> None:
     assert not any(s.stalled for s in result.state.steppers)
 
 
+def test_a_guarded_moveto_stops_where_until_says_and_holds_there(arm: Arm) -> None:
+    """``until`` (a contact felt) ends the path the first cycle it is true; the arm is held
+    there, short of the target, and the result says it stopped."""
+    if not arm.homed:
+        arm.home()
+    start = arm_kinematics.forward(arm.state().joints).position
+    target = start + np.array([0.0, 0.0, -0.05])
+    low = start[2] - 0.02
+    result = arm.moveto(target, until=lambda s: arm_kinematics.forward(s.joints).position[2]
+                        <= low)
+    assert result.stopped and not result.reached
+    here = arm_kinematics.forward(arm.state().joints).position
+    assert here[2] == pytest.approx(low, abs=0.004)  # held where it stopped, not at the goal
+    assert result.position_error > 0.02
+    assert arm.moveto(target).reached  # the same move, unguarded, gets there
+
+
 def test_waypoints_recorded_by_hand_play_back(arm: Arm, tmp_path: Path) -> None:
     if not arm.homed:
         arm.home()
