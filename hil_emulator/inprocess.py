@@ -82,12 +82,18 @@ class _SentLog:
     def __init__(self) -> None:
         self.sends: list[tuple[float, bytes]] = []
         self.complete = True
+        #: The open transports on the link that keep what the others send
+        #: (:meth:`EmulatorTransport.watch_others`).
+        self.watchers: weakref.WeakSet[EmulatorTransport] = weakref.WeakSet()
 
-    def add(self, t: float, data: bytes) -> None:
+    def add(self, t: float, data: bytes, sender: EmulatorTransport) -> None:
         if len(self.sends) < SENT_LOG_LIMIT:
             self.sends.append((t, data))
         else:
             self.complete = False
+        for watcher in self.watchers:
+            if watcher is not sender:
+                watcher.others.append((t, data))
 
 
 _sent: weakref.WeakKeyDictionary[Emulator, dict[str, _SentLog]] = weakref.WeakKeyDictionary()
@@ -178,7 +184,7 @@ class EmulatorTransport(Transport):
         self.emulator = emulator
         self.link = link
         self._rig = rig
-        self._inbox: deque[bytes] = deque()
+        self._inbox: deque[tuple[int, bytes]] = deque()  # (arrival µs, bytes)
         self._displaced: Callable[[bytes, int], None] | None = rig.on_host_bytes
         self._tee = tee
         #: Every host transport's sends on this emulator's link, shared by them (those of
@@ -186,6 +192,8 @@ class EmulatorTransport(Transport):
         self._log: _SentLog | None = (
             _sent.setdefault(emulator, {}).setdefault(link, _SentLog()) if logged else None)
         self._before = len(self._log.sends) if self._log is not None else 0
+        #: What other transports sent on the link since :meth:`watch_others`.
+        self.others: list[tuple[float, bytes]] = []
         self._known = self._log is not None and self._log.complete
         rig.on_host_bytes = self._arrived
 
@@ -201,7 +209,7 @@ class EmulatorTransport(Transport):
         return cls(emulator, spec.link, url)
 
     def _arrived(self, data: bytes, t_us: int) -> None:
-        self._inbox.append(data)
+        self._inbox.append((t_us, data))
         if self._tee and self._displaced is not None:
             self._displaced(data, t_us)
 
@@ -221,9 +229,21 @@ class EmulatorTransport(Transport):
             return None
         return list(self._log.sends[:self._before])
 
+    def watch_others(self) -> bool:
+        """Keep what other logged transports send on this link from now on, until this one
+        closes (the bring-up's sends are not kept: a replay's emulator does it itself)."""
+        if self._log is None:
+            return False
+        self._log.watchers.add(self)
+        return True
+
+    def take_others(self) -> list[tuple[float, bytes]]:
+        taken, self.others = self.others, []
+        return taken
+
     def _send(self, data: bytes) -> None:
         if self._log is not None:
-            self._log.add(self.now(), bytes(data))
+            self._log.add(self.now(), bytes(data), self)
         tap = self._rig.link_tap
         if tap is not None:
             if tap.vanished:
@@ -234,6 +254,9 @@ class EmulatorTransport(Transport):
         self._rig.send_from_host(data)
 
     def _recv(self, timeout: float | None) -> bytes:
+        return b"".join(data for _t, data in self._recv_timed(timeout))
+
+    def _recv_timed(self, timeout: float | None) -> list[tuple[float, bytes]]:
         scheduler = self.emulator.scheduler
         if not self._inbox and timeout != 0.0:
             # At least 1 µs: a positive timeout must advance the clock, or a caller waiting
@@ -250,13 +273,15 @@ class EmulatorTransport(Transport):
                     scheduler.run_until(deadline)
                     break
                 scheduler.run_until(due)
-        out = b"".join(self._inbox)
+        out = [(t_us / 1e6, data) for t_us, data in self._inbox]
         self._inbox.clear()
         return out
 
     def _close(self) -> None:
         if self._rig.on_host_bytes == self._arrived:
             self._rig.on_host_bytes = self._displaced
+        if self._log is not None:  # what comes after is the next transport's to keep
+            self._log.watchers.discard(self)
 
     def _reopen(self) -> None:
         self._rig.on_host_bytes = self._arrived

@@ -9,6 +9,8 @@ topic              message encoding              payload
 ``/arm/bus/rx``    ``application/octet-stream``  bytes received, as they arrived
 ``/arm/bus/tx/earlier``  ``application/octet-stream``  what other programs sent on the link
                                                  before this one opened it (when known)
+``/arm/bus/tx/others``  ``application/octet-stream``  what other programs sent on the link
+                                                 while it recorded (when known)
 ``/arm/state``     ``json`` (:data:`STATE_SCHEMA`)  every cycle's
                                                  :meth:`~host.arm.state.ArmState.as_dict`
 =================  ============================  =========================================
@@ -51,6 +53,7 @@ STATE_TOPIC: Final = ARM_STATE
 TX_TOPIC: Final = "/arm/bus/tx"
 RX_TOPIC: Final = "/arm/bus/rx"
 EARLIER_TOPIC: Final = "/arm/bus/tx/earlier"
+OTHERS_TOPIC: Final = "/arm/bus/tx/others"
 
 
 def _array(description: str, kind: str, n: int) -> dict[str, Any]:
@@ -97,7 +100,8 @@ TX: Final = Topic(TX_TOPIC, RAW_ENCODING)
 RX: Final = Topic(RX_TOPIC, RAW_ENCODING)
 STATE: Final = Topic(STATE_TOPIC, JSON_ENCODING, "ArmState", STATE_SCHEMA)
 EARLIER: Final = Topic(EARLIER_TOPIC, RAW_ENCODING)
-TOPICS: Final = (TX, RX, STATE, EARLIER)
+OTHERS: Final = Topic(OTHERS_TOPIC, RAW_ENCODING)
+TOPICS: Final = (TX, RX, STATE, EARLIER, OTHERS)
 
 
 class ArmRecorder(Recording):
@@ -111,10 +115,11 @@ class ArmRecorder(Recording):
         transport = arm.transport
         prologue = arm.bus.prologue
         earlier = transport.sent_before()
+        watched = transport.watch_others()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.arm.recording",
                          sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
                              "arm", transport.url, transport.now(), prologue.state(),
-                             None if earlier is None else len(earlier))})
+                             None if earlier is None else len(earlier), watched)})
         for t, data in earlier or ():
             self.log(EARLIER, t, data)
         for direction, t, data in prologue.messages:
@@ -126,7 +131,13 @@ class ArmRecorder(Recording):
         arm.state_taps.append(self._on_state)
         self._attached = True
 
+    def _take_others(self) -> None:
+        """Write what other programs sent on the link since the last look."""
+        for t, data in self.arm.transport.take_others():
+            self.log(OTHERS, t, data)
+
     def _on_bytes(self, direction: str, data: bytes, t: float) -> None:
+        self._take_others()  # first: they went out before these bytes
         self.log(TX if direction == "tx" else RX, t, data)
         if self._previous is not None:
             self._previous(direction, data, t)
@@ -139,6 +150,7 @@ class ArmRecorder(Recording):
         """Detach from the arm and finish the file (idempotent)."""
         if self._attached:
             self._attached = False
+            self._take_others()
             if self._on_state in self.arm.state_taps:
                 self.arm.state_taps.remove(self._on_state)
             self.arm.bus.on_bytes = self._previous

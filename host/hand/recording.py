@@ -15,6 +15,8 @@ topic                  encoding        message
 ``/hand/events``       ``json``        every ``palm.finger_event`` (:data:`EVENT_SCHEMA`)
 ``/hand/frames/tx/earlier``  ``hand-frame``  what other programs sent on the link before this
                                        one opened it (when the transport knows)
+``/hand/frames/tx/others``  ``hand-frame``  what other programs sent on the link while it
+                                       recorded (a flasher beside it; when the transport knows)
 =====================  ==============  =======================================================
 
 Log times are the wall clock; the link's clock (the simulation's with the in-process
@@ -132,7 +134,9 @@ FINGERS_READ: Final = Topic("/hand/fingers", JSON_ENCODING, "FingerReading",
                             FINGER_READING_SCHEMA)
 EVENTS: Final = Topic(HAND_EVENTS, JSON_ENCODING, "FingerEvent", EVENT_SCHEMA)
 FRAMES_EARLIER: Final = Topic("/hand/frames/tx/earlier", FRAME_ENCODING)
-TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS, FRAMES_EARLIER)
+FRAMES_OTHERS: Final = Topic("/hand/frames/tx/others", FRAME_ENCODING)
+TOPICS: Final = (FRAMES_TX, FRAMES_RX, STATE, FINGERS_READ, EVENTS, FRAMES_EARLIER,
+                 FRAMES_OTHERS)
 
 
 class HandRecorder(Recording):
@@ -146,10 +150,13 @@ class HandRecorder(Recording):
         transport = hand.session.transport
         prologue = hand.session.prologue
         earlier = transport.sent_before()
+        watched = transport.watch_others()
         super().__init__(path, TOPICS, library="lowcost-hand-stack host.hand.recording",
                          sinks=sinks, metadata={SOURCE_METADATA: source_metadata(
                              hand.session.link, transport.url, transport.now(),
-                             prologue.state(), None if earlier is None else len(earlier))})
+                             prologue.state(), None if earlier is None else len(earlier),
+                             watched)})
+        self._watched = watched
         for t, data in earlier or ():
             self.log(FRAMES_EARLIER, t, data)
         for direction, t, frame in prologue.messages:
@@ -164,6 +171,8 @@ class HandRecorder(Recording):
         """Record ``hand`` from now on (detached from the one before: a link closed and
         opened again goes on in the same file)."""
         self._detach()
+        if hand is not self.hand and self._watched:
+            self._watched = hand.session.transport.watch_others()
         self.hand = hand
         hand.session.taps.append(self._on_frame)
         hand.state_taps.append(self.add_state)
@@ -171,8 +180,14 @@ class HandRecorder(Recording):
         self._unsubscribe = hand.subscribe(self._on_event)
         self._attached = True
 
+    def _take_others(self) -> None:
+        """Write what other programs sent on the link since the last look."""
+        for t, data in self.hand.session.transport.take_others():
+            self.log(FRAMES_OTHERS, t, data)
+
     def _detach(self) -> None:
         if self._attached:
+            self._take_others()
             self._attached = False
             for taps, tap in ((self.hand.session.taps, self._on_frame),
                               (self.hand.state_taps, self.add_state),
@@ -182,6 +197,7 @@ class HandRecorder(Recording):
             self._unsubscribe()
 
     def _on_frame(self, direction: str, t: float, frame: bytes) -> None:
+        self._take_others()  # first: they went out before this frame
         self.frames += 1
         self.log(FRAMES_TX if direction == "tx" else FRAMES_RX, t, frame)
 

@@ -333,7 +333,11 @@ class HandSession:
             while not pending.done:
                 remaining = pending.deadline - self.transport.now()
                 if remaining <= _EPSILON_S:
-                    self._expire(pending)
+                    # a host busy elsewhere past the deadline takes what came meanwhile
+                    # first: a reply waiting unread did not time out
+                    self._read(0.0)
+                    if not pending.done:
+                        self._expire(pending)
                     break
                 self._read(remaining)
             if pending.error is None:
@@ -474,10 +478,11 @@ class HandSession:
 
     # --- internals: receiving --------------------------------------------------------------
     def _read(self, timeout: float) -> None:
-        data = self.transport.recv(timeout)
-        if not data:
-            return
-        t = self.transport.now()
+        for t, data in self.transport.recv_timed(timeout):
+            self._take(data, t)
+
+    def _take(self, data: bytes, t: float) -> None:
+        """Decode and dispatch ``data``, which arrived at ``t`` (s, the link's clock)."""
         for frame in self.decoder.feed(data, t):
             if self.taps:
                 raw = frame.to_bytes()

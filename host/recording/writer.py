@@ -80,20 +80,23 @@ class Sink(Protocol):
 
 
 def source_metadata(link: str, url: str, now_s: float, prologue: str,
-                    earlier: int | None) -> dict[str, str]:
+                    earlier: int | None, others: bool = False) -> dict[str, str]:
     """The :data:`SOURCE_METADATA` record of a recorder on host link ``link`` (``arm``,
     ``palm``, ``finger``) opened as ``url``, attached at ``now_s`` (s, the link's clock),
     having written the link's first messages (:mod:`host.recording.prologue`: ``complete``
     when every message since the link opened is in the file, else ``partial``) and
     ``earlier`` sends of other programs on the same link before it opened (their count, when
     the transport knows them: :meth:`host.transports.base.Transport.sent_before`; else
-    ``unknown``).
+    ``unknown``), and whether what other programs sent on it while it recorded is in the
+    file (``others``: ``kept`` when the transport could tell,
+    :meth:`~host.transports.base.Transport.watch_others`; else ``unknown``).
 
     What the emulator that answered was (configuration, seed, sensors, scene) is in an
     ``emu://`` URL's path and options; a serial port or a pty says nothing of it, and a
     replay says what it assumes instead."""
     return {"link": link, "url": url, "start_t": repr(float(now_s)), "prologue": prologue,
-            "earlier": "unknown" if earlier is None else str(earlier)}
+            "earlier": "unknown" if earlier is None else str(earlier),
+            "others": "kept" if others else "unknown"}
 
 
 def link_ns(t: float) -> int:

@@ -115,6 +115,16 @@ class Transport(ABC):
             timeout = 0.0
         return self._recv(timeout)
 
+    def recv_timed(self, timeout: float | None = 0.0) -> list[tuple[float, bytes]]:
+        """:meth:`recv`, as ``(t, bytes)`` chunks stamped with the link's clock when they
+        arrived (s): when they were read, on a port (all a host can know); their exact
+        arrival on the in-process emulator's clock, where a host busy with another link
+        reads them later.  Empty when nothing arrived."""
+        self._require_open()
+        if timeout is not None and timeout < 0:
+            timeout = 0.0
+        return self._recv_timed(timeout)
+
     def now(self) -> float:
         """The link's clock (s): wall-clock monotonic time, or the simulation's."""
         return time.monotonic()
@@ -126,6 +136,20 @@ class Transport(ABC):
         port: the robot does not say what it was sent).  A recorder writes it, so a replay
         starts from the robot the recording found."""
         return None
+
+    def watch_others(self) -> bool:
+        """Keep, from now on, what other transports send on this same link while this one
+        is open (:meth:`take_others` hands it over), when the transport can know it (the
+        in-process emulator, where two programs can share a link); False when it cannot
+        (a serial port holds its link alone, or says nothing of who else is on it)."""
+        return False
+
+    def take_others(self) -> list[tuple[float, bytes]]:
+        """What other transports sent on this link since :meth:`watch_others` or the last
+        call (``(t, bytes)`` on this transport's clock, in order); empty when not watched.
+        A recorder writes it, so a replay also sends what another program (a flasher
+        beside the hand's own link) did to the robot meanwhile."""
+        return []
 
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` pass on the link's clock (bytes arriving meanwhile are kept)."""
@@ -172,6 +196,10 @@ class Transport(ABC):
 
     @abstractmethod
     def _close(self) -> None: ...
+
+    def _recv_timed(self, timeout: float | None) -> list[tuple[float, bytes]]:
+        data = self._recv(timeout)
+        return [(self.now(), data)] if data else []
 
     def _reopen(self) -> None:
         raise TransportError(f"{self.url}: this transport cannot be reopened")

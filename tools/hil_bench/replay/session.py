@@ -79,9 +79,9 @@ def replay_channels(recording: Recorded, emulator: Emulator,
     if recorded is None:
         recorded = recorded_exchanges(recording)
     start_us = emulator.scheduler.now_us()
-    first = min(m.t for traffic in recording.links.values() for m in traffic.earlier + traffic.tx)
+    sent = {traffic.link: traffic.sent() for traffic in recording.links.values()}
+    first = min(m.t for messages in sent.values() for m in messages)
     shift = 0.0 if recording.emulated else start_us / 1e6 - first
-    sent = {traffic.link: traffic.earlier + traffic.tx for traffic in recording.links.values()}
     got = answers(emulator, sent, shift_s=shift)
     replayed = [ex for traffic in recording.links.values()
                 for ex in PAIRING[traffic.kind](traffic.tx, got[traffic.link])]

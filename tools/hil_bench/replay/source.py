@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Final
 
 from hil_emulator.inprocess import EmulatorSpec, parse_url
+from host.arm.recording import EARLIER_TOPIC, OTHERS_TOPIC
 from host.errors import UsageError
+from host.hand.recording import FRAMES_EARLIER, FRAMES_OTHERS
 from host.recording.writer import SOURCE_METADATA
 from tools.cli.mcap_capture import read_recording
 from tools.errors import McapCaptureError, ReplayRefused
@@ -29,7 +31,10 @@ LINK_TOPICS: Final = {"arm": ("/arm/bus/tx", "/arm/bus/rx"),
                       "hand": ("/hand/frames/tx", "/hand/frames/rx")}
 #: Each link's topic of what other programs sent on it before the recorded one: replayed
 #: (the robot as the recording found it), not compared.
-EARLIER_TOPICS: Final = {"arm": "/arm/bus/tx/earlier", "hand": "/hand/frames/tx/earlier"}
+EARLIER_TOPICS: Final = {"arm": EARLIER_TOPIC, "hand": FRAMES_EARLIER.name}
+#: Each link's topic of what other programs sent on it while the recorded one was open
+#: (a flasher beside the hand's own link): replayed, not compared.
+OTHERS_TOPICS: Final = {"arm": OTHERS_TOPIC, "hand": FRAMES_OTHERS.name}
 #: The emulator's link name of a hand session's ``link`` (:class:`host.hand.session.HandSession`).
 HAND_LINKS: Final = {"palm": "palm", "finger": "finger0", "finger0": "finger0"}
 
@@ -53,6 +58,12 @@ class LinkTraffic:
     rx: list[Timed] = field(default_factory=list)
     #: What other programs sent on the link before the recorded one (sent, not compared).
     earlier: list[Timed] = field(default_factory=list)
+    #: What other programs sent on the link while the recorded one was open (the same).
+    others: list[Timed] = field(default_factory=list)
+
+    def sent(self) -> list[Timed]:
+        """Every host message to send on the link, the recorded program's and the others'."""
+        return self.earlier + self.others + self.tx
 
 
 @dataclass
@@ -94,6 +105,7 @@ def load(path: str | Path, *, seed: int | None = None, sensors: str | None = Non
             by_topic[tx] = (traffic, "tx")
             by_topic[rx] = (traffic, "rx")
             by_topic[EARLIER_TOPICS[kind]] = (traffic, "earlier")
+            by_topic[OTHERS_TOPICS[kind]] = (traffic, "others")
     for message in contents.messages:
         found = by_topic.get(message.channel)
         if found is not None:
