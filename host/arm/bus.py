@@ -79,10 +79,10 @@ REPLY_GAP_S: Final = 0.005
 LINE_QUIET_S: Final = 0.004
 LISTEN_MAX_S: Final = 0.02
 #: Repeats of an idempotent request that got no valid reply.  Another program on the bus
-#: (a monitor READing the seven joints every 20 ms on its own adapter) collides with about
-#: one exchange in eight even with :data:`LINE_QUIET_S` (measured through the emulator's
-#: ptys: 27 of 200 BULK_READs of the cycle); five repeats left none of 300 cycles failing,
-#: two left 3.  A node that is gone costs its exchange six deadlines before the error.
+#: (a monitor READing the seven joints every 20 ms on its own adapter) collides with some
+#: exchanges even with :data:`LINE_QUIET_S` (counted through the emulator's ptys: 27 of 200
+#: BULK_READs of the cycle lost; 300 cycles needed 114 repeats); five repeats left none of
+#: the 300 cycles failing, two left 3.  A node that is gone costs six deadlines.
 DEFAULT_RETRIES: Final = 5
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT

@@ -171,40 +171,29 @@ def test_armctl_killed_at_ten_moments_with_a_reader_on_the_bus_leaves_the_arm_he
 @pytest.mark.slow
 def test_the_stock_sdk_write_once_then_poll_move_reaches_its_goal_after_armctl() -> None:
     """After an ``armctl`` session closed cleanly (it gave the nodes back the default
-    ``watchdog_feed``), a plain dynamixel-sdk program writes J1's goal once and polls it,
-    with the joint reader on the bus beside it: its READs keep the move going to the goal,
-    longer than the watchdog's timeout."""
-    with running_emulator("--config", "full", "--ready", "--can", "none",
-                          "--arm-adapters", "2") as info:
+    ``watchdog_feed``), a plain dynamixel-sdk program writes J1's goal once and polls it:
+    its READs keep the move going to the goal, longer than the watchdog's timeout."""
+    with running_emulator("--config", "full", "--ready", "--can", "none") as info:
         port = info["arm"]
         assert armctl(port, "torque", "on")[0] == 0
-        reader = start_reader(info["arm_adapters"][1])
         handler = sdk.PortHandler(port)
         assert handler.openPort() and handler.setBaudRate(1_000_000)
         try:
             packets = sdk.PacketHandler(1.0)
-
-            def tx_rx(call: Any, *args: Any) -> Any:
-                """The SDK call, again while the reader's READs collide with it."""
-                for _ in range(10):
-                    out = call(handler, *args)
-                    result = out[-2] if isinstance(out, tuple) and len(out) == 3 else out[0]
-                    if result == sdk.COMM_SUCCESS:
-                        return out
-                raise AssertionError(f"{call.__name__}{args}: {out}")
-
             feed = STEPPER_TABLE["watchdog_feed"]
             for dxl_id in range(1, 5):
-                value, _, _ = tx_rx(packets.read1ByteTxRx, dxl_id, feed.address)
-                assert value == 0, (dxl_id, value)
+                value, result, _ = packets.read1ByteTxRx(handler, dxl_id, feed.address)
+                assert result == sdk.COMM_SUCCESS and value == 0, (dxl_id, value)
             at = STEPPER_TABLE["present_position"].address
-            start, _, _ = tx_rx(packets.read4ByteTxRx, 1, at)
+            start, result, _ = packets.read4ByteTxRx(handler, 1, at)
+            assert result == sdk.COMM_SUCCESS
             start = start - (1 << 32) if start & 0x8000_0000 else start
             goal = start + 2000  # 72°: seconds at the node's speed, far over its watchdog
             speed = STEPPER_TABLE["velocity_limit"]
-            tx_rx(packets.write4ByteTxRx, 1, speed.address, 1000)
-            tx_rx(packets.write4ByteTxRx, 1, STEPPER_TABLE["goal_position"].address,
-                  goal & 0xFFFF_FFFF)
+            assert packets.write4ByteTxRx(handler, 1, speed.address, 1000)[0] == sdk.COMM_SUCCESS
+            result, _ = packets.write4ByteTxRx(handler, 1, STEPPER_TABLE["goal_position"].address,
+                                               goal & 0xFFFF_FFFF)
+            assert result == sdk.COMM_SUCCESS
             deadline = time.monotonic() + 120
             present = start
             while time.monotonic() < deadline:
@@ -217,5 +206,4 @@ def test_the_stock_sdk_write_once_then_poll_move_reaches_its_goal_after_armctl()
             assert abs(present - goal) <= 40, (start, present, goal)
         finally:
             handler.closePort()
-            stop_reader(reader)
         wait_simulated(info, 0.1)
