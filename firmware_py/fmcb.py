@@ -26,6 +26,10 @@ reported and controlled relative to the homing offsets (``fmcb.set_home``); ``ha
 with ``raw=1`` gives the raw counts.  Efforts are clamped by the smallest of: the
 ``max_effort`` parameter, the hand-wide cap from the palm (``fmcb.effort_cap``), and in
 modes 4/5 the per-joint cap of joint i applied to motor i.
+
+Joint limits a host widens in RAM hold only while the host keeps sending requests
+(:mod:`firmware_py.limit_lease`): a host killed while it pushed a finger onto its stops
+leaves the limits it found, :data:`~protocol.robot.FINGER_LIMIT_LEASE_MS` later.
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ from firmware_py.hand_node import (
     HandNode,
     Request,
 )
+from firmware_py.limit_lease import LIMIT_NAMES, LimitLease
 from protocol.catalogue import Message
 from protocol.errors import ProtocolError
 from protocol.framing import Frame
@@ -86,6 +91,14 @@ _VELOCITY_SPAN_S: Final = tuple((n - 1) * CONTROL_PERIOD_US / 1e6
 TUNNEL_QUEUE: Final = 4
 #: pb_current while the breaker is tripped.
 PB_TRIPPED: Final = 0xFFFF
+#: How often (µs) a lease of widened joint limits is checked while one runs.
+LEASE_CHECK_US: Final = 50_000
+#: Requests the palm sends by itself (polls, effort caps): they do not renew a lease.
+_FROM_PALM: Final = frozenset(CATALOGUE.by_name(n).type_id
+                              for n in ("fmcb.status", "fmcb.effort_cap"))
+#: The modes whose motor targets come from joint targets, clamped to the joint limits.
+_JOINT_MODES: Final = frozenset((ControlMode.JOINT, ControlMode.JOINT_FIXED,
+                                 ControlMode.JOINT_EFFORT, ControlMode.RELATIVE))
 
 #: Internal mode after the legacy open-loop command (0x13): the control law stays out
 #: (not a ControlMode: no control message selects it).
@@ -170,6 +183,10 @@ class FmcbApp(HandNode):
         self._p_breaker_ma, self._p_breaker_ms = index("breaker_ma"), index("breaker_ms")
         self._p_tendon_timeout = index("tendon_timeout_us")  # read by every poll
         self.params_valid = self.params.load_page(hal.flash.read_page(PARAM_PAGE))
+        self._p_limits = tuple(index(n) for n in LIMIT_NAMES)
+        #: Widened joint limits on lease while the host is there (:mod:`.limit_lease`).
+        self.limit_lease = LimitLease()
+        self._lease_timer: Timer | None = None
         self.pogo = hal.uart("pogo")
         self.tendon = hal.uart("tendon")
         self.phalange = hal.power("phalange")
@@ -351,8 +368,11 @@ class FmcbApp(HandNode):
 
     def dispatch(self, msg_type: int, payload: bytes, frame: Frame, uart: Uart,
                  send: Callable[[bytes | None, int], None]) -> None:
-        """Any command may change what the control tick reads: wake it, then dispatch."""
+        """Any command may change what the control tick reads: wake it, then dispatch.
+        A request from the host renews a lease of widened joint limits."""
         self.asleep = False
+        if msg_type not in _FROM_PALM:
+            self.limit_lease.heard(self.hal.clock.now_us())
         super().dispatch(msg_type, payload, frame, uart, send)
 
     def _control_tick(self) -> None:
@@ -491,9 +511,34 @@ class FmcbApp(HandNode):
         return {}
 
     # --- parameters -----------------------------------------------------------------------
+    def _limits(self) -> tuple[float, ...]:
+        values = self.params.values
+        return tuple(float(values[i]) for i in self._p_limits)
+
     def _on_param_set(self, req: Request) -> dict[str, Any]:
-        self.params.set_bits(req.fields["index"], req.fields["value"])
+        index = req.fields["index"]
+        before = self._limits()
+        self.params.set_bits(index, req.fields["value"])
+        if index in self._p_limits:
+            self.limit_lease.written(before, self._limits(), self.hal.clock.now_us())
+            if self.limit_lease.active and self._lease_timer is None:
+                self._lease_timer = self.hal.clock.call_every(LEASE_CHECK_US,
+                                                              self._check_lease)
         return {}
+
+    def _check_lease(self) -> None:
+        """While widened limits are on lease: put the standing ones back when it ran out,
+        and bring a joint target outside them back inside."""
+        standing = self.limit_lease.check(self.hal.clock.now_us())
+        if standing is not None:
+            for i, value in zip(self._p_limits, standing, strict=True):
+                self.params.values[i] = value
+            if self.mode in _JOINT_MODES:
+                self._set_joint_target(list(motor_to_joint(self.hall_target)))
+                self.asleep = False
+        if not self.limit_lease.active and self._lease_timer is not None:
+            self._lease_timer.cancel()
+            self._lease_timer = None
 
     def _on_param_commit(self, req: Request) -> Any:
         flash = self.hal.flash
@@ -507,15 +552,18 @@ class FmcbApp(HandNode):
             else:
                 req.respond(None, TxnStatus.REFUSED)
 
+        self.limit_lease.end()  # the host keeps what it commits
         flash.write_page(PARAM_PAGE, self.params.to_page(), done)
         return DEFERRED
 
     def _on_param_reload(self, req: Request) -> dict[str, Any]:
         self.params_valid = self.params.load_page(self.hal.flash.read_page(PARAM_PAGE))
+        self.limit_lease.end()
         return {}
 
     def _on_param_defaults(self, req: Request) -> dict[str, Any]:
         self.params.restore_defaults()
+        self.limit_lease.end()
         return {}
 
     # --- phalange power and breaker -------------------------------------------------------

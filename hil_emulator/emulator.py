@@ -36,18 +36,27 @@ from hil_emulator.profile import RobotProfile
 from hil_emulator.robot import EmulatedRobot
 
 CanMode = str  # "slcan" (a pty), "virtual:<channel>" (python-can, same process), "none"
+#: The most USB–RS-485 adapters the arm's bus takes (each a port).
+MAX_ARM_ADAPTERS = 8
+
+
+def arm_adapter_name(k: int) -> str:
+    """The port of the arm bus's adapter ``k`` (1: ``arm``, the host's; then ``arm2``, …)."""
+    return "arm" if k == 1 else f"arm{k}"
 
 
 class PortsDescription(TypedDict, total=False):
     """The ports as the ``hil-emulator`` command prints them (:meth:`Emulator.describe`):
     always ``config``, ``palm``, ``arm``, ``fingers`` (paths, or None / empty where the
-    configuration has none), ``seed`` and ``sensors``; ``can`` and ``can_interface`` with a CAN link,
+    configuration has none), ``seed`` and ``sensors``; ``arm_adapters`` with an arm (the
+    paths of its bus's adapters, ``arm`` first); ``can`` and ``can_interface`` with a CAN link,
     ``scene`` with a scene, ``hand_layout`` with a hand, ``links`` with a link directory,
     ``profile`` (its file) with a robot profile read from one."""
 
     config: str
     palm: str | None
     arm: str | None
+    arm_adapters: list[str | None]
     fingers: list[str | None]
     can: str | None
     can_interface: str
@@ -63,17 +72,26 @@ class Emulator(EmulatedRobot):
     """One emulated robot and its host ports.  Build it, :meth:`open_ports`, then
     :meth:`run` or :meth:`step`.
 
-    ``can`` is ``"slcan"`` (default), ``"virtual:<channel>"`` or ``"none"``; the other
-    arguments build the robot (:class:`~hil_emulator.robot.EmulatedRobot`).
+    ``can`` is ``"slcan"`` (default), ``"virtual:<channel>"`` or ``"none"``;
+    ``arm_adapters`` the USB–RS-485 adapters on the arm's bus, each a port (``arm``,
+    ``arm2``, …: :data:`MAX_ARM_ADAPTERS` at most); the other arguments build the robot
+    (:class:`~hil_emulator.robot.EmulatedRobot`).
     """
 
     def __init__(self, config: str = "full", *, seed: int = 0, layout: str | None = None,
                  physics: bool = True, can: CanMode = "slcan", scene: str = "none",
                  sensors: str = DEFAULT_SENSORS,
-                 profile: RobotProfile | str | None = None) -> None:
+                 profile: RobotProfile | str | None = None, arm_adapters: int = 1) -> None:
+        if not 1 <= arm_adapters <= MAX_ARM_ADAPTERS:
+            raise EmulatorConfigError(f"the arm's bus takes 1 to {MAX_ARM_ADAPTERS} adapters, "
+                                      f"not {arm_adapters}")
+        if arm_adapters > 1 and config not in ("full", "arm"):
+            raise EmulatorConfigError(f"the {config!r} configuration has no arm to put "
+                                      f"{arm_adapters} adapters on")
         super().__init__(config, seed=seed, layout=layout, physics=physics, scene=scene,
                          sensors=sensors, profile=profile)
         self.can_mode = can
+        self.arm_adapters = arm_adapters
         #: What :meth:`run` serves: the host links by name, and any :meth:`add_port`.
         self.links: dict[str, Port] = {}
         #: Where the links' symlinks are (:meth:`open_ports` with a link directory).
@@ -107,6 +125,12 @@ class Emulator(EmulatedRobot):
                              self.scheduler.now_us)
             self.arm.on_host_bytes = arm.emit
             self.links["arm"] = arm
+            for k in range(2, self.arm_adapters + 1):
+                uart = self.arm.add_adapter()
+                adapter = SerialLink(arm_adapter_name(k), self.arm.bus.baud, uart.send,
+                                     self.scheduler.now_us)
+                uart.set_receiver(adapter.emit)
+                self.links[adapter.name] = adapter
         if self.loose is not None:
             finger = SerialLink.to_uart("finger0", self.loose.host_uart)
             self.loose.host_uart.sink = self.loose._to_host  # through the link's fault tap
@@ -141,6 +165,9 @@ class Emulator(EmulatedRobot):
         out: PortsDescription = {"config": self.config, "palm": path("palm"),
                                  "arm": path("arm"),
                                  "fingers": [path("finger0")] if "finger0" in self.links else []}
+        if self.arm is not None:
+            out["arm_adapters"] = [path(arm_adapter_name(k))
+                                   for k in range(1, self.arm_adapters + 1)]
         if "can" in self.links:
             out["can"] = path("can")
             out["can_interface"] = "slcan" if self.can_mode == "slcan" else "virtual"

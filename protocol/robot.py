@@ -68,6 +68,10 @@ FINGER_JOINT_LIMITS: Final[tuple[Range, Range, Range]] = (
     (-1.57, 1.57), (-1.57, 1.57), (-1.57, 1.57))
 #: Mechanical stops of J0, J1, J2 (rad), a little beyond :data:`FINGER_JOINT_LIMITS`.
 FINGER_JOINT_STOPS: Final[tuple[Range, Range, Range]] = ((-1.6, 1.6), (-1.6, 1.6), (-1.6, 1.8))
+#: How long (ms) joint limits a host widened in the fmcb's RAM hold without a request from
+#: the host: then the fmcb puts back the limits it had before (a host killed while it
+#: pushed a finger onto its stops).  Over the hand calibration's 4 s push onto a stop.
+FINGER_LIMIT_LEASE_MS: Final = 5_000
 
 
 #: The finger's accelerometers (LSM303 on each board): board → the segment (MuJoCo body)

@@ -7,6 +7,12 @@ servos (:class:`~firmware_py.rx64.Rx64ServoApp`).  All share one
 :class:`~hil_emulator.lines.rs485_bus.Rs485Bus` at 1 Mbaud with the host's USB–RS-485 adapter, so
 a host frame and a node's reply occupy the same line, take its wire time, and collide when
 they overlap, as on the arm (dissertation §5.5: one bus and one protocol for all joints).
+
+More adapters can join the line (:meth:`ArmRig.add_adapter`): a second program on its own
+USB–RS-485 adapter on the same bus.  Each adapter hears every frame on the line but its own
+(a USB–RS-485 adapter switches its receiver off while it drives the line, so it does not
+hear its own echo), and what it sends collides with anything it overlaps, the host's frames
+and the nodes' replies alike.
 """
 
 from __future__ import annotations
@@ -59,6 +65,19 @@ class ArmRig(HostSide):
             [(app, uart) for (_, app), uart in zip(self.nodes.values(), uarts, strict=True)]
         ).picked)
         self.host_uart.set_receiver(self._to_host)
+        #: The adapters added after the host's (:meth:`add_adapter`), in order.
+        self.adapters: list[VirtualUart] = []
+
+    def add_adapter(self) -> VirtualUart:
+        """Another USB–RS-485 adapter on the line: returns its UART, named ``adapter2``,
+        ``adapter3``, … (the host's is the first).  What it sends (``send``) goes on the
+        line; every frame on the line but its own reaches its receiver (``set_receiver``:
+        bytes, arrival µs)."""
+        uart = VirtualUart(self.scheduler, self.bus.baud, name=f"adapter{len(self.adapters) + 2}")
+        uart.keep_sent = False
+        self.bus.attach(uart, uart.name)
+        self.adapters.append(uart)
+        return uart
 
     def _attach(self, dxl_id: int, hal: VirtualHal, app: DynamixelSlave) -> None:
         uart = hal.uart("bus")

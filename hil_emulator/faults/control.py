@@ -16,7 +16,8 @@ request                                                            answer
 ``{"op": "status"}``                                                ``{"ok": true, "t_us": ...,``
                                                                    ``"max_ms": ..., ...}``
 ``{"op": "truth"}``                                                 ``{"ok": true, "t_us": ...,``
-                                                                   ``"arm": {...} or null}``
+                                                                   ``"arm": {...} or null,``
+                                                                   ``"hand": {...} or null}``
 =================================================================  ==========================
 
 ``status`` is the simulation clock (``t_us``) with the real-time loop's lateness figures
@@ -28,7 +29,10 @@ takes its wall-clock margins from what the emulator reports, not from an idle ma
 (``joints`` J1..J7 and ``velocities`` in rad and rad/s, model coordinates; ``deflections`` of
 the J1..J4 elastic elements in rad) and each arm node's ``torque_enable``,
 ``status_flags`` (stepper nodes; 0 on the RX-64s) and ``alarms`` (the Dynamixel error bits
-it would report), keyed by bus ID; ``arm`` is null without an arm or a plant.
+it would report), keyed by bus ID; ``arm`` is null without an arm or a plant.  ``hand``
+has each finger's fmcb (``fingers``, in finger order; null where it runs no application):
+its RAM ``joint_limits`` (rad, ``[[lower, upper]]`` of J0..J2) and ``limit_lease`` (True
+while widened limits are on lease, :mod:`firmware_py.limit_lease`); null without a hand.
 
 A request that fails answers ``{"ok": false, "error": "..."}`` (an unknown fault or
 parameter names the key).  Requests act at the simulation time of the moment they are read,
@@ -43,6 +47,7 @@ import socket
 import stat
 from typing import TYPE_CHECKING, Any
 
+from firmware_py.fmcb import FmcbApp
 from hil_emulator.errors import EmulatorError, PortError
 from hil_emulator.faults.base import FAULTS
 from hil_emulator.faults.injector import FaultInjector
@@ -169,7 +174,8 @@ class ControlChannel:
         if op == "status":
             return {"t_us": self.emulator.scheduler.now_us(), **self.emulator.lateness_stats()}
         if op == "truth":
-            return {"t_us": self.emulator.scheduler.now_us(), "arm": self._arm_truth()}
+            return {"t_us": self.emulator.scheduler.now_us(), "arm": self._arm_truth(),
+                    "hand": self._hand_truth()}
         raise ValueError(f"unknown op {op!r}: inject, clear, clear_all, active, timeline, list, "
                          "status, truth")
 
@@ -188,6 +194,23 @@ class ControlChannel:
                 "velocities": [float(v) for v in plant.joint_velocities()],
                 "deflections": [float(v) for v in plant.deflections()],
                 "nodes": nodes}
+
+    def _hand_truth(self) -> dict[str, Any] | None:
+        """Each finger's fmcb joint limits and lease (see the module)."""
+        rig = self.emulator.hand
+        if rig is None:
+            return None
+        fingers: list[dict[str, Any] | None] = []
+        for finger in rig.fingers:
+            app = finger.fmcb.program
+            if not isinstance(app, FmcbApp):
+                fingers.append(None)
+                continue
+            p = app.params
+            fingers.append({"joint_limits": [[float(p[f"joint_lower_{j}"]),
+                                              float(p[f"joint_upper_{j}"])] for j in range(3)],
+                            "limit_lease": app.limit_lease.active})
+        return {"fingers": fingers}
 
     def _answer(self, client: socket.socket, answer: dict[str, Any]) -> None:
         try:

@@ -24,8 +24,19 @@ Errors (all in :mod:`host.errors`' tree):
   they are returned in the :class:`~protocol.dynamixel.StatusPacket` (``errors``), never
   raised - a host must be able to read an overheating servo;
 * :class:`~host.errors.NodeError` - a reply that does not fit the request (wrong data
-  length) and no fitting one by the deadline.  A misfit is first taken for a late reply to
-  an earlier request and skipped.
+  length) and no fitting one by the deadline, after the retries.  A misfit is first taken
+  for a late reply to an earlier request, or another program's, and skipped.
+
+Another program on the bus (a second master on its own adapter): this client hears its
+instruction packets and the nodes' replies to it, and their frames collide with its own.
+What it cannot tell from its own replies it skips: another ID, another length (a reply to
+the other program, or its instruction packet read as a status); a refusal (an error byte
+with :data:`REQUEST_ERRORS` bits, which another program's instruction code also looks like)
+is held until the deadline, in case the node's own answer follows, and only then raised.  A
+garbled or lost reply is retried as any missing one (idempotent requests only; a goal's
+SYNC_WRITE expects no reply and the next cycle sends the next goal).  A reply to the other
+program of the very length expected from that ID is taken for this one's: the same
+registers a moment apart, when both read the same block.
 """
 
 from __future__ import annotations
@@ -62,6 +73,17 @@ TURNAROUND_US: Final = 2
 #: Within an exchange's replies, a silence this long (s) after some arrived ends them: the
 #: nodes answer back to back, and the adapter passes them on within its latency.
 REPLY_GAP_S: Final = 0.005
+#: Another program's frames heard before a request: the line must have been this quiet (s)
+#: before this client sends (a polling program's next READ follows its reply within about a
+#: pty's or a USB adapter's turnaround), waiting at most :data:`LISTEN_MAX_S`.
+LINE_QUIET_S: Final = 0.004
+LISTEN_MAX_S: Final = 0.02
+#: Repeats of an idempotent request that got no valid reply.  Another program on the bus
+#: (a monitor READing the seven joints every 20 ms on its own adapter) collides with some
+#: exchanges even with :data:`LINE_QUIET_S` (counted through the emulator's ptys: 27 of 200
+#: BULK_READs of the cycle lost; 300 cycles needed 114 repeats); five repeats left none of
+#: the 300 cycles failing, two left 3.  A node that is gone costs six deadlines.
+DEFAULT_RETRIES: Final = 5
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
                          | ErrorBit.CHECKSUM)
@@ -117,7 +139,8 @@ class DynamixelBus:
     (``"tx"``) and received (``"rx"``) with the transport's time (s) - for recording.
     """
 
-    def __init__(self, transport: Transport, baud: int = ARM_BUS_BAUD, *, retries: int = 2,
+    def __init__(self, transport: Transport, baud: int = ARM_BUS_BAUD, *,
+                 retries: int = DEFAULT_RETRIES,
                  latency_s: float | None = None) -> None:
         if baud <= 0:
             raise UsageError(f"bus baud rate {baud} must be positive")
@@ -141,6 +164,8 @@ class DynamixelBus:
         #: a KeyboardInterrupt out of the wait): their deadline (s, the transport's clock)
         #: and how many; None when no exchange was cut short (see :meth:`wait_out_replies`).
         self._due: tuple[float, int] | None = None
+        #: The last reply of the wrong length an exchange heard, and the length expected.
+        self._misfit: tuple[StatusPacket, int] | None = None
 
     # ------------------------------------------------------------------ timing
 
@@ -180,6 +205,7 @@ class DynamixelBus:
         """
         raw = b"".join(p.encode() for p in packets)
         attempts = 1 + (self.retries if retries is None else retries) if expected else 1
+        self._misfit = None
         for attempt in range(attempts):
             if attempt:
                 self.stats.retries += 1
@@ -187,6 +213,10 @@ class DynamixelBus:
             if replies is not None:
                 return replies
         self.stats.timeouts += 1
+        if self._misfit is not None:
+            misfit, length = self._misfit
+            raise NodeError(f"node {misfit.id} answered {len(misfit.params)} data bytes, "
+                            f"{length} expected")
         waiting = ", ".join(str(e.dxl_id) for e in expected)
         raise ReplyTimeout(f"{self.transport.url}: no reply from node(s) {waiting} after "
                            f"{attempts} attempt(s); check power, wiring, IDs and baud "
@@ -200,6 +230,7 @@ class DynamixelBus:
         stale = transport.recv(0.0)  # a late reply to an earlier request: drop it
         if stale:
             self._emit("rx", stale)
+            self._listen_for_quiet()
         self._decoder.reset()
         self.stats.requests += 1
         self.stats.bytes_sent += len(raw)
@@ -213,31 +244,50 @@ class DynamixelBus:
         if not expected:
             return []
         try:
-            replies = self._collect(expected, deadline)
+            replies = self._collect(expected, deadline, deadline - self.latency_s)
         except HostError:
             self._due = None
             raise
         self._due = None
         return replies
 
-    def _collect(self, expected: Sequence[Expect], deadline: float
+    def _listen_for_quiet(self) -> None:
+        """Bytes were on the line before a request (another program on the bus, or a late
+        reply): receive and drop until it has been quiet for :data:`LINE_QUIET_S`, for at
+        most :data:`LISTEN_MAX_S`, so the request does not collide with the rest of it."""
+        transport = self.transport
+        until = transport.now() + LISTEN_MAX_S
+        while transport.now() < until:
+            data = transport.recv(LINE_QUIET_S)
+            if not data:
+                return
+            self._emit("rx", data)
+
+    def _collect(self, expected: Sequence[Expect], deadline: float, wire_end: float
                  ) -> list[StatusPacket] | None:
         """The status packets ``expected`` arriving by ``deadline`` (see :meth:`exchange`);
-        None when some did not."""
+        None when some did not.  ``wire_end`` is when they are due at the latest without
+        the adapter's latency: once bytes have been heard (a collision's garbage, another
+        program's frames, some of the replies), :data:`REPLY_GAP_S` past it and past the
+        last reply taken without the next one ends the wait early (the rest were lost:
+        retried at once, not after the latency)."""
         transport = self.transport
         replies: list[StatusPacket] = []
         want = 0
-        misfit: StatusPacket | None = None
+        refused: StatusPacket | None = None
+        heard = False
+        progress = wire_end  # no reply is due later than this without the latency
         while True:
-            remaining = deadline - transport.now()
+            end = min(deadline, progress + REPLY_GAP_S) if heard else deadline
+            remaining = end - transport.now()
             if remaining <= 0:
-                if misfit is not None:
-                    raise NodeError(f"node {misfit.id} answered {len(misfit.params)} data "
-                                    f"bytes, {expected[want].length} expected")
+                if refused is not None:
+                    self._check(refused)
                 return None
             data = transport.recv(remaining)
             if not data:
                 continue
+            heard = True
             self.stats.bytes_received += len(data)
             self._emit("rx", data)
             for decoded in self._decoder.feed(data):
@@ -247,12 +297,16 @@ class DynamixelBus:
                 if status.id != expect.dxl_id:
                     continue  # not the node whose turn it is: noise or a late reply
                 if len(status.params) != expect.length:
-                    misfit = status  # a late reply to an earlier request, or a wrong node
+                    # a late reply to an earlier request, another program's, or a wrong node
+                    self._misfit = (status, expect.length)
                     continue
-                self._check(status)
+                if status.error & REQUEST_ERRORS:
+                    refused = status  # or another program's instruction: raised at the deadline
+                    continue
                 replies.append(status)
                 want += 1
-                misfit = None
+                refused = None
+                progress = max(progress, transport.now())
                 self._due = (deadline, len(expected) - want)
                 if want == len(expected):
                     return replies

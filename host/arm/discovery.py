@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from host.arm.bus import ARM_BUS_BAUD, DynamixelBus
+from host.arm.bus import ARM_BUS_BAUD, DEFAULT_RETRIES, DynamixelBus
 from host.arm.state import (
     DEFAULT_STIFFNESS_NM_PER_RAD,
     JOINT_IDS,
@@ -40,7 +40,8 @@ def open_arm_transport(url: str) -> Transport:
     return open_transport(url, **options)
 
 
-def open_bus(url: str, *, latency_s: float | None = None, retries: int = 2) -> DynamixelBus:
+def open_bus(url: str, *, latency_s: float | None = None,
+             retries: int = DEFAULT_RETRIES) -> DynamixelBus:
     """The arm's Dynamixel bus on ``url`` (:func:`open_arm_transport`) without discovering
     the joints (to scan it, or reach a node at an unexpected ID); close its transport."""
     transport = open_arm_transport(url)

@@ -49,7 +49,7 @@ from typing import Final
 import host.arm.cartesian as arm_cartesian
 import host.arm.homing as arm_homing
 import host.arm.move as arm_move
-from host.arm.bus import ARM_BUS_BAUD, DynamixelBus, Expect
+from host.arm.bus import ARM_BUS_BAUD, DEFAULT_RETRIES, DynamixelBus, Expect
 from host.arm.cartesian import (
     MOVETO_SETTLE_S,
     MOVETO_SPEED_RAD_S,
@@ -193,7 +193,8 @@ class Arm:
     # ------------------------------------------------------------------ opening
 
     @classmethod
-    def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY, retries: int = 2,
+    def open(cls, url: str | Transport, *, return_delay: int | None = FAST_RETURN_DELAY,
+             retries: int = DEFAULT_RETRIES,
              latency_s: float | None = None,
              stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
              view: ViewSpec = None,
@@ -222,7 +223,7 @@ class Arm:
 
     @classmethod
     def on(cls, transport: Transport, *, return_delay: int | None = FAST_RETURN_DELAY,
-           retries: int = 2, latency_s: float | None = None,
+           retries: int = DEFAULT_RETRIES, latency_s: float | None = None,
            stiffness: Sequence[float] = DEFAULT_STIFFNESS_NM_PER_RAD,
            watchdog_ms: int | None = HOST_WATCHDOG_MS) -> Arm:
         """As :meth:`open`, on a transport already open (e.g. an in-process emulator's

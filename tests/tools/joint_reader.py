@@ -1,27 +1,24 @@
-"""Another program on the arm's bus: READs the seven joints' ``present_position`` every
-20 ms with the stock dynamixel-sdk, until killed (a monitor, a dashboard: plain READs, no
+"""Another program on the arm's bus, on its own USB–RS-485 adapter (``hil-emulator
+--arm-adapters 2``: the port ``arm2``): READs the seven joints every 20 ms with the stock
+dynamixel-sdk, replies and all, until SIGTERM (a monitor, a dashboard: plain READs, no
 writes).  ``python -m tests.tools.joint_reader PORT``.
 
-A pty gives each byte to one of its clients (docs/EMULATOR.md), so a reader that took its
-replies would take the host's too and stop it.  This one sends its READs with the SDK's
-``readTx`` and leaves the replies on the port: the host's bus skips a reply it did not ask
-for; on the bus the nodes see exactly a second program's READs.  It reads what a host's
-cycle reads (a stepper's cycle block, an RX-64's position, speed and load), so a reply the
-host takes for its own is one of the same length and range.  It starts polling when a
-line comes on its standard input (so a test can start it just before it kills the host: a
-host sharing a pty with it loses replies to the line's collisions and, after its retries,
-gives up).  It asks for real-time scheduling where allowed (as ``armctl`` does), so that on
-a busy machine its polls keep their 20 ms: a monitor that keeps the nodes' watchdog fed is
-the case this stands for."""
+It reads what a host's cycle reads (a stepper's cycle block, an RX-64's position, speed and
+load) at normal priority.  On SIGTERM it prints one JSON line: ``polls`` (rounds of seven
+READs), ``reads`` and ``answered`` (READs sent and answered whole), ``late_polls`` (rounds
+that started more than two periods after the one before) and ``max_gap_ms`` (the longest time between two
+rounds' starts), so a test can say what the bus gave it."""
 
 from __future__ import annotations
 
+import json
+import signal
 import sys
 import time
+from types import FrameType
 
 import dynamixel_sdk as sdk
 
-from host.scheduling import request_priority
 from protocol.control_tables import RX64_TABLE, STEPPER_TABLE
 
 #: The reader's period (s).
@@ -29,7 +26,8 @@ PERIOD_S = 0.02
 
 
 def main(port_name: str) -> None:
-    """Poll the seven joints of the arm on ``port_name`` every :data:`PERIOD_S` for ever."""
+    """Poll the seven joints of the arm on ``port_name`` every :data:`PERIOD_S` until
+    SIGTERM: a line ``reading`` once the port is open, then the counts (see the module)."""
     port = sdk.PortHandler(port_name)
     assert port.openPort() and port.setBaudRate(1_000_000)
     packets = sdk.PacketHandler(1.0)
@@ -37,18 +35,33 @@ def main(port_name: str) -> None:
     stepper_len = STEPPER_TABLE["cycle_status_flags"].end - stepper.address
     servo = RX64_TABLE["present_position"]
     servo_len = RX64_TABLE["present_load"].end - servo.address
-    sys.stdin.readline()
-    request_priority("realtime")
-    due = time.monotonic()
-    while True:
+    counts = {"polls": 0, "reads": 0, "answered": 0, "late_polls": 0, "max_gap_ms": 0.0}
+    stop = []
+
+    def on_term(signum: int, frame: FrameType | None) -> None:
+        stop.append(signum)
+
+    signal.signal(signal.SIGTERM, on_term)
+    due = last = time.monotonic()
+    print("reading", flush=True)  # the port is open
+    while not stop:
+        start = time.monotonic()
+        if counts["polls"]:
+            counts["max_gap_ms"] = max(counts["max_gap_ms"], (start - last) * 1e3)
+            counts["late_polls"] += start - last > 2 * PERIOD_S
+        last = start
         for dxl_id in range(1, 8):
-            port.is_using = False  # no rxPacket follows to free it
-            if dxl_id <= 4:
-                packets.readTx(port, dxl_id, stepper.address, stepper_len)
-            else:
-                packets.readTx(port, dxl_id, servo.address, servo_len)
+            address, length = ((stepper.address, stepper_len) if dxl_id <= 4
+                               else (servo.address, servo_len))
+            data, result, _ = packets.readTxRx(port, dxl_id, address, length)
+            counts["reads"] += 1
+            counts["answered"] += result == sdk.COMM_SUCCESS and len(data) == length
+        counts["polls"] += 1
         due += PERIOD_S
+        if due < time.monotonic() - PERIOD_S:
+            due = time.monotonic()  # fell behind: keep the period from now, not catch up
         time.sleep(max(0.0, due - time.monotonic()))
+    print(json.dumps(counts), flush=True)
 
 
 if __name__ == "__main__":

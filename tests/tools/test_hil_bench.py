@@ -389,3 +389,18 @@ def test_host_vanish_with_a_reader_on_the_bus_holds_the_arm() -> None:
     (held,) = run_scenario(raw)["assertions"]
     assert held["passed"], held
     assert max(held["measured"]["drive_on_deg"]) < 8.0
+
+
+@pytest.mark.slow
+def test_host_vanish_with_a_reader_on_its_own_adapter_holds_the_arm() -> None:
+    """``host_vanish_reader_adapter``: the reader's READs from its own adapter collide with
+    the host's cycles; the host repeats them and moves, and once it is gone the reads do
+    not keep its goals driving."""
+    from tools.hil_bench.runner import run_scenario
+
+    raw = tomllib.loads((scenario_dir() / "host_vanish_reader_adapter.toml").read_text())
+    out = run_scenario(raw)
+    (held,) = out["assertions"]
+    assert held["passed"], held
+    moved = out["actions"]["killed"]["result"]
+    assert moved["reader_reads"] > 0 and moved["retries"] > 0 and moved["timeouts"] == 0

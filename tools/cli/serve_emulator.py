@@ -5,9 +5,11 @@
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
                  [--faults FILE] [--control PATH] [--scene none|mug]
                  [--sensors ideal|realistic] [--profile FILE] [--priority realtime|normal]
+                 [--arm-adapters N]
 
 Prints exactly one JSON line on standard output once its ports are ready (keys ``palm``,
-``arm``, ``fingers`` — a list —, ``can`` where the configuration has it, and ``config``,
+``arm``, ``fingers`` — a list —, ``arm_adapters`` — the arm bus's adapters, a list whose
+first is ``arm`` — and ``can`` where the configuration has them, and ``config``,
 ``seed``, ``sensors``, ``links``, and ``scene`` when one was asked for), then runs until SIGINT or SIGTERM (or ``--duration`` seconds of wall
 time) and exits 0, removing its links.  Diagnostics go to standard error, among them a
 line when the real-time loop falls more than 5 ms behind the wall clock (a busy machine)
@@ -101,6 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--profile", metavar="FILE",
                         help="a robot profile (JSON): this robot's physical parameters, "
                              "e.g. written by hil-bench fit (docs/EMULATOR.md)")
+    parser.add_argument("--arm-adapters", type=int, default=1, metavar="N",
+                        help="USB-RS-485 adapters on the arm's one bus, each a port (arm, "
+                             "arm2, ...): another program on its own adapter (default 1)")
     parser.add_argument("--no-physics", dest="physics", action="store_false",
                         help="firmware and buses only, no MuJoCo plant")
     parser.add_argument("--duration", type=number_above(0, what="a time in seconds"),
@@ -146,7 +151,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = load_plan(args.faults) if args.faults else []
         emulator = Emulator(args.config, seed=args.seed, layout=args.layout,
                             physics=args.physics, can=args.can, scene=args.scene,
-                            sensors=args.sensors, profile=args.profile)
+                            sensors=args.sensors, profile=args.profile,
+                            arm_adapters=args.arm_adapters)
     except EmulatorError as exc:
         print(f"hil-emulator: {exc}", file=sys.stderr)
         return 2

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 from typing import Any, Final
 
 from hil_emulator.emulator import Emulator
@@ -31,6 +32,9 @@ from tools.hil_bench.scenario import FINGER_BOARDS, Scenario, Step, parse_scenar
 
 #: Period of the plant-truth samples (µs).
 TRUTH_PERIOD_US: Final = 10_000
+#: A reader on its own adapter sends its READs this far apart (µs): a READ and its reply
+#: take about 270 µs of the 1 Mbaud line, and a stock SDK turns round in the rest.
+ADAPTER_READ_SPACING_US: Final = 500
 #: A stepper node's latches (status_flags bits), read as the nodes' truth.
 _LATCHES: Final = int(StepperFlag.SLIP | StepperFlag.STALLED | StepperFlag.HARDWARE_ERROR)
 _STEPPER_MODEL: Final = STEPPER_TABLE["model_number"].default
@@ -319,19 +323,27 @@ class Bench:
         self.arm.clear_errors()
 
     def _do_arm_move_vanish(self, angles: list[float], duration: float, after_s: float,
-                            reader_ms: float | None, read_for_s: float) -> dict[str, Any]:
+                            reader_ms: float | None, read_for_s: float,
+                            reader_adapter: bool) -> dict[str, Any]:
         """Start the move :meth:`host.arm.facade.Arm.move` makes (speeds for ``duration``, goals
         every 10 ms), then stop sending goals ``after_s`` into it, as a host killed
         mid-move does; the result says when (``vanished_s``, from the plan's start).  With
         ``reader_ms``, another program on the bus READs the seven joints' positions every
         ``reader_ms`` (ms) through the move and for ``read_for_s`` (s) after the host went
-        (a monitor: plain READs, no writes)."""
+        (a monitor: plain READs, no writes): through the host's own bus client, its READs
+        between the host's cycles, or with ``reader_adapter`` from its own adapter on the
+        line (:meth:`hil_emulator.arm.rig.ArmRig.add_adapter`), on the simulation clock,
+        whenever it is due: its frames then collide with the host's (the result counts the
+        host's ``retries`` and ``timeouts``, and the reader's ``reader_reads``)."""
         from host.arm.facade import MOVE_MIN_SPEED
 
         arm, clock = self.arm, self.arm.transport
         now = arm.state().joints
         speeds = [max(abs(a - b) / duration, MOVE_MIN_SPEED)
                   for a, b in zip(angles, now, strict=True)]
+        if reader_adapter and reader_ms is not None:
+            return self._vanish_with_an_adapter_reader(angles, speeds, after_s, reader_ms,
+                                                       read_for_s)
         arm.set_positions(angles, speeds)
         next_read = clock.now()
 
@@ -356,6 +368,46 @@ class Bench:
                 clock.sleep(max(0.001, min(next_read, stop) - clock.now()))
                 poll()
         return {"vanished_s": vanished, "goals": list(angles)}
+
+    def _vanish_with_an_adapter_reader(self, angles: list[float], speeds: list[float],
+                                       after_s: float, reader_ms: float,
+                                       read_for_s: float) -> dict[str, Any]:
+        """:meth:`_do_arm_move_vanish` with the reader on its own adapter: every
+        ``reader_ms`` it sends the seven READs one after the other, each
+        :data:`ADAPTER_READ_SPACING_US` after the one before (a stock SDK waits for each
+        reply), whatever else is on the line."""
+        from protocol.dynamixel import make_read
+
+        rig = self.emu.arm
+        assert rig is not None
+        arm, clock = self.arm, self.arm.transport
+        adapter = rig.add_adapter()
+        adapter.set_receiver(lambda data, t_us: None)  # a monitor: what it reads is its own
+        sent = [0]
+        reads = [make_read(j.dxl_id, 32 if j.kind == "stepper" else 36,
+                           4 if j.kind == "stepper" else 2).encode() for j in arm.joints]
+
+        def poll() -> None:
+            for k, packet in enumerate(reads):
+                rig.scheduler.call_later(k * ADAPTER_READ_SPACING_US,
+                                         partial(adapter.send, packet))
+            sent[0] += len(reads)
+
+        before = (arm.bus.stats.retries, arm.bus.stats.timeouts)
+        timer = rig.scheduler.call_every(int(reader_ms * 1000), poll)
+        try:
+            arm.set_positions(angles, speeds)
+            end = clock.now() + after_s
+            while clock.now() < end:
+                clock.sleep(0.01)
+                arm.set_positions(angles)
+            vanished = round(self.now_s(), 6)
+            clock.sleep(read_for_s)
+        finally:
+            timer.cancel()
+        return {"vanished_s": vanished, "goals": list(angles), "reader_reads": sent[0],
+                "retries": arm.bus.stats.retries - before[0],
+                "timeouts": arm.bus.stats.timeouts - before[1]}
 
 
 def run_scenario(raw: dict[str, Any], source: str = "<scenario>",

@@ -41,7 +41,7 @@ ACTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {
     "arm_stream": (("seconds",), {"rate_hz": 100.0}),
     "arm_clear_errors": ((), {}),
     "arm_move_vanish": (("angles",), {"duration": 6.0, "after_s": 1.5, "reader_ms": None,
-                                      "read_for_s": 3.0}),
+                                      "read_for_s": 3.0, "reader_adapter": False}),
 }
 #: Each assertion's keys: required ones, then optional ones with defaults.
 ASSERTIONS: Final[dict[str, tuple[tuple[str, ...], dict[str, Any]]]] = {

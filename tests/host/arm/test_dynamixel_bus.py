@@ -267,3 +267,23 @@ def test_the_cycle_sends_goals_and_the_bulk_read_in_one_write() -> None:
         arm.bus.retries = 0
         arm.cycle(commands)
     assert transport.sent[0][1] == GOLDEN_STEPPER_GOALS + GOLDEN_SERVO_GOAL + GOLDEN_BULK_READ
+
+
+# ----------------------------------------------------------------- another program on the bus
+
+# Status of id 1 carrying 4 data bytes 01 02 03 04: ~(01+06+00+01+02+03+04) = ~0x11 = EE
+STATUS_1_FOUR = bytes.fromhex("FFFF01060001020304EE")
+
+
+def test_a_misfit_then_no_reply_is_retried_and_the_retry_answers() -> None:
+    """Another program's reply (2 bytes from id 1) while this one's collided: retried."""
+    bus = bus_on([[(100e-6, STATUS_1_MODEL)], [(100e-6, STATUS_1_FOUR)]])
+    assert bus.read(1, 0, 4) == bytes([1, 2, 3, 4])
+    assert bus.stats.retries == 1
+
+
+def test_another_programs_read_heard_as_a_refusal_gives_way_to_the_nodes_answer() -> None:
+    """Another program's READ of id 1 (instruction 2 = the ANGLE_LIMIT bit, 2 parameters)
+    heard before node 1's own 2-byte answer: the answer is taken, nothing raised."""
+    bus = bus_on([[(40e-6, READ_1_MODEL), (120e-6, STATUS_1_MODEL)]], retries=0)
+    assert bus.read(1, 0, 2) == b"\x40\x00"
