@@ -34,31 +34,21 @@ from typing import Any, Final
 
 import numpy as np
 
+from hil_emulator import hand_profile
 from hil_emulator.arm.actuators import ArmParams
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.hand.finger_plant import FingerParams
+from hil_emulator.imperfections import AccelTruth
+from hil_emulator.parameter import Parameter
+
+__all__ = ["FILE_KEYS", "FORMAT", "PARAMETERS", "VERSION", "Parameter", "RobotProfile",
+           "as_profile", "load_profile", "parameter"]
 
 #: The ``format`` every profile file carries, and the version this emulator reads.
 FORMAT: Final = "hil-emulator robot profile"
 VERSION: Final = 1
 #: The keys a profile file may have.
 FILE_KEYS: Final = ("format", "version", "parameters", "fit")
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One fittable physical parameter: its ``name`` (``arm.J2.stiffness``), ``unit``,
-    ``nominal`` value (the emulator's default), the ``low``–``high`` bounds a profile and a
-    fit keep it within, and what it is (``doc``).  ``field`` and ``joint`` say where it goes
-    in :class:`~hil_emulator.arm.actuators.ArmParams` (an array of J1..J4)."""
-
-    name: str
-    unit: str
-    nominal: float
-    low: float
-    high: float
-    doc: str
-    field: str
-    joint: int
 
 
 _DEFAULT = ArmParams()
@@ -82,14 +72,17 @@ def _nominal(field_name: str, joint: int) -> float:
     return float(getattr(_DEFAULT, field_name)[joint])
 
 
-#: Every fittable parameter, by name.
+#: The arm's fittable parameters.
+_ARM: Final = tuple(
+    Parameter(f"arm.{joint}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
+              field_name, j)
+    for suffix, unit, field_name, (lo, hi), doc in _KINDS
+    for j, joint in enumerate(_STEPPER_JOINTS)
+    for nominal in (_nominal(field_name, j),))
+#: Every fittable parameter, by name: the arm's and the hand's
+#: (:data:`hil_emulator.hand_profile.HAND_PARAMETERS`).
 PARAMETERS: Final[Mapping[str, Parameter]] = {
-    p.name: p for p in (
-        Parameter(f"arm.{joint}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
-                  field_name, j)
-        for suffix, unit, field_name, (lo, hi), doc in _KINDS
-        for j, joint in enumerate(_STEPPER_JOINTS)
-        for nominal in (_nominal(field_name, j),))}
+    p.name: p for p in (*_ARM, *hand_profile.HAND_PARAMETERS)}
 
 
 def parameter(name: str) -> Parameter:
@@ -99,7 +92,9 @@ def parameter(name: str) -> Parameter:
     except KeyError:
         raise EmulatorConfigError(
             f"unknown parameter {name!r}; the parameters are arm.J1..J4.stiffness, .damping, "
-            f".bearing_friction, .torque_constant") from None
+            f".bearing_friction, .torque_constant, hand.finger0..3.motor_friction, "
+            f".joint_damping, hand.palm|finger0..3.fmcb|f2|f3.accel_rotation_x|y|z, "
+            f".accel_bias_x|y|z (docs/EMULATOR.md)") from None
 
 
 @dataclass(frozen=True)
@@ -131,10 +126,21 @@ class RobotProfile:
         arrays: dict[str, Any] = {}
         for name, value in self.values.items():
             p = PARAMETERS[name]
+            if not name.startswith("arm."):
+                continue
             if p.field not in arrays:
                 arrays[p.field] = np.array(getattr(base, p.field), dtype=float)
             arrays[p.field][p.joint] = value
         return dataclasses.replace(base, **arrays) if arrays else base
+
+    def finger_params(self, finger: int, base: FingerParams) -> FingerParams:
+        """``base`` with this profile's parameters of finger module ``finger``."""
+        return hand_profile.finger_params(self.values, finger, base)
+
+    def accel(self, board: str, drawn: AccelTruth) -> AccelTruth:
+        """Board ``board``'s accelerometer (``palm``, ``finger1.f2``) as built: ``drawn``
+        with this profile's rotation and offset components."""
+        return hand_profile.accel_truth(self.values, board, drawn)
 
     def as_json(self) -> dict[str, Any]:
         """The file's content."""
