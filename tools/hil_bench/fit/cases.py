@@ -24,7 +24,7 @@ from typing import Final
 import numpy as np
 
 from hil_emulator.errors import EmulatorError
-from hil_emulator.profile import RobotProfile
+from hil_emulator.profile import PARAMETERS, RobotProfile
 from host.errors import UsageError
 from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, tolerances_for
@@ -77,11 +77,10 @@ def load_case(path: str | Path, tolerances: Sequence[tuple[str, float]] = ()) ->
 
 def check_parameters(case: FitCase, names: Sequence[str]) -> None:
     """:class:`ReplayRefused` when ``case``'s robot has none of what ``names`` are of."""
-    if any(n.startswith("arm.") for n in names) and case.recording.spec.config not in (
-            "arm", "full"):
+    arm = [n for n in names if PARAMETERS[n].part == "arm"]
+    if arm and case.recording.spec.config not in ("arm", "full"):
         raise ReplayRefused(f"its {case.recording.spec.config!r} robot has no arm: "
-                            f"{', '.join(n for n in names if n.startswith('arm.'))} cannot "
-                            "be seen in it")
+                            f"{', '.join(arm)} cannot be seen in it")
 
 
 def replay_case(case: FitCase, values: Mapping[str, float]) -> dict[str, Channel]:
