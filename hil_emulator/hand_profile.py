@@ -62,10 +62,10 @@ _ACCEL_KINDS: Final = (
 #: The hand's fittable parameters.
 HAND_PARAMETERS: Final[tuple[Parameter, ...]] = (
     *(Parameter(f"hand.finger{k}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
-                suffix, -1, f"finger{k}")
+                "hand", suffix, -1, f"finger{k}")
       for k in range(FINGERS) for suffix, unit, nominal, lo, hi, doc in _FINGER_KINDS),
     *(Parameter(f"hand.{board}.{suffix}_{axis}", unit, 0.0, lo, hi, doc.format(axis=axis),
-                suffix, i, board, scale)
+                "hand", suffix, i, board, scale)
       for board in ACCEL_BOARDS for suffix, unit, lo, hi, scale, doc in _ACCEL_KINDS
       for i, axis in enumerate(AXES)),
 )
@@ -73,12 +73,13 @@ _BY_NAME: Final = {p.name: p for p in HAND_PARAMETERS}
 
 
 def _of(values: Mapping[str, float], part: str, field: str) -> dict[int, float]:
-    """The values of ``part``'s ``field`` parameters in ``values``, by axis (-1: none)."""
+    """The values of finger or board ``part``'s ``field`` parameters in ``values``, by axis
+    (-1: none)."""
     out: dict[int, float] = {}
     for name, value in values.items():
         p = _BY_NAME.get(name)
-        if p is not None and p.part == part and p.field == field:
-            out[p.joint] = value
+        if p is not None and p.element == part and p.field == field:
+            out[p.index] = value
     return out
 
 

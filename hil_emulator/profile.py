@@ -18,8 +18,11 @@ free-form) is what ``hil-bench fit`` records about how the values were found.  A
 key, an unknown parameter, a value that is not a finite number or lies outside its bounds is
 an :class:`~hil_emulator.errors.EmulatorConfigError` naming it.
 
-The fittable parameters are declared once, in :data:`PARAMETERS` (name, unit, nominal
-value, bounds); docs/EMULATOR.md ("Robot profiles") lists them.
+The fittable parameters are declared once, a table per part of the robot
+(:data:`PART_TABLES`: the arm's :data:`ARM_PARAMETERS`, the hand's
+:data:`hil_emulator.hand_profile.HAND_PARAMETERS`) that :data:`PARAMETERS` concatenates
+(name, unit, nominal value, bounds, the part and place it applies to); docs/EMULATOR.md
+("Robot profiles") lists them.
 """
 
 from __future__ import annotations
@@ -41,8 +44,8 @@ from hil_emulator.hand.finger_plant import FingerParams
 from hil_emulator.imperfections import AccelTruth
 from hil_emulator.parameter import Parameter
 
-__all__ = ["FILE_KEYS", "FORMAT", "PARAMETERS", "VERSION", "Parameter", "RobotProfile",
-           "as_profile", "load_profile", "parameter"]
+__all__ = ["ARM_PARAMETERS", "FILE_KEYS", "FORMAT", "PARAMETERS", "PARTS", "PART_TABLES",
+           "VERSION", "Parameter", "RobotProfile", "as_profile", "load_profile", "parameter"]
 
 #: The ``format`` every profile file carries, and the version this emulator reads.
 FORMAT: Final = "hil-emulator robot profile"
@@ -54,7 +57,7 @@ FILE_KEYS: Final = ("format", "version", "parameters", "fit")
 _DEFAULT = ArmParams()
 _STEPPER_JOINTS: Final = ("J1", "J2", "J3", "J4")
 #: (suffix, unit, ArmParams field, bounds as multiples of the nominal, what it is).
-_KINDS: Final = (
+_ARM_KINDS: Final = (
     ("stiffness", "N·m/rad", "stiffness", (0.3, 3.0),
      "spring stiffness of the joint's series-elastic element (its end stop follows)"),
     ("damping", "N·m·s/rad", "damping", (0.05, 10.0),
@@ -72,17 +75,32 @@ def _nominal(field_name: str, joint: int) -> float:
     return float(getattr(_DEFAULT, field_name)[joint])
 
 
-#: The arm's fittable parameters.
-_ARM: Final = tuple(
+#: The arm's parameters (part ``"arm"``): per stepper joint J1..J4, each of the kinds above.
+ARM_PARAMETERS: Final[tuple[Parameter, ...]] = tuple(
     Parameter(f"arm.{joint}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
-              field_name, j)
-    for suffix, unit, field_name, (lo, hi), doc in _KINDS
+              "arm", field_name, j)
+    for suffix, unit, field_name, (lo, hi), doc in _ARM_KINDS
     for j, joint in enumerate(_STEPPER_JOINTS)
     for nominal in (_nominal(field_name, j),))
-#: Every fittable parameter, by name: the arm's and the hand's
-#: (:data:`hil_emulator.hand_profile.HAND_PARAMETERS`).
+
+#: The parts of the robot a parameter may apply to, each with its table of parameters.
+#: A part's table is declared beside the part; :data:`PARAMETERS` concatenates them.
+PART_TABLES: Final[Mapping[str, tuple[Parameter, ...]]] = {
+    "arm": ARM_PARAMETERS, "hand": hand_profile.HAND_PARAMETERS}
+PARTS: Final = tuple(PART_TABLES)
+
+#: Every fittable parameter, by name: the parts' tables, concatenated.
 PARAMETERS: Final[Mapping[str, Parameter]] = {
-    p.name: p for p in (*_ARM, *hand_profile.HAND_PARAMETERS)}
+    p.name: p for table in PART_TABLES.values() for p in table}
+
+
+def _families() -> str:
+    """The parameters' names in short (``arm.J1..J4.stiffness, …``), for messages."""
+    seen: dict[str, None] = {}
+    for name in PARAMETERS:
+        part, kind = name.split(".", 1)[0], name.rsplit(".", 1)[1]
+        seen.setdefault(f"{part}.*.{kind}", None)
+    return ", ".join(seen)
 
 
 def parameter(name: str) -> Parameter:
@@ -91,10 +109,8 @@ def parameter(name: str) -> Parameter:
         return PARAMETERS[name]
     except KeyError:
         raise EmulatorConfigError(
-            f"unknown parameter {name!r}; the parameters are arm.J1..J4.stiffness, .damping, "
-            f".bearing_friction, .torque_constant, hand.finger0..3.motor_friction, "
-            f".joint_damping, hand.palm|finger0..3.fmcb|f2|f3.accel_rotation_x|y|z, "
-            f".accel_bias_x|y|z (docs/EMULATOR.md)") from None
+            f"unknown parameter {name!r}; the parameters are {_families()} "
+            "(docs/EMULATOR.md, robot profiles)") from None
 
 
 @dataclass(frozen=True)
@@ -120,27 +136,29 @@ class RobotProfile:
             checked[name] = float(value)
         object.__setattr__(self, "values", checked)
 
+    def part_values(self, part: str) -> dict[str, float]:
+        """This profile's values of the parameters of ``part`` (:data:`PARTS`), by name."""
+        return {n: v for n, v in self.values.items() if PARAMETERS[n].part == part}
+
     def arm_params(self, base: ArmParams | None = None) -> ArmParams:
         """``base`` (default: the nominal arm) with this profile's arm parameters."""
         base = base or ArmParams()
         arrays: dict[str, Any] = {}
-        for name, value in self.values.items():
+        for name, value in self.part_values("arm").items():
             p = PARAMETERS[name]
-            if not name.startswith("arm."):
-                continue
             if p.field not in arrays:
                 arrays[p.field] = np.array(getattr(base, p.field), dtype=float)
-            arrays[p.field][p.joint] = value
+            arrays[p.field][p.index] = value
         return dataclasses.replace(base, **arrays) if arrays else base
 
     def finger_params(self, finger: int, base: FingerParams) -> FingerParams:
         """``base`` with this profile's parameters of finger module ``finger``."""
-        return hand_profile.finger_params(self.values, finger, base)
+        return hand_profile.finger_params(self.part_values("hand"), finger, base)
 
     def accel(self, board: str, drawn: AccelTruth) -> AccelTruth:
         """Board ``board``'s accelerometer (``palm``, ``finger1.f2``) as built: ``drawn``
         with this profile's rotation and offset components."""
-        return hand_profile.accel_truth(self.values, board, drawn)
+        return hand_profile.accel_truth(self.part_values("hand"), board, drawn)
 
     def as_json(self) -> dict[str, Any]:
         """The file's content."""

@@ -26,7 +26,7 @@ import numpy as np
 
 from hil_emulator.errors import EmulatorError
 from hil_emulator.hand_profile import sensor_names
-from hil_emulator.profile import RobotProfile
+from hil_emulator.profile import PARAMETERS, RobotProfile
 from host.errors import UsageError
 from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, tolerances_for
@@ -92,11 +92,12 @@ def load_case(path: str | Path, tolerances: Sequence[tuple[str, float]] = ()) ->
 def check_parameters(case: FitCase, names: Sequence[str]) -> None:
     """:class:`ReplayRefused` when ``case``'s robot has none of what ``names`` are of."""
     spec = case.recording.spec
-    if any(n.startswith("arm.") for n in names) and spec.config not in ("arm", "full"):
-        raise ReplayRefused(f"its {spec.config!r} robot has no arm: "
-                            f"{', '.join(n for n in names if n.startswith('arm.'))} cannot "
+    arm = [n for n in names if PARAMETERS[n].part == "arm"]
+    if arm and spec.config not in ("arm", "full"):
+        raise ReplayRefused(f"its {spec.config!r} robot has no arm: {', '.join(arm)} cannot "
                             "be seen in it")
-    absent = [n for n in names if n.startswith("hand.") and not _has_part(spec.config, n)]
+    absent = [n for n in names if PARAMETERS[n].part == "hand"
+              and not _has_part(spec.config, PARAMETERS[n].element)]
     if absent:
         raise ReplayRefused(f"its {spec.config!r} robot has none of {', '.join(absent)}")
     if spec.sensors != "realistic" and (named := sensor_names(dict.fromkeys(names, 0.0))):
@@ -104,11 +105,12 @@ def check_parameters(case: FitCase, names: Sequence[str]) -> None:
                             f"{', '.join(named)} cannot be seen in it")
 
 
-def _has_part(config: str, name: str) -> bool:
-    """Whether a robot of ``config`` has the finger or board hand parameter ``name`` is of."""
+def _has_part(config: str, element: str) -> bool:
+    """Whether a robot of ``config`` has the finger module or board ``element``
+    (``finger1``, ``finger1.f2``, ``palm``)."""
     if config in ("hand", "full"):
         return True
-    return config == "loose-finger" and name.startswith("hand.finger0.")
+    return config == "loose-finger" and element.split(".")[0] == "finger0"
 
 
 def replay_case(case: FitCase, values: Mapping[str, float]) -> dict[str, Channel]:
