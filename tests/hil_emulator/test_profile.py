@@ -1,4 +1,4 @@
-"""Robot profiles: the parameters they name reach the arm's plant; a bad file is one line."""
+"""Robot profiles: their parameters reach the arm's and the hand's plants; a bad file: one line."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pytest
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.inprocess import parse_url
 from hil_emulator.hand_profile import ACCEL_BOARDS
+from hil_emulator.inprocess import parse_url
 from hil_emulator.profile import FORMAT, PARAMETERS, VERSION, RobotProfile, load_profile
 from host.errors import UsageError
 from tests.hil_emulator.emulator_process import ROOT
@@ -136,7 +136,8 @@ def test_a_profile_turns_and_offsets_the_boards_it_names_and_leaves_the_others_d
         assert f3.tilt_rad[1:] == pytest.approx(f3_drawn.tilt_rad[1:])  # the draw's
         assert f3.bias_mg[2] == pytest.approx(-50.0)
         assert f3.bias_mg[:2] == pytest.approx(f3_drawn.bias_mg[:2])
-        assert np.degrees(after.accels["palm"].tilt_rad[2]) == pytest.approx(-2.0)
+        palm = after.accels["palm"].tilt_rad
+        assert palm is not None and np.degrees(palm[2]) == pytest.approx(-2.0)
         for board in ("finger2.f2", "finger0.f3", "finger3.fmcb"):  # not named: as drawn
             assert np.array_equal(after.accels[board].rotation, before.accels[board].rotation)
             assert np.array_equal(after.accels[board].bias_mg, before.accels[board].bias_mg)
