@@ -40,12 +40,12 @@ from tools.hil_bench.replay.source import Recorded, load, merge
 FIT_TOLERANCES: Final = (("cycle_present_position", 2.0), ("cycle_deflection", 2.0),
                          ("present_position", 2.0))
 #: The hand's: each finger motor's hall count, and each accelerometer's three axes (mg: the
-#: fmcb's, f2's and f3's in ``fmcb.status``, the palm's in its state), 8 mg being five
-#: times the chip's noise (1.5 mg rms).
+#: fmcb's, f2's and f3's in ``fmcb.status``, the palm's ``accel`` in its state), 8 mg being
+#: five times the chip's noise (1.5 mg rms).
 HAND_FIT_TOLERANCES: Final = (
     *((f"hall_pos[{i}]", 2.0) for i in range(3)),
-    *((f"{imu}[{i}]", 8.0) for imu in ("fmcb_imu", "pp_imu", "dp_imu") for i in range(3)),
-    *((f"state.accel[{i}]", 8.0) for i in range(3)))
+    *((f"{imu}[{i}]", 8.0) for imu in ("fmcb_imu", "pp_imu", "dp_imu", "accel")
+      for i in range(3)))
 #: Joins the recordings of one session (one emulator, one recorder per link) in a fit's
 #: argument: ``arm.mcap+hand.mcap``.
 SESSION_JOIN: Final = "+"
