@@ -194,3 +194,22 @@ def test_a_full_robot_session_gives_back_the_palms_rotation_about_every_axis(
     assert code == 0, data
     _check_recovered(RobotProfile(json.loads(out.read_text())["parameters"]).values, PALM)
     _check_refit_replays([check_arm, check_hand], out, tolerances)
+
+
+def test_a_sensors_parameter_of_a_recording_with_ideal_sensors_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "ideal.mcap"
+    forget_shared_emulators()
+    try:
+        with Hand.open("emu://hand/palm?seed=1&sensors=ideal&name=test-fit-hand-ideal") as hand, \
+                HandRecorder(hand, path):
+            hand.status()
+    finally:
+        forget_shared_emulators()
+    assert main(["fit", str(path), "--params", "hand.finger1.f2.accel_bias_x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err
+    assert "'ideal' sensors" in err and "hand.finger1.f2.accel_bias_x" in err
+    # one session's files joined by +: these two are one link twice, refused as replay does
+    assert main(["fit", f"{path}+{path}", "--params", "hand.finger1.motor_friction"]) == 2
+    assert "repeats the hand link" in capsys.readouterr().err
