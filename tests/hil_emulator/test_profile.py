@@ -72,6 +72,8 @@ def test_bearings_a_profile_leaves_out_keep_the_seeds_draw() -> None:
     (_profile({"arm.J9.stiffness": 1.0}), "unknown parameter 'arm.J9.stiffness'"),
     (_profile({"arm.J2.stiffness": "stiff"}), "not a finite number"),
     (_profile({"arm.J2.stiffness": 1e6}), "outside its bounds"),
+    (_profile({"hand.finger1.f3.accel_rotation_x": 20.0}), "20.0 deg is outside its bounds"),
+    (_profile({"hand.finger4.f3.accel_bias_x": 0.0}), "unknown parameter 'hand.finger4"),
     (_profile({}, colour="red"), "unknown keys ['colour']"),
     ({"format": FORMAT, "version": 99, "parameters": {}}, "version 99"),
     ([1, 2], "not a JSON object"),
