@@ -39,6 +39,7 @@ says where each comes from):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -172,7 +173,8 @@ class AccelTruth:
     """One accelerometer as built: ``a_chip = (I + diag(scale))(I + cross)·rotationᵀ·a +
     bias + tc·(T − T_ref)``.  ``rotation``: the chip's axes (columns) in the board's nominal
     frame; ``scale`` (fraction per axis); ``cross`` (3×3, zero diagonal); ``bias_mg`` (mg)
-    and ``tc_mg_per_c`` (mg/°C) per axis; ``reference_c`` (°C)."""
+    and ``tc_mg_per_c`` (mg/°C) per axis; ``reference_c`` (°C); ``tilt_rad``: ``rotation``
+    as a rotation vector (rad, :func:`rotation_from_vector`; None: not kept)."""
 
     rotation: np.ndarray
     scale: np.ndarray
@@ -180,6 +182,7 @@ class AccelTruth:
     bias_mg: np.ndarray
     tc_mg_per_c: np.ndarray
     reference_c: float
+    tilt_rad: np.ndarray | None = None
 
     def matrix(self) -> np.ndarray:
         """``M`` (3×3): nominal-frame acceleration → what the chip's axes read (no offset)."""
@@ -210,7 +213,15 @@ def draw_accel(rng: np.random.Generator, p: Imperfections = REALISTIC) -> AccelT
     np.fill_diagonal(cross, 0.0)
     bias = rng.normal(0.0, a.zero_g_offset_mg, 3)
     tc = rng.uniform(-a.offset_tc_mg_per_c, a.offset_tc_mg_per_c, 3)
-    return AccelTruth(rotation_from_vector(tilt), scale, cross, bias, tc, a.reference_c)
+    return AccelTruth(rotation_from_vector(tilt), scale, cross, bias, tc, a.reference_c, tilt)
+
+
+#: What a robot profile makes of a board's drawn accelerometer (the board's name, the draw).
+AccelAdjust = Callable[[str, AccelTruth], AccelTruth]
+
+
+def _as_drawn(_board: str, drawn: AccelTruth) -> AccelTruth:
+    return drawn
 
 
 @dataclass(frozen=True)
@@ -253,13 +264,18 @@ def _pad(rng: np.random.Generator, n: int, p: Imperfections) -> PadTruth:
 
 
 def finger_errors(seed: int, finger: int, truth: PlantedTruth,
-                  p: Imperfections = REALISTIC) -> FingerErrors:
-    """Finger module ``finger``'s sensor errors for ``seed``, recorded in ``truth``."""
+                  p: Imperfections = REALISTIC, adjust: AccelAdjust = _as_drawn
+                  ) -> FingerErrors:
+    """Finger module ``finger``'s sensor errors for ``seed``, recorded in ``truth``;
+    ``adjust`` turns each board's drawn accelerometer into the one built (a robot profile's
+    values, :func:`hil_emulator.hand_profile.accel_truth`) after every draw."""
     rng = part_rng(seed, f"finger{finger}")
-    accels = [draw_accel(rng, p) for _ in FINGER_BOARDS]
+    name = f"finger{finger}"
+    drawn = [draw_accel(rng, p) for _ in FINGER_BOARDS]
     f2_pad, f3_pad = _pad(rng, len(F2_TAXELS), p), _pad(rng, len(F3_TAXELS), p)
     gauge = float(rng.normal(0.0, p.gauge_offset_counts))
-    name = f"finger{finger}"
+    accels = [adjust(f"{name}.{board}", a) for board, a in zip(FINGER_BOARDS, drawn,
+                                                                 strict=True)]
     for board, accel in zip(FINGER_BOARDS, accels, strict=True):
         truth.accels[f"{name}.{board}"] = accel
     truth.pads[f"{name}.f2"], truth.pads[f"{name}.f3"] = f2_pad, f3_pad
@@ -272,11 +288,14 @@ def finger_errors(seed: int, finger: int, truth: PlantedTruth,
                         NormalStream(rng))
 
 
-def palm_errors(seed: int, truth: PlantedTruth, p: Imperfections = REALISTIC) -> PalmErrors:
-    """The palm board's sensor errors for ``seed``, recorded in ``truth``."""
+def palm_errors(seed: int, truth: PlantedTruth, p: Imperfections = REALISTIC,
+                adjust: AccelAdjust = _as_drawn) -> PalmErrors:
+    """The palm board's sensor errors for ``seed``, recorded in ``truth`` (``adjust`` as
+    :func:`finger_errors`')."""
     rng = part_rng(seed, "palm")
-    accel = draw_accel(rng, p)
+    drawn = draw_accel(rng, p)
     pad = _pad(rng, len(PALM_TAXELS), p)
+    accel = adjust("palm", drawn)
     truth.accels["palm"], truth.pads["palm"] = accel, pad
     return PalmErrors(accel.errors(), PadErrors(pad.offsets_counts.tolist(), 0.0))
 

@@ -18,8 +18,11 @@ free-form) is what ``hil-bench fit`` records about how the values were found.  A
 key, an unknown parameter, a value that is not a finite number or lies outside its bounds is
 an :class:`~hil_emulator.errors.EmulatorConfigError` naming it.
 
-The fittable parameters are declared once, in :data:`PARAMETERS` (name, unit, nominal
-value, bounds); docs/EMULATOR.md ("Robot profiles") lists them.
+The fittable parameters are declared once, a table per part of the robot
+(:data:`PART_TABLES`: the arm's :data:`ARM_PARAMETERS`, the hand's
+:data:`hil_emulator.hand_profile.HAND_PARAMETERS`) that :data:`PARAMETERS` concatenates
+(name, unit, nominal value, bounds, the part and place it applies to); docs/EMULATOR.md
+("Robot profiles") lists them.
 """
 
 from __future__ import annotations
@@ -34,8 +37,15 @@ from typing import Any, Final
 
 import numpy as np
 
+from hil_emulator import hand_profile
 from hil_emulator.arm.actuators import ArmParams
 from hil_emulator.errors import EmulatorConfigError
+from hil_emulator.hand.finger_plant import FingerParams
+from hil_emulator.imperfections import AccelTruth
+from hil_emulator.parameter import Parameter
+
+__all__ = ["ARM_PARAMETERS", "FILE_KEYS", "FORMAT", "PARAMETERS", "PARTS", "PART_TABLES",
+           "VERSION", "Parameter", "RobotProfile", "as_profile", "load_profile", "parameter"]
 
 #: The ``format`` every profile file carries, and the version this emulator reads.
 FORMAT: Final = "hil-emulator robot profile"
@@ -44,27 +54,10 @@ VERSION: Final = 1
 FILE_KEYS: Final = ("format", "version", "parameters", "fit")
 
 
-@dataclass(frozen=True)
-class Parameter:
-    """One fittable physical parameter: its ``name`` (``arm.J2.stiffness``), ``unit``,
-    ``nominal`` value (the emulator's default), the ``low``–``high`` bounds a profile and a
-    fit keep it within, and what it is (``doc``).  ``field`` and ``joint`` say where it goes
-    in :class:`~hil_emulator.arm.actuators.ArmParams` (an array of J1..J4)."""
-
-    name: str
-    unit: str
-    nominal: float
-    low: float
-    high: float
-    doc: str
-    field: str
-    joint: int
-
-
 _DEFAULT = ArmParams()
 _STEPPER_JOINTS: Final = ("J1", "J2", "J3", "J4")
 #: (suffix, unit, ArmParams field, bounds as multiples of the nominal, what it is).
-_KINDS: Final = (
+_ARM_KINDS: Final = (
     ("stiffness", "N·m/rad", "stiffness", (0.3, 3.0),
      "spring stiffness of the joint's series-elastic element (its end stop follows)"),
     ("damping", "N·m·s/rad", "damping", (0.05, 10.0),
@@ -82,14 +75,32 @@ def _nominal(field_name: str, joint: int) -> float:
     return float(getattr(_DEFAULT, field_name)[joint])
 
 
-#: Every fittable parameter, by name.
+#: The arm's parameters (part ``"arm"``): per stepper joint J1..J4, each of the kinds above.
+ARM_PARAMETERS: Final[tuple[Parameter, ...]] = tuple(
+    Parameter(f"arm.{joint}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
+              "arm", field_name, j)
+    for suffix, unit, field_name, (lo, hi), doc in _ARM_KINDS
+    for j, joint in enumerate(_STEPPER_JOINTS)
+    for nominal in (_nominal(field_name, j),))
+
+#: The parts of the robot a parameter may apply to, each with its table of parameters.
+#: A part's table is declared beside the part; :data:`PARAMETERS` concatenates them.
+PART_TABLES: Final[Mapping[str, tuple[Parameter, ...]]] = {
+    "arm": ARM_PARAMETERS, "hand": hand_profile.HAND_PARAMETERS}
+PARTS: Final = tuple(PART_TABLES)
+
+#: Every fittable parameter, by name: the parts' tables, concatenated.
 PARAMETERS: Final[Mapping[str, Parameter]] = {
-    p.name: p for p in (
-        Parameter(f"arm.{joint}.{suffix}", unit, nominal, nominal * lo, nominal * hi, doc,
-                  field_name, j)
-        for suffix, unit, field_name, (lo, hi), doc in _KINDS
-        for j, joint in enumerate(_STEPPER_JOINTS)
-        for nominal in (_nominal(field_name, j),))}
+    p.name: p for table in PART_TABLES.values() for p in table}
+
+
+def _families() -> str:
+    """The parameters' names in short (``arm.J1..J4.stiffness, …``), for messages."""
+    seen: dict[str, None] = {}
+    for name in PARAMETERS:
+        part, kind = name.split(".", 1)[0], name.rsplit(".", 1)[1]
+        seen.setdefault(f"{part}.*.{kind}", None)
+    return ", ".join(seen)
 
 
 def parameter(name: str) -> Parameter:
@@ -98,8 +109,8 @@ def parameter(name: str) -> Parameter:
         return PARAMETERS[name]
     except KeyError:
         raise EmulatorConfigError(
-            f"unknown parameter {name!r}; the parameters are arm.J1..J4.stiffness, .damping, "
-            f".bearing_friction, .torque_constant") from None
+            f"unknown parameter {name!r}; the parameters are {_families()} "
+            "(docs/EMULATOR.md, robot profiles)") from None
 
 
 @dataclass(frozen=True)
@@ -125,16 +136,29 @@ class RobotProfile:
             checked[name] = float(value)
         object.__setattr__(self, "values", checked)
 
+    def part_values(self, part: str) -> dict[str, float]:
+        """This profile's values of the parameters of ``part`` (:data:`PARTS`), by name."""
+        return {n: v for n, v in self.values.items() if PARAMETERS[n].part == part}
+
     def arm_params(self, base: ArmParams | None = None) -> ArmParams:
         """``base`` (default: the nominal arm) with this profile's arm parameters."""
         base = base or ArmParams()
         arrays: dict[str, Any] = {}
-        for name, value in self.values.items():
+        for name, value in self.part_values("arm").items():
             p = PARAMETERS[name]
             if p.field not in arrays:
                 arrays[p.field] = np.array(getattr(base, p.field), dtype=float)
-            arrays[p.field][p.joint] = value
+            arrays[p.field][p.index] = value
         return dataclasses.replace(base, **arrays) if arrays else base
+
+    def finger_params(self, finger: int, base: FingerParams) -> FingerParams:
+        """``base`` with this profile's parameters of finger module ``finger``."""
+        return hand_profile.finger_params(self.part_values("hand"), finger, base)
+
+    def accel(self, board: str, drawn: AccelTruth) -> AccelTruth:
+        """Board ``board``'s accelerometer (``palm``, ``finger1.f2``) as built: ``drawn``
+        with this profile's rotation and offset components."""
+        return hand_profile.accel_truth(self.part_values("hand"), board, drawn)
 
     def as_json(self) -> dict[str, Any]:
         """The file's content."""

@@ -33,9 +33,10 @@ from hil_emulator.arm.plant import ArmPlant
 from hil_emulator.arm.rig import ArmRig
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand import model as hand_model
-from hil_emulator.hand.finger_plant import FingerPlant, PalmPlant
+from hil_emulator.hand.finger_plant import FingerParams, FingerPlant, PalmPlant
 from hil_emulator.hand.rig import HandRig, LooseFinger
-from hil_emulator.imperfections import DEFAULT_SENSORS, PlantedTruth
+from hil_emulator.hand_profile import check_sensors as check_profile_sensors
+from hil_emulator.imperfections import DEFAULT_SENSORS, AccelTruth, PlantedTruth
 from hil_emulator.plant import Plant, PlantPart, new_spec
 from hil_emulator.profile import RobotProfile, as_profile
 from hil_emulator.scene_model import SCENES, MugTracker
@@ -84,6 +85,8 @@ class EmulatedRobot:
         #: The robot's own physical parameters (None: the nominal robot's).
         self.profile = as_profile(profile)
         self.sensors = imperfections.check_sensors(sensors)  #: ``"ideal"`` or ``"realistic"``
+        if self.profile is not None:
+            check_profile_sensors(self.profile.values, self.sensors)
         #: What ``sensors="realistic"`` drew for this robot (None: ideal, or no physics): the
         #: ground truth a calibration is held to, never on the wire.
         self.planted: PlantedTruth | None = None
@@ -158,7 +161,8 @@ class EmulatedRobot:
             else:
                 parts.append(PalmPlant("hand/", self.hand.palm, rng(),
                                        imperfections.palm_params(),
-                                       imperfections.palm_errors(self.seed, truth)))
+                                       imperfections.palm_errors(self.seed, truth,
+                                                                 adjust=self._accel_adjust)))
             for finger in self.hand.fingers:
                 fp = self._finger_plant(f"hand/finger{finger.index}/", finger.index,
                                         finger.fmcb, finger.f2, finger.f3, rng(), truth)
@@ -179,11 +183,20 @@ class EmulatedRobot:
 
     def _finger_plant(self, prefix: str, index: int, fmcb: Mcu, f2: Mcu, f3: Mcu,
                       rng: np.random.Generator, truth: PlantedTruth | None) -> FingerPlant:
-        """Finger module ``index``'s plant part, its sensors as built when ``truth`` is given."""
+        """Finger module ``index``'s plant part, its sensors as built when ``truth`` is given,
+        with the profile's parameters of it."""
+        params = FingerParams() if truth is None else imperfections.finger_params()
+        if self.profile is not None:
+            params = self.profile.finger_params(index, params)
         if truth is None:
-            return FingerPlant(prefix, fmcb, f2, f3, rng)
-        return FingerPlant(prefix, fmcb, f2, f3, rng, imperfections.finger_params(),
-                           imperfections.finger_errors(self.seed, index, truth))
+            return FingerPlant(prefix, fmcb, f2, f3, rng, params)
+        return FingerPlant(prefix, fmcb, f2, f3, rng, params,
+                           imperfections.finger_errors(self.seed, index, truth,
+                                                       adjust=self._accel_adjust))
+
+    def _accel_adjust(self, board: str, drawn: AccelTruth) -> AccelTruth:
+        """Board ``board``'s drawn accelerometer with the profile's values of it."""
+        return drawn if self.profile is None else self.profile.accel(board, drawn)
 
     def _as_built(self, spec: mujoco.MjSpec, truth: PlantedTruth) -> None:
         """Move the arm's joint bodies and flange (and its tubes' ends), the palm and each finger module's mount and

@@ -57,6 +57,7 @@ from hil_emulator.hand.model import (
     F3_PAD_Z,
     F3_TAXELS,
     GAUGE_POS,
+    JOINT_DAMPING,
     PALM_TAXELS,
     FingerNames,
     MotorConstants,
@@ -117,6 +118,8 @@ class FingerParams:
     board_coupling: float = 0.5
     #: The accelerometers' output resolution in wire counts (1: a digit is 1 mg).
     accel_step_counts: int = 1
+    #: Viscous damping of each of the finger's joints J1..J3 (N·m·s/rad, the bearings).
+    joint_damping_nm_s_per_rad: float = JOINT_DAMPING
 
     def __post_init__(self) -> None:
         if self.sensor_period_ticks < 1 or self.thermal_period_ticks < 1:
@@ -268,6 +271,7 @@ class FingerPlant:
         if qadr != list(range(qadr[0], qadr[0] + 3)) or dadr != list(range(dadr[0], dadr[0] + 3)):
             raise PlantError(f"finger {self.prefix!r}: joints J1..J3 are not consecutive")
         self._qadr, self._dadr = qadr[0], dadr[0]
+        model.dof_damping[dadr[0]:dadr[0] + 3] = self.params.joint_damping_nm_s_per_rad
         # Views into the MjData buffers (fixed for the data's lifetime): no slicing per tick.
         self._qpos = data.qpos[qadr[0]:qadr[0] + 3]
         self._qvel = data.qvel[dadr[0]:dadr[0] + 3]

@@ -31,13 +31,15 @@ EFFORTS: Final = (150, 255)
 
 @dataclass(frozen=True)
 class FingerExcitation:
-    """Which ``fingers`` (0..3) close, at which ``efforts``, each move given ``timeout_s``
-    to settle; ``unhomed`` moves fingers never homed (angles from their power-up)."""
+    """Which ``fingers`` (0..3) close, at which ``efforts``, to which ``closures`` (J0, J1,
+    J2 poses, rad; default :data:`CLOSURES`), each move given ``timeout_s`` to settle;
+    ``unhomed`` moves fingers never homed (angles from their power-up)."""
 
     fingers: tuple[int, ...] = tuple(range(FINGERS))
     efforts: tuple[int, ...] = EFFORTS
     timeout_s: float = 3.0
     unhomed: bool = False
+    closures: tuple[tuple[float, float, float], ...] = CLOSURES
 
     def __post_init__(self) -> None:
         if not self.fingers or any(not 0 <= f < FINGERS for f in self.fingers):
@@ -46,6 +48,8 @@ class FingerExcitation:
             raise UsageError(f"efforts must be 1..255, got {list(self.efforts)}")
         if not self.timeout_s > 0:
             raise UsageError(f"timeout {self.timeout_s} s must be > 0")
+        if not self.closures or any(len(pose) != 3 for pose in self.closures):
+            raise UsageError("closures must be at least one pose of three joint angles")
 
 
 class MovingHand(Protocol):
@@ -61,7 +65,7 @@ class MovingHand(Protocol):
 def moves(plan: FingerExcitation) -> list[tuple[int, int, tuple[float, float, float]]]:
     """The excitation as (finger, effort, pose) moves, in order."""
     return [(finger, effort, pose) for finger in plan.fingers for effort in plan.efforts
-            for closure in CLOSURES for pose in (closure, OPEN)]
+            for closure in plan.closures for pose in (closure, OPEN)]
 
 
 def excite_fingers(hand: MovingHand, plan: FingerExcitation) -> list[MoveResult]:

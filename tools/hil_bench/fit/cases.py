@@ -4,6 +4,7 @@ A :class:`FitCase` is one recording (:func:`~tools.hil_bench.replay.source.load`
 recorded exchanges, read once, and the channels the fit holds it to: those with a tolerance
 > 0.  Unless told otherwise (``--tolerance CHANNEL=VALUE``, as ``hil-bench replay``) those
 are :data:`FIT_TOLERANCES`, the arm's joint positions and the elastic elements' deflections,
+and :data:`HAND_FIT_TOLERANCES`, the finger motors' hall counts and the accelerometers' axes,
 which the parameters move smoothly; velocities (counted in steps of 100), status flags and
 reply times are left out.  :func:`residuals` replays every case against a new emulator of
 the recording's configuration with the parameters given (a
@@ -24,19 +25,30 @@ from typing import Final
 import numpy as np
 
 from hil_emulator.errors import EmulatorError
-from hil_emulator.profile import RobotProfile
+from hil_emulator.hand_profile import sensor_names
+from hil_emulator.profile import PARAMETERS, RobotProfile
 from host.errors import UsageError
 from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, tolerances_for
 from tools.hil_bench.replay.exchanges import Exchange
 from tools.hil_bench.replay.session import recorded_exchanges, replay_channels
-from tools.hil_bench.replay.source import Recorded, load
+from tools.hil_bench.replay.source import Recorded, load, merge
 
 #: The channels a fit is held to by default (a field on every node) and their tolerances:
 #: encoder counts of the stepper joints' positions and their elements' deflections, RX-64
 #: position units (0.29°).
 FIT_TOLERANCES: Final = (("cycle_present_position", 2.0), ("cycle_deflection", 2.0),
                          ("present_position", 2.0))
+#: The hand's: each finger motor's hall count, and each accelerometer's three axes (mg: the
+#: fmcb's, f2's and f3's in ``fmcb.status``, the palm's ``accel`` in its state), 8 mg being
+#: five times the chip's noise (1.5 mg rms).
+HAND_FIT_TOLERANCES: Final = (
+    *((f"hall_pos[{i}]", 2.0) for i in range(3)),
+    *((f"{imu}[{i}]", 8.0) for imu in ("fmcb_imu", "pp_imu", "dp_imu", "accel")
+      for i in range(3)))
+#: Joins the recordings of one session (one emulator, one recorder per link) in a fit's
+#: argument: ``arm.mcap+hand.mcap``.
+SESSION_JOIN: Final = "+"
 
 
 @dataclass
@@ -57,15 +69,17 @@ class FitCase:
 
 
 def load_case(path: str | Path, tolerances: Sequence[tuple[str, float]] = ()) -> FitCase:
-    """The case of the recording at ``path``; :class:`ReplayRefused` for a recording that
-    cannot be replayed, a tolerance naming no channel, or one with no channel to fit."""
-    recording = load(path)
+    """The case of the recording at ``path`` (or of one session's recordings joined by
+    :data:`SESSION_JOIN`, replayed together on one emulator as ``hil-bench replay`` does);
+    :class:`ReplayRefused` for a recording that cannot be replayed, a tolerance naming no
+    channel, or one with no channel to fit."""
+    recording = merge([load(p) for p in str(path).split(SESSION_JOIN)])
     profile = recording.spec.profile
     if profile:  # the fit starts from the nominal robot, not the recording's
         recording = replace(recording, spec=replace(recording.spec, profile=""))
     recorded = recorded_exchanges(recording)
     names = channel_names(recorded)
-    given = [(n, v) for n, v in FIT_TOLERANCES
+    given = [(n, v) for n, v in (*FIT_TOLERANCES, *HAND_FIT_TOLERANCES)
              if any(c.endswith("." + n) for c in names)] + list(tolerances)
     limits = tolerances_for(names, given)
     case = FitCase(recording, recorded, limits, profile)
@@ -77,11 +91,26 @@ def load_case(path: str | Path, tolerances: Sequence[tuple[str, float]] = ()) ->
 
 def check_parameters(case: FitCase, names: Sequence[str]) -> None:
     """:class:`ReplayRefused` when ``case``'s robot has none of what ``names`` are of."""
-    if any(n.startswith("arm.") for n in names) and case.recording.spec.config not in (
-            "arm", "full"):
-        raise ReplayRefused(f"its {case.recording.spec.config!r} robot has no arm: "
-                            f"{', '.join(n for n in names if n.startswith('arm.'))} cannot "
+    spec = case.recording.spec
+    arm = [n for n in names if PARAMETERS[n].part == "arm"]
+    if arm and spec.config not in ("arm", "full"):
+        raise ReplayRefused(f"its {spec.config!r} robot has no arm: {', '.join(arm)} cannot "
                             "be seen in it")
+    absent = [n for n in names if PARAMETERS[n].part == "hand"
+              and not _has_part(spec.config, PARAMETERS[n].element)]
+    if absent:
+        raise ReplayRefused(f"its {spec.config!r} robot has none of {', '.join(absent)}")
+    if spec.sensors != "realistic" and (named := sensor_names(dict.fromkeys(names, 0.0))):
+        raise ReplayRefused(f"it was recorded with {spec.sensors!r} sensors: "
+                            f"{', '.join(named)} cannot be seen in it")
+
+
+def _has_part(config: str, element: str) -> bool:
+    """Whether a robot of ``config`` has the finger module or board ``element``
+    (``finger1``, ``finger1.f2``, ``palm``)."""
+    if config in ("hand", "full"):
+        return True
+    return config == "loose-finger" and element.split(".")[0] == "finger0"
 
 
 def replay_case(case: FitCase, values: Mapping[str, float]) -> dict[str, Channel]:

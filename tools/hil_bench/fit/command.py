@@ -26,10 +26,12 @@ def add_arguments(sub: Any) -> None:
     p = sub.add_parser("fit", help="estimate the emulator's physical parameters from "
                        "recordings and write a robot profile")
     p.add_argument("recordings", nargs="+", metavar="RECORDING.mcap",
-                   help="recordings of the robot (armctl excite, armctl record)")
+                   help="recordings of the robot (armctl excite, handctl excite, armctl "
+                   "record); one session's recordings of its links joined by + "
+                   "(arm.mcap+hand.mcap) are replayed together on one emulator")
     p.add_argument("--params", nargs="+", required=True, metavar="NAME",
                    help="the parameters to estimate (docs/EMULATOR.md, robot profiles), "
-                   "e.g. arm.J2.stiffness")
+                   "e.g. arm.J2.stiffness, hand.finger1.f3.accel_rotation_x")
     p.add_argument("--out", metavar="PROFILE", help="write the robot profile (JSON) here")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--workers", type=number_above(1, int, inclusive=True, what="a number of "

@@ -1,11 +1,13 @@
 """The fit: :func:`scipy.optimize.least_squares` over the replays' residuals.
 
-The unknowns are the parameters asked for, each as a multiple of its nominal value
-(:data:`hil_emulator.profile.PARAMETERS`), bounded by its bounds and started at 1 (the
-nominal robot).  The residuals are :mod:`.cases`' (each fitted sample's error over its
+The unknowns are the parameters asked for, each as ``1 + (value − nominal) / step`` with
+``step`` its :attr:`~hil_emulator.parameter.Parameter.step` (:data:`hil_emulator.profile.PARAMETERS`;
+the nominal value itself unless the parameter says otherwise, so mostly a multiple of the
+nominal; a sensor's offset, nominally 0, in shares of its own scale), bounded by its bounds
+and started at 1 (the nominal robot).  The residuals are :mod:`.cases`' (each fitted sample's error over its
 channel's tolerance, every recording).  The replay is not differentiable (its channels are
 counts), so the Jacobian is by forward differences with a step of :data:`DIFF_STEP` (a
-share of the nominal value, wide enough to span several counts), taken backwards at an upper
+share of the parameter's step, wide enough to span several counts), taken backwards at an upper
 bound.  Every point a Jacobian needs is replayed together with the point itself, in
 parallel over ``workers`` processes (:class:`concurrent.futures.ProcessPoolExecutor`,
 spawned: MuJoCo is not forked); with one worker, in this process.
@@ -108,8 +110,14 @@ def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _value(name: str, x: float) -> float:
+    """Parameter ``name``'s value (its unit) at the fit's unknown ``x`` (module doc)."""
+    p = PARAMETERS[name]
+    return float(p.nominal + p.step * (x - 1.0))
+
+
 def _values(names: Sequence[str], x: np.ndarray) -> dict[str, float]:
-    return {n: float(PARAMETERS[n].nominal * xi) for n, xi in zip(names, x, strict=True)}
+    return {n: _value(n, float(xi)) for n, xi in zip(names, x, strict=True)}
 
 
 class _Evaluator:
@@ -189,8 +197,8 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
     notes = [f"{p}: recorded on an emulator with the profile {c.recorded_profile}; the fit "
              "starts from the nominal robot" for p, c in zip(paths, cases, strict=True)
              if c.recorded_profile]
-    lower = np.array([p.low / p.nominal for p in params])
-    upper = np.array([p.high / p.nominal for p in params])
+    lower = np.array([1.0 + (p.low - p.nominal) / p.step for p in params])
+    upper = np.array([1.0 + (p.high - p.nominal) / p.step for p in params])
     workers = workers or os.cpu_count() or 1
     pool: ProcessPoolExecutor | None = None
     if workers > 1:
@@ -229,8 +237,8 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
     sigma = np.full(n, math.inf)
     if np.linalg.matrix_rank(jtj) == n:
         sigma = np.sqrt(np.clip(np.diag(np.linalg.inv(jtj)) * scale2, 0.0, None))
-    fitted = [FittedParameter(p.name, p.unit, p.nominal, float(p.nominal * xi),
-                              float(p.nominal * si))
+    fitted = [FittedParameter(p.name, p.unit, p.nominal, _value(p.name, float(xi)),
+                              float(p.step * si))
               for p, xi, si in zip(params, x, sigma, strict=True)]
     layout = evaluator.layout
     assert layout is not None
