@@ -47,7 +47,7 @@ typecheck: $(STAMP)
 	$(VENV)/bin/mypy $(PACKAGES) benchmarks tests
 
 ## make test: lint, type check, then every test but the longest campaigns (marked long; the
-## slot update's 200 cases: make test-long), slow ones included, on TEST_WORKERS pytest-xdist
+## slot update's 200 cases, the one-slot flashing's 25: make test-long), slow ones included, on TEST_WORKERS pytest-xdist
 ## workers: a test file runs whole on one worker (the campaigns' independent shards spread
 ## over both), and the wall-clock tests run one at a time on one of them (tests/conftest.py).
 ## About 15 minutes from a fresh clone on an idle 2-core machine, set-up and compiled core

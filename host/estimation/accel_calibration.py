@@ -25,7 +25,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from host.errors import UsageError
 from host.estimation.finger_gravity import axis_rotation
@@ -105,6 +104,7 @@ def calibrate(readings: np.ndarray, up_segment: np.ndarray,
     scale = np.linalg.norm(a, axis=1)
     rot0 = nearest_rotation((a / scale[:, None]).T)
     params = np.concatenate((bias, scale, np.zeros(3)))
+    from scipy.optimize import least_squares  # lazily: a second of start-up
     params = least_squares(_residual, params, args=(rot0, g, r), method="lm",
                            max_nfev=200 * max(1, iterations)).x
     rot = rot0 @ _small_rotation(params[6:9])

@@ -49,7 +49,6 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from host.errors import UsageError
 from host.estimation.finger_gravity import BOARDS, axis_rotation, segment_rotations
@@ -255,6 +254,7 @@ def fit_finger(samples: Sequence[FingerSample], *, offsets_guess: Sequence[float
         at_stops = [(q_h[i, j] + offsets[j] - angle) / STOP_SIGMA_RAD for i, j, angle in stops]
         return np.concatenate((res.ravel() / READING_SIGMA_COUNTS, at_stops, x / prior_sigma))
 
+    from scipy.optimize import least_squares  # lazily: a second of start-up
     sol = least_squares(residual, np.zeros(n_params), method="trf", x_scale=prior_sigma)
     x = sol.x
     jac = np.asarray(sol.jac)
@@ -295,6 +295,7 @@ def fit_board(readings: np.ndarray, up_nominal: np.ndarray) -> BoardCalibration:
         pred = u @ board_matrix(x).T + x[9:12]
         return np.concatenate(((pred - r).ravel() / READING_SIGMA_COUNTS, x / prior_sigma))
 
+    from scipy.optimize import least_squares  # lazily: a second of start-up
     sol = least_squares(residual, np.zeros(12), method="trf", x_scale=prior_sigma)
     jac = np.asarray(sol.jac)
     sigma = np.sqrt(np.clip(np.diag(np.linalg.pinv(jac.T @ jac)), 0.0, None))

@@ -1,9 +1,10 @@
 """Calibrating the hand's accelerometers on the robot: the poses, the readings, the fit.
 
-Each finger is moved (unhomed, its halls relative) through :data:`CALIBRATION_POSES`,
-idled, left to rest and read (:func:`host.hand.homing.read_at_rest`, six samples
-averaged), then pushed onto the joint stops of :data:`STOP_TOUCHES` and read resting on
-each; :func:`host.estimation.hand_calibration.fit_finger` fits its three boards and its hall
+The fingers are moved together (unhomed, their halls relative) through
+:data:`CALIBRATION_POSES`, each pose in its own finger's frame: all commanded, all waited
+for until settled, all idled, left to rest and read (six status samples each, averaged as
+:func:`host.hand.homing.read_at_rest` does), then pushed together onto the joint stops of
+:data:`STOP_TOUCHES` (each push the one a finger alone gets) and read resting on each; :func:`host.estimation.hand_calibration.fit_finger` fits its three boards and its hall
 offsets (the model and what it can and cannot observe: that module).  The finger is left
 idle near straight (J1 0.2, J2 0.1 rad), where homing sees its joints.  :func:`choose_calibration` is which file a program then uses.  Angles in rad,
 readings in counts.
@@ -13,8 +14,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any, Final, Protocol, TypeVar
@@ -38,8 +39,13 @@ from host.estimation.hand_calibration import (
     board_key,
     fit_finger,
 )
-from host.hand.homing import read_at_rest
-from host.hand.interface import HandFinger
+from host.hand.homing import (
+    DEFAULT_SAMPLES,
+    SAMPLE_INTERVAL_S,
+    InertialReading,
+    averaged,
+)
+from host.hand.interface import FingerOwner, HandFinger
 from host.hand.params import FingerParams
 from protocol.messages.palm import RouteStatus
 from protocol.robot import FINGER_JOINT_AXES, FINGER_JOINT_STOPS, motor_to_joint
@@ -82,7 +88,14 @@ Progress = Callable[[int, int, int], None]
 
 
 class CalibratingFinger(HandFinger, Protocol):
-    """What calibrating uses of a finger: moving it, idling it, its fmcb's parameters."""
+    """What calibrating uses of a finger: moving it, idling it, its fmcb's parameters, and
+    the hand it belongs to (whose :meth:`~host.hand.facade.Hand.wait_settled` waits for
+    several fingers at once)."""
+
+    @property
+    def hand(self) -> FingerOwner:
+        """The hand the finger belongs to."""
+        ...
 
     @property
     def params(self) -> FingerParams:
@@ -96,11 +109,6 @@ class CalibratingFinger(HandFinger, Protocol):
         """Send one control command (``relative``: joint deltas, rad)."""
         ...
 
-    def move(self, joints: Sequence[float], *, effort: Sequence[int] | int | None = None,
-             timeout: float = 3.0, unhomed: bool = False) -> Any:
-        """Move to ``joints`` (rad) and wait until settled (or ``timeout``, s)."""
-        ...
-
     def idle(self) -> None:
         """Motors off."""
         ...
@@ -110,7 +118,10 @@ class CalibratingFinger(HandFinger, Protocol):
 #: move that timed out on a loaded link), :data:`BUSY_WAIT_S` apart.
 BUSY_TRIES: Final = 5
 BUSY_WAIT_S: Final = 0.1
+#: How long a calibration move waits for the fingers to settle (s, the link's clock).
+MOVE_TIMEOUT_S: Final = 2.0
 T = TypeVar("T")
+Touch = tuple[int, int, Sequence[float], Sequence[float]]
 
 
 def _when_free(finger: CalibratingFinger, call: Callable[[], T]) -> T:
@@ -125,73 +136,159 @@ def _when_free(finger: CalibratingFinger, call: Callable[[], T]) -> T:
     raise AssertionError("unreachable")
 
 
+def _move_together(fingers: Sequence[CalibratingFinger], pose: Sequence[float]) -> None:
+    """Command every finger of ``fingers`` to ``pose`` (rad, unhomed, effort
+    :data:`EFFORT`), then wait until all of them settle, or all stop moving, or
+    :data:`MOVE_TIMEOUT_S`.  A finger that cannot get there stays where it stopped (its
+    halls say where); a refused command does not stop the others' move."""
+    for finger in fingers:
+        try:
+            _when_free(finger, partial(finger.command, pose, effort=EFFORT, unhomed=True))
+        except HostError:
+            pass
+    try:
+        fingers[0].hand.wait_settled([f.index for f in fingers], MOVE_TIMEOUT_S)
+    except HostError:
+        pass
+
+
+def _idle_all(fingers: Sequence[CalibratingFinger]) -> None:
+    """Motors off on every finger of ``fingers``."""
+    for finger in fingers:
+        _when_free(finger, finger.idle)
+
+
+def _statuses(fingers: Sequence[CalibratingFinger]) -> list[dict[str, Any]]:
+    """One ``fmcb.status`` of each finger, asked in one pipelined round (the palm has a
+    queue per finger)."""
+    pending = [finger.motor.start("fmcb.status") for finger in fingers]
+    out = []
+    for finger, p in zip(fingers, pending, strict=True):
+        try:
+            out.append(finger.motor.session.wait(p))
+        except RouteError as exc:
+            if exc.status != RouteStatus.BUSY:
+                raise
+            out.append(_when_free(finger, partial(finger.motor.request, "fmcb.status")))
+    return out
+
+
+def _read_together(fingers: Sequence[CalibratingFinger]) -> list[FingerSample]:
+    """Every finger of ``fingers`` read at rest, all at once: :data:`DEFAULT_SAMPLES`
+    status rounds :data:`SAMPLE_INTERVAL_S` apart, each finger's averaged as
+    :func:`host.hand.homing.read_at_rest` averages them."""
+    session = fingers[0].motor.session
+    rounds = []
+    for k in range(DEFAULT_SAMPLES):
+        if k:
+            session.sleep(SAMPLE_INTERVAL_S)
+        rounds.append(_statuses(fingers))
+    return [_sample(averaged([r[n] for r in rounds])) for n in range(len(fingers))]
+
+
+def _sample(reading: InertialReading, at_stop: tuple[int, float] | None = None
+            ) -> FingerSample:
+    return FingerSample(motor_to_joint(reading.hall_pos),
+                        {b: v.tolist() for b, v in reading.as_dict().items()}, at_stop=at_stop)
+
+
+def gather_fingers(fingers: Sequence[CalibratingFinger],
+                   poses: Sequence[Sequence[float]] = CALIBRATION_POSES,
+                   progress: Progress | None = None,
+                   rest_s: float = REST_S) -> dict[int, list[FingerSample]]:
+    """Move ``fingers`` (of one hand) through ``poses`` together and read each at rest at
+    each pose (the fingers are independent: each takes the pose in its own frame); each
+    finger's samples by its index.  ``progress(finger, done, total)`` after each pose.  A
+    pose a finger cannot reach is read where it stopped (the halls say where)."""
+    samples: dict[int, list[FingerSample]] = {f.index: [] for f in fingers}
+    if not fingers:
+        return samples
+    session = fingers[0].motor.session
+    for k, pose in enumerate(poses):
+        _move_together(fingers, pose)
+        _idle_all(fingers)
+        session.sleep(rest_s)
+        for finger, sample in zip(fingers, _read_together(fingers), strict=True):
+            samples[finger.index].append(sample)
+            if progress is not None:
+                progress(finger.index, k + 1, len(poses))
+    return samples
+
+
 def gather_finger(finger: CalibratingFinger, poses: Sequence[Sequence[float]] = CALIBRATION_POSES,
                   progress: Progress | None = None,
                   rest_s: float = REST_S) -> list[FingerSample]:
-    """Move ``finger`` through ``poses`` and read it at rest at each; ``progress(finger,
-    done, total)`` after each pose.  A pose the finger cannot reach is read where it
-    stopped (the halls say where that is)."""
-    session = finger.motor.session
-    samples = []
-    for k, pose in enumerate(poses):
-        try:
-            finger.move(pose, effort=EFFORT, timeout=2.0, unhomed=True)
-        except HostError:
-            pass
-        _when_free(finger, finger.idle)
-        session.sleep(rest_s)
-        reading = _when_free(finger, lambda: read_at_rest(finger))
-        samples.append(FingerSample(motor_to_joint(reading.hall_pos),
-                                    {b: v.tolist() for b, v in reading.as_dict().items()}))
-        if progress is not None:
-            progress(finger.index, k + 1, len(poses))
+    """:func:`gather_fingers` of one finger."""
+    return gather_fingers([finger], poses, progress, rest_s)[finger.index]
+
+
+#: The fmcb parameters of the joint limits a stop touch widens.
+_LIMIT_PARAMS: Final = tuple(f"joint_{end}_{j}" for j in range(3) for end in ("lower", "upper"))
+
+
+def touch_stops_together(fingers: Sequence[CalibratingFinger], progress: Progress | None = None,
+                         touches: Sequence[Touch] = STOP_TOUCHES,
+                         j0_observable: Mapping[int, bool] | None = None
+                         ) -> dict[int, list[FingerSample]]:
+    """Push ``fingers`` against each stop of ``touches`` together (J0's only for the
+    fingers ``j0_observable`` says; default all), each finger's firmware joint limits
+    widened meanwhile and restored after; one sample of each finger resting against each
+    stop it touched (``at_stop`` set), by finger index.  Each push is the one a finger
+    alone gets: :data:`STOP_EFFORT` for :data:`STOP_PUSH_S`, then idle."""
+    observable = j0_observable or {}
+    chosen = {f.index: [t for t in touches if observable.get(f.index, True) or t[0] != 0]
+              for f in fingers}
+    samples: dict[int, list[FingerSample]] = {f.index: [] for f in fingers}
+    if not fingers:
+        return samples
+    session = fingers[0].motor.session
+    saved = {f.index: {n: f.params.get(n) for n in _LIMIT_PARAMS} for f in fingers}
+    try:
+        for f in fingers:
+            for n in _LIMIT_PARAMS:
+                f.params.set(n, STOP_LIMIT_RAD if "upper" in n else -STOP_LIMIT_RAD)
+        for touch in touches:
+            joint, end, start, push = touch
+            group = [f for f in fingers if touch in chosen[f.index]]
+            if not group:
+                continue
+            _move_together(group, start)
+            for f in group:
+                _when_free(f, partial(f.command, push, relative=True, effort=STOP_EFFORT,
+                                      unhomed=True))
+            session.sleep(STOP_PUSH_S)
+            _idle_all(group)
+            session.sleep(REST_S)
+            stop = FINGER_JOINT_STOPS[joint][end]
+            for f, sample in zip(group, _read_together(group), strict=True):
+                _check_on_stop(f.index, joint, stop, sample.readings)
+                samples[f.index].append(replace(sample, at_stop=(joint, stop)))
+                if progress is not None:
+                    progress(f.index, len(samples[f.index]), len(chosen[f.index]))
+        # off the last stop, back where homing sees every joint (each finger's first start)
+        back: dict[tuple[float, ...], list[CalibratingFinger]] = {}
+        for f in fingers:
+            if chosen[f.index]:
+                back.setdefault(tuple(chosen[f.index][0][2]), []).append(f)
+        for pose, group in back.items():
+            _move_together(group, pose)
+    finally:
+        _idle_all(fingers)
+        for f in fingers:
+            for n, v in saved[f.index].items():
+                f.params.set(n, v)
     return samples
 
 
 def touch_stops(finger: CalibratingFinger, progress: Progress | None = None,
-                touches: Sequence[tuple[int, int, Sequence[float], Sequence[float]]]
-                = STOP_TOUCHES, j0_observable: bool = True) -> list[FingerSample]:
-    """Push ``finger`` against each stop of ``touches`` (J0's only if ``j0_observable``),
-    its firmware joint limits widened meanwhile and restored after; one sample resting
-    against each (``at_stop`` set)."""
-    session = finger.motor.session
-    chosen = [t for t in touches if j0_observable or t[0] != 0]
-    names = [f"joint_{end}_{j}" for j in range(3) for end in ("lower", "upper")]
-    saved = {n: finger.params.get(n) for n in names}
-    samples = []
-    try:
-        for n in names:
-            finger.params.set(n, STOP_LIMIT_RAD if "upper" in n else -STOP_LIMIT_RAD)
-        for k, (joint, end, start, push) in enumerate(chosen):
-            try:
-                finger.move(start, effort=EFFORT, timeout=2.0, unhomed=True)
-            except HostError:
-                pass
-            _when_free(finger, partial(finger.command, push, relative=True, effort=STOP_EFFORT,
-                                       unhomed=True))
-            session.sleep(STOP_PUSH_S)
-            _when_free(finger, finger.idle)
-            session.sleep(REST_S)
-            reading = _when_free(finger, lambda: read_at_rest(finger))
-            stop = FINGER_JOINT_STOPS[joint][end]
-            _check_on_stop(finger.index, joint, stop, reading.as_dict())
-            samples.append(FingerSample(motor_to_joint(reading.hall_pos),
-                                        {b: v.tolist() for b, v in reading.as_dict().items()},
-                                        at_stop=(joint, stop)))
-            if progress is not None:
-                progress(finger.index, k + 1, len(chosen))
-        try:  # off the last stop, back where homing sees every joint
-            finger.move(chosen[0][2], effort=EFFORT, timeout=2.0, unhomed=True)
-        except HostError:
-            pass
-    finally:
-        _when_free(finger, finger.idle)
-        for n, v in saved.items():
-            finger.params.set(n, v)
-    return samples
+                touches: Sequence[Touch] = STOP_TOUCHES,
+                j0_observable: bool = True) -> list[FingerSample]:
+    """:func:`touch_stops_together` of one finger."""
+    return touch_stops_together([finger], progress, touches,
+                                {finger.index: j0_observable})[finger.index]
 
 
-def _check_on_stop(finger: int, joint: int, stop: float, readings: dict[str, Any]) -> None:
+def _check_on_stop(finger: int, joint: int, stop: float, readings: Mapping[str, Any]) -> None:
     """Refuse a stop the joint did not reach: its nominal estimate is within
     :data:`STOP_CHECK_RAD` of the stop if it did."""
     try:
@@ -236,8 +333,9 @@ def fit_samples(samples: Sequence[FingerSample]) -> FingerFit:
 def calibrate_fingers(fingers: Sequence[CalibratingFinger], progress: Progress | None = None,
                       poses: Sequence[Sequence[float]] = CALIBRATION_POSES, *,
                       stops: bool = True) -> tuple[HandCalibration, dict[int, FingerFit]]:
-    """Gather and fit each finger of ``fingers`` (its poses, then, with ``stops``, its
-    :data:`STOP_TOUCHES`); the hand's calibration and each fit.
+    """Gather ``fingers`` (of one hand) together (the poses, then, with ``stops``,
+    :data:`STOP_TOUCHES`: every finger moved, settled, idled and read at once, so four take
+    the time of one) and fit each; the hand's calibration and each fit.
     Raises :class:`~host.errors.CalibrationError` for a fit worse than
     :data:`MAX_RMS_COUNTS`."""
     cal = HandCalibration(source="this run")
@@ -250,15 +348,16 @@ def calibrate_fingers(fingers: Sequence[CalibratingFinger], progress: Progress |
         report = progress
         return lambda f, done, _n: report(f, first + done, total)
 
-    for finger in fingers:
-        samples = gather_finger(finger, poses, told(0))
-        if stops:
-            touched = touch_stops(finger, told(len(poses)),
-                                  j0_observable=_j0_observable(samples))
-            samples += touched
-            if progress is not None and len(touched) < len(STOP_TOUCHES):
+    gathered = gather_fingers(fingers, poses, told(0))
+    if stops:
+        observable = {k: _j0_observable(v) for k, v in gathered.items()}
+        touched = touch_stops_together(fingers, told(len(poses)), j0_observable=observable)
+        for finger in fingers:
+            gathered[finger.index] += touched[finger.index]
+            if progress is not None and len(touched[finger.index]) < len(STOP_TOUCHES):
                 progress(finger.index, total, total)
-        fit = fit_samples(samples)
+    for finger in fingers:
+        fit = fit_samples(gathered[finger.index])
         if not fit.rms_counts <= MAX_RMS_COUNTS:
             raise CalibrationError(
                 f"finger {finger.index}: the fit leaves {fit.rms_counts:.1f} mg RMS (the "

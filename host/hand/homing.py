@@ -84,15 +84,20 @@ def accels_from_status(status: dict[str, Any]) -> dict[str, list[int]]:
 def read_at_rest(finger: HandFinger, samples: int = DEFAULT_SAMPLES,
                  interval_s: float = SAMPLE_INTERVAL_S) -> InertialReading:
     """Average ``samples`` status snapshots ``interval_s`` apart (the link's clock)."""
-    rows: list[dict[str, list[int]]] = []
-    halls: list[list[int]] = []
+    statuses: list[dict[str, Any]] = []
     session = finger.motor.session
     for k in range(max(1, samples)):
         if k:
             session.sleep(interval_s)
-        status = finger.motor.request("fmcb.status")
-        rows.append(accels_from_status(status))
-        halls.append([int(v) for v in status["hall_pos"]])
+        statuses.append(finger.motor.request("fmcb.status"))
+    return averaged(statuses)
+
+
+def averaged(statuses: Sequence[dict[str, Any]]) -> InertialReading:
+    """One finger's ``fmcb.status`` snapshots (at least one) as one averaged reading: the
+    accelerometers' means (counts), the last motor positions (hall counts), their spread."""
+    rows = [accels_from_status(s) for s in statuses]
+    halls = [[int(v) for v in s["hall_pos"]] for s in statuses]
     stacked = {b: np.array([r[b] for r in rows], dtype=float) for b in ("fmcb", "f2", "f3")}
     hall = np.array(halls)
     return InertialReading(

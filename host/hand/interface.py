@@ -25,7 +25,8 @@ from host.hand.state import FingerCommand, FingerState, HandState, MoveResult
 
 
 class FingerOwner(Protocol):
-    """The hand a finger belongs to: its link, joint limits, power switches and sends."""
+    """The hand a finger belongs to: its link, joint limits, power switches, sends and
+    waits."""
 
     @property
     def session(self) -> HandSession:
@@ -49,6 +50,11 @@ class FingerOwner(Protocol):
                      effort: Sequence[int] | int | None = None,
                      timeout: float = ..., unhomed: bool = False) -> MoveResult:
         """Joint targets (rad) for some fingers; command them, wait until they settle."""
+        ...
+
+    def wait_settled(self, fingers: Sequence[int], timeout: float = ...,
+                     tolerance_hall: int | None = None) -> MoveResult:
+        """Poll the fingers until they settle, stall or ``timeout`` s pass."""
         ...
 
 

@@ -4,7 +4,8 @@ Each case runs ``flash-all-fingers``' update of all twelve nodes and breaks it o
 host killed, a node's power cut, a finger's link dropped (at a random frame of the run:
 download, swap or confirmation), a node's power cut during its swap's page copies (at a
 random page write), an image that crashes at boot, or a host that never confirms.  Then,
-with no re-run, the hand is left alone past every trial (the trial watchdog), a user powers
+with no re-run, the hand is left alone past every trial (the trial watchdog; or until no
+node has a trial, swap, revert or boot under way, after which nothing changes), a user powers
 the fingers and phalanges as after any reset, and every node must answer from an
 application running its previous or its new image, confirmed: never none, and never an
 image still unconfirmed after its trial.
@@ -146,9 +147,30 @@ def run_case(kind: str, finger: int, board: BoardType, after: int) -> None:
         emu.close()
 
 
+#: How often (µs, simulated) the wait after a case looks whether the hand has settled.
+SETTLED_POLL_US = 250_000
+#: The wait (µs) before the first look: past anything a case schedules (its faults' ends).
+SETTLED_AFTER_US = 1_000_000
+
+
+def settled(emu: Emulator) -> bool:
+    """Whether nothing more happens to any node's slots without a reset: every record
+    confirmed, every powered node running an application (no trial, swap or revert under
+    way, no boot program counting down its autoboot window)."""
+    return all(read_record(mcu.hal.flash)[0].state == SlotState.CONFIRMED
+               and (not mcu.powered or mcu.program_name not in (None, "bootloader"))
+               for _, mcu in all_nodes(emu))
+
+
 def check_every_node(emu: Emulator, before: dict[str, Any]) -> None:
-    """No re-run: wait out every trial, power up as a user would, then check each node."""
-    emu.step(TRIAL_TIMEOUT_US + AUTOBOOT_WINDOW_US + 1_000_000)
+    """No re-run: wait out every trial (until the hand has :func:`settled`, at most a trial's
+    timeout and an autoboot window: from a settled hand later is the same), power up as a
+    user would, then check each node."""
+    emu.step(SETTLED_AFTER_US)  # what the case scheduled (a power back, a link back) happens
+    left = TRIAL_TIMEOUT_US + AUTOBOOT_WINDOW_US + 1_000_000 - SETTLED_AFTER_US
+    while left > 0 and not settled(emu):
+        emu.step(min(SETTLED_POLL_US, left))
+        left -= SETTLED_POLL_US
     with HandSession(EmulatorTransport(emu, "palm")) as session:
         for f in range(FINGERS):
             session.request("palm.finger_power",

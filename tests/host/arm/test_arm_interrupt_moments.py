@@ -12,12 +12,18 @@ hold written at once then collided with them on the half-duplex bus and was lost
 drove on through the hold's wait for the link's latency (100 ms on a serial port or a pty),
 and the goals sent after it lay behind the motors: J2 or J4 drove back against its swinging
 link and latched STALLED (through the ptys, a Ctrl-C 0.13 s into the move down).
+
+The Ctrl-C tests share one homed arm (:class:`SharedArm`, brought up and homed once per
+module): each moment starts by moving it to its start pose and letting it come to rest, so
+a moment depends only on "a homed arm at rest there", as the moments of one test always
+shared one arm; after a test that found a problem (a latch stays) the next gets a fresh one.
 """
 
 from __future__ import annotations
 
 import math
 import statistics
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -36,23 +42,64 @@ TWO_DEGREES = math.radians(2.0)
 LATCHES = int(StepperFlag.SLIP | StepperFlag.STALLED)
 
 
-def interrupt_moves(cycles: list[int], *, start: list[float] = LOADED,
+class SharedArm:
+    """One homed arm on the full configuration (in process) for the tests of a module, and
+    a fresh one after a test that left a problem behind."""
+
+    def __init__(self) -> None:
+        self._arm: Arm | None = None
+
+    def get(self) -> Arm:
+        """The homed arm (torque on, held), brought up and homed if there is none."""
+        if self._arm is None:
+            forget_shared_emulators()
+            arm = Arm.open("emu://full/arm?name=interrupt-moments")
+            forget_shared_emulators()
+            try:
+                arm.torque(True, hold=True)
+                arm.home()  # as armctl moves: homed
+            except BaseException:
+                arm.close()
+                raise
+            self._arm = arm
+        return self._arm
+
+    def spoilt(self) -> None:
+        """The arm met a problem (a latch stays): the next :meth:`get` brings up another."""
+        self.close()
+
+    def close(self) -> None:
+        if self._arm is not None:
+            self._arm.close()
+            self._arm = None
+
+
+@pytest.fixture(scope="module")
+def shared_arm() -> Iterator[SharedArm]:
+    shared = SharedArm()
+    try:
+        yield shared
+    finally:
+        shared.close()
+
+
+def interrupt_moves(shared: SharedArm, cycles: list[int], *, start: list[float] = LOADED,
                     goal: list[float] = LOWER, in_exchange: bool = False,
                     first_write_lost: bool = False) -> list[str]:
-    """For each count in ``cycles``: move to ``start`` and let it settle, start the 6 s
-    move to ``goal``, raise KeyboardInterrupt after that many of its cycles (as Ctrl-C
+    """For each count in ``cycles``, on the shared homed arm: move to ``start`` and let it
+    settle, start the 6 s move to ``goal``, raise KeyboardInterrupt after that many of its cycles (as Ctrl-C
     does, the move's cycles every 10 ms; ``in_exchange``: inside that cycle's exchange,
     while the host waits for the nodes' replies, on a link with a serial port's latency),
     hold (``first_write_lost``: its first write, the one sent at once, never arrives), and
     watch the plant for 2 s.  The problems found, one line each (empty: all held)."""
-    forget_shared_emulators()
     problems: list[str] = []
-    latency = SERIAL_LATENCY_S if in_exchange or first_write_lost else None
-    with Arm.open("emu://full/arm?name=interrupt-moments", latency_s=latency) as arm:
-        emulator = emulator_of(arm)
-        nodes = [arm_rig_of(emulator).app(i) for i in range(1, 8)]
-        arm.torque(True, hold=True)
-        arm.home()  # as armctl moves: homed
+    arm = shared.get()
+    emulator = emulator_of(arm)
+    nodes = [arm_rig_of(emulator).app(i) for i in range(1, 8)]
+    default_latency = arm.bus.latency_s
+    if in_exchange or first_write_lost:
+        arm.bus.latency_s = SERIAL_LATENCY_S
+    try:
         transport = arm.transport
         real_recv = transport.recv
         for count in cycles:
@@ -107,47 +154,54 @@ def interrupt_moves(cycles: list[int], *, start: list[float] = LOADED,
                                     f"{StepperFlag(node.get('status_flags') & LATCHES)!r}")
             if problems:
                 break  # a latch stays: the rest would only repeat it
-    forget_shared_emulators()
+    except BaseException:
+        shared.spoilt()  # left in the middle of a moment
+        raise
+    finally:
+        arm.bus.latency_s = default_latency
+    if problems:
+        shared.spoilt()
     return problems
 
 
-def test_ctrl_c_early_in_a_move_from_a_loaded_pose_latches_nothing() -> None:
+def test_ctrl_c_early_in_a_move_from_a_loaded_pose_latches_nothing(shared_arm: SharedArm) -> None:
     """Two moments that latched the elbow (0.25 and 0.3 s into the move, its link swinging
     ahead of its motor): the first with the start ramped but the hold at the motor's
     present angle, the second with the hold at its stopping point but no ramp."""
-    assert interrupt_moves([25, 29]) == []
+    assert interrupt_moves(shared_arm, [25, 29]) == []
 
 
 @pytest.mark.slow
-def test_ctrl_c_at_any_moment_of_the_first_half_second_holds_the_arm() -> None:
+def test_ctrl_c_at_any_moment_of_the_first_half_second_holds_the_arm(shared_arm: SharedArm) -> None:
     """Every fourth cycle of the move's first 0.45 s, where the links still swing about
     their motors after the start."""
-    assert interrupt_moves(list(range(5, 46, 4))) == []
+    assert interrupt_moves(shared_arm, list(range(5, 46, 4))) == []
 
 
-def test_ctrl_c_while_the_replies_are_on_the_line_latches_nothing() -> None:
+def test_ctrl_c_while_the_replies_are_on_the_line_latches_nothing(shared_arm: SharedArm) -> None:
     """Two moments that latched (0.17 s into the move J4, 0.29 s J2, through the ptys'
     latency): the hold's first write collided with the interrupted cycle's replies, and
     its goals, sent 100 ms later, lay behind the motors."""
-    assert interrupt_moves([17, 29], in_exchange=True) == []
+    assert interrupt_moves(shared_arm, [17, 29], in_exchange=True) == []
 
 
-def test_a_hold_whose_first_write_is_lost_does_not_drive_the_motors_back() -> None:
+def test_a_hold_whose_first_write_is_lost_does_not_drive_the_motors_back(shared_arm: SharedArm) -> None:
     """The hold writes its goals again after reading the arm: from where each motor is
     and how fast it turns then, not the first write's goals (computed before the nodes
     drove on for the link's latency, they lay behind the motors: J4 latched STALLED).
     The joints drove on meanwhile, so only the latches are checked."""
-    problems = interrupt_moves([17, 29], first_write_lost=True)
+    problems = interrupt_moves(shared_arm, [17, 29], first_write_lost=True)
     assert [p for p in problems if "from where it was" not in p] == []
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("direction", ["down", "up"])
-def test_ctrl_c_within_any_exchange_of_the_first_moments_holds_the_arm(direction: str) -> None:
+def test_ctrl_c_within_any_exchange_of_the_first_moments_holds_the_arm(
+        shared_arm: SharedArm, direction: str) -> None:
     """Every third cycle of the first 0.3 s (the speed ramp) of the move down from the
     loaded pose and of the move back up to it, the Ctrl-C inside the cycle's exchange."""
     start, goal = (LOADED, LOWER) if direction == "down" else (LOWER, LOADED)
-    assert interrupt_moves(list(range(3, 31, 3)), start=start, goal=goal,
+    assert interrupt_moves(shared_arm, list(range(3, 31, 3)), start=start, goal=goal,
                            in_exchange=True) == []
 
 
