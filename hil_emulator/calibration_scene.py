@@ -30,9 +30,9 @@ from typing import Final
 import mujoco
 import numpy as np
 
+import host.arm.calibration_rig as rig
 from hil_emulator.arm.model import MOUNT_HEIGHT_M
 from hil_emulator.errors import EmulatorConfigError
-from host.arm import calibration_rig as rig
 from host.arm.kinematics import rpy_to_matrix
 from protocol.robot import ARM_PROBE_BALL_RADIUS_M, ARM_PROBE_TIP_M
 

@@ -32,8 +32,8 @@ from typing import Final, Protocol
 
 import numpy as np
 
+import host.arm.calibration_rig as rig
 import host.arm.gravity as arm_gravity
-from host.arm import calibration_rig as rig
 from host.arm.calibration import BoardTouches, CalibrationData
 from host.arm.cartesian import CartesianMove
 from host.arm.geometry import ArmGeometry
