@@ -46,11 +46,15 @@ from protocol.robot import ARM_PROBE_BALL_RADIUS_M, ARM_PROBE_TIP_M
 
 #: How far before the expected point a touch starts (m, along the probe) and how far past it
 #: the guarded move aims (m).
-APPROACH_M: Final = 0.03
-PRESS_M: Final = 0.02
-#: Speeds (rad/s, fastest joint): between touches, and the guarded approach (~1 cm/s).
+APPROACH_M: Final = 0.02
+PRESS_M: Final = 0.015
+#: Speeds (rad/s, fastest joint): between touches, and the guarded approach (~2 cm/s).
 MOVE_SPEED_RAD_S: Final = 0.4
-GUARD_SPEED_RAD_S: Final = 0.03
+GUARD_SPEED_RAD_S: Final = 0.05
+#: How near the approach point a move between touches must come (m) and how long it may
+#: settle there (s): a few millimetres do, the guarded move finds the surface.
+BETWEEN_TOLERANCE_M: Final = 0.004
+BETWEEN_SETTLE_S: Final = 2.0
 #: The contact: the stepper torques' change, gravity's taken out (N·m, norm over J1..J4).
 TOUCH_LOAD_NM: Final = 0.5
 #: Cycles the motors are held before the readings (the ball seating), and readings averaged.
@@ -117,6 +121,14 @@ def _load(state: ArmState, hand: bool) -> np.ndarray:
     return out
 
 
+def _between(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
+             geometry: ArmGeometry) -> None:
+    """A move between touches: the ball to ``point`` (m), the probe along ``rpy``."""
+    arm.moveto(np.asarray(point).tolist(), list(rpy), speed=MOVE_SPEED_RAD_S,
+               tolerance_m=BETWEEN_TOLERANCE_M, settle_timeout=BETWEEN_SETTLE_S,
+               geometry=geometry, hand=arm.hand)
+
+
 def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
           geometry: ArmGeometry) -> np.ndarray:
     """Touch ``point`` (m, base frame: the ball's centre expected there) with the probe along
@@ -125,8 +137,7 @@ def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
     out of reach."""
     direction = rpy_to_matrix(rpy) @ np.array([0.0, 0.0, -1.0])
     above = np.asarray(point, dtype=float) - APPROACH_M * direction
-    arm.moveto(above.tolist(), list(rpy), speed=MOVE_SPEED_RAD_S, geometry=geometry,
-               hand=arm.hand)
+    _between(arm, above, rpy, geometry)
     control = JointController(arm)  # type: ignore[arg-type]
     start = _load(control.start(), arm.hand)
 
@@ -135,18 +146,16 @@ def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
 
     end = np.asarray(point, dtype=float) + PRESS_M * direction
     guarded = arm.moveto(end.tolist(), list(rpy), speed=GUARD_SPEED_RAD_S, controller=control,
-                         until=touched, settle_timeout=1.0, geometry=geometry, hand=arm.hand)
+                         until=touched, settle_timeout=0.5, geometry=geometry, hand=arm.hand)
     if not guarded.stopped:
-        arm.moveto(above.tolist(), list(rpy), speed=MOVE_SPEED_RAD_S, geometry=geometry,
-                   hand=arm.hand)
+        _between(arm, above, rpy, geometry)
         raise TouchMissed(f"nothing felt within {PRESS_M * 1000:.0f} mm past "
                           f"{tuple(round(float(v), 3) for v in point)} m")
     arm.hold()
     for _ in range(SEAT_CYCLES):
         arm.state()
     readings = np.mean([arm.state().joints for _ in range(READINGS)], axis=0)
-    arm.moveto(above.tolist(), list(rpy), speed=MOVE_SPEED_RAD_S, geometry=geometry,
-               hand=arm.hand)
+    _between(arm, above, rpy, geometry)
     out: np.ndarray = readings
     return out
 
