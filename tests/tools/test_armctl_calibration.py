@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil_emulator.emulator import Emulator
 from hil_emulator.inprocess import EmulatorTransport
 from host.arm import touches
 from host.arm.calibration import ARM_SECTION, arm_section, calibrate
@@ -38,7 +37,7 @@ def _calibration_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _section(geometry: ArmGeometry, firmware: str | None = None) -> dict[str, object]:
     """An arm section holding ``geometry`` (made on ``firmware`` if given)."""
-    data = {"method": "test", "geometry": geometry.as_dict()}
+    data: dict[str, object] = {"method": "test", "geometry": geometry.as_dict()}
     if firmware is not None:
         data["firmware"] = firmware
     return data
@@ -85,7 +84,7 @@ def test_the_arms_file_is_loaded_and_named(serial: str,
         q = np.full(7, 0.2)
         # the loaded zeros move the flange as the section says
         assert np.allclose(forward(q, arm.geometry).position,
-                           _shifted().tips([q])[0])
+                           _shifted().tips(q[None, :])[0])
         assert not np.allclose(forward(q, arm.geometry).position, forward(q).position)
 
 
