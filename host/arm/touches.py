@@ -10,9 +10,10 @@ along ``d`` (the flange's ``−z`` for an orientation ``rpy``):
    stepper joints' torques, less what gravity makes them carry (:mod:`host.arm.gravity`),
    have changed by :data:`TOUCH_LOAD_NM` (N·m, the norm over J1..J4) since it started:
    the contact force seen in the elastic elements' deflections;
-3. a hold of the motors where they are (:meth:`~host.arm.facade.Arm.hold`): the elastic
-   elements keep pushing the ball, and, no longer held by the joint loop, let it slide down
-   the dimple's walls to its bottom; after :data:`SEAT_CYCLES` cycles the joint readings
+3. a hold of the motors where they are (:meth:`~host.arm.facade.Arm.hold`), then the
+   motors (not the joints) moved :data:`SEAT_PUSH_M` on along ``d``: the elastic elements
+   push the ball, which, no longer held by the joint loop, slides down the dimple's walls to
+   its bottom; after :data:`SEAT_CYCLES` cycles the joint readings
    (the encoders, the servos' pots) of :data:`READINGS` more are averaged;
 4. back to the approach point.
 
@@ -39,8 +40,8 @@ from host.arm.cartesian import CartesianMove
 from host.arm.geometry import ArmGeometry
 from host.arm.hold import Held
 from host.arm.joint_loop import JointController
-from host.arm.kinematics import forward, rpy_to_matrix
-from host.arm.state import ArmState
+from host.arm.kinematics import forward, jacobian, rpy_to_matrix
+from host.arm.state import N_STEPPERS, ArmState
 from host.errors import HostError, UsageError
 from protocol.robot import ARM_PROBE_BALL_RADIUS_M, ARM_PROBE_TIP_M
 
@@ -57,6 +58,11 @@ BETWEEN_TOLERANCE_M: Final = 0.004
 BETWEEN_SETTLE_S: Final = 2.0
 #: The contact: the stepper torques' change, gravity's taken out (N·m, norm over J1..J4).
 TOUCH_LOAD_NM: Final = 0.5
+#: How far past the contact the motors push the ball once the joint loop lets go (m), the
+#: motors' speed (rad/s) and how long they may take after it (s).
+SEAT_PUSH_M: Final = 0.02
+SEAT_SPEED_RAD_S: Final = 0.05
+SEAT_S: Final = 1.0
 #: Cycles the motors are held before the readings (the ball seating), and readings averaged.
 SEAT_CYCLES: Final = 60
 READINGS: Final = 10
@@ -92,6 +98,9 @@ class TouchingArm(Protocol):
     def hold(self) -> Held: ...
 
     def state(self) -> ArmState: ...
+
+    def move(self, angles: Sequence[float], *, timeout: float = ...,
+             speed: float | None = ..., motors: bool = ...) -> tuple[ArmState, bool]: ...
 
 
 class TouchMissed(HostError):
@@ -129,6 +138,19 @@ def _between(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
                geometry=geometry, hand=arm.hand)
 
 
+def _press(arm: TouchingArm, state: ArmState, direction: np.ndarray,
+           geometry: ArmGeometry) -> None:
+    """Move the stepper motors (not the joints: the joint loop has let go) so far that their
+    elastic elements push the ball :data:`SEAT_PUSH_M` further along ``direction``: held only
+    by the springs, it slides down the dimple's walls to the bottom (on the emulator: from
+    6 mm off to 0.1 mm).  Through :meth:`~host.arm.facade.Arm.move`, the arm's gate."""
+    q = np.array(state.joints)
+    j = jacobian(q, geometry)[:3, :N_STEPPERS]
+    dq = np.linalg.pinv(j) @ (SEAT_PUSH_M * direction)
+    goals = [*(np.array(state.motor_joints) + dq), *q[N_STEPPERS:]]
+    arm.move([float(v) for v in goals], motors=True, timeout=SEAT_S, speed=SEAT_SPEED_RAD_S)
+
+
 def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
           geometry: ArmGeometry) -> np.ndarray:
     """Touch ``point`` (m, base frame: the ball's centre expected there) with the probe along
@@ -152,6 +174,7 @@ def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
         raise TouchMissed(f"nothing felt within {PRESS_M * 1000:.0f} mm past "
                           f"{tuple(round(float(v), 3) for v in point)} m")
     arm.hold()
+    _press(arm, arm.state(), direction, geometry)
     for _ in range(SEAT_CYCLES):
         arm.state()
     readings = np.mean([arm.state().joints for _ in range(READINGS)], axis=0)
@@ -188,9 +211,13 @@ def gather(arm: TouchingArm, poses: int = DEFAULT_POSES,
         except (TouchMissed, UsageError):
             missed += 1
         else:
-            joints.append(q)
-            touched_points.append(points[dimple])
-            aim = forward(q, geometry).position - dimples[dimple]
+            seated = forward(q, geometry).position
+            if np.linalg.norm(seated - target) > rig.DIMPLE_MOUTH_RADIUS_M + 0.005:
+                missed += 1  # seated in another dimple, or on the board: not this one
+            else:
+                joints.append(q)
+                touched_points.append(points[dimple])
+                aim = seated - dimples[dimple]
         tell("board", k + 1, poses)
     if len(joints) < 6:
         raise UsageError(f"only {len(joints)} of {poses} board touches found a dimple: is the "
