@@ -42,7 +42,7 @@ from host.arm.hold import Held
 from host.arm.joint_loop import JointController
 from host.arm.kinematics import forward, jacobian, rpy_to_matrix
 from host.arm.state import N_STEPPERS, ArmState
-from host.errors import HostError, UsageError
+from host.errors import TouchMissed, UsageError
 from protocol.robot import ARM_PROBE_BALL_RADIUS_M, ARM_PROBE_TIP_M
 
 #: How far before the expected point a touch starts (m, along the probe) and how far past it
@@ -101,10 +101,6 @@ class TouchingArm(Protocol):
 
     def move(self, angles: Sequence[float], *, timeout: float = ...,
              speed: float | None = ..., motors: bool = ...) -> tuple[ArmState, bool]: ...
-
-
-class TouchMissed(HostError):
-    """A guarded move reached its end without feeling anything."""
 
 
 @dataclass
