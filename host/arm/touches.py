@@ -148,9 +148,11 @@ def _press(arm: TouchingArm, state: ArmState, direction: np.ndarray,
 
 
 def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
-          geometry: ArmGeometry) -> np.ndarray:
+          geometry: ArmGeometry, *, seat: bool = True) -> np.ndarray:
     """Touch ``point`` (m, base frame: the ball's centre expected there) with the probe along
-    orientation ``rpy`` (see the module docs); the joint readings seated (rad, 7).
+    orientation ``rpy`` (see the module docs); the joint readings seated (rad, 7).  ``seat``
+    False (a flat surface: the table): no push after the contact (it would only wind up the
+    elastic elements until a node latches STALLED).
     :class:`TouchMissed` if nothing was felt, :class:`~host.errors.UsageError` if a pose is
     out of reach."""
     direction = rpy_to_matrix(rpy) @ np.array([0.0, 0.0, -1.0])
@@ -170,7 +172,8 @@ def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
         raise TouchMissed(f"nothing felt within {PRESS_M * 1000:.0f} mm past "
                           f"{tuple(round(float(v), 3) for v in point)} m")
     arm.hold()
-    _press(arm, arm.state(), direction, geometry)
+    if seat:
+        _press(arm, arm.state(), direction, geometry)
     for _ in range(SEAT_CYCLES):
         arm.state()
     readings = np.mean([arm.state().joints for _ in range(READINGS)], axis=0)
@@ -239,7 +242,7 @@ def _touch_table(arm: TouchingArm, geometry: ArmGeometry, tell: Progress) -> lis
         point = np.array([cx + dx, cy + dy, rig.TABLE_TOP_Z_M + ARM_PROBE_BALL_RADIUS_M])
         rpy = ORIENTATIONS[k % len(ORIENTATIONS)]
         try:
-            out.append(touch(arm, point, rpy, geometry))
+            out.append(touch(arm, point, rpy, geometry, seat=False))
         except (TouchMissed, UsageError):
             pass
         tell("table", k + 1, total)
