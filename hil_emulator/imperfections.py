@@ -69,9 +69,11 @@ DEFAULT_SENSORS: Final = "realistic"
 #: the palm, finger modules 0..3, then the arm's and the hand's geometry.
 PART_KEYS: Final = {"palm": 0, "finger0": 1, "finger1": 2, "finger2": 3, "finger3": 4,
                     "arm geometry": 10, "hand geometry": 11, "serial": 12,
-                    "arm assembly": 13}
+                    "arm assembly": 13, "arm serial": 14}
 #: The hand's node uids of ``--sensors ideal`` (the palm's; the fingers' follow it).
 IDEAL_UID_BASE: Final = 0x1000
+#: The arm's serial number of ``--sensors ideal`` (its stepper nodes' ``arm_serial``).
+IDEAL_ARM_SERIAL: Final = 0x0100
 #: The arm's bodies whose tube is cut to length by hand (:func:`lengthen_arm_tubes`): the
 #: upper arm's (roll bearing → elbow) and the forearm's (forearm roll → wrist pitch).
 ARM_TUBE_BODIES: Final = ("arm/forearm", "arm/wrist")
@@ -155,6 +157,16 @@ def hand_uid_base(seed: int, sensors: str) -> int:
     if sensors != "realistic":
         return IDEAL_UID_BASE
     return int(part_rng(seed, "serial").integers(2, 0x80000)) << 12
+
+
+def arm_serial(seed: int, sensors: str) -> int:
+    """The arm's serial number (16 bits, never :data:`~protocol.control_tables.ARM_SERIAL_UNSET`),
+    programmed into its stepper nodes' ``arm_serial``: ``ideal`` keeps
+    :data:`IDEAL_ARM_SERIAL`; ``realistic`` draws it from the seed, so arms of different
+    seeds (whose assembly errors differ) have different serials, as two built arms do."""
+    if sensors != "realistic":
+        return IDEAL_ARM_SERIAL
+    return int(part_rng(seed, "arm serial").integers(1, 0x10000))
 
 
 def rotation_from_vector(v: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from hil_emulator.hand_profile import check_sensors as check_profile_sensors
 from hil_emulator.imperfections import DEFAULT_SENSORS, AccelTruth, PlantedTruth
 from hil_emulator.plant import Plant, PlantPart, new_spec
 from hil_emulator.profile import RobotProfile, as_profile
-from hil_emulator.scene_model import SCENES, MugTracker
+from hil_emulator.scene_model import SCENES, SceneObject
 from protocol.robot import HAND_ON_FLANGE_POSITION_M, HAND_ON_FLANGE_QUAT
 
 #: The configurations :class:`EmulatedRobot` can build.
@@ -54,7 +54,8 @@ class EmulatedRobot:
     ``layout`` names the hand layout (:data:`hil_emulator.hand.model.LAYOUTS`); ``physics``
     False leaves the MuJoCo plant out (firmware and buses only); ``scene`` adds things to
     the world (:data:`hil_emulator.scene_model.SCENES`: ``"none"``, ``"mug"`` — a table and
-    a coffee mug in front of the arm; configurations with the arm only); ``sensors``
+    a coffee mug in front of the arm, ``"calibration"`` — the touch calibration's rig;
+    configurations with the arm only); ``sensors``
     (:data:`hil_emulator.imperfections.SENSOR_MODES`) ``"realistic"`` (the default) builds
     the robot as a real one is, its sensors imperfect and its links off by a laser-cut
     build's tolerances (:mod:`hil_emulator.imperfections`; what was drawn:
@@ -99,7 +100,8 @@ class EmulatedRobot:
         self.arm: ArmRig | None = None
         self.loose: LooseFinger | None = None
         if config in ("full", "arm"):
-            self.arm = ArmRig(self.scheduler, seed=int(next(seeds)))
+            self.arm = ArmRig(self.scheduler, seed=int(next(seeds)),
+                              serial=imperfections.arm_serial(seed, self.sensors))
         if config in ("full", "hand"):
             self.hand = HandRig(self.scheduler, imperfections.hand_uid_base(seed, self.sensors),
                                 line_model=True, seed=int(next(seeds)), record=False)
@@ -112,8 +114,9 @@ class EmulatedRobot:
         self.finger_plants: list[FingerPlant] = []
         #: The arm's physics (None without an arm or without physics).
         self.arm_plant: ArmPlant | None = None
-        #: The scene's object trackers (:class:`hil_emulator.scene_model.MugTracker`).
-        self.scene_parts: list[MugTracker] = []
+        #: The scene's object trackers (:class:`hil_emulator.scene_model.MugTracker`,
+        #: :class:`hil_emulator.calibration_scene.RigTruth`).
+        self.scene_parts: list[SceneObject] = []
         if physics:
             self.plant = self._build_plant(layout, seeds)
             self.plant.attach(self.scheduler)
@@ -177,7 +180,7 @@ class EmulatedRobot:
             parts.append(fp)
         if truth is not None:
             self._as_built(spec, truth)
-        self.scene_parts = scene_model.add_scene(spec, self.scene)
+        self.scene_parts = scene_model.add_scene(spec, self.scene, self.seed)
         parts.extend(self.scene_parts)
         return Plant(spec, parts)
 

@@ -5,7 +5,10 @@
 
 ``none``  the robot alone (the default);
 ``mug``   a table in front of the arm and a coffee mug standing on it, within reach of the
-          hand on the arm's wrist (:func:`add_mug_scene`).
+          hand on the arm's wrist (:func:`add_mug_scene`);
+``calibration``  the touch calibration's rig: a table, a board of conical dimples on it, two
+          anchor dimples by the base, the probe on the flange, placed off their nominal poses
+          by a seeded amount (:mod:`hil_emulator.calibration_scene`).
 
 World frame (m): ``z`` up from the floor, ``x`` forward from the arm's base (the arm's base
 frame is the world's raised by :data:`~hil_emulator.arm.model.MOUNT_HEIGHT_M`).
@@ -23,7 +26,7 @@ the fingers, not the wrist, hold what they grasp.
 from __future__ import annotations
 
 import math
-from typing import Final
+from typing import Final, Protocol
 
 import mujoco
 import numpy as np
@@ -32,7 +35,7 @@ from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.hand.model import PAD_FRICTION
 
 #: The scenes :class:`~hil_emulator.emulator.Emulator` can build.
-SCENES: Final = ("none", "mug")
+SCENES: Final = ("none", "mug", "calibration")
 
 #: Table: top surface height above the floor (m), centre of the top (x, y; m), half extents
 #: of the top (m) and its thickness (m).
@@ -175,12 +178,31 @@ class MugTracker:
                 "tilt_rad": self.tilt_rad}
 
 
-def add_scene(spec: mujoco.MjSpec, scene: str) -> list[MugTracker]:
-    """Add scene ``scene`` (:data:`SCENES`) to ``spec``; returns its plant parts (the
-    trackers of its objects)."""
+class SceneObject(Protocol):
+    """A scene's plant part that watches its objects (ground truth): a ``name`` and a
+    ``summary()`` of numbers."""
+
+    @property
+    def name(self) -> str: ...
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None: ...
+
+    def before_step(self, dt_s: float) -> None: ...
+
+    def after_step(self, dt_s: float) -> None: ...
+
+    def summary(self) -> dict[str, float]: ...
+
+
+def add_scene(spec: mujoco.MjSpec, scene: str, seed: int = 0) -> list[SceneObject]:
+    """Add scene ``scene`` (:data:`SCENES`) to ``spec``, its placement drawn from ``seed``
+    where it has one; returns its plant parts (the trackers of its objects)."""
     if scene not in SCENES:
         raise EmulatorConfigError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
     if scene == "mug":
         add_mug_scene(spec)
         return [MugTracker()]
+    if scene == "calibration":
+        from hil_emulator.calibration_scene import add_calibration_scene
+        return [add_calibration_scene(spec, seed)]
     return []

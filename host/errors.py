@@ -22,7 +22,8 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── JointAlarmError                   an arm joint's node latched an alarm mid-motion
     ├── ViewUnavailable                   the live view cannot start
     ├── RecordingError(OSError)           a recording's file could not be written
-    └── CalibrationError                  a calibration's fit does not explain its readings
+    ├── CalibrationError                  a calibration's fit does not explain its readings
+    └── TouchMissed                       a guarded touch felt nothing (host.arm.touches)
 
 Defined here unless their constructor needs their module's data (the module is named).
 """
@@ -107,6 +108,11 @@ class CalibrationError(HostError):
     def __init__(self, message: str, *, finger: int | None = None) -> None:
         super().__init__(message)
         self.finger = finger
+
+
+class TouchMissed(HostError):
+    """A guarded move of the arm's touch calibration reached its end without feeling
+    anything (:mod:`host.arm.touches`: the surface or dimple not where it was looked for)."""
 
 
 class StallError(HostError):

@@ -385,7 +385,9 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: reduction, with an absolute-after-index joint encoder.  Addresses 0..18 mean what they
 #: mean on a Dynamixel where a stepper has the same notion (model, ID, baud, return delay,
 #: limits, status return level, alarms), so dynamixel-sdk's ping (a READ of 2 bytes at 0) and
-#: bus scans work unchanged; RAM starts at 24; 4-byte registers are 4-aligned.
+#: bus scans work unchanged; 20-23 say which joint encoder and which arm (``arm_serial``:
+#: the arm's serial number, programmed into each of its stepper nodes at assembly, what its
+#: host names its calibration file by); RAM starts at 24; 4-byte registers are 4-aligned.
 #: Addresses 76-88 are the *cycle block*: read-only mirrors, refreshed whenever the registers
 #: they mirror are, of what a host's read-and-command cycle needs - ``present_position``,
 #: ``step_count``, ``present_velocity`` (saturated to int16: ±32767 counts/s = ±20.6 rad/s),
@@ -436,6 +438,9 @@ STEPPER_VELOCITY_LIMIT_MAX: Final = int(max(max_velocity_counts_per_s(j)
 #: (steps_per_rev * microstepping * gear_reduction_x100 / 100)``; ``deflection`` is that minus
 #: ``present_position`` (zeroed at the index latch).  Velocity and acceleration limits are in
 #: joint encoder counts (joint side) so they do not change with microstepping or gearing.
+#: ``arm_serial`` of a node never programmed with its arm's serial number.
+ARM_SERIAL_UNSET: Final = 0
+
 STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
     _eeprom(0, 2, "R", STEPPER_MODEL_NUMBER, "model_number", "model number (0x5E50)"),
     _eeprom(2, 1, "R", STEPPER_FIRMWARE_VERSION, "firmware_version", "firmware version"),
@@ -459,6 +464,9 @@ STEPPER_TABLE = ControlTable("arm stepper node", STEPPER_MODEL_NUMBER, [
             0, 127),
     _eeprom(20, 2, "R", ARM_ENCODER_COUNTS_PER_REV, "encoder_resolution",
             "joint encoder counts per joint rev"),
+    _eeprom(22, 2, "R", ARM_SERIAL_UNSET, "arm_serial",
+            "the arm's serial number, the same in each of its stepper nodes (programmed "
+            "at assembly; 0 = none)"),
     _ram(24, 1, "RW", 0, "torque_enable", "0 coils off, 1 on", 0, 1),
     _ram(25, 1, "RW", 0, "led", "0 off, 1 on", 0, 1),
     _ram(26, 1, "R", 0, "status_flags", "StepperFlag bits"),

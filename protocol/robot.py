@@ -442,6 +442,12 @@ ARM_JOINT_OFFSETS_M: Final[tuple[Vec3, ...]] = (
 #: The wrist flange's origin in the J7 body's frame (m): the flange face, 0.04 m past the
 #: wrist yaw axis (the hand attaches there, its ``−z`` pointing away from the arm).
 ARM_FLANGE_OFFSET_M: Final[Vec3] = (0.0, 0.0, -0.04)
+#: The calibration probe (a rod bolted to the wrist flange instead of the hand, its tip a
+#: hardened ball): the ball's centre in the flange frame (m), on the flange's axis, and the
+#: ball's radius (m).  The touch calibration moves this point (``armctl calibrate``); the
+#: emulator's ``calibration`` scene builds the probe from the same figures.
+ARM_PROBE_TIP_M: Final[Vec3] = (0.0, 0.0, -0.06)
+ARM_PROBE_BALL_RADIUS_M: Final = 0.003
 #: How the hand sits on the wrist flange (the ``full`` robot): the palm frame's origin in the
 #: flange frame (m), the palm's back face on the flange face, and the palm frame's
 #: orientation there (quaternion w, x, y, z): half a turn about the flange's ``y``, so the

@@ -154,7 +154,9 @@ ROOMS: dict[str, tuple[str, ...]] = {
     "host.view": (*HOST_TOP, "host.recording", "host.hand", "host.arm"),
     "host.hand": (*HOST_TOP, "host.transports", "host.estimation", "host.recording",
                   "host.view"),
-    "host.arm": (*HOST_TOP, "host.transports", "host.recording", "host.view"),
+    # the arm, like the hand, loads its calibration through estimation's calibration_file
+    "host.arm": (*HOST_TOP, "host.transports", "host.estimation", "host.recording",
+                 "host.view"),
     "hil_emulator.lines": (),
     "hil_emulator.ports": ("hil_emulator.errors",),
     "hil_emulator.hand": ("hil_emulator.errors", "hil_emulator.plant", "hil_emulator.ports",

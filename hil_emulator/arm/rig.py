@@ -26,6 +26,7 @@ from firmware_py.sim.virtual_hal import VirtualHal
 from firmware_py.sim.virtual_ports import VirtualUart
 from hil_emulator.lines.rs485_bus import Rs485Bus
 from hil_emulator.ports.host_side import HostSide
+from protocol.control_tables import ARM_SERIAL_UNSET
 from protocol.image import BoardType
 from protocol.robot import STEPPER_REDUCTIONS, reduction_x100
 from protocol.topology import ARM_BUS_BAUD, SERVO_IDS, STEPPER_IDS
@@ -37,12 +38,13 @@ ARM_TURNAROUND_US: Final = 2
 class ArmRig(HostSide):
     """The arm's nodes and the host adapter on one :class:`Rs485Bus`.
 
-    ``host_uart`` is the host adapter's UART on the line: what the host writes goes out with
+    ``serial`` is the arm's serial number, programmed into every stepper node's
+    ``arm_serial`` at assembly.  ``host_uart`` is the host adapter's UART on the line: what the host writes goes out with
     :meth:`send_from_host`; what the nodes answer reaches ``on_host_bytes`` (bytes, arrival µs).
     """
 
     def __init__(self, scheduler: Scheduler | None = None, seed: int = 0,
-                 baud: int = ARM_BUS_BAUD) -> None:
+                 baud: int = ARM_BUS_BAUD, serial: int = ARM_SERIAL_UNSET) -> None:
         super().__init__(scheduler or Scheduler())
         self.bus = Rs485Bus(self.scheduler, baud=baud, turnaround_us=ARM_TURNAROUND_US,
                             seed=seed)
@@ -52,6 +54,8 @@ class ArmRig(HostSide):
             value = reduction_x100(reduction)
             app.factory["gear_reduction_x100"] = value  # what the factory programmed
             app.set("gear_reduction_x100", value)
+            app.factory["arm_serial"] = serial  # programmed at assembly, in every node
+            app.set("arm_serial", serial)
             self._attach(dxl_id, hal, app)
         for dxl_id in SERVO_IDS:
             hal, app = make_arm_node(self.scheduler, BoardType.RX64, dxl_id)

@@ -47,14 +47,19 @@ quantisation; they stay in the residual.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Final
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from protocol.robot import ARM_FLANGE_OFFSET_M, ARM_JOINT_AXES, ARM_JOINT_OFFSETS_M
+from host.arm.geometry import ArmGeometry
+from host.errors import CalibrationFileError
+from host.estimation.calibration_file import default_path, find
+from protocol.robot import ARM_JOINT_AXES
 
 #: Repeatability of one touch (m, 1σ): the tool tip seated in a dimple or on the table.
 TOUCH_SIGMA_M: Final = 0.0003
@@ -64,7 +69,6 @@ PRIOR_SIGMA_RAD: Final = math.radians(2.0)
 PRIOR_SIGMA_M: Final = 0.003
 #: The joints J1..J7 (names as in :data:`protocol.robot.ARM_JOINT_NAMES`).
 _N: Final = len(ARM_JOINT_AXES)
-_AXES: Final = np.array(ARM_JOINT_AXES, dtype=float)
 
 #: The gauge (held at the CAD values, :meth:`ArmGeometry.with_gauge_of`): J1's zero, J1's
 #: body offset, J2's offset along J1's axis.
@@ -88,106 +92,6 @@ PARAMETERS: Final[tuple[tuple[object, ...], ...]] = tuple(
     if p not in GAUGE and p not in SUMMED)
 
 
-def _rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations (n×3×3) by ``angles`` (rad, n) about unit ``axis`` (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
-                  [-axis[1], axis[0], 0.0]])
-    s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
-    out: np.ndarray = np.eye(3) + s * k + (1.0 - c) * (k @ k)
-    return out
-
-
-@dataclass(frozen=True)
-class ArmGeometry:
-    """The arm's kinematic parameters: ``zero_offsets_rad`` (7, added to the host's joint
-    readings to give the kinematic angles), ``joint_offsets_m`` (7×3: each joint body's
-    origin in its parent's frame at the kinematic zero) and ``flange_offset_m`` (3, in the
-    J7 body's frame).  The nominal (CAD) model is :data:`protocol.robot`'s."""
-
-    zero_offsets_rad: np.ndarray = field(default_factory=lambda: np.zeros(_N))
-    joint_offsets_m: np.ndarray = field(
-        default_factory=lambda: np.array(ARM_JOINT_OFFSETS_M, dtype=float))
-    flange_offset_m: np.ndarray = field(
-        default_factory=lambda: np.array(ARM_FLANGE_OFFSET_M, dtype=float))
-
-    @classmethod
-    def nominal(cls) -> ArmGeometry:
-        """The CAD model: no zero offsets, the drawing's offsets."""
-        return cls()
-
-    def tips(self, joints: np.ndarray | Sequence[Sequence[float]]) -> np.ndarray:
-        """The flange position (n×3, m, base frame) for each row of host joint readings
-        ``joints`` (n×7, rad)."""
-        q = np.atleast_2d(np.asarray(joints, dtype=float)) + self.zero_offsets_rad
-        if q.shape[1] != _N:
-            raise ValueError(f"need {_N} joint angles per row, got {q.shape[1]}")
-        rot = np.broadcast_to(np.eye(3), (len(q), 3, 3))
-        pos = np.zeros((len(q), 3))
-        for i in range(_N):
-            pos = pos + rot @ self.joint_offsets_m[i]
-            rot = rot @ _rotations(_AXES[i], q[:, i])
-        out: np.ndarray = pos + rot @ self.flange_offset_m
-        return out
-
-    def vector(self, parameters: Sequence[tuple[object, ...]] = PARAMETERS) -> np.ndarray:
-        """The values of ``parameters`` (default :data:`PARAMETERS`; rad and m)."""
-        out = []
-        for p in parameters:
-            if p[0] == "zero":
-                out.append(self.zero_offsets_rad[int(p[1])])  # type: ignore[call-overload]
-            elif p[0] == "offset":
-                out.append(self.joint_offsets_m[int(p[1]), int(p[2])])  # type: ignore[call-overload]
-            else:
-                out.append(self.flange_offset_m[int(p[1])])  # type: ignore[call-overload]
-        return np.array(out, dtype=float)
-
-    def with_vector(self, values: np.ndarray,
-                    parameters: Sequence[tuple[object, ...]] = PARAMETERS) -> ArmGeometry:
-        """A copy with ``parameters`` (default :data:`PARAMETERS`) set to ``values``."""
-        zero = self.zero_offsets_rad.copy()
-        offsets = self.joint_offsets_m.copy()
-        flange = self.flange_offset_m.copy()
-        for p, v in zip(parameters, values, strict=True):
-            if p[0] == "zero":
-                zero[int(p[1])] = v  # type: ignore[call-overload]
-            elif p[0] == "offset":
-                offsets[int(p[1]), int(p[2])] = v  # type: ignore[call-overload]
-            else:
-                flange[int(p[1])] = v  # type: ignore[call-overload]
-        return ArmGeometry(zero, offsets, flange)
-
-    def with_gauge_of(self, other: ArmGeometry) -> ArmGeometry:
-        """A copy with ``other``'s :data:`GAUGE` values (J1's zero and body offset, J2's offset
-        along J1's axis): a rigid motion of the whole arm, which no touch can see.  Comparing
-        a calibrated geometry with the true one so removes exactly the gauge."""
-        zero = self.zero_offsets_rad.copy()
-        offsets = self.joint_offsets_m.copy()
-        zero[0] = other.zero_offsets_rad[0]
-        offsets[0] = other.joint_offsets_m[0]
-        offsets[1, 2] = other.joint_offsets_m[1, 2]
-        return ArmGeometry(zero, offsets, self.flange_offset_m.copy())
-
-    def as_dict(self) -> dict[str, object]:
-        """JSON-ready (rad, m)."""
-        return {"zero_offsets_rad": self.zero_offsets_rad.tolist(),
-                "joint_offsets_m": self.joint_offsets_m.tolist(),
-                "flange_offset_m": self.flange_offset_m.tolist()}
-
-    @classmethod
-    def from_dict(cls, data: dict[str, object]) -> ArmGeometry:
-        """The inverse of :meth:`as_dict`; :class:`ValueError` if a shape is wrong."""
-        zero = np.asarray(data["zero_offsets_rad"], dtype=float)
-        offsets = np.asarray(data["joint_offsets_m"], dtype=float)
-        flange = np.asarray(data["flange_offset_m"], dtype=float)
-        if zero.shape != (_N,) or offsets.shape != (_N, 3) or flange.shape != (3,):
-            raise ValueError("an arm geometry needs 7 zero offsets, 7×3 joint offsets and a "
-                             "3-vector flange offset")
-        if not (np.isfinite(zero).all() and np.isfinite(offsets).all()
-                and np.isfinite(flange).all()):
-            raise ValueError("an arm geometry's values must be finite")
-        return cls(zero, offsets, flange)
-
-
 @dataclass(frozen=True)
 class BoardTouches:
     """One placement of the board: the host's joint readings at each touch (n×7, rad) and the
@@ -207,6 +111,9 @@ class CalibrationData:
     table_joints: np.ndarray
     anchor_joints: np.ndarray = field(default_factory=lambda: np.zeros((0, _N)))
     anchor_points_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: The touching point in the flange's frame (m; zeros: the flange point itself; the
+    #: probe's ball, :data:`protocol.robot.ARM_PROBE_TIP_M`, for ``armctl calibrate``).
+    tool_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def parameters(self) -> tuple[tuple[object, ...], ...]:
         """What these touches can tell: :data:`PARAMETERS`, and :data:`ANCHORED` with
@@ -216,15 +123,17 @@ class CalibrationData:
 
 @dataclass(frozen=True)
 class CalibrationResult:
-    """What :func:`calibrate` found: the ``geometry``; the rms of the board's distance
-    residuals and of the table touches' distances from their plane (m), before (the start)
-    and after; the solver's ``evaluations`` and ``success``."""
+    """What :func:`calibrate` found: the ``geometry`` (of the flange: a tool's tip taken
+    off again); the rms of the board's distance residuals and of the table touches'
+    distances from their plane (m), before (the start) and after; the solver's
+    ``evaluations`` and ``success``; the ``parameters`` it estimated."""
 
     geometry: ArmGeometry
     board_rms_m: tuple[float, float]
     table_rms_m: tuple[float, float]
     evaluations: int
     success: bool
+    parameters: tuple[tuple[object, ...], ...] = PARAMETERS
 
 
 def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -278,12 +187,14 @@ def _rms(values: np.ndarray) -> float:
 
 def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> CalibrationResult:
     """The geometry that best explains ``data`` (see the module docs), from ``start``
-    (default the CAD model, which is also the prior's centre)."""
+    (default the CAD model, which is also the prior's centre; both of the flange, the
+    touches' ``tool_m`` added for the fit: a tool's error is so fitted as the flange's)."""
     if not data.boards or sum(len(b.joints) for b in data.boards) < 3:
         raise ValueError("calibration needs at least one board placement with 3 touches")
-    start = start or ArmGeometry.nominal()
+    tool = np.asarray(data.tool_m, dtype=float)
+    start = (start or ArmGeometry.nominal()).with_tool(tool)
     parameters = data.parameters()
-    prior = ArmGeometry.nominal().vector(parameters)
+    prior = ArmGeometry.nominal().with_tool(tool).vector(parameters)
     x0 = start.vector(parameters)
     fit = least_squares(_residuals, x0, args=(start, prior, data), method="trf",
                         x_scale=_prior_widths(parameters), xtol=1e-10, ftol=1e-10)
@@ -295,23 +206,35 @@ def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> Calibr
         return _rms(plane_distances(g.tips(data.table_joints)))
 
     return CalibrationResult(
-        geometry,
+        geometry.with_tool(-tool),
         (_rms(board_residuals(start, data.boards)), _rms(board_residuals(geometry, data.boards))),
-        (table(start), table(geometry)), int(fit.nfev), bool(fit.success))
+        (table(start), table(geometry)), int(fit.nfev), bool(fit.success), parameters)
 
 
 #: The calibration file's section for the arm (``host.estimation.calibration_file``).
 ARM_SECTION: Final = "arm"
 #: Its ``method``: how the section was made.
 METHOD: Final = "touches (board distances, table planarity; §4.4) by least squares"
+#: ``--calibration none``: no file, no warning.
+NO_CALIBRATION: Final = "none"
+#: What the arm uses without its calibration, and how to make one (the warnings' words).
+_FALLBACK: Final = ("the CAD model", "run 'armctl calibrate'")
 
 
-def arm_section(result: CalibrationResult) -> dict[str, object]:
+def arm_section(result: CalibrationResult, *, firmware: int | None = None,
+                touches: dict[str, int] | None = None) -> dict[str, object]:
     """The calibration file's ``"arm"`` section for ``result`` (JSON values: the geometry
-    in rad and m, the residuals' rms before and after in m, the estimated parameters)."""
-    return {"method": METHOD, "geometry": result.geometry.as_dict(),
-            "board_rms_m": list(result.board_rms_m), "table_rms_m": list(result.table_rms_m),
-            "estimated": [list(p) for p in PARAMETERS]}
+    in rad and m, the residuals' rms before and after in m, the estimated parameters; the
+    stepper nodes' ``firmware`` version and how many ``touches`` of each kind, if given)."""
+    out: dict[str, object] = {
+        "method": METHOD, "geometry": result.geometry.as_dict(),
+        "board_rms_m": list(result.board_rms_m), "table_rms_m": list(result.table_rms_m),
+        "estimated": [list(p) for p in result.parameters]}
+    if firmware is not None:
+        out["firmware"] = str(firmware)
+    if touches is not None:
+        out["touches"] = dict(touches)
+    return out
 
 
 def geometry_of_section(section: dict[str, object]) -> ArmGeometry:
@@ -325,3 +248,54 @@ def geometry_of_section(section: dict[str, object]) -> ArmGeometry:
     except (KeyError, TypeError) as exc:
         raise ValueError(f"the calibration's arm section has a malformed geometry ({exc})"
                          ) from exc
+
+
+@dataclass
+class ArmCalibrationChoice:
+    """Which kinematics a program uses: ``geometry`` (None: the CAD model), the ``path`` it
+    came from, the ``warnings`` its user must see (one line each), when it was made."""
+
+    geometry: ArmGeometry | None
+    path: Path | None
+    warnings: list[str] = field(default_factory=list)
+    created_utc: str | None = None
+
+    def summary(self) -> str:
+        """The one line a program prints: which kinematics its Cartesian moves use."""
+        if self.geometry is None:
+            return "arm calibration: none (the CAD model's kinematics)"
+        return f"arm calibration: {self.path} (arm, made {self.created_utc})"
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready: the file (None), when it was made, the warnings."""
+        return {"path": None if self.geometry is None or self.path is None else str(self.path),
+                "created_utc": self.created_utc, "warnings": list(self.warnings)}
+
+
+def choose_calibration(robot_serial: str | None, choice: str | os.PathLike[str] | None = None,
+                       firmware: int | None = None) -> ArmCalibrationChoice:
+    """The arm calibration to use for the arm ``robot_serial`` (None: an arm whose nodes hold
+    no serial: a file only if ``choice`` names one): ``choice`` None (the file at
+    :func:`~host.estimation.calibration_file.default_path`), ``"none"`` (the CAD model, asked
+    for: no warning) or a file's path.  Missing, another robot's, an older format, one
+    without an ``"arm"`` section, or made on older stepper firmware than ``firmware``: a
+    warning (another robot's file is not used; the CAD model is).  A file that is not one,
+    or whose arm section is malformed, raises :class:`~host.errors.CalibrationFileError`."""
+    if choice is not None and str(choice) == NO_CALIBRATION:
+        return ArmCalibrationChoice(None, None)
+    if robot_serial is None:
+        return ArmCalibrationChoice(None, None if choice is None else Path(choice), [
+            "the arm's nodes hold no serial number (arm_serial 0): no calibration file is "
+            "its; Cartesian moves use the CAD model"])
+    path = default_path(robot_serial) if choice is None else Path(choice)
+    found, warnings = find(robot_serial, path, section=ARM_SECTION,
+                           firmware=None if firmware is None else str(firmware),
+                           fallback=_FALLBACK)
+    section = None if found is None else found.section(ARM_SECTION)
+    if found is None or section is None:
+        return ArmCalibrationChoice(None, path, warnings)
+    try:
+        geometry = geometry_of_section(section)
+    except ValueError as exc:
+        raise CalibrationFileError(f"{path}: {exc}", path=path) from None
+    return ArmCalibrationChoice(geometry, path, warnings, str(section.get("created_utc")))

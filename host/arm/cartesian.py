@@ -21,6 +21,7 @@ import numpy as np
 import host.arm.gravity as arm_gravity
 import host.arm.kinematics as arm_kinematics
 from host.arm.gate import check_cartesian
+from host.arm.geometry import ArmGeometry
 from host.arm.interface import DrivenArm
 from host.arm.joint_loop import JointController, TrackingLog
 from host.arm.rest import RestWatch
@@ -100,19 +101,21 @@ def _candidate(ik: arm_kinematics.IkResult, q_now: np.ndarray, hand: bool,
 
 
 def choose_ik(xyz: Vector, rpy: Vector | None, q_now: Vector, *, hand: bool = True,
-              load_limit: float = MOVETO_LOAD_LIMIT) -> arm_kinematics.IkResult:
+              load_limit: float = MOVETO_LOAD_LIMIT,
+              geometry: ArmGeometry | None = None) -> arm_kinematics.IkResult:
     """The IK solution :func:`moveto` drives to: among the solutions from the present joints
     ``q_now`` (rad), the IK's default start and :data:`IK_SEEDS` that reach ``xyz`` (m)
     within 1 mm (and ``rpy`` within 0.01 rad if given), the nearest to ``q_now`` (largest
     joint change) whose every stepper joint holds at most ``load_limit`` of its stall torque
     against gravity (:mod:`host.arm.gravity`, ``hand`` on the flange or not) at the goal, and
-    on the straight joint path there at most that or what it holds at ``q_now``.  :class:`~host.errors.UsageError` if the target is out
+    on the straight joint path there at most that or what it holds at ``q_now``; the IK of
+    ``geometry`` (None: the CAD model).  :class:`~host.errors.UsageError` if the target is out
     of reach, or if every solution overloads a joint (naming it, its torque and its
     limit)."""
     check_cartesian(xyz, rpy)
     here = np.asarray(q_now, dtype=float)
     try:
-        solutions = [arm_kinematics.solve_ik(xyz, rpy, q0=seed)
+        solutions = [arm_kinematics.solve_ik(xyz, rpy, q0=seed, geometry=geometry)
                      for seed in (here, None, *IK_SEEDS)]
     except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         raise LimitError(f"{tuple(float(v) for v in xyz)} m: no joint angles reach it "
@@ -143,7 +146,8 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
            settle_timeout: float = MOVETO_SETTLE_S,
            controller: JointController | None = None, allow_unhomed: bool = False,
            hand: bool = True, log: TrackingLog | None = None,
-           until: Callable[[ArmState], bool] | None = None) -> CartesianMove:
+           until: Callable[[ArmState], bool] | None = None,
+           geometry: ArmGeometry | None = None) -> CartesianMove:
     """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given: IK
     (:func:`choose_ik`: the solution nearest the present joints that no stepper joint holds
     more than :data:`MOVETO_LOAD_LIMIT` of its stall torque in, ``hand`` saying whether the
@@ -156,6 +160,9 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
     is the first time it is true (a contact felt), and the PID then holds the joints there
     until the arm is at rest (``stopped`` in the result).
 
+    ``geometry``: the arm's kinematics (:class:`~host.arm.geometry.ArmGeometry`: its
+    calibration, perhaps with a tool's tip as the point moved; None: the CAD model's flange).
+
     Refuses (:class:`~host.errors.UsageError`) an arm that is not homed unless
     ``allow_unhomed``, a target the IK cannot reach within 1 mm, and one where every IK
     solution would load a stepper joint beyond the limit."""
@@ -166,24 +173,26 @@ def moveto(arm: DrivenArm, xyz: Vector, rpy: Vector | None = None, *,
     control = controller or JointController(arm)
     state = control.state or control.start()
     q_now = np.array(state.joints)
-    ik = choose_ik(xyz, rpy, q_now, hand=hand)
+    ik = choose_ik(xyz, rpy, q_now, hand=hand, geometry=geometry)
     goals = ik.q
     trajectory = Trajectory(timed_path([q_now, goals], speed, smooth=True), smooth=True)
     state = control.run(trajectory, trajectory.duration, log, until=until)
     target = np.asarray(xyz, dtype=float)
     stopped = until is not None and until(state)
     hold = np.array(state.joints) if stopped else goals
-    held_at = arm_kinematics.forward(hold).position if stopped else target
+    held_at = arm_kinematics.forward(hold, geometry).position if stopped else target
 
     rest = RestWatch()
 
     def settled(s: ArmState) -> bool:
-        err = float(np.linalg.norm(arm_kinematics.forward(s.joints).position - held_at))
+        err = float(np.linalg.norm(arm_kinematics.forward(s.joints, geometry).position
+                                   - held_at))
         still = rest.update(s)
         return err <= tolerance_m and still
 
     state = control.run(lambda _t: (hold, np.zeros(N_JOINTS)), settle_timeout, log,
                         until=settled)
-    error = float(np.linalg.norm(arm_kinematics.forward(state.joints).position - target))
+    error = float(np.linalg.norm(arm_kinematics.forward(state.joints, geometry).position
+                                 - target))
     return CartesianMove(tuple(float(v) for v in goals), ik, state, error,
                          not stopped and error <= tolerance_m, stopped)

@@ -2,7 +2,7 @@
 
 :func:`discover` pings J1..J7 at their bus IDs (:data:`host.arm.state.JOINT_IDS`) and reads
 what each node is (model, firmware and, for a stepper node, its reduction, steps per rev,
-microstepping and encoder resolution), refusing a node of the wrong model or a stepper node
+microstepping, encoder resolution and the arm's serial number), refusing a node of the wrong model or a stepper node
 whose firmware predates the cycle block :class:`~host.arm.facade.Arm` reads.
 """
 
@@ -79,7 +79,7 @@ def discover(bus: DynamixelBus,
             joints.append(JointInfo(joint, dxl_id, "servo", model, firmware))
             continue
         at = _S["gear_reduction_x100"].address
-        end = _S["encoder_resolution"].end
+        end = _S["arm_serial"].end
         eeprom = bus.read(dxl_id, at, end - at)
 
         def value(name: str, eeprom: bytes = eeprom, at: int = at) -> int:
@@ -91,5 +91,5 @@ def discover(bus: DynamixelBus,
             reduction=value("gear_reduction_x100") / 100,
             steps_per_rev=value("steps_per_rev"), microstepping=value("microstepping"),
             encoder_counts_per_rev=value("encoder_resolution"),
-            stiffness=float(stiffness[joint])))
+            stiffness=float(stiffness[joint]), arm_serial=value("arm_serial")))
     return joints

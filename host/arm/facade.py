@@ -46,6 +46,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from typing import Final
 
+import host.arm.calibration as arm_calibration
 import host.arm.cartesian as arm_cartesian
 import host.arm.homing as arm_homing
 import host.arm.move as arm_move
@@ -74,6 +75,7 @@ from host.arm.gate import (
     HOLD_TOLERANCE_RAD,
     check_goals,
 )
+from host.arm.geometry import ArmGeometry
 from host.arm.hold import Held, hold
 from host.arm.homing import (
     SEARCH_PERIOD_S,
@@ -115,10 +117,12 @@ from host.arm.trajectory import (
     travel_time,
 )
 from host.errors import HostError, JointAlarmError, NodeError, ReplyTimeout, UsageError
+from host.estimation.calibration_file import serial_of_arm
 from host.scheduling import Scheduling
 from host.transports.base import Transport, open_transport, url_options, url_scheme
 from host.view.live import RobotView, ViewSpec, open_view
 from protocol.control_tables import (
+    ARM_SERIAL_UNSET,
     STEPPER_TABLE,
     STEPPER_WATCHDOG_DEFAULT_MS,
     STEPPER_WATCHDOG_FEED_FIRMWARE,
@@ -189,6 +193,9 @@ class Arm:
         #: Each stepper node's ``watchdog_feed`` before :meth:`stream_goals` set it (bus ID
         #: -> value): what :meth:`close` gives back.
         self._feed_found: dict[int, int] = {}
+        #: The arm's kinematic calibration (zero offsets, link geometry) that Cartesian
+        #: moves use (None: the CAD model); :meth:`load_calibration` sets it.
+        self.geometry: ArmGeometry | None = None
 
     # ------------------------------------------------------------------ opening
 
@@ -297,6 +304,26 @@ class Arm:
         coupling offset of the joints as they are; a servo's := its setpoint); what was
         held, and what not."""
         return hold(self)
+
+    @property
+    def serial(self) -> str | None:
+        """The arm's serial number (``arm-`` and four hex digits,
+        :func:`~host.estimation.calibration_file.serial_of_arm`) as J1's stepper node holds
+        it in ``arm_serial`` (programmed at assembly, read at discovery); None if the node
+        was never given one.  Its calibration file is named by it."""
+        value = self.joints[0].arm_serial
+        return None if value == ARM_SERIAL_UNSET else serial_of_arm(value)
+
+    def load_calibration(self, choice: str | None = None) -> arm_calibration.ArmCalibrationChoice:
+        """Find and use this arm's kinematic calibration (``choice``: None for the default
+        file of its :attr:`serial`, ``"none"``, or a path): see
+        :func:`host.arm.calibration.choose_calibration`; sets :attr:`geometry`.  Print the
+        choice's ``summary()`` and ``warnings``: a missing, another robot's or a stale file
+        leaves the CAD model with a warning, never silently."""
+        chosen = arm_calibration.choose_calibration(self.serial, choice,
+                                                    self.joints[0].firmware_version)
+        self.geometry = chosen.geometry
+        return chosen
 
     @property
     def steppers(self) -> tuple[JointInfo, ...]:
@@ -534,18 +561,21 @@ class Arm:
                settle_timeout: float = MOVETO_SETTLE_S,
                controller: JointController | None = None, allow_unhomed: bool = False,
                hand: bool = True, log: TrackingLog | None = None,
-               until: Callable[[ArmState], bool] | None = None) -> CartesianMove:
+               until: Callable[[ArmState], bool] | None = None,
+               geometry: ArmGeometry | None = None) -> CartesianMove:
         """Move the flange to ``xyz`` (m, base frame), oriented ``rpy`` (rad) if given:
         IK, then an interpolated, feed-forward-compensated joint move at ``speed`` (rad/s,
         fastest joint) until the flange is within ``tolerance_m`` (m) and the arm at rest,
         or ``settle_timeout`` (s) passed (:func:`host.arm.cartesian.moveto`: ``controller``,
         ``allow_unhomed``, ``hand`` on the flange, ``log``; ``until``: a guarded move, held
-        where it is the first cycle ``until(state)`` is true); the result carries the joint
-        goals."""
+        where it is the first cycle ``until(state)`` is true; ``geometry``: the kinematics,
+        default :attr:`geometry`, the arm's calibration if loaded, else the CAD model); the
+        result carries the joint goals."""
         return arm_cartesian.moveto(self, xyz, rpy, speed=speed, tolerance_m=tolerance_m,
                                     settle_timeout=settle_timeout, controller=controller,
                                     allow_unhomed=allow_unhomed, hand=hand, log=log,
-                                    until=until)
+                                    until=until,
+                                    geometry=self.geometry if geometry is None else geometry)
 
     # ------------------------------------------------------------------ conveniences
 

@@ -8,7 +8,11 @@ the base frame.
 
 Each joint ``i`` sits at ``ARM_JOINT_OFFSETS_M[i]`` in its parent's frame and turns its body
 about ``ARM_JOINT_AXES[i]`` (in that body's frame), so the flange pose is the product
-``Π_i Trans(offset_i)·Rot(axis_i, q_i)`` times ``Trans(flange offset)``.
+``Π_i Trans(offset_i)·Rot(axis_i, q_i)`` times ``Trans(flange offset)``.  Every function that
+computes a pose takes ``geometry`` (an :class:`~host.arm.geometry.ArmGeometry`, e.g. the
+arm's calibration, ``Arm.geometry``): its offsets, and its zero offsets added to the joint
+readings ``q``; None is the CAD model above.  Angles in and out are always the host's joint
+readings.
 
 Orientation targets are roll-pitch-yaw (rad) about the base frame's fixed axes:
 ``R = Rz(yaw)·Ry(pitch)·Rx(roll)`` (the KDL/ROS convention).
@@ -35,6 +39,7 @@ from typing import Final
 
 import numpy as np
 
+from host.arm.geometry import ArmGeometry
 from protocol.robot import (
     ARM_FLANGE_OFFSET_M,
     ARM_JOINT_AXES,
@@ -131,25 +136,39 @@ _AXIS_ROWS: Final = [list(map(float, a)) for a in ARM_JOINT_AXES]
 _FLANGE_ROW: Final = list(map(float, ARM_FLANGE_OFFSET_M))
 
 
-def joint_frames(q: Vector) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For joint angles ``q`` (rad, 7): each joint's origin (7×3, m) and axis (7×3, unit) in
-    the base frame, and the flange's position (3) and rotation (3×3).  (Plain floats inside:
-    a 7-link chain is far cheaper so than as numpy calls, and IK calls it thousands of
-    times.)"""
+def _geometry_rows(geometry: ArmGeometry | None
+                   ) -> tuple[list[list[float]], list[float], list[float] | None]:
+    """The offsets' rows, the flange's row and the zero offsets (None: none) of
+    ``geometry`` (None: the CAD model)."""
+    if geometry is None:
+        return _OFFSET_ROWS, _FLANGE_ROW, None
+    return (geometry.joint_offsets_m.tolist(), geometry.flange_offset_m.tolist(),
+            geometry.zero_offsets_rad.tolist())
+
+
+def joint_frames(q: Vector, geometry: ArmGeometry | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For joint readings ``q`` (rad, 7): each joint's origin (7×3, m) and axis (7×3, unit)
+    in the base frame, and the flange's position (3) and rotation (3×3), of ``geometry``
+    (None: the CAD model).  (Plain floats inside: a 7-link chain is far cheaper so than as
+    numpy calls, and IK calls it thousands of times.)"""
     qs = [float(v) for v in q]
     if len(qs) != N_JOINTS:
         raise ValueError(f"need {N_JOINTS} joint angles, got {len(qs)}")
+    offset_rows, flange_row, zeros = _geometry_rows(geometry)
+    if zeros is not None:
+        qs = [a + z for a, z in zip(qs, zeros, strict=True)]
     rot = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     pos = [0.0, 0.0, 0.0]
     origins = []
     axes = []
     for i in range(N_JOINTS):
-        d = _mat_vec(rot, _OFFSET_ROWS[i])
+        d = _mat_vec(rot, offset_rows[i])
         pos = [pos[0] + d[0], pos[1] + d[1], pos[2] + d[2]]
         origins.append(pos)
         axes.append(_mat_vec(rot, _AXIS_ROWS[i]))
         rot = _mat_mul(rot, _axis_rotation_rows(_AXIS_ROWS[i], qs[i]))
-    d = _mat_vec(rot, _FLANGE_ROW)
+    d = _mat_vec(rot, flange_row)
     tip = [pos[0] + d[0], pos[1] + d[1], pos[2] + d[2]]
     return np.array(origins), np.array(axes), np.array(tip), np.array(rot)
 
@@ -163,16 +182,18 @@ def _axis_rotation_rows(axis: Vector, angle: float) -> list[list[float]]:
             [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
 
 
-def forward(q: Vector) -> Pose:
-    """The flange pose for joint angles ``q`` (rad, J1..J7)."""
-    _, _, position, rotation = joint_frames(q)
+def forward(q: Vector, geometry: ArmGeometry | None = None) -> Pose:
+    """The flange pose for joint readings ``q`` (rad, J1..J7) of ``geometry`` (None: the
+    CAD model)."""
+    _, _, position, rotation = joint_frames(q, geometry)
     return Pose(position, rotation)
 
 
-def jacobian(q: Vector) -> np.ndarray:
-    """Geometric Jacobian (6×7) of the flange at ``q``: rows 0–2 linear velocity (m/s per
-    rad/s), rows 3–5 angular velocity (rad/s per rad/s), both in the base frame."""
-    origins, axes, tip, _ = joint_frames(q)
+def jacobian(q: Vector, geometry: ArmGeometry | None = None) -> np.ndarray:
+    """Geometric Jacobian (6×7) of the flange at ``q`` (of ``geometry``, None: the CAD
+    model): rows 0–2 linear velocity (m/s per rad/s), rows 3–5 angular velocity (rad/s per
+    rad/s), both in the base frame."""
+    origins, axes, tip, _ = joint_frames(q, geometry)
     j = np.empty((6, N_JOINTS))
     j[:3] = np.cross(axes, tip - origins).T
     j[3:] = axes.T
@@ -215,15 +236,15 @@ def _limit_gradient(q: np.ndarray) -> np.ndarray:
     return 2.0 * (q - mid) / span ** 2
 
 
-def _log_manipulability_gradient(q: np.ndarray, rows: slice, step: float = 1e-4
-                                 ) -> np.ndarray:
+def _log_manipulability_gradient(q: np.ndarray, rows: slice, step: float = 1e-4,
+                                 geometry: ArmGeometry | None = None) -> np.ndarray:
     """∇ log(w + ε) by central differences of the Jacobian's ``rows``."""
     grad = np.empty(N_JOINTS)
     for i in range(N_JOINTS):
         d = np.zeros(N_JOINTS)
         d[i] = step
-        hi = manipulability(jacobian(q + d)[rows])
-        lo = manipulability(jacobian(q - d)[rows])
+        hi = manipulability(jacobian(q + d, geometry)[rows])
+        lo = manipulability(jacobian(q - d, geometry)[rows])
         grad[i] = (math.log(hi + 1e-6) - math.log(lo + 1e-6)) / (2.0 * step)
     return grad
 
@@ -232,13 +253,15 @@ def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
              q0: Vector | None = None, tolerance_m: float = 1e-4,
              tolerance_rad: float = 1e-3, max_iterations: int = 300, damping: float = 0.05,
              singular_threshold: float = 0.05, max_step_rad: float = 0.2,
-             k_limits: float = 0.2, k_singular: float = 0.02) -> IkResult:
+             k_limits: float = 0.2, k_singular: float = 0.02,
+             geometry: ArmGeometry | None = None) -> IkResult:
     """Joint angles (rad) putting the flange at ``xyz`` (m, base frame) and, if given,
     orientation ``rpy`` (rad), starting from ``q0`` (default the kinematic zero nudged off
     its singularity).  Damped least squares with a null-space term (see the module docs):
     ``damping`` λ₀, ``singular_threshold`` ε (smallest singular value below which damping
     sets in), ``max_step_rad`` per iteration, ``k_limits`` / ``k_singular`` the null-space
-    gains.  Never raises for an unreachable target: see :attr:`IkResult.converged`."""
+    gains; ``geometry`` the arm's (None: the CAD model).  Never raises for an unreachable
+    target: see :attr:`IkResult.converged`."""
     target = np.asarray(xyz, dtype=float)
     if target.shape != (3,) or not np.all(np.isfinite(target)):
         raise ValueError(f"target position must be 3 finite numbers, got {xyz!r}")
@@ -251,7 +274,7 @@ def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
     pos_err = rot_err = math.inf
     iterations = 0
     for iterations in range(1, max_iterations + 1):
-        _, _, tip, rot = joint_frames(q)
+        _, _, tip, rot = joint_frames(q, geometry)
         e_pos = target - tip
         pos_err = float(np.linalg.norm(e_pos))
         if target_rot is not None:
@@ -263,11 +286,11 @@ def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
             e = e_pos
         if pos_err <= tolerance_m and rot_err <= tolerance_rad:
             return IkResult(q, pos_err, rot_err, iterations - 1, True)
-        full = jacobian(q)[rows]
+        full = jacobian(q, geometry)[rows]
         z = -k_limits * _limit_gradient(q)
         sigma_min = float(np.linalg.svd(full, compute_uv=False)[-1])
         if k_singular and sigma_min < 2.0 * singular_threshold:
-            z += k_singular * _log_manipulability_gradient(q, rows)
+            z += k_singular * _log_manipulability_gradient(q, rows, geometry=geometry)
         # A joint held at its limit that the step would push further is left out and the
         # step recomputed with the others (else the clamp undoes part of every step and the
         # solver stalls short of a target whose answer lies on that limit).
@@ -290,7 +313,7 @@ def solve_ik(xyz: Vector, rpy: Vector | None = None, *,
         if biggest > max_step_rad:
             dq *= max_step_rad / biggest
         q = clamp_to_limits(q + dq)
-    _, _, tip, rot = joint_frames(q)
+    _, _, tip, rot = joint_frames(q, geometry)
     pos_err = float(np.linalg.norm(target - tip))
     rot_err = 0.0 if target_rot is None else float(np.linalg.norm(
         rotation_error(target_rot, rot)))

@@ -55,7 +55,8 @@ class JointInfo:
     ``model_number`` and ``firmware_version`` are the node's registers 0 and 2.  For a
     stepper joint: ``reduction`` (motor revs per joint rev, ``gear_reduction_x100 / 100``),
     ``steps_per_rev`` (full steps per motor rev), ``microstepping`` (microsteps per step),
-    ``encoder_counts_per_rev`` (joint encoder) and ``stiffness`` (N·m/rad); zero for a servo.
+    ``encoder_counts_per_rev`` (joint encoder), ``stiffness`` (N·m/rad) and ``arm_serial``
+    (the arm's serial number its node holds; 0: never programmed); zero for a servo.
     """
 
     joint: int
@@ -68,6 +69,7 @@ class JointInfo:
     microstepping: int = 0
     encoder_counts_per_rev: int = 0
     stiffness: float = 0.0
+    arm_serial: int = 0
 
     @property
     def name(self) -> str:

@@ -19,7 +19,9 @@ Each section carries its own ``method`` (how it was made) and ``created_utc`` (w
 whatever its part needs; a section may also carry ``firmware`` (the version string of the
 robot's firmware when it was made, ``"major.minor.patch"``), which :func:`find` compares
 with the robot's.  A hand's serial is its palm's ``uid`` (the ``identify`` reply) as eight
-hex digits (:func:`serial_of_uid`).
+hex digits (:func:`serial_of_uid`); an arm's, its stepper nodes' ``arm_serial`` register as
+``arm-`` and four hex digits (:func:`serial_of_arm`), so an arm and a hand have files of their
+own and either may be moved to another robot with its calibration.
 
 :func:`save_section` replaces one section and keeps the others, writing atomically (a
 temporary file in the same directory, fsync, rename), so a crash leaves the old file or
@@ -89,6 +91,12 @@ def utc_now() -> str:
 def serial_of_uid(uid: int) -> str:
     """A robot serial number from a palm's 32-bit ``uid``: eight lower-case hex digits."""
     return f"{uid & 0xFFFFFFFF:08x}"
+
+
+def serial_of_arm(value: int) -> str:
+    """An arm's serial number from its stepper nodes' 16-bit ``arm_serial``: ``arm-`` and
+    four lower-case hex digits."""
+    return f"arm-{value & 0xFFFF:04x}"
 
 
 def _check_serial(robot_serial: str) -> str:
@@ -246,7 +254,8 @@ def _version_tuple(text: str) -> tuple[int, ...] | None:
 
 
 def find(robot_serial: str, path: str | os.PathLike[str] | None = None, *,
-         section: str | None = None, firmware: str | None = None
+         section: str | None = None, firmware: str | None = None,
+         fallback: tuple[str, str] | None = None
          ) -> tuple[CalibrationFile | None, list[str]]:
     """The calibration file to use for the robot ``robot_serial`` and the warnings (one
     line each) its user must see.
@@ -256,23 +265,27 @@ def find(robot_serial: str, path: str | os.PathLike[str] | None = None, *,
     estimate).  A file of an older format version, one without ``section`` (if given), or
     one whose ``section`` records firmware older than ``firmware`` (the robot's version,
     ``"major.minor.patch"``): the file with the warning.  A file that is not one, or newer
-    than this library reads, raises :class:`~host.errors.CalibrationFileError`."""
+    than this library reads, raises :class:`~host.errors.CalibrationFileError`.  ``fallback``
+    says in the warnings what is used instead and how to make the file (default: the
+    nominal sensor mounting, ``handctl calibrate``)."""
+    used, remedy = fallback or ("the nominal sensor mounting", "run 'handctl calibrate'")
     p = Path(path) if path is not None else default_path(robot_serial)
     if not p.exists():
         return None, [f"no calibration file for robot {robot_serial} ({p}): estimates use "
-                      "the nominal sensor mounting (run 'handctl calibrate')"]
+                      f"{used} ({remedy})"]
     cal = load(p)
     if cal.robot_serial != robot_serial:
         return None, [f"{p} is the calibration of robot {cal.robot_serial}, not of this "
-                      f"robot {robot_serial}: not used, estimates use the nominal mounting"]
+                      f"robot {robot_serial}: not used, estimates use "
+                      f"{'the nominal mounting' if fallback is None else used}"]
     warnings: list[str] = []
     if cal.version < VERSION:
         warnings.append(f"{p} is calibration format version {cal.version} (this library "
                         f"writes {VERSION}): calibrate again to refresh it")
     data = cal.section(section) if section is not None else None
     if section is not None and data is None:
-        warnings.append(f"{p} has no {section!r} section: the {section} uses the nominal "
-                        "mounting")
+        warnings.append(f"{p} has no {section!r} section: the {section} uses "
+                        f"{'the nominal mounting' if fallback is None else used}")
     if data is not None and firmware is not None and isinstance(data.get("firmware"), str):
         made, now = _version_tuple(data["firmware"]), _version_tuple(firmware)
         if made is not None and now is not None and made < now:

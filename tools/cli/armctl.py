@@ -11,6 +11,7 @@
     armctl --port P excite arm-excite.mcap          # chirp each joint, hold under gravity, recorded
     armctl --port P home                            # find every stepper joint's index mark
     armctl --port P moveto 0.3 0.0 -0.5 [--rpy R P Y]   # flange to x y z (m, base frame)
+    armctl --port P calibrate [--out PATH] [--poses N]  # touch the calibration rig, fit, save
     armctl --port P waypoints record path.jsonl --seconds 10   # torque off, move by hand
     armctl --port P waypoints play path.jsonl
     armctl --port P clear                           # clear latched alarms (torque stays off)
@@ -51,12 +52,22 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+from host.arm.calibration import (
+    ARM_SECTION,
+    NO_CALIBRATION,
+    ArmCalibrationChoice,
+    arm_section,
+    calibrate,
+)
 from host.arm.facade import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
 from host.arm.gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finite, require_torque
 from host.arm.homing import restore
 from host.arm.rest import RestWatch
 from host.arm.state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
-from host.errors import RecordingError, UsageError
+from host.arm.touches import DEFAULT_POSES, gather
+from host.errors import NodeError, RecordingError, UsageError
+from host.estimation.calibration_file import default_path as calibration_path
+from host.estimation.calibration_file import save_section
 from host.scheduling import current
 from protocol.control_tables import TABLES_BY_MODEL, StepperFlag
 from protocol.dynamixel import MAX_ID
@@ -174,16 +185,35 @@ def cmd_scan(args: argparse.Namespace, out: TextIO) -> int:
     return EXIT_OK if nodes else EXIT_ROBOT
 
 
-@COMMANDS.command("status", "one cycle's state of all joints")
+def _calibration_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--calibration", metavar="PATH",
+                   help="the arm's calibration file (default: this arm's, named by its "
+                        "serial, in $LOWCOST_CALIBRATION_DIR or "
+                        "~/.config/lowcost-hand/calibration; 'none': the CAD model)")
+
+
+def _use_calibration(arm: Arm, args: argparse.Namespace) -> ArmCalibrationChoice:
+    """Load the arm calibration ``--calibration`` names (or this arm's) and say on stderr
+    which the Cartesian moves use, and every warning (missing, another robot's, stale)."""
+    chosen = arm.load_calibration(getattr(args, "calibration", None))
+    for warning in chosen.warnings:
+        print(f"armctl: warning: {warning}", file=sys.stderr)
+    print(chosen.summary(), file=sys.stderr)
+    return chosen
+
+
+@COMMANDS.command("status", "one cycle's state of all joints", _calibration_argument)
 def cmd_status(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     homed = restore(arm)
+    chosen = _use_calibration(arm, args)
     state = arm.state()
     enabled = arm.torque_enabled()
     off = [JOINT_NAMES[i] for i, on in enumerate(enabled) if not on]
     torque = "on" if not off else "off" if len(off) == N_JOINTS else f"off on {', '.join(off)}"
-    _print(out, args.json, {**state.as_dict(), "homed": homed, "torque": list(enabled)},
+    _print(out, args.json, {**state.as_dict(), "homed": homed, "torque": list(enabled),
+                            "serial": arm.serial, "calibration": chosen.to_dict()},
            _state_text(state) + f"\nhomed: {'yes' if homed else 'no (armctl home)'}"
-           f"\ntorque: {torque}")
+           f"\ntorque: {torque}\nserial: {arm.serial or 'none'}\n{chosen.summary()}")
     return EXIT_OK
 
 
@@ -333,6 +363,7 @@ def _moveto_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-hand", action="store_true",
                    help="no hand on the flange: leave its weight out of the check that "
                         "no stepper joint would hold near its stall torque")
+    _calibration_argument(p)
 
 
 @COMMANDS.command("moveto", "move the flange to X Y Z (m, base frame)", _moveto_arguments)
@@ -340,6 +371,7 @@ def cmd_moveto(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     check_cartesian((args.x, args.y, args.z), args.rpy)
     _require_homed(arm, args, "moveto")
     _require_torque(arm, "moveto")
+    _use_calibration(arm, args)
     result = arm.moveto((args.x, args.y, args.z), args.rpy, allow_unhomed=args.unhomed,
                         settle_timeout=args.timeout, hand=not args.no_hand,
                         tolerance_m=args.tolerance / 1000)
@@ -527,6 +559,70 @@ def make_parser() -> argparse.ArgumentParser:
     COMMANDS.add_parsers(parser.add_subparsers(dest="command", required=True))
     options_anywhere(parser)  # before the sub-command or after it
     return parser
+
+
+def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", metavar="PATH",
+                   help="the calibration file to write (default: this arm's, named by its "
+                        "serial, in $LOWCOST_CALIBRATION_DIR or "
+                        "~/.config/lowcost-hand/calibration)")
+    p.add_argument("--poses", type=_poses, default=DEFAULT_POSES, metavar="N",
+                   help=f"board touches (each dimple in turn, the probe tilted another way "
+                        f"each round; default {DEFAULT_POSES}, at least 6)")
+    p.add_argument("--replace-other-robot", action="store_true",
+                   help="overwrite a file at --out that holds another robot's calibration")
+
+
+def _poses(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 6:
+        raise argparse.ArgumentTypeError(f"{value}: the board needs at least 6 touches")
+    return value
+
+
+@COMMANDS.command("calibrate", "touch the calibration board, table and anchors with the "
+                  "probe (it moves!), fit the arm's zeros and links, write the calibration "
+                  "file", _calibrate_arguments)
+def cmd_calibrate(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
+    serial = arm.serial
+    if serial is None:
+        raise NodeError("the arm's stepper nodes hold no serial number (arm_serial 0): its "
+                        "calibration file cannot be named; program the nodes' arm_serial")
+    if args.out is not None and args.out == NO_CALIBRATION:
+        raise UsageError("--out none: give the calibration file's path")
+    path = calibration_path(serial) if args.out is None else Path(args.out)
+    _require_torque(arm, "calibrating")
+    if not restore(arm):
+        print("armctl: homing first", file=sys.stderr)
+        arm.home()
+    arm.hand = False  # the probe is on the flange instead of the hand
+    arm.geometry = None  # aim with the CAD model: a calibration starts from it
+
+    def progress(what: str, done: int, total: int) -> None:
+        end = "\n" if done == total else ""
+        print(f"\rcalibrating: {what} touch {done}/{total}", end=end, file=sys.stderr,
+              flush=True)
+
+    gathered = gather(arm, args.poses, progress)
+    result = calibrate(gathered.data)
+    section = arm_section(result, firmware=arm.joints[0].firmware_version,
+                          touches=gathered.counts)
+    written = save_section(path, serial, ARM_SECTION, section,
+                           replace_other_robot=args.replace_other_robot)
+    arm.geometry = result.geometry
+    counts = ", ".join(f"{n} {k}" for k, n in gathered.counts.items())
+    text = (f"touches: {counts} ({gathered.missed} missed)\n"
+            f"board distances rms {result.board_rms_m[0] * 1000:.2f} -> "
+            f"{result.board_rms_m[1] * 1000:.2f} mm, table planarity rms "
+            f"{result.table_rms_m[0] * 1000:.2f} -> {result.table_rms_m[1] * 1000:.2f} mm\n"
+            f"wrote {path} (robot {serial}, sections: {', '.join(written.sections)})")
+    _print(out, args.json, {"path": str(path), "robot_serial": serial,
+                            "missed": gathered.missed, "arm": written.sections[ARM_SECTION]},
+           text)
+    return EXIT_OK
 
 
 @guard_output("armctl")

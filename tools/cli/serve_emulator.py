@@ -3,7 +3,7 @@
     hil-emulator [--config full|hand|arm|loose-finger] [--link-dir DIR]
                  [--realtime | --fast] [--seed N] [--viewer] [--layout NAME]
                  [--can slcan|none] [--no-physics] [--ready] [--sleep] [--duration S] [--stats]
-                 [--faults FILE] [--control PATH] [--scene none|mug]
+                 [--faults FILE] [--control PATH] [--scene none|mug|calibration]
                  [--sensors ideal|realistic] [--profile FILE] [--priority realtime|normal]
                  [--arm-adapters N]
 

@@ -635,6 +635,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None,
                   sensors: str | None = None) -> tuple[bool, str]:
     """The demo in this process; ``sensors`` the emulator's (None: its default)."""
     from hil_emulator.inprocess import EmulatorTransport
+    from hil_emulator.scene_model import MugTracker
 
     wall0 = time.monotonic()
     option = "" if sensors is None else f"&sensors={sensors}"
@@ -648,6 +649,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None,
     assert isinstance(transport, EmulatorTransport)
     emulator = transport.emulator
     truth = emulator.scene_parts[0]
+    assert isinstance(truth, MugTracker)  # the mug scene's
     demo = Demo(hand, arm, out, truth=truth, palm_port=url.format("palm"))
     demo.calibrate = sensors != "ideal"
     demo.mug_in_hand = MugInHand.from_emulator(emulator, truth)

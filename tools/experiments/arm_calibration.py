@@ -20,7 +20,12 @@ corners and a table, and drove the mean end-effector error on held-out points fr
    moved to :data:`EMULATOR_POSES` seeded poses, the host's readings through both models
    against the plant's flange (the optical tracker), with the true gauge likewise.
 
-    python -m tools.experiments.arm_calibration [--seeds 0 1 2] [--emulator] [--json]
+5. **the physical procedure** (``--physical``): ``armctl calibrate``'s touches
+   (:func:`host.arm.touches.gather`) on the emulator's ``calibration`` scene, the fit, then
+   :data:`PHYSICAL_POSES` held-out poses, the host's readings through the CAD model and the
+   calibration against the plant's probe tip (no gauge given).  Slow: minutes per seed.
+
+    python -m tools.experiments.arm_calibration [--seeds 0 1 2] [--emulator] [--physical] [--json]
 """
 
 from __future__ import annotations
@@ -256,6 +261,55 @@ def run_seed(seed: int, emulator: bool = False) -> SeedResult:
     return out
 
 
+#: Held-out poses of the physical procedure's measurement.
+PHYSICAL_POSES: Final = 8
+
+
+@dataclass
+class PhysicalResult:
+    """One seed's physical procedure (mm, probe tip, no gauge given): held-out mean and max
+    before (CAD) and after; touches made and missed."""
+
+    seed: int
+    before_mean_mm: float
+    before_max_mm: float
+    after_mean_mm: float
+    after_max_mm: float
+    touches: dict[str, int]
+    missed: int
+
+
+def run_physical(seed: int, poses: int) -> PhysicalResult:
+    """The touches made by guarded moves on the ``calibration`` scene, the fit, and held-out
+    poses (see the module docs)."""
+    from hil_emulator.inprocess import EmulatorTransport
+    from host.arm import touches as arm_touches
+    from host.arm.facade import Arm
+    from protocol.robot import ARM_PROBE_TIP_M
+    emulator = Emulator("arm", seed=seed, scene="calibration")
+    truth = emulator.scene_parts[0]
+    rng = np.random.default_rng(100 + seed)
+    with Arm.on(EmulatorTransport(emulator, "arm")) as arm:
+        arm.torque(True, hold=True)
+        arm.home()
+        arm.hand = False
+        gathered = arm_touches.gather(arm, poses)
+        result = calibrate(gathered.data)
+        aim = arm_touches.probe_geometry(arm)
+        readings, tips = [], []
+        for k in range(PHYSICAL_POSES):
+            target = [rng.uniform(0.3, 0.55), rng.uniform(-0.2, 0.2), rng.uniform(-0.40, -0.25)]
+            rpy = arm_touches.ORIENTATIONS[k % len(arm_touches.ORIENTATIONS)]
+            arm.moveto(target, list(rpy), speed=0.4, geometry=aim, hand=False)
+            readings.append(np.mean([arm.state().joints for _ in range(10)], axis=0))
+            tips.append(truth.tip_m)  # type: ignore[attr-defined]
+    q, t = np.array(readings), np.array(tips)
+    before = np.linalg.norm(aim.tips(q) - t, axis=1) * 1000
+    after = np.linalg.norm(result.geometry.with_tool(ARM_PROBE_TIP_M).tips(q) - t, axis=1) * 1000
+    return PhysicalResult(seed, float(before.mean()), float(before.max()), float(after.mean()),
+                          float(after.max()), gathered.counts, gathered.missed)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Print figure 4.4's before/after beside the dissertation's, per seed."""
     parser = argparse.ArgumentParser(prog="python -m tools.experiments.arm_calibration",
@@ -263,8 +317,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--emulator", action="store_true",
                         help="also measure held-out poses on the emulated arm (slow)")
+    parser.add_argument("--physical", action="store_true",
+                        help="the touches made by guarded moves on the calibration scene "
+                             "instead (slow: minutes per seed)")
+    parser.add_argument("--poses", type=int, default=24,
+                        help="board touches of --physical (default 24)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.physical:
+        physical = [run_physical(seed, args.poses) for seed in args.seeds]
+        if args.json:
+            print(json.dumps([asdict(r) for r in physical], indent=2))
+            return 0
+        print(f"end-effector (probe tip) error on held-out poses after the physical "
+              f"procedure (mm; dissertation fig. 4.4: mean {DISSERTATION_MM[0]:g} → "
+              f"{DISSERTATION_MM[1]:g})")
+        for p in physical:
+            print(f"seed {p.seed}: CAD mean {p.before_mean_mm:.1f} max {p.before_max_mm:.1f}  →  "
+                  f"calibrated mean {p.after_mean_mm:.1f} max {p.after_max_mm:.1f}  "
+                  f"(touches {p.touches}, {p.missed} missed)")
+        return 0
     results = [run_seed(seed, args.emulator) for seed in args.seeds]
     if args.json:
         print(json.dumps([asdict(r) for r in results], indent=2))
