@@ -54,10 +54,9 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from host.arm.geometry import ArmGeometry
-from host.errors import CalibrationFileError
+from host.errors import CalibrationError, CalibrationFileError
 from host.estimation.calibration_file import default_path, find
 from protocol.robot import ARM_JOINT_AXES
 
@@ -191,6 +190,8 @@ def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> Calibr
     touches' ``tool_m`` added for the fit: a tool's error is so fitted as the flange's)."""
     if not data.boards or sum(len(b.joints) for b in data.boards) < 3:
         raise ValueError("calibration needs at least one board placement with 3 touches")
+    from scipy.optimize import least_squares  # here: armctl starts without scipy
+
     tool = np.asarray(data.tool_m, dtype=float)
     start = (start or ArmGeometry.nominal()).with_tool(tool)
     parameters = data.parameters()
@@ -209,6 +210,38 @@ def calibrate(data: CalibrationData, start: ArmGeometry | None = None) -> Calibr
         geometry.with_tool(-tool),
         (_rms(board_residuals(start, data.boards)), _rms(board_residuals(geometry, data.boards))),
         (table(start), table(geometry)), int(fit.nfev), bool(fit.success), parameters)
+
+
+#: A fit whose touches still disagree by more than this (rms of the board distances or of
+#: the table planarity, m) did not find the arm the touches saw: a touch seated in the wrong
+#: dimple or on a dimple's wall.  Five times the touches' own scatter (TOUCH_SIGMA_M) and
+#: half fig. 4.4's calibrated error.
+ACCEPT_RMS_M: Final = 0.0015
+#: A fitted parameter further than this many prior widths from the CAD model is not a
+#: laser-cut build's error but a fit gone astray.
+ACCEPT_PRIOR_WIDTHS: Final = 5.0
+
+
+def check(result: CalibrationResult) -> None:
+    """:class:`~host.errors.CalibrationError` when ``result`` is not fit to be written or used
+    (its touches still disagree, or it moved a parameter implausibly far from the CAD
+    model): a bad arm calibration would send every Cartesian move astray."""
+    worst = max(result.board_rms_m[1], result.table_rms_m[1])
+    if worst > ACCEPT_RMS_M:
+        raise CalibrationError(
+            f"the touches still disagree by {worst * 1000:.2f} mm rms after the fit (board "
+            f"distances {result.board_rms_m[1] * 1000:.2f}, table "
+            f"{result.table_rms_m[1] * 1000:.2f} mm; at most {ACCEPT_RMS_M * 1000:.1f}): a "
+            f"touch seated wrong; nothing written")
+    nominal = ArmGeometry.nominal().vector(result.parameters)
+    moved = np.abs(result.geometry.vector(result.parameters) - nominal)
+    widths = _prior_widths(result.parameters)
+    far = int(np.argmax(moved / widths))
+    if moved[far] > ACCEPT_PRIOR_WIDTHS * widths[far]:
+        raise CalibrationError(
+            f"the fit moved {result.parameters[far]} {moved[far] / widths[far]:.0f} prior widths "
+            f"from the CAD model (at most {ACCEPT_PRIOR_WIDTHS:.0f}): not a build's error; "
+            f"nothing written")
 
 
 #: The calibration file's section for the arm (``host.estimation.calibration_file``).

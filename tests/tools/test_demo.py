@@ -13,7 +13,13 @@ from mcap.reader import make_reader
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
 from hil_emulator.inprocess import forget_shared_emulators
-from hil_emulator.scene_model import MUG_HEIGHT_M, MUG_MASS_KG, MUG_RADIUS_M, TABLE_TOP_Z_M
+from hil_emulator.scene_model import (
+    MUG_HEIGHT_M,
+    MUG_MASS_KG,
+    MUG_RADIUS_M,
+    TABLE_TOP_Z_M,
+    MugTracker,
+)
 from tests.tools.mcap_check import check_recording
 from tools.demo import command
 from tools.demo import script as demo
@@ -29,6 +35,7 @@ def test_the_mug_scene_stands_a_real_mug_on_the_table_within_reach() -> None:
     assert 0.035 <= MUG_RADIUS_M <= 0.045 and 0.08 <= MUG_HEIGHT_M <= 0.12
     emu.step(500_000)
     tracker = emu.scene_parts[0]
+    assert isinstance(tracker, MugTracker)
     summary = emu.scene_stats()["mug"]
     # Standing still on the table top, upright.
     assert tracker.position[2] - MUG_HEIGHT_M / 2 == pytest.approx(TABLE_TOP_Z_M, abs=0.002)

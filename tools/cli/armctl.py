@@ -58,6 +58,7 @@ from host.arm.calibration import (
     ArmCalibrationChoice,
     arm_section,
     calibrate,
+    check,
 )
 from host.arm.facade import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
 from host.arm.gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finite, require_torque
@@ -608,6 +609,7 @@ def cmd_calibrate(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
 
     gathered = gather(arm, args.poses, progress)
     result = calibrate(gathered.data)
+    check(result)  # a fit gone astray is refused, never written
     section = arm_section(result, firmware=arm.joints[0].firmware_version,
                           touches=gathered.counts)
     written = save_section(path, serial, ARM_SECTION, section,

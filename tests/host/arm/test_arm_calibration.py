@@ -29,9 +29,11 @@ from host.arm.calibration import (
     arm_section,
     board_residuals,
     calibrate,
+    check,
     geometry_of_section,
     plane_distances,
 )
+from host.errors import CalibrationError
 from host.estimation.calibration_file import load, save_section
 from tools.experiments.arm_calibration import anchored, held_out_errors, touches
 
@@ -117,6 +119,24 @@ def test_calibration_recovers_planted_zero_offsets_and_the_end_effector(seed: in
     assert result.board_rms_m[1] < result.board_rms_m[0]
     assert result.board_rms_m[1] < 2 * TOUCH_SIGMA_M
     assert result.table_rms_m[1] < result.table_rms_m[0]
+    check(result)  # fit to be written
+
+
+def test_a_fit_whose_touches_still_disagree_or_that_went_astray_is_refused() -> None:
+    """What armctl calibrate refuses to write: touches that still disagree by millimetres
+    after the fit (one seated in the wrong dimple), or a parameter moved far beyond what a
+    laser-cut build is off by; a build's own errors pass."""
+    rng = np.random.default_rng(7)
+    built, _readings = planted_arm(rng)
+    check(CalibrationResult(built, (0.008, 0.0004), (0.002, 0.0003), 30, True))
+    with pytest.raises(CalibrationError, match="still disagree by 7.40 mm"):
+        check(CalibrationResult(built, (0.0082, 0.0074), (0.002, 0.0003), 30, True))
+    with pytest.raises(CalibrationError, match="table 2.00 mm"):
+        check(CalibrationResult(built, (0.008, 0.0004), (0.004, 0.002), 30, True))
+    astray = ArmGeometry(np.array([0.0, math.radians(20.0), 0, 0, 0, 0, 0]),
+                         built.joint_offsets_m, built.flange_offset_m)
+    with pytest.raises(CalibrationError, match="prior widths from the CAD model"):
+        check(CalibrationResult(astray, (0.008, 0.0004), (0.002, 0.0003), 30, True))
 
 
 @settings(deadline=None, max_examples=20)
