@@ -125,6 +125,16 @@ class Layout:
                 out.extend(errors.get(t, 0.0) / scale for t in times[name])
         return np.asarray(out, dtype=float)
 
+    def segments(self, cases: Sequence[FitCase]) -> tuple[list[int], list[float]]:
+        """Each fitted channel's number of samples and tolerance, in the residuals' order."""
+        counts: list[int] = []
+        tolerances: list[float] = []
+        for case, times in zip(cases, self.times, strict=True):
+            for name in case.fitted:
+                counts.append(len(times[name]))
+                tolerances.append(case.tolerances[name])
+        return counts, tolerances
+
     def channel_rms(self, cases: Sequence[FitCase], vector: np.ndarray) -> dict[str, float]:
         """Each fitted channel's RMS error (its unit) from a residual ``vector``; a channel
         of several recordings over all of them."""
@@ -139,17 +149,3 @@ class Layout:
                 acc[0] += float(np.sum(part * part))
                 acc[1] += n
         return {name: math.sqrt(s / n) if n else 0.0 for name, (s, n) in sorted(sums.items())}
-
-
-#: The cases of this process (a worker's, set once by :func:`init_worker`).
-_CASES: list[FitCase] = []
-
-
-def init_worker(paths: Sequence[str], tolerances: Sequence[tuple[str, float]]) -> None:
-    """A worker process's start: read the recordings once."""
-    _CASES[:] = [load_case(p, tolerances) for p in paths]
-
-
-def replay_all(values: Mapping[str, float]) -> list[dict[str, Channel]]:
-    """Every case of this process replayed with ``values`` (what a worker runs)."""
-    return [replay_case(case, values) for case in _CASES]
