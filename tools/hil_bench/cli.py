@@ -6,7 +6,7 @@
     hil-bench list-scenarios [--json]
     hil-bench list-faults [--json]
     hil-bench replay RECORDING.mcap [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
-                  [--sensors ideal|realistic] [--report DIR]
+                  [--sensors ideal|realistic] [--profile FILE|none] [--report DIR]
     hil-bench fit RECORDING.mcap… --params NAME… [--out PROFILE] [--json] [--workers N]
                   [--scheduler ADDR] [--tolerance CHANNEL=VALUE …]
     hil-bench experiments ARGS…

@@ -13,7 +13,12 @@ What does change monotonically is *when* the replayed node first reports SLIP
 :func:`search` therefore brackets the values whose replay slips at the very sample the
 recording did: each round replays a few values (one per worker) inside the bracket, each
 either *early* (it slipped before the recording), *late* (after, or never) or a *match*, and
-narrows the bracket to the values between the largest early and the smallest late one.  The
+narrows the bracket to the values between the largest early and the smallest late one.
+Where to look next: the probe ramps the current down linearly in time, and a rotor lets go
+where the current has fallen to ``load / (G · k_T)``, so the slip time is linear in
+``1 / k_T``; two early replays (their slip times) give that line, and the next values are
+where it meets the recorded slip, and just beside it (regula falsi).  Without two, the
+bracket is split evenly (in the logarithm).  The
 estimate is the bracket's middle; its uncertainty that of a value anywhere in it
 (``width / √12``), the resolution the probe's current steps give (one cycle of the ramp).
 A recording in which the joint never slipped says nothing of its holding torque: the
@@ -35,7 +40,7 @@ from tools.hil_bench.replay.compare import Channel
 _SLIP: Final = int(StepperFlag.SLIP)
 #: Rounds of the search at most, and the bracket's width (share of the value) it stops at.
 MAX_ROUNDS: Final = 12
-RESOLUTION: Final = 0.002
+RESOLUTION: Final = 0.01
 
 
 def flags_channel(parameter: Parameter) -> str:
@@ -86,6 +91,23 @@ def _side(recorded: Sequence[float], replayed: Replayed, name: str) -> int:
     return signs.pop() if len(signs) == 1 else 0
 
 
+def _secant(early: Mapping[float, float], target: float, low: float, high: float
+            ) -> float | None:
+    """Where the line of slip time over ``1 / value`` through the two largest early values
+    meets ``target`` (s), inside ``low``..``high``; None without two or outside."""
+    if len(early) < 2:
+        return None
+    (k1, t1), (k2, t2) = sorted(early.items())[-2:]
+    if t1 == t2:
+        return None
+    slope = (t2 - t1) / (1.0 / k2 - 1.0 / k1)
+    inverse = 1.0 / k2 + (target - t2) / slope
+    if inverse <= 0:
+        return None
+    guess = 1.0 / inverse
+    return guess if low < guess < high else None
+
+
 def search(replayer: Replayer, parameter: Parameter, fixed: Mapping[str, float],
            recorded_cases: Sequence[Mapping[str, Channel]], workers: int,
            progress: Callable[[str], None] | None = None) -> SlipFit:
@@ -98,10 +120,16 @@ def search(replayer: Replayer, parameter: Parameter, fixed: Mapping[str, float],
     if not any(math.isfinite(t) for t in recorded):
         return SlipFit(parameter.nominal, parameter.nominal, 0, False)
     matches: list[float] = []
+    early: dict[float, float] = {}  # value → its replay's first slip (s)
+    target = min(t for t in recorded if math.isfinite(t))
     n = max(2, workers)
     rounds = 0
     for rounds in range(1, MAX_ROUNDS + 1):
-        if matches:
+        guess = _secant(early, target, low, high)
+        if guess is not None and not matches:
+            spread = [guess * (1.0 + 0.5 * RESOLUTION * (k - (n - 1) / 2)) for k in range(n)]
+            points = [v for v in spread if low < v < high] or [guess]
+        elif matches:
             gaps = [(low, min(matches)), (max(matches), high)]
             gaps = [(a, b) for a, b in gaps if b - a > RESOLUTION * b]
             if not gaps:
@@ -117,6 +145,7 @@ def search(replayer: Replayer, parameter: Parameter, fixed: Mapping[str, float],
         for value, result in zip(points, replayed, strict=True):
             side = _side(recorded, result, name)
             if side < 0:
+                early[value] = min(first_slip(c.get(name), replayed=True) for c in result)
                 low = max(low, value)
             elif side > 0:
                 high = min(high, value)
