@@ -26,12 +26,14 @@ import numpy as np
 from hil_emulator.errors import EmulatorError
 from hil_emulator.profile import PARAMETERS, RobotProfile
 from host.errors import UsageError
+from protocol.control_tables import StepperFlag
 from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, tolerances_for
 from tools.hil_bench.replay.exchanges import Exchange
 from tools.hil_bench.replay.session import recorded_exchanges, replay_channels
 from tools.hil_bench.replay.source import Recorded, load
 
+_SLIP: Final = int(StepperFlag.SLIP)
 #: The channels a fit is held to by default (a field on every node) and their tolerances:
 #: encoder counts of the stepper joints' positions and their elements' deflections, RX-64
 #: position units (0.29°).
@@ -97,10 +99,22 @@ def replay_case(case: FitCase, values: Mapping[str, float]) -> dict[str, Channel
     return channels
 
 
+def first_recorded_slip(channels: Mapping[str, Channel]) -> float:
+    """The first time (s) a stepper node of the recording reported SLIP (its
+    ``cycle_status_flags``), or infinity."""
+    return min((t for name, c in channels.items() if name.endswith(".cycle_status_flags")
+                for t, v in zip(c.t, c.recorded, strict=True) if int(v) & _SLIP),
+               default=math.inf)
+
+
 @dataclass
 class Layout:
     """Where each sample's residual sits: per case, per fitted channel, the recorded times
-    (s) of its samples, taken from a first replay."""
+    (s) of its samples, taken from a first replay: every sample before the recording's
+    first SLIP (:func:`first_recorded_slip`).  After a slip a rotor re-locks a random 0–2
+    electrical periods on (15–60 counts), which no parameter reproduces: the samples after
+    it would only pull the other parameters off; the slip itself is the holding torque's
+    (:mod:`.slip_onset`)."""
 
     times: list[dict[str, list[float]]] = field(default_factory=list)
 
@@ -108,9 +122,12 @@ class Layout:
     def of(cls, cases: Sequence[FitCase], replayed: Sequence[Mapping[str, Channel]]
            ) -> Layout:
         """The layout of ``replayed`` (one replay per case)."""
-        return cls([{name: list(channels[name].t) if name in channels else []
-                     for name in case.fitted}
-                    for case, channels in zip(cases, replayed, strict=True)])
+        out = []
+        for case, channels in zip(cases, replayed, strict=True):
+            cut = first_recorded_slip(channels)
+            out.append({name: [t for t in channels[name].t if t < cut]
+                        if name in channels else [] for name in case.fitted})
+        return cls(out)
 
     def vector(self, cases: Sequence[FitCase], replayed: Sequence[Mapping[str, Channel]]
                ) -> np.ndarray:

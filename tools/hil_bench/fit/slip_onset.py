@@ -110,13 +110,15 @@ def _secant(early: Mapping[float, float], target: float, low: float, high: float
 
 def search(replayer: Replayer, parameter: Parameter, fixed: Mapping[str, float],
            recorded_cases: Sequence[Mapping[str, Channel]], workers: int,
-           progress: Callable[[str], None] | None = None) -> SlipFit:
+           progress: Callable[[str], None] | None = None,
+           start: tuple[float, float] | None = None) -> SlipFit:
     """Bracket ``parameter`` (a ``torque_constant``) from the recordings' slips (module
     doc); every other parameter at ``fixed`` (or nominal).  ``recorded_cases``: each
-    recording's channels as a first replay gave them (their recorded values)."""
+    recording's channels as a first replay gave them (their recorded values).  ``start``:
+    the bracket to start from (default: the parameter's bounds)."""
     name = flags_channel(parameter)
     recorded = [first_slip(channels.get(name), replayed=False) for channels in recorded_cases]
-    low, high = parameter.low, parameter.high
+    low, high = start or (parameter.low, parameter.high)
     if not any(math.isfinite(t) for t in recorded):
         return SlipFit(parameter.nominal, parameter.nominal, 0, False)
     matches: list[float] = []

@@ -6,14 +6,16 @@ The unknowns are the parameters asked for, each scaled by its nominal value
 its bounds and started at the nominal robot.  They are fitted in :data:`STAGES`, by kind,
 each stage with the estimates of those before it and every later one nominal:
 
-1. ``torque_constant``: a stepper's holding torque shows only in when its rotor lets go
-   under a holding probe, a step the residuals take, not a slope; :mod:`.slip_onset`
-   brackets it.  First, because until the replayed rotor slips when the recorded one did,
-   every sample after that differs by the slip, whatever the other parameters;
-2. ``stiffness``: the elements' deflections under gravity and in the chirps, many counts;
-3. ``bearing_friction``, ``damping``: a count or less each way of a slow ramp, seen once the
+1. ``stiffness``: the elements' deflections under gravity and in the chirps, many counts;
+2. ``bearing_friction``, ``damping``: a count or less each way of a slow ramp, seen once the
    stiffness no longer explains the deflections; a parameter of another kind joins this
-   stage.
+   stage;
+3. ``torque_constant``: a stepper's holding torque shows only in when its rotor lets go
+   under a holding probe, a step the residuals take, not a slope; :mod:`.slip_onset`
+   brackets it, with every other parameter at its estimate (the load a rotor holds at rest
+   depends a little on them: the bearings' stiction carries a share of it).  The least
+   squares leave out every sample after the recording's first slip (:class:`~.cases.Layout`),
+   so they do not depend on it.
 
 The residuals are :mod:`.cases`' (each fitted sample's error over its channel's tolerance,
 every recording), minimised by :func:`scipy.optimize.least_squares` (trust region
@@ -46,8 +48,9 @@ from tools.hil_bench.fit.evaluate import Replayed, Replayer
 from tools.hil_bench.fit.uncertainty import error_bars
 
 #: The stages, by the parameters' kinds (the last part of their names), in order; a kind
-#: not named goes in the last.  The first is searched by slip onset, the rest least squares.
-STAGES: Final = (("torque_constant",), ("stiffness",), ("bearing_friction", "damping"))
+#: not named goes with the friction.  The last is searched by slip onset, the rest least
+#: squares.
+STAGES: Final = (("stiffness",), ("bearing_friction", "damping"), ("torque_constant",))
 #: The kinds found by slip onset rather than least squares.
 SLIP_KINDS: Final = ("torque_constant",)
 #: Finite-difference step of the Jacobian per kind (share of the scale); others: DIFF_STEP.
@@ -145,9 +148,10 @@ def _rms(r: np.ndarray) -> float:
 def staged(names: Sequence[str]) -> list[list[str]]:
     """``names`` in their stages (:data:`STAGES`), empty stages left out, in order."""
     known = {k: i for i, kinds in enumerate(STAGES) for k in kinds}
+    other = next(i for i, kinds in enumerate(STAGES) if "bearing_friction" in kinds)
     groups: list[list[str]] = [[] for _ in STAGES]
     for n in names:
-        groups[known.get(kind(n), len(STAGES) - 1)].append(n)
+        groups[known.get(kind(n), other)].append(n)
     return [g for g in groups if g]
 
 
