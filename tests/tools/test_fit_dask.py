@@ -41,6 +41,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)
 def test_replays_on_a_local_dask_cluster_equal_those_in_this_process_and_the_fit_runs_there(
         recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from dask.distributed import Client, LocalCluster

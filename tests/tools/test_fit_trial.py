@@ -73,6 +73,7 @@ def elbow(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[st
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_the_elbow_s_stiffness_and_holding_torque_come_back_and_the_refit_replays_another(
         elbow: tuple[Path, Path, dict[str, float]], tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
@@ -100,6 +101,7 @@ def whole(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
 
 @pytest.mark.slow
 @pytest.mark.long
+@pytest.mark.timeout(3600)
 def test_the_whole_trial_two_stiffnesses_a_friction_and_a_holding_torque(
         whole: tuple[Path, Path, Path], tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
