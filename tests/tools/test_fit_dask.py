@@ -18,6 +18,7 @@ from tools.hil_bench.fit.cases import load_case
 from tools.hil_bench.fit.evaluate import Replayer
 
 pytest.importorskip("dask.distributed")
+pytestmark = pytest.mark.process_wide("dask keeps its connection pools and event loop for the process")
 
 NAME = "arm.J4.stiffness"
 TRUTH = PARAMETERS[NAME].nominal * 0.8
