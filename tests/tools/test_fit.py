@@ -171,3 +171,14 @@ def test_the_text_report_says_a_parameter_is_unobservable_without_a_number() -> 
     assert line == ("arm.J1.torque_constant = 2.62 N·m/A (nominal 2.62): unobservable in "
                     "these recordings")
     assert result.as_json()["parameters"]["arm.J1.torque_constant"]["uncertainty"] is None
+
+
+def test_the_stages_fit_stiffness_then_friction_then_both_then_the_holding_torque() -> None:
+    from tools.hil_bench.fit.solve import staged
+
+    names = ["arm.J4.torque_constant", "arm.J2.bearing_friction", "arm.J2.stiffness"]
+    assert staged(names) == [["arm.J2.stiffness"], ["arm.J2.bearing_friction"],
+                             ["arm.J2.stiffness", "arm.J2.bearing_friction"],
+                             ["arm.J4.torque_constant"]]
+    assert staged(["arm.J4.stiffness", "arm.J4.torque_constant"]) == [
+        ["arm.J4.stiffness"], ["arm.J4.torque_constant"]]

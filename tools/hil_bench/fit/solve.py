@@ -9,7 +9,9 @@ each stage with the estimates of those before it and every later one nominal:
 1. ``stiffness``: the elements' deflections under gravity and in the chirps, many counts;
 2. ``bearing_friction``, ``damping``: a count or less each way of a slow ramp, seen once the
    stiffness no longer explains the deflections; a parameter of another kind joins this
-   stage;
+   stage; then, with more than one of these stages, all their parameters together, from
+   their estimates (a stiffness fitted while the friction was nominal is off by what the
+   friction explains);
 3. ``torque_constant``: a stepper's holding torque shows only in when its rotor lets go
    under a holding probe, a step the residuals take, not a slope; :mod:`.slip_onset`
    brackets it, with every other parameter at its estimate (the load a rotor holds at rest
@@ -146,13 +148,21 @@ def _rms(r: np.ndarray) -> float:
 
 
 def staged(names: Sequence[str]) -> list[list[str]]:
-    """``names`` in their stages (:data:`STAGES`), empty stages left out, in order."""
+    """``names`` in their stages (:data:`STAGES`), empty stages left out, in order; with
+    more than one least-squares stage, then all their parameters together (a stiffness
+    fitted while the friction was nominal is off by what the friction explains: the joint
+    stage, started from the stages' estimates, takes their correlation in)."""
     known = {k: i for i, kinds in enumerate(STAGES) for k in kinds}
     other = next(i for i, kinds in enumerate(STAGES) if "bearing_friction" in kinds)
     groups: list[list[str]] = [[] for _ in STAGES]
     for n in names:
         groups[known.get(kind(n), other)].append(n)
-    return [g for g in groups if g]
+    out = [g for g in groups if g]
+    squares = [g for g in out if kind(g[0]) not in SLIP_KINDS]
+    if len(squares) > 1:  # all the least-squares ones again together, before the slips
+        at = max(out.index(g) for g in squares) + 1
+        out.insert(at, [n for g in squares for n in g])
+    return out
 
 
 class _Stage:
@@ -273,7 +283,8 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
                     f"{_rms(stage.known[tuple(x)]):.4g} (of tolerance), {shown}")
                 return stage.jacobian(x)
 
-            x0 = np.array([p.nominal for p in stage.params]) / stage.scales
+            x0 = np.array([estimates.get(p.name, p.nominal) for p in stage.params]
+                          ) / stage.scales
             lower = np.array([p.low for p in stage.params]) / stage.scales
             solution = least_squares(stage.residuals, x0, jac=jac, bounds=(lower, stage.upper),
                                      method="trf", ftol=TOLERANCE, xtol=TOLERANCE,
@@ -292,8 +303,11 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
             bars = error_bars(final.jacobian(x), r, segments, tols, x)
             for i, n in enumerate(squares):
                 p = params[n]
-                fitted[n] = FittedParameter(n, p.unit, p.nominal, estimates[n],
-                                            float(bars.sigma[i] * final.scales[i]),
+                # the optimiser stops once a step changes the parameters by less than
+                # TOLERANCE: the estimate is not known better than that either
+                sigma = math.hypot(float(bars.sigma[i] * final.scales[i]),
+                                   TOLERANCE * abs(estimates[n]))
+                fitted[n] = FittedParameter(n, p.unit, p.nominal, estimates[n], sigma,
                                             bool(bars.observable[i]))
         replays = replayer.replays
     children = os.times()
