@@ -304,9 +304,12 @@ def fit(paths: Sequence[str], names: Sequence[str], *,
             for i, n in enumerate(squares):
                 p = params[n]
                 # the optimiser stops once a step changes the parameters by less than
-                # TOLERANCE: the estimate is not known better than that either
+                # TOLERANCE, and below its finite-difference step the cost of counts is a
+                # staircase it sees only as the secant over the step: the estimate is not
+                # located better than either (the step as a uniform spread, step / √12)
                 sigma = math.hypot(float(bars.sigma[i] * final.scales[i]),
-                                   TOLERANCE * abs(estimates[n]))
+                                   TOLERANCE * abs(estimates[n]),
+                                   final.steps_of[i] * final.scales[i] / math.sqrt(12.0))
                 fitted[n] = FittedParameter(n, p.unit, p.nominal, estimates[n], sigma,
                                             bool(bars.observable[i]))
         replays = replayer.replays
