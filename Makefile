@@ -68,7 +68,7 @@ test-fast: $(CORE)
 	$(PY) -m pytest -q $(PYTEST_PARALLEL) -m "not slow and not long"
 
 demo: $(CORE)
-	$(PY) -m tools.demo
+	$(PY) -m tools.demo $(if $(PROFILE),--profile $(PROFILE))
 
 bench: $(CORE)
 	$(PY) -m benchmarks

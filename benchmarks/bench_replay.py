@@ -14,10 +14,13 @@ The fit (``hil-bench fit``): an excitation of J2 (and J4 unless ``quick``) recor
 arm whose elements are 30 % stiffer and 20 % softer than nominal (a robot profile), then
 those stiffnesses fitted from nominal in this process (one worker, so the CPU time is all
 this process's).  Its figure is simulated seconds fitted per CPU second, against one replay
-of the same recording: the ratio is the number of replays' worth of CPU a fit costs.  The
-hand's fit, the same way: one firm closure of finger 1 recorded on a hand whose f3
-accelerometer is turned 2.5° about its x axis, that angle fitted from 0 (and, unless
-``quick``, the other two angles of the same board, the seed's draw in the robot recorded).
+of the same recording: the ratio is the number of replays' worth of CPU a fit costs; beside
+it the fit's CPU seconds and replays.  Unless ``quick``, also the staged fit of the elbow's
+stiffness and holding torque (least squares, then the slip-onset search) from the fit
+trial's shorter excitation (:mod:`tools.hil_bench.fit.trial`).  The hand's fit, the same way:
+one firm closure of finger 1 recorded on a hand whose f3 accelerometer is turned 2.5° about
+its x axis, that angle fitted from 0 (and, unless ``quick``, the other two angles of the same
+board, the seed's draw in the robot recorded).
 """
 
 from __future__ import annotations
@@ -110,9 +113,9 @@ def _record_closure(path: Path, profile: Path, quick: bool) -> list[str]:
     return [board + "x"] if quick else [board + axis for axis in "xyz"]
 
 
-def fit_rate(path: Path, names: list[str]) -> tuple[float, float, float]:
-    """(simulated s fitted per CPU s, one replay's simulated s per CPU s, the fit's CPU s)
-    for the recording at ``path``."""
+def fit_rate(path: Path, names: list[str]) -> tuple[float, float, float, int]:
+    """(simulated s fitted per CPU s, one replay's simulated s per CPU s, the fit's CPU s,
+    its replays) for the recording at ``path``."""
     recording = load(path)
     emulator = build_emulator(recording)
     try:
@@ -123,7 +126,22 @@ def fit_rate(path: Path, names: list[str]) -> tuple[float, float, float]:
     finally:
         emulator.close()
     result = fit([str(path)], names, workers=1)
-    return sim_s / result.cpu_s, sim_s / cpu, result.cpu_s
+    return sim_s / result.cpu_s, sim_s / cpu, result.cpu_s, result.replays
+
+
+def _fit_results(label: str, what: str, path: Path, names: list[str]) -> list[Result]:
+    """The fit's figures for the recording at ``path`` (of the ``label``), ``names`` being
+    ``what`` (its results' names)."""
+    rate, one, cpu_s, replays = fit_rate(path, names)
+    base = f"one replay of the {label}"
+    return [
+        Result(GROUP, base, one, "sim-s", note="CPU time"),
+        Result(GROUP, f"fit of {len(names)} {what} from it", rate, "sim-s", baseline=base,
+               note=f"{rate and one / rate:.0f} replays' worth of CPU; one worker"),
+        Result(GROUP, f"fit of {len(names)} parameter(s) from the {label}: CPU s per fit",
+               cpu_s, "CPU s", at_most=True,
+               note=f"{replays} replays; {', '.join(names)}"),
+    ]
 
 
 def run(quick: bool) -> list[Result]:
@@ -143,20 +161,16 @@ def run(quick: bool) -> list[Result]:
             ]
         path, profile = Path(tmp) / "excite.mcap", Path(tmp) / "profile.json"
         names = _record_excitation(path, profile, quick)
-        rate, one, cpu_s = fit_rate(path, names)
-        base = "one replay of the arm excitation"
-        results += [
-            Result(GROUP, base, one, "sim-s", note="CPU time"),
-            Result(GROUP, f"fit of {len(names)} stiffness(es) from it", rate, "sim-s",
-                   baseline=base, note=f"{cpu_s:.1f} CPU s in all, one worker"),
-        ]
+        results += _fit_results("arm excitation", "stiffness(es)", path, names)
+        if not quick:
+            from tools.hil_bench.fit import trial
+
+            elbow = {n: v for n, v in trial.truth().items() if n.startswith("arm.J4.")}
+            RobotProfile(elbow).write(profile)
+            path = Path(tmp) / "elbow.mcap"
+            trial.record(path, profile, trial.SECOND)
+            results += _fit_results("elbow probe excitation", "parameters", path, list(elbow))
         path, profile = Path(tmp) / "closure.mcap", Path(tmp) / "hand-profile.json"
         names = _record_closure(path, profile, quick)
-        rate, one, cpu_s = fit_rate(path, names)
-        base = "one replay of the hand closure"
-        results += [
-            Result(GROUP, base, one, "sim-s", note="CPU time"),
-            Result(GROUP, f"fit of {len(names)} accelerometer angle(s) from it", rate,
-                   "sim-s", baseline=base, note=f"{cpu_s:.1f} CPU s in all, one worker"),
-        ]
+        results += _fit_results("hand closure", "accelerometer angle(s)", path, names)
     return results

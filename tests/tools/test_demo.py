@@ -12,7 +12,8 @@ from mcap.reader import make_reader
 
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorConfigError
-from hil_emulator.inprocess import forget_shared_emulators
+from hil_emulator.inprocess import EmulatorTransport, forget_shared_emulators
+from hil_emulator.profile import RobotProfile
 from hil_emulator.scene_model import (
     MUG_HEIGHT_M,
     MUG_MASS_KG,
@@ -20,6 +21,7 @@ from hil_emulator.scene_model import (
     TABLE_TOP_Z_M,
     MugTracker,
 )
+from host.arm.facade import Arm
 from tests.tools.mcap_check import check_recording
 from tools.demo import command
 from tools.demo import script as demo
@@ -60,7 +62,7 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str],
                                           tmp_path: Path) -> None:
     def broken(out: Path, seed: int, view_port: int | None = None,
-               sensors: str | None = None) -> tuple[bool, str]:
+               sensors: str | None = None, profile: Path | None = None) -> tuple[bool, str]:
         raise demo.DemoFailed("grasp", "no finger felt the mug")
 
     monkeypatch.setattr(demo, "run_inprocess", broken)
@@ -68,6 +70,45 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
     out = capsys.readouterr().out
     assert out.strip().splitlines()[-1] == "demo: FAILED (grasp: no finger felt the mug)"
     assert "Traceback" not in out
+
+
+def test_the_demo_with_a_profile_has_its_robot_in_the_plant(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    profile = tmp_path / "robot.json"
+    RobotProfile({"arm.J2.stiffness": 260.0, "arm.J4.torque_constant": 0.7}).write(profile)
+    seen: list[tuple[Path | None, float, float]] = []
+
+    def opened(out: Path, seed: int, view_port: int | None = None,
+               sensors: str | None = None, profile: Path | None = None) -> tuple[bool, str]:
+        # what run_inprocess opens, without the demo's motions
+        forget_shared_emulators()
+        try:
+            with Arm.open(demo.demo_url(seed, sensors, profile).format("arm")) as arm:
+                transport = arm.transport
+                assert isinstance(transport, EmulatorTransport)
+                params = transport.emulator.require_arm_plant().params
+                seen.append((profile, float(params.stiffness[1]),
+                             float(params.torque_constant_nm_per_a[3])))
+        finally:
+            forget_shared_emulators()
+        return True, "opened"
+
+    monkeypatch.setattr(demo, "run_inprocess", opened)
+    assert command.main(["--out", str(tmp_path), "--profile", str(profile),
+                         "--sensors", "ideal"]) == 0
+    assert seen == [(profile, 260.0, 0.7)]
+
+
+def test_the_demo_refuses_a_profile_that_is_no_profile_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "hil-emulator robot profile", "version": 1, '
+                   '"parameters": {"arm.J9.stiffness": 1}}')
+    with pytest.raises(SystemExit) as exit_info:
+        command.main(["--out", str(tmp_path), "--profile", str(bad)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "arm.J9.stiffness" in err[-1] and str(bad) in err[-1]
 
 
 @pytest.mark.slow

@@ -40,7 +40,9 @@ def arm_excite(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
         assert _armctl("torque", "on")[0] == 0
         assert _armctl("home")[0] == 0
         code, text = _armctl("--json", "excite", str(path), "--joints", "J2,J6",
-                             "--chirp-seconds", "2", "--hold-seconds", "0.3")
+                             "--chirp-seconds", "2", "--hold-seconds", "0.3",
+                             "--ramps", "J4", "--ramp-rad", "0.05", "--probes", "J4",
+                             "--probe-seconds", "1.5")
         assert code == 0, text
     finally:
         forget_shared_emulators()
@@ -58,6 +60,20 @@ def test_armctl_excite_chirps_the_joints_asked_and_records_it(
     j1 = [s["joints"][0] for s in states]
     assert max(j2) - min(j2) > 0.3  # the chirp and the holds moved the shoulder
     assert max(j1) - min(j1) < 0.02  # a joint not chirped stayed where it was
+    assert summary["ramped"] == ["J4"]
+
+
+def test_the_holding_probe_lowers_the_current_until_the_rotor_slips_and_stops_there(
+        arm_excite: tuple[Path, dict]) -> None:
+    _path, summary = arm_excite
+    (probe,) = summary["probes"]
+    assert probe["joint"] == "J4" and probe["load_nm"] > 0.5
+    # the nominal elbow holds 0.86 N·m/A × 13 at the joint: it lets go where that meets
+    # the load, half-way down a ramp from twice the load to half of it
+    assert probe["to_ma"] < probe["slipped_ma"] < probe["from_ma"]
+    holding = 0.86 * 13 * probe["slipped_ma"] / 1000
+    assert abs(holding - probe["load_nm"]) < 0.1 * probe["load_nm"]
+    assert not summary["errors"]  # the latch cleared, the current back
 
 
 @pytest.mark.slow

@@ -156,6 +156,29 @@ def test_the_text_report_gives_each_estimate_and_the_error_removed() -> None:
                        rms_before=2.0, rms_after=0.5, channels_before={}, channels_after={},
                        within_after=False, replays=9, iterations=3, cpu_s=12.0, message="ok")
     lines = text_lines(result)
-    assert lines[0] == "arm.J2.stiffness = 259 ± 1.5 N·m/rad (nominal 200)"
+    assert lines[0] == "arm.J2.stiffness = 259 ± 1.5 N·m/rad (nominal 200; least squares)"
     assert "2 before, 0.5 after: 75.0 % removed" in lines[1]
     assert "still parts" in lines[2]
+
+
+def test_the_text_report_says_a_parameter_is_unobservable_without_a_number() -> None:
+    result = FitResult(["a.mcap"], [FittedParameter("arm.J1.torque_constant", "N·m/A", 2.62,
+                                                    2.62, float("inf"), observable=False,
+                                                    method="slip onset")],
+                       rms_before=1.0, rms_after=1.0, channels_before={}, channels_after={},
+                       within_after=True, replays=1, iterations=0, cpu_s=1.0, message="")
+    line = text_lines(result)[0]
+    assert line == ("arm.J1.torque_constant = 2.62 N·m/A (nominal 2.62): unobservable in "
+                    "these recordings")
+    assert result.as_json()["parameters"]["arm.J1.torque_constant"]["uncertainty"] is None
+
+
+def test_the_stages_fit_stiffness_then_friction_then_both_then_the_holding_torque() -> None:
+    from tools.hil_bench.fit.solve import staged
+
+    names = ["arm.J4.torque_constant", "arm.J2.bearing_friction", "arm.J2.stiffness"]
+    assert staged(names) == [["arm.J2.stiffness"], ["arm.J2.bearing_friction"],
+                             ["arm.J2.stiffness", "arm.J2.bearing_friction"],
+                             ["arm.J4.torque_constant"]]
+    assert staged(["arm.J4.stiffness", "arm.J4.torque_constant"]) == [
+        ["arm.J4.stiffness"], ["arm.J4.torque_constant"]]

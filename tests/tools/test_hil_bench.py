@@ -333,7 +333,7 @@ def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
     from tools.hil_bench import campaign
 
     monkeypatch.setattr(campaign, "run_job", _never)
-    monkeypatch.setattr(hil_bench, "SCHEDULER_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(campaign, "SCHEDULER_TIMEOUT_S", 0.5)
     assert hil_bench.main(["run", "link_loss", "--scheduler", address]) == 2
     err = capsys.readouterr().err
     assert f"--scheduler {address}: no Dask scheduler there" in err

@@ -493,8 +493,13 @@ def _joint_list(text: str) -> tuple[int, ...]:
     return tuple(JOINT_NAMES.index(n) for n in dict.fromkeys(names))
 
 
+def _joints_or_none(text: str) -> tuple[int, ...]:
+    """An argparse type: :func:`_joint_list`, or ``none`` (no joints)."""
+    return () if text.strip().lower() == "none" else _joint_list(text)
+
+
 def _excite_arguments(p: argparse.ArgumentParser) -> None:
-    from host.arm.excite import Excitation
+    from host.arm.excite import DEFAULT_PROBES, DEFAULT_RAMPS, Excitation
 
     plan = Excitation()
     p.add_argument("file", help="output .mcap file")
@@ -515,11 +520,26 @@ def _excite_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hold-seconds", type=number_above(0, inclusive=True, what="a time (s)"),
                    default=plan.hold_s, metavar="S",
                    help=f"each hold under gravity (s, default {plan.hold_s:g})")
+    p.add_argument("--ramps", type=_joints_or_none, default=DEFAULT_RAMPS, metavar="J1,…",
+                   help="the joints ramped slowly through zero speed, for their friction "
+                        f"(default {','.join(JOINT_NAMES[j] for j in DEFAULT_RAMPS)}; none)")
+    p.add_argument("--ramp-rad", type=number_above(0, what="an amplitude (rad)"),
+                   default=plan.ramp_rad, metavar="RAD",
+                   help=f"each ramp's excursion either way (rad, default {plan.ramp_rad:g})")
+    p.add_argument("--ramp-speed", type=number_above(0, what="a speed (rad/s)"),
+                   default=plan.ramp_speed_rad_s, metavar="RAD/S",
+                   help=f"the ramps' speed (rad/s, default {plan.ramp_speed_rad_s:g})")
+    p.add_argument("--probes", type=_joints_or_none, default=DEFAULT_PROBES, metavar="J4,…",
+                   help="the steppers whose holding torque is probed, in order (default "
+                        f"{','.join(JOINT_NAMES[j] for j in DEFAULT_PROBES)}; none)")
+    p.add_argument("--probe-seconds", type=_TIME, default=plan.probe_s, metavar="S",
+                   help=f"each holding probe's current ramp (s, default {plan.probe_s:g})")
     p.add_argument("--unhomed", action="store_true",
                    help="excite although the arm is not homed (stepper ranges unknown)")
 
 
-@COMMANDS.command("excite", "chirp each joint, hold under gravity, record it all (MCAP)",
+@COMMANDS.command("excite", "chirp each joint, ramp, hold under gravity, probe the "
+                  "steppers' holding torque, record it all (MCAP)",
                   _excite_arguments, check=_record_check)
 def cmd_excite(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     from host.arm.excite import Excitation, amplitude, excitation_path, excite
@@ -530,21 +550,29 @@ def cmd_excite(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
     _require_torque(arm, "exciting it")
     plan = Excitation(joints=args.joints, amplitude_rad=args.amplitude,
                       chirp_s=args.chirp_seconds, f0_hz=args.f0, f1_hz=args.f1,
-                      hold_s=args.hold_seconds)
+                      hold_s=args.hold_seconds, ramps=args.ramps, ramp_rad=args.ramp_rad,
+                      ramp_speed_rad_s=args.ramp_speed, probes=args.probes,
+                      probe_s=args.probe_seconds)
     start = arm.state().joints
     path = excitation_path(plan, start, arm.homed)
     check_path([w.t for w in path], [w.joints for w in path], start, homed=arm.homed)
     with ArmRecorder(arm, args.file) as recorder:
         recorder.check()
-        state, duration = excite(arm, plan)
+        state, duration, probes = excite(arm, plan)
         recorder.check()
     names = [JOINT_NAMES[j] for j in plan.joints]
     amplitudes = [amplitude(plan, j, start[j], arm.homed) for j in plan.joints]
     _print(out, args.json, {**state.as_dict(), "file": args.file, "excited": names,
                             "amplitudes_rad": amplitudes, "duration_s": duration,
+                            "ramped": [JOINT_NAMES[j] for j in plan.ramps],
+                            "probes": [r.as_dict() for r in probes],
                             "states": recorder.states},
-           f"excited {', '.join(names)} ({duration:.1f} s of path) and recorded it to "
-           f"{args.file}")
+           f"excited {', '.join(names)} ({duration:.1f} s of path"
+           + "".join(f"; {JOINT_NAMES[r.joint]} "
+                     + (f"slipped at {r.slipped_ma} mA under {r.load_nm:.2f} N·m"
+                        if r.slipped_ma is not None else "held to the probe's end")
+                     for r in probes)
+           + f") and recorded it to {args.file}")
     return EXIT_OK
 
 

@@ -28,15 +28,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensors", choices=SENSOR_MODES, default=DEMO_SENSORS,
                         help="the robot's sensors: realistic (as built, the default; the demo calibrates "
                              "the hand first) or ideal (exact, nothing to calibrate)")
+    parser.add_argument("--profile", type=Path, metavar="FILE",
+                        help="a robot profile (JSON, hil-bench fit --out): the emulated "
+                             "robot has its physical parameters")
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")
     add_view_arguments(parser)
     args = read_negative_numbers(parser).parse_args(argv)
+    if args.profile is not None:
+        from hil_emulator.errors import EmulatorConfigError
+        from hil_emulator.profile import load_profile
+
+        try:
+            load_profile(args.profile)  # a bad file is one line, before anything starts
+        except EmulatorConfigError as exc:
+            parser.error(str(exc))
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         ok, text = (realtime.run_realtime if args.realtime else script.run_inprocess)(
-            args.out, args.seed, args.view_port if args.view else None, args.sensors)
+            args.out, args.seed, args.view_port if args.view else None, args.sensors,
+            args.profile)
     except DemoFailed as exc:
         ok, text = False, f"{exc.step}: {exc}"
     except KeyboardInterrupt:

@@ -29,12 +29,14 @@ from tools.errors import DemoFailed
 
 
 @contextlib.contextmanager
-def emulator_process(link_dir: Path, seed: int, sensors: str = DEMO_SENSORS
+def emulator_process(link_dir: Path, seed: int, sensors: str = DEMO_SENSORS,
+                     profile: Path | None = None
                      ) -> Iterator[tuple[dict[str, Any], subprocess.Popen[str]]]:
+    extra = [] if profile is None else ["--profile", str(profile.resolve())]
     proc = subprocess.Popen(
         [sys.executable, "-m", "tools.cli.serve_emulator", "--config", "full", "--scene", "mug",
          "--ready", "--stats", "--seed", str(seed), "--sensors", sensors,
-         "--link-dir", str(link_dir)],
+         "--link-dir", str(link_dir), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
@@ -111,13 +113,13 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
 
 
 def run_realtime(out: Path, seed: int, view_port: int | None = None,
-                 sensors: str = DEMO_SENSORS) -> tuple[bool, str]:
+                 sensors: str = DEMO_SENSORS, profile: Path | None = None) -> tuple[bool, str]:
     wall0 = time.monotonic()
     link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
     try:
         print("[wall    0.0 s] emulator: starting hil-emulator --config full --scene mug "
               "--ready (the hand brought up in simulated time first)", flush=True)
-        with emulator_process(link_dir, seed, sensors) as (ports, proc):
+        with emulator_process(link_dir, seed, sensors, profile) as (ports, proc):
             def say(text: str) -> None:
                 print(f"[wall {time.monotonic() - wall0:6.1f} s] wire: {text}", flush=True)
 

@@ -631,15 +631,26 @@ def open_watch(hand: Hand, arm: Arm, view_port: int | None) -> RobotView | None:
     return view
 
 
+def demo_url(seed: int, sensors: str | None = None, profile: Path | None = None) -> str:
+    """The in-process emulator's URL of the demo, ``{}`` where the link goes: the full
+    robot, the mug scene, ``seed``, ``sensors`` (None: the emulator's default) and the robot
+    ``profile`` (a file; None: the nominal robot)."""
+    option = "" if sensors is None else f"&sensors={sensors}"
+    if profile is not None:
+        option += "&profile=" + str(profile.resolve()).replace("{", "{{").replace("}", "}}")
+    return f"emu://full/{{}}?scene=mug&seed={seed}{option}&name=demo"
+
+
 def run_inprocess(out: Path, seed: int, view_port: int | None = None,
-                  sensors: str | None = None) -> tuple[bool, str]:
-    """The demo in this process; ``sensors`` the emulator's (None: its default)."""
+                  sensors: str | None = None, profile: Path | None = None
+                  ) -> tuple[bool, str]:
+    """The demo in this process; ``sensors`` the emulator's (None: its default),
+    ``profile`` the robot's (a file; None: the nominal robot)."""
     from hil_emulator.inprocess import EmulatorTransport
     from hil_emulator.scene_model import MugTracker
 
     wall0 = time.monotonic()
-    option = "" if sensors is None else f"&sensors={sensors}"
-    url = f"emu://full/{{}}?scene=mug&seed={seed}{option}&name=demo"
+    url = demo_url(seed, sensors, profile)
     print(f"[sim    0.0 s | wall    0.0 s] emulator: full configuration, mug scene, in this "
           f"process on the simulation clock ({url.format('palm')})", flush=True)
     hand = Hand.open(url.format("palm"))

@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from hil_emulator.profile import RobotProfile
 from tools.hil_bench.runner import run_scenario
 from tools.hil_bench.scenario import find_scenario, load_scenario, parse_scenario, with_overrides
 
@@ -24,11 +25,15 @@ Job = dict[str, Any]
 
 
 def expand(paths: Sequence[str | Path], seeds: Sequence[int] | None = None,
-           keep_trace: bool = False, fixed: dict[str, Any] | None = None) -> list[Job]:
+           keep_trace: bool = False, fixed: dict[str, Any] | None = None,
+           profile: RobotProfile | None = None) -> list[Job]:
     """One job per scenario file × seed (``seeds``, else the file's ``campaign.seeds``,
     else its ``seed``) × combination of its ``campaign.vary`` values.  ``fixed`` (dotted
     path → value, ``hil-bench run --set``) sets those keys in every job: a key the file
-    varies takes only that value."""
+    varies takes only that value.  ``profile`` (``hil-bench run --profile``): every job's
+    robot, carried as its values (a Dask worker need not see the file)."""
+    carried = None if profile is None else {"parameters": dict(profile.values),
+                                            "source": profile.source}
     jobs: list[Job] = []
     for name in paths:
         path = find_scenario(name)
@@ -44,13 +49,17 @@ def expand(paths: Sequence[str | Path], seeds: Sequence[int] | None = None,
                 raw = with_overrides(scenario.raw, seed, overrides)
                 parse_scenario(raw, str(path))  # every point checked before any runs
                 jobs.append({"raw": raw, "source": str(path), "keep_trace": keep_trace,
-                             "overrides": overrides})
+                             "overrides": overrides, "profile": carried})
     return jobs
 
 
 def run_job(job: Job) -> dict[str, Any]:
     """Run one job; its result, with the overrides it ran with."""
-    result = run_scenario(job["raw"], job["source"], keep_trace=job["keep_trace"])
+    carried = job.get("profile")
+    profile = None if carried is None else RobotProfile(carried["parameters"],
+                                                        source=carried["source"])
+    result = run_scenario(job["raw"], job["source"], keep_trace=job["keep_trace"],
+                          profile=profile)
     result["overrides"] = job.get("overrides", {})
     return result
 
@@ -92,6 +101,25 @@ def iter_jobs(jobs: Sequence[Job], workers: int = 1, scheduler: Any = None
         finished = True
     finally:
         pool.shutdown(wait=finished, cancel_futures=not finished)
+
+
+#: How long a ``--scheduler`` may take to connect before hil-bench gives up (s).
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+def connect_scheduler(address: str) -> Any:
+    """A Dask client of the scheduler at ``address`` (``hil-bench run`` and ``fit``'s
+    ``--scheduler``); :class:`ConnectionError` saying what to do when there is none (checked
+    before anything runs)."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+    except (OSError, ValueError, TimeoutError) as exc:
+        raise ConnectionError(
+            f"--scheduler {address}: no Dask scheduler there ({exc}); start one "
+            f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
+            f"use --workers N for local processes") from None
 
 
 def comparable(result: dict[str, Any]) -> dict[str, Any]:

@@ -1,14 +1,14 @@
 """``hil-bench``: fault scenarios on the emulated robot, campaigns, reports.
 
     hil-bench run FILE|NAME… [--suite standard] [--seeds N|A,B,… | --seed N]
-                  [--set KEY=VALUE …] [--json OUT] [--report DIR]
+                  [--set KEY=VALUE …] [--profile FILE] [--json OUT] [--report DIR]
                   [--workers N] [--scheduler tcp://HOST:8786]
     hil-bench list-scenarios [--json]
     hil-bench list-faults [--json]
     hil-bench replay RECORDING.mcap [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
-                  [--sensors ideal|realistic] [--report DIR]
+                  [--sensors ideal|realistic] [--profile FILE|none] [--report DIR]
     hil-bench fit RECORDING.mcap… --params NAME… [--out PROFILE] [--json] [--workers N]
-                  [--tolerance CHANNEL=VALUE …]
+                  [--scheduler ADDR] [--tolerance CHANNEL=VALUE …]
     hil-bench experiments ARGS…
 
 ``run`` runs each scenario (docs/HIL_BENCH.md) in fast mode on the in-process emulator: one
@@ -45,9 +45,6 @@ from tools.cli.common import EXIT_INTERRUPTED, unwritable
 from tools.cli.numeric import number_above, read_negative_numbers
 from tools.cli.output import guard_output
 
-#: How long ``--scheduler`` may take to connect before hil-bench gives up (s).
-SCHEDULER_TIMEOUT_S = 10.0
-
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hil-bench", description="Fault scenarios and "
@@ -67,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="KEY=VALUE", help="set a scenario key by its dotted path "
                      "(faults.0.params.probability=0.2; VALUE as in TOML, else text); a key "
                      "the file's campaign.vary varies takes only this value")
+    run.add_argument("--profile", metavar="FILE", help="a robot profile (JSON, hil-bench fit "
+                     "--out): every run's emulator has its physical parameters")
     run.add_argument("--json", metavar="OUT", help="write every result to OUT (JSON)")
     run.add_argument("--report", metavar="DIR", help="write summary.md (pass rates per fault "
                      "class and parameter value, with bar charts), one JSON per run and "
@@ -194,22 +193,9 @@ def _writable(args: argparse.Namespace) -> str | None:
     return None
 
 
-def _connect(address: str) -> Any:
-    """A Dask client of the scheduler at ``address``; :class:`ConnectionError` saying what
-    to do when there is none (checked before anything runs)."""
-    from dask.distributed import Client
-
-    try:
-        return Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
-    except (OSError, ValueError, TimeoutError) as exc:
-        raise ConnectionError(
-            f"--scheduler {address}: no Dask scheduler there ({exc}); start one "
-            f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
-            f"use --workers N for local processes") from None
-
-
 def run(args: argparse.Namespace) -> int:
-    from tools.hil_bench.campaign import expand, iter_jobs
+    from hil_emulator.profile import load_profile
+    from tools.hil_bench.campaign import connect_scheduler, expand, iter_jobs
     from tools.hil_bench.report import reproduce_command, write_report
     from tools.hil_bench.scenario import ScenarioError, standard_suite
 
@@ -222,8 +208,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         seeds = [args.seed] if args.seed is not None else _seeds(args.seeds)
+        profile = load_profile(args.profile) if args.profile else None
         jobs = expand(files, seeds, keep_trace=args.report is not None,
-                      fixed=dict(args.set))
+                      fixed=dict(args.set), profile=profile)
     except (ScenarioError, argparse.ArgumentTypeError, EmulatorError) as exc:
         print(f"hil-bench: {exc}", file=sys.stderr)
         return 2
@@ -231,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"hil-bench: {problem}", file=sys.stderr)
         return 2
     try:
-        scheduler = _connect(args.scheduler) if args.scheduler else None
+        scheduler = connect_scheduler(args.scheduler) if args.scheduler else None
     except ConnectionError as exc:
         print(f"hil-bench: {exc}", file=sys.stderr)
         return 2

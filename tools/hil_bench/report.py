@@ -137,8 +137,11 @@ def setting_text(key: str, value: Any) -> str:
 
 
 def reproduce_command(result: dict[str, Any]) -> str:
-    """The command line that runs ``result``'s run alone: its file, seed and overrides."""
+    """The command line that runs ``result``'s run alone: its file, seed, profile and
+    overrides."""
     args = ["hil-bench", "run", result["source"], "--seed", str(result["seed"])]
+    if result.get("profile"):
+        args += ["--profile", result["profile"]]
     for key, value in sorted(result.get("overrides", {}).items()):
         args += ["--set", setting_text(key, value)]
     return shlex.join(args)

@@ -22,6 +22,7 @@ from typing import Any, Final
 from hil_emulator.emulator import Emulator
 from hil_emulator.faults import FaultInjector, targets
 from hil_emulator.inprocess import EmulatorTransport, bring_up
+from hil_emulator.profile import RobotProfile
 from host.errors import HostError
 from protocol.control_tables import STEPPER_TABLE, StepperFlag
 from protocol.topology import FINGERS, STEPPER_IDS
@@ -43,10 +44,10 @@ _STEPPER_MODEL: Final = STEPPER_TABLE["model_number"].default
 class Bench:
     """The emulator and the host objects one scenario's actions use."""
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(self, scenario: Scenario, profile: RobotProfile | None = None) -> None:
         self.scenario = scenario
         self.emu = Emulator(scenario.config, seed=scenario.seed, physics=scenario.physics,
-                            can="none")
+                            can="none", profile=profile)
         #: The scenario's fault plan is applied through it (the bench owns it).
         self.faults = FaultInjector(self.emu)
         self.record = RunRecord()
@@ -411,15 +412,18 @@ class Bench:
 
 
 def run_scenario(raw: dict[str, Any], source: str = "<scenario>",
-                 keep_trace: bool = False) -> dict[str, Any]:
-    """Run the scenario table ``raw``; its result as plain data: ``passed``, one entry per
+                 keep_trace: bool = False, profile: RobotProfile | None = None
+                 ) -> dict[str, Any]:
+    """Run the scenario table ``raw`` on the robot of ``profile`` (None: the nominal one);
+    its result as plain data: ``passed``, one entry per
     assertion (``passed``, ``measured``, ``message``), the actions, the timeline, ``faults``
     (the fault classes of the plan, each once, in plan order: what a campaign report counts
-    the run under) and, with ``keep_trace``, the samples for plots.  ``wall_s`` is the only field that varies
+    the run under), ``profile`` (the file it was read from, or None) and, with
+    ``keep_trace``, the samples for plots.  ``wall_s`` is the only field that varies
     between equal runs."""
     scenario = parse_scenario(raw, source)
     started = time.perf_counter()
-    bench = Bench(scenario)
+    bench = Bench(scenario, profile)
     try:
         record = bench.run()
     finally:
@@ -428,6 +432,7 @@ def run_scenario(raw: dict[str, Any], source: str = "<scenario>",
     out: dict[str, Any] = {
         "scenario": scenario.name, "source": source, "seed": scenario.seed,
         "config": scenario.config,
+        "profile": profile.source or "(in memory)" if profile is not None else None,
         "faults": list(dict.fromkeys(e.fault.name for e in scenario.faults)),
         "passed": all(r["passed"] for r in results),
         "assertions": results,

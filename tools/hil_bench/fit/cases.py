@@ -28,12 +28,14 @@ from hil_emulator.errors import EmulatorError
 from hil_emulator.hand_profile import sensor_names
 from hil_emulator.profile import PARAMETERS, RobotProfile
 from host.errors import UsageError
+from protocol.control_tables import StepperFlag
 from tools.errors import ReplayRefused
 from tools.hil_bench.replay.compare import Channel, channel_names, tolerances_for
 from tools.hil_bench.replay.exchanges import Exchange
 from tools.hil_bench.replay.session import recorded_exchanges, replay_channels
 from tools.hil_bench.replay.source import Recorded, load, merge
 
+_SLIP: Final = int(StepperFlag.SLIP)
 #: The channels a fit is held to by default (a field on every node) and their tolerances:
 #: encoder counts of the stepper joints' positions and their elements' deflections, RX-64
 #: position units (0.29°).
@@ -127,10 +129,22 @@ def replay_case(case: FitCase, values: Mapping[str, float]) -> dict[str, Channel
     return channels
 
 
+def first_recorded_slip(channels: Mapping[str, Channel]) -> float:
+    """The first time (s) a stepper node of the recording reported SLIP (its
+    ``cycle_status_flags``), or infinity."""
+    return min((t for name, c in channels.items() if name.endswith(".cycle_status_flags")
+                for t, v in zip(c.t, c.recorded, strict=True) if int(v) & _SLIP),
+               default=math.inf)
+
+
 @dataclass
 class Layout:
     """Where each sample's residual sits: per case, per fitted channel, the recorded times
-    (s) of its samples, taken from a first replay."""
+    (s) of its samples, taken from a first replay: every sample before the recording's
+    first SLIP (:func:`first_recorded_slip`).  After a slip a rotor re-locks a random 0–2
+    electrical periods on (15–60 counts), which no parameter reproduces: the samples after
+    it would only pull the other parameters off; the slip itself is the holding torque's
+    (:mod:`.slip_onset`)."""
 
     times: list[dict[str, list[float]]] = field(default_factory=list)
 
@@ -138,9 +152,12 @@ class Layout:
     def of(cls, cases: Sequence[FitCase], replayed: Sequence[Mapping[str, Channel]]
            ) -> Layout:
         """The layout of ``replayed`` (one replay per case)."""
-        return cls([{name: list(channels[name].t) if name in channels else []
-                     for name in case.fitted}
-                    for case, channels in zip(cases, replayed, strict=True)])
+        out = []
+        for case, channels in zip(cases, replayed, strict=True):
+            cut = first_recorded_slip(channels)
+            out.append({name: [t for t in channels[name].t if t < cut]
+                        if name in channels else [] for name in case.fitted})
+        return cls(out)
 
     def vector(self, cases: Sequence[FitCase], replayed: Sequence[Mapping[str, Channel]]
                ) -> np.ndarray:
@@ -154,6 +171,16 @@ class Layout:
                 scale = case.tolerances[name]
                 out.extend(errors.get(t, 0.0) / scale for t in times[name])
         return np.asarray(out, dtype=float)
+
+    def segments(self, cases: Sequence[FitCase]) -> tuple[list[int], list[float]]:
+        """Each fitted channel's number of samples and tolerance, in the residuals' order."""
+        counts: list[int] = []
+        tolerances: list[float] = []
+        for case, times in zip(cases, self.times, strict=True):
+            for name in case.fitted:
+                counts.append(len(times[name]))
+                tolerances.append(case.tolerances[name])
+        return counts, tolerances
 
     def channel_rms(self, cases: Sequence[FitCase], vector: np.ndarray) -> dict[str, float]:
         """Each fitted channel's RMS error (its unit) from a residual ``vector``; a channel
@@ -169,17 +196,3 @@ class Layout:
                 acc[0] += float(np.sum(part * part))
                 acc[1] += n
         return {name: math.sqrt(s / n) if n else 0.0 for name, (s, n) in sorted(sums.items())}
-
-
-#: The cases of this process (a worker's, set once by :func:`init_worker`).
-_CASES: list[FitCase] = []
-
-
-def init_worker(paths: Sequence[str], tolerances: Sequence[tuple[str, float]]) -> None:
-    """A worker process's start: read the recordings once."""
-    _CASES[:] = [load_case(p, tolerances) for p in paths]
-
-
-def replay_all(values: Mapping[str, float]) -> list[dict[str, Channel]]:
-    """Every case of this process replayed with ``values`` (what a worker runs)."""
-    return [replay_case(case, values) for case in _CASES]

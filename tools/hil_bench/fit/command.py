@@ -1,8 +1,9 @@
-"""``hil-bench fit RECORDING.mcap… --params NAME… [--out PROFILE] [--json] [--workers N]
-[--tolerance CHANNEL=VALUE …]``: estimate the parameters that best reproduce the
-recordings, print each with its uncertainty and how much of the replay error the fit
-removed (a progress line per iteration on standard error), write the robot profile to
-``--out``.  Exit 0 when the fit's emulator replays every recording within the tolerances
+"""``hil-bench fit RECORDING.mcap… --params NAME… [--out PROFILE] [--json] [--workers N |
+--scheduler ADDR] [--tolerance CHANNEL=VALUE …]``: estimate the parameters that best
+reproduce the recordings, print each with its uncertainty (or that the recordings cannot
+see it) and how much of the replay error the fit removed (a progress line per iteration on
+standard error), write the robot profile to ``--out``.  ``--scheduler`` (also spelled
+``--dask``) runs the replays on a Dask distributed scheduler, as ``hil-bench run`` does.  Exit 0 when the fit's emulator replays every recording within the tolerances
 of the channels fitted, 1 when not, 2 for an unknown parameter, a recording it cannot
 replay or bad arguments (one line saying why)."""
 
@@ -37,6 +38,9 @@ def add_arguments(sub: Any) -> None:
     p.add_argument("--workers", type=number_above(1, int, inclusive=True, what="a number of "
                    "processes"), default=os.cpu_count() or 1, metavar="N",
                    help="processes replaying in parallel (default: one per core)")
+    p.add_argument("--scheduler", "--dask", dest="scheduler", metavar="ADDR",
+                   help="replay on a Dask distributed scheduler (tcp://127.0.0.1:8786) "
+                   "instead of local processes")
     p.add_argument("--tolerance", action="append", type=tolerance, default=[],
                    metavar="CHANNEL=VALUE", help="a channel's tolerance (its unit): its "
                    "errors count in the fit divided by it; 0 leaves it out (default: "
@@ -46,7 +50,9 @@ def add_arguments(sub: Any) -> None:
 def text_lines(result: FitResult) -> list[str]:
     """The fit as lines of text."""
     lines = [f"{p.name} = {p.value:.5g} ± {p.uncertainty:.2g} {p.unit} (nominal "
-             f"{p.nominal:g})" for p in result.parameters]
+             f"{p.nominal:g}; {p.method})" if p.observable else
+             f"{p.name} = {p.value:.5g} {p.unit} (nominal {p.nominal:g}): unobservable in "
+             "these recordings" for p in result.parameters]
     lines.append(f"replay error (RMS over tolerance): {result.rms_before:.4g} before, "
                  f"{result.rms_after:.4g} after: {100 * result.removed:.1f} % removed; "
                  f"{result.replays} replays in {result.iterations} iterations, "
@@ -62,17 +68,26 @@ def run(args: argparse.Namespace) -> int:
     """Fit, print, write the profile; the exit status."""
     from hil_emulator.errors import EmulatorConfigError
     from tools.errors import ReplayRefused
+    from tools.hil_bench.campaign import connect_scheduler
     from tools.hil_bench.fit.solve import fit
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
     try:
+        scheduler = connect_scheduler(args.scheduler) if args.scheduler else None
+    except ConnectionError as exc:
+        print(f"hil-bench fit: {exc}", file=sys.stderr)
+        return 2
+    try:
         result = fit(args.recordings, args.params, tolerances=args.tolerance,
-                     workers=args.workers, progress=progress)
+                     workers=args.workers, scheduler=scheduler, progress=progress)
     except (EmulatorConfigError, ReplayRefused) as exc:
         print(f"hil-bench fit: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if scheduler is not None:
+            scheduler.close()
     if args.out:
         try:
             result.profile().write(args.out)

@@ -1,5 +1,5 @@
 """``hil-bench replay RECORDING.mcap… [--json] [--tolerance CHANNEL=VALUE …] [--seed N]
-[--sensors ideal|realistic] [--report DIR]``: exit 0 when every channel is within its
+[--sensors ideal|realistic] [--profile FILE|none] [--report DIR]``: exit 0 when every channel is within its
 tolerance, 1 when one is not (a line naming them), 2 for a recording it cannot replay (a
 line saying why) or bad arguments."""
 
@@ -44,6 +44,9 @@ def add_arguments(sub: Any) -> None:
                    metavar="N", help="the emulator's seed (default: the recording's)")
     p.add_argument("--sensors", choices=SENSOR_MODES,
                    help="the emulator's sensors (default: the recording's)")
+    p.add_argument("--profile", metavar="FILE|none", help="the emulator's robot profile "
+                   "(hil-bench fit --out), or none for the nominal robot (default: the "
+                   "recording's)")
     p.add_argument("--report", metavar="DIR", help="write replay.md, replay.json and plots "
                    "into DIR")
 
@@ -62,8 +65,10 @@ def run(args: argparse.Namespace) -> int:
                   f"{exc.strerror}", file=sys.stderr)
             return 2
     try:
+        profile = None if args.profile is None else (
+            "" if args.profile.lower() == "none" else args.profile)
         result = replay(args.recording, tolerances=args.tolerance, seed=args.seed,
-                        sensors=args.sensors)
+                        sensors=args.sensors, profile=profile)
     except ReplayRefused as exc:
         print(f"hil-bench replay: {' + '.join(args.recording)}: {exc}", file=sys.stderr)
         return 2

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from hil_emulator.emulator import Emulator
@@ -91,15 +91,18 @@ def replay_channels(recording: Recorded, emulator: Emulator,
 
 def replay(path: str | Path | Sequence[str | Path], *,
            tolerances: Sequence[tuple[str, float]] = (),
-           seed: int | None = None, sensors: str | None = None,
+           seed: int | None = None, sensors: str | None = None, profile: str | None = None,
            emulator_factory: Callable[[Recorded], Emulator] = build_emulator) -> ReplayResult:
     """Replay the recording at ``path`` (or one session's recordings, one per link: every
     link on one emulator, :func:`~tools.hil_bench.replay.source.merge`) against a new
-    emulator of its configuration (``seed``, ``sensors`` override the recording's;
-    ``emulator_factory`` builds another); :class:`ReplayRefused` for a recording it cannot
-    replay or a tolerance naming no channel."""
+    emulator of its configuration (``seed``, ``sensors`` and ``profile``, a robot profile's
+    file or "" for the nominal robot, override the recording's; ``emulator_factory`` builds
+    another); :class:`ReplayRefused` for a recording it cannot replay or a tolerance naming
+    no channel."""
     paths = [path] if isinstance(path, str | Path) else list(path)
     recording = merge([load(p, seed=seed, sensors=sensors) for p in paths])
+    if profile is not None:
+        recording = replace(recording, spec=replace(recording.spec, profile=profile))
     recorded = recorded_exchanges(recording)
     limits = tolerances_for(channel_names(recorded), tolerances)
     cpu0 = time.process_time()
