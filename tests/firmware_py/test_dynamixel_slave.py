@@ -168,7 +168,7 @@ def test_out_of_range_write_sets_range_bit(node):
     (nak,) = write_value(sched, hal, 1, "status_return_level", 3)
     assert nak.errors == ErrorBit.RANGE
     assert read_value(sched, hal, 1, "status_return_level") == 2
-    (nak,) = transact(sched, hal, make_write(1, 22, b"\x00").encode())  # a gap
+    (nak,) = transact(sched, hal, make_write(1, 19, b"\x00").encode())  # a gap (18 alarm_shutdown, 20 encoder)
     assert nak.errors == ErrorBit.RANGE
     (nak,) = transact(sched, hal, make_read(1, 95, 10).encode())  # past the end (98)
     assert nak.errors == ErrorBit.RANGE and nak.params == b""

@@ -24,7 +24,7 @@ def test_handctl_and_armctl_parse_exactly_the_commands_they_declare() -> None:
         "excite"]
     assert _sub_names(armctl.make_parser()) == list(armctl.COMMANDS) == [
         "watch", "ping", "scan", "status", "torque", "clear", "move", "home", "moveto",
-        "waypoints", "record", "excite"]
+        "waypoints", "record", "excite", "calibrate"]
     assert not armctl.COMMANDS["scan"].opens and armctl.COMMANDS["move"].opens
 
 
