@@ -34,14 +34,15 @@ the other program, or its instruction packet read as a status); a refusal (an er
 with :data:`REQUEST_ERRORS` bits, which another program's instruction code also looks like)
 is held until the deadline, in case the node's own answer follows, and only then raised.  A
 garbled or lost reply is retried as any missing one (idempotent requests only; a goal's
-SYNC_WRITE expects no reply and the next cycle sends the next goal).  A reply to the other
+SYNC_WRITE expects no reply and the next cycle sends the next goal); a BULK_READ's repeat
+asks only the nodes whose replies are still missing (see :meth:`DynamixelBus.exchange`).  A reply to the other
 program of the very length expected from that ID is taken for this one's: the same
 registers a moment apart, when both read the same block.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -52,6 +53,7 @@ from protocol.dynamixel import (
     MIN_PACKET_SIZE,
     DynamixelStreamDecoder,
     ErrorBit,
+    Instruction,
     InstructionPacket,
     StatusPacket,
     make_bulk_read,
@@ -59,6 +61,7 @@ from protocol.dynamixel import (
     make_read,
     make_sync_write,
     make_write,
+    parse_bulk_read,
 )
 
 #: Bits on the wire per byte (8N1: start, 8 data, stop).
@@ -82,7 +85,9 @@ LISTEN_MAX_S: Final = 0.02
 #: (a monitor READing the seven joints every 20 ms on its own adapter) collides with some
 #: exchanges even with :data:`LINE_QUIET_S` (counted through the emulator's ptys: 27 of 200
 #: BULK_READs of the cycle lost; 300 cycles needed 114 repeats); five repeats left none of
-#: the 300 cycles failing, two left 3.  A node that is gone costs six deadlines.
+#: the 300 cycles failing, two left 3 (each repeat then asked every node again; now a
+#: repeat asks only the missing and one that brings replies is not counted: see
+#: :meth:`DynamixelBus.exchange`).  A node that is gone costs six deadlines.
 DEFAULT_RETRIES: Final = 5
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
@@ -128,6 +133,18 @@ class BusStats:
     timeouts: int = 0
     bytes_sent: int = 0
     bytes_received: int = 0
+
+
+def resend_for(packets: Sequence[InstructionPacket], ids: Collection[int]
+               ) -> list[InstructionPacket]:
+    """What to send again for the replies of ``ids`` still missing from the exchange of
+    ``packets``: the same, but a BULK_READ last asks only the nodes in ``ids`` (the writes
+    before it go again: goals, idempotent)."""
+    last = packets[-1] if packets else None
+    if last is None or last.instruction != Instruction.BULK_READ:
+        return list(packets)
+    entries = [e for e in parse_bulk_read(last.params) if e[1] in ids]
+    return [*packets[:-1], make_bulk_read(entries)] if entries else list(packets)
 
 
 class DynamixelBus:
@@ -202,30 +219,52 @@ class DynamixelBus:
         ``retries`` repeats; default :attr:`retries`, 0 when nothing is expected),
         :class:`DynamixelNodeError` if one carries a :data:`REQUEST_ERRORS` bit and
         :class:`NodeError` if one has the wrong data length.
+
+        The replies are taken as they come, each by its ID, and kept across the repeats: a
+        repeat of a BULK_READ some of whose replies came asks only the nodes still missing
+        (:func:`resend_for`), and a repeat that brought some does not count against
+        ``retries``.  Another program polling the nodes on its own adapter takes one of these
+        replies for the answer to its own READ of that node and sends its next READ at
+        once, into the replies still coming: repeated whole, every repeat met the same fate
+        (six of six, the host's cycle failing), repeated for the missing, each gets more.
         """
-        raw = b"".join(p.encode() for p in packets)
         attempts = 1 + (self.retries if retries is None else retries) if expected else 1
         self._misfit = None
-        for attempt in range(attempts):
-            if attempt:
+        got: dict[int, StatusPacket] = {}
+        sending = packets
+        attempt = 0
+        while True:
+            if sending is not packets:
                 self.stats.retries += 1
-            replies = self._send_and_collect(raw, expected)
-            if replies is not None:
-                return replies
+            before = len(got)
+            missing = [i for i in range(len(expected)) if i not in got]
+            self._send_and_collect(b"".join(p.encode() for p in sending), expected, missing,
+                                   got)
+            if len(got) == len(expected):
+                return [got[i] for i in range(len(expected))]
+            if len(got) == before:
+                attempt += 1
+                if attempt >= attempts:
+                    break
+            sending = resend_for(packets, [expected[i].dxl_id for i in range(len(expected))
+                                           if i not in got])
         self.stats.timeouts += 1
         if self._misfit is not None:
             misfit, length = self._misfit
             raise NodeError(f"node {misfit.id} answered {len(misfit.params)} data bytes, "
                             f"{length} expected")
-        waiting = ", ".join(str(e.dxl_id) for e in expected)
+        waiting = ", ".join(str(expected[i].dxl_id) for i in range(len(expected))
+                            if i not in got)
         raise ReplyTimeout(f"{self.transport.url}: no reply from node(s) {waiting} after "
                            f"{attempts} attempt(s); check power, wiring, IDs and baud "
                            f"({self.baud} bit/s), and that no other program has the port "
                            f"open (one without a lock, such as the Dynamixel SDK's "
                            f"PortHandler, takes replies meant for this one)")
 
-    def _send_and_collect(self, raw: bytes, expected: Sequence[Expect]
-                          ) -> list[StatusPacket] | None:
+    def _send_and_collect(self, raw: bytes, expected: Sequence[Expect], missing: Sequence[int],
+                          got: dict[int, StatusPacket]) -> None:
+        """Send ``raw`` and collect into ``got`` (index in ``expected`` -> reply) the replies
+        of ``missing`` (indices) that arrive by the deadline."""
         transport = self.transport
         stale = transport.recv(0.0)  # a late reply to an earlier request: drop it
         if stale:
@@ -237,19 +276,19 @@ class DynamixelBus:
         self._emit("tx", raw)
         start = max(transport.now(), self._line_free_at)  # behind what is still going out
         self._line_free_at = start + self.wire_time(len(raw))
-        deadline = self._line_free_at + self.reply_time(expected) + self.latency_s
+        waited = [expected[i] for i in missing]
+        deadline = self._line_free_at + self.reply_time(waited) + self.latency_s
         # due until collected: an exception other than the bus's own (Ctrl-C) leaves it set
-        self._due = (deadline, len(expected)) if expected else None
+        self._due = (deadline, len(waited)) if waited else None
         transport.send(raw)
-        if not expected:
-            return []
+        if not waited:
+            return
         try:
-            replies = self._collect(expected, deadline, deadline - self.latency_s)
+            self._collect(expected, missing, got, deadline, deadline - self.latency_s)
         except HostError:
             self._due = None
             raise
         self._due = None
-        return replies
 
     def _listen_for_quiet(self) -> None:
         """Bytes were on the line before a request (another program on the bus, or a late
@@ -263,17 +302,17 @@ class DynamixelBus:
                 return
             self._emit("rx", data)
 
-    def _collect(self, expected: Sequence[Expect], deadline: float, wire_end: float
-                 ) -> list[StatusPacket] | None:
-        """The status packets ``expected`` arriving by ``deadline`` (see :meth:`exchange`);
-        None when some did not.  ``wire_end`` is when they are due at the latest without
-        the adapter's latency: once bytes have been heard (a collision's garbage, another
-        program's frames, some of the replies), :data:`REPLY_GAP_S` past it and past the
-        last reply taken without the next one ends the wait early (the rest were lost:
-        retried at once, not after the latency)."""
+    def _collect(self, expected: Sequence[Expect], missing: Sequence[int],
+                 got: dict[int, StatusPacket], deadline: float, wire_end: float) -> None:
+        """Collect into ``got`` the replies of ``missing`` (indices in ``expected``) arriving
+        by ``deadline`` (see :meth:`exchange`), each taken by its ID, whatever the order.
+        ``wire_end`` is when they are due at the latest without the adapter's latency: once
+        bytes have been heard (a collision's garbage, another program's frames, some of the
+        replies), :data:`REPLY_GAP_S` past it and past the last reply taken without the
+        next one ends the wait early (the rest were lost: retried at once, not after the
+        latency)."""
         transport = self.transport
-        replies: list[StatusPacket] = []
-        want = 0
+        pending = list(missing)
         refused: StatusPacket | None = None
         heard = False
         progress = wire_end  # no reply is due later than this without the latency
@@ -281,9 +320,10 @@ class DynamixelBus:
             end = min(deadline, progress + REPLY_GAP_S) if heard else deadline
             remaining = end - transport.now()
             if remaining <= 0:
-                if refused is not None:
+                if refused is not None and any(expected[i].dxl_id == refused.id
+                                               for i in pending):
                     self._check(refused)
-                return None
+                return
             data = transport.recv(remaining)
             if not data:
                 continue
@@ -293,23 +333,22 @@ class DynamixelBus:
             for decoded in self._decoder.feed(data):
                 status = decoded.packet
                 assert isinstance(status, StatusPacket)
-                expect = expected[want]
-                if status.id != expect.dxl_id:
-                    continue  # not the node whose turn it is: noise or a late reply
-                if len(status.params) != expect.length:
+                turn = next((i for i in pending if expected[i].dxl_id == status.id), None)
+                if turn is None:
+                    continue  # not a node still to answer: noise, a late reply, another's
+                if len(status.params) != expected[turn].length:
                     # a late reply to an earlier request, another program's, or a wrong node
-                    self._misfit = (status, expect.length)
+                    self._misfit = (status, expected[turn].length)
                     continue
                 if status.error & REQUEST_ERRORS:
                     refused = status  # or another program's instruction: raised at the deadline
                     continue
-                replies.append(status)
-                want += 1
-                refused = None
+                got[turn] = status
+                pending.remove(turn)
                 progress = max(progress, transport.now())
-                self._due = (deadline, len(expected) - want)
-                if want == len(expected):
-                    return replies
+                self._due = (deadline, len(pending))
+                if not pending:
+                    return
 
     def wait_out_replies(self) -> bool:
         """Let the replies of an exchange that was cut short pass: a Ctrl-C while the

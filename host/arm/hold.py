@@ -59,6 +59,9 @@ _R = RX64_TABLE
 ALARM_SETTLE_S: Final = 3.0
 #: Tries of a hold whose exchange failed (a late reply of an interrupted one in the way).
 HOLD_ATTEMPTS: Final = 3
+#: The longest :func:`drain` (in the link's latencies, :attr:`DynamixelBus.latency_s`): the
+#: replies to an exchange cut short are all in by then.
+DRAIN_LATENCIES: Final = 3
 #: How hard a stepper node brakes towards a goal (rad/s² at the joint): its
 #: ``acceleration_limit`` at power-up, which this library leaves as it is.
 STEPPER_BRAKING_RAD_S2: Final = (STEPPER_TABLE["acceleration_limit"].default * 2 * pi
@@ -188,10 +191,14 @@ def motor_speeds(state: ArmState, before: ArmState | None,
 
 def drain(arm: CyclingArm) -> None:
     """Drop what the bus still carries: replies to an exchange cut short, arriving until
-    nothing more comes for the link's latency (at least 2 ms)."""
+    nothing more comes for the link's latency (at least 2 ms), for at most
+    :data:`DRAIN_LATENCIES` latencies: a line another program keeps busy (a monitor polling
+    the joints on its own adapter) is never quiet that long, and what it carries after the
+    replies due have come is that program's, which the hold's reads skip."""
     transport = arm.transport
     quiet = max(arm.bus.latency_s, 0.002)
-    while transport.recv(quiet):
+    end = transport.now() + DRAIN_LATENCIES * quiet
+    while transport.recv(min(quiet, end - transport.now())) and transport.now() < end:
         pass
 
 

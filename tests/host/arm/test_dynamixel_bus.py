@@ -4,6 +4,7 @@ error bits; golden bytes of the arm's cycle packets (written by hand)."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import pytest
 from hypothesis import given
@@ -11,6 +12,7 @@ from hypothesis import strategies as st
 
 from host.arm.bus import REPLY_GAP_S, DynamixelBus, DynamixelNodeError, Expect
 from host.arm.facade import Arm
+from host.arm.hold import DRAIN_LATENCIES, drain
 from host.arm.state import JointInfo
 from host.errors import NodeError, ReplyTimeout
 from host.transports.base import Transport
@@ -287,3 +289,62 @@ def test_another_programs_read_heard_as_a_refusal_gives_way_to_the_nodes_answer(
     heard before node 1's own 2-byte answer: the answer is taken, nothing raised."""
     bus = bus_on([[(40e-6, READ_1_MODEL), (120e-6, STATUS_1_MODEL)]], retries=0)
     assert bus.read(1, 0, 2) == b"\x40\x00"
+
+
+# BULK_READ of 2 bytes at address 0 of ids 1 and 2:
+# ~(FE+09+92+00+02+01+00+02+02+00) = ~0x1A0 -> ~0xA0 = 5F
+BULK_READ_1_2 = bytes.fromhex("FFFFFE0992000201000202005F")
+# The same of id 2 alone: ~(FE+06+92+00+02+02+00) = ~0x19A -> ~0x9A = 65
+BULK_READ_2 = bytes.fromhex("FFFFFE069200020200" + "65")
+
+
+def test_a_bulk_read_missing_a_reply_asks_again_only_the_node_that_did_not_answer() -> None:
+    """Another program's READ collided with node 2's reply (garbage where it was): the
+    repeat is a BULK_READ of node 2 alone, and node 1's reply is kept."""
+    garbage = bytes.fromhex("9a7bbefdda7fcc13")
+    bus = bus_on([[(100e-6, STATUS_1_MODEL), (200e-6, garbage)], [(100e-6, STATUS_2_MODEL)]])
+    replies = bus.bulk_read([(2, 1, 0), (2, 2, 0)])
+    assert [s.id for s in replies.values()] == [1, 2]
+    assert [raw for _, raw in bus.transport.sent] == [BULK_READ_1_2, BULK_READ_2]  # type: ignore[attr-defined]
+    assert bus.stats.retries == 1
+
+
+def test_a_repeat_that_brings_replies_does_not_use_up_the_retries() -> None:
+    """With no retries left, a repeat still goes out while each brings a reply: three
+    nodes, one reply an attempt, each of the others lost to a collision."""
+    status_3 = bytes.fromhex("FFFF0304004000B8")  # ~(03+04+00+40) = ~0x47 = B8
+    bus = bus_on([[(100e-6, STATUS_1_MODEL)], [(100e-6, STATUS_2_MODEL)],
+                  [(100e-6, status_3)]], retries=0)
+    replies = bus.bulk_read([(2, 1, 0), (2, 2, 0), (2, 3, 0)])
+    assert sorted(replies) == [1, 2, 3]
+    with pytest.raises(ReplyTimeout, match=r"node\(s\) 2"):  # no reply at all: no repeat
+        bus_on([[(100e-6, STATUS_1_MODEL)]], retries=0).bulk_read([(2, 1, 0), (2, 2, 0)])
+
+
+def test_replies_are_taken_by_their_id_whatever_their_order() -> None:
+    bus = bus_on([[(100e-6, STATUS_2_MODEL), (200e-6, STATUS_1_MODEL)]], retries=0)
+    assert sorted(bus.bulk_read([(2, 1, 0), (2, 2, 0)])) == [1, 2]
+
+
+class ChattyLine(ScriptedTransport):
+    """A line another program keeps busy: a frame every 20 ms, forever."""
+
+    frames = 0
+
+    def _recv(self, timeout: float | None) -> bytes:
+        due = (self.frames + 1) * 0.02
+        if timeout is not None and self.t + timeout < due:
+            self.t += timeout
+            return b""
+        self.frames += 1
+        self.t = max(self.t, due)
+        return READ_1_MODEL
+
+
+def test_the_hold_drops_what_the_line_carries_for_a_bounded_time_however_busy_it_is() -> None:
+    """A monitor polling every 20 ms never leaves the line quiet for the serial latency
+    (100 ms): the drain before a hold ends after DRAIN_LATENCIES of it, not never."""
+    transport = ChattyLine([])
+    arm = SimpleNamespace(transport=transport, bus=SimpleNamespace(latency_s=0.1))
+    drain(arm)  # type: ignore[arg-type]
+    assert transport.now() == pytest.approx(DRAIN_LATENCIES * 0.1, abs=0.021)
