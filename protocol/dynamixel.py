@@ -638,14 +638,16 @@ def rpm_to_rx64_speed(rpm: float) -> int:
     return min(max(round(abs(rpm) / RX64_RPM_PER_UNIT), 1), 0x3FF)
 
 
-def _signed_by_bit10(value: int) -> int:
+def signed_by_direction_bit(value: int) -> int:
+    """A sign-and-magnitude register's value (0..2047, bit 10 = clockwise: the RX-64's present
+    speed and load) as a signed number of its units, counter-clockwise > 0."""
     magnitude = value & 0x3FF
     return -magnitude if value & _DIRECTION_BIT else magnitude
 
 
 def rx64_present_speed_to_rad_s(value: int) -> float:
     """Present-speed register (0..2047, bit 10 = clockwise) -> rad/s, counter-clockwise > 0."""
-    return _signed_by_bit10(value) * RX64_RPM_PER_UNIT * 2 * math.pi / 60
+    return signed_by_direction_bit(value) * RX64_RPM_PER_UNIT * 2 * math.pi / 60
 
 
 def rad_s_to_rx64_present_speed(speed: float) -> int:
@@ -657,7 +659,7 @@ def rad_s_to_rx64_present_speed(speed: float) -> int:
 def rx64_load_to_fraction(value: int) -> float:
     """Present-load register (0..2047, bit 10 = clockwise) -> signed fraction of maximum
     torque in [-1, 1] (1023 = 100 %); counter-clockwise load is positive."""
-    return _signed_by_bit10(value) / 0x3FF
+    return signed_by_direction_bit(value) / 0x3FF
 
 
 def fraction_to_rx64_load(fraction: float) -> int:

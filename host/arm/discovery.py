@@ -9,7 +9,7 @@ whose firmware predates the cycle block :class:`~host.arm.facade.Arm` reads.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Final
 
 from host.arm.bus import ARM_BUS_BAUD, DEFAULT_RETRIES, DynamixelBus
 from host.arm.state import (
@@ -29,6 +29,10 @@ from protocol.control_tables import (
 )
 
 _S = STEPPER_TABLE
+#: The head of every node's table that discovery reads: model, firmware, id, baud, return
+#: delay (the same addresses in both tables).
+_HEAD_END: Final = _S["return_delay_time"].end
+assert RX64_TABLE["return_delay_time"].end == _HEAD_END
 
 
 def open_arm_transport(url: str) -> Transport:
@@ -64,7 +68,9 @@ def discover(bus: DynamixelBus,
         except ReplyTimeout as exc:
             raise ReplyTimeout(f"{JOINT_NAMES[joint]} (bus ID {dxl_id}) does not answer: {exc}"
                                f"; a scan lists the IDs that do (armctl scan)") from exc
-        head = bus.read(dxl_id, 0, 3)
+        # model, firmware, and the id, baud and return delay it holds: a recording of
+        # this session then shows what an earlier program left in register 5
+        head = bus.read(dxl_id, 0, _HEAD_END)
         model, firmware = int.from_bytes(head[:2], "little"), head[2]
         table = TABLES_BY_MODEL.get(model)
         if table is not want:

@@ -25,10 +25,13 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from tools.errors import ReplayRefused
-from tools.hil_bench.replay.exchanges import Exchange
+from tools.hil_bench.replay.exchanges import REPLY_US, Exchange
 
 #: A channel's tolerance when none is given (its unit's: counts, rad, µs …).
 DEFAULT_TOLERANCE: Final = 0.0
+#: The hand boards' clocks in their status (µs since the board's power-up,
+#: :mod:`protocol.messages.fmcb`): over a port only their increments compare.
+BOARD_CLOCKS: Final = ("fmcb_time", "pp_time", "dp_time")
 #: Relative slack on a tolerance, for numbers that went through decimal text (times).
 _SLACK: Final = 1e-9
 
@@ -90,14 +93,18 @@ def channel_names(exchanges: Iterable[Exchange]) -> set[str]:
     return {f"{ex.prefix}.{name}" for ex in exchanges for name in ex.values()}
 
 
+def matches(name: str, pattern: str) -> bool:
+    """Whether a tolerance's CHANNEL ``pattern`` names channel ``name`` (module doc)."""
+    return name == pattern or fnmatch.fnmatchcase(name, pattern) or name.endswith("." + pattern)
+
+
 def tolerances_for(names: Iterable[str], given: Sequence[tuple[str, float]]) -> dict[str, float]:
     """Each channel's tolerance from ``given`` (CHANNEL, VALUE) pairs (module doc);
     :class:`ReplayRefused` naming a CHANNEL that matches none of ``names``."""
     names = sorted(names)
     out = dict.fromkeys(names, DEFAULT_TOLERANCE)
     for pattern, value in given:
-        matched = [n for n in names if n == pattern or fnmatch.fnmatchcase(n, pattern)
-                   or n.endswith("." + pattern)]
+        matched = [n for n in names if matches(n, pattern)]
         if not matched:
             raise ReplayRefused(f"unknown channel {pattern!r}: the recording has none of "
                                 f"that name (e.g. {', '.join(names[:3])})")
@@ -128,3 +135,34 @@ def compare(recorded: Iterable[Exchange], replayed: Iterable[Exchange],
             channel.recorded.append(value)
             channel.replayed.append(others[name])
     return channels
+
+
+def over_a_port(channels: Mapping[str, Channel], given: Sequence[tuple[str, float]]
+                ) -> tuple[dict[str, Channel], list[str]]:
+    """The channels of a recording made over a port as they can be compared, and a note
+    for each change: ``reply_us`` left out unless a tolerance in ``given`` names it (the
+    adapter's and the operating system's latency, not the robot's), and each board clock
+    (:data:`BOARD_CLOCKS`) compared from its first sample (the recorded robot had been on
+    for an unknown time)."""
+    out: dict[str, Channel] = {}
+    notes: list[str] = []
+    dropped = 0
+    for name, channel in channels.items():
+        field_name = name.rsplit(".", 1)[-1]
+        if field_name == REPLY_US and not any(matches(name, p) for p, _ in given):
+            dropped += 1
+            continue
+        if field_name in BOARD_CLOCKS and channel.recorded:
+            r0, p0 = channel.recorded[0], channel.replayed[0]
+            channel = Channel(name, channel.tolerance, channel.t,
+                              [v - r0 for v in channel.recorded],
+                              [v - p0 for v in channel.replayed])
+        out[name] = channel
+    if dropped:
+        notes.append(f"{dropped} reply_us channels not compared: over a port a reply's time is "
+                     "the adapter's and the operating system's as much as the robot's (give "
+                     "--tolerance reply_us=… to compare them)")
+    if any(n.rsplit(".", 1)[-1] in BOARD_CLOCKS for n in out):
+        notes.append("the boards' clocks (" + ", ".join(BOARD_CLOCKS) + ") compared from their "
+                     "first sample: the recorded robot had been on for a while")
+    return out, notes

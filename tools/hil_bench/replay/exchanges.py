@@ -37,6 +37,7 @@ from protocol.dynamixel import (
     StatusPacket,
     parse_bulk_read,
     parse_read,
+    signed_by_direction_bit,
 )
 from protocol.errors import ProtocolError
 from protocol.framing import Frame
@@ -49,6 +50,9 @@ from tools.hil_bench.replay.source import Timed
 REPLIED: Final = "replied"
 #: The reply's time after its request (µs).
 REPLY_US: Final = "reply_us"
+#: The RX-64's registers whose bit 10 is a direction (clockwise), compared as signed numbers:
+#: a speed through zero is a step of a unit or two, not of 1024.
+SIGN_AND_MAGNITUDE: Final = frozenset({"present_speed", "present_load"})
 _JOINT_BY_ID: Final = {j.dxl_id: j.name for j in ARM_JOINTS}
 
 
@@ -103,7 +107,10 @@ def _registers(dxl_id: int, address: int | None, length: int, params: bytes
     for register in table:
         start = register.address - address
         if start >= 0 and start + register.size <= length:
-            out[register.name] = float(register.decode(params[start:start + register.size]))
+            value = register.decode(params[start:start + register.size])
+            if register.name in SIGN_AND_MAGNITUDE:
+                value = signed_by_direction_bit(value)
+            out[register.name] = float(value)
     return out
 
 
@@ -143,11 +150,12 @@ def arm_exchanges(tx: Iterable[Timed], rx: Iterable[Timed]) -> list[Exchange]:
 
 
 def _newest(pending: Sequence[Exchange], t: float) -> Exchange | None:
-    """The newest unanswered request in ``pending`` sent at or before ``t`` (the first of
-    several sent together), or None."""
+    """The newest unanswered request in ``pending`` sent before ``t`` (the first of several
+    sent together), or None.  Strictly before: in process a host sends its next request at
+    the very instant it took the reply to the last, and that reply is the last's."""
     best: Exchange | None = None
     for ex in pending:
-        if ex.fields is None and ex.t <= t and (best is None or ex.t > best.t):
+        if ex.fields is None and ex.t < t and (best is None or ex.t > best.t):
             best = ex
     return best
 

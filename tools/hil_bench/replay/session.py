@@ -13,10 +13,18 @@ from pathlib import Path
 from hil_emulator.emulator import Emulator
 from hil_emulator.errors import EmulatorError
 from host.errors import UsageError
+from protocol.dynamixel import InstructionPacket
 from tools.errors import ReplayRefused
-from tools.hil_bench.replay.compare import Channel, channel_names, compare, tolerances_for
+from tools.hil_bench.replay.compare import (
+    Channel,
+    channel_names,
+    compare,
+    over_a_port,
+    tolerances_for,
+)
 from tools.hil_bench.replay.drive import answers
 from tools.hil_bench.replay.exchanges import PAIRING, Exchange
+from tools.hil_bench.replay.prelude import SETTLE_S, held_by, rebuild, start_values, writes
 from tools.hil_bench.replay.source import Recorded, load, merge
 
 
@@ -68,6 +76,18 @@ def recorded_exchanges(recording: Recorded) -> list[Exchange]:
     return out
 
 
+def start_writes(recording: Recorded, recorded: Sequence[Exchange], emulator: Emulator
+                 ) -> list[tuple[str, InstructionPacket]]:
+    """For a recording made over a port, the writes that give ``emulator``'s arm nodes the
+    registers the recording found them with (:mod:`.prelude`); none for an ``emu://`` one
+    (its link's earlier use is in it) or without an arm link."""
+    traffic = next((t for t in recording.links.values() if t.kind == "arm"), None)
+    if recording.emulated or traffic is None:
+        return []
+    arm = [ex for ex in recorded if ex.prefix.startswith("arm.")]
+    return writes(start_values(arm, traffic.tx), held_by(emulator, traffic.link))
+
+
 def replay_channels(recording: Recorded, emulator: Emulator,
                     tolerances: Mapping[str, float] | None = None,
                     recorded: Sequence[Exchange] | None = None
@@ -79,9 +99,16 @@ def replay_channels(recording: Recorded, emulator: Emulator,
     if recorded is None:
         recorded = recorded_exchanges(recording)
     start_us = emulator.scheduler.now_us()
+    if not recording.emulated:  # the robot as the recording found it (prelude)
+        for traffic in recording.links.values():
+            if traffic.kind == "arm":
+                rebuild(emulator, traffic.link, start_writes(recording, recorded, emulator))
+                break
+        else:
+            emulator.step(int(SETTLE_S * 1e6))
     sent = {traffic.link: traffic.sent() for traffic in recording.links.values()}
     first = min(m.t for messages in sent.values() for m in messages)
-    shift = 0.0 if recording.emulated else start_us / 1e6 - first
+    shift = 0.0 if recording.emulated else emulator.scheduler.now_us() / 1e6 - first
     got = answers(emulator, sent, shift_s=shift)
     replayed = [ex for traffic in recording.links.values()
                 for ex in PAIRING[traffic.kind](traffic.tx, got[traffic.link])]
@@ -108,13 +135,19 @@ def replay(path: str | Path | Sequence[str | Path], *,
     cpu0 = time.process_time()
     emulator = emulator_factory(recording)
     try:
+        restored = start_writes(recording, recorded, emulator)
         channels, sim_s = replay_channels(recording, emulator, limits, recorded)
     finally:
         emulator.close()
-    result = ReplayResult(recording, channels, sim_s, time.process_time() - cpu0,
-                          len(recorded))
+    notes: list[str] = []
     if not recording.emulated and recording.links:
-        result.notes.append("the recording's clock is not the emulator's: its times were "
-                            "shifted so its first host message went out once the emulator "
-                            "was ready")
-    return result
+        notes.append(f"the recording's clock is not the emulator's: its times were shifted so "
+                     f"its first host message went out {SETTLE_S:g} s after the emulator was "
+                     f"ready")
+        if restored:
+            notes.append("the robot as the recording found it, written before the replay (its "
+                         "replies showed it): " + ", ".join(what for what, _ in restored))
+        channels, more = over_a_port(channels, tolerances)
+        notes += more
+    return ReplayResult(recording, channels, sim_s, time.process_time() - cpu0,
+                        len(recorded), notes)
