@@ -89,6 +89,8 @@ LISTEN_MAX_S: Final = 0.02
 #: repeat asks only the missing and one that brings replies is not counted: see
 #: :meth:`DynamixelBus.exchange`).  A node that is gone costs six deadlines.
 DEFAULT_RETRIES: Final = 5
+#: Writes of a setting read back and made again (:meth:`DynamixelBus.sync_write_confirmed`).
+CONFIRM_ATTEMPTS: Final = 5
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
                          | ErrorBit.CHECKSUM)
@@ -416,6 +418,24 @@ class DynamixelBus:
     def sync_write(self, address: int, length: int, data: Mapping[int, bytes]) -> None:
         """SYNC_WRITE ``length`` bytes at ``address`` of every node in ``data`` (no reply)."""
         self.exchange([make_sync_write(address, length, data)])
+
+    def sync_write_confirmed(self, address: int, length: int, data: Mapping[int, bytes],
+                             attempts: int = CONFIRM_ATTEMPTS) -> None:
+        """SYNC_WRITE ``data`` as :meth:`sync_write`, then read it back from every node (one
+        BULK_READ) and write again to those that do not hold it, up to ``attempts`` times:
+        for a setting that must not be lost (a SYNC_WRITE has no reply, and another
+        program's frame colliding with it loses it without a word).  Raises
+        :class:`~host.errors.NodeError` naming the nodes that still do not hold it."""
+        pending = dict(data)
+        for _ in range(max(attempts, 1)):
+            self.sync_write(address, length, pending)
+            held = self.bulk_read([(length, i, address) for i in pending])
+            pending = {i: v for i, v in pending.items() if held[i].params != v}
+            if not pending:
+                return
+        raise NodeError(f"node(s) {', '.join(map(str, sorted(pending)))} did not take the "
+                        f"write at address {address} after {attempts} attempts (another "
+                        f"program on the bus colliding with it?)")
 
     def bulk_read(self, entries: Sequence[tuple[int, int, int]]) -> dict[int, StatusPacket]:
         """BULK_READ ``(length, id, address)`` entries; the status packets by ID."""

@@ -361,8 +361,8 @@ class Arm:
             raise UsageError(f"watchdog timeout {timeout_ms} outside {low}..{high} ms")
         nodes = {j.dxl_id: reg.encode(timeout_ms) for j in self.steppers
                  if j.firmware_version >= STEPPER_WATCHDOG_FIRMWARE}
-        if nodes:
-            self.bus.sync_write(reg.address, reg.size, nodes)
+        if nodes:  # read back: a collision loses a SYNC_WRITE silently
+            self.bus.sync_write_confirmed(reg.address, reg.size, nodes)
         self.watchdog_s = timeout_ms / 1000
 
     def stream_goals(self) -> None:
@@ -384,10 +384,12 @@ class Arm:
         self.wire.keep_alive_ids = frozenset(ids)
 
     def _write_feed(self, values: dict[int, bytes]) -> None:
-        """SYNC_WRITE ``watchdog_feed`` (bus ID -> its byte); the cycles' keep-alives go to
-        the nodes left on goals only."""
+        """SYNC_WRITE ``watchdog_feed`` (bus ID -> its byte), read back until the nodes hold
+        it (another program's frame colliding with the write loses it without a word: left
+        on any instruction, a node would let that program's READs drive a dead host's
+        goals on); the cycles' keep-alives go to the nodes left on goals only."""
         reg = _S["watchdog_feed"]
-        self.bus.sync_write(reg.address, reg.size, values)
+        self.bus.sync_write_confirmed(reg.address, reg.size, values)
         self.wire.keep_alive_ids = frozenset(
             i for i, v in values.items() if v[0] == int(WatchdogFeed.GOALS_ONLY))
 

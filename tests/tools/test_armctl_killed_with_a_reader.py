@@ -118,10 +118,19 @@ def held(figures: dict[str, Any]) -> bool:
 
 
 def back_to_start(port: str) -> None:
-    """The move back to START (its own clean session; exit 0 or 3, not settled)."""
-    subprocess.run([sys.executable, "-m", "tools.cli.armctl", "--port", port, "clear"],
-                   cwd=ROOT, env=_ENV, capture_output=True, timeout=120)
-    assert armctl(port, "move", "--joints", *START, "--duration", "5")[0] in (0, 3)
+    """The move back to START (its own clean session; exit 0 or 3, not settled).  Not what
+    is judged: on a machine busy with other tests the 5 s move back from near the stops
+    twice latched J4 STALLED (the node held, exit 1); then the latch is cleared and the move
+    made again over 10 s."""
+    for duration in ("5", "10"):
+        subprocess.run([sys.executable, "-m", "tools.cli.armctl", "--port", port, "clear"],
+                       cwd=ROOT, env=_ENV, capture_output=True, timeout=120)
+        back = subprocess.run([sys.executable, "-m", "tools.cli.armctl", "--port", port,
+                               "move", "--joints", *START, "--duration", duration], cwd=ROOT,
+                              env=_ENV, capture_output=True, text=True, timeout=120)
+        if back.returncode in (0, 3):
+            return
+    raise AssertionError(f"the move back to the start failed twice: {back.stderr}")
 
 
 def start_reader(port: str) -> subprocess.Popen[str]:

@@ -115,7 +115,8 @@ def test_without_the_rebuilt_state_the_same_replay_parts_at_its_first_exchanges(
     monkeypatch.setattr(session, "start_writes", lambda *args: [])
     channels = _replayed(found_powered)
     parted = {n.rsplit(".", 1)[-1] for n, c in channels.items() if not c.within}
-    assert {"replied", "torque_enable"} <= parted, parted
+    # the first PING's reply, 0.5 ms late, collides with the next request: replies lost
+    assert "replied" in parted, parted
 
 
 def test_a_board_clock_over_a_port_compares_from_its_first_sample() -> None:

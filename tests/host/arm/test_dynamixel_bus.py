@@ -348,3 +348,24 @@ def test_the_hold_drops_what_the_line_carries_for_a_bounded_time_however_busy_it
     arm = SimpleNamespace(transport=transport, bus=SimpleNamespace(latency_s=0.1))
     drain(arm)  # type: ignore[arg-type]
     assert transport.now() == pytest.approx(DRAIN_LATENCIES * 0.1, abs=0.021)
+
+
+# SYNC_WRITE of 1 byte at 102 (watchdog_feed): id 1 -> 1: ~(FE+06+83+66+01+01+01) = ~0x1F0
+# -> 0F; its read-back, BULK_READ of 1 byte at 102 of id 1: ~(FE+06+92+00+01+01+66) = ~0x1FE
+# -> 01; node 1's answers: the old value 0 (~(01+03+00+00) = FB) and the new 1 (FA)
+SYNC_FEED_1 = bytes.fromhex("FFFFFE0683660101010F")
+READ_FEED_1 = bytes.fromhex("FFFFFE06920001016601")
+FEED_0, FEED_1 = bytes.fromhex("FFFF01030000FB"), bytes.fromhex("FFFF01030001FA")
+
+
+def test_a_setting_lost_to_a_collision_is_read_back_and_written_again() -> None:
+    bus = bus_on([[], [(100e-6, FEED_0)], [], [(100e-6, FEED_1)]])
+    bus.sync_write_confirmed(102, 1, {1: b"\x01"})
+    assert [raw for _, raw in bus.transport.sent] == [  # type: ignore[attr-defined]
+        SYNC_FEED_1, READ_FEED_1, SYNC_FEED_1, READ_FEED_1]
+
+
+def test_a_setting_never_taken_is_an_error_naming_the_node() -> None:
+    bus = bus_on([[], [(100e-6, FEED_0)]] * 3)
+    with pytest.raises(NodeError, match=r"node\(s\) 1 did not take the write at address 102"):
+        bus.sync_write_confirmed(102, 1, {1: b"\x01"}, attempts=3)
