@@ -42,6 +42,7 @@ registers a moment apart, when both read the same block.
 
 from __future__ import annotations
 
+import random
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final
@@ -89,8 +90,12 @@ LISTEN_MAX_S: Final = 0.02
 #: repeat asks only the missing and one that brings replies is not counted: see
 #: :meth:`DynamixelBus.exchange`).  A node that is gone costs six deadlines.
 DEFAULT_RETRIES: Final = 5
-#: Writes of a setting read back and made again (:meth:`DynamixelBus.sync_write_confirmed`).
+#: Writes of a setting read back and made again (:meth:`DynamixelBus.sync_write_confirmed`),
+#: each repeat after a random pause of up to CONFIRM_BACKOFF_S (s): a poller on its own
+#: adapter sends its next READ as soon as it has taken one of the read-back's replies for
+#: its own, and a write sent at once would meet it every time.
 CONFIRM_ATTEMPTS: Final = 5
+CONFIRM_BACKOFF_S: Final = 0.02
 #: Error bits meaning "the request was refused"; the rest are alarms (see the module docs).
 REQUEST_ERRORS: Final = (ErrorBit.INSTRUCTION | ErrorBit.RANGE | ErrorBit.ANGLE_LIMIT
                          | ErrorBit.CHECKSUM)
@@ -185,6 +190,8 @@ class DynamixelBus:
         self._due: tuple[float, int] | None = None
         #: The last reply of the wrong length an exchange heard, and the length expected.
         self._misfit: tuple[StatusPacket, int] | None = None
+        #: The pauses before a confirmed write's repeats (:data:`CONFIRM_BACKOFF_S`).
+        self._backoff = random.Random()
 
     # ------------------------------------------------------------------ timing
 
@@ -427,7 +434,9 @@ class DynamixelBus:
         program's frame colliding with it loses it without a word).  Raises
         :class:`~host.errors.NodeError` naming the nodes that still do not hold it."""
         pending = dict(data)
-        for _ in range(max(attempts, 1)):
+        for attempt in range(max(attempts, 1)):
+            if attempt:  # out of step with a poller that answers the read-back's replies
+                self.transport.sleep(self._backoff.uniform(0.0, CONFIRM_BACKOFF_S))
             self.sync_write(address, length, pending)
             held = self.bulk_read([(length, i, address) for i in pending])
             pending = {i: v for i, v in pending.items() if held[i].params != v}

@@ -22,6 +22,8 @@ import pytest
 
 BIN = Path(sys.executable).parent
 TICK_S = 1 / os.sysconf("SC_CLK_TCK")
+#: A child asleep this long (s, wall clock) without using CPU is waiting, its start-up over.
+WAITING_S = 2.0
 
 
 def _stat(pid: int) -> tuple[str, float]:
@@ -51,8 +53,15 @@ def interrupt(command: list[str], cpu_s: float, after_handler: bool = True) -> t
             time.sleep(0.001)  # a poll, not a bound: leave the CPU to the child
         state, start = _stat(proc.pid)
         cpu = start
+        # a child whose start-up took less CPU than asked (a warm cache, the compiled core)
+        # ends it waiting on the port: its CPU stops growing, and the SIGINT lands there
+        idle_since, last = time.monotonic(), cpu
         while state != "Z" and cpu < start + cpu_s:
             state, cpu = _stat(proc.pid)
+            if cpu != last:
+                idle_since, last = time.monotonic(), cpu
+            elif state == "S" and time.monotonic() - idle_since > WAITING_S:
+                break
             time.sleep(0.001)
         assert state != "Z", f"{command[0]} ended before the SIGINT: {proc.communicate()}"
         proc.send_signal(signal.SIGINT)
