@@ -117,6 +117,19 @@ def held(figures: dict[str, Any]) -> bool:
             and figures["rest_s"] <= REST_S)
 
 
+def set_up(port: str, *args: str) -> None:
+    """``armctl ARGS`` before the kills (not what is judged), tried twice: on a machine
+    overloaded by other work the first ``torque on`` once exited 1; the error is kept in
+    the message."""
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-m", "tools.cli.armctl", "--port", port,
+                               *args], cwd=ROOT, env=_ENV, capture_output=True, text=True,
+                              timeout=180)
+        if done.returncode == 0:
+            return
+    raise AssertionError(f"armctl {' '.join(args)} failed twice: {done.stderr}")
+
+
 def back_to_start(port: str) -> None:
     """The move back to START (its own clean session; exit 0 or 3, not settled).  Not what
     is judged: on a machine busy with other tests the 5 s move back from near the stops
@@ -157,8 +170,8 @@ def test_armctl_killed_at_ten_moments_with_a_reader_on_the_bus_leaves_the_arm_he
         assert port == info["arm"]
         reader = start_reader(reader_port)  # for the whole run, homing and moves too
         try:
-            assert armctl(port, "torque", "on")[0] == 0
-            assert armctl(port, "home")[0] == 0
+            set_up(port, "torque", "on")
+            set_up(port, "home")
             back_to_start(port)
             rng = random.Random(41)
             runs = []
