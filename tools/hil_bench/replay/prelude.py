@@ -30,7 +30,10 @@ from protocol.dynamixel import (
     Instruction,
     InstructionPacket,
     make_write,
+    parse_sync_write,
+    parse_write,
 )
+from protocol.errors import DynamixelError
 from protocol.topology import ARM_JOINTS, ARM_MODEL_BY_ID
 from tools.hil_bench.replay.exchanges import Exchange
 from tools.hil_bench.replay.source import Timed
@@ -62,13 +65,17 @@ def first_writes(tx: Iterable[Timed]) -> dict[tuple[int, int], float]:
 
 
 def _written(packet: InstructionPacket) -> list[tuple[int, int, int]]:
-    """(bus ID, address, bytes) that ``packet`` writes."""
-    params = packet.params
-    if packet.instruction in (Instruction.WRITE, Instruction.REG_WRITE) and params:
-        return [(packet.id, params[0], len(params) - 1)]
-    if packet.instruction == Instruction.SYNC_WRITE and len(params) >= 2:
-        address, size = params[0], params[1]
-        return [(params[i], address, size) for i in range(2, len(params) - size, size + 1)]
+    """(bus ID, address, bytes) that ``packet`` writes (none for a packet that does not
+    parse)."""
+    try:
+        if packet.instruction in (Instruction.WRITE, Instruction.REG_WRITE):
+            address, data = parse_write(packet.params)
+            return [(packet.id, address, len(data))]
+        if packet.instruction == Instruction.SYNC_WRITE:
+            address, size, entries = parse_sync_write(packet.params)
+            return [(dxl_id, address, size) for dxl_id in entries]
+    except DynamixelError:
+        pass
     return []
 
 
