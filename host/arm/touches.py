@@ -130,7 +130,7 @@ READINGS: Final = 10
 #: about 23° four ways, so each dimple is touched in different arm configurations (the more
 #: the wrist turns between touches, the better they tell its geometry: on synthetic touches
 #: of the emulated rig, tilts of 0.25 rad left 1.0 mm mean on held-out poses, 0.4 rad
-#: 0.8 mm).
+#: 0.8-1.0 mm).
 ORIENTATIONS: Final = ((0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.0, 0.4, 0.0),
                        (-0.4, 0.0, 0.0), (0.0, -0.4, 0.0))
 #: Into the board's dimples (unit vector, base frame: its face's normal as the rig sets it
