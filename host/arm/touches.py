@@ -413,15 +413,14 @@ def touch(arm: TouchingArm, point: np.ndarray, rpy: Sequence[float],
         _between(arm, clear, rpy, geometry)
         raise TouchMissed(f"nothing felt within {PRESS_M * 1000:.0f} mm past "
                           f"{tuple(round(float(v), 3) for v in point)} m")
-    springs: Springs | None = None
     try:
         readings, springs = seat(arm, axis, geometry, flat=flat)
-    except NotSeated as exc:
-        springs = exc.springs if isinstance(exc.springs, Springs) else None
-        raise
-    finally:
-        _release(arm, springs)
+    except NotSeated as exc:  # the push off, back: anything else (Ctrl-C) leaves it held
+        _release(arm, exc.springs if isinstance(exc.springs, Springs) else None)
         _between(arm, clear, rpy, geometry)
+        raise
+    _release(arm, springs)
+    _between(arm, clear, rpy, geometry)
     return readings
 
 

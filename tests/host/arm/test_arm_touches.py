@@ -259,3 +259,34 @@ def test_the_fit_is_made_again_without_a_touch_the_others_disagree_with() -> Non
     assert fitted.dropped == 1
     assert fitted.result.board_rms_m[1] < 1e-4
     assert calibrate(data).board_rms_m[1] > 5e-4  # with it, the fit could not
+
+
+def test_ctrl_c_while_seating_leaves_the_arm_where_it_is(monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """Interrupted during the pushes, a touch moves nothing more (the push is not taken off,
+    the ball not brought back): the arm's ``with`` block holds it.  A ball that did not
+    seat is brought back."""
+    arm = _Recorder()
+    stopped = type("Stopped", (), {"stopped": True})()
+    monkeypatch.setattr(touches, "at_rest", lambda _arm: None)
+    monkeypatch.setattr(touches, "_guarded", lambda *_a: (stopped, np.zeros(N_STEPPERS)))
+
+    def interrupted(*_a: object, **_k: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(touches, "seat", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        touches.touch(arm, rig.nominal_dimples()[0], touches.ORIENTATIONS[0],  # type: ignore[arg-type]
+                      GEOMETRY, axis=touches.BOARD_AXIS)
+    assert len(arm.targets) == 1  # the approach only
+
+    def not_seated(*_a: object, **_k: object) -> None:
+        raise NotSeated("still moving")
+
+    monkeypatch.setattr(touches, "seat", not_seated)
+    monkeypatch.setattr(touches, "_release", lambda _arm, _springs: arm.targets.append(([], [])))
+    with pytest.raises(NotSeated):
+        touches.touch(arm, rig.nominal_dimples()[0], touches.ORIENTATIONS[0],  # type: ignore[arg-type]
+                      GEOMETRY, axis=touches.BOARD_AXIS)
+    clear = touches.clear_point(rig.nominal_dimples()[0], touches.ORIENTATIONS[0])
+    assert arm.targets[-2] == ([], []) and arm.targets[-1][0] == pytest.approx(list(clear))
