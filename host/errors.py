@@ -24,6 +24,7 @@ ConnectionError`` catches it where a caller does not know this library::
     ├── RecordingError(OSError)           a recording's file could not be written
     ├── CalibrationError                  a calibration's fit does not explain its readings
     └── TouchMissed                       a guarded touch felt nothing (host.arm.touches)
+        └── NotSeated                     ... or its ball did not seat in the dimple
 
 Defined here unless their constructor needs their module's data (the module is named).
 """
@@ -113,6 +114,17 @@ class CalibrationError(HostError):
 class TouchMissed(HostError):
     """A guarded move of the arm's touch calibration reached its end without feeling
     anything (:mod:`host.arm.touches`: the surface or dimple not where it was looked for)."""
+
+
+class NotSeated(TouchMissed):
+    """A touch of the arm's touch calibration felt its dimple, but the ball did not come to
+    rest at the bottom (:mod:`host.arm.touches`: each push along the dimple's axis still
+    moved it): on a wall, on the rim, outside the dimple.  ``springs``: what the springs
+    carried before the pushes (:class:`host.arm.touches.Springs`), to take the push off by."""
+
+    def __init__(self, message: str, *, springs: object = None) -> None:
+        super().__init__(message)
+        self.springs = springs
 
 
 class StallError(HostError):

@@ -35,11 +35,19 @@ DIMPLE_SLOPE_RAD: Final = math.radians(45.0)
 #: orientation (roll, pitch, yaw, rad): lying flat on the table in front of the arm.
 BOARD_ORIGIN_M: Final = (0.40, -0.06, -0.44)
 BOARD_RPY: Final = (0.0, 0.0, 0.0)
-#: The table's top (m, base frame, nominal) and the square where the probe may touch it
-#: (x, y centre and half-size, m), clear of the board.
+#: The table's top (m, base frame, nominal) and where the probe touches it: two rows of
+#: :data:`TABLE_ROW_TOUCHES` along ``x`` (centre and half-length, m), at ``y`` =
+#: ±:data:`TABLE_ROW_Y_M` either side of the board (whose dimples' mouths reach to
+#: ``|y|`` = 0.075 m): clear of it.
 TABLE_TOP_Z_M: Final = -0.50
 TABLE_TOUCH_CENTRE_XY_M: Final = (0.47, 0.0)
 TABLE_TOUCH_HALF_M: Final = 0.10
+TABLE_ROW_Y_M: Final = 0.16
+TABLE_ROW_TOUCHES: Final = 3
+#: The height (m, base frame) the ball crosses the rig at between one group of touches and
+#: the next (a board, a row of the table, an anchor): 70 mm above the board's dimples'
+#: mouths, above the anchors'.
+TRAVEL_Z_M: Final = -0.36
 #: Where the probe's ball waits before and after the touches (m, base frame, probe down):
 #: above the table's near edge, reached from the hanging arm without crossing the table.
 READY_M: Final = (0.25, 0.0, -0.45)
@@ -64,3 +72,12 @@ def nominal_dimples() -> np.ndarray:
     """Where the host expects each dimple (n×3, m, base frame): the nominal pose."""
     out: np.ndarray = np.asarray(BOARD_ORIGIN_M) + dimple_points() @ board_rotation().T
     return out
+
+
+def table_points() -> list[tuple[float, float, int]]:
+    """The table touches in order: ``(x, y, row)`` (m, base frame; row 0 or 1), one row
+    along ``x`` and back along the other, so consecutive touches of a row are neighbours."""
+    cx, cy = TABLE_TOUCH_CENTRE_XY_M
+    xs = np.linspace(cx - TABLE_TOUCH_HALF_M, cx + TABLE_TOUCH_HALF_M, TABLE_ROW_TOUCHES)
+    rows = ((0, cy - TABLE_ROW_Y_M, xs), (1, cy + TABLE_ROW_Y_M, xs[::-1]))
+    return [(float(x), float(y), row) for row, y, line in rows for x in line]

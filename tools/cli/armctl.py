@@ -57,7 +57,6 @@ from host.arm.calibration import (
     NO_CALIBRATION,
     ArmCalibrationChoice,
     arm_section,
-    calibrate,
     check,
 )
 from host.arm.facade import MOVE_DEFAULT_SPEED, Arm, host_watchdog_ms, off_goal, open_bus
@@ -65,7 +64,7 @@ from host.arm.gate import MOVE_STEPPER_SPEED_RAD_S, check_cartesian, check_finit
 from host.arm.homing import restore
 from host.arm.rest import RestWatch
 from host.arm.state import JOINT_IDS, JOINT_NAMES, N_JOINTS, ArmState
-from host.arm.touches import DEFAULT_POSES, gather
+from host.arm.touches import DEFAULT_POSES, fit, gather
 from host.errors import NodeError, RecordingError, UsageError
 from host.estimation.calibration_file import default_path as calibration_path
 from host.estimation.calibration_file import save_section
@@ -596,8 +595,8 @@ def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
                         "serial, in $LOWCOST_CALIBRATION_DIR or "
                         "~/.config/lowcost-hand/calibration)")
     p.add_argument("--poses", type=_poses, default=DEFAULT_POSES, metavar="N",
-                   help=f"board touches (each dimple in turn, the probe tilted another way "
-                        f"each round; default {DEFAULT_POSES}, at least 6)")
+                   help=f"board touches (the dimples in turn, the probe tilted another way "
+                        f"at each; default {DEFAULT_POSES}, at least 6)")
     p.add_argument("--replace-other-robot", action="store_true",
                    help="overwrite a file at --out that holds another robot's calibration")
 
@@ -636,21 +635,23 @@ def cmd_calibrate(arm: Arm, args: argparse.Namespace, out: TextIO) -> int:
               flush=True)
 
     gathered = gather(arm, args.poses, progress)
-    result = calibrate(gathered.data)
+    fitted = fit(gathered.data)  # once more without a board touch the fit says is off
+    result = fitted.result
     check(result)  # a fit gone astray is refused, never written
-    section = arm_section(result, firmware=arm.joints[0].firmware_version,
-                          touches=gathered.counts)
+    touches = {**gathered.counts, "board": gathered.counts["board"] - fitted.dropped}
+    missed = gathered.missed + fitted.dropped
+    section = arm_section(result, firmware=arm.joints[0].firmware_version, touches=touches)
     written = save_section(path, serial, ARM_SECTION, section,
                            replace_other_robot=args.replace_other_robot)
     arm.geometry = result.geometry
-    counts = ", ".join(f"{n} {k}" for k, n in gathered.counts.items())
-    text = (f"touches: {counts} ({gathered.missed} missed)\n"
+    counts = ", ".join(f"{n} {k}" for k, n in touches.items())
+    text = (f"touches: {counts} ({missed} missed)\n"
             f"board distances rms {result.board_rms_m[0] * 1000:.2f} -> "
             f"{result.board_rms_m[1] * 1000:.2f} mm, table planarity rms "
             f"{result.table_rms_m[0] * 1000:.2f} -> {result.table_rms_m[1] * 1000:.2f} mm\n"
             f"wrote {path} (robot {serial}, sections: {', '.join(written.sections)})")
     _print(out, args.json, {"path": str(path), "robot_serial": serial,
-                            "missed": gathered.missed, "arm": written.sections[ARM_SECTION]},
+                            "missed": missed, "arm": written.sections[ARM_SECTION]},
            text)
     return EXIT_OK
 

@@ -9,8 +9,8 @@ corners and a table, and drove the mean end-effector error on held-out points fr
    reached by the *built* arm's kinematics (the emulator's compiled model, the planted index
    marks and horns), its joint readings those the homed host would read (the planted reading
    offsets, the encoders' and pots' quantisation).  These touches are synthesised from the
-   emulator's ground truth, not made by guarded moves on the emulator (``armctl calibrate``
-   does not exist yet);
+   emulator's ground truth, not made by guarded moves (the solver's figures; ``--physical``
+   makes them);
 2. :func:`host.arm.calibration.calibrate` from the CAD model;
 3. **held-out error, synthetic**: touches of :data:`HELD_OUT_BOARDS` other placements, the
    flange's position from the host's kinematics (CAD, then calibrated) against the true one,
@@ -21,9 +21,10 @@ corners and a table, and drove the mean end-effector error on held-out points fr
    against the plant's flange (the optical tracker), with the true gauge likewise.
 
 5. **the physical procedure** (``--physical``): ``armctl calibrate``'s touches
-   (:func:`host.arm.touches.gather`) on the emulator's ``calibration`` scene, the fit, then
-   :data:`PHYSICAL_POSES` held-out poses, the host's readings through the CAD model and the
-   calibration against the plant's probe tip (no gauge given).  Slow: minutes per seed.
+   (:func:`host.arm.touches.gather`) on the emulator's ``calibration`` scene, its fit
+   (:func:`host.arm.touches.fit`), then :data:`PHYSICAL_POSES` held-out poses, the host's
+   readings through the CAD model and the calibration against the plant's probe tip (no
+   gauge given), and the CPU time the seed took.  Slow: 2-3 CPU minutes per seed.
 
     python -m tools.experiments.arm_calibration [--seeds 0 1 2] [--emulator] [--physical] [--json]
 """
@@ -34,6 +35,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Final
@@ -277,6 +279,8 @@ class PhysicalResult:
     after_max_mm: float
     touches: dict[str, int]
     missed: int
+    #: The process's CPU time for the seed (s): the emulator, the host, the fit.
+    cpu_s: float = 0.0
 
 
 def run_physical(seed: int, poses: int) -> PhysicalResult:
@@ -286,6 +290,7 @@ def run_physical(seed: int, poses: int) -> PhysicalResult:
     from host.arm import touches as arm_touches
     from host.arm.facade import Arm
     from protocol.robot import ARM_PROBE_TIP_M
+    cpu = time.process_time()
     emulator = Emulator("arm", seed=seed, scene="calibration")
     truth = emulator.scene_parts[0]
     rng = np.random.default_rng(100 + seed)
@@ -294,7 +299,8 @@ def run_physical(seed: int, poses: int) -> PhysicalResult:
         arm.home()
         arm.hand = False
         gathered = arm_touches.gather(arm, poses)
-        result = calibrate(gathered.data)
+        fitted = arm_touches.fit(gathered.data)
+        result = fitted.result
         aim = arm_touches.probe_geometry(arm)
         readings, tips = [], []
         for k in range(PHYSICAL_POSES):
@@ -306,8 +312,10 @@ def run_physical(seed: int, poses: int) -> PhysicalResult:
     q, t = np.array(readings), np.array(tips)
     before = np.linalg.norm(aim.tips(q) - t, axis=1) * 1000
     after = np.linalg.norm(result.geometry.with_tool(ARM_PROBE_TIP_M).tips(q) - t, axis=1) * 1000
+    touches = {**gathered.counts, "board": gathered.counts["board"] - fitted.dropped}
     return PhysicalResult(seed, float(before.mean()), float(before.max()), float(after.mean()),
-                          float(after.max()), gathered.counts, gathered.missed)
+                          float(after.max()), touches, gathered.missed + fitted.dropped,
+                          time.process_time() - cpu)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -335,7 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for p in physical:
             print(f"seed {p.seed}: CAD mean {p.before_mean_mm:.1f} max {p.before_max_mm:.1f}  →  "
                   f"calibrated mean {p.after_mean_mm:.1f} max {p.after_max_mm:.1f}  "
-                  f"(touches {p.touches}, {p.missed} missed)")
+                  f"(touches {p.touches}, {p.missed} missed; {p.cpu_s:.0f} s CPU)")
         return 0
     results = [run_seed(seed, args.emulator) for seed in args.seeds]
     if args.json:
