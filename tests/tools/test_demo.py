@@ -62,7 +62,8 @@ def test_a_failure_is_one_line_and_exit_1(monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str],
                                           tmp_path: Path) -> None:
     def broken(out: Path, seed: int, view_port: int | None = None,
-               sensors: str | None = None, profile: Path | None = None) -> tuple[bool, str]:
+               sensors: str | None = None, profile: Path | None = None,
+               arm_calibration: str | None = None) -> tuple[bool, str]:
         raise demo.DemoFailed("grasp", "no finger felt the mug")
 
     monkeypatch.setattr(demo, "run_inprocess", broken)
@@ -79,7 +80,8 @@ def test_the_demo_with_a_profile_has_its_robot_in_the_plant(
     seen: list[tuple[Path | None, float, float]] = []
 
     def opened(out: Path, seed: int, view_port: int | None = None,
-               sensors: str | None = None, profile: Path | None = None) -> tuple[bool, str]:
+               sensors: str | None = None, profile: Path | None = None,
+               arm_calibration: str | None = None) -> tuple[bool, str]:
         # what run_inprocess opens, without the demo's motions
         forget_shared_emulators()
         try:
@@ -111,6 +113,17 @@ def test_the_demo_refuses_a_profile_that_is_no_profile_in_one_line(
     assert "arm.J9.stiffness" in err[-1] and str(bad) in err[-1]
 
 
+def test_the_demo_refuses_an_arm_calibration_that_is_not_there_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nothing.json"
+    with pytest.raises(SystemExit) as exit_info:
+        command.main(["--out", str(tmp_path / "out"), "--arm-calibration", str(missing)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert str(missing) in err[-1] and "no such file" in err[-1]
+    assert not (tmp_path / "out").exists()  # refused before anything started
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_demo_lifts_the_mug_and_writes_report_and_recordings(
@@ -133,12 +146,16 @@ def test_demo_lifts_the_mug_and_writes_report_and_recordings(
     written = json.loads((tmp_path / "calibration.json").read_text())
     assert written["format"] == "lowcost-calibration"
     assert len(written["sections"]["hand"]["boards"]) == 12
+    # No arm calibration in the test's own calibration directory: the CAD model, said.
+    assert "arm: arm calibration: none (the CAD model's kinematics)" in out
     report = (tmp_path / "report.md").read_text()
     result = json.loads(report.split("```json", 1)[1].split("```", 1)[0])
     # Ground truth from the physics: lifted at least 5 cm, set down upright.
     assert result["mug"]["highest_lift_m"] >= demo.MIN_LIFT_M
     assert abs(result["mug"]["lift_m"]) <= demo.SET_DOWN_M
     assert result["flashed_nodes"] == 12 and result["contacts"]
+    assert result["arm_calibration"]["path"] is None
+    assert result["arm_calibration"]["warnings"]  # the missing file is a warning
     for png in ("arm_joints.png", "hand.png", "mug_height.png"):
         assert (tmp_path / png).stat().st_size > 1000
         assert f"]({png})" in report

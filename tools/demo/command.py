@@ -31,6 +31,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", type=Path, metavar="FILE",
                         help="a robot profile (JSON, hil-bench fit --out): the emulated "
                              "robot has its physical parameters")
+    parser.add_argument("--arm-calibration", metavar="PATH",
+                        help="the arm's calibration file (armctl calibrate's) the Cartesian "
+                             "moves use (default: this arm's, named by its serial, when there "
+                             "is one; 'none': the CAD model)")
     parser.add_argument("--realtime", action="store_true",
                         help="run against a hil-emulator subprocess through its ptys, "
                              "paced to the wall clock")
@@ -44,11 +48,13 @@ def main(argv: list[str] | None = None) -> int:
             load_profile(args.profile)  # a bad file is one line, before anything starts
         except EmulatorConfigError as exc:
             parser.error(str(exc))
+    if args.arm_calibration not in (None, "none") and not Path(args.arm_calibration).is_file():
+        parser.error(f"--arm-calibration {args.arm_calibration}: no such file")
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         ok, text = (realtime.run_realtime if args.realtime else script.run_inprocess)(
             args.out, args.seed, args.view_port if args.view else None, args.sensors,
-            args.profile)
+            args.profile, arm_calibration=args.arm_calibration)
     except DemoFailed as exc:
         ok, text = False, f"{exc.step}: {exc}"
     except KeyboardInterrupt:

@@ -113,7 +113,8 @@ def over_the_wire(ports: Mapping[str, Any], say: Callable[[str], None]) -> None:
 
 
 def run_realtime(out: Path, seed: int, view_port: int | None = None,
-                 sensors: str = DEMO_SENSORS, profile: Path | None = None) -> tuple[bool, str]:
+                 sensors: str = DEMO_SENSORS, profile: Path | None = None,
+                 arm_calibration: str | None = None) -> tuple[bool, str]:
     wall0 = time.monotonic()
     link_dir = Path(tempfile.mkdtemp(prefix="demo-links-"))
     try:
@@ -136,6 +137,7 @@ def run_realtime(out: Path, seed: int, view_port: int | None = None,
 
             demo = Demo(hand, arm, out, palm_port=ports["palm"], reopen_hand=reopen_hand)
             demo.calibrate = sensors != "ideal"
+            demo.arm_calibration = arm_calibration
             demo.wall0 = wall0
             try:
                 # steady host cycles on a busy machine, below the emulator's own priority

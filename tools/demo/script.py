@@ -170,6 +170,10 @@ class Demo:
         #: Calibrate the hand's accelerometers before homing it (the robot as built); an
         #: emulated robot with ideal sensors needs none.
         self.calibrate = True
+        #: The arm's kinematic calibration the Cartesian moves use (``armctl calibrate``'s
+        #: file): None for this arm's own file when there is one, ``"none"`` for the CAD
+        #: model, or a file's path (:meth:`host.arm.facade.Arm.load_calibration`).
+        self.arm_calibration: str | None = None
         self.mug_in_hand: MugInHand | None = None
         #: The session's hand recording (:func:`run_session`), kept on the hand when its
         #: link is opened again.
@@ -300,6 +304,11 @@ class Demo:
         calibration = arm.home()
         self.say("arm homed; index offsets (rad): "
                  + ", ".join(f"{o:+.3f}" for o in calibration.offsets[:4]))
+        chosen = arm.load_calibration(self.arm_calibration)
+        for warning in chosen.warnings:
+            self.say(f"arm: warning: {warning}")
+        self.say(f"arm: {chosen.summary()}")
+        self.log.result["arm_calibration"] = chosen.to_dict()
         homed: dict[int, bool] = {}
         hand_cal = HandCalibration(source=str(self.out / CALIBRATION_FILE))
         fits: dict[int, FingerFit] = {}
@@ -642,10 +651,11 @@ def demo_url(seed: int, sensors: str | None = None, profile: Path | None = None)
 
 
 def run_inprocess(out: Path, seed: int, view_port: int | None = None,
-                  sensors: str | None = None, profile: Path | None = None
-                  ) -> tuple[bool, str]:
+                  sensors: str | None = None, profile: Path | None = None,
+                  arm_calibration: str | None = None) -> tuple[bool, str]:
     """The demo in this process; ``sensors`` the emulator's (None: its default),
-    ``profile`` the robot's (a file; None: the nominal robot)."""
+    ``profile`` the robot's (a file; None: the nominal robot), ``arm_calibration`` as
+    :attr:`Demo.arm_calibration`."""
     from hil_emulator.inprocess import EmulatorTransport
     from hil_emulator.scene_model import MugTracker
 
@@ -663,6 +673,7 @@ def run_inprocess(out: Path, seed: int, view_port: int | None = None,
     assert isinstance(truth, MugTracker)  # the mug scene's
     demo = Demo(hand, arm, out, truth=truth, palm_port=url.format("palm"))
     demo.calibrate = sensors != "ideal"
+    demo.arm_calibration = arm_calibration
     demo.mug_in_hand = MugInHand.from_emulator(emulator, truth)
     if demo.mug_in_hand is not None:
         demo.log.truth = demo.mug_in_hand.samples
