@@ -91,10 +91,13 @@ SPREAD_FILES: Final = frozenset({
 #: The test files (relative to ``tests/``) of most CPU time outside the wall-clock group,
 #: longest first (``pytest --cpu-durations=N`` measures them): handed out before the others.
 LONG_FILES: Final = (
+    "tools/test_armctl_killed_with_a_reader.py",
     "tools/test_build_compiled.py",
-    "host/arm/test_arm_interrupt_moments.py",
-    "tools/test_hil_fuzz.py",
+    "tools/test_fit_hand.py",
     "tools/test_demo.py",
+    "tools/test_hil_fuzz.py",
+    "tools/test_bench_experiments.py",
+    "host/arm/test_arm_interrupt_moments.py",
 )
 
 

@@ -5,6 +5,7 @@ local Dask cluster."""
 from __future__ import annotations
 
 import json
+import time
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -338,6 +339,28 @@ def test_a_scheduler_that_is_not_there_is_said_before_anything_runs(
     err = capsys.readouterr().err
     assert f"--scheduler {address}: no Dask scheduler there" in err
     assert "Traceback" not in err
+
+
+def test_a_port_that_is_no_dask_scheduler_is_said_within_the_timeout(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A port that takes the connection and says nothing: Dask's client gives up after the
+    timeout, and what it leaves is collected there (its ``__del__`` once deadlocked a
+    later garbage collection for the test's whole timeout)."""
+    import socket
+
+    from tools.hil_bench import campaign
+
+    monkeypatch.setattr(campaign, "run_job", _never)
+    monkeypatch.setattr(campaign, "SCHEDULER_TIMEOUT_S", 0.5)
+    with socket.create_server(("127.0.0.1", 0)) as silent:
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        started = time.monotonic()
+        assert hil_bench.main(["run", "link_loss", "--scheduler", address]) == 2
+        waited = time.monotonic() - started
+    err = capsys.readouterr().err
+    assert f"--scheduler {address}: no Dask scheduler there" in err
+    assert "Traceback" not in err
+    assert waited < 60  # not the test's timeout: the client gave up and was collected
 
 
 def test_a_failed_action_no_assertion_checks_is_noted(

@@ -10,12 +10,16 @@ whichever ran them (only ``wall_s`` differs).
 
 from __future__ import annotations
 
+import gc
 import itertools
 import multiprocessing
+import socket
+import threading
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from hil_emulator.profile import RobotProfile
 from tools.hil_bench.runner import run_scenario
@@ -107,19 +111,63 @@ def iter_jobs(jobs: Sequence[Job], workers: int = 1, scheduler: Any = None
 SCHEDULER_TIMEOUT_S = 10.0
 
 
+def _refused(address: str) -> OSError | None:
+    """Why nothing listens at the ``tcp://HOST:PORT`` ``address`` (a refused or unreachable
+    port, said at once rather than after :data:`SCHEDULER_TIMEOUT_S`), or None: something
+    does, or the address is not a plain TCP one (Dask's own client judges those)."""
+    parts = urlsplit(address)
+    if parts.scheme != "tcp" or parts.hostname is None:
+        return None
+    try:
+        port = parts.port
+    except ValueError:
+        return None
+    if port is None:
+        return None
+    try:
+        socket.create_connection((parts.hostname, port), timeout=SCHEDULER_TIMEOUT_S).close()
+    except OSError as exc:
+        return exc
+    return None
+
+
 def connect_scheduler(address: str) -> Any:
     """A Dask client of the scheduler at ``address`` (``hil-bench run`` and ``fit``'s
     ``--scheduler``); :class:`ConnectionError` saying what to do when there is none (checked
-    before anything runs)."""
+    before anything runs).
+
+    A TCP port where nothing listens is found with a plain socket first: a
+    ``distributed.Client`` whose constructor failed is left to the garbage collector, and
+    its ``__del__`` (closing its event loop under a lock) can deadlock the thread the
+    collector happens to run in (seen: a test process hung for minutes).  What a failed
+    client leaves is collected here, at once, where no lock of its is held."""
     from dask.distributed import Client
 
-    try:
-        return Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
-    except (OSError, ValueError, TimeoutError) as exc:
-        raise ConnectionError(
-            f"--scheduler {address}: no Dask scheduler there ({exc}); start one "
-            f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
-            f"use --workers N for local processes") from None
+    why: BaseException | None = _refused(address)
+    if why is None:
+        made: list[Any] = []
+        failed: list[BaseException] = []
+
+        def make() -> None:
+            try:
+                made.append(Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s"))
+            except (OSError, ValueError, TimeoutError) as exc:
+                failed.append(exc)
+
+        # A port that takes the connection and never answers Dask's handshake holds the
+        # client's constructor whatever its timeout: given up on here, on a daemon thread.
+        maker = threading.Thread(target=make, name="dask-connect", daemon=True)
+        maker.start()
+        maker.join(2 * SCHEDULER_TIMEOUT_S + 1.0)
+        if made:
+            return made[0]
+        why = failed[0] if failed else TimeoutError(
+            f"no Dask handshake within {2 * SCHEDULER_TIMEOUT_S + 1.0:g} s")
+        gc.collect()
+    raise ConnectionError(
+        f"--scheduler {address}: no Dask scheduler there ({why}); start one "
+        f"(dask scheduler --host 127.0.0.1, and dask worker tcp://127.0.0.1:8786), or "
+        f"use --workers N for local processes")
 
 
 def comparable(result: dict[str, Any]) -> dict[str, Any]:
